@@ -1,0 +1,5 @@
+"""City model in: CityGML 1.0/2.0/3.0, CityJSON and OBJ read into one semantic ``CityModel`` mesh."""
+
+from semcityloc.citymodel.model import CityModel, ParseStats
+
+__all__ = ["CityModel", "ParseStats"]

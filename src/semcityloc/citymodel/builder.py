@@ -1,0 +1,174 @@
+"""Collect semantic polygons from any reader and turn them into one ``CityModel``.
+
+Readers call ``MeshBuilder.add_polygon`` with rings in world coordinates (float64, metric CRS) and a
+class id, or ``None`` when the source has no semantics; ``build()`` triangulates, classifies the
+unlabelled triangles from their normals (``classify_by_normals``), picks the float64 origin, subtracts it
+in float64 and only then casts the vertices to float32.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyproj
+
+from semcityloc.classes import SemanticClass
+from semcityloc.citymodel.model import CityModel, ParseStats
+from semcityloc.citymodel.triangulate import NONPLANAR_TOLERANCE_M, triangulate_polygon
+from semcityloc.errors import EmptyModelError
+
+UNLABELLED = 255
+
+# A face whose unit normal has |n_z| below this is a wall: it is within ~10 degrees of vertical.
+WALL_MAX_ABS_NZ = 0.17
+# A downward-facing face within this height of its building's lowest point is ground (the footprint).
+GROUND_HEIGHT_TOLERANCE_M = 0.5
+# Local-frame z stays absolute (origin z = 0) while the model's heights lie within this range.
+ABSOLUTE_Z_LIMIT_M = 10_000.0
+
+
+def classify_by_normals(normals: np.ndarray, min_z: np.ndarray, building_min_z: np.ndarray) -> np.ndarray:
+    """Class per face from its normal (source orientation: outward) and its height in its building.
+
+    - ``|n_z| < WALL_MAX_ABS_NZ`` (within ~10 deg of vertical) -> wall;
+    - upward (``n_z > 0``) -> roof;
+    - downward and within ``GROUND_HEIGHT_TOLERANCE_M`` of the building's lowest point -> ground;
+    - downward elsewhere (the underside of an overhang) -> wall, like OuterCeilingSurface.
+    """
+    unit = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    nz = unit[:, 2]
+    out = np.full(len(normals), SemanticClass.WALL, dtype=np.uint8)
+    up = nz >= WALL_MAX_ABS_NZ
+    down = nz <= -WALL_MAX_ABS_NZ
+    out[up] = SemanticClass.ROOF
+    out[down & (min_z <= building_min_z + GROUND_HEIGHT_TOLERANCE_M)] = SemanticClass.GROUND
+    return out
+
+
+class MeshBuilder:
+    """Accumulates triangulated polygons; one per reader call."""
+
+    def __init__(self, stats: ParseStats | None = None):
+        self.stats = stats if stats is not None else ParseStats()
+        self._points: list[np.ndarray] = []
+        self._tris: list[np.ndarray] = []
+        self._meta: list[tuple[int, int, int, int]] = []  # pending polygons: (n_tris, class, building, lod)
+        self._attr_chunks: list[np.ndarray] = []  # (n, 3) per-triangle class, building, lod
+        self._n_points = 0
+        self._building_index: dict[str, int] = {}
+
+    def building(self, building_id: str) -> int:
+        """Index of a building id, registering it on first use."""
+        idx = self._building_index.get(building_id)
+        if idx is None:
+            idx = self._building_index[building_id] = len(self._building_index)
+        return idx
+
+    @property
+    def building_ids(self) -> list[str]:
+        return list(self._building_index)
+
+    def add_polygon(
+        self,
+        exterior: np.ndarray,
+        interiors: list[np.ndarray] | tuple = (),
+        semantic: int | None = None,
+        building_id: str = "",
+        lod: int = 0,
+    ) -> bool:
+        """Triangulate and keep one polygon (world coordinates). Returns False if it was skipped."""
+        self.stats.polygons += 1
+        tri = triangulate_polygon(exterior, interiors)
+        if tri is None:
+            self.stats.degenerate_polygons += 1
+            return False
+        if tri.planarity_m > NONPLANAR_TOLERANCE_M:
+            self.stats.nonplanar_polygons += 1
+        if semantic is None:
+            self.stats.classified_by_normal += 1
+            semantic = UNLABELLED
+        self._points.append(tri.points)
+        self._tris.append(tri.triangles + self._n_points)
+        self._n_points += len(tri.points)
+        self._meta.append((len(tri.triangles), int(semantic), self.building(building_id), int(lod)))
+        return True
+
+    def add_mesh(
+        self,
+        points: np.ndarray,
+        triangles: np.ndarray,
+        semantic: np.ndarray,
+        building: np.ndarray,
+        lod: int,
+    ) -> None:
+        """Add an already triangulated mesh (OBJ): ``semantic`` per triangle, UNLABELLED where unknown."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        self._points.append(points)
+        self._tris.append(triangles + self._n_points)
+        self._n_points += len(points)
+        self._flush()
+        attrs = np.empty((len(triangles), 3), dtype=np.int64)
+        attrs[:, 0] = np.asarray(semantic).reshape(-1)
+        attrs[:, 1] = np.asarray(building).reshape(-1)
+        attrs[:, 2] = lod
+        self._attr_chunks.append(attrs)
+
+    def _flush(self) -> None:
+        """Expand the pending per-polygon attributes into per-triangle rows."""
+        if self._meta:
+            meta = np.array(self._meta, dtype=np.int64)
+            self._attr_chunks.append(np.repeat(meta[:, 1:], meta[:, 0], axis=0))
+            self._meta = []
+
+    def build(
+        self,
+        crs: pyproj.CRS | None = None,
+        source_crs: pyproj.CRS | None = None,
+        source: str = "",
+        origin: np.ndarray | None = None,
+    ) -> CityModel:
+        if not self._tris:
+            raise EmptyModelError(f"{source or 'city model'}: no building surfaces could be read")
+        points = np.concatenate(self._points)
+        tris = np.concatenate(self._tris)
+        self._flush()
+        attrs = np.concatenate(self._attr_chunks)
+        classes, building, lods = attrs[:, 0].copy(), attrs[:, 1], attrs[:, 2]
+
+        if origin is None:
+            origin = choose_origin(points)
+        local = points - np.asarray(origin, dtype=np.float64)
+
+        unlabelled = classes == UNLABELLED
+        if unlabelled.any():
+            corners = local[tris[unlabelled]]
+            normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+            tri_min_z = corners[:, :, 2].min(1)
+            all_min_z = local[tris][:, :, 2].min(1)
+            b_min = np.full(building.max() + 1, np.inf)
+            np.minimum.at(b_min, building, all_min_z)
+            classes[unlabelled] = classify_by_normals(normals, tri_min_z, b_min[building[unlabelled]])
+
+        return CityModel(
+            origin=origin,
+            vertices=local.astype(np.float32),
+            triangles=tris,
+            classes=classes,
+            building_index=building,
+            lods=lods,
+            building_ids=self.building_ids,
+            crs=crs,
+            source_crs=source_crs,
+            source=source,
+            stats=self.stats,
+        )
+
+
+def choose_origin(points: np.ndarray) -> np.ndarray:
+    """Bounding-box centre rounded to whole metres in x, y; z = 0 so local z stays the source height,
+    unless heights exceed ``ABSOLUTE_Z_LIMIT_M`` (e.g. ECEF frames), then the rounded centre too."""
+    lo, hi = points.min(0), points.max(0)
+    centre = np.round(0.5 * (lo + hi))
+    if max(abs(lo[2]), abs(hi[2])) <= ABSOLUTE_Z_LIMIT_M:
+        centre[2] = 0.0
+    return centre.astype(np.float64)

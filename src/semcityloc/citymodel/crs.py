@@ -1,0 +1,136 @@
+"""Coordinate reference systems of city models: parse what files say, choose the metric frame.
+
+CityGML writes CRSs in many spellings (OGC URNs, AdV URNs, compound URNs, http URIs); CityJSON writes
+``referenceSystem`` URLs. ``parse_crs_name`` turns all of them into a ``pyproj.CRS`` and names the string
+in its error when it cannot. ``MetricFrame`` converts a geographic CRS to the UTM zone of the data
+(pyproj on whole arrays, ``always_xy=True``, with the axis order of the source handled explicitly).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+import pyproj
+from pyproj.exceptions import CRSError as PyprojCRSError
+
+from semcityloc.errors import CRSError
+
+# AdV (German surveying authorities) names of horizontal CRSs, as written in state CityGML products.
+# The part after "*" is the height system (DHHN92, DHN92, ...); heights are kept as written.
+ADV_HORIZONTAL = {
+    "ETRS89_UTM32": 25832,
+    "ETRS89_UTM33": 25833,
+    "DE_DHDN_3GK2": 31466,
+    "DE_DHDN_3GK3": 31467,
+    "DE_DHDN_3GK4": 31468,
+    "DE_DHDN_3GK5": 31469,
+    "ETRS89_3GK3": 5677,
+}
+
+_EPSG_CODES = re.compile(r"EPSG(?:/[0-9.]+/|:[0-9.]*:|::|:)(\d+)", re.IGNORECASE)
+
+
+def parse_crs_name(name: str) -> pyproj.CRS:
+    """A pyproj CRS for a CityGML ``srsName`` / CityJSON ``referenceSystem`` / user string.
+
+    Accepted: ``EPSG:25833``, ``urn:ogc:def:crs:EPSG::25833``, ``urn:ogc:def:crs:EPSG:6.12:25833``,
+    compound ``urn:ogc:def:crs,crs:EPSG::25832,crs:EPSG::5783``, ``http(s)://www.opengis.net/def/crs/EPSG/0/6697``,
+    AdV ``urn:adv:crs:ETRS89_UTM32*DE_DHHN92_NH``, and anything pyproj reads (WKT, PROJ strings).
+    Compound names give the horizontal CRS combined with the vertical one when pyproj knows both.
+    """
+    if not isinstance(name, str) or not name.strip():
+        raise CRSError(f"empty CRS name {name!r}")
+    text = name.strip()
+
+    adv = re.match(r"urn:adv:crs:([A-Za-z0-9_]+)", text)
+    if adv:
+        key = adv.group(1)
+        if key not in ADV_HORIZONTAL:
+            raise CRSError(f"unknown AdV CRS {text!r} (known: {', '.join(sorted(ADV_HORIZONTAL))})")
+        return pyproj.CRS.from_epsg(ADV_HORIZONTAL[key])
+
+    codes = _EPSG_CODES.findall(text)
+    if codes:
+        try:
+            if len(codes) == 1:
+                return pyproj.CRS.from_epsg(int(codes[0]))
+            horizontal = pyproj.CRS.from_epsg(int(codes[0]))
+            vertical = pyproj.CRS.from_epsg(int(codes[1]))
+            return pyproj.crs.CompoundCRS(
+                name=f"{horizontal.name} + {vertical.name}", components=[horizontal, vertical]
+            )
+        except PyprojCRSError as exc:
+            raise CRSError(f"unknown EPSG code in CRS {text!r}: {exc}") from exc
+    try:
+        return pyproj.CRS.from_user_input(text)
+    except PyprojCRSError as exc:
+        raise CRSError(f"cannot parse CRS {text!r}") from exc
+
+
+def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
+    """The horizontal part of a (possibly compound) CRS."""
+    if crs.is_compound:
+        return crs.sub_crs_list[0]
+    return crs
+
+
+def utm_crs_for(lon: float, lat: float) -> pyproj.CRS:
+    """The WGS 84 / UTM zone CRS that contains (lon, lat)."""
+    zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
+    return pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+
+
+@dataclass
+class MetricFrame:
+    """How source coordinates become metric x (east), y (north), z (up) coordinates.
+
+    ``source``: the CRS the file is in (None: unknown, coordinates are taken as metric as they are).
+    ``target``: the metric CRS of the mesh; equals ``source`` unless the source is geographic.
+    ``lat_first``: the source's first coordinate is latitude (EPSG axis order of e.g. EPSG:6697, 4326).
+    """
+
+    source: pyproj.CRS | None
+    target: pyproj.CRS | None
+    lat_first: bool = False
+    _transformer: pyproj.Transformer | None = None
+
+    @classmethod
+    def for_source(
+        cls,
+        source: pyproj.CRS | None,
+        sample_xy: np.ndarray | None = None,
+        target: pyproj.CRS | None = None,
+    ) -> MetricFrame:
+        """Metric frame for data in ``source``; ``sample_xy`` ((n, 2) in file order) locates the UTM zone
+        of a geographic source. ``target`` overrides the metric CRS (user's choice)."""
+        if source is None:
+            return cls(None, target)
+        horiz = horizontal_crs(source)
+        lat_first = False
+        if horiz.is_geographic:
+            axes = [a.direction.lower() for a in horiz.axis_info[:2]]
+            lat_first = axes[:1] == ["north"]
+            if target is None:
+                if sample_xy is None or len(sample_xy) == 0:
+                    raise CRSError(f"geographic CRS {source.name!r} needs sample coordinates to choose a UTM zone")
+                sample = np.asarray(sample_xy, dtype=np.float64)
+                lon, lat = (sample[:, 1], sample[:, 0]) if lat_first else (sample[:, 0], sample[:, 1])
+                target = utm_crs_for(float(np.mean(lon)), float(np.mean(lat)))
+        if target is None or target == source:
+            return cls(source, source, lat_first)
+        transformer = pyproj.Transformer.from_crs(horiz, horizontal_crs(target), always_xy=True)
+        return cls(source, target, lat_first, transformer)
+
+    def to_metric(self, xyz: np.ndarray) -> np.ndarray:
+        """(n, 3) source coordinates in file axis order -> (n, 3) metric x, y, z (heights unchanged)."""
+        pts = np.asarray(xyz, dtype=np.float64)
+        if self._transformer is None and not self.lat_first:
+            return pts
+        out = pts.copy()
+        x, y = (pts[:, 1], pts[:, 0]) if self.lat_first else (pts[:, 0], pts[:, 1])
+        if self._transformer is not None:
+            x, y = self._transformer.transform(x, y)
+        out[:, 0], out[:, 1] = x, y
+        return out

@@ -1,0 +1,121 @@
+"""Triangulate planar 3D polygons with holes (CityGML / CityJSON surfaces).
+
+Each polygon is projected onto the plane through its centroid with the Newell normal of its exterior
+ring, triangulated in 2D with mapbox-earcut, and lifted back with the original 3D points (no vertex is
+moved). Triangles are oriented so that their normals agree with the exterior ring's Newell normal: the
+CityGML rule (counter-clockwise seen from outside) carries over to the triangles.
+
+Degenerate polygons (fewer than 3 distinct points, zero area) return ``None`` and the caller counts them;
+non-planar polygons are still triangulated (the deviation is reported).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mapbox_earcut
+import numpy as np
+
+# A polygon whose points lie farther than this from its best plane counts as non-planar (metres).
+NONPLANAR_TOLERANCE_M = 0.05
+# Points closer than this are one point (metres): removes repeated and closing points.
+DUPLICATE_TOLERANCE_M = 1e-6
+
+
+@dataclass
+class Triangulation:
+    points: np.ndarray  # (n, 3) float64, the polygon's distinct points (exterior first, then holes)
+    triangles: np.ndarray  # (m, 3) int64 indices into points
+    normal: np.ndarray  # (3,) unit Newell normal of the exterior ring
+    planarity_m: float  # largest distance of a point from the polygon's plane
+
+
+def clean_ring(ring: np.ndarray) -> np.ndarray:
+    """Drop the closing point and consecutive duplicates of a (n, 3) ring."""
+    ring = np.asarray(ring, dtype=np.float64).reshape(-1, 3)
+    if len(ring) == 0:
+        return ring
+    step = np.linalg.norm(np.diff(ring, axis=0, append=ring[:1]), axis=1)
+    return ring[step > DUPLICATE_TOLERANCE_M]
+
+
+def newell_normal(ring: np.ndarray) -> np.ndarray:
+    """Newell's (unnormalised) normal of a closed ring given without its closing point: 2 * area * n."""
+    nxt = np.roll(ring, -1, axis=0)
+    # Centre first: the products then stay small for coordinates like 5.8e6.
+    c = ring.mean(0)
+    a, b = ring - c, nxt - c
+    return np.array(
+        [
+            np.sum((a[:, 1] - b[:, 1]) * (a[:, 2] + b[:, 2])),
+            np.sum((a[:, 2] - b[:, 2]) * (a[:, 0] + b[:, 0])),
+            np.sum((a[:, 0] - b[:, 0]) * (a[:, 1] + b[:, 1])),
+        ]
+    )
+
+
+def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors u, v with u x v = normal (right-handed in-plane axes)."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(helper, normal)
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    return u, v
+
+
+def triangulate_polygon(exterior: np.ndarray, interiors: list[np.ndarray] | tuple = ()) -> Triangulation | None:
+    """Triangulate one polygon; ``None`` when it is degenerate or earcut finds no triangle."""
+    ext = clean_ring(exterior)
+    if len(ext) < 3:
+        return None
+    n = newell_normal(ext)
+    norm = np.linalg.norm(n)
+    scale = max(float(np.ptp(ext, axis=0).max()), 1e-12)
+    if norm < 1e-12 * scale * scale or norm < 1e-10:
+        return None
+    n = n / norm
+    holes = [h for h in (clean_ring(r) for r in interiors) if len(h) >= 3]
+    pts = np.concatenate([ext, *holes]) if holes else ext
+    centre = ext.mean(0)
+    planarity = float(np.abs((pts - centre) @ n).max())
+
+    if len(ext) == 3 and not holes:
+        return Triangulation(ext, np.array([[0, 1, 2]]), n, planarity)
+
+    u, v = plane_basis(n)
+    rel = pts - centre
+    pts2d = np.stack([rel @ u, rel @ v], axis=1)
+    ends = np.cumsum([len(ext)] + [len(h) for h in holes]).astype(np.uint32)
+    idx = mapbox_earcut.triangulate_float64(pts2d, ends)
+    if len(idx) == 0:
+        return None
+    tris = idx.reshape(-1, 3).astype(np.int64)
+    p = pts2d[tris]
+    signed = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
+        p[:, 1, 1] - p[:, 0, 1]
+    )
+    keep = np.abs(signed) > 1e-14 * scale * scale
+    tris, signed = tris[keep], signed[keep]
+    if len(tris) == 0:
+        return None
+    flip = signed < 0
+    tris[flip] = tris[flip][:, [0, 2, 1]]
+    return Triangulation(pts, tris, n, planarity)
+
+
+def polygon_area(exterior: np.ndarray, interiors: list[np.ndarray] | tuple = ()) -> float:
+    """Area of a planar polygon with holes (shoelace on its own plane), for checks and statistics."""
+    ext = clean_ring(exterior)
+    if len(ext) < 3:
+        return 0.0
+    n = newell_normal(ext)
+    norm = np.linalg.norm(n)
+    if norm == 0:
+        return 0.0
+    unit = n / norm
+    area = 0.5 * norm
+    for ring in interiors:
+        h = clean_ring(ring)
+        if len(h) >= 3:
+            area -= 0.5 * abs(float(newell_normal(h) @ unit))
+    return float(area)

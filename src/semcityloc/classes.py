@@ -1,0 +1,67 @@
+"""Semantic classes shared by the city model, the renderer and the perception side.
+
+The ids are fixed and part of the file formats we write (label PNGs, npz caches): never renumber them.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+
+
+class SemanticClass(IntEnum):
+    BACKGROUND = 0  # sky, vegetation, anything the model does not describe
+    GROUND = 1
+    WALL = 2
+    ROOF = 3
+    WINDOW = 4
+    DOOR = 5
+
+
+NUM_CLASSES = len(SemanticClass)
+CLASS_NAMES: tuple[str, ...] = tuple(c.name.lower() for c in SemanticClass)
+
+# Palette for label PNGs (index = class id). Documented in docs/conventions.md.
+PALETTE = np.array(
+    [
+        [0, 0, 0],  # background
+        [128, 128, 128],  # ground
+        [230, 190, 60],  # wall
+        [200, 40, 40],  # roof
+        [60, 140, 230],  # window
+        [60, 200, 90],  # door
+    ],
+    dtype=np.uint8,
+)
+
+# CityGML / CityJSON surface names -> class. Surfaces that are not one of the five are mapped to their
+# nearest visible class: ClosureSurface closes open volumes (usually vertical, seen like a wall),
+# OuterCeilingSurface faces downward under overhangs (wall-coloured underside), OuterFloorSurface is a
+# walkable floor open to the sky (balcony/terrace: seen from above like a roof).
+# BuildingInstallation (dormers, chimneys, balconies) keeps the class of its own boundary surfaces and
+# falls back to normal classification.
+SURFACE_CLASS: dict[str, SemanticClass] = {
+    "GroundSurface": SemanticClass.GROUND,
+    "WallSurface": SemanticClass.WALL,
+    "RoofSurface": SemanticClass.ROOF,
+    "Window": SemanticClass.WINDOW,
+    "Door": SemanticClass.DOOR,
+    "ClosureSurface": SemanticClass.WALL,
+    "OuterCeilingSurface": SemanticClass.WALL,
+    "OuterFloorSurface": SemanticClass.ROOF,
+    "InteriorWallSurface": SemanticClass.WALL,
+    "CeilingSurface": SemanticClass.WALL,
+    "FloorSurface": SemanticClass.GROUND,
+    # CityJSON 2.0 names the same things with these strings.
+    "TrafficArea": SemanticClass.GROUND,
+    "AuxiliaryTrafficArea": SemanticClass.GROUND,
+}
+
+
+def class_id(name: str) -> int:
+    """Class id for a class name such as ``"roof"`` (case-insensitive)."""
+    try:
+        return int(SemanticClass[name.upper()])
+    except KeyError as exc:
+        raise ValueError(f"unknown semantic class {name!r}; known: {', '.join(CLASS_NAMES)}") from exc

@@ -1,0 +1,168 @@
+"""Rigid camera poses named by their frames.
+
+A ``Pose`` stores ``cam_from_world``: ``x_cam = R @ x_world + t``. Camera axes are OpenCV's (x right,
+y down, z forward); the world is a metric frame with z up (the city model's local frame or its CRS).
+A ``Pose`` may hold one pose or a batch (leading dimension N); every method works on both.
+
+Euler convention (the paper's ``(x, y, z, roll, pitch, yaw)``, identical to LoD-Loc's):
+``R_world_from_cam = Rz(yaw) @ Ry(roll) @ Rx(pitch) @ diag(1, -1, -1)``, angles in degrees.
+At roll = pitch = yaw = 0 the camera looks straight down (nadir) with image-up pointing north (+y) and
+image-right east (+x). Pitch tilts the optical axis from nadir toward image-up (90 = horizontal);
+yaw turns the camera counter-clockwise about world +z (yaw 90: image-up points west). The compass heading
+of the optical axis (clockwise from north) is ``-yaw``. See docs/conventions.md for a worked example.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from semcityloc.errors import PoseError, ShapeError
+
+# The camera frame expressed in the "body" frame whose Euler angles we report (LoD-Loc's flip).
+CAM_FROM_BODY_FLIP = np.diag([1.0, -1.0, -1.0])
+
+
+def _check_rotation(R: np.ndarray, what: str) -> None:
+    if not np.all(np.isfinite(R)):
+        raise PoseError(f"{what} has non-finite entries")
+    should_be_eye = np.einsum("...ji,...jk->...ik", R, R)
+    if np.abs(should_be_eye - np.eye(3)).max() > 1e-5 or np.any(np.linalg.det(R) < 0):
+        raise PoseError(f"{what} is not a rotation matrix (orthonormal, det +1)")
+
+
+class Pose:
+    """cam_from_world rigid transform(s), float64."""
+
+    __slots__ = ("R", "t")
+
+    def __init__(self, R_cam_from_world: np.ndarray, t_cam_from_world: np.ndarray):
+        R = np.asarray(R_cam_from_world, dtype=np.float64)
+        t = np.asarray(t_cam_from_world, dtype=np.float64)
+        if R.shape[-2:] != (3, 3) or t.shape[-1:] != (3,) or R.shape[:-2] != t.shape[:-1]:
+            raise ShapeError(f"pose needs R (..., 3, 3) and t (..., 3), got {R.shape} and {t.shape}")
+        if not np.all(np.isfinite(t)):
+            raise PoseError("pose translation has non-finite entries")
+        _check_rotation(R, "pose rotation")
+        self.R = R
+        self.t = t
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_cam_from_world(cls, T: np.ndarray) -> Pose:
+        T = np.asarray(T, dtype=np.float64)
+        if T.shape[-2:] not in ((4, 4), (3, 4)):
+            raise ShapeError(f"cam_from_world matrix must be (..., 4, 4) or (..., 3, 4), got {T.shape}")
+        return cls(T[..., :3, :3], T[..., :3, 3])
+
+    @classmethod
+    def from_world_from_cam(cls, T: np.ndarray) -> Pose:
+        """From camera-to-world matrices (LoD-Loc's ``*_pose.txt``, OpenCV camera axes)."""
+        T = np.asarray(T, dtype=np.float64)
+        if T.shape[-2:] not in ((4, 4), (3, 4)):
+            raise ShapeError(f"world_from_cam matrix must be (..., 4, 4) or (..., 3, 4), got {T.shape}")
+        return cls.from_rotation_center(T[..., :3, :3], T[..., :3, 3])
+
+    @classmethod
+    def from_rotation_center(cls, R_world_from_cam: np.ndarray, center: np.ndarray) -> Pose:
+        """From the camera's orientation in the world and its centre (world coordinates)."""
+        Rwc = np.asarray(R_world_from_cam, dtype=np.float64)
+        C = np.asarray(center, dtype=np.float64)
+        if not np.all(np.isfinite(C)):
+            raise PoseError("camera centre has non-finite entries")
+        R = np.swapaxes(Rwc, -1, -2)
+        return cls(R, -np.einsum("...ij,...j->...i", R, C))
+
+    @classmethod
+    def from_xyz_rpy(cls, xyz: np.ndarray, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> Pose:
+        """From camera centre(s) and roll/pitch/yaw in degrees (module docstring convention)."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        angles = np.stack(np.broadcast_arrays(pitch, roll, yaw), axis=-1).astype(np.float64)
+        if not np.all(np.isfinite(angles)):
+            raise PoseError("roll/pitch/yaw have non-finite entries")
+        R_body = Rotation.from_euler("xyz", angles.reshape(-1, 3), degrees=True).as_matrix()
+        R_body = R_body.reshape(angles.shape[:-1] + (3, 3))
+        return cls.from_rotation_center(R_body @ CAM_FROM_BODY_FLIP, xyz)
+
+    @classmethod
+    def stack(cls, poses: list[Pose]) -> Pose:
+        return cls(np.stack([p.R for p in poses]), np.stack([p.t for p in poses]))
+
+    # ------------------------------------------------------------------ views
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.R.shape[:-2]
+
+    def __len__(self) -> int:
+        if not self.batch_shape:
+            raise TypeError("a single Pose has no len()")
+        return self.batch_shape[0]
+
+    def __getitem__(self, index) -> Pose:
+        return Pose(self.R[index], self.t[index])
+
+    def __repr__(self) -> str:
+        if self.batch_shape:
+            return f"Pose(batch={self.batch_shape})"
+        x, y, z, r, p, yw = self.to_xyz_rpy()
+        return f"Pose(center=({x:.3f}, {y:.3f}, {z:.3f}), roll={r:.3f}, pitch={p:.3f}, yaw={yw:.3f})"
+
+    @property
+    def R_world_from_cam(self) -> np.ndarray:
+        return np.swapaxes(self.R, -1, -2)
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates: ``-R^T t``."""
+        return -np.einsum("...ji,...j->...i", self.R, self.t)
+
+    @property
+    def cam_from_world(self) -> np.ndarray:
+        T = np.zeros(self.batch_shape + (4, 4))
+        T[..., :3, :3] = self.R
+        T[..., :3, 3] = self.t
+        T[..., 3, 3] = 1.0
+        return T
+
+    @property
+    def world_from_cam(self) -> np.ndarray:
+        T = np.zeros(self.batch_shape + (4, 4))
+        T[..., :3, :3] = self.R_world_from_cam
+        T[..., :3, 3] = self.center
+        T[..., 3, 3] = 1.0
+        return T
+
+    @property
+    def viewing_direction(self) -> np.ndarray:
+        """Unit optical axis (camera +z) in world coordinates."""
+        return self.R_world_from_cam[..., :, 2]
+
+    def to_xyz_rpy(self) -> np.ndarray:
+        """(..., 6) array (x, y, z, roll, pitch, yaw) in degrees; inverse of ``from_xyz_rpy``."""
+        R_body = self.R_world_from_cam @ CAM_FROM_BODY_FLIP
+        flat = Rotation.from_matrix(R_body.reshape(-1, 3, 3)).as_euler("xyz", degrees=True)
+        pitch, roll, yaw = flat[:, 0], flat[:, 1], flat[:, 2]
+        out = np.concatenate([self.center.reshape(-1, 3), np.stack([roll, pitch, yaw], 1)], axis=1)
+        return out.reshape(self.batch_shape + (6,))
+
+    # ------------------------------------------------------------------ operations
+    def transform(self, points_world: np.ndarray) -> np.ndarray:
+        """World points (M, 3) -> camera-frame points (..., M, 3)."""
+        p = np.asarray(points_world, dtype=np.float64)
+        return np.einsum("...ij,mj->...mi", self.R, p) + self.t[..., None, :]
+
+    def shift_world(self, offset: np.ndarray) -> Pose:
+        """The same camera in a world frame whose origin moved by ``offset`` (new = old - offset).
+
+        Use ``pose.shift_world(model.origin)`` to bring a pose from the model's CRS into its local frame.
+        """
+        offset = np.asarray(offset, dtype=np.float64)
+        return Pose.from_rotation_center(self.R_world_from_cam, self.center - offset)
+
+    def rotate_world_z(self, angle_deg: np.ndarray) -> Pose:
+        """Turn the camera about the world z axis through its own centre (adds ``angle_deg`` to yaw)."""
+        a = np.radians(np.asarray(angle_deg, dtype=np.float64))
+        c, s = np.cos(a), np.sin(a)
+        Rz = np.zeros(a.shape + (3, 3))
+        Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1], Rz[..., 2, 2] = c, -s, s, c, 1.0
+        return Pose.from_rotation_center(Rz @ self.R_world_from_cam, np.broadcast_to(self.center, a.shape + (3,)))
