@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pyproj
 
-from semcityloc.classes import SemanticClass
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import NONPLANAR_TOLERANCE_M, triangulate_polygon
+from semcityloc.classes import SemanticClass
 from semcityloc.errors import EmptyModelError
 
 UNLABELLED = 255

@@ -114,7 +114,9 @@ class MetricFrame:
             lat_first = axes[:1] == ["north"]
             if target is None:
                 if sample_xy is None or len(sample_xy) == 0:
-                    raise CRSError(f"geographic CRS {source.name!r} needs sample coordinates to choose a UTM zone")
+                    raise CRSError(
+                        f"geographic CRS {source.name!r} needs sample coordinates to choose a UTM zone"
+                    )
                 sample = np.asarray(sample_xy, dtype=np.float64)
                 lon, lat = (sample[:, 1], sample[:, 0]) if lat_first else (sample[:, 0], sample[:, 1])
                 target = utm_crs_for(float(np.mean(lon)), float(np.mean(lat)))

@@ -205,7 +205,9 @@ class CityModel:
         try:
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(bytes(z["meta"]).decode("utf-8"))
-                arrays = {k: z[k] for k in ("origin", "vertices", "triangles", "classes", "building_index", "lods")}
+                arrays = {
+                    k: z[k] for k in ("origin", "vertices", "triangles", "classes", "building_index", "lods")
+                }
         except (OSError, KeyError, ValueError) as exc:
             raise InputFileError(f"{path}: not a semcityloc city-model npz ({exc})") from exc
         return cls(

@@ -63,7 +63,9 @@ def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, v
 
 
-def triangulate_polygon(exterior: np.ndarray, interiors: list[np.ndarray] | tuple = ()) -> Triangulation | None:
+def triangulate_polygon(
+    exterior: np.ndarray, interiors: list[np.ndarray] | tuple = ()
+) -> Triangulation | None:
     """Triangulate one polygon; ``None`` when it is degenerate or earcut finds no triangle."""
     ext = clean_ring(exterior)
     if len(ext) < 3:

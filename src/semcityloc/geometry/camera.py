@@ -106,7 +106,7 @@ class Camera:
         return rays
 
     def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Camera-frame points (..., 3) -> image coordinates (..., 2) and a mask of points in front (z > 0)."""
+        """Camera-frame points (..., 3) -> image coordinates (..., 2) and a mask of points in front."""
         p = np.asarray(points_cam, dtype=np.float64)
         if p.shape[-1] != 3:
             raise ShapeError(f"points must have shape (..., 3), got {p.shape}")
@@ -129,5 +129,12 @@ class Camera:
         return (uv[..., 0] >= 0) & (uv[..., 0] < self.width) & (uv[..., 1] >= 0) & (uv[..., 1] < self.height)
 
     def as_dict(self) -> dict:
-        return {"model": "PINHOLE", "width": self.width, "height": self.height,
-                "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy}
+        return {
+            "model": "PINHOLE",
+            "width": self.width,
+            "height": self.height,
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+        }

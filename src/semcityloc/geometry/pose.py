@@ -165,4 +165,6 @@ class Pose:
         c, s = np.cos(a), np.sin(a)
         Rz = np.zeros(a.shape + (3, 3))
         Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1], Rz[..., 2, 2] = c, -s, s, c, 1.0
-        return Pose.from_rotation_center(Rz @ self.R_world_from_cam, np.broadcast_to(self.center, a.shape + (3,)))
+        return Pose.from_rotation_center(
+            Rz @ self.R_world_from_cam, np.broadcast_to(self.center, a.shape + (3,))
+        )

@@ -1,0 +1,90 @@
+"""Write a ``CityModel`` as a semantic mesh other tools open: PLY, OBJ (+MTL) or our npz.
+
+PLY (binary little-endian) carries per-face ``class`` and ``building`` properties and per-vertex
+colours from the class palette; OBJ carries one material per class (``usemtl roof`` ...) and a ``.mtl``
+with the palette. Both write world coordinates *relative to the model origin* (float32-safe) and record
+the origin and CRS in a header comment, so a viewer shows the model without precision loss.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.classes import CLASS_NAMES, PALETTE
+from semcityloc.errors import UnsupportedFormatError
+
+
+def export_model(model: CityModel, path: str | Path) -> Path:
+    path = Path(path)
+    suffix = path.suffix.lower()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if suffix == ".npz":
+        return model.save_npz(path)
+    if suffix == ".ply":
+        return write_ply(model, path)
+    if suffix == ".obj":
+        return write_obj(model, path)
+    raise UnsupportedFormatError(f"{path}: cannot write '{suffix}' (use .ply, .obj or .npz)")
+
+
+def _header_comment(model: CityModel) -> str:
+    o = model.origin
+    origin = f"{o[0]:.3f} {o[1]:.3f} {o[2]:.3f}"
+    return f"semcityloc local frame: world = origin + vertex; origin {origin}; crs {crs_label(model.crs)}"
+
+
+def write_ply(model: CityModel, path: Path) -> Path:
+    """Binary PLY with face properties ``class`` (uchar) and ``building`` (int). Vertices are unshared per
+    face so each carries its face's class colour."""
+    tris = model.triangles
+    n = len(tris)
+    verts = model.vertices[tris.reshape(-1)]
+    colors = np.repeat(PALETTE[model.classes], 3, axis=0)
+    vertex = np.empty(
+        3 * n,
+        dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")],
+    )
+    vertex["x"], vertex["y"], vertex["z"] = verts[:, 0], verts[:, 1], verts[:, 2]
+    vertex["red"], vertex["green"], vertex["blue"] = colors[:, 0], colors[:, 1], colors[:, 2]
+    face = np.empty(n, dtype=[("n", "u1"), ("v", "<i4", (3,)), ("class", "u1"), ("building", "<i4")])
+    face["n"] = 3
+    face["v"] = np.arange(3 * n, dtype=np.int32).reshape(-1, 3)
+    face["class"] = model.classes
+    face["building"] = model.building_index
+    classes_comment = " ".join(f"{i}={name}" for i, name in enumerate(CLASS_NAMES))
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"comment {_header_comment(model)}\n"
+        f"comment classes {classes_comment}\n"
+        f"element vertex {3 * n}\n"
+        "property float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+        f"element face {n}\n"
+        "property list uchar int vertex_indices\nproperty uchar class\nproperty int building\n"
+        "end_header\n"
+    )
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(vertex.tobytes())
+        fh.write(face.tobytes())
+    return path
+
+
+def write_obj(model: CityModel, path: Path) -> Path:
+    """OBJ with a material per class and an MTL file beside it; faces grouped by class."""
+    mtl = path.with_suffix(".mtl")
+    with open(mtl, "w", encoding="ascii") as fh:
+        for i, name in enumerate(CLASS_NAMES):
+            r, g, b = PALETTE[i] / 255.0
+            fh.write(f"newmtl {name}\nKd {r:.4f} {g:.4f} {b:.4f}\n\n")
+    lines = [f"# {_header_comment(model)}", f"mtllib {mtl.name}"]
+    lines.extend(f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in model.vertices)
+    for cls in np.unique(model.classes):
+        lines.append(f"usemtl {CLASS_NAMES[cls]}")
+        faces = model.triangles[model.classes == cls] + 1
+        lines.extend(f"f {a} {b} {c}" for a, b, c in faces)
+    path.write_text("\n".join(lines) + "\n", encoding="ascii")
+    return path

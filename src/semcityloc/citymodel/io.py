@@ -1,0 +1,121 @@
+"""Load any supported city model file into a ``CityModel``, with a parse cache.
+
+Formats are recognised by content, not only by extension: CityGML (XML, also ``.gml.gz``), CityJSON
+(JSON with ``"type": "CityJSON"``), Wavefront OBJ, and our own ``.npz`` cache files. Parsed models are
+cached as npz keyed by the file's SHA-256 and the reading options, so a 24 MB CityGML is parsed once.
+"""
+
+from __future__ import annotations
+
+import gzip
+import hashlib
+import json
+import os
+from pathlib import Path
+
+from semcityloc.citymodel.model import CityModel
+from semcityloc.errors import InputFileError, UnsupportedFormatError
+
+CACHE_VERSION = 1
+
+
+def default_cache_dir() -> Path:
+    root = os.environ.get("SEMCITYLOC_CACHE") or os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(root) / "semcityloc" / "models"
+
+
+def sniff_format(path: Path) -> str:
+    """``citygml``, ``cityjson``, ``obj`` or ``npz``, from the first bytes of the file."""
+    name = path.name.lower()
+    if name.endswith(".npz"):
+        return "npz"
+    opener = gzip.open if name.endswith(".gz") else open
+    try:
+        with opener(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    text = head.lstrip(b"\xef\xbb\xbf").lstrip()
+    if text.startswith(b"<"):
+        return "citygml"
+    if text.startswith(b"{"):
+        return "cityjson"
+    if name.endswith(".obj") or any(
+        line.startswith((b"v ", b"o ", b"f ", b"g ")) for line in text.splitlines()
+    ):
+        return "obj"
+    if not text:
+        raise InputFileError(f"{path}: the file is empty")
+    raise UnsupportedFormatError(f"{path}: not CityGML, CityJSON or OBJ (starts with {head[:40]!r})")
+
+
+def _file_digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def load_city_model(
+    path: str | Path,
+    lod: int | str | None = None,
+    crs: str | None = None,
+    target_crs: str | None = None,
+    cache: bool | str | Path = True,
+) -> CityModel:
+    """Read a city model file.
+
+    Args:
+        path: CityGML (1.0/2.0/3.0), CityJSON, OBJ or a semcityloc ``.npz``.
+        lod: LoD to keep (None: the highest each building has). Ignored for OBJ.
+        crs: override of the CRS the file states (or states nothing about), e.g. ``"EPSG:25832"``.
+        target_crs: metric CRS to project a geographic source to (default: its UTM zone).
+        cache: True for the default cache dir, a path for another, False to parse every time.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such file")
+    fmt = sniff_format(path)
+    if fmt == "npz":
+        return CityModel.load_npz(path)
+
+    cache_file = None
+    if cache:
+        cache_dir = default_cache_dir() if cache is True else Path(cache)
+        options = json.dumps([CACHE_VERSION, fmt, lod, crs, target_crs], sort_keys=True)
+        key = hashlib.sha256((_file_digest(path) + options).encode()).hexdigest()[:32]
+        cache_file = cache_dir / f"{path.stem}-{key}.npz"
+        if cache_file.exists():
+            try:
+                model = CityModel.load_npz(cache_file)
+                model.source = str(path)
+                return model
+            except InputFileError:
+                cache_file.unlink(missing_ok=True)
+
+    model = _read(path, fmt, lod, crs, target_crs)
+    if cache_file is not None:
+        try:
+            cache_file.parent.mkdir(parents=True, exist_ok=True)
+            model.save_npz(cache_file)
+        except OSError:
+            pass  # a read-only cache never stops a parse
+    return model
+
+
+def _read(path: Path, fmt: str, lod, crs, target_crs) -> CityModel:
+    from semcityloc.citymodel.crs import parse_crs_name
+
+    target = parse_crs_name(target_crs) if target_crs else None
+    if fmt == "citygml":
+        from semcityloc.citymodel.citygml import read_citygml
+
+        return read_citygml(path, lod=lod, target_crs=target, crs_override=crs)
+    if fmt == "cityjson":
+        from semcityloc.citymodel.cityjson import read_cityjson
+
+        return read_cityjson(path, lod=lod, target_crs=target, crs_override=crs)
+    from semcityloc.citymodel.obj import read_obj
+
+    return read_obj(path, crs=crs)

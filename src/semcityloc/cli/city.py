@@ -1,0 +1,77 @@
+"""``semcityloc city info|convert``: inspect and convert city models."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from semcityloc.citymodel.export import export_model
+from semcityloc.citymodel.io import load_city_model
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    city = sub.add_parser("city", help="inspect or convert a city model")
+    city_sub = city.add_subparsers(dest="city_command", required=True, metavar="ACTION")
+
+    info = city_sub.add_parser("info", help="buildings, triangles, classes, CRS, LoDs and extent")
+    _common(info)
+    info.add_argument("--json", action="store_true", help="print exactly one JSON object")
+    info.set_defaults(func=run_info)
+
+    convert = city_sub.add_parser("convert", help="write the semantic mesh as .ply, .obj or .npz")
+    _common(convert)
+    convert.add_argument("out", help="output file: .ply (face class property), .obj (+.mtl) or .npz")
+    convert.set_defaults(func=run_convert)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("path", help="CityGML (1.0/2.0/3.0), CityJSON, OBJ or semcityloc .npz")
+    p.add_argument("--lod", default=None, help="LoD to read (default: the highest per building)")
+    p.add_argument("--crs", default=None, help="override the file's CRS, e.g. EPSG:25832")
+    p.add_argument("--no-cache", action="store_true", help="parse again instead of using the cache")
+
+
+def _load(args: argparse.Namespace):
+    lod = args.lod
+    if lod is not None and str(lod).isdigit():
+        lod = int(lod)
+    return load_city_model(args.path, lod=lod, crs=args.crs, cache=not args.no_cache)
+
+
+def run_info(args: argparse.Namespace) -> int:
+    summary = _load(args).summary()
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print(format_summary(summary))
+    return 0
+
+
+def format_summary(s: dict) -> str:
+    dx, dy, dz = s["extent_m"]
+    lines = [
+        f"source:     {s['source']}",
+        f"buildings:  {s['buildings']}",
+        f"triangles:  {s['triangles']}",
+        f"CRS:        {s['crs'] or 'none (local metric frame)'}"
+        + (f"  (file: {s['source_crs']})" if s["source_crs"] != s["crs"] else ""),
+        f"LoDs:       {', '.join(map(str, s['lods']))}",
+        f"extent:     {dx:.1f} x {dy:.1f} x {dz:.1f} m",
+        "classes:    name        triangles       area m2",
+    ]
+    for name, count in s["class_triangles"].items():
+        if count:
+            lines.append(f"            {name:<10} {count:>10} {s['class_area_m2'][name]:>13.1f}")
+    skipped = {k: v for k, v in s["skipped"].items() if v}
+    if skipped:
+        lines.append("skipped:    " + ", ".join(f"{k}={v}" for k, v in skipped.items()))
+    if s["classified_by_normal"]:
+        lines.append(f"classified by normals: {s['classified_by_normal']} polygons without semantics")
+    return "\n".join(lines)
+
+
+def run_convert(args: argparse.Namespace) -> int:
+    model = _load(args)
+    out = export_model(model, args.out)
+    print(f"wrote {out} ({model.num_triangles} triangles)")
+    return 0

@@ -1,0 +1,234 @@
+"""Fused render-and-score kernels: the search never materialises an (N, H, W) stack of masks.
+
+``coarse_scores``: one *wide* render per camera centre; every yaw hypothesis of that centre reads its
+pixels from the wide render through a lookup table (a pure rotation about the camera centre maps rays
+to rays, so the table depends only on the yaw offsets and the intrinsics — it is shared by all centres).
+The per-class IoU against the query mask is accumulated on the fly.
+
+``refine_scores``: one render per particle at the fine resolution; semantic IoU and the affine-invariant
+depth cost (least-squares scale/shift, then mean relative L1) in the same pass over the buffers.
+
+Both call ``render.raster_numba.render_view`` (the renderer's per-view rasteriser) inside ``prange``
+over views, so their output matches what ``Renderer.render`` would draw.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from semcityloc.render.raster_numba import render_view
+
+IGNORE = 255
+N_SLOTS = 8  # class histogram size (class ids 0..5 fit)
+
+
+@njit(cache=True, inline="always")
+def _mean_iou(inter, count_r, count_q, class_on):
+    total = 0.0
+    n = 0
+    for c in range(N_SLOTS):
+        if not class_on[c]:
+            continue
+        union = count_r[c] + count_q[c] - inter[c]
+        if union > 0:
+            total += inter[c] / union
+            n += 1
+    return total / n if n > 0 else 0.0
+
+
+@njit(parallel=True, cache=True)
+def coarse_scores(
+    tri_xyz,
+    classes,
+    tile_start,
+    tile_bbox,
+    block_start,
+    block_bbox,
+    Rs,
+    ts,
+    fx,
+    fy,
+    cx,
+    cy,
+    width,
+    height,
+    near,
+    lut,
+    query,
+    class_on,
+    scores,
+    n_chunks,
+):
+    """IoU score of every (centre, yaw) hypothesis.
+
+    Rs, ts: (C, 3, 3), (C, 3) cam_from_world of the *wide* camera at each centre (local frame).
+    fx..height: the wide camera. lut: int32 (Y, P) index into the wide image for each of the P target
+    pixels of yaw hypothesis y (-1: outside, counts as background). query: uint8 (P,) target-resolution
+    query labels (IGNORE / background pixels are skipped). class_on: bool (N_SLOTS,). scores: (C, Y) out.
+    """
+    n_centres = Rs.shape[0]
+    n_yaw, n_pix = lut.shape
+    npx = width * height
+    count_q = np.zeros(N_SLOTS)
+    for p in range(n_pix):
+        q = query[p]
+        if q != IGNORE and q != 0:
+            count_q[q] += 1.0
+    for chunk in prange(n_chunks):
+        inv_z = np.empty(npx)
+        tri_id = np.empty(npx, dtype=np.int32)
+        wide = np.empty(npx, dtype=np.uint8)
+        inter = np.empty(N_SLOTS)
+        count_r = np.empty(N_SLOTS)
+        for c in range(chunk, n_centres, n_chunks):
+            render_view(
+                tri_xyz,
+                tile_start,
+                tile_bbox,
+                block_start,
+                block_bbox,
+                Rs[c],
+                ts[c],
+                fx,
+                fy,
+                cx,
+                cy,
+                width,
+                height,
+                near,
+                inv_z,
+                tri_id,
+            )
+            for k in range(npx):
+                f = tri_id[k]
+                wide[k] = classes[f] if f >= 0 else 0
+            for y in range(n_yaw):
+                inter[:] = 0.0
+                count_r[:] = 0.0
+                for p in range(n_pix):
+                    q = query[p]
+                    if q == IGNORE or q == 0:
+                        continue
+                    idx = lut[y, p]
+                    r = wide[idx] if idx >= 0 else 0
+                    count_r[r] += 1.0
+                    if r == q:
+                        inter[r] += 1.0
+                scores[c, y] = _mean_iou(inter, count_r, count_q, class_on)
+
+
+@njit(parallel=True, cache=True)
+def refine_scores(
+    tri_xyz,
+    classes,
+    tile_start,
+    tile_bbox,
+    block_start,
+    block_bbox,
+    Rs,
+    ts,
+    fx,
+    fy,
+    cx,
+    cy,
+    width,
+    height,
+    near,
+    query,
+    query_depth,
+    use_depth,
+    class_on,
+    min_depth_pixels,
+    invalid_cost,
+    sem_out,
+    depth_out,
+    n_chunks,
+):
+    """Semantic IoU and depth cost of each view (Rs, ts at the fine camera).
+
+    query: uint8 (H*W,); query_depth: float64 (H*W,) relative depth, NaN where invalid. The depth term
+    uses pixels with a rendered surface, a finite positive query depth and a non-background query label.
+    """
+    n_views = Rs.shape[0]
+    npx = width * height
+    count_q = np.zeros(N_SLOTS)
+    for p in range(npx):
+        q = query[p]
+        if q != IGNORE and q != 0:
+            count_q[q] += 1.0
+    for chunk in prange(n_chunks):
+        inv_z = np.empty(npx)
+        tri_id = np.empty(npx, dtype=np.int32)
+        inter = np.empty(N_SLOTS)
+        count_r = np.empty(N_SLOTS)
+        for v in range(chunk, n_views, n_chunks):
+            render_view(
+                tri_xyz,
+                tile_start,
+                tile_bbox,
+                block_start,
+                block_bbox,
+                Rs[v],
+                ts[v],
+                fx,
+                fy,
+                cx,
+                cy,
+                width,
+                height,
+                near,
+                inv_z,
+                tri_id,
+            )
+            inter[:] = 0.0
+            count_r[:] = 0.0
+            n = 0.0
+            sq = 0.0
+            sr = 0.0
+            sqq = 0.0
+            sqr = 0.0
+            for p in range(npx):
+                q = query[p]
+                if q == IGNORE or q == 0:
+                    continue
+                f = tri_id[p]
+                r = classes[f] if f >= 0 else 0
+                count_r[r] += 1.0
+                if r == q:
+                    inter[r] += 1.0
+                if use_depth and f >= 0:
+                    dq = query_depth[p]
+                    if dq > 0.0:
+                        dr = 1.0 / inv_z[p]
+                        n += 1.0
+                        sq += dq
+                        sr += dr
+                        sqq += dq * dq
+                        sqr += dq * dr
+            sem_out[v] = _mean_iou(inter, count_r, count_q, class_on)
+            if not use_depth:
+                depth_out[v] = 0.0
+                continue
+            det = n * sqq - sq * sq
+            if n < min_depth_pixels or det <= 1e-12 * n * sqq:
+                depth_out[v] = invalid_cost
+                continue
+            s = (n * sqr - sq * sr) / det
+            t = (sr - s * sq) / n
+            if s <= 0.0:
+                depth_out[v] = invalid_cost
+                continue
+            acc = 0.0
+            for p in range(npx):
+                q = query[p]
+                if q == IGNORE or q == 0:
+                    continue
+                f = tri_id[p]
+                if f < 0:
+                    continue
+                dq = query_depth[p]
+                if dq > 0.0:
+                    dr = 1.0 / inv_z[p]
+                    acc += abs(s * dq + t - dr) / dr
+            depth_out[v] = acc / n
