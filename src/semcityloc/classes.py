@@ -47,6 +47,8 @@ SURFACE_CLASS: dict[str, SemanticClass] = {
     "RoofSurface": SemanticClass.ROOF,
     "Window": SemanticClass.WINDOW,
     "Door": SemanticClass.DOOR,
+    "WindowSurface": SemanticClass.WINDOW,  # CityGML 3.0 boundary names of openings
+    "DoorSurface": SemanticClass.DOOR,
     "ClosureSurface": SemanticClass.WALL,
     "OuterCeilingSurface": SemanticClass.WALL,
     "OuterFloorSurface": SemanticClass.ROOF,

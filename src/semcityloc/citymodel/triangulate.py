@@ -11,6 +11,8 @@ non-planar polygons are still triangulated (the deviation is reported).
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import dataclass
 
 import mapbox_earcut
@@ -35,31 +37,41 @@ def clean_ring(ring: np.ndarray) -> np.ndarray:
     ring = np.asarray(ring, dtype=np.float64).reshape(-1, 3)
     if len(ring) == 0:
         return ring
-    step = np.linalg.norm(np.diff(ring, axis=0, append=ring[:1]), axis=1)
-    return ring[step > DUPLICATE_TOLERANCE_M]
+    step = np.empty_like(ring)
+    np.subtract(ring[1:], ring[:-1], out=step[:-1])
+    np.subtract(ring[0], ring[-1], out=step[-1])
+    return ring[np.einsum("ij,ij->i", step, step) > DUPLICATE_TOLERANCE_M * DUPLICATE_TOLERANCE_M]
 
 
 def newell_normal(ring: np.ndarray) -> np.ndarray:
     """Newell's (unnormalised) normal of a closed ring given without its closing point: 2 * area * n."""
-    nxt = np.roll(ring, -1, axis=0)
     # Centre first: the products then stay small for coordinates like 5.8e6.
-    c = ring.mean(0)
-    a, b = ring - c, nxt - c
-    return np.array(
-        [
-            np.sum((a[:, 1] - b[:, 1]) * (a[:, 2] + b[:, 2])),
-            np.sum((a[:, 2] - b[:, 2]) * (a[:, 0] + b[:, 0])),
-            np.sum((a[:, 0] - b[:, 0]) * (a[:, 1] + b[:, 1])),
-        ]
-    )
+    a = ring - ring.sum(0) / len(ring)
+    return _newell_centred(a)
+
+
+# Newell: n_x = sum (y_i - y_j)(z_i + z_j), n_y = sum (z_i - z_j)(x_i + x_j), n_z = sum (x_i - x_j)(y_i + y_j)
+_NEWELL_D = np.array([1, 2, 0])
+_NEWELL_S = np.array([2, 0, 1])
+
+
+def _newell_centred(a: np.ndarray) -> np.ndarray:
+    """Newell's normal of a ring already centred on its mean (one vectorised expression)."""
+    b = np.concatenate((a[1:], a[:1]))
+    return ((a - b)[:, _NEWELL_D] * (a + b)[:, _NEWELL_S]).sum(0)
+
+
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross costs ~10x more for single vectors)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors u, v with u x v = normal (right-handed in-plane axes)."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(helper, normal)
-    u /= np.linalg.norm(u)
-    v = np.cross(normal, u)
+    u = _cross3(helper, normal)
+    u /= np.sqrt(u @ u)
+    v = _cross3(normal, u)
     return u, v
 
 
@@ -70,38 +82,41 @@ def triangulate_polygon(
     ext = clean_ring(exterior)
     if len(ext) < 3:
         return None
-    n = newell_normal(ext)
-    norm = np.linalg.norm(n)
-    scale = max(float(np.ptp(ext, axis=0).max()), 1e-12)
+    centre = ext.sum(0) / len(ext)
+    rel_ext = ext - centre
+    n = _newell_centred(rel_ext)  # = newell_normal(ext), centred once for both uses
+    norm = math.sqrt(float(n @ n))
+    scale = max(float((ext.max(0) - ext.min(0)).max()), 1e-12)
     if norm < 1e-12 * scale * scale or norm < 1e-10:
         return None
     n = n / norm
-    holes = [h for h in (clean_ring(r) for r in interiors) if len(h) >= 3]
+    holes = [h for h in (clean_ring(r) for r in interiors) if len(h) >= 3] if len(interiors) else []
     pts = np.concatenate([ext, *holes]) if holes else ext
-    centre = ext.mean(0)
-    planarity = float(np.abs((pts - centre) @ n).max())
+    rel = np.concatenate([rel_ext, *(h - centre for h in holes)]) if holes else rel_ext
+    planarity = float(np.abs(rel @ n).max())
 
     if len(ext) == 3 and not holes:
         return Triangulation(ext, np.array([[0, 1, 2]]), n, planarity)
 
     u, v = plane_basis(n)
-    rel = pts - centre
-    pts2d = np.stack([rel @ u, rel @ v], axis=1)
-    ends = np.cumsum([len(ext)] + [len(h) for h in holes]).astype(np.uint32)
+    pts2d = rel @ np.array((u, v)).T
+    ends = np.array(list(itertools.accumulate([len(ext)] + [len(h) for h in holes])), dtype=np.uint32)
     idx = mapbox_earcut.triangulate_float64(pts2d, ends)
     if len(idx) == 0:
         return None
     tris = idx.reshape(-1, 3).astype(np.int64)
     p = pts2d[tris]
-    signed = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
-        p[:, 1, 1] - p[:, 0, 1]
-    )
+    e1 = p[:, 1] - p[:, 0]
+    e2 = p[:, 2] - p[:, 0]
+    signed = e1[:, 0] * e2[:, 1] - e2[:, 0] * e1[:, 1]
     keep = np.abs(signed) > 1e-14 * scale * scale
-    tris, signed = tris[keep], signed[keep]
+    if not keep.all():
+        tris, signed = tris[keep], signed[keep]
     if len(tris) == 0:
         return None
     flip = signed < 0
-    tris[flip] = tris[flip][:, [0, 2, 1]]
+    if flip.any():
+        tris[flip] = tris[flip][:, [0, 2, 1]]
     return Triangulation(pts, tris, n, planarity)
 
 

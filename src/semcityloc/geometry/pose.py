@@ -162,9 +162,11 @@ class Pose:
     def rotate_world_z(self, angle_deg: np.ndarray) -> Pose:
         """Turn the camera about the world z axis through its own centre (adds ``angle_deg`` to yaw)."""
         a = np.radians(np.asarray(angle_deg, dtype=np.float64))
+        batch = np.broadcast_shapes(a.shape, self.batch_shape)
+        a = np.broadcast_to(a, batch)
         c, s = np.cos(a), np.sin(a)
-        Rz = np.zeros(a.shape + (3, 3))
+        Rz = np.zeros(batch + (3, 3))
         Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1], Rz[..., 2, 2] = c, -s, s, c, 1.0
         return Pose.from_rotation_center(
-            Rz @ self.R_world_from_cam, np.broadcast_to(self.center, a.shape + (3,))
+            Rz @ self.R_world_from_cam, np.broadcast_to(self.center, batch + (3,))
         )

@@ -22,8 +22,9 @@ from semcityloc.render.raster_numba import NEAR_M, work_chunks
 from semcityloc.render.scene import RenderScene
 
 # Wide render focal length relative to the target's: > 1 samples the wide view finer than the target so
-# nearest-neighbour lookups agree with direct renders more often (measured in benchmarks/bench_localize.py).
-WIDE_OVERSAMPLE = 1.0
+# nearest-neighbour lookups agree with direct renders more often. Measured on Berlin at 64x48, 13 yaws over
+# 18 deg, 20 nadir/oblique centres: agreement 95.3% at 1.0, 96.9% at 1.5, 97.3% at 2.0 for ~14% more time.
+WIDE_OVERSAMPLE = 2.0
 
 
 @dataclass
@@ -102,9 +103,12 @@ def yaw_lookup(
     umin, umax = u[front].min(), u[front].max()
     vmin, vmax = v[front].min(), v[front].max()
     margin = 1.0
-    width = int(math.ceil(umax - umin + 2 * margin))
-    height = int(math.ceil(vmax - vmin + 2 * margin))
-    cx, cy = margin - umin, margin - vmin
+    # Whole-pixel offsets from the target's principal point (scaled): the zero-yaw view then samples
+    # exactly the target's pixel centres when oversample is 1.
+    cx = camera.cx * oversample + math.ceil(margin - umin - camera.cx * oversample)
+    cy = camera.cy * oversample + math.ceil(margin - vmin - camera.cy * oversample)
+    width = int(math.ceil(cx + umax + margin))
+    height = int(math.ceil(cy + vmax + margin))
     wide = Camera(fx, fy, cx, cy, width, height)
     col = np.floor(u + cx).astype(np.int64)
     row = np.floor(v + cy).astype(np.int64)

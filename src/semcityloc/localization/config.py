@@ -14,7 +14,7 @@ class CoarseConfig:
     number of samples per axis (paper: n_c); samples are prior - range/2 ... prior + range/2."""
 
     range_xy_m: float = 32.0
-    range_z_m: float = 12.0
+    range_z_m: float = 16.0
     range_yaw_deg: float = 18.0
     n_xy: int = 17
     n_z: int = 7
@@ -33,15 +33,16 @@ class RefineConfig:
     """Particle filter around the coarse pose. Perturbation scales shrink by ``shrink`` per iteration."""
 
     particles: int = 128
-    iterations: int = 8
+    iterations: int = 10
     sigma_xy_m: float = 1.5
     sigma_z_m: float = 1.0
     sigma_yaw_deg: float = 1.0
     sigma_roll_pitch_deg: float = 0.3
-    shrink: float = 0.75
-    temperature: float = 0.02  # softmax temperature on the combined score
+    shrink: float = 0.65
+    temperature: float = 0.3  # softmax temperature, in units of the population's score std
+    update: str = "gaussian"  # "gaussian": weighted mean + covariance; "resample": systematic resampling
     lambda_semantic: float = 1.0  # lambda_1 of the paper
-    lambda_depth: float = 0.5  # lambda_2: score = lambda_1 * C_s - lambda_2 * C_d (C_d is a cost)
+    lambda_depth: float = 1.0  # lambda_2: score = lambda_1 * C_s - lambda_2 * C_d (C_d is a cost)
     scale: int = 2  # render at scale x the coarse resolution (paper: twice)
 
 
@@ -52,7 +53,9 @@ class LocalizerConfig:
     no_coarse: bool = False  # ablation: refine from the prior
     no_refine: bool = False  # ablation: coarse only
     no_depth: bool = False  # ablation: semantics only in the refinement
-    min_score: float = 0.2  # best semantic IoU below this -> not_localized
+    # Final combined score (lambda_1 C_s - lambda_2 C_d; C_s alone without depth) below this -> not_localized.
+    min_score: float = 0.5
+    min_building_iou: float = 0.1  # building-vs-rest IoU at the final pose below this -> not_localized
     min_building_fraction: float = 0.005  # query mask with fewer wall/roof pixels -> not_localized
     seed: int = 0
 

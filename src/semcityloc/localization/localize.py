@@ -141,7 +141,7 @@ class Localizer:
         result.pose_local = pose_local
         result.pose = pose_local.shift_world(-offset)
         result.confidence["building_iou"] = self._building_iou(fine_cam, pose_local, q_fine)
-        if result.semantic < cfg.min_score or result.confidence["building_iou"] < cfg.min_score / 2:
+        if result.score < cfg.min_score or result.confidence["building_iou"] < cfg.min_building_iou:
             result.pose = result.pose_local = None
             return self._finish(result, REASON_LOW_SCORE, t0)
         result.status = LOCALIZED

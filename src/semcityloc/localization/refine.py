@@ -80,6 +80,15 @@ def evaluate(
     return sem, dep
 
 
+def softmax_weights(score: np.ndarray, temperature: float) -> np.ndarray:
+    """Particle weights ``exp((score - max) / T)``, normalised. ``T`` is relative to the score spread
+    of the population (``temperature * std``, floored), so the same setting works for any score scale."""
+    spread = max(float(np.std(score)), 1e-9)
+    z = (score - score.max()) / (temperature * spread)
+    w = np.exp(z)
+    return w / w.sum()
+
+
 def _systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     n = len(weights)
     positions = (rng.random() + np.arange(n)) / n
@@ -127,14 +136,21 @@ def particle_filter(
         i = int(np.argmax(score))
         if score[i] > best[0]:
             best = (float(score[i]), states[i].copy(), float(sem[i]), float(dep[i]))
-        z = (score - score.max()) / config.temperature
-        weights = np.exp(z)
-        weights /= weights.sum()
+        weights = softmax_weights(score, config.temperature)
         if it == config.iterations - 1:
             break
-        keep = _systematic_resample(weights, rng)
-        scale = sigma * config.shrink ** (it + 1)
-        states = states[keep] + rng.normal(size=(n, 6)) * scale
+        floor = sigma * config.shrink ** (it + 1)
+        if config.update == "gaussian":
+            # Gaussian particle filter: draw the next population from the weighted mean and covariance,
+            # so directions where the score is flat or coupled (roll ~ x, pitch ~ y) are explored along
+            # their correlation; a floor that shrinks per iteration keeps it from collapsing early.
+            mean = weights @ states
+            centred = states - mean
+            cov = (centred * weights[:, None]).T @ centred + np.diag(floor**2)
+            states = rng.multivariate_normal(mean, cov, size=n, method="cholesky")
+        else:
+            keep = _systematic_resample(weights, rng)
+            states = states[keep] + rng.normal(size=(n, 6)) * floor
         states[0] = best[1]  # elitism: the best so far stays in the population
 
     mean = np.average(states, axis=0, weights=weights)

@@ -1,0 +1,390 @@
+"""Simulated perception for the benchmark: a noisy segmentation and a MoGe-2-like relative depth map.
+
+Why: the paper's queries come from a DINOv3 segmentation head (88 % mIoU on SemCityLockeD when trained,
+32-37 % zero-shot) and MoGe-2 depth. The benchmark renders the *clean* labels and depth of a simulated
+reality and degrades them here with the error types such networks make, at a tunable quality, so every
+change of the localizer can be measured against a known truth.
+
+Segmentation (``simulate_segmentation``), in this order:
+
+1. openings missed: each window / door blob (connected component) becomes wall with probability
+   ``opening_to_wall``;
+2. class confusions: for each ``(from, to, area, cell_px)`` in ``confusions``, the ``from`` pixels inside
+   smooth random regions covering about ``area`` of the image (blobs of roughly ``cell_px`` pixels) are
+   relabelled ``to`` (wall <-> roof patches, roof -> ground in shadow, ground <-> roof swaps zero-shot);
+3. mislabelled blobs: a Poisson(``blobs``) number of ellipses of radius ``blob_radius`` (share of the
+   image's shorter side) painted with a random class from ``blob_classes``;
+4. boundary noise: a smooth random displacement field of amplitude ``boundary_px`` warps the label map
+   (boundaries wobble by a few pixels), then each class in a random order is dilated by 0..``dilate_px``
+   pixels with probability 1/2 (a systematic over/under-segmentation: dilating one class erodes its
+   neighbours; ``scipy.ndimage`` morphology);
+5. patch resolution (ViT/16 + light decoder): class probabilities are block-averaged one-hot at
+   ``patch_px`` resolution and bilinearly upsampled; a pixel keeps its own class unless another class's
+   patch probability beats its own by more than ``patch_detail`` (0 = pure patch argmax, 1 = no blur).
+
+Occluders (trees, cars) are already BACKGROUND in the clean labels of the reality render, so they stay
+background here unless noise moves a boundary over them.
+
+Depth (``simulate_depth``): ``a * d + b`` with ``a`` log-uniform in [0.5, 2] and ``b`` uniform in
+[-0.2, 0.5] x ``a`` x median depth (raised if needed so every depth stays at least 5 % of the median
+positive), times a smooth low-frequency distortion ``1 + 0.03 f`` (``f`` a smooth field scaled to
+max |f| = 1), times per-pixel noise ``1 + s n`` (``s`` uniform in 1-2 %, ``n`` standard normal), with
+depth edges blurred across class boundaries (MoGe's "flying pixels": pixels on a class boundary take the
+mean of their valid 3x3 neighbours). NaN exactly where the clean depth is not finite (sky / nothing).
+
+``miou``: mean IoU (%) over the classes present in the ground truth among ground, wall, roof, window,
+door (background is not a class of the mean, but a predicted background pixel is a miss of its gt class).
+Every random draw comes from the ``numpy.random.Generator`` passed in: same generator state -> same output.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from semcityloc.classes import NUM_CLASSES, SemanticClass
+from semcityloc.errors import SemCityLocError, ShapeError
+
+MIOU_CLASSES = (
+    int(SemanticClass.GROUND),
+    int(SemanticClass.WALL),
+    int(SemanticClass.ROOF),
+    int(SemanticClass.WINDOW),
+    int(SemanticClass.DOOR),
+)
+# A class takes part in a query's mIoU when it covers at least this many ground-truth pixels: a class
+# seen on a handful of pixels (a door corner at the image edge) would otherwise swing the mean by 20
+# points on its own.
+MIN_PRESENT_PIXELS = 50
+
+DEPTH_SCALE_RANGE = (0.5, 2.0)
+DEPTH_SHIFT_RANGE = (-0.2, 0.5)  # times scale x median depth
+DEPTH_MIN_SHARE = 0.05  # every simulated depth stays at least this share of the (scaled) median
+DEPTH_DISTORTION = 0.03  # amplitude of the smooth multiplicative distortion
+DEPTH_DISTORTION_CELL = 0.35  # its correlation length, share of the image's longer side
+DEPTH_NOISE_RANGE = (0.01, 0.02)  # per-pixel multiplicative noise, standard deviation
+
+_W, _R, _G, _B = int(SemanticClass.WALL), int(SemanticClass.ROOF), int(SemanticClass.GROUND), 0
+
+
+class PerceptionSimError(SemCityLocError, ValueError):
+    """A bad argument of the perception simulation (unknown preset, wrong array)."""
+
+
+@dataclass(frozen=True)
+class SegPreset:
+    """Noise parameters of one simulated segmentation quality (module docstring, steps 1-5)."""
+
+    name: str
+    opening_to_wall: float = 0.0
+    opening_erode_px: int = 0
+    confusions: tuple[tuple[int, int, float, int], ...] = ()  # (from, to, area share, blob size px)
+    blobs: float = 0.0
+    blob_radius: tuple[float, float] = (0.02, 0.06)
+    blob_classes: tuple[int, ...] = (_B, _G, _W, _R)
+    boundary_px: float = 0.0
+    boundary_cell_px: int = 24
+    dilate_px: int = 0
+    patch_px: int = 16
+    patch_detail: float = 1.0
+    noise: bool = True  # False: the labels are returned unchanged ("perfect")
+
+
+SEG_PRESETS: dict[str, SegPreset] = {
+    "perfect": SegPreset("perfect", noise=False),
+    # A DINOv3 head trained on the city (paper: 88 % mIoU): sharp, small confusions at boundaries.
+    "trained": SegPreset(
+        "trained",
+        opening_to_wall=0.15,
+        confusions=((_W, _R, 0.05, 40), (_R, _W, 0.03, 40), (_R, _G, 0.02, 48), (_G, _R, 0.02, 48)),
+        blobs=1.0,
+        blob_radius=(0.015, 0.04),
+        boundary_px=1.5,
+        dilate_px=1,
+        patch_px=16,
+        patch_detail=0.45,
+    ),
+    # A weaker trained head (paper: 78 % on Swiss-EPFL): coarser masks, more confusions.
+    "medium": SegPreset(
+        "medium",
+        opening_to_wall=0.35,
+        confusions=((_W, _R, 0.12, 48), (_R, _W, 0.08, 48), (_R, _G, 0.06, 56), (_G, _R, 0.05, 56)),
+        blobs=2.5,
+        blob_radius=(0.02, 0.06),
+        boundary_px=3.0,
+        dilate_px=2,
+        patch_px=16,
+        patch_detail=0.25,
+    ),
+    # Zero-shot CLIP + Semantic-SAM / Grounded-SAM2 (paper: 32-37 %): ground and roof swapped over large
+    # regions, facades lost to background, big wrong blobs, patch-level masks.
+    "zero-shot": SegPreset(
+        "zero-shot",
+        opening_to_wall=0.9,
+        confusions=(
+            (_R, _G, 0.40, 96),
+            (_G, _R, 0.35, 96),
+            (_W, _B, 0.35, 80),
+            (_W, _R, 0.30, 80),
+            (_R, _W, 0.25, 80),
+            (_G, _B, 0.20, 96),
+        ),
+        blobs=5.0,
+        blob_radius=(0.05, 0.15),
+        boundary_px=6.0,
+        dilate_px=4,
+        patch_px=16,
+        patch_detail=0.0,
+    ),
+}
+
+
+def get_preset(preset: str | SegPreset) -> SegPreset:
+    """A preset by name (or the preset itself)."""
+    if isinstance(preset, SegPreset):
+        return preset
+    try:
+        return SEG_PRESETS[preset]
+    except (KeyError, TypeError) as exc:
+        raise PerceptionSimError(
+            f"unknown segmentation preset {preset!r}; known: {', '.join(SEG_PRESETS)}"
+        ) from exc
+
+
+# ------------------------------------------------------------------------------------------ helpers
+def _check_labels(labels: np.ndarray, what: str = "labels") -> np.ndarray:
+    labels = np.asarray(labels)
+    if labels.ndim != 2 or labels.size == 0:
+        raise ShapeError(f"{what} must be a non-empty (H, W) array, got shape {labels.shape}")
+    if not np.issubdtype(labels.dtype, np.integer):
+        raise ShapeError(f"{what} must hold integer class ids, got dtype {labels.dtype}")
+    if labels.min() < 0 or labels.max() >= NUM_CLASSES:
+        raise ShapeError(f"{what} must hold class ids 0..{NUM_CLASSES - 1}")
+    return labels.astype(np.uint8, copy=False)
+
+
+def _lerp_index(n_out: int, n_in: int, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear sampling of a grid with one node per ``step`` output pixels at the output pixel centres:
+    (k0, w1) such that value = (1 - w1) g[k0] + w1 g[k0 + 1]. Node k sits at the centre of block k
+    (output coordinate (k + 0.5) step); pixels beyond the first / last node take that node's value."""
+    pos = np.clip((np.arange(n_out) + 0.5) / step - 0.5, 0.0, n_in - 1.0)
+    k0 = np.minimum(np.floor(pos).astype(np.intp), max(n_in - 2, 0))
+    return k0, pos - k0
+
+
+def upsample_bilinear(grid: np.ndarray, height: int, width: int, step: float) -> np.ndarray:
+    """(..., gh, gw) grid -> (..., height, width) by bilinear interpolation (``_lerp_index``). Elementwise
+    only (no BLAS), so results are bit-identical on every machine."""
+    gh, gw = grid.shape[-2:]
+    ky, wy = _lerp_index(height, gh, step)
+    kx, wx = _lerp_index(width, gw, step)
+    ky1, kx1 = np.minimum(ky + 1, gh - 1), np.minimum(kx + 1, gw - 1)
+    wy = wy.astype(grid.dtype)[:, None]
+    wx = wx.astype(grid.dtype)
+    rows = grid[..., ky, :] * (1 - wy) + grid[..., ky1, :] * wy
+    return rows[..., kx] * (1 - wx) + rows[..., kx1] * wx
+
+
+def smooth_field(rng: np.random.Generator, height: int, width: int, cell_px: float) -> np.ndarray:
+    """(H, W) float64 smooth random field: standard normal values on a grid of ``cell_px`` spacing,
+    bilinearly interpolated (values near a grid node are ~N(0, 1), between nodes smaller)."""
+    cell = max(float(cell_px), 1.0)
+    gh = int(np.ceil(height / cell)) + 1
+    gw = int(np.ceil(width / cell)) + 1
+    return upsample_bilinear(rng.standard_normal((gh, gw)), height, width, cell)
+
+
+def _region(rng: np.random.Generator, shape: tuple[int, int], area: float, cell_px: float) -> np.ndarray:
+    """Boolean mask of smooth random blobs covering about ``area`` of the image."""
+    if area <= 0:
+        return np.zeros(shape, dtype=bool)
+    if area >= 1:
+        return np.ones(shape, dtype=bool)
+    h, w = shape
+    # Threshold a quarter-resolution field (cheap quantile), then repeat it up to full size.
+    hq, wq = -(-h // 4), -(-w // 4)
+    field = smooth_field(rng, hq, wq, cell_px / 4.0)
+    thr = np.quantile(field, 1.0 - area)
+    small = field > thr
+    return np.repeat(np.repeat(small, 4, axis=0), 4, axis=1)[:h, :w]
+
+
+def _opening_layer(clean: np.ndarray, preset: SegPreset, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) uint8: the clean window / door pixels of the openings the network finds, 0 elsewhere.
+
+    Each opening (connected component of one class) is missed with probability ``opening_to_wall``;
+    the layer is then eroded by ``opening_erode_px`` (small openings vanish)."""
+    layer = np.zeros_like(clean)
+    for c in (SemanticClass.WINDOW, SemanticClass.DOOR):
+        mask = clean == c
+        if not mask.any():
+            continue
+        comp, n = ndimage.label(mask)
+        keep = np.concatenate([[False], rng.random(n) >= preset.opening_to_wall])
+        found = keep[comp]
+        if preset.opening_erode_px > 0:
+            found = ndimage.binary_erosion(found, iterations=int(preset.opening_erode_px))
+        layer[found] = c
+    return layer
+
+
+def _paint_blobs(labels: np.ndarray, preset: SegPreset, rng: np.random.Generator) -> None:
+    n = int(rng.poisson(preset.blobs)) if preset.blobs > 0 else 0
+    if n == 0:
+        return
+    h, w = labels.shape
+    side = min(h, w)
+    cy = rng.uniform(0, h, n)
+    cx = rng.uniform(0, w, n)
+    ry = rng.uniform(*preset.blob_radius, n) * side
+    rx = rng.uniform(*preset.blob_radius, n) * side
+    angle = rng.uniform(0, np.pi, n)
+    cls = rng.choice(np.asarray(preset.blob_classes, dtype=np.uint8), n)
+    for k in range(n):
+        r = max(rx[k], ry[k])
+        i0, i1 = max(int(cy[k] - r), 0), min(int(cy[k] + r) + 1, h)
+        j0, j1 = max(int(cx[k] - r), 0), min(int(cx[k] + r) + 1, w)
+        if i0 >= i1 or j0 >= j1:
+            continue
+        yy = np.arange(i0, i1)[:, None] + 0.5 - cy[k]
+        xx = np.arange(j0, j1)[None, :] + 0.5 - cx[k]
+        c, s = np.cos(angle[k]), np.sin(angle[k])
+        u, v = c * xx + s * yy, -s * xx + c * yy
+        inside = (u / rx[k]) ** 2 + (v / ry[k]) ** 2 <= 1.0
+        labels[i0:i1, j0:j1][inside] = cls[k]
+
+
+def _warp_index(shape: tuple[int, int], amplitude: float, cell_px: int, rng: np.random.Generator):
+    """Row / column index maps of a smooth random displacement of ``amplitude`` pixels (None if 0)."""
+    if amplitude <= 0:
+        return None
+    h, w = shape
+    dy = smooth_field(rng, h, w, cell_px) * amplitude
+    dx = smooth_field(rng, h, w, cell_px) * amplitude
+    rows = np.clip(np.rint(np.arange(h)[:, None] + dy), 0, h - 1).astype(np.intp)
+    cols = np.clip(np.rint(np.arange(w)[None, :] + dx), 0, w - 1).astype(np.intp)
+    return rows, cols
+
+
+def _dilate_classes(labels: np.ndarray, max_px: int, rng: np.random.Generator) -> None:
+    if max_px <= 0:
+        return
+    classes = np.array([_G, _W, _R, SemanticClass.BACKGROUND], dtype=np.uint8)
+    order = rng.permutation(len(classes))
+    grow = rng.random(len(classes)) < 0.5
+    radius = rng.integers(1, max_px + 1, len(classes))
+    for k in order:
+        if not grow[k]:
+            continue
+        mask = labels == classes[k]
+        if not mask.any():
+            continue
+        grown = ndimage.binary_dilation(mask, iterations=int(radius[k]))
+        labels[grown & ~mask] = classes[k]
+
+
+def _patch_blur(labels: np.ndarray, patch_px: int, detail: float) -> np.ndarray:
+    if detail >= 1.0 or patch_px <= 1:
+        return labels
+    h, w = labels.shape
+    p = int(patch_px)
+    hb, wb = -(-h // p), -(-w // p)
+    # Class shares per patch (edge patches count only their pixels inside the image).
+    block = (np.arange(h) // p)[:, None] * wb + (np.arange(w) // p)[None, :]
+    counts = np.bincount((block * NUM_CLASSES + labels).reshape(-1), minlength=hb * wb * NUM_CLASSES)
+    counts = counts.reshape(hb, wb, NUM_CLASSES)
+    present = np.flatnonzero(counts.sum(axis=(0, 1))).astype(np.uint8)
+    prob = counts[:, :, present].transpose(2, 0, 1).astype(np.float32)
+    prob /= np.maximum(prob.sum(axis=0, keepdims=True), 1.0)
+    score = upsample_bilinear(prob, h, w, p)  # (C, H, W)
+    lut = np.full(NUM_CLASSES, -1, dtype=np.intp)
+    lut[present] = np.arange(len(present))
+    score[lut[labels], np.arange(h)[:, None], np.arange(w)[None, :]] += np.float32(detail)
+    return present[np.argmax(score, axis=0)]
+
+
+# ------------------------------------------------------------------------------------------ public
+def simulate_segmentation(
+    clean_labels: np.ndarray, preset: str | SegPreset, rng: np.random.Generator
+) -> np.ndarray:
+    """A noisy (H, W) uint8 segmentation of ``clean_labels`` at the quality of ``preset``."""
+    clean = _check_labels(clean_labels, "clean_labels")
+    p = get_preset(preset)
+    if not p.noise:
+        return clean.copy()
+    openings = _opening_layer(clean, p, rng)
+    labels = clean.copy()
+    labels[(clean == SemanticClass.WINDOW) | (clean == SemanticClass.DOOR)] = SemanticClass.WALL
+    for src, dst, area, cell in p.confusions:
+        region = _region(rng, labels.shape, area, cell)
+        labels[region & (labels == src)] = dst
+    _paint_blobs(labels, p, rng)
+    warp = _warp_index(labels.shape, p.boundary_px, p.boundary_cell_px, rng)
+    if warp is not None:
+        labels, openings = labels[warp], openings[warp]
+    _dilate_classes(labels, p.dilate_px, rng)
+    labels = _patch_blur(labels, p.patch_px, p.patch_detail)
+    # Openings are found on the facade the network sees: pasted where the result is still wall.
+    paste = (openings > 0) & (labels == SemanticClass.WALL)
+    labels[paste] = openings[paste]
+    return labels
+
+
+def miou(pred: np.ndarray, gt: np.ndarray, min_pixels: int = MIN_PRESENT_PIXELS) -> float:
+    """Mean IoU in % of ``pred`` against ``gt`` over the classes of ``MIOU_CLASSES`` present in ``gt``
+    (at least ``min_pixels`` pixels). NaN when ``gt`` has none of them."""
+    pred = _check_labels(pred, "pred")
+    gt = _check_labels(gt, "gt")
+    if pred.shape != gt.shape:
+        raise ShapeError(f"pred {pred.shape} and gt {gt.shape} differ in shape")
+    pair = np.bincount(
+        gt.reshape(-1).astype(np.int64) * NUM_CLASSES + pred.reshape(-1), minlength=NUM_CLASSES**2
+    )
+    conf = pair.reshape(NUM_CLASSES, NUM_CLASSES)  # [gt, pred]
+    ious = []
+    for c in MIOU_CLASSES:
+        n_gt = conf[c].sum()
+        if n_gt < max(int(min_pixels), 1):
+            continue
+        inter = conf[c, c]
+        union = n_gt + conf[:, c].sum() - inter
+        ious.append(inter / union)
+    return 100.0 * float(np.mean(ious)) if ious else float("nan")
+
+
+def simulate_depth(clean_depth: np.ndarray, labels_clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) float32 relative depth from the rendered z-depth (module docstring); NaN where not finite."""
+    d = np.asarray(clean_depth, dtype=np.float64)
+    if d.ndim != 2 or d.size == 0:
+        raise ShapeError(f"clean_depth must be a non-empty (H, W) array, got shape {d.shape}")
+    labels = _check_labels(labels_clean, "labels_clean")
+    if labels.shape != d.shape:
+        raise ShapeError(f"labels_clean {labels.shape} and clean_depth {d.shape} differ in shape")
+    valid = np.isfinite(d) & (d > 0)
+    out = np.full(d.shape, np.nan, dtype=np.float32)
+    if not valid.any():
+        return out
+    h, w = d.shape
+    med = float(np.median(d[valid]))
+    dmin = float(d[valid].min())
+
+    a = float(np.exp(rng.uniform(np.log(DEPTH_SCALE_RANGE[0]), np.log(DEPTH_SCALE_RANGE[1]))))
+    b = float(rng.uniform(*DEPTH_SHIFT_RANGE)) * a * med
+    b = max(b, DEPTH_MIN_SHARE * a * med - a * dmin)  # keep a * dmin + b >= 5 % of a * median
+    field = smooth_field(rng, h, w, DEPTH_DISTORTION_CELL * max(h, w))
+    field /= max(float(np.abs(field).max()), 1e-12)
+    sigma = float(rng.uniform(*DEPTH_NOISE_RANGE))
+    noise = rng.standard_normal(d.shape)
+
+    # Flying pixels: on class boundaries, depth is the mean of the valid 3x3 neighbourhood.
+    dz = np.where(valid, d, 0.0)
+    num = ndimage.uniform_filter(dz, size=3, mode="nearest")
+    den = ndimage.uniform_filter(valid.astype(np.float64), size=3, mode="nearest")
+    edge = (ndimage.maximum_filter(labels, size=3) != ndimage.minimum_filter(labels, size=3)) & valid
+    blurred = np.where(edge, num / np.maximum(den, 1e-12), d)
+
+    rel = (a * blurred + b) * (1.0 + DEPTH_DISTORTION * field) * np.clip(1.0 + sigma * noise, 0.5, 1.5)
+    out[valid] = rel[valid].astype(np.float32)
+    return out

@@ -1,0 +1,389 @@
+"""Simulated benchmark queries: a UAV over a real city model, its perceived labels / depth and a prior.
+
+Why: the paper evaluates on real DJI Zenmuse L2 images flown at ~75 m over a dense city, nadir and
+oblique. We simulate that protocol on real LoD2 city models so that every change can be measured.
+``QuerySimulator(map_model, config, reality_model).query(i)`` gives query ``i``; it depends on
+``(config.seed, i)`` only (not on other queries, call order or thread count).
+
+Camera: the DJI Zenmuse L2 RGB camera, f = 12.29 mm on a 4/3" sensor 17.3 x 13.0 mm at 5280 x 3956 px,
+so fx = 12.29 / 17.3 x 5280 = 3751 px at full resolution. Scaled to the working width W (square
+pixels, principal point at the image centre): fx = fy = 12.29 / 17.3 x W, i.e. 363.7 px at 512 x 384,
+horizontal field of view 2 atan(256 / 363.7) = 70.3 deg, vertical 55.6 deg; at 75 m above flat ground a
+nadir view covers about 106 x 79 m at 0.21 m per pixel.
+
+True pose of query i (attempt k = 0, 1, ... until the view is accepted, at most ``MAX_ATTEMPTS``; each
+attempt from its own generator ``default_rng([seed, i, 0, k])``):
+
+- view: oblique or nadir from a golden-ratio sequence over the index (``view_kind``), so any run of n
+  consecutive queries has n x ``oblique_fraction`` oblique views to within 2;
+- height above the ground under the camera: normal around ``nominal_height_m`` with sigma 20 % of it,
+  redrawn until inside ``height_range_m``; ground height from the reality's terrain TIN;
+- heading (yaw) uniform in [-180, 180); roll uniform in +-``max_roll_deg``; pitch uniform in
+  ``oblique_pitch_deg`` (oblique) or +-3 deg (nadir), from nadir (``Pose.from_xyz_rpy`` convention);
+- the point the optical axis meets on the ground is uniform over the x, y bounding box of the map's
+  buildings; the camera stands back from it along the heading by height x tan(pitch);
+- accepted when nothing of the reality is above the camera, nothing is closer than ``MIN_CLEARANCE_M``,
+  and wall + roof (+ window, door) cover at least ``min_building_fraction`` of the clean labels. If no
+  attempt passes, the best-covered one is returned with ``meta["accepted"] = False`` (the runner may
+  skip it).
+
+Reality: ``occluders.build_reality`` (the reality model, LoD3 where the caller has it, with per-building
+geometric errors, roof structures, trees and cars), built once per simulator from ``config.seed``. The
+clean labels / depth are its render at the true pose; ``perception_sim`` degrades them into the query's
+``labels`` (``default_rng([seed, i, 3])``) and ``depth`` (``default_rng([seed, i, 4])``).
+
+Prior (``sample_prior``): a base translation error of norm uniform in ``prior_translation_m`` whose
+direction is uniform in the horizontal plane with a smaller vertical part (direction proportional to
+(cos t, sin t, u), u uniform in +-``PRIOR_Z_RATIO`` = 0.4, so |dz| <= 0.37 x the norm: GNSS-like priors are
+mostly horizontal and the search's z range is narrower than its x, y range), from
+``default_rng([seed, i, 1])``; plus, when ``prior_extra_m`` = (lo, hi) is set, an independent
+perturbation on each of x, y, z of magnitude uniform in [lo, hi] with a random sign (the paper's bins
+10-20 ... 150-200 m), from ``default_rng([seed, i, 2])`` so that every bin shares the same base errors.
+Yaw error: magnitude uniform in [0, ``prior_yaw_deg``], random sign; roll and pitch errors uniform in
++-``prior_roll_pitch_deg``. Separate streams per stage mean a query's pose and prior do not change when
+only the segmentation quality or the prior bin changes.
+
+All poses are cam_from_world in the map model's LOCAL frame (world = ``map_model.origin`` + local).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from semcityloc.benchmark.occluders import BUILDING_CLASSES, RealityScene, build_reality
+from semcityloc.benchmark.perception_sim import SEG_PRESETS, miou, simulate_depth, simulate_segmentation
+from semcityloc.citymodel.model import CityModel
+from semcityloc.errors import EmptyModelError, SemCityLocError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+
+SENSOR_WIDTH_MM = 17.3  # DJI Zenmuse L2 RGB, 4/3" CMOS, 17.3 x 13.0 mm, 5280 x 3956 px
+MAX_ATTEMPTS = 64
+NADIR_PITCH_DEG = 3.0
+HEIGHT_SIGMA_FRACTION = 0.2
+PRIOR_Z_RATIO = 0.4
+MIN_CLEARANCE_M = 10.0
+GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+STREAM_POSE, STREAM_PRIOR, STREAM_PRIOR_EXTRA, STREAM_SEG, STREAM_DEPTH = 0, 1, 2, 3, 4
+
+
+class BenchmarkConfigError(SemCityLocError, ValueError):
+    """A query configuration value out of its range."""
+
+
+class QuerySimulationError(SemCityLocError):
+    """A query that cannot be simulated at all (every attempt put the camera under the model)."""
+
+
+def _pair(value, name: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise BenchmarkConfigError(f"{name} must be a pair of numbers (lo, hi), got {value!r}") from exc
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+        raise BenchmarkConfigError(f"{name} must be finite with lo <= hi, got {value!r}")
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class QueryConfig:
+    """How the benchmark's queries are simulated (module docstring)."""
+
+    queries: int = 100
+    seed: int = 0
+    width: int = 512  # working resolution of the simulated query image
+    height: int = 384
+    height_range_m: tuple[float, float] = (40.0, 150.0)  # camera height above local ground
+    nominal_height_m: float = 75.0  # heights drawn around this (clipped normal), within range
+    oblique_fraction: float = 0.5  # share of oblique views; others nadir (pitch 0 +- 3 deg)
+    oblique_pitch_deg: tuple[float, float] = (30.0, 60.0)  # from nadir
+    max_roll_deg: float = 3.0
+    min_building_fraction: float = 0.15  # keep views where wall+roof cover at least this share
+    seg_quality: str = "trained"  # preset name of perception_sim
+    prior_translation_m: tuple[float, float] = (5.0, 15.0)  # norm of the base prior translation error
+    prior_yaw_deg: float = 8.0  # |yaw error| uniform in [0, this]
+    prior_roll_pitch_deg: float = 1.0
+    prior_extra_m: tuple[float, float] | None = None  # extra per-axis (x, y, z) perturbation magnitude bin
+    depth: bool = True
+    focal_mm: float = 12.29  # DJI Zenmuse L2 (4/3", 17.3 x 13.0 mm sensor, 5280 x 3956): fx = f/17.3*W
+
+    def __post_init__(self) -> None:
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        for name in ("queries", "seed", "width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise BenchmarkConfigError(f"{name} must be an integer, got {value!r}")
+            put(name, int(value))
+        if self.queries < 0 or self.seed < 0:
+            raise BenchmarkConfigError("queries and seed must be >= 0")
+        if self.width < 16 or self.height < 16:
+            raise BenchmarkConfigError(
+                f"image size must be at least 16 x 16, got {self.width} x {self.height}"
+            )
+        for name in (
+            "nominal_height_m",
+            "oblique_fraction",
+            "max_roll_deg",
+            "min_building_fraction",
+            "prior_yaw_deg",
+            "prior_roll_pitch_deg",
+            "focal_mm",
+        ):
+            value = getattr(self, name)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float, np.number))
+                or not math.isfinite(value)
+            ):
+                raise BenchmarkConfigError(f"{name} must be a finite number, got {value!r}")
+            put(name, float(value))
+        lo, hi = _pair(self.height_range_m, "height_range_m")
+        if lo <= 0 or not lo <= self.nominal_height_m <= hi:
+            raise BenchmarkConfigError(
+                f"need 0 < height_range_m[0] <= nominal_height_m <= height_range_m[1], got {(lo, hi)} and "
+                f"{self.nominal_height_m}"
+            )
+        put("height_range_m", (lo, hi))
+        pitch = _pair(self.oblique_pitch_deg, "oblique_pitch_deg")
+        if pitch[0] < 0 or pitch[1] >= 85:
+            raise BenchmarkConfigError(f"oblique_pitch_deg must lie in [0, 85) degrees, got {pitch}")
+        put("oblique_pitch_deg", pitch)
+        if not 0 <= self.oblique_fraction <= 1 or not 0 <= self.min_building_fraction < 1:
+            raise BenchmarkConfigError(
+                "oblique_fraction must be in [0, 1] and min_building_fraction in [0, 1)"
+            )
+        if not 0 <= self.max_roll_deg <= 45 or not 0 <= self.prior_yaw_deg <= 180:
+            raise BenchmarkConfigError("max_roll_deg must be in [0, 45] and prior_yaw_deg in [0, 180]")
+        if not 0 <= self.prior_roll_pitch_deg <= 45 or self.focal_mm <= 0:
+            raise BenchmarkConfigError("prior_roll_pitch_deg must be in [0, 45] and focal_mm positive")
+        tr = _pair(self.prior_translation_m, "prior_translation_m")
+        if tr[0] < 0:
+            raise BenchmarkConfigError(f"prior_translation_m must be >= 0, got {tr}")
+        put("prior_translation_m", tr)
+        if self.prior_extra_m is not None:
+            extra = _pair(self.prior_extra_m, "prior_extra_m")
+            if extra[0] < 0:
+                raise BenchmarkConfigError(f"prior_extra_m must be >= 0, got {extra}")
+            put("prior_extra_m", extra)
+        if self.seg_quality not in SEG_PRESETS:
+            raise BenchmarkConfigError(
+                f"unknown seg_quality {self.seg_quality!r}; known: {', '.join(SEG_PRESETS)}"
+            )
+        put("depth", bool(self.depth))
+
+
+@dataclass
+class BenchmarkQuery:
+    """One simulated query (module docstring). Poses in the map model's LOCAL frame."""
+
+    query_id: str  # "q0000", "q0001", ... (index i -> f"q{i:04d}")
+    index: int
+    camera: Camera  # at config.width x config.height
+    true_pose: Pose  # cam_from_world, LOCAL frame of the map model (world = origin + local)
+    prior_pose: Pose  # same frame
+    labels: np.ndarray  # (H, W) uint8 simulated segmentation (SemanticClass ids; 0 = background)
+    depth: np.ndarray | None  # (H, W) float32 simulated relative depth, NaN where invalid (sky)
+    query_miou: float  # mIoU (%) of `labels` vs the clean labels of the reality render
+    meta: dict = field(default_factory=dict)  # view, height_m, prior errors, ... (JSON-friendly)
+
+
+@dataclass
+class SimulatedView:
+    """A query with the truth it was made from: the reality's clean labels and z-depth (+inf = nothing)."""
+
+    query: BenchmarkQuery
+    clean_labels: np.ndarray  # (H, W) uint8
+    true_depth: np.ndarray  # (H, W) float32
+
+
+def zenmuse_l2_camera(width: int = 512, height: int = 384, focal_mm: float = 12.29) -> Camera:
+    """The DJI Zenmuse L2 camera at ``width`` x ``height`` (module docstring): fx = fy = f / 17.3 mm x W."""
+    f = float(focal_mm) / SENSOR_WIDTH_MM * int(width)
+    return Camera(f, f, width / 2.0, height / 2.0, width, height)
+
+
+def query_id(index: int) -> str:
+    return f"q{int(index):04d}"
+
+
+def view_kind(seed: int, index: int, oblique_fraction: float) -> str:
+    """ "oblique" or "nadir" for a query: golden-ratio (Weyl) sequence over the index, phase from the seed."""
+    phase = float(np.random.default_rng([int(seed), 0x71E4]).random())
+    u = (phase + int(index) * GOLDEN) % 1.0
+    return "oblique" if u < oblique_fraction else "nadir"
+
+
+def _height(rng: np.random.Generator, cfg: QueryConfig) -> float:
+    lo, hi = cfg.height_range_m
+    sigma = HEIGHT_SIGMA_FRACTION * cfg.nominal_height_m
+    for _ in range(100):
+        h = cfg.nominal_height_m + sigma * rng.standard_normal()
+        if lo <= h <= hi:
+            return float(h)
+    return float(np.clip(h, lo, hi))
+
+
+def sample_prior(
+    true_pose: Pose, cfg: QueryConfig, rng_base: np.random.Generator, rng_extra: np.random.Generator
+) -> tuple[Pose, dict]:
+    """The prior pose and its errors (module docstring). Every draw happens whatever the ranges, so the
+    streams stay aligned across configurations."""
+    r = rng_base.uniform(*cfg.prior_translation_m)
+    theta = rng_base.uniform(0.0, 2 * np.pi)
+    u = rng_base.uniform(-PRIOR_Z_RATIO, PRIOR_Z_RATIO)
+    d = np.array([np.cos(theta), np.sin(theta), u])
+    base = r * d / np.linalg.norm(d)
+    yaw_err = rng_base.uniform(0.0, cfg.prior_yaw_deg) * rng_base.choice([-1.0, 1.0])
+    roll_err, pitch_err = rng_base.uniform(-cfg.prior_roll_pitch_deg, cfg.prior_roll_pitch_deg, 2)
+    extra = np.zeros(3)
+    if cfg.prior_extra_m is not None:
+        extra = rng_extra.uniform(*cfg.prior_extra_m, 3) * rng_extra.choice([-1.0, 1.0], 3)
+    x, y, z, roll, pitch, yaw = true_pose.to_xyz_rpy()
+    err = base + extra
+    prior = Pose.from_xyz_rpy(np.array([x, y, z]) + err, roll + roll_err, pitch + pitch_err, yaw + yaw_err)
+    info = {
+        "prior_err_m": float(np.linalg.norm(err)),
+        "prior_err_xyz": [float(v) for v in err],
+        "prior_base_err_m": float(np.linalg.norm(base)),
+        "prior_extra_xyz": [float(v) for v in extra],
+        "prior_yaw_err_deg": float(yaw_err),
+        "prior_roll_err_deg": float(roll_err),
+        "prior_pitch_err_deg": float(pitch_err),
+    }
+    return prior, info
+
+
+class QuerySimulator:
+    """Simulated queries over ``map_model`` (module docstring). Builds the reality scene once."""
+
+    def __init__(self, map_model: CityModel, config: QueryConfig, reality_model: CityModel | None = None):
+        if not isinstance(config, QueryConfig):
+            raise TypeError(f"config must be a QueryConfig, got {type(config).__name__}")
+        if not isinstance(map_model, CityModel):
+            raise TypeError(f"map_model must be a CityModel, got {type(map_model).__name__}")
+        self.map_model = map_model
+        self.config = config
+        self.camera = zenmuse_l2_camera(config.width, config.height, config.focal_mm)
+        self.reality: RealityScene = build_reality(map_model, reality_model, seed=config.seed)
+        building = np.isin(map_model.classes, BUILDING_CLASSES)
+        if not building.any():
+            raise EmptyModelError("the map model has no walls or roofs: no query can see a building")
+        xy = map_model.vertices[map_model.triangles[building]][:, :, :2].reshape(-1, 2).astype(np.float64)
+        self.target_lo, self.target_hi = xy.min(0), xy.max(0)
+        self._up_camera = Camera.from_fov(8, 8, 20.0)
+
+    def __len__(self) -> int:
+        return self.config.queries
+
+    def __iter__(self) -> Iterator[BenchmarkQuery]:
+        for i in range(self.config.queries):
+            yield self.query(i)
+
+    def query(self, index: int) -> BenchmarkQuery:
+        """Query ``index`` (deterministic from ``(config.seed, index)``)."""
+        return self.query_with_truth(index).query
+
+    # ------------------------------------------------------------------ internals
+    def _pose(self, rng: np.random.Generator, view: str) -> tuple[Pose, dict]:
+        cfg = self.config
+        h = _height(rng, cfg)
+        yaw = rng.uniform(-180.0, 180.0)
+        roll = rng.uniform(-cfg.max_roll_deg, cfg.max_roll_deg)
+        if view == "oblique":
+            pitch = rng.uniform(*cfg.oblique_pitch_deg)
+        else:
+            pitch = rng.uniform(-NADIR_PITCH_DEG, NADIR_PITCH_DEG)
+        target = rng.uniform(self.target_lo, self.target_hi)
+        axis = Pose.from_xyz_rpy(np.zeros(3), roll, pitch, yaw).viewing_direction
+        cam_xy = target - axis[:2] / max(-axis[2], 1e-6) * h
+        ground = float(self.reality.terrain_height(cam_xy))
+        pose = Pose.from_xyz_rpy(np.array([cam_xy[0], cam_xy[1], ground + h]), roll, pitch, yaw)
+        info = {
+            "height_m": float(h),
+            "ground_z": ground,
+            "roll_deg": float(roll),
+            "pitch_deg": float(pitch),
+            "yaw_deg": float(yaw),
+        }
+        return pose, info
+
+    def _blocked_above(self, pose: Pose) -> bool:
+        """Whether anything of the reality lies straight above the camera (it is inside or under it)."""
+        up = Pose.from_xyz_rpy(pose.center, 0.0, 180.0, 0.0)
+        d = self.reality.renderer.render(self._up_camera, up, depth=True).depth
+        return bool(np.isfinite(d).any())
+
+    def query_with_truth(self, index: int) -> SimulatedView:
+        """Query ``index`` plus the clean labels and true depth it was simulated from."""
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+            raise BenchmarkConfigError(f"query index must be an integer >= 0, got {index!r}")
+        index = int(index)
+        cfg = self.config
+        view = view_kind(cfg.seed, index, cfg.oblique_fraction)
+        best = None
+        attempts = 0
+        for attempt in range(MAX_ATTEMPTS):
+            attempts = attempt + 1
+            pose, info = self._pose(np.random.default_rng([cfg.seed, index, STREAM_POSE, attempt]), view)
+            if self._blocked_above(pose):
+                continue
+            out = self.reality.renderer.render(self.camera, pose, depth=True)
+            labels, depth = out.labels[0], out.depth[0]
+            coverage = float(np.isin(labels, BUILDING_CLASSES).mean())
+            finite = np.isfinite(depth)
+            clearance = float(depth[finite].min()) if finite.any() else math.inf
+            ok = coverage >= cfg.min_building_fraction and clearance >= MIN_CLEARANCE_M
+            score = (ok, clearance >= MIN_CLEARANCE_M, coverage)
+            if best is None or score > best[0]:
+                best = (score, pose, info, labels, depth, coverage, clearance)
+            if ok:
+                break
+        if best is None:
+            raise QuerySimulationError(
+                f"query {index}: every one of {MAX_ATTEMPTS} sampled cameras had model geometry above it"
+            )
+        (ok, _, _), pose, info, clean, true_depth, coverage, clearance = best
+
+        labels = simulate_segmentation(
+            clean, SEG_PRESETS[cfg.seg_quality], np.random.default_rng([cfg.seed, index, STREAM_SEG])
+        )
+        depth = None
+        if cfg.depth:
+            depth = simulate_depth(true_depth, clean, np.random.default_rng([cfg.seed, index, STREAM_DEPTH]))
+        prior, prior_info = sample_prior(
+            pose,
+            cfg,
+            np.random.default_rng([cfg.seed, index, STREAM_PRIOR]),
+            np.random.default_rng([cfg.seed, index, STREAM_PRIOR_EXTRA]),
+        )
+        occluded = (clean == 0) & np.isfinite(true_depth)
+        meta = {
+            "view": view,
+            **info,
+            "coverage": coverage,
+            "accepted": bool(ok),
+            "attempts": attempts,
+            "clearance_m": clearance,
+            "occluder_fraction": float(occluded.mean()),
+            "sky_fraction": float((~np.isfinite(true_depth)).mean()),
+            "seg_quality": cfg.seg_quality,
+            **prior_info,
+        }
+        query = BenchmarkQuery(
+            query_id=query_id(index),
+            index=index,
+            camera=self.camera,
+            true_pose=pose,
+            prior_pose=prior,
+            labels=labels,
+            depth=depth,
+            query_miou=miou(labels, clean),
+            meta=meta,
+        )
+        return SimulatedView(query, clean, true_depth)

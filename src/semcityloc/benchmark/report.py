@@ -1,0 +1,481 @@
+"""The paper's tables and figures from several benchmark run folders (``semcityloc report DIR...``).
+
+Why: every experiment of the paper is one ``semcityloc benchmark`` run; this module puts runs side by
+side by what differs in their ``run.json``:
+
+- tables (Markdown + CSV): ``main`` (methods and ablations, always written), ``prior_noise`` (runs
+  differing in ``prior_extra_m``), ``lod`` (LoD1/LoD2/LoD3 maps), ``seg_quality`` (segmentation preset)
+  - each written when its factor takes two or more values. One row per run; the factor column first,
+  then any other setting that differs between the runs, then the metrics. Recall cells show both
+  conventions, ``<=`` / ``<`` (see ``evaluation.metrics``);
+- plots (matplotlib, Agg): cumulative position and rotation error curves (one line per run,
+  ``not_localized`` never reaches the curve), recall vs prior noise, and per run a figure for its first
+  saved queries (``details/``): the query mask with the label boundaries of the map rendered at the
+  estimated and true poses, an xy slice and a yaw slice of the coarse cost volume.
+
+Runs are read only (an unfinished run is reported with its finished rows and marked incomplete).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semcityloc.benchmark.methods import ABLATIONS, BenchmarkError
+from semcityloc.benchmark.runner import (
+    DETAILS_DIR,
+    RESULTS_FILE,
+    RUN_FILE,
+    load_details,
+    parse_results,
+    summarize_rows,
+)
+from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshold_key
+
+# name -> (config key shown, title). "main" is always written; the others when their key varies.
+TABLES: dict[str, tuple[str, str]] = {
+    "main": ("method", "Methods and ablations"),
+    "prior_noise": ("prior_extra", "Prior-noise sensitivity"),
+    "lod": ("lod", "Map level of detail (LoD1 / LoD2 / LoD3)"),
+    "seg_quality": ("seg_quality", "Segmentation-quality sensitivity"),
+}
+SEG_ORDER = ("perfect", "trained", "medium", "zero-shot")
+# Query-config fields already shown under their own name.
+_SHOWN_QUERY_FIELDS = {"seg_quality", "prior_extra_m", "seed", "queries"}
+
+
+@dataclass
+class RunData:
+    path: Path
+    config: dict
+    rows: list[dict[str, str]]
+    summary: dict
+    complete: bool
+    settings: dict[str, Any] = field(default_factory=dict)  # the describable settings (``describe``)
+    label: str = ""
+
+
+def load_run(path: str | Path) -> RunData:
+    """A run folder of ``semcityloc benchmark`` (its ``run.json`` and ``results.csv``)."""
+    path = Path(path)
+    run_file = path / RUN_FILE
+    if not run_file.is_file():
+        raise BenchmarkError(f"{path}: not a benchmark run folder (no {RUN_FILE})")
+    try:
+        config = json.loads(run_file.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise BenchmarkError(f"{run_file}: unreadable ({exc})") from exc
+    results = path / RESULTS_FILE
+    rows = parse_results(results.read_bytes(), results) if results.is_file() else []
+    complete = len(rows) == int(config.get("queries", -1))
+    summary = summarize_rows(rows, config)  # from the rows: the same numbers as summary.json
+    return RunData(path, config, rows, summary, complete, describe(config))
+
+
+def _prior_label(extra) -> str:
+    if not extra:
+        return "none"
+    a, b = extra
+    return f"{a:g}-{b:g} m"
+
+
+def describe(config: dict) -> dict[str, Any]:
+    """The settings of a run that a reader tells runs apart by (display values)."""
+    lod = config.get("lod")
+    out: dict[str, Any] = {
+        "method": config.get("method"),
+        "city": "generated" if config.get("city") == "generated" else Path(config.get("city_path", "?")).name,
+        "lod": f"LoD{lod}" if lod else "highest",
+        "seg_quality": config.get("seg_quality"),
+        "prior_extra": _prior_label(config.get("prior_extra_m")),
+        "seed": config.get("seed"),
+        "queries": config.get("queries"),
+        "preset": config.get("localizer_preset"),
+    }
+    for k, v in sorted((config.get("query_config") or {}).items()):
+        if k not in _SHOWN_QUERY_FIELDS:
+            out[f"q.{k}"] = json.dumps(v) if isinstance(v, list | dict) else v
+    return out
+
+
+def differing_keys(runs: list[RunData]) -> list[str]:
+    keys: list[str] = []
+    for run in runs:
+        keys += [k for k in run.settings if k not in keys]
+    return [k for k in keys if len({json.dumps(r.settings.get(k), default=str) for r in runs}) > 1]
+
+
+def _order_value(key: str, value: Any):
+    if key == "method":
+        return (ABLATIONS.index(value), "") if value in ABLATIONS else (len(ABLATIONS), str(value))
+    if key == "seg_quality":
+        return (SEG_ORDER.index(value), "") if value in SEG_ORDER else (len(SEG_ORDER), str(value))
+    if key == "prior_extra":
+        return (0.0, "") if value == "none" else (float(str(value).split("-")[0]), str(value))
+    if key == "lod":
+        return (int(value[3:]), "") if str(value).startswith("LoD") else (9, str(value))
+    return (0, str(value))
+
+
+def label_runs(runs: list[RunData]) -> None:
+    """Short labels: the method, plus ``key=value`` of every other setting that differs."""
+    keys = differing_keys(runs)
+    for run in runs:
+        parts = [str(run.settings["method"])]
+        parts += [f"{k}={run.settings.get(k)}" for k in keys if k != "method"]
+        run.label = ", ".join(parts) + (
+            "" if run.complete else f" (incomplete {len(run.rows)}/{run.config['queries']})"
+        )
+
+
+# ----------------------------------------------------------------------------------------------- tables
+def _num(v: Any, digits: int = 1) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    if isinstance(v, float) and math.isinf(v):
+        return "inf"
+    return f"{v:.{digits}f}"
+
+
+def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
+    out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(out) + "\n"
+
+
+def metric_headers() -> list[str]:
+    recall = [f"R@{m:g}m,{d:g}° (≤ / <)" for m, d in THRESHOLDS]
+    return ["queries", "localized", *recall, "med. xyz m", "med. yaw °", "mean xyz m", "mean yaw °", "s/img"]
+
+
+def metric_cells(s: dict) -> list[str]:
+    cells = [str(s.get("queries", "-")), str(s.get("localized", "-"))]
+    strict = s.get("recall_strict", {})
+    for m, d in THRESHOLDS:
+        key = threshold_key(m, d)
+        cells.append(f"{_num(s.get(key))} / {_num(strict.get(key))}")
+    cells += [
+        _num(s.get("median_xyz_m"), 2),
+        _num(s.get("median_yaw_deg"), 2),
+        _num(s.get("mean_xyz_m"), 2),
+        _num(s.get("mean_yaw_deg"), 2),
+        _num(s.get("sec_per_image"), 2),
+    ]
+    return cells
+
+
+def summary_markdown(summaries: list[dict], labels: list[str], label_header: str = "method") -> str:
+    """A Markdown table of run summaries (the CLI prints it after a run)."""
+    rows = [[lab, *metric_cells(s)] for lab, s in zip(labels, summaries, strict=True)]
+    return markdown_table([label_header, *metric_headers()], rows)
+
+
+CSV_METRICS = (
+    "queries",
+    "localized",
+    "not_localized",
+    *(threshold_key(m, d) for m, d in THRESHOLDS),
+    *(f"strict_{threshold_key(m, d)}" for m, d in THRESHOLDS),
+    "mean_xyz_m",
+    "median_xyz_m",
+    "mean_rot_deg",
+    "median_rot_deg",
+    "mean_yaw_deg",
+    "median_yaw_deg",
+    "median_xyz_m_all",
+    "median_yaw_deg_all",
+    "mean_query_miou",
+    "sec_per_image",
+)
+
+
+def _csv_metrics(s: dict) -> list[Any]:
+    out = []
+    for k in CSV_METRICS:
+        v = s.get("recall_strict", {}).get(k[7:]) if k.startswith("strict_") else s.get(k)
+        out.append("" if v is None else v)
+    return out
+
+
+def build_table(runs: list[RunData], factor: str) -> tuple[str, str]:
+    """(Markdown, CSV) of one table: a row per run, ``factor`` first, other differing settings next."""
+    context = [k for k in differing_keys(runs) if k != factor]
+    ordered = sorted(
+        runs,
+        key=lambda r: (
+            [_order_value(k, r.settings.get(k)) for k in context],
+            _order_value(factor, r.settings.get(factor)),
+        ),
+    )
+    headers = [factor, *context]
+    md_rows, csv_rows = [], []
+    for r in ordered:
+        keys = [str(r.settings.get(k)) for k in headers]
+        if not r.complete:
+            keys[0] += f" (incomplete {len(r.rows)}/{r.config['queries']})"
+        md_rows.append([*keys, *metric_cells(r.summary), f"{_num(r.summary.get('mean_query_miou'))}"])
+        csv_rows.append([*keys, *_csv_metrics(r.summary), str(r.path)])
+    md = markdown_table([*headers, *metric_headers(), "query mIoU %"], md_rows)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow([*headers, *CSV_METRICS, "run_dir"])
+    writer.writerows(csv_rows)
+    return md, buf.getvalue()
+
+
+# ------------------------------------------------------------------------------------------------ plots
+def _pyplot():
+    try:
+        import matplotlib
+    except ImportError as exc:
+        from semcityloc.errors import OptionalDependencyError
+
+        raise OptionalDependencyError("matplotlib", "plots", "the report's plots") from exc
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _errors(run: RunData, column: str) -> np.ndarray:
+    vals = [float(r[column]) if r[column] else math.inf for r in run.rows]
+    return np.array(
+        [v if r["status"] == "localized" else math.inf for v, r in zip(vals, run.rows, strict=True)]
+    )
+
+
+def plot_cumulative(runs: list[RunData], column: str, xlabel: str, path: Path, x_max: float = 10.0) -> Path:
+    plt = _pyplot()
+    grid = np.linspace(0.0, x_max, 401)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for run in runs:
+        ax.plot(grid, cumulative_curve(_errors(run, column), grid), label=run.label)
+    for m, _ in THRESHOLDS:
+        ax.axvline(m, color="0.8", lw=0.8, ls=":")
+    ax.set_xlim(0, x_max)
+    ax.set_ylim(0, 100)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("queries with error ≤ x (%)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _noise_x(run: RunData) -> float:
+    extra = run.config.get("prior_extra_m")
+    return 0.0 if not extra else 0.5 * (float(extra[0]) + float(extra[1]))
+
+
+def plot_recall_vs_prior(runs: list[RunData], path: Path) -> Path:
+    """Recall (≤) at each threshold against the extra prior noise (bin centre, 0 = base noise only);
+    one colour per group of runs that agree on everything but the prior noise."""
+    plt = _pyplot()
+    context = [k for k in differing_keys(runs) if k != "prior_extra"]
+    groups: dict[str, list[RunData]] = {}
+    for run in runs:
+        name = ", ".join(f"{run.settings.get(k)}" for k in context) or str(run.settings["method"])
+        groups.setdefault(name, []).append(run)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    styles = ("-", "--", ":")
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for g, (name, members) in enumerate(groups.items()):
+        members = sorted(members, key=_noise_x)
+        x = [_noise_x(r) for r in members]
+        for (m, d), ls in zip(THRESHOLDS, styles, strict=False):
+            y = [r.summary.get(threshold_key(m, d), math.nan) for r in members]
+            ax.plot(x, y, ls, marker="o", color=colors[g % len(colors)], label=f"{name} {m:g}m,{d:g}°")
+    ax.set_xlabel("extra prior noise per axis (m, bin centre)")
+    ax.set_ylabel("recall (%)")
+    ax.set_ylim(0, 100)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _boundaries(labels: np.ndarray) -> np.ndarray:
+    edge = np.zeros(labels.shape, dtype=bool)
+    dx = labels[:, 1:] != labels[:, :-1]
+    dy = labels[1:, :] != labels[:-1, :]
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:, :] |= dy
+    edge[:-1, :] |= dy
+    return edge
+
+
+def overlay_image(
+    query_labels: np.ndarray, est_labels: np.ndarray | None, true_labels: np.ndarray
+) -> np.ndarray:
+    """RGB uint8: the query mask (palette, faded) with the label boundaries of the render at the true pose
+    (cyan) and at the estimated pose (magenta) drawn on top."""
+    from semcityloc.classes import PALETTE
+
+    rgb = (0.55 * PALETTE[query_labels] + 0.45 * 255).astype(np.uint8)
+    rgb[_boundaries(true_labels)] = (0, 200, 255)
+    if est_labels is not None:
+        rgb[_boundaries(est_labels)] = (255, 0, 255)
+    return rgb
+
+
+def _pose(matrix: np.ndarray):
+    from semcityloc.geometry.pose import Pose
+
+    return None if not np.all(np.isfinite(matrix)) else Pose.from_cam_from_world(matrix)
+
+
+def plot_details(details: dict, map_model, path: Path, title: str) -> Path:
+    """One query: overlay (``overlay_image``), xy slice at the best (z, yaw) and yaw slice at the best
+    (x, y, z) of the coarse cost volume, with the true (green), prior (blue) and estimated (red) poses."""
+    from semcityloc.geometry.camera import Camera
+    from semcityloc.geometry.conventions import wrap_deg
+    from semcityloc.render import Renderer
+
+    plt = _pyplot()
+    fx, fy, cx, cy, w, h = details["camera"]
+    labels = details["labels"]
+    camera = Camera(fx, fy, cx, cy, int(w), int(h))
+    true, prior, est = (_pose(details[f"{k}_cam_from_world"]) for k in ("true", "prior", "est"))
+    renderer = Renderer(map_model, engine="numba")
+    true_lab = renderer.render(camera, true).labels[0]
+    est_lab = renderer.render(camera, est).labels[0] if est is not None else None
+    scores = details["cost_scores"]
+    axes_info = details["meta"].get("cost_volume")
+    has_volume = scores.size > 0 and axes_info is not None
+
+    fig, axes = plt.subplots(1, 3 if has_volume else 1, figsize=(15 if has_volume else 6, 4.2), squeeze=False)
+    ax = axes[0, 0]
+    ax.imshow(overlay_image(labels, est_lab, true_lab))
+    status = details["meta"].get("status")
+    ax.set_title(f"{title}: {status}\nboundaries: cyan = true pose, magenta = estimate", fontsize=8)
+    ax.axis("off")
+    if has_volume:
+        xs, ys, zs, yaws = (np.asarray(axes_info[k]) for k in ("x", "y", "z", "yaw"))
+        bi, bj, bk, bl = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        poses = {"true": (true, "g", "x"), "prior": (prior, "b", "+"), "estimate": (est, "r", "o")}
+        ax = axes[0, 1]
+        ext = (xs[0], xs[-1], ys[0], ys[-1])
+        im = ax.imshow(scores[:, :, bk, bl].T, origin="lower", extent=ext, aspect="equal", cmap="viridis")
+        fig.colorbar(im, ax=ax, fraction=0.046)
+        for name, (pose, color, marker) in poses.items():
+            if pose is not None:
+                c = pose.center
+                ax.plot(c[0], c[1], marker, color=color, mfc="none", ms=9, mew=2, label=name)
+        ax.set_title(f"cost volume xy slice (z = {zs[bk]:.1f} m, yaw = {yaws[bl]:.1f}°)", fontsize=8)
+        ax.set_xlabel("x (local m)")
+        ax.set_ylabel("y (local m)")
+        ax.legend(fontsize=7)
+        ax = axes[0, 2]
+        ax.plot(yaws, scores[bi, bj, bk, :], "k.-")
+        mid = yaws[len(yaws) // 2]
+        for name, (pose, color, _) in poses.items():
+            if pose is not None:
+                yaw = float(pose.to_xyz_rpy()[5])
+                ax.axvline(mid + wrap_deg(yaw - mid), color=color, ls="--", label=name)
+        ax.set_title(f"yaw slice at x = {xs[bi]:.1f}, y = {ys[bj]:.1f}, z = {zs[bk]:.1f}", fontsize=8)
+        ax.set_xlabel("yaw (deg)")
+        ax.set_ylabel("score (mean class IoU)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ----------------------------------------------------------------------------------------------- report
+@dataclass
+class ReportOutput:
+    out_dir: Path
+    tables: dict[str, tuple[Path, Path]]  # name -> (markdown, csv)
+    plots: list[Path]
+    markdown: Path
+    notes: list[str]
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in text).strip("_")[:60] or "run"
+
+
+def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int = 2) -> ReportOutput:
+    """Tables, plots and ``report.md`` from benchmark run folders (module docstring)."""
+    if not run_dirs:
+        raise BenchmarkError("name at least one benchmark run folder")
+    runs = [load_run(p) for p in run_dirs]
+    label_runs(runs)
+    out = Path(out_dir)
+    (out / "tables").mkdir(parents=True, exist_ok=True)
+    (out / "plots").mkdir(parents=True, exist_ok=True)
+    differ = differing_keys(runs)
+    notes: list[str] = []
+    doc = ["# SemCityLoc benchmark report", "", f"Runs: {len(runs)}", ""]
+    doc += [f"- `{r.path}`: {r.label}" for r in runs]
+    doc += [
+        "",
+        "Recall cells: `≤` convention (LoD-Loc v1) / strict `<`; not_localized queries count as failures.",
+        "",
+    ]
+    tables: dict[str, tuple[Path, Path]] = {}
+    for name, (factor, title) in TABLES.items():
+        if name != "main" and factor not in differ:
+            notes.append(f"table {name}: skipped, all runs share {factor} = {runs[0].settings.get(factor)}")
+            continue
+        md, csv_text = build_table(runs, factor)
+        md_path, csv_path = out / "tables" / f"{name}.md", out / "tables" / f"{name}.csv"
+        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
+        csv_path.write_text(csv_text, encoding="utf-8")
+        tables[name] = (md_path, csv_path)
+        doc += [f"## {title}", "", md]
+
+    plots = [
+        plot_cumulative(
+            runs, "err_xyz_m", "camera-centre error (m)", out / "plots" / "cumulative_translation.png"
+        ),
+        plot_cumulative(
+            runs, "err_rot_deg", "rotation error (deg)", out / "plots" / "cumulative_rotation.png"
+        ),
+        plot_recall_vs_prior(runs, out / "plots" / "recall_vs_prior_noise.png"),
+    ]
+    plots += _detail_figures(runs, out / "plots", overlays, notes)
+    doc += ["## Figures", ""] + [f"![{p.stem}](plots/{p.name})" for p in plots]
+    if notes:
+        doc += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    md_file = out / "report.md"
+    md_file.write_text("\n".join(doc) + "\n", encoding="utf-8")
+    return ReportOutput(out, tables, plots, md_file, notes)
+
+
+def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: list[str]) -> list[Path]:
+    from semcityloc.benchmark.runner import load_map
+    from semcityloc.errors import SemCityLocError
+
+    figures: list[Path] = []
+    maps: dict[str, Any] = {}
+    for n, run in enumerate(runs):
+        files = sorted((run.path / DETAILS_DIR).glob("q*.npz"))[: max(0, overlays)]
+        if not files:
+            continue
+        key = json.dumps([run.config.get(k) for k in ("city_path", "lod", "map_source", "crs")])
+        if key not in maps:
+            try:
+                maps[key] = load_map(run.config)
+            except SemCityLocError as exc:
+                maps[key] = None
+                notes.append(f"{run.path}: no query figures, its map cannot be loaded ({exc})")
+        if maps[key] is None:
+            continue
+        for f in files:
+            name = f"query_{n:02d}_{_slug(run.path.name)}_{f.stem}.png"
+            figures.append(plot_details(load_details(f), maps[key], plot_dir / name, f"{run.label} {f.stem}"))
+    return figures

@@ -1,0 +1,866 @@
+"""Read the buildings of a CityGML 1.0 / 2.0 / 3.0 file into a semantic triangle mesh (``CityModel``).
+
+Why a streaming reader: state CityGML tiles reach 1 GB, so the file is read with ``lxml.etree.iterparse``
+one ``cityObjectMember`` at a time; every processed member (and everything before it) is cleared, so memory
+holds one city object plus the growing mesh.
+
+What it reads:
+
+- Buildings and their BuildingParts (a part's polygons belong to its building), BuildingInstallations,
+  boundary surfaces (``boundedBy`` in 1.0/2.0, ``boundary`` in 3.0) with their semantic class
+  (``classes.SURFACE_CLASS``), LoD3/LoD4 openings (``Window`` / ``Door``), and plain ``lodNSolid`` /
+  ``lodNMultiSurface`` / ``lodNGeometry`` geometry without semantics (``semantic=None``: the mesh builder
+  classifies those by their normals). Interior rooms, furniture and interior installations are skipped
+  (invisible from the air), as are implicit geometries, curves and non-building city objects (counted).
+- GML geometry: Polygon (``exterior``/``interior`` and GML2 ``outerBoundaryIs``/``innerBoundaryIs``) with
+  LinearRings of ``posList`` (``srsDimension``, default 3), ``pos`` or GML2 ``coordinates``;
+  MultiSurface, CompositeSurface, Shell, Solid (exterior shell only), OrientableSurface (``orientation="-"``
+  reverses the rings), Surface/PolygonPatch, TriangulatedSurface/Tin/Triangle.
+- XLinks (``xlink:href="#id"``) to any surface with a ``gml:id`` (a polygon or a whole composite): resolved
+  within the city object first, then against a bounded cache of earlier objects' surfaces, then against
+  later objects as they stream by; what never resolves is counted in ``stats.unresolved_xlinks``. A polygon
+  reached twice in one building (a ``lod2Solid`` member that points into a ``RoofSurface``) is meshed once,
+  with the boundary surface's class.
+- LoD: ``lod=None`` keeps, per building and per BuildingPart, the highest LoD it has (a building's own
+  geometry is dropped when one of its parts is more detailed: the coarse shell would enclose the parts);
+  ``lod=N`` keeps only LoD N. Every triangle records its LoD.
+- CRS: the first ``srsName`` of the file (root or building Envelope, or a geometry) names it; different later
+  names only warn. ``crs_override`` replaces it. Geographic CRSs (PLATEAU's EPSG:6697, latitude first) are
+  projected to the UTM zone of the data with ``MetricFrame``.
+
+2D coordinates (``srsDimension="2"`` or two numbers per point): such polygons are skipped and counted; a file
+with nothing but 2D polygons raises ``InputFileError`` (there is no height to build a 3D model from).
+
+Safety: the parser never resolves entities, never loads a DTD and never touches the network; a DOCTYPE that
+declares entities is refused (``MalformedXMLError``): CityGML never uses them, and leaving them unexpanded
+would silently drop text.
+"""
+
+from __future__ import annotations
+
+import gzip
+import operator
+import re
+import zlib
+from collections import Counter, OrderedDict
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, NamedTuple
+
+import numpy as np
+import pyproj
+from lxml import etree
+
+from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.citymodel.crs import MetricFrame, parse_crs_name
+from semcityloc.citymodel.model import CityModel, ParseStats
+from semcityloc.classes import SURFACE_CLASS, SemanticClass
+from semcityloc.errors import (
+    CRSError,
+    EmptyModelError,
+    InputFileError,
+    MalformedXMLError,
+    UnsupportedFormatError,
+)
+
+__all__ = ["CityGMLPolygon", "CityGMLReader", "CityGMLReport", "iter_citygml_polygons", "read_citygml"]
+
+# The safe parser settings (also used for the root sniff): no entity expansion, no DTD, no network, libxml2's
+# default size limits (huge_tree=False), and no id hash table (we index gml:ids ourselves, bounded).
+PARSER_OPTIONS = dict(
+    resolve_entities=False,
+    no_network=True,
+    load_dtd=False,
+    dtd_validation=False,
+    huge_tree=False,
+    remove_comments=True,
+    remove_pis=True,
+    collect_ids=False,
+    recover=False,
+)
+
+# Cross-object XLink cache: surfaces (by gml:id) of earlier city objects kept for later references.
+XLINK_CACHE_IDS = 100_000
+
+SUPPORTED_MAJOR_VERSIONS = (1, 2, 3)
+
+_GML_ID_31 = "{http://www.opengis.net/gml}id"
+_GML_ID_32 = "{http://www.opengis.net/gml/3.2}id"
+_XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
+_CITYGML_NS = re.compile(r"^http://www\.opengis\.net/citygml/(?:([A-Za-z]+)/)?(\d+)\.(\d+)$")
+_LOD_PROPERTY = re.compile(r"^lod([0-4])([A-Za-z]*)$")
+
+# Members of the root that hold city objects / that we clear as soon as they end.
+_MEMBER_NAMES = ("cityObjectMember", "featureMember", "featureMembers")
+_TOP_LEVEL_TAGS = tuple(f"{{*}}{n}" for n in (*_MEMBER_NAMES, "appearanceMember", "boundedBy"))
+
+# CityGML 3.0 names the filling surfaces of openings this way; 1.0/2.0 have Window / Door (in SURFACE_CLASS).
+_EXTRA_SURFACE_CLASS = {"WindowSurface": SemanticClass.WINDOW, "DoorSurface": SemanticClass.DOOR}
+_OPENING_NAMES = frozenset({"Window", "Door", "WindowSurface", "DoorSurface"})
+# CityGML subtrees that hold nothing visible from outside (or nothing geometric) and are skipped whole.
+_SKIP_CITYGML = frozenset(
+    {
+        "interiorRoom",
+        "Room",
+        "interiorFurniture",
+        "BuildingFurniture",
+        "buildingFurniture",
+        "interiorBuildingInstallation",
+        "IntBuildingInstallation",
+        "buildingRoom",
+        "BuildingRoom",
+        "buildingSubdivision",
+        "Storey",
+        "BuildingUnit",
+        "address",
+        "Address",
+        "externalReference",
+        "generalizesTo",
+        "appearance",
+        "dynamizer",
+        "relatedTo",
+    }
+)
+_SKIP_CITYGML_MODULES = frozenset({"appearance", "generics", "dynamizer", "versioning", "pointcloud"})
+_SKIP_GML = frozenset(
+    {
+        "name",
+        "description",
+        "identifier",
+        "metaDataProperty",
+        "descriptionReference",
+        "LineString",
+        "MultiCurve",
+        "CompositeCurve",
+        "Curve",
+        "OrientableCurve",
+        "Point",
+        "MultiPoint",
+    }
+)
+# A polygon-like surface: rings directly below it.
+_POLYGON_NAMES = frozenset({"Polygon", "PolygonPatch", "Triangle", "Rectangle"})
+_LOD_SKIP_SUFFIXES = ("Curve", "TerrainIntersection", "Point")
+# Feature properties (outside any lodN property) whose xlink:href may point at a surface-bearing feature.
+_HREF_FEATURE_PROPERTIES = frozenset(
+    {
+        "boundedBy",
+        "boundary",
+        "opening",
+        "fillingSurface",
+        "filling",
+        "consistsOfBuildingPart",
+        "buildingPart",
+        "outerBuildingInstallation",
+        "buildingInstallation",
+    }
+)
+
+# Element kinds of the geometry walk.
+_K_SKIP, _K_DESCEND, _K_GML_CONTAINER, _K_PART, _K_SEMANTIC, _K_LOD = range(6)
+_K_LOD_SKIP, _K_IMPLICIT, _K_POLYGON, _K_ORIENTABLE, _K_SOLID, _K_ENVELOPE_PROP = range(6, 12)
+
+
+class CityGMLPolygon(NamedTuple):
+    """One polygon as it goes into the mesh: metric world coordinates (after CRS conversion)."""
+
+    building_id: str
+    semantic: int | None  # SemanticClass id, or None = classify by normals
+    lod: int
+    exterior: np.ndarray  # (n, 3) float64
+    interiors: list[np.ndarray]
+
+
+@dataclass
+class CityGMLReport:
+    """What the CityGML reader met, beyond the ``ParseStats`` the mesh keeps."""
+
+    version: str = ""  # CityGML version of the root namespace, e.g. "2.0"
+    buildings: int = 0  # Building city objects
+    building_parts: int = 0
+    buildings_without_geometry: int = 0  # buildings that contributed no polygon (after LoD selection)
+    openings: Counter = field(default_factory=Counter)  # Window / Door objects (and 3.0 filling surfaces)
+    skipped_objects: Counter = field(default_factory=Counter)  # non-building city objects by element name
+    lod_polygons: Counter = field(default_factory=Counter)  # LoD -> polygons defined in the file (any LoD)
+    polygons: int = 0  # polygons handed to the mesh
+    polygons_2d: int = 0  # skipped: no heights
+    malformed_polygons: int = 0  # skipped: no exterior ring or unreadable coordinates
+    polygons_without_lod: int = 0  # geometry outside any lodN property (ADE content): skipped
+    duplicate_polygons: int = 0  # reached twice in one building (solid member + boundary surface)
+    xlinks_resolved: int = 0
+    xlinks_cross_object: int = 0  # resolved against another city object
+    implicit_geometries: int = 0  # lodNImplicitRepresentation: not read
+    srs_names: list[str] = field(default_factory=list)  # distinct srsName strings, in order of appearance
+
+
+# A polygon while its city object is read: file coordinates, before LoD selection and CRS conversion.
+class _Rec(NamedTuple):
+    part: int  # 0 = the building itself, 1.. = its BuildingParts
+    lod: int
+    semantic: int | None
+    exterior: np.ndarray
+    interiors: list[np.ndarray]
+    gml_id: str | None
+    via_xlink: bool
+
+
+class _Ref(NamedTuple):
+    target: str
+    part: int
+    lod: int | None
+    semantic: int | None
+    flip: bool
+
+
+class _CoordError(Exception):
+    def __init__(self, two_d: bool):
+        self.two_d = two_d
+
+
+def _local(tag: str) -> str:
+    return tag[tag.rfind("}") + 1 :]
+
+
+def _namespace(tag: str) -> str:
+    return tag[1 : tag.find("}")] if tag.startswith("{") else ""
+
+
+def _classify(tag: str) -> tuple[int, int]:
+    """(kind, argument) of an element in a city object, from its namespace family and local name."""
+    ns, local = _namespace(tag), _local(tag)
+    if ns.startswith("http://www.opengis.net/gml"):
+        if local in _POLYGON_NAMES:
+            return _K_POLYGON, 0
+        if local == "OrientableSurface":
+            return _K_ORIENTABLE, 0
+        if local == "Solid":
+            return _K_SOLID, 0
+        if local == "boundedBy":
+            return _K_ENVELOPE_PROP, 0
+        if local in _SKIP_GML:
+            return _K_SKIP, 0
+        return _K_GML_CONTAINER, 0
+    m = _CITYGML_NS.match(ns)
+    if m is None:
+        # xAL addresses and other non-geometry vocabularies are skipped; ADE content is walked (but its
+        # geometry only counts inside a CityGML lodN property).
+        return (_K_SKIP, 0) if ns.startswith("urn:oasis:names:tc:ciq") else (_K_DESCEND, 0)
+    if m.group(1) in _SKIP_CITYGML_MODULES or local in _SKIP_CITYGML:
+        return _K_SKIP, 0
+    if local == "BuildingPart":
+        return _K_PART, 0
+    cls = SURFACE_CLASS.get(local, _EXTRA_SURFACE_CLASS.get(local))
+    if cls is not None:
+        return _K_SEMANTIC, int(cls)
+    lod = _LOD_PROPERTY.match(local)
+    if lod:
+        suffix = lod.group(2)
+        if "Implicit" in suffix:
+            return _K_IMPLICIT, 0
+        if suffix.endswith(_LOD_SKIP_SUFFIXES):
+            return _K_LOD_SKIP, 0
+        return _K_LOD, int(lod.group(1))
+    return _K_DESCEND, 0
+
+
+def _same_crs(a: str, b: str) -> bool:
+    """Whether two srsName strings name the same CRS (spellings differ: EPSG:25833 vs its URN)."""
+    try:
+        return parse_crs_name(a) == parse_crs_name(b)
+    except CRSError:
+        return False
+
+
+def _dim_attr(el, inherited: int | None) -> int | None:
+    d = el.get("srsDimension")
+    if d is None:
+        return inherited
+    try:
+        return int(d)
+    except ValueError:
+        return inherited
+
+
+def _coords(numbers: np.ndarray, dim: int | None, tokens_per_point: int | None = None) -> np.ndarray:
+    """(n, 3) points from a flat number array; raises _CoordError for 2D data or an impossible count."""
+    n = numbers.size
+    if dim is None:
+        dim = tokens_per_point
+    if dim is None:
+        if n % 3 == 0:
+            dim = 3
+        elif n % 2 == 0:
+            dim = 2
+        else:
+            raise _CoordError(two_d=False)
+    if dim == 2:
+        raise _CoordError(two_d=True)
+    if dim < 2 or n % dim:
+        raise _CoordError(two_d=False)
+    pts = numbers.reshape(-1, dim)
+    return pts if dim == 3 else pts[:, :3]
+
+
+def _numbers(text: str | None) -> np.ndarray:
+    try:
+        return np.array((text or "").split(), dtype=np.float64)
+    except ValueError as exc:
+        raise _CoordError(two_d=False) from exc
+
+
+def _ring(ring_el, dim: int | None) -> np.ndarray:
+    """(n, 3) float64 points of a LinearRing (posList, pos list or GML2 coordinates)."""
+    dim = _dim_attr(ring_el, dim)
+    pos_texts: list[str] = []
+    pos_dim: int | None = None
+    for c in ring_el:
+        tag = c.tag
+        if tag.__class__ is not str:
+            continue
+        local = tag[tag.rfind("}") + 1 :]
+        if local == "posList":
+            return _coords(_numbers(c.text), _dim_attr(c, dim))
+        if local == "pos":
+            text = c.text or ""
+            pos_texts.append(text)
+            if pos_dim is None:
+                pos_dim = _dim_attr(c, None) or len(text.split())
+        elif local == "coordinates":
+            return _gml2_coordinates(c, dim)
+        elif local in ("pointProperty", "pointRep"):
+            for p in c.iter("{*}pos"):
+                text = p.text or ""
+                pos_texts.append(text)
+                if pos_dim is None:
+                    pos_dim = len(text.split())
+    if not pos_texts:
+        raise _CoordError(two_d=False)
+    return _coords(_numbers(" ".join(pos_texts)), dim, pos_dim)
+
+
+def _gml2_coordinates(el, dim: int | None) -> np.ndarray:
+    """GML2 ``<coordinates cs="," ts=" " decimal=".">x,y,z x,y,z</coordinates>``."""
+    cs, ts, dec = el.get("cs", ","), el.get("ts", " "), el.get("decimal", ".")
+    text = (el.text or "").strip()
+    tuples = text.split() if ts.isspace() else [t for t in text.split(ts) if t.strip()]
+    if not tuples:
+        raise _CoordError(two_d=False)
+    per_point = len(tuples[0].split(cs))
+    flat = " ".join(t.replace(cs, " ") for t in tuples)
+    if dec != ".":
+        flat = flat.replace(dec, ".")
+    return _coords(_numbers(flat), dim, per_point)
+
+
+def _polygon_rings(el, dim: int | None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Exterior and interior rings of a Polygon / PolygonPatch / Triangle / Rectangle element."""
+    dim = _dim_attr(el, dim)
+    exterior = None
+    interiors: list[np.ndarray] = []
+    for c in el:
+        tag = c.tag
+        if tag.__class__ is not str:
+            continue
+        local = tag[tag.rfind("}") + 1 :]
+        if local in ("exterior", "outerBoundaryIs", "interior", "innerBoundaryIs"):
+            ring_el = next((r for r in c if r.tag.__class__ is str), None)
+            if ring_el is None:
+                raise _CoordError(two_d=False)
+            ring = _ring(ring_el, dim)
+            if local in ("exterior", "outerBoundaryIs"):
+                exterior = ring
+            else:
+                interiors.append(ring)
+    if exterior is None:
+        raise _CoordError(two_d=False)
+    return exterior, interiors
+
+
+def _xml_error(path: Path, exc: etree.XMLSyntaxError) -> MalformedXMLError:
+    return MalformedXMLError(f"{path}: not well-formed XML, line {exc.lineno}: {exc.msg}")
+
+
+def _open(path: Path) -> IO[bytes]:
+    """The file as a binary stream; gzip (by its magic bytes) is decompressed on the fly."""
+    try:
+        fh = open(path, "rb")  # noqa: SIM115 - returned to the caller, who closes it
+    except FileNotFoundError as exc:
+        raise InputFileError(f"{path}: no such file") from exc
+    except IsADirectoryError as exc:
+        raise InputFileError(f"{path}: is a directory, not a CityGML file") from exc
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot open ({exc.strerror or exc})") from exc
+    if fh.read(2) == b"\x1f\x8b":
+        fh.seek(0)
+        return gzip.GzipFile(fileobj=fh, mode="rb")
+    fh.seek(0)
+    return fh
+
+
+class CityGMLReader:
+    """One pass over a CityGML file. ``polygons()`` streams the mesh polygons; afterwards ``crs``,
+    ``source_crs``, ``stats`` (``ParseStats`` for the mesh) and ``report`` describe what was read."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        lod: int | None = None,
+        target_crs: pyproj.CRS | str | None = None,
+        crs_override: str | None = None,
+    ):
+        self.path = Path(path)
+        if lod is not None:
+            try:
+                lod = operator.index(lod)
+            except TypeError as exc:
+                raise TypeError(f"lod must be an int or None, not {type(lod).__name__}") from exc
+        self.lod = lod
+        self.target_crs = parse_crs_name(target_crs) if isinstance(target_crs, str) else target_crs
+        self.crs_override = crs_override
+        self.stats = ParseStats()
+        self.report = CityGMLReport()
+        self.crs: pyproj.CRS | None = None
+        self.source_crs: pyproj.CRS | None = None
+        self._started = False
+
+        self._kinds: dict[str, tuple[int, int]] = {}
+        self._gml_id = _GML_ID_31  # the gml:id attribute: GML 3.1 in CityGML 1.0/2.0, GML 3.2 in 3.0
+        self._frame: MetricFrame | None = None
+        self._frame_identity = True
+        self._srs_first: str | None = None
+        self._srs_seen: set[str] = set()
+        self._envelope_sample: np.ndarray | None = None
+        # per city object
+        self._recs: list[_Rec] = []
+        self._refs: list[_Ref] = []
+        self._ids: dict[str, tuple[int, int]] = {}
+        self._n_parts = 0
+        # across city objects
+        self._cache: OrderedDict[str, list[_Rec]] = OrderedDict()
+        self._pending: dict[str, list[tuple[str, _Ref]]] = {}
+        self._late: dict[str, tuple[dict[int, int], set[str]]] = {}
+
+    # ------------------------------------------------------------------ streaming
+    def polygons(self) -> Iterator[CityGMLPolygon]:
+        """Mesh polygons in metric world coordinates, building by building (late XLinks at the end)."""
+        if self._started:
+            raise RuntimeError("CityGMLReader.polygons() streams the file once: make a new reader")
+        self._started = True
+        self._check_root()
+        yielded = 0
+        fh = _open(self.path)
+        try:
+            context = etree.iterparse(fh, events=("end",), tag=_TOP_LEVEL_TAGS, **PARSER_OPTIONS)
+            for _, el in context:
+                parent = el.getparent()
+                if parent is None or parent.getparent() is not None:
+                    continue  # a nested boundedBy: handled with its city object
+                local = _local(el.tag)
+                if local == "boundedBy":
+                    self._read_envelope_prop(el, None)
+                elif local in _MEMBER_NAMES:
+                    objects = list(el) if local == "featureMembers" else [next(iter(el), None)]
+                    for obj in objects:
+                        if obj is not None and obj.tag.__class__ is str:
+                            for p in self._city_object(obj):
+                                yielded += 1
+                                yield p
+                el.clear()
+                while el.getprevious() is not None:
+                    del parent[0]
+        except etree.XMLSyntaxError as exc:
+            raise _xml_error(self.path, exc) from exc
+        except (EOFError, zlib.error, gzip.BadGzipFile) as exc:
+            raise MalformedXMLError(f"{self.path}: truncated or corrupt gzip stream ({exc})") from exc
+        except OSError as exc:
+            raise InputFileError(f"{self.path}: read error ({exc})") from exc
+        finally:
+            fh.close()
+
+        self.stats.unresolved_xlinks += sum(len(v) for v in self._pending.values())
+        self._pending.clear()
+        if self.report.skipped_objects:
+            names = ", ".join(f"{k} x{v}" for k, v in sorted(self.report.skipped_objects.items()))
+            self.stats.warnings.append(f"skipped non-building city objects: {names}")
+        if self.report.implicit_geometries:
+            self.stats.warnings.append(
+                f"{self.report.implicit_geometries} implicit geometries (lodNImplicitRepresentation) not read"
+            )
+        if yielded == 0:
+            self._raise_empty()
+
+    def _raise_empty(self) -> None:
+        r = self.report
+        if r.buildings == 0:
+            found = ", ".join(f"{k} x{v}" for k, v in sorted(r.skipped_objects.items())) or "nothing"
+            raise EmptyModelError(f"{self.path}: no Building city objects (found: {found})")
+        present = sorted(r.lod_polygons)
+        if self.lod is not None and present:
+            raise EmptyModelError(
+                f"{self.path}: no LoD {self.lod} building geometry; "
+                f"LoDs present: {', '.join(map(str, present))}"
+            )
+        if r.polygons_2d:
+            raise InputFileError(
+                f"{self.path}: all {r.polygons_2d} building polygons have 2D coordinates (no heights): "
+                "cannot build a 3D model"
+            )
+        raise EmptyModelError(f"{self.path}: {r.buildings} buildings but no readable building surfaces")
+
+    def _check_root(self) -> None:
+        """Reject unknown roots and entity-declaring DTDs before streaming the whole file."""
+        fh = _open(self.path)
+        try:
+            _, root = next(iter(etree.iterparse(fh, events=("start",), **PARSER_OPTIONS)))
+            docinfo = root.getroottree().docinfo
+        except etree.XMLSyntaxError as exc:
+            raise _xml_error(self.path, exc) from exc
+        except (EOFError, zlib.error, gzip.BadGzipFile) as exc:
+            raise MalformedXMLError(f"{self.path}: truncated or corrupt gzip stream ({exc})") from exc
+        except OSError as exc:
+            raise InputFileError(f"{self.path}: read error ({exc})") from exc
+        finally:
+            fh.close()
+        dtd = docinfo.internalDTD
+        if dtd is not None and any(True for _ in dtd.iterentities()):
+            raise MalformedXMLError(
+                f"{self.path}: the DOCTYPE declares XML entities; CityGML does not use them and they are "
+                "refused (entity expansion is a known attack)"
+            )
+        if docinfo.system_url or docinfo.public_id:
+            self.stats.warnings.append(f"external DTD {docinfo.system_url or docinfo.public_id!r} not loaded")
+        tag = root.tag if isinstance(root.tag, str) else ""
+        ns, local = _namespace(tag), _local(tag)
+        m = _CITYGML_NS.match(ns)
+        if local == "CityModel" and m is not None and m.group(1) is None:
+            major, minor = int(m.group(2)), int(m.group(3))
+            if major not in SUPPORTED_MAJOR_VERSIONS:
+                raise UnsupportedFormatError(
+                    f"{self.path}: CityGML {major}.{minor} (root <{local}> in {ns}) is not supported; "
+                    "this reader knows CityGML 1.x, 2.x and 3.x"
+                )
+            self.report.version = f"{major}.{minor}"
+            self._gml_id = _GML_ID_32 if major >= 3 else _GML_ID_31
+            return
+        if local == "CityModel" or m is not None:
+            raise UnsupportedFormatError(
+                f"{self.path}: root <{local}> in namespace {ns or '(none)'!r} is not a known CityGML "
+                "version's CityModel (expected http://www.opengis.net/citygml/1.0, 2.0 or 3.0)"
+            )
+        raise UnsupportedFormatError(
+            f"{self.path}: root element <{local}> (namespace {ns or '(none)'!r}) is not a CityGML CityModel"
+        )
+
+    # ------------------------------------------------------------------ one city object
+    def _city_object(self, obj) -> list[CityGMLPolygon]:
+        local = _local(obj.tag)
+        m = _CITYGML_NS.match(_namespace(obj.tag))
+        if local != "Building" or m is None:
+            self.report.skipped_objects[local] += 1
+            return []
+        self.report.buildings += 1
+        building_id = obj.get(self._gml_id) or f"building_{self.report.buildings}"
+        self._recs, self._refs, self._ids, self._n_parts = [], [], {}, 0
+        self._walk(obj, 0, None, None, False, None)
+        out = self._finish_building(building_id)
+        late = self._register_ids()
+        if not out:
+            self.report.buildings_without_geometry += 1
+        return out + late
+
+    def _walk(self, el, part: int, sem: int | None, lod: int | None, flip: bool, dim: int | None) -> None:
+        kinds = self._kinds
+        recs = self._recs
+        gml_id = self._gml_id
+        for child in el:
+            tag = child.tag
+            if tag.__class__ is not str:
+                continue  # an unexpanded entity reference
+            k = kinds.get(tag)
+            if k is None:
+                k = kinds[tag] = _classify(tag)
+            kind, arg = k
+            if kind == _K_SKIP:
+                continue
+            if kind == _K_ENVELOPE_PROP:
+                self._read_envelope_prop(child, dim)
+                continue
+            if kind == _K_LOD_SKIP:
+                continue
+            if kind == _K_IMPLICIT:
+                self.report.implicit_geometries += 1
+                continue
+            gid = child.get(gml_id)
+            start = len(recs)
+            c_part, c_sem, c_lod, c_flip, c_dim = part, sem, lod, flip, dim
+            if kind == _K_POLYGON:
+                self._polygon(child, part, sem, lod, flip, dim, gid)
+            elif kind == _K_GML_CONTAINER or kind == _K_SOLID or kind == _K_ORIENTABLE:
+                srs = child.get("srsName")
+                if srs is not None:
+                    self._note_srs(srs)
+                c_dim = _dim_attr(child, dim)
+                if kind == _K_ORIENTABLE and child.get("orientation") == "-":
+                    c_flip = not flip
+            elif kind == _K_LOD:
+                c_lod = arg
+            elif kind == _K_SEMANTIC:
+                c_sem, c_lod = arg, None
+                local = _local(tag)
+                if local in _OPENING_NAMES:
+                    self.report.openings[local] += 1
+            elif kind == _K_PART:
+                self._n_parts += 1
+                self.report.building_parts += 1
+                c_part, c_sem, c_lod, c_flip = self._n_parts, None, None, False
+            if kind != _K_POLYGON:
+                href = child.get(_XLINK_HREF)
+                if href is not None:
+                    if c_lod is not None or (kind == _K_DESCEND and _local(tag) in _HREF_FEATURE_PROPERTIES):
+                        self._refs.append(_Ref(href.lstrip("#"), c_part, c_lod, c_sem, c_flip))
+                elif kind == _K_SOLID:
+                    for sub in child:  # exterior shell only: interior shells are closed cavities
+                        if sub.tag.__class__ is str and _local(sub.tag) == "exterior":
+                            self._walk(sub, c_part, c_sem, c_lod, c_flip, c_dim)
+                else:
+                    self._walk(child, c_part, c_sem, c_lod, c_flip, c_dim)
+            if gid is not None and len(recs) > start:
+                self._ids[gid] = (start, len(recs))
+
+    def _polygon(self, el, part, sem, lod, flip, dim, gid) -> None:
+        if lod is None:
+            self.report.polygons_without_lod += 1
+            return
+        srs = el.get("srsName")
+        if srs is not None:
+            self._note_srs(srs)
+        try:
+            ext, holes = _polygon_rings(el, dim)
+        except _CoordError as exc:
+            if exc.two_d:
+                self.report.polygons_2d += 1
+            else:
+                self.report.malformed_polygons += 1
+            return
+        if flip:
+            ext, holes = ext[::-1], [h[::-1] for h in holes]
+        self.report.lod_polygons[lod] += 1
+        self._recs.append(_Rec(part, lod, sem, ext, holes, gid, False))
+
+    # ------------------------------------------------------------------ xlinks, LoD selection, output
+    def _expand(self, ref: _Ref, targets: list[_Rec]) -> list[_Rec]:
+        out = []
+        for r in targets:
+            ext, holes = r.exterior, r.interiors
+            if ref.flip:
+                ext, holes = ext[::-1], [h[::-1] for h in holes]
+            out.append(
+                _Rec(
+                    ref.part,
+                    r.lod if ref.lod is None else ref.lod,
+                    r.semantic if ref.semantic is None else ref.semantic,
+                    ext,
+                    holes,
+                    r.gml_id,
+                    True,
+                )
+            )
+        return out
+
+    def _finish_building(self, building_id: str) -> list[CityGMLPolygon]:
+        recs = self._recs
+        resolved: list[_Rec] = []
+        waiting: list[_Ref] = []
+        for ref in self._refs:
+            span = self._ids.get(ref.target)
+            if span is not None:
+                resolved += self._expand(ref, recs[span[0] : span[1]])
+                self.report.xlinks_resolved += 1
+                continue
+            cached = self._cache.get(ref.target)
+            if cached is not None:
+                resolved += self._expand(ref, cached)
+                self.report.xlinks_resolved += 1
+                self.report.xlinks_cross_object += 1
+                continue
+            waiting.append(ref)
+        for ref in waiting:
+            self._pending.setdefault(ref.target, []).append((building_id, ref))
+        for r in resolved:  # a LoD reached only through references is present too (count: 0 polygons)
+            self.report.lod_polygons.setdefault(r.lod, 0)
+        all_recs = recs + resolved
+
+        best: dict[int, int] = {}
+        for r in all_recs:
+            if r.lod > best.get(r.part, -1):
+                best[r.part] = r.lod
+        if self.lod is not None:
+            chosen = {p: self.lod for p in best}
+        else:
+            chosen = dict(best)
+            parts_best = max((v for p, v in chosen.items() if p != 0), default=-1)
+            if 0 in chosen and parts_best > chosen[0]:
+                chosen[0] = -1  # the building's own coarser shell would enclose its detailed parts
+        seen: set[str] = set()
+        keep = self._select(all_recs, chosen, seen)
+        if waiting:
+            self._late[building_id] = (chosen, seen)
+        return self._output(building_id, keep)
+
+    def _select(self, recs: list[_Rec], chosen: dict[int, int], seen: set[str]) -> list[_Rec]:
+        """Records of the chosen LoD per part, each gml:id once (labelled, directly defined ones first)."""
+        selected = [r for r in recs if chosen.get(r.part, r.lod) == r.lod]
+        selected.sort(key=lambda r: (r.semantic is None, r.via_xlink))
+        keep = []
+        for r in selected:
+            if r.gml_id is not None:
+                if r.gml_id in seen:
+                    self.report.duplicate_polygons += 1
+                    continue
+                seen.add(r.gml_id)
+            keep.append(r)
+        return keep
+
+    def _register_ids(self) -> list[CityGMLPolygon]:
+        """Offer this object's surfaces to earlier forward references and to later objects (bounded cache)."""
+        late: list[CityGMLPolygon] = []
+        recs = self._recs
+        for gid, (a, b) in self._ids.items():
+            targets = recs[a:b]
+            waiting = self._pending.pop(gid, None) if self._pending else None
+            if waiting:
+                for building_id, ref in waiting:
+                    self.report.xlinks_resolved += 1
+                    self.report.xlinks_cross_object += 1
+                    late += self._late_output(building_id, self._expand(ref, targets))
+            self._cache[gid] = targets
+            self._cache.move_to_end(gid)
+        while len(self._cache) > XLINK_CACHE_IDS:
+            self._cache.popitem(last=False)
+        return late
+
+    def _late_output(self, building_id: str, recs: list[_Rec]) -> list[CityGMLPolygon]:
+        chosen, seen = self._late.get(building_id, ({}, set()))
+        for r in recs:
+            self.report.lod_polygons.setdefault(r.lod, 0)
+            if self.lod is None:
+                chosen.setdefault(r.part, r.lod)
+            else:
+                chosen[r.part] = self.lod
+        return self._output(building_id, self._select(recs, chosen, seen))
+
+    def _output(self, building_id: str, recs: list[_Rec]) -> list[CityGMLPolygon]:
+        if not recs:
+            return []
+        frame = self._metric_frame(recs)
+        out = []
+        if self._frame_identity:
+            for r in recs:
+                out.append(CityGMLPolygon(building_id, r.semantic, r.lod, r.exterior, r.interiors))
+        else:
+            rings = [ring for r in recs for ring in (r.exterior, *r.interiors)]
+            metric = frame.to_metric(np.concatenate(rings))
+            bounds = np.cumsum([len(x) for x in rings])[:-1]
+            parts = np.split(metric, bounds)
+            i = 0
+            for r in recs:
+                n = 1 + len(r.interiors)
+                out.append(CityGMLPolygon(building_id, r.semantic, r.lod, parts[i], parts[i + 1 : i + n]))
+                i += n
+        self.report.polygons += len(out)
+        return out
+
+    # ------------------------------------------------------------------ CRS
+    def _read_envelope_prop(self, prop, dim: int | None) -> None:
+        """``gml:boundedBy/gml:Envelope``: its srsName, and its corners as a sample location."""
+        for env in prop:
+            if env.tag.__class__ is not str or _local(env.tag) != "Envelope":
+                continue
+            srs = env.get("srsName")
+            if srs is not None:
+                self._note_srs(srs)
+            if self._envelope_sample is None:
+                corners = [c.text for c in env if c.tag.__class__ is str and _local(c.tag).endswith("Corner")]
+                try:
+                    pts = [np.array(t.split(), dtype=np.float64)[:2] for t in corners if t]
+                except ValueError:
+                    continue
+                if len(pts) == 2 and all(len(p) == 2 for p in pts):
+                    self._envelope_sample = np.stack(pts)
+
+    def _note_srs(self, name: str) -> None:
+        if name in self._srs_seen:
+            return
+        self._srs_seen.add(name)
+        self.report.srs_names.append(name)
+        if self._srs_first is None:
+            self._srs_first = name
+        elif not _same_crs(name, self._srs_first):
+            self.stats.warnings.append(
+                f"srsName {name!r} differs from the file's first srsName {self._srs_first!r}, which is used "
+                "for all coordinates"
+            )
+
+    def _metric_frame(self, recs: list[_Rec]) -> MetricFrame:
+        if self._frame is not None:
+            return self._frame
+        name = self.crs_override if self.crs_override is not None else self._srs_first
+        source = None
+        if name is None:
+            self.stats.warnings.append(
+                "the file names no CRS (srsName): coordinates are used as they are, in a local metric frame"
+            )
+            if self.target_crs is not None:
+                self.stats.warnings.append(
+                    "target_crs ignored: the source CRS is unknown (pass crs_override)"
+                )
+        else:
+            try:
+                source = parse_crs_name(name)
+            except CRSError as exc:
+                hint = "" if self.crs_override is not None else "; pass crs_override to read the file anyway"
+                raise CRSError(f"{self.path}: {exc}{hint}") from exc
+        sample = self._envelope_sample
+        if sample is None:
+            sample = recs[0].exterior[:, :2]
+        target = self.target_crs if source is not None else None
+        frame = MetricFrame.for_source(source, sample, target)
+        self._frame = frame
+        self.source_crs = source
+        self.crs = frame.target
+        self._frame_identity = frame.target is None or (frame.target == frame.source and not frame.lat_first)
+        return frame
+
+
+def iter_citygml_polygons(
+    path: str | Path,
+    lod: int | None = None,
+    target_crs: pyproj.CRS | str | None = None,
+    crs_override: str | None = None,
+) -> Iterator[CityGMLPolygon]:
+    """The polygons ``read_citygml`` meshes, one by one, in metric world coordinates (checks, tools)."""
+    yield from CityGMLReader(path, lod, target_crs, crs_override).polygons()
+
+
+def read_citygml(
+    path: str | Path,
+    lod: int | None = None,
+    target_crs: pyproj.CRS | None = None,
+    crs_override: str | None = None,
+) -> CityModel:
+    """Read the buildings of a CityGML 1.0 / 2.0 / 3.0 file (``.gml``, ``.xml``, gzip) into a ``CityModel``.
+
+    ``lod=None``: each building's (and part's) highest LoD; ``lod=N``: only LoD N (``EmptyModelError`` naming
+    the LoDs present if there is none). ``target_crs``: metric CRS to convert to (default: the file's CRS,
+    or the UTM zone of the data for a geographic CRS). ``crs_override``: CRS name replacing the file's
+    ``srsName``. Raises ``InputFileError`` (missing file), ``MalformedXMLError`` (not XML, truncated,
+    entity declarations), ``UnsupportedFormatError`` (not a CityGML 1-3 CityModel), ``CRSError``,
+    ``EmptyModelError``.
+    """
+    reader = CityGMLReader(path, lod, target_crs, crs_override)
+    builder = MeshBuilder(reader.stats)
+    add = builder.add_polygon
+    for p in reader.polygons():
+        add(p.exterior, p.interiors, p.semantic, p.building_id, p.lod)
+    return builder.build(crs=reader.crs, source_crs=reader.source_crs, source=str(reader.path))

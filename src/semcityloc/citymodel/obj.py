@@ -1,0 +1,376 @@
+"""Read a Wavefront OBJ city mesh (no semantics) into a semantic ``CityModel``.
+
+Why: LoD-Loc's UAVD4L model and many Blender exports are plain OBJ. They carry no classes and no
+building ids, so we derive both:
+
+- Parsing: ``v`` (x y z, extra colour/w values ignored), ``f`` with ``i``, ``i/t``, ``i//n``, ``i/t/n``
+  tokens and negative (relative) indices, ``o``/``g`` groups. ``vt``/``vn``/``vp``/``l``/``p``/``s``/
+  ``usemtl``/``mtllib`` are ignored, other keywords counted in a warning. A line we cannot read raises
+  ``InputFileError`` naming the line number.
+- Faces: triangles as they are; a polygon of more vertices is fanned when it is planar (within
+  ``NONPLANAR_TOLERANCE_M``) and strictly convex, otherwise triangulated with earcut
+  (``triangulate.triangulate_polygon``). Zero-area faces are dropped and counted as degenerate.
+- Buildings: connected components of faces that share a vertex, within one ``o``/``g`` group. Vertices
+  closer than ``WELD_TOLERANCE_M`` are one vertex for this (Blender exports duplicate them per face);
+  the mesh keeps the original coordinates. Ids are ``obj_<n>``, numbered in file order.
+- Winding: OBJ has no outside. Per building we take the signed volume against a reference point at the
+  building's lowest height (a missing bottom face then adds nothing): a negative volume means the
+  component winds clockwise seen from outside and its triangles are flipped (counted in a warning).
+  Components of zero volume (a single flat face) are left as written. Measured on LoD-Loc's
+  ``UAVD4L-LoD1.obj``: 692 of 693 judged components already wind outward (1 is flipped); its LoD1 blocks
+  have no floor faces, so almost no triangle is ground.
+- Classes: from the (fixed) normals by ``builder.classify_by_normals``: walls, roofs facing up, downward
+  faces at the building's foot as ground.
+- Frame: the coordinates are a local metric frame (``crs`` optional, must be projected/metric). With
+  ``z_up=False`` (Y-up exports such as Blender's default) the axes map as
+  ``(x, y, z)_world = (x, -z, y)_obj``: a +90 deg rotation about x, so the winding is kept.
+- LoD: OBJ names none; every triangle is stored as ``OBJ_LOD``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyproj
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
+from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
+from semcityloc.citymodel.model import CityModel, ParseStats
+from semcityloc.citymodel.triangulate import DUPLICATE_TOLERANCE_M, NONPLANAR_TOLERANCE_M, triangulate_polygon
+from semcityloc.errors import CRSError, EmptyModelError, InputFileError
+
+# Vertices closer than this are the same vertex when finding connected buildings (metres).
+WELD_TOLERANCE_M = 1e-3
+# A coordinate beyond this (metres) is corrupt: it would not even survive the float32 local frame.
+MAX_ABS_COORDINATE_M = 1e9
+# The LoD stored for OBJ triangles (the format names none; LoD-Loc's block models are LoD1).
+OBJ_LOD = 1
+# Keywords that carry nothing we use: ignored without a warning.
+IGNORED_KEYWORDS = frozenset({"vt", "vn", "vp", "s", "usemtl", "mtllib", "l", "p", "cstype", "deg"})
+# A component's |signed volume| below this (m^3) says nothing about its winding.
+MIN_WINDING_VOLUME_M3 = 1e-9
+# Z-up world from Y-up OBJ: world = M @ obj, i.e. (x, -z, y); det = +1 keeps the winding.
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> CityModel:
+    """Read an OBJ mesh as a semantic city model (classes from normals, buildings from connectivity).
+
+    Args:
+        path: the ``.obj`` file.
+        crs: the metric CRS of the OBJ coordinates, if known (e.g. ``"EPSG:25832"``).
+        z_up: False for Y-up exports: world ``(x, y, z) = (x, -z, y)`` of the file.
+
+    Raises:
+        InputFileError: unreadable file, or a line that is not valid OBJ (the message names the line).
+        CRSError: a CRS that cannot be parsed or is geographic.
+        EmptyModelError: no face with area.
+    """
+    path = Path(path)
+    stats = ParseStats()
+    source_crs = _metric_crs(crs)
+    mesh = _parse(_read_text(path), path)
+    verts = mesh.vertices if z_up else mesh.vertices @ Y_UP_TO_Z_UP.T
+    if not len(mesh.face_len):
+        raise EmptyModelError(f"{path}: the OBJ has no faces")
+
+    stats.polygons = len(mesh.face_len)
+    tris, tri_face = _triangulate(verts, mesh, stats)
+    if not len(tris):
+        raise EmptyModelError(f"{path}: no face of the OBJ has an area")
+
+    component = _components(verts, mesh)
+    order, building = np.unique(component, return_inverse=True)
+    first_face = np.full(len(order), len(component))
+    np.minimum.at(first_face, building, np.arange(len(component)))
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[np.argsort(first_face, kind="stable")] = np.arange(len(order))
+    face_building = rank[building]  # numbered in file order
+    tri_building = face_building[tri_face]
+
+    flipped, n_oriented = _fix_winding(verts, tris, tri_building, len(order))
+    if flipped:
+        stats.warnings.append(
+            f"flipped the winding of {flipped} of {n_oriented} buildings: they wound clockwise seen from "
+            "outside (negative signed volume)"
+        )
+    if mesh.unknown:
+        stats.warnings.append(
+            "ignored OBJ keywords: " + ", ".join(f"{k} ({n} lines)" for k, n in mesh.unknown.most_common())
+        )
+    if not z_up:
+        stats.warnings.append("Y-up OBJ: world (x, y, z) = file (x, -z, y)")
+
+    used, compact = np.unique(tris, return_inverse=True)
+    # Renumber over the buildings that kept a triangle; np.unique keeps the file order of the ranks.
+    present, tri_index = np.unique(tri_building, return_inverse=True)
+    builder = MeshBuilder(stats)
+    for n in range(len(present)):
+        builder.building(f"obj_{n}")
+    stats.classified_by_normal = int(len(np.unique(tri_face)))
+    builder.add_mesh(verts[used], compact.reshape(-1, 3), np.full(len(tris), UNLABELLED), tri_index, OBJ_LOD)
+    return builder.build(crs=source_crs, source_crs=source_crs, source=str(path))
+
+
+# ---------------------------------------------------------------------------------------------- parsing
+
+
+@dataclass
+class _ObjMesh:
+    vertices: np.ndarray  # (V, 3) float64 as in the file
+    face_index: np.ndarray  # (sum of face lengths,) int64 0-based vertex indices
+    face_len: np.ndarray  # (F,) int64
+    face_group: np.ndarray  # (F,) int64 id of the o/g group
+    face_line: np.ndarray  # (F,) int64 line number, for messages
+    unknown: Counter
+
+
+def _metric_crs(crs: str | None) -> pyproj.CRS | None:
+    if crs is None:
+        return None
+    parsed = parse_crs_name(crs)
+    if horizontal_crs(parsed).is_geographic:
+        raise CRSError(f"OBJ coordinates are metric; the CRS {crs!r} is geographic ({parsed.name})")
+    return parsed
+
+
+def _read_text(path: Path) -> str:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if b"\x00" in raw[:4096]:
+        raise InputFileError(f"{path}: binary data, not a text OBJ file")
+    return raw.decode("utf-8", errors="replace")
+
+
+def _logical_lines(text: str):
+    """(line number, stripped line) with backslash continuations joined (number of the first line)."""
+    pending, start = "", 0
+    for lineno, line in enumerate(text.splitlines(), 1):
+        stripped = line.strip()
+        if stripped.endswith("\\"):
+            if not pending:
+                start = lineno
+            pending += stripped[:-1] + " "
+            continue
+        if pending:
+            yield start, pending + stripped
+            pending = ""
+        else:
+            yield lineno, stripped
+    if pending:
+        yield start, pending
+
+
+def _parse(text: str, path: Path) -> _ObjMesh:
+    verts: list[tuple[float, float, float]] = []
+    vert_lines: list[int] = []
+    face_index: list[int] = []
+    face_len: list[int] = []
+    face_group: list[int] = []
+    face_line: list[int] = []
+    groups: dict[tuple[str, str], int] = {}
+    obj_name, group_name = "", ""
+    group_id = groups.setdefault((obj_name, group_name), 0)
+    unknown: Counter = Counter()
+
+    def fail(lineno: int, line: str, why: str) -> InputFileError:
+        return InputFileError(f"{path}: line {lineno}: {why}: {line[:80]!r}")
+
+    for lineno, line in _logical_lines(text):
+        if not line or line[0] == "#":
+            continue
+        parts = line.split()
+        kw = parts[0]
+        if kw == "v":
+            if len(parts) < 4:
+                raise fail(lineno, line, "a vertex needs x y z")
+            try:
+                xyz = (float(parts[1]), float(parts[2]), float(parts[3]))
+            except ValueError:
+                raise fail(lineno, line, "vertex coordinates are not numbers") from None
+            verts.append(xyz)
+            vert_lines.append(lineno)
+        elif kw == "f":
+            if len(parts) < 4:
+                raise fail(lineno, line, "a face needs at least 3 vertices")
+            n_verts = len(verts)
+            for token in parts[1:]:
+                try:
+                    i = int(token.split("/", 1)[0])
+                except ValueError:
+                    raise fail(lineno, line, f"face vertex {token!r} is not an index") from None
+                if i > 0:
+                    face_index.append(i - 1)  # range checked once the whole file is read
+                elif i < 0 and n_verts + i >= 0:
+                    face_index.append(n_verts + i)
+                else:
+                    raise fail(lineno, line, f"face vertex index {i} refers to no vertex")
+            face_len.append(len(parts) - 1)
+            face_group.append(group_id)
+            face_line.append(lineno)
+        elif kw in ("o", "g"):
+            name = " ".join(parts[1:])
+            if kw == "o":
+                obj_name, group_name = name, ""
+            else:
+                group_name = name
+            group_id = groups.setdefault((obj_name, group_name), len(groups))
+        elif kw not in IGNORED_KEYWORDS:
+            unknown[kw] += 1
+
+    vertices = np.array(verts, dtype=np.float64).reshape(-1, 3)
+    bad_vertex = ~(np.abs(vertices) <= MAX_ABS_COORDINATE_M).all(axis=1)
+    if bad_vertex.any():
+        lineno = vert_lines[int(np.argmax(bad_vertex))]
+        raise InputFileError(
+            f"{path}: line {lineno}: vertex coordinates are not finite or beyond {MAX_ABS_COORDINATE_M:g} m"
+        )
+    mesh = _ObjMesh(
+        vertices,
+        np.array(face_index, dtype=np.int64),
+        np.array(face_len, dtype=np.int64),
+        np.array(face_group, dtype=np.int64),
+        np.array(face_line, dtype=np.int64),
+        unknown,
+    )
+    out_of_range = mesh.face_index >= len(vertices)
+    if out_of_range.any():
+        corner = int(np.argmax(out_of_range))
+        face = np.repeat(np.arange(len(mesh.face_len)), mesh.face_len)[corner]
+        raise InputFileError(
+            f"{path}: line {mesh.face_line[face]}: face vertex index {mesh.face_index[corner] + 1} "
+            f"refers to no vertex (the file has {len(vertices)})"
+        )
+    return mesh
+
+
+# ---------------------------------------------------------------------------------------------- faces
+
+
+def _batch_normals(p: np.ndarray) -> np.ndarray:
+    """Newell normals (m, 3) of m polygons (m, n, 3) (centred first for precision)."""
+    a = p - p.mean(axis=1, keepdims=True)
+    b = np.roll(a, -1, axis=1)
+    return np.stack(
+        [
+            np.sum((a[..., 1] - b[..., 1]) * (a[..., 2] + b[..., 2]), axis=1),
+            np.sum((a[..., 2] - b[..., 2]) * (a[..., 0] + b[..., 0]), axis=1),
+            np.sum((a[..., 0] - b[..., 0]) * (a[..., 1] + b[..., 1]), axis=1),
+        ],
+        axis=1,
+    )
+
+
+def _triangulate(verts: np.ndarray, mesh: _ObjMesh, stats: ParseStats) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles (T, 3) of vertex indices and the face (T,) each came from, in face order."""
+    starts = np.concatenate([[0], np.cumsum(mesh.face_len)[:-1]])
+    tri_chunks: list[np.ndarray] = []
+    face_chunks: list[np.ndarray] = []
+    for n in np.unique(mesh.face_len):
+        faces = np.flatnonzero(mesh.face_len == n)
+        idx = mesh.face_index[starts[faces, None] + np.arange(n)]  # (m, n)
+        p = verts[idx]
+        normal = _batch_normals(p)
+        norm = np.linalg.norm(normal, axis=1)
+        size = np.ptp(p, axis=1).max(axis=1)
+        ok = (norm > 1e-12 * size * size) & (norm > 1e-10)
+        if n == 3:
+            stats.degenerate_polygons += int((~ok).sum())
+            tri_chunks.append(idx[ok])
+            face_chunks.append(faces[ok])
+            continue
+        unit = normal / np.maximum(norm, 1e-300)[:, None]
+        planarity = np.abs(np.einsum("mnk,mk->mn", p - p.mean(axis=1, keepdims=True), unit)).max(axis=1)
+        edges = np.roll(p, -1, axis=1) - p
+        turn = np.einsum("mnk,mk->mn", np.cross(edges, np.roll(edges, -1, axis=1)), unit)
+        edge2 = np.einsum("mnk,mnk->mn", edges, edges)
+        convex = (turn > 1e-9 * np.maximum(edge2, np.roll(edge2, -1, axis=1))).all(axis=1)
+        fan = ok & convex & (planarity <= NONPLANAR_TOLERANCE_M)
+        if fan.any():
+            k = np.arange(1, n - 1)
+            fan_idx = idx[fan]
+            tris = np.stack(
+                [np.repeat(fan_idx[:, :1], n - 2, axis=1), fan_idx[:, k], fan_idx[:, k + 1]], axis=2
+            )
+            tri_chunks.append(tris.reshape(-1, 3))
+            face_chunks.append(np.repeat(faces[fan], n - 2))
+        for row in np.flatnonzero(~fan):
+            tris = _earcut_face(verts, idx[row])
+            if planarity[row] > NONPLANAR_TOLERANCE_M:
+                stats.nonplanar_polygons += 1
+            if tris is None:
+                stats.degenerate_polygons += 1
+                continue
+            tri_chunks.append(tris)
+            face_chunks.append(np.full(len(tris), faces[row]))
+    tris = np.concatenate(tri_chunks) if tri_chunks else np.zeros((0, 3), dtype=np.int64)
+    tri_face = np.concatenate(face_chunks) if face_chunks else np.zeros(0, dtype=np.int64)
+    order = np.argsort(tri_face, kind="stable")
+    return tris[order], tri_face[order]
+
+
+def _earcut_face(verts: np.ndarray, idx: np.ndarray) -> np.ndarray | None:
+    """Triangles (k, 3) in vertex indices of one polygon, or None when it is degenerate."""
+    ring = verts[idx]
+    step = np.linalg.norm(np.diff(ring, axis=0, append=ring[:1]), axis=1)
+    kept = idx[step > DUPLICATE_TOLERANCE_M]  # the points triangulate_polygon keeps (clean_ring)
+    tri = triangulate_polygon(ring)
+    if tri is None or len(tri.points) != len(kept):
+        return None
+    return kept[tri.triangles]
+
+
+# ---------------------------------------------------------------------------------------------- buildings
+
+
+def _components(verts: np.ndarray, mesh: _ObjMesh) -> np.ndarray:
+    """Component label per face: faces sharing a (welded) vertex within one o/g group."""
+    n_vert = len(verts)
+    pairs = cKDTree(verts).query_pairs(WELD_TOLERANCE_M, output_type="ndarray")
+    weld_graph = sparse.coo_matrix(
+        (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n_vert, n_vert)
+    )
+    _, weld = connected_components(weld_graph, directed=False)
+
+    n_face = len(mesh.face_len)
+    corner_face = np.repeat(np.arange(n_face), mesh.face_len)
+    key = mesh.face_group[corner_face] * (int(weld.max()) + 1) + weld[mesh.face_index]
+    _, node = np.unique(key, return_inverse=True)
+    n_nodes = n_face + int(node.max()) + 1
+    graph = sparse.coo_matrix(
+        (np.ones(len(corner_face), dtype=np.int8), (corner_face, n_face + node)), shape=(n_nodes, n_nodes)
+    )
+    _, labels = connected_components(graph, directed=False)
+    return labels[:n_face]
+
+
+def _fix_winding(
+    verts: np.ndarray, tris: np.ndarray, tri_building: np.ndarray, n_buildings: int
+) -> tuple[int, int]:
+    """Flip (in place) the triangles of buildings with negative signed volume.
+
+    Returns (flipped, oriented): how many buildings were flipped, how many had a volume to judge by.
+    """
+    corners = verts[tris]  # (T, 3, 3)
+    lo = np.full((n_buildings, 3), np.inf)
+    np.minimum.at(lo, tri_building, corners.min(axis=1))
+    hi = np.full((n_buildings, 3), -np.inf)
+    np.maximum.at(hi, tri_building, corners.max(axis=1))
+    lo[~np.isfinite(lo)], hi[~np.isfinite(hi)] = 0.0, 0.0  # components left without a triangle
+    ref = np.column_stack([0.5 * (lo[:, :2] + hi[:, :2]), lo[:, 2]])  # centre of the foot
+    rel = corners - ref[tri_building][:, None, :]
+    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    volume = np.bincount(tri_building, weights=det / 6.0, minlength=n_buildings)
+    judged = np.abs(volume) > MIN_WINDING_VOLUME_M3
+    flip = judged & (volume < 0)
+    rows = flip[tri_building]
+    tris[rows] = tris[rows][:, [0, 2, 1]]
+    return int(flip.sum()), int(judged.sum())

@@ -1,0 +1,130 @@
+"""``semcityloc benchmark``: simulated queries over a city model, localized, scored, resumable.
+
+Writes ``OUT/results.csv`` (a row per query), ``OUT/summary.json`` and ``OUT/run.json`` and prints the
+summary as a Markdown table (``semcityloc.benchmark.runner`` documents the files). Run the same command
+again after an interruption and it continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from semcityloc.benchmark.methods import BenchmarkError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("benchmark", help="localize simulated drone queries over a city model and score them")
+    p.add_argument(
+        "--city", required=True, help="CityGML / CityJSON file, or 'generated' for the embedded city"
+    )
+    p.add_argument(
+        "--lod",
+        type=int,
+        choices=(1, 2, 3),
+        default=None,
+        help="map LoD (default: the file's highest; 1 on an LoD2 city derives LoD1 blocks)",
+    )
+    p.add_argument("--queries", type=int, default=100, help="number of simulated queries (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the query simulation")
+    p.add_argument(
+        "--method",
+        default="semcityloc",
+        help="semcityloc, no-coarse, no-refine, no-depth (or a registered baseline)",
+    )
+    p.add_argument("--seg-quality", default="trained", help="simulated segmentation preset (default trained)")
+    p.add_argument(
+        "--prior-extra",
+        default=None,
+        metavar="A-B",
+        help="extra per-axis prior perturbation in metres, e.g. 10-20 (default: none)",
+    )
+    p.add_argument("--preset", default="default", help="localizer preset: default, wide, fast")
+    p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
+    p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
+    p.add_argument(
+        "--keep-details",
+        type=int,
+        default=3,
+        help="save labels, poses and cost volume of the first N queries for the report (default 3)",
+    )
+    p.add_argument("--crs", default=None, help="override the city file's CRS, e.g. EPSG:25832")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="discard the results in --out when they were made with other arguments",
+    )
+    p.add_argument(
+        "--stop-after",
+        type=int,
+        default=None,
+        metavar="N",
+        help="localize at most N more queries, then stop (run again to continue)",
+    )
+    p.set_defaults(func=run)
+
+
+def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
+    """``"A-B"`` (metres, 0 <= A <= B) -> (A, B); None / ``"none"`` -> None."""
+    if text is None or text.strip().lower() in ("", "none", "0"):
+        return None
+    parts = text.split("-")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a, b = float(parts[0]), float(parts[1])
+    except ValueError as exc:
+        raise BenchmarkError(
+            f"--prior-extra must look like A-B in metres (e.g. 10-20), got {text!r}"
+        ) from exc
+    if not (math.isfinite(a) and math.isfinite(b) and 0 <= a <= b):
+        raise BenchmarkError(f"--prior-extra A-B needs 0 <= A <= B, got {text!r}")
+    return a, b
+
+
+def _check_seg_quality(name: str) -> None:
+    try:
+        from semcityloc.benchmark.perception_sim import SEG_PRESETS
+    except ImportError:  # the simulator reports it then
+        return
+    if name not in SEG_PRESETS:
+        raise BenchmarkError(f"unknown --seg-quality {name!r}; known: {', '.join(SEG_PRESETS)}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from semcityloc.benchmark.queries import QueryConfig
+    from semcityloc.benchmark.report import summary_markdown
+    from semcityloc.benchmark.runner import BenchmarkSpec, resolve_city, run_benchmark
+
+    resolve_city(args.city)  # a missing file fails before anything else
+    if args.queries < 1:
+        raise BenchmarkError(f"--queries must be >= 1, got {args.queries}")
+    if args.workers < 1:
+        raise BenchmarkError(f"--workers must be >= 1, got {args.workers}")
+    if args.keep_details < 0:
+        raise BenchmarkError(f"--keep-details must be >= 0, got {args.keep_details}")
+    _check_seg_quality(args.seg_quality)
+    query = QueryConfig(
+        queries=args.queries,
+        seed=args.seed,
+        seg_quality=args.seg_quality,
+        prior_extra_m=parse_prior_extra(args.prior_extra),
+    )
+    spec = BenchmarkSpec(
+        city=args.city,
+        query=query,
+        lod=args.lod,
+        method=args.method,
+        preset=args.preset,
+        crs=args.crs,
+        keep_details=args.keep_details,
+    )
+    out = Path(args.out)
+    outcome = run_benchmark(spec, out, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after)
+    if not outcome.complete:
+        print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")
+        return 0
+    print(summary_markdown([outcome.summary], [args.method]))
+    print(f"wrote {out / 'results.csv'} and {out / 'summary.json'}")
+    return 0

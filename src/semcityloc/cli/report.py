@@ -1,0 +1,31 @@
+"""``semcityloc report DIR...``: the paper's tables (Markdown + CSV) and plots from benchmark runs."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="tables and plots from one or more benchmark output folders")
+    p.add_argument("runs", nargs="+", metavar="DIR", help="folders written by 'semcityloc benchmark'")
+    p.add_argument("--out", default="benchmark_report", help="output folder (default benchmark_report)")
+    p.add_argument(
+        "--overlays",
+        type=int,
+        default=2,
+        help="query figures (overlays and cost-volume slices) per run (default 2)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from semcityloc.benchmark.report import make_report
+
+    report = make_report(args.runs, args.out, overlays=args.overlays)
+    for name, (md, csv_path) in report.tables.items():
+        print(f"table {name}: {md} {csv_path}")
+    print(f"{len(report.plots)} plots in {report.out_dir / 'plots'}")
+    for note in report.notes:
+        print(f"note: {note}")
+    print(f"wrote {report.markdown}")
+    return 0

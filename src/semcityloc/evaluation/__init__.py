@@ -1,0 +1,1 @@
+"""Evaluation of localization results: pose-error metrics (recall at thresholds, mean/median errors)."""

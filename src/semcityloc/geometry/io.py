@@ -1,0 +1,582 @@
+"""Read poses and intrinsics from the small text formats users pass on the CLI; write a pose as JSON.
+
+Every reader takes a ``spec``: a path to a file, or the text itself (inline JSON, a COLMAP line, comma
+separated numbers). The accepted forms are listed in ``read_pose`` and ``read_intrinsics``. Whatever is
+wrong with an input, the error is one of ``PoseError`` / ``CameraError`` / ``ShapeError`` /
+``InputFileError`` with a one-line message that starts with the file name or the inline text.
+
+Frames: a pose is read exactly as written (in whatever world frame the file uses, usually the model's
+CRS); bring it to a model's local frame with ``pose.shift_world(model.origin)``. ``write_pose_json`` with
+``origin`` writes the pose in the CRS frame again (local + origin, float64), so its output reads back.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semcityloc.errors import CameraError, InputFileError, PoseError, SemCityLocError, ShapeError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap, pose_from_lodloc_c2w
+from semcityloc.geometry.pose import Pose
+
+# Pose and intrinsics files are a few lines long; refuse to slurp e.g. an image passed by mistake.
+MAX_SPEC_FILE_BYTES = 10_000_000
+# COLMAP camera models we read: name -> parameter names. Distortion terms must be zero (we are pinhole).
+COLMAP_MODELS: dict[str, tuple[str, ...]] = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+}
+# A pose JSON holding both matrices must agree to this (metres / rotation-matrix entries).
+CONSISTENCY_TOL_M = 1e-4
+CONSISTENCY_TOL_R = 1e-6
+
+_SPLIT = re.compile(r"[,\s]+")
+
+
+# ---------------------------------------------------------------------------------------------- input
+def _label(spec: str | os.PathLike, is_file: bool) -> str:
+    if is_file:
+        return str(spec)
+    text = " ".join(str(spec).split())
+    return repr(text if len(text) <= 80 else text[:77] + "...")
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):  # name too long, embedded NUL: not a file name
+        return False
+
+
+def _load(spec: str | os.PathLike, error: type[SemCityLocError], what: str) -> tuple[str, str]:
+    """``(text, label)`` of a spec: the file's content if it names a file, else the spec itself."""
+    if isinstance(spec, os.PathLike):
+        path: Path | None = Path(spec)
+    elif isinstance(spec, str):
+        stripped = spec.strip()
+        if not stripped:
+            raise error(f"empty {what}")
+        if stripped.startswith(("{", "[")) or "\n" in stripped:
+            path = None  # inline JSON / several lines: text, never a file name
+        else:
+            path = Path(stripped)
+            if not _is_file(path):
+                # Inline forms end with a number ("x,y,z,roll,pitch,yaw", "name qw ... tz", "fx,...,h")
+                # or are comma separated; anything else is taken for a file name that does not exist.
+                if "," not in stripped and not _is_number(_SPLIT.split(stripped)[-1]):
+                    raise InputFileError(f"{stripped}: no such {what} file")
+                path = None
+    else:
+        raise error(f"{what} must be a path or a string, got {type(spec).__name__}")
+    if path is None:
+        return str(spec), _label(spec, False)
+    label = str(path)
+    try:
+        if path.stat().st_size > MAX_SPEC_FILE_BYTES:
+            raise InputFileError(f"{label}: {path.stat().st_size} bytes is too large for a {what} file")
+        return path.read_text(encoding="utf-8"), label
+    except FileNotFoundError as exc:
+        raise InputFileError(f"{label}: no such {what} file") from exc
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"{label}: not a UTF-8 text file (expected a {what} file)") from exc
+    except OSError as exc:
+        raise InputFileError(f"{label}: cannot read {what} file: {exc.strerror or exc}") from exc
+
+
+def _json(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputFileError(f"invalid JSON ({exc.msg} at line {exc.lineno} column {exc.colno})") from exc
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _lines(text: str) -> list[list[str]]:
+    """Token lists of the non-empty, non-comment lines; tokens split on whitespace and commas."""
+    out = []
+    for line in text.splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            out.append([t for t in _SPLIT.split(line) if t])
+    return out
+
+
+def _floats(tokens: list[str], error: type[SemCityLocError]) -> list[float]:
+    bad = [t for t in tokens if not _is_number(t)]
+    if bad:
+        raise error(f"non-numeric value {bad[0]!r}")
+    return [float(t) for t in tokens]
+
+
+def _pick(entries: dict[str, Any], name: str | None, error: type[SemCityLocError], what: str) -> Any:
+    """The entry called ``name`` (exact, then file name, then stem); the only one when name is None."""
+    if name is None:
+        if len(entries) == 1:
+            return next(iter(entries.values()))
+        some = ", ".join(list(entries)[:3])
+        raise error(f"{len(entries)} {what}s ({some}, ...): pass the image name to choose one")
+    for key in (lambda n: n, lambda n: Path(n).name, lambda n: Path(n).stem):
+        hits = [k for k in entries if key(k) == key(name)]
+        if len(hits) == 1:
+            return entries[hits[0]]
+        if len(hits) > 1:
+            raise error(f"image name {name!r} is ambiguous: it matches {', '.join(hits[:3])}")
+    raise error(f"no {what} for image {name!r} (have {len(entries)}: {', '.join(list(entries)[:3])}, ...)")
+
+
+def _matrix(value: Any, shapes: tuple[tuple[int, int], ...], key: str) -> np.ndarray:
+    """A JSON matrix of one of ``shapes``; a 4x4 one must end in the row [0, 0, 0, 1] (rigid transform)."""
+    wanted = " or ".join(f"{r}x{c}" for r, c in shapes)
+    try:
+        M = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{key!r} must be a {wanted} matrix of numbers") from exc
+    if M.shape not in shapes:
+        raise ShapeError(f"{key!r} must be {wanted}, got shape {M.shape}")
+    if M.shape == (4, 4) and not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
+        raise PoseError(f"{key!r}: the last row of a 4x4 rigid transform must be [0, 0, 0, 1]")
+    return M
+
+
+_RIGID = ((4, 4), (3, 4))
+
+
+def _number(obj: dict, key: str, error: type[SemCityLocError]) -> float:
+    value = obj[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise error(f"{key!r} must be a number, got {value!r}")
+    return float(value)
+
+
+def _vector(obj: dict, key: str, n: int, error: type[SemCityLocError]) -> list[float]:
+    value = obj[key]
+    if (
+        not isinstance(value, list)
+        or len(value) != n
+        or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)
+    ):
+        raise error(f"{key!r} must be a list of {n} numbers, got {value!r}")
+    return [float(v) for v in value]
+
+
+def _labelled(label: str, fn, *args):
+    """Run a parser; prefix its typed error with the input's label."""
+    try:
+        return fn(*args)
+    except InputFileError as exc:
+        if str(exc).startswith(label):
+            raise
+        raise InputFileError(f"{label}: {exc}") from exc
+    except (PoseError, CameraError, ShapeError) as exc:
+        raise type(exc)(f"{label}: {exc}") from exc
+
+
+# ---------------------------------------------------------------------------------------------- poses
+POSE_FORMS = (
+    "a 4x4 (or 3x4) camera-to-world matrix (LoD-Loc *_pose.txt), 'name qw qx qy qz tx ty tz' (COLMAP), "
+    "COLMAP images.txt, JSON, or 'x,y,z,roll,pitch,yaw'"
+)
+
+
+def _pose_from_json(obj: Any) -> Pose:
+    if not isinstance(obj, dict):
+        raise PoseError(f"pose JSON must be an object, got {type(obj).__name__}")
+    if "world_from_cam" in obj:
+        pose = Pose.from_world_from_cam(_matrix(obj["world_from_cam"], _RIGID, "world_from_cam"))
+        if "cam_from_world" in obj:
+            other = Pose.from_cam_from_world(_matrix(obj["cam_from_world"], _RIGID, "cam_from_world"))
+            if (
+                np.abs(other.center - pose.center).max() > CONSISTENCY_TOL_M
+                or np.abs(other.R - pose.R).max() > CONSISTENCY_TOL_R
+            ):
+                raise PoseError("'world_from_cam' and 'cam_from_world' are not inverses of each other")
+        return pose
+    if "cam_from_world" in obj:
+        return Pose.from_cam_from_world(_matrix(obj["cam_from_world"], _RIGID, "cam_from_world"))
+    qkey = "qvec" if "qvec" in obj else "qvec_wxyz" if "qvec_wxyz" in obj else None
+    if qkey is not None:
+        if "tvec" not in obj:
+            raise PoseError(f"{qkey!r} needs 'tvec' (COLMAP world-to-camera translation)")
+        return pose_from_colmap(*_vector(obj, qkey, 4, PoseError), *_vector(obj, "tvec", 3, PoseError))
+    xyz_key = "xyz" if "xyz" in obj else "position" if "position" in obj else None
+    if xyz_key is not None:
+        missing = [k for k in ("roll", "pitch", "yaw") if k not in obj]
+        if missing:
+            raise PoseError(f"{xyz_key!r} needs 'roll', 'pitch' and 'yaw' (missing {', '.join(missing)})")
+        angles = [_number(obj, k, PoseError) for k in ("roll", "pitch", "yaw")]
+        return Pose.from_xyz_rpy(_vector(obj, xyz_key, 3, PoseError), *angles)
+    raise PoseError(
+        "pose JSON needs 'world_from_cam', 'cam_from_world', 'qvec'+'tvec' or 'xyz'+'roll'/'pitch'/'yaw'; "
+        f"got keys {sorted(obj)}"
+    )
+
+
+def _colmap_images(rows: list[list[str]]) -> dict[str, Pose]:
+    """COLMAP images.txt: 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME' lines (2D-point lines ignored)."""
+    out = {}
+    for r in rows:
+        if len(r) == 10 and not _is_number(r[9]) and all(_is_number(t) for t in r[:9]):
+            v = [float(t) for t in r[1:8]]
+            out[r[9]] = pose_from_colmap(*v)
+    return out
+
+
+def _pose_entries(text: str) -> dict[str, Pose]:
+    """All poses in a text (not JSON); unnamed single poses are keyed ''."""
+    rows = _lines(text)
+    if not rows:
+        raise PoseError(f"no pose values; expected {POSE_FORMS}")
+    images = _colmap_images(rows)
+    if images:
+        return images
+    named = [r for r in rows if not _is_number(r[0])]
+    if named:
+        if len(named) != len(rows):
+            raise PoseError(
+                "mixes named and unnamed lines; expected one 'name qw qx qy qz tx ty tz' per line"
+            )
+        out = {}
+        for r in rows:
+            v = _floats(r[1:], PoseError)
+            if len(v) != 7:
+                raise PoseError(
+                    f"line for {r[0]!r} has {len(v)} numbers; expected 'name qw qx qy qz tx ty tz'"
+                )
+            out[r[0]] = pose_from_colmap(*v)
+        return out
+    values = [_floats(r, PoseError) for r in rows]
+    counts = [len(v) for v in values]
+    if len(rows) in (3, 4) and all(c == 4 for c in counts):
+        return {"": pose_from_lodloc_c2w(np.array(values))}
+    if len(rows) == 1 and counts[0] in (12, 16):
+        return {"": pose_from_lodloc_c2w(np.array(values[0]).reshape(-1, 4))}
+    if len(rows) == 1 and counts[0] == 7:
+        return {"": pose_from_colmap(*values[0])}
+    if len(rows) == 1 and counts[0] == 6:
+        x, y, z, roll, pitch, yaw = values[0]
+        return {"": Pose.from_xyz_rpy([x, y, z], roll, pitch, yaw)}
+    shape = " / ".join(str(c) for c in counts[:5]) + (" / ..." if len(counts) > 5 else "")
+    raise PoseError(f"{len(rows)} line(s) with {shape} numbers is not a pose; expected {POSE_FORMS}")
+
+
+def _read_pose_entries(spec: str | os.PathLike) -> tuple[dict[str, Pose], str]:
+    text, label = _load(spec, PoseError, "pose")
+
+    def parse() -> dict[str, Pose]:
+        if text.lstrip().startswith(("{", "[")):
+            return {"": _pose_from_json(_json(text))}
+        return _pose_entries(text)
+
+    return _labelled(label, parse), label
+
+
+def read_poses(spec: str | os.PathLike) -> dict[str, Pose]:
+    """Every pose in a spec, by image name (``''`` for an unnamed single pose). Forms: ``read_pose``."""
+    return _read_pose_entries(spec)[0]
+
+
+def read_pose(spec: str | os.PathLike, name: str | None = None) -> Pose:
+    """One camera pose from a file or inline text. Accepted forms:
+
+    - LoD-Loc ``*_pose.txt``: a 4x4 (or 3x4) camera-to-world matrix, OpenCV camera axes, rows on lines
+      (whitespace or commas), or its 16 (12) numbers row-major on one line;
+    - a COLMAP pose line ``name qw qx qy qz tx ty tz`` or ``qw qx qy qz tx ty tz`` (world-to-camera,
+      Hamilton quaternion scalar first); a file of such lines (LoD-Loc ``GT_pose.txt``) or a COLMAP
+      ``images.txt`` needs ``name`` (matched exactly, then by file name, then by stem) unless it has one;
+    - JSON (file or inline): ``{"world_from_cam": 4x4}``, ``{"cam_from_world": 4x4}``,
+      ``{"qvec": [qw, qx, qy, qz], "tvec": [...]}`` or ``{"xyz": [...], "roll": .., "pitch": .., "yaw": ..}``
+      (also what ``write_pose_json`` writes);
+    - inline ``x,y,z,roll,pitch,yaw`` (our Euler convention, degrees; see ``geometry/pose.py``).
+    """
+    entries, label = _read_pose_entries(spec)
+    if list(entries) == [""]:
+        return entries[""]
+    return _labelled(label, _pick, entries, name, PoseError, "pose")
+
+
+# ---------------------------------------------------------------------------------------------- intrinsics
+INTRINSICS_FORMS = (
+    "a 3x4 [K|0] or 3x3 K matrix (LoD-Loc *_intrinsic.txt), 'name PINHOLE w h fx fy cx cy' "
+    "(COLMAP; also SIMPLE_PINHOLE w h f cx cy), JSON, or 'fx,fy,cx,cy,w,h'"
+)
+
+
+def _size_from_principal_point(c: float, axis: str) -> int:
+    """Image size 2c for a principal point c at the image centre (LoD-Loc files do not store the size)."""
+    size = 2.0 * c
+    if not math.isfinite(size) or size < 1 or abs(size - round(size)) > 1e-6:
+        raise CameraError(
+            f"cannot infer the image {axis} from c{'x' if axis == 'width' else 'y'}={c:g} "
+            f"(not at the centre of a whole-pixel image): pass the image {axis}"
+        )
+    return int(round(size))
+
+
+def _camera(
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    own_w: int | None,
+    own_h: int | None,
+    width: int | None,
+    height: int | None,
+) -> Camera:
+    """The camera at the requested size: its own size if it has one (resampled when both width and height
+    are given and differ), else the given size, else ``2 cx`` x ``2 cy``."""
+    if own_w is not None and own_h is not None:
+        camera = Camera(fx, fy, cx, cy, own_w, own_h)
+        if width is None and height is None:
+            return camera
+        if width is None or height is None:
+            raise CameraError(
+                f"intrinsics are for {own_w}x{own_h}; give both width and height to resample them, or neither"
+            )
+        return camera if (width, height) == (camera.width, camera.height) else camera.scaled(width, height)
+    w = width if width is not None else _size_from_principal_point(cx, "width")
+    h = height if height is not None else _size_from_principal_point(cy, "height")
+    return Camera(fx, fy, cx, cy, w, h)
+
+
+def _check_K(K: np.ndarray) -> tuple[float, float, float, float]:
+    """(fx, fy, cx, cy) of a 3x3 K or 3x4 [K|0]; anything else that is not a pinhole K -> CameraError."""
+    if K.shape[1] == 4 and np.abs(K[:, 3]).max() > 0:
+        raise CameraError("a 3x4 intrinsic matrix must be [K|0] (its last column is not zero)")
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+        raise CameraError("not an intrinsic matrix: expected [[fx 0 cx] [0 fy cy] [0 0 1]]")
+    if abs(K[0, 1]) > 1e-9 * max(abs(K[0, 0]), 1.0):
+        raise CameraError("skewed intrinsics (K[0][1] != 0) are not supported")
+    return float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+
+
+def _camera_from_json(obj: Any, width: int | None, height: int | None) -> Camera:
+    if not isinstance(obj, dict):
+        raise CameraError(f"intrinsics JSON must be an object, got {type(obj).__name__}")
+    size = [None, None]
+    for i, key in enumerate(("width", "height")):
+        if key in obj:
+            v = _number(obj, key, CameraError)
+            if not v.is_integer():
+                raise CameraError(f"{key!r} must be a whole number of pixels, got {v:g}")
+            size[i] = int(v)
+    if (size[0] is None) != (size[1] is None):
+        raise CameraError("intrinsics JSON has only one of 'width' and 'height'")
+    if "K" in obj:
+        fx, fy, cx, cy = _check_K(_matrix(obj["K"], ((3, 3), (3, 4)), "K"))
+    else:
+        missing = [k for k in ("fx", "fy", "cx", "cy") if k not in obj]
+        if missing:
+            raise CameraError(
+                f"intrinsics JSON needs 'fx', 'fy', 'cx', 'cy' (or 'K'); missing {', '.join(missing)}"
+            )
+        fx, fy, cx, cy = (_number(obj, k, CameraError) for k in ("fx", "fy", "cx", "cy"))
+    return _camera(fx, fy, cx, cy, size[0], size[1], width, height)
+
+
+def _colmap_camera(tokens: list[str], at: int, width: int | None, height: int | None) -> Camera:
+    model = tokens[at].upper()
+    names = COLMAP_MODELS[model]
+    values = _floats(tokens[at + 1 :], CameraError)
+    if len(values) != 2 + len(names):
+        raise CameraError(
+            f"{model} needs 'w h {' '.join(names)}' ({2 + len(names)} numbers), got {len(values)}"
+        )
+    w, h = values[0], values[1]
+    if not (w.is_integer() and h.is_integer()):
+        raise CameraError(f"{model} image size must be whole pixels, got {w:g} x {h:g}")
+    params = dict(zip(names, values[2:], strict=True))
+    distortion = {k: v for k, v in params.items() if k not in ("f", "fx", "fy", "cx", "cy") and v != 0}
+    if distortion:
+        raise CameraError(
+            f"{model} has non-zero distortion ({', '.join(f'{k}={v:g}' for k, v in distortion.items())}); "
+            "undistort the image first (we model pinhole cameras only)"
+        )
+    fx = params.get("fx", params.get("f"))
+    fy = params.get("fy", params.get("f"))
+    return _camera(fx, fy, params["cx"], params["cy"], int(w), int(h), width, height)
+
+
+def _camera_entries(text: str, width: int | None, height: int | None) -> dict[str, Camera]:
+    rows = _lines(text)
+    if not rows:
+        raise CameraError(f"no intrinsic values; expected {INTRINSICS_FORMS}")
+    model_at = [next((i for i in (0, 1) if i < len(r) and r[i].upper() in COLMAP_MODELS), None) for r in rows]
+    if any(m is not None for m in model_at):
+        out = {}
+        for r, at in zip(rows, model_at, strict=True):
+            if at is None:
+                raise CameraError(
+                    f"line {' '.join(r)[:60]!r} names no camera model; expected {INTRINSICS_FORMS}"
+                )
+            out[r[0] if at == 1 else ""] = _colmap_camera(r, at, width, height)
+        return out
+    for r in rows:
+        if len(r) > 2 and not _is_number(r[1]) and _is_number(r[2]):
+            raise CameraError(f"unsupported camera model {r[1]!r} (supported: {', '.join(COLMAP_MODELS)})")
+    values = [_floats(r, CameraError) for r in rows]
+    counts = [len(v) for v in values]
+    if len(rows) == 3 and (all(c == 4 for c in counts) or all(c == 3 for c in counts)):
+        return {"": _camera(*_check_K(np.array(values)), None, None, width, height)}
+    if len(rows) == 1 and counts[0] in (4, 6):
+        v = values[0]
+        own = (None, None)
+        if counts[0] == 6:
+            if not (v[4].is_integer() and v[5].is_integer()):
+                raise CameraError(f"image size must be whole pixels, got {v[4]:g} x {v[5]:g}")
+            own = (int(v[4]), int(v[5]))
+        return {"": _camera(v[0], v[1], v[2], v[3], *own, width, height)}
+    shape = " / ".join(str(c) for c in counts[:5]) + (" / ..." if len(counts) > 5 else "")
+    raise CameraError(
+        f"{len(rows)} line(s) with {shape} numbers are not intrinsics; expected {INTRINSICS_FORMS}"
+    )
+
+
+def read_intrinsics(
+    spec: str | os.PathLike, width: int | None = None, height: int | None = None, name: str | None = None
+) -> Camera:
+    """Pinhole intrinsics from a file or inline text. Accepted forms:
+
+    - LoD-Loc ``*_intrinsic.txt``: a 3x4 ``[K|0]`` (or 3x3 ``K``) matrix. It stores no image size: unless
+      ``width`` / ``height`` are given they are taken as ``2 cx`` / ``2 cy`` (principal point at the image
+      centre; the real file has cx = 320, cy = 256 for a 640x512 image). A principal point that is not at
+      the centre of a whole-pixel image raises ``CameraError`` asking for the size;
+    - a COLMAP ``cameras.txt`` / LoD-Loc ``intrinsic.txt`` line ``name MODEL w h params`` (or without the
+      name/id), MODEL one of PINHOLE ``fx fy cx cy``, SIMPLE_PINHOLE ``f cx cy``, and SIMPLE_RADIAL /
+      RADIAL / OPENCV only with all distortion terms zero; several lines need ``name``;
+    - JSON ``{"fx", "fy", "cx", "cy", "width", "height"}`` or ``{"K": 3x3, "width", "height"}``
+      (``Camera.as_dict`` output reads back);
+    - inline ``fx,fy,cx,cy,w,h`` (or ``fx,fy,cx,cy`` with the size rule above).
+
+    When the intrinsics carry their own size and both ``width`` and ``height`` are given and differ, the
+    camera is resampled to that size (``Camera.scaled``: same field of view, e.g. a downscaled image).
+    """
+    for key, value in (("width", width), ("height", height)):
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0
+        ):
+            raise CameraError(f"image {key} must be a positive integer, got {value!r}")
+    text, label = _load(spec, CameraError, "intrinsics")
+
+    def parse() -> dict[str, Camera]:
+        if text.lstrip().startswith(("{", "[")):
+            return {"": _camera_from_json(_json(text), width, height)}
+        return _camera_entries(text, width, height)
+
+    entries = _labelled(label, parse)
+    if list(entries) == [""]:
+        return entries[""]
+    return _labelled(label, _pick, entries, name, CameraError, "camera")
+
+
+# ---------------------------------------------------------------------------------------------- output
+def _crs_name(crs: Any) -> str | None:
+    if crs is None:
+        return None
+    if isinstance(crs, str):
+        return crs
+    to_string = getattr(crs, "to_string", None)
+    return to_string() if callable(to_string) else str(crs)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
+
+
+def pose_to_dict(
+    pose: Pose, origin: np.ndarray | None = None, crs: Any = None, extra: dict | None = None
+) -> dict[str, Any]:
+    """The JSON-ready description of one pose written by ``write_pose_json`` (see there)."""
+    if not isinstance(pose, Pose):
+        raise PoseError(f"expected a Pose, got {type(pose).__name__}")
+    if pose.batch_shape:
+        raise ShapeError(f"write one pose at a time, got a batch of shape {pose.batch_shape}")
+    out: dict[str, Any] = {"frame": "world"}
+    local_center = pose.center
+    if origin is not None:
+        o = np.asarray(origin, dtype=np.float64)
+        if o.shape != (3,):
+            raise ShapeError(f"origin must have shape (3,), got {o.shape}")
+        if not np.all(np.isfinite(o)):
+            raise PoseError("origin has non-finite entries")
+        pose = pose.shift_world(-o)  # local -> CRS: world = local + origin, in float64
+        out["frame"] = "crs"
+        out["origin"] = o.tolist()
+        out["position_local"] = local_center.tolist()
+    if crs is not None:
+        out["crs"] = _crs_name(crs)
+    x, y, z, roll, pitch, yaw = pose.to_xyz_rpy().tolist()
+    qvec, tvec = colmap_qvec_tvec(pose)
+    out.update(
+        {
+            "position": [x, y, z],
+            "roll": roll,
+            "pitch": pitch,
+            "yaw": yaw,
+            "world_from_cam": pose.world_from_cam.tolist(),
+            "cam_from_world": pose.cam_from_world.tolist(),
+            "qvec_wxyz": qvec.tolist(),
+            "tvec": tvec.tolist(),
+            "convention": (
+                "OpenCV camera axes (x right, y down, z forward); world x east, y north, z up; "
+                "R_world_from_cam = Rz(yaw) Ry(roll) Rx(pitch) diag(1,-1,-1), degrees; "
+                "qvec_wxyz/tvec = COLMAP cam_from_world"
+            ),
+        }
+    )
+    if extra is not None:
+        if not isinstance(extra, dict):
+            raise ShapeError(f"extra must be a dict, got {type(extra).__name__}")
+        try:
+            out["extra"] = json.loads(json.dumps(extra, default=_jsonable))
+        except (TypeError, ValueError) as exc:
+            raise ShapeError(f"extra is not JSON-serialisable: {exc}") from exc
+    return out
+
+
+def write_pose_json(
+    pose: Pose,
+    path: str | os.PathLike,
+    origin: np.ndarray | None = None,
+    crs: Any = None,
+    extra: dict | None = None,
+) -> dict[str, Any]:
+    """Write one pose as JSON and return what was written.
+
+    Keys: ``frame`` ("world", or "crs" when ``origin`` is given), ``position`` (camera centre),
+    ``roll`` / ``pitch`` / ``yaw`` (degrees, our convention), ``world_from_cam`` and ``cam_from_world``
+    (4x4), ``qvec_wxyz`` / ``tvec`` (COLMAP), ``convention`` (a reminder string), and when given
+    ``origin`` + ``position_local``, ``crs`` (name) and ``extra`` (any JSON-serialisable dict).
+    With ``origin`` (the model's float64 origin) the pose is taken to be in the model's local frame and
+    everything is written in the model CRS: ``position = local centre + origin`` in float64.
+    ``read_pose`` reads the file back (in the frame it was written in).
+    """
+    data = pose_to_dict(pose, origin=origin, crs=crs, extra=extra)
+    target = Path(path)
+    try:
+        target.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise InputFileError(f"{target}: cannot write pose JSON: {exc.strerror or exc}") from exc
+    return data

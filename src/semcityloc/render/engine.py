@@ -1,0 +1,102 @@
+"""``Renderer``: semantic masks (and z-depth, face ids) of a ``CityModel`` seen by pinhole cameras.
+
+One ``Renderer`` per model. It builds the ``RenderScene`` once (terrain, tiles) and hands each batch of
+poses to an engine:
+
+- ``"numba"``: the CPU z-buffer rasteriser (``raster_numba``), the default;
+- ``"embree"``: the Embree ray-casting reference (``embree_ref``; optional ``embreex``);
+- ``"gpu"``: nvdiffrast (``gpu``; optional, untested without a GPU);
+- ``"auto"``: ``"gpu"`` when it is usable, else ``"numba"``.
+
+Poses are ``cam_from_world`` in the model's LOCAL frame (world = ``model.origin`` + local): bring a
+world pose over with ``pose.shift_world(model.origin)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from semcityloc.citymodel.model import CityModel
+from semcityloc.errors import RenderError, ShapeError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.render.output import RenderOutput
+from semcityloc.render.scene import RenderScene, build_scene
+
+ENGINES = ("auto", "numba", "embree", "gpu")
+
+
+def pose_arrays(poses: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """(R (N, 3, 3), t (N, 3)) contiguous float64 from a single pose or a (N,) batch."""
+    if not isinstance(poses, Pose):
+        raise TypeError(f"poses must be a semcityloc Pose (single or batch), got {type(poses).__name__}")
+    shape = poses.batch_shape
+    if len(shape) > 1:
+        raise ShapeError(f"poses must be a single pose or a 1-D batch (N,), got batch shape {shape}")
+    R = np.ascontiguousarray(poses.R.reshape(-1, 3, 3), dtype=np.float64)
+    t = np.ascontiguousarray(poses.t.reshape(-1, 3), dtype=np.float64)
+    return R, t
+
+
+def check_camera(camera: Camera) -> Camera:
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
+    return camera
+
+
+def make_engine(name: str, scene: RenderScene):
+    """The engine object for ``name`` (see module docstring)."""
+    if name not in ENGINES:
+        raise RenderError(f"unknown render engine {name!r}; choose one of {', '.join(ENGINES)}")
+    if name in ("auto", "gpu"):
+        from semcityloc.render.gpu import GpuEngine, gpu_status
+
+        ok, _ = gpu_status()
+        if ok or name == "gpu":
+            return GpuEngine(scene)  # raises RenderError with an install hint when unavailable
+    if name == "embree":
+        from semcityloc.render.embree_ref import EmbreeEngine
+
+        return EmbreeEngine(scene)
+    from semcityloc.render.raster_numba import NumbaEngine
+
+    return NumbaEngine(scene)
+
+
+class Renderer:
+    """Render a ``CityModel`` (module docstring).
+
+    Args:
+        model: the city model; ``EmptyModelError`` if it has nothing to draw.
+        engine: ``"auto"`` | ``"numba"`` | ``"embree"`` | ``"gpu"``.
+        ground: add the terrain TIN of class GROUND between the buildings (``terrain.py``).
+        tile_size_m: edge of the square ground tiles used for view culling.
+    """
+
+    def __init__(
+        self, model: CityModel, engine: str = "auto", ground: bool = True, tile_size_m: float = 25.0
+    ):
+        if not isinstance(engine, str):
+            raise TypeError(f"engine must be a string, got {type(engine).__name__}")
+        self.model = model
+        self.scene = build_scene(model, ground=ground, tile_size_m=tile_size_m)
+        self.engine = make_engine(engine, self.scene)
+
+    @property
+    def engine_name(self) -> str:
+        return self.engine.name
+
+    def render(
+        self, camera: Camera, poses: Pose, depth: bool = False, face_ids: bool = False
+    ) -> RenderOutput:
+        """Labels (N, H, W) uint8, and z-depth / face ids when asked, for N poses (N = 1 for one pose)."""
+        check_camera(camera)
+        R, t = pose_arrays(poses)
+        return self.engine.render(camera, R, t, depth=bool(depth), face_ids=bool(face_ids))
+
+    def __repr__(self) -> str:
+        s = self.scene
+        return (
+            f"Renderer(engine={self.engine_name!r}, triangles={s.num_triangles} "
+            f"(terrain {s.num_terrain_triangles}), tiles={s.num_tiles}, blocks={s.num_blocks})"
+        )

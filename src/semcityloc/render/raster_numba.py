@@ -1,0 +1,595 @@
+"""CPU z-buffer rasteriser in numba: many small views of one ``RenderScene``, in parallel over views.
+
+Sampling is exactly that of a ray caster: pixel (i, j) is the ray through its centre
+(u, v) = (j + 0.5, i + 0.5) (COLMAP convention, ``geometry/camera.py``). A pixel is covered when its centre
+is inside the projected triangle; centres exactly on an edge go to exactly one of the two triangles that
+share it (a consistent tie rule, see ``_raster_triangle``). Depth is z-depth along the optical axis; its
+reciprocal is linear in screen space, so the kernel evaluates ``1/z`` from the triangle's 3D plane at each
+pixel centre (the same number a ray caster finds, up to rounding) and keeps the largest ``1/z``.
+
+Structure (reuse it for fused scoring):
+
+- ``render_view(...)`` rasterises ONE view into two flat per-view buffers: ``inv_z`` (float64, 0 = empty)
+  and ``tri_id`` (int32, -1 = empty). It culls blocks and tiles whose bounding box misses the view
+  frustum (5 planes: 4 sides + near), transforms and projects the triangles of the remaining tiles,
+  clips them against the near plane ``z = near`` (one triangle becomes up to two), and rasterises.
+- ``render_batch(...)`` is the parallel driver: ``prange`` over chunks of views; each chunk allocates its
+  buffers once, renders its views one after the other and writes labels / depth / face ids.
+- ``render_confusion(...)`` is a worked example of a FUSED reduction: the same driver, but instead of
+  writing masks it counts, per view, (rendered class, query class) pixel pairs; nothing of size
+  (N, H, W) is ever allocated. To fuse your own score, copy ``render_confusion`` and replace the block
+  marked ``# ---- per-view reduction hook ----`` (it sees the finished ``tri_id`` / ``inv_z`` buffers of
+  one view and ``classes``; write one row of your per-view output array).
+
+All kernels are ``cache=True`` (compiled once per machine, ~10-30 s) and ``fastmath=False`` (the tie rule
+needs exact IEEE arithmetic).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+# Geometry closer to the camera than this (metres, along the optical axis) is clipped away.
+NEAR_M = 0.1
+
+
+# ---------------------------------------------------------------------------------------------- culling
+@njit(cache=True, inline="always")
+def _frustum_planes(R, t, fx, fy, cx, cy, width, height, near, planes):
+    """Fill planes (5, 4) with world-frame half-spaces n.X + d >= 0 containing the view frustum."""
+    # Camera-frame normals of the 4 side planes (through the centre) and the near plane.
+    ncam = np.empty((5, 3))
+    ncam[0, 0], ncam[0, 1], ncam[0, 2] = fx, 0.0, cx  # u >= 0
+    ncam[1, 0], ncam[1, 1], ncam[1, 2] = -fx, 0.0, width - cx  # u <= W
+    ncam[2, 0], ncam[2, 1], ncam[2, 2] = 0.0, fy, cy  # v >= 0
+    ncam[3, 0], ncam[3, 1], ncam[3, 2] = 0.0, -fy, height - cy  # v <= H
+    ncam[4, 0], ncam[4, 1], ncam[4, 2] = 0.0, 0.0, 1.0  # z >= near
+    for p in range(5):
+        a, b, c = ncam[p, 0], ncam[p, 1], ncam[p, 2]
+        # n_world = R^T n_cam ; d = n_cam . t   (x_cam = R x + t)
+        planes[p, 0] = R[0, 0] * a + R[1, 0] * b + R[2, 0] * c
+        planes[p, 1] = R[0, 1] * a + R[1, 1] * b + R[2, 1] * c
+        planes[p, 2] = R[0, 2] * a + R[1, 2] * b + R[2, 2] * c
+        planes[p, 3] = a * t[0] + b * t[1] + c * t[2]
+    planes[4, 3] -= near
+
+
+@njit(cache=True, inline="always")
+def _box_outside(planes, boxes, i):
+    """True when box i (xmin ymin zmin xmax ymax zmax) is entirely outside one frustum plane."""
+    for p in range(5):
+        nx, ny, nz = planes[p, 0], planes[p, 1], planes[p, 2]
+        x = boxes[i, 3] if nx >= 0.0 else boxes[i, 0]
+        y = boxes[i, 4] if ny >= 0.0 else boxes[i, 1]
+        z = boxes[i, 5] if nz >= 0.0 else boxes[i, 2]
+        if nx * x + ny * y + nz * z + planes[p, 3] < 0.0:
+            return True
+    return False
+
+
+# ---------------------------------------------------------------------------------------------- raster
+@njit(cache=True, inline="always")
+def _edge(ax, ay, bx, by, sign):
+    """Canonical edge a-b: (ox, oy, mdx, mdy, owner) with inside value mdx*(py-oy) - mdy*(px-ox).
+
+    The endpoints are ordered lexicographically so that the two triangles sharing an edge evaluate the
+    very same expression up to an exact sign flip; a centre exactly on the edge (value 0) belongs to the
+    triangle whose multiplier is positive ("owner"): exactly one of the two.
+    """
+    if ax < bx or (ax == bx and ay < by):
+        m = sign
+        ox, oy, dx, dy = ax, ay, bx - ax, by - ay
+    else:
+        m = -sign
+        ox, oy, dx, dy = bx, by, ax - bx, ay - by
+    return ox, oy, m * dx, m * dy, m > 0.0
+
+
+@njit(cache=True, inline="always")
+def _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, tid, width, height, inv_z, tri_id):
+    """Z-buffer one screen triangle; 1/z at (u, v) is pa*u + pb*v + pc (the 3D plane, not clipped)."""
+    umin = min(u0, min(u1, u2))
+    umax = max(u0, max(u1, u2))
+    vmin = min(v0, min(v1, v2))
+    vmax = max(v0, max(v1, v2))
+    # Pixel centres j + 0.5 within [umin, umax].
+    j0 = int(math.ceil(max(umin - 0.5, 0.0)))
+    j1 = int(math.floor(min(umax - 0.5, width - 1.0)))
+    i0 = int(math.ceil(max(vmin - 0.5, 0.0)))
+    i1 = int(math.floor(min(vmax - 0.5, height - 1.0)))
+    if j0 > j1 or i0 > i1:
+        return
+    area = (u1 - u0) * (v2 - v0) - (v1 - v0) * (u2 - u0)
+    if area == 0.0:
+        return
+    s = 1.0 if area > 0.0 else -1.0
+    # Edges opposite to vertex 2, 0, 1 (their inside value is positive inside the triangle).
+    ax_, ay_, adx, ady, aown = _edge(u0, v0, u1, v1, s)
+    bx_, by_, bdx, bdy, bown = _edge(u1, v1, u2, v2, s)
+    cx_, cy_, cdx, cdy, cown = _edge(u2, v2, u0, v0, s)
+    # Per row, each edge bounds the run of inside centres from one side: px <= o + r/dy (dy > 0) or
+    # px >= o + r/dy (dy < 0). Each edge value is a monotone function of px even in floating point
+    # (a chain of correctly rounded monotone operations), so the inside centres of a row form ONE run.
+    # The divisions only estimate its ends; the exact edge tests find them (a few tests per row), and
+    # every centre between two inside centres is inside without testing it.
+    ia = 1.0 / ady if ady != 0.0 else 0.0
+    ib = 1.0 / bdy if bdy != 0.0 else 0.0
+    ic = 1.0 / cdy if cdy != 0.0 else 0.0
+    fj0 = float(j0)
+    fj1 = float(j1)
+    for i in range(i0, i1 + 1):
+        py = i + 0.5
+        ra = adx * (py - ay_)
+        rb = bdx * (py - by_)
+        rc = cdx * (py - cy_)
+        lo = fj0
+        hi = fj1
+        if ady > 0.0:
+            hi = min(hi, math.floor(ax_ + ra * ia - 0.5) + 1.0)
+        elif ady < 0.0:
+            lo = max(lo, math.ceil(ax_ + ra * ia - 0.5) - 1.0)
+        elif ra < 0.0 or (ra == 0.0 and not aown):
+            continue
+        if bdy > 0.0:
+            hi = min(hi, math.floor(bx_ + rb * ib - 0.5) + 1.0)
+        elif bdy < 0.0:
+            lo = max(lo, math.ceil(bx_ + rb * ib - 0.5) - 1.0)
+        elif rb < 0.0 or (rb == 0.0 and not bown):
+            continue
+        if cdy > 0.0:
+            hi = min(hi, math.floor(cx_ + rc * ic - 0.5) + 1.0)
+        elif cdy < 0.0:
+            lo = max(lo, math.ceil(cx_ + rc * ic - 0.5) - 1.0)
+        elif rc < 0.0 or (rc == 0.0 and not cown):
+            continue
+        if lo > hi:
+            continue
+        # First inside centre: from lo rightwards (or leftwards if lo itself is inside: bad estimate).
+        first = int(lo)
+        last = int(hi)
+        if _inside(first, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+            while first > j0 and _inside(
+                first - 1, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown
+            ):
+                first -= 1
+        else:
+            first += 1
+            while first <= last and not _inside(
+                first, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown
+            ):
+                first += 1
+            if first > last:
+                continue
+        # Last inside centre: from hi leftwards (it stops at `first` at the latest).
+        if _inside(last, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+            while last < j1 and _inside(last + 1, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                last += 1
+        else:
+            last -= 1
+            while not _inside(last, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                last -= 1
+        zrow = pb * py + pc
+        row = i * width
+        # Branch-free depth test: the order triangles arrive in says nothing about depth, so a branch
+        # here mispredicts about half the time.
+        for j in range(first, last + 1):
+            iz = pa * (j + 0.5) + zrow
+            k = row + j
+            old = inv_z[k]
+            closer = iz > old
+            inv_z[k] = iz if closer else old
+            tri_id[k] = tid if closer else tri_id[k]
+
+
+@njit(cache=True, inline="always")
+def _inside(j, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+    """Exact coverage test of pixel centre (j + 0.5) in the current row (see ``_raster_triangle``)."""
+    px = j + 0.5
+    ea = ra - ady * (px - ax_)
+    if ea < 0.0 or (ea == 0.0 and not aown):
+        return False
+    eb = rb - bdy * (px - bx_)
+    if eb < 0.0 or (eb == 0.0 and not bown):
+        return False
+    ec = rc - cdy * (px - cx_)
+    return ec > 0.0 or (ec == 0.0 and cown)
+
+
+@njit(cache=True, inline="always")
+def _covers_a_centre(u0, v0, u1, v1, u2, v2, width, height):
+    """Cheap test: does the screen bounding box of the triangle hold at least one pixel centre?"""
+    umin = min(u0, min(u1, u2))
+    umax = max(u0, max(u1, u2))
+    if umax < 0.5 or umin > width - 0.5:
+        return False
+    vmin = min(v0, min(v1, v2))
+    vmax = max(v0, max(v1, v2))
+    if vmax < 0.5 or vmin > height - 0.5:
+        return False
+    # No centre strictly between: [umin, umax] must contain some j + 0.5.
+    if math.floor(umax - 0.5) < math.ceil(umin - 0.5):
+        return False
+    if math.floor(vmax - 0.5) < math.ceil(vmin - 0.5):
+        return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _inv_z_plane(x0, y0, z0, x1, y1, z1, x2, y2, z2, fx, fy, cx, cy):
+    """Coefficients (pa, pb, pc, ok) with 1/z = pa*u + pb*v + pc on the triangle's plane (camera frame)."""
+    ex, ey, ez = x1 - x0, y1 - y0, z1 - z0
+    gx, gy, gz = x2 - x0, y2 - y0, z2 - z0
+    nx = ey * gz - ez * gy
+    ny = ez * gx - ex * gz
+    nz = ex * gy - ey * gx
+    d = nx * x0 + ny * y0 + nz * z0  # plane n.X = d; a ray X = z (xn, yn, 1) hits at 1/z = n.(xn,yn,1)/d
+    nn = abs(nx) + abs(ny) + abs(nz)
+    scale = abs(x0) + abs(y0) + abs(z0) + 1e-30
+    if abs(d) <= 1e-12 * nn * scale:  # plane through the camera centre: seen edge-on
+        return 0.0, 0.0, 0.0, False
+    pa = nx / (fx * d)
+    pb = ny / (fy * d)
+    pc = (nz - nx * cx / fx - ny * cy / fy) / d
+    return pa, pb, pc, True
+
+
+@njit(cache=True)
+def render_view(
+    tri_xyz,
+    tile_start,
+    tile_bbox,
+    block_start,
+    block_bbox,
+    R,
+    t,
+    fx,
+    fy,
+    cx,
+    cy,
+    width,
+    height,
+    near,
+    inv_z,
+    tri_id,
+):
+    """Rasterise one view into the flat buffers inv_z (float64, H*W) and tri_id (int32, H*W).
+
+    Returns the number of triangles that reached the rasteriser (after culling), for statistics.
+    """
+    npx = width * height
+    for k in range(npx):
+        inv_z[k] = 0.0
+        tri_id[k] = -1
+    planes = np.empty((5, 4))
+    _frustum_planes(R, t, fx, fy, cx, cy, width, height, near, planes)
+    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
+    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
+    drawn = 0
+    # Clipped polygon (at most 4 vertices) in camera coordinates.
+    qx = np.empty(4)
+    qy = np.empty(4)
+    qz = np.empty(4)
+    for b in range(block_bbox.shape[0]):
+        if _box_outside(planes, block_bbox, b):
+            continue
+        for tile in range(block_start[b], block_start[b + 1]):
+            if _box_outside(planes, tile_bbox, tile):
+                continue
+            for f in range(tile_start[tile], tile_start[tile + 1]):
+                X0, Y0, Z0 = np.float64(tri_xyz[f, 0]), np.float64(tri_xyz[f, 1]), np.float64(tri_xyz[f, 2])
+                X1, Y1, Z1 = np.float64(tri_xyz[f, 3]), np.float64(tri_xyz[f, 4]), np.float64(tri_xyz[f, 5])
+                X2, Y2, Z2 = np.float64(tri_xyz[f, 6]), np.float64(tri_xyz[f, 7]), np.float64(tri_xyz[f, 8])
+                z0 = r20 * X0 + r21 * Y0 + r22 * Z0 + t2
+                z1 = r20 * X1 + r21 * Y1 + r22 * Z1 + t2
+                z2 = r20 * X2 + r21 * Y2 + r22 * Z2 + t2
+                if z0 < near and z1 < near and z2 < near:
+                    continue
+                x0 = r00 * X0 + r01 * Y0 + r02 * Z0 + t0
+                x1 = r00 * X1 + r01 * Y1 + r02 * Z1 + t0
+                x2 = r00 * X2 + r01 * Y2 + r02 * Z2 + t0
+                y0 = r10 * X0 + r11 * Y0 + r12 * Z0 + t1
+                y1 = r10 * X1 + r11 * Y1 + r12 * Z1 + t1
+                y2 = r10 * X2 + r11 * Y2 + r12 * Z2 + t1
+                if z0 >= near and z1 >= near and z2 >= near:
+                    i0, i1, i2 = 1.0 / z0, 1.0 / z1, 1.0 / z2
+                    u0, v0 = fx * x0 * i0 + cx, fy * y0 * i0 + cy
+                    u1, v1 = fx * x1 * i1 + cx, fy * y1 * i1 + cy
+                    u2, v2 = fx * x2 * i2 + cx, fy * y2 * i2 + cy
+                    if not _covers_a_centre(u0, v0, u1, v1, u2, v2, width, height):
+                        continue
+                    pa, pb, pc, ok = _inv_z_plane(x0, y0, z0, x1, y1, z1, x2, y2, z2, fx, fy, cx, cy)
+                    if not ok:
+                        continue
+                    drawn += 1
+                    _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, f, width, height, inv_z, tri_id)
+                    continue
+                # Near-plane clipping (Sutherland-Hodgman against z >= near): 3 or 4 vertices.
+                pa, pb, pc, ok = _inv_z_plane(x0, y0, z0, x1, y1, z1, x2, y2, z2, fx, fy, cx, cy)
+                if not ok:
+                    continue
+                n = 0
+                for e in range(3):
+                    if e == 0:
+                        ax, ay, az, bx, by, bz = x0, y0, z0, x1, y1, z1
+                    elif e == 1:
+                        ax, ay, az, bx, by, bz = x1, y1, z1, x2, y2, z2
+                    else:
+                        ax, ay, az, bx, by, bz = x2, y2, z2, x0, y0, z0
+                    a_in = az >= near
+                    b_in = bz >= near
+                    if a_in:
+                        qx[n], qy[n], qz[n] = ax, ay, az
+                        n += 1
+                    if a_in != b_in:
+                        s = (near - az) / (bz - az)
+                        qx[n], qy[n], qz[n] = ax + s * (bx - ax), ay + s * (by - ay), near
+                        n += 1
+                drawn += 1
+                for k in range(1, n - 1):  # fan (q0, qk, qk+1)
+                    u0, v0 = fx * qx[0] / qz[0] + cx, fy * qy[0] / qz[0] + cy
+                    u1, v1 = fx * qx[k] / qz[k] + cx, fy * qy[k] / qz[k] + cy
+                    u2, v2 = fx * qx[k + 1] / qz[k + 1] + cx, fy * qy[k + 1] / qz[k + 1] + cy
+                    if _covers_a_centre(u0, v0, u1, v1, u2, v2, width, height):
+                        _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, f, width, height, inv_z, tri_id)
+    return drawn
+
+
+# ---------------------------------------------------------------------------------------------- drivers
+def work_chunks(n_views: int) -> int:
+    """Number of work chunks for the drivers: a few per thread so that uneven views balance out."""
+    return max(1, min(n_views, 4 * numba.get_num_threads()))
+
+
+@njit(parallel=True, cache=True)
+def render_batch(
+    tri_xyz,
+    classes,
+    tile_start,
+    tile_bbox,
+    block_start,
+    block_bbox,
+    Rs,
+    ts,
+    fx,
+    fy,
+    cx,
+    cy,
+    width,
+    height,
+    near,
+    labels,
+    depth,
+    face_ids,
+    want_depth,
+    want_ids,
+    n_chunks,
+):
+    """Render views ``Rs`` (N,3,3), ``ts`` (N,3) (cam_from_world, local frame) into flat outputs.
+
+    labels: uint8 (N, H*W); depth: float32 (N, H*W) if want_depth; face_ids: int32 (N, H*W) if want_ids
+    (pass (1, 1) dummies otherwise). Views are dealt to chunks round-robin (view v -> chunk v % C).
+    """
+    n_views = Rs.shape[0]
+    npx = width * height
+    for c in prange(n_chunks):
+        inv_z = np.empty(npx)
+        tri_id = np.empty(npx, dtype=np.int32)
+        for v in range(c, n_views, n_chunks):
+            render_view(
+                tri_xyz,
+                tile_start,
+                tile_bbox,
+                block_start,
+                block_bbox,
+                Rs[v],
+                ts[v],
+                fx,
+                fy,
+                cx,
+                cy,
+                width,
+                height,
+                near,
+                inv_z,
+                tri_id,
+            )
+            for k in range(npx):
+                f = tri_id[k]
+                if f >= 0:
+                    labels[v, k] = classes[f]
+                    if want_depth:
+                        depth[v, k] = np.float32(1.0 / inv_z[k])
+                else:
+                    labels[v, k] = 0
+                    if want_depth:
+                        depth[v, k] = np.float32(np.inf)
+                if want_ids:
+                    face_ids[v, k] = f
+
+
+@njit(parallel=True, cache=True)
+def render_confusion(
+    tri_xyz,
+    classes,
+    tile_start,
+    tile_bbox,
+    block_start,
+    block_bbox,
+    Rs,
+    ts,
+    fx,
+    fy,
+    cx,
+    cy,
+    width,
+    height,
+    near,
+    query,
+    n_classes,
+    n_chunks,
+):
+    """Fused example: per view, counts[v, r, q] = #pixels rendered as class r where ``query`` has class q.
+
+    ``query`` is a flat uint8 (H*W) label image of the same size (values < n_classes). Class IoU,
+    accuracy or any histogram score follow from these (N, C, C) counts without storing a single mask.
+    """
+    n_views = Rs.shape[0]
+    npx = width * height
+    counts = np.zeros((n_views, n_classes, n_classes), dtype=np.int32)
+    for c in prange(n_chunks):
+        inv_z = np.empty(npx)
+        tri_id = np.empty(npx, dtype=np.int32)
+        for v in range(c, n_views, n_chunks):
+            render_view(
+                tri_xyz,
+                tile_start,
+                tile_bbox,
+                block_start,
+                block_bbox,
+                Rs[v],
+                ts[v],
+                fx,
+                fy,
+                cx,
+                cy,
+                width,
+                height,
+                near,
+                inv_z,
+                tri_id,
+            )
+            # ---- per-view reduction hook: tri_id / inv_z hold view v; write row v of your output ----
+            for k in range(npx):
+                f = tri_id[k]
+                r = classes[f] if f >= 0 else 0
+                counts[v, r, query[k]] += 1
+            # ---- end of hook ----
+    return counts
+
+
+@njit(parallel=True, cache=True)
+def count_drawn(
+    tri_xyz,
+    tile_start,
+    tile_bbox,
+    block_start,
+    block_bbox,
+    Rs,
+    ts,
+    fx,
+    fy,
+    cx,
+    cy,
+    width,
+    height,
+    near,
+    n_chunks,
+):
+    """Triangles that reach the rasteriser per view (after tile culling): a cost diagnostic."""
+    n_views = Rs.shape[0]
+    npx = width * height
+    out = np.zeros(n_views, dtype=np.int64)
+    for c in prange(n_chunks):
+        inv_z = np.empty(npx)
+        tri_id = np.empty(npx, dtype=np.int32)
+        for v in range(c, n_views, n_chunks):
+            out[v] = render_view(
+                tri_xyz,
+                tile_start,
+                tile_bbox,
+                block_start,
+                block_bbox,
+                Rs[v],
+                ts[v],
+                fx,
+                fy,
+                cx,
+                cy,
+                width,
+                height,
+                near,
+                inv_z,
+                tri_id,
+            )
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- engine
+class NumbaEngine:
+    """The default CPU engine: ``render_batch`` over a ``RenderScene``."""
+
+    name = "numba"
+
+    def __init__(self, scene, near: float = NEAR_M):
+        self.scene = scene
+        self.near = float(near)
+
+    def args(self) -> tuple:
+        """The scene arrays in the order the kernels take them (after ``tri_xyz``: see ``render_view``)."""
+        s = self.scene
+        return s.tri_xyz, s.classes, s.tile_start, s.tile_bbox, s.block_start, s.block_bbox
+
+    def render(self, camera, Rs: np.ndarray, ts: np.ndarray, depth: bool = False, face_ids: bool = False):
+        from semcityloc.render.output import RenderOutput
+
+        n, h, w = len(Rs), camera.height, camera.width
+        labels = np.empty((n, h * w), dtype=np.uint8)
+        dep = np.empty((n, h * w), dtype=np.float32) if depth else np.empty((1, 1), dtype=np.float32)
+        ids = np.empty((n, h * w), dtype=np.int32) if face_ids else np.empty((1, 1), dtype=np.int32)
+        if n:
+            render_batch(
+                *self.args(),
+                Rs,
+                ts,
+                camera.fx,
+                camera.fy,
+                camera.cx,
+                camera.cy,
+                w,
+                h,
+                self.near,
+                labels,
+                dep,
+                ids,
+                depth,
+                face_ids,
+                work_chunks(n),
+            )
+        return RenderOutput(
+            labels=labels.reshape(n, h, w),
+            depth=dep.reshape(n, h, w) if depth else None,
+            face_ids=ids.reshape(n, h, w) if face_ids else None,
+        )
+
+    def confusion(
+        self, camera, Rs: np.ndarray, ts: np.ndarray, query: np.ndarray, n_classes: int
+    ) -> np.ndarray:
+        """(N, C, C) int32 counts of (rendered class, query class) per view; see ``render_confusion``."""
+        q = np.ascontiguousarray(query, dtype=np.uint8).reshape(-1)
+        s = self.scene
+        return render_confusion(
+            s.tri_xyz,
+            s.classes,
+            s.tile_start,
+            s.tile_bbox,
+            s.block_start,
+            s.block_bbox,
+            Rs,
+            ts,
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            camera.width,
+            camera.height,
+            self.near,
+            q,
+            n_classes,
+            work_chunks(len(Rs)),
+        )

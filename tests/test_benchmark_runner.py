@@ -1,0 +1,381 @@
+"""Benchmark runner on the generated city: determinism, resume after a kill, workers, files, CLI.
+
+Runs use the real ``semcityloc.benchmark.queries`` simulator when it is installed; until then a small
+fake of the same interface (``FakeSimulator``: perfect labels rendered from the reality model) stands in
+for it, installed as the ``semcityloc.benchmark.queries`` module for the test (``sim`` fixture).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import importlib.util
+import io
+import json
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semcityloc.benchmark import runner
+from semcityloc.benchmark.methods import BenchmarkError, available_methods, get_method
+from semcityloc.benchmark.runner import (
+    COLUMNS,
+    RESULTS_FILE,
+    TIMING_COLUMNS,
+    BenchmarkSpec,
+    Progress,
+    ResumeMismatchError,
+    load_details,
+    load_models,
+    read_results,
+    run_benchmark,
+    run_config,
+)
+from semcityloc.classes import SemanticClass
+from semcityloc.errors import InputFileError
+
+REAL_SIM = importlib.util.find_spec("semcityloc.benchmark.queries") is not None
+QUERIES = 4
+
+
+# ------------------------------------------------------------------------------- fake of the interface
+@dataclasses.dataclass(frozen=True)
+class FakeQueryConfig:
+    queries: int = 100
+    seed: int = 0
+    width: int = 256
+    height: int = 192
+    seg_quality: str = "perfect"
+    prior_extra_m: tuple[float, float] | None = None
+
+
+@dataclasses.dataclass
+class FakeQuery:
+    query_id: str
+    index: int
+    camera: object
+    true_pose: object
+    prior_pose: object
+    labels: np.ndarray
+    depth: np.ndarray | None
+    query_miou: float
+    meta: dict
+
+
+class FakeSimulator:
+    """Nadir / 35-degree oblique views 60-90 m above the ground of the reality model, perfect labels."""
+
+    def __init__(self, map_model, config, reality_model=None):
+        from semcityloc.geometry.camera import Camera
+        from semcityloc.render import Renderer
+
+        self.config = config
+        self.renderer = Renderer(reality_model if reality_model is not None else map_model, engine="numba")
+        f = config.width * 12.29 / 17.3
+        self.camera = Camera(f, f, config.width / 2, config.height / 2, config.width, config.height)
+        lo, hi = map_model.bounds_local
+        self.lo, self.hi, self.ground = lo[:2] * 0.6, hi[:2] * 0.6, float(lo[2])
+
+    def query(self, index: int) -> FakeQuery:
+        from semcityloc.geometry.pose import Pose
+
+        rng = np.random.default_rng([self.config.seed, index])
+        for _ in range(100):
+            xy = rng.uniform(self.lo, self.hi)
+            height, oblique = rng.uniform(60, 90), bool(index % 2)
+            pitch, yaw = (35.0 if oblique else 0.0), rng.uniform(-180, 180)
+            true = Pose.from_xyz_rpy([*xy, self.ground + height], 0.0, pitch, yaw)
+            out = self.renderer.render(self.camera, true, depth=True)
+            labels = out.labels[0]
+            if np.isin(labels, [SemanticClass.WALL, SemanticClass.ROOF]).mean() >= 0.15:
+                break
+        direction = rng.uniform(0, 2 * np.pi)
+        shift = 6.0 * np.array([np.cos(direction), np.sin(direction), 0.3])
+        prior = Pose.from_xyz_rpy(true.center + shift, 0.3, pitch + 0.5, yaw + 3.0)
+        depth = np.where(np.isfinite(out.depth[0]), out.depth[0], np.nan).astype(np.float32)
+        meta = {"view": "oblique" if oblique else "nadir", "height_m": height}
+        return FakeQuery(f"q{index:04d}", index, self.camera, true, prior, labels, depth, 100.0, meta)
+
+
+@pytest.fixture(scope="module")
+def sim():
+    """(QueryConfig class, simulator factory): the real ones when installed, else the fakes installed as
+    ``semcityloc.benchmark.queries`` for this module's tests."""
+    if REAL_SIM:
+        from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+
+        yield QueryConfig, QuerySimulator
+        return
+    fake = types.ModuleType("semcityloc.benchmark.queries")
+    fake.QueryConfig, fake.QuerySimulator = FakeQueryConfig, FakeSimulator
+    sys.modules["semcityloc.benchmark.queries"] = fake
+    try:
+        yield FakeQueryConfig, FakeSimulator
+    finally:
+        del sys.modules["semcityloc.benchmark.queries"]
+
+
+def make_spec(sim, **query) -> BenchmarkSpec:
+    config_cls, _ = sim
+    q = config_cls(**{"queries": QUERIES, "seed": 3, **query})
+    return BenchmarkSpec(city="generated", query=q, preset="fast", keep_details=2)
+
+
+def numbers(rows) -> dict[str, dict[str, str]]:
+    """Rows by id without the timing columns (everything else must be reproducible)."""
+    return {r["query_id"]: {k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in rows}
+
+
+def csv_rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def baseline(sim, tmp_path_factory):
+    out = tmp_path_factory.mktemp("baseline")
+    return run_benchmark(make_spec(sim), out, progress=False)
+
+
+# ------------------------------------------------------------------------------------------------ tests
+def test_a_run_writes_one_row_per_query_and_a_summary(baseline):
+    assert baseline.complete and baseline.new_rows == QUERIES
+    rows = csv_rows(baseline.out_dir / RESULTS_FILE)
+    assert tuple(rows[0]) == COLUMNS
+    assert sorted(r["query_id"] for r in rows) == [f"q{i:04d}" for i in range(QUERIES)]
+    summary = json.loads((baseline.out_dir / "summary.json").read_text())
+    for key in (
+        "queries",
+        "localized",
+        "recall_2m2deg",
+        "recall_3m3deg",
+        "recall_5m5deg",
+        "recall_strict",
+        "mean_yaw_deg",
+        "mean_xyz_m",
+        "median_yaw_deg",
+        "median_xyz_m",
+        "mean_query_miou",
+        "sec_per_image",
+        "convention",
+        "config",
+    ):
+        assert key in summary, key
+    assert summary["queries"] == QUERIES
+    assert set(summary["recall_strict"]) == {"recall_2m2deg", "recall_3m3deg", "recall_5m5deg"}
+    assert 0 <= summary["recall_2m2deg"] <= summary["recall_3m3deg"] <= summary["recall_5m5deg"] <= 100
+    assert summary["sec_per_image"] > 0
+    cfg = summary["config"]
+    assert cfg["city"] == "generated" and Path(cfg["city_path"]).name == "generated_lod2.gml"
+    assert Path(cfg["reality_source"]).name == "generated_lod3.gml"
+    assert cfg["method"] == "semcityloc" and cfg["seed"] == 3 and cfg["queries"] == QUERIES
+    assert cfg["localizer_preset"] == "fast" and cfg["localizer"]["coarse"]["n_xy"] == 9
+    assert cfg["query_config"]["queries"] == QUERIES and "seg_quality" in cfg and "prior_extra_m" in cfg
+
+
+def test_rows_hold_consistent_poses_errors_and_world_coordinates(baseline):
+    origin = run_origin(baseline)
+    localized = 0
+    for r in csv_rows(baseline.out_dir / RESULTS_FILE):
+        assert float(r["true_world_x"]) == pytest.approx(float(r["true_x"]) + origin[0])
+        assert float(r["true_world_y"]) == pytest.approx(float(r["true_y"]) + origin[1])
+        assert float(r["prior_err_m"]) > 0.5
+        if r["status"] == "localized":
+            localized += 1
+            est = np.array([float(r[f"est_{k}"]) for k in "xyz"])
+            true = np.array([float(r[f"true_{k}"]) for k in "xyz"])
+            assert float(r["err_xyz_m"]) == pytest.approx(np.linalg.norm(est - true))
+            assert float(r["est_world_x"]) == pytest.approx(est[0] + origin[0])
+            assert float(r["err_rot_deg"]) >= 0 and float(r["t_total_s"]) > 0
+        else:
+            assert r["err_xyz_m"] == "inf" and r["est_x"] == "" and r["reason"]
+    assert localized >= QUERIES // 2  # the city is easy from a 6-10 m prior: most queries localize
+
+
+def run_origin(outcome) -> np.ndarray:
+    map_model, _ = load_models(outcome.config)
+    return map_model.origin
+
+
+def test_same_seed_gives_identical_numbers(sim, baseline, tmp_path):
+    again = run_benchmark(make_spec(sim), tmp_path / "again", progress=False)
+    assert numbers(again.rows) == numbers(baseline.rows)
+    other = run_benchmark(make_spec(sim, seed=4), tmp_path / "other", progress=False, limit=1)
+    assert numbers(other.rows)["q0000"]["true_x"] != numbers(baseline.rows)["q0000"]["true_x"]
+
+
+def test_a_stopped_run_resumes_without_redoing_queries(sim, baseline, tmp_path):
+    out = tmp_path / "stopped"
+    first = run_benchmark(make_spec(sim), out, progress=False, limit=2)
+    assert not first.complete and first.new_rows == 2 and not (out / "summary.json").exists()
+    second = run_benchmark(make_spec(sim), out, progress=False)
+    assert second.complete and second.new_rows == QUERIES - 2
+    rows = csv_rows(out / RESULTS_FILE)
+    assert sorted(r["query_id"] for r in rows) == [f"q{i:04d}" for i in range(QUERIES)]
+    assert numbers(rows) == numbers(baseline.rows)
+    assert (
+        json.loads((out / "summary.json").read_text())["recall_5m5deg"] == baseline.summary["recall_5m5deg"]
+    )
+    third = run_benchmark(make_spec(sim), out, progress=False)  # nothing left to do
+    assert third.new_rows == 0 and len(csv_rows(out / RESULTS_FILE)) == QUERIES
+
+
+def test_a_killed_run_with_a_torn_line_resumes_to_the_same_file(sim, baseline, tmp_path):
+    out = tmp_path / "killed"
+    out.mkdir()
+    (out / "run.json").write_bytes((baseline.out_dir / "run.json").read_bytes())
+    lines = (baseline.out_dir / RESULTS_FILE).read_bytes().splitlines(keepends=True)
+    torn = lines[3][: len(lines[3]) // 2]  # the process died in the middle of writing row 3
+    (out / RESULTS_FILE).write_bytes(b"".join(lines[:3]) + torn)
+    done = run_benchmark(make_spec(sim), out, progress=False)
+    assert done.new_rows == QUERIES - 2
+    text = (out / RESULTS_FILE).read_text()
+    assert text.endswith("\n") and len(text.splitlines()) == QUERIES + 1
+    assert torn.decode() not in text.splitlines()  # the fragment was cut, not kept as a row
+    rows = csv_rows(out / RESULTS_FILE)
+    assert sorted(r["query_id"] for r in rows) == [f"q{i:04d}" for i in range(QUERIES)]
+    assert numbers(rows) == numbers(baseline.rows)
+
+
+def test_workers_give_the_same_numbers(sim, baseline, tmp_path):
+    _, factory = sim
+    out = tmp_path / "workers"
+    pooled = run_benchmark(make_spec(sim), out, workers=2, progress=False, simulator_factory=factory)
+    assert pooled.complete and numbers(csv_rows(out / RESULTS_FILE)) == numbers(baseline.rows)
+
+
+def test_other_arguments_in_the_same_folder_are_refused_unless_overwrite(sim, baseline, tmp_path):
+    out = tmp_path / "mismatch"
+    run_benchmark(make_spec(sim), out, progress=False, limit=1)
+    with pytest.raises(ResumeMismatchError, match="seed"):
+        run_benchmark(make_spec(sim, seed=9), out, progress=False, limit=0)
+    with pytest.raises(ResumeMismatchError, match="method"):
+        run_benchmark(dataclasses.replace(make_spec(sim), method="no-depth"), out, progress=False, limit=0)
+    fresh = run_benchmark(make_spec(sim, seed=9), out, overwrite=True, progress=False, limit=0)
+    assert fresh.rows == [] and json.loads((out / "run.json").read_text())["seed"] == 9
+    assert (out / RESULTS_FILE).read_text() == ",".join(COLUMNS) + "\n"
+    # keep_details does not change the numbers: not a mismatch.
+    run_benchmark(dataclasses.replace(make_spec(sim, seed=9), keep_details=0), out, progress=False, limit=0)
+
+
+def test_details_hold_the_query_poses_and_cost_volume(baseline):
+    files = sorted((baseline.out_dir / "details").glob("*.npz"))
+    assert [f.name for f in files] == ["q0000.npz", "q0001.npz"]  # keep_details=2
+    d = load_details(files[0])
+    row = {r["query_id"]: r for r in baseline.rows}["q0000"]
+    assert d["labels"].dtype == np.uint8 and d["labels"].ndim == 2
+    assert d["camera"][4:].tolist() == [d["labels"].shape[1], d["labels"].shape[0]]
+    axes = d["meta"]["cost_volume"]
+    assert list(d["cost_scores"].shape) == axes["shape"] == [9, 9, 5, 9]  # the fast preset's grid
+    assert len(axes["x"]) == 9 and len(axes["yaw"]) == 9
+    from semcityloc.geometry.pose import Pose
+
+    true = Pose.from_cam_from_world(d["true_cam_from_world"])
+    assert true.center[0] == pytest.approx(float(row["true_x"]))
+    assert np.isfinite(d["prior_cam_from_world"]).all()
+
+
+def test_models_map_lod_choice_and_lod3_reality(sim):
+    cfg = run_config(make_spec(sim))
+    map_model, reality = load_models(cfg)
+    assert map_model.lods_present() == [2] and reality.lods_present() == [3]
+    assert not np.isin(map_model.classes, [SemanticClass.WINDOW]).any()
+    assert np.isin(reality.classes, [SemanticClass.WINDOW]).any()
+    np.testing.assert_array_equal(reality.origin, map_model.origin)
+    lod1 = load_models(run_config(dataclasses.replace(make_spec(sim), lod=1)))[0]
+    assert lod1.lods_present() == [1] and lod1.num_buildings == map_model.num_buildings
+    lod3 = load_models(run_config(dataclasses.replace(make_spec(sim), lod=3)))[0]
+    assert lod3.lods_present() == [3]
+
+
+def test_in_frame_keeps_world_coordinates(sim):
+    map_model, _ = load_models(run_config(make_spec(sim)))
+    moved = runner.in_frame(map_model, map_model.origin + np.array([10.0, -20.0, 5.0]))
+    np.testing.assert_allclose(
+        moved.to_world(moved.vertices), map_model.to_world(map_model.vertices), atol=1e-4
+    )
+
+
+def test_torn_header_and_bad_files(tmp_path):
+    path = tmp_path / RESULTS_FILE
+    path.write_text("query_id,ind")  # killed while writing the header
+    assert read_results(path) == [] and path.read_text() == ",".join(COLUMNS) + "\n"
+    path.write_text("a,b\n1,2\n")
+    with pytest.raises(BenchmarkError, match="columns"):
+        read_results(path)
+
+
+def test_method_registry_and_bad_specs(sim, tmp_path):
+    assert set(available_methods()) >= {"semcityloc", "no-coarse", "no-refine", "no-depth"}
+    with pytest.raises(BenchmarkError, match="unknown method"):
+        get_method("nope", None, None)
+    with pytest.raises(BenchmarkError, match="unknown method"):
+        run_config(dataclasses.replace(make_spec(sim), method="nope"))
+    with pytest.raises(BenchmarkError, match="preset"):
+        run_config(dataclasses.replace(make_spec(sim), preset="nope"))
+    with pytest.raises(InputFileError):
+        run_config(dataclasses.replace(make_spec(sim), city=str(tmp_path / "missing.gml")))
+    with pytest.raises(BenchmarkError, match="workers"):
+        run_benchmark(make_spec(sim), tmp_path / "w", workers=0)
+
+
+def test_progress_is_a_bar_on_a_tty_and_one_line_otherwise():
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    plain, tty = io.StringIO(), Tty()
+    for stream in (plain, tty):
+        bar = Progress(4, done=1, stream=stream)
+        for _ in range(3):
+            bar.update()
+        bar.close()
+    assert plain.getvalue().count("\n") == 1 and "\r" not in plain.getvalue()
+    assert "4/4 queries done (3 new" in plain.getvalue()
+    assert "\r" in tty.getvalue() and "ETA" in tty.getvalue() and "[" in tty.getvalue()
+
+
+# -------------------------------------------------------------------------------------------------- CLI
+@pytest.fixture
+def cli(monkeypatch):
+    from semcityloc.cli import benchmark, main, report
+
+    if benchmark not in main.COMMANDS:
+        monkeypatch.setattr(main, "COMMANDS", (*main.COMMANDS, benchmark, report))
+    return main.main
+
+
+def test_cli_missing_city_is_a_one_line_error(cli, capsys, tmp_path):
+    assert cli(["benchmark", "--city", str(tmp_path / "nope.gml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("semcityloc: error:") and "nope.gml" in err and err.count("\n") == 1
+
+
+def test_cli_runs_resumes_and_refuses_other_arguments(sim, cli, capsys, tmp_path):
+    out = str(tmp_path / "cli")
+    args = ["benchmark", "--city", "generated", "--queries", "2", "--preset", "fast", "--out", out]
+    assert cli([*args, "--stop-after", "1"]) == 0
+    assert "1/2 queries done" in capsys.readouterr().out
+    assert cli(args) == 0
+    printed = capsys.readouterr().out
+    assert "| method |" in printed and "| semcityloc |" in printed and "R@2m,2° (≤ / <)" in printed
+    assert len(csv_rows(Path(out) / RESULTS_FILE)) == 2
+    assert cli([*args, "--seed", "5"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("semcityloc: error:") and "seed" in err and err.count("\n") == 1
+    assert cli([*args, "--prior-extra", "oops"]) == 2
+    assert "--prior-extra" in capsys.readouterr().err
+
+
+def test_prior_extra_parsing():
+    from semcityloc.cli.benchmark import parse_prior_extra
+
+    assert parse_prior_extra("10-20") == (10.0, 20.0)
+    assert parse_prior_extra("2.5-2.5") == (2.5, 2.5)
+    assert parse_prior_extra(None) is None and parse_prior_extra("none") is None
+    for bad in ("20-10", "5", "a-b", "1-2-3"):
+        with pytest.raises(BenchmarkError):
+            parse_prior_extra(bad)

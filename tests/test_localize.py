@@ -1,0 +1,224 @@
+"""The localizer on the generated city: recovers true poses, refuses empty or contradicting evidence."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from semcityloc.citymodel.citygml import read_citygml
+from semcityloc.citymodel.generator import generate_city
+from semcityloc.errors import PoseError, ShapeError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.geometry.pose import Pose
+from semcityloc.localization.coarse import yaw_lookup
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.result import (
+    LOCALIZED,
+    NOT_LOCALIZED,
+    REASON_NO_BUILDINGS_IN_QUERY,
+    REASON_NO_GEOMETRY,
+)
+from semcityloc.localization.scoring import depth_cost, semantic_score
+from semcityloc.render import Renderer
+
+CAMERA = Camera.from_fov(512, 384, 70.0)
+
+
+@pytest.fixture(scope="module")
+def city(tmp_path_factory):
+    paths = generate_city(tmp_path_factory.mktemp("city"), seed=0)
+    return read_citygml(paths[2])
+
+
+@pytest.fixture(scope="module")
+def localizer(city):
+    return Localizer(city)
+
+
+@pytest.fixture(scope="module")
+def renderer(city):
+    return Renderer(city, engine="numba")
+
+
+def view(city, dx, dy, height, roll, pitch, yaw) -> Pose:
+    lo, hi = city.bounds_local
+    centre = 0.5 * (lo + hi)
+    return Pose.from_xyz_rpy([centre[0] + dx, centre[1] + dy, lo[2] + height], roll, pitch, yaw)
+
+
+def perturbed(pose: Pose, dxyz, droll, dpitch, dyaw) -> Pose:
+    x, y, z, roll, pitch, yaw = pose.to_xyz_rpy()
+    return Pose.from_xyz_rpy(np.array([x, y, z]) + dxyz, roll + droll, pitch + dpitch, yaw + dyaw)
+
+
+# A nadir and an oblique view; priors 10 m and 5 degrees of yaw off (plus 0.5 degrees roll/pitch).
+CASES = {
+    "nadir": ((10.0, -20.0, 80.0, 1.0, 2.0, 30.0), (6.0, -7.0, 3.873)),
+    "oblique": ((-30.0, 15.0, 90.0, -1.0, 40.0, 200.0), (-7.0, 6.0, -3.873)),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_recovers_true_pose_from_prior_10m_5deg(city, localizer, renderer, name):
+    true_args, shift = CASES[name]
+    true = view(city, *true_args)
+    assert np.linalg.norm(shift) == pytest.approx(10.0, abs=0.05)
+    prior = perturbed(true, np.array(shift), 0.5, -0.5, 5.0)
+    out = renderer.render(CAMERA, true, depth=True)
+    labels, depth = out.labels[0], out.depth[0]
+    relative_depth = 0.37 * depth + 12.0  # any positive scale and shift: only the shape counts
+    result = localizer.localize(CAMERA, prior.shift_world(-city.origin), labels, relative_depth)
+    assert result.status == LOCALIZED, result.reason
+    est_local = result.pose.shift_world(city.origin)
+    assert center_error_m(est_local, true) < 0.5
+    assert rotation_error_deg(est_local, true) < 0.5
+    assert result.counts["coarse_hypotheses"] >= 10_000
+    assert result.counts["refine_evaluations"] >= 1_000
+    assert result.cost_volume.scores.shape == (17, 17, 7, 13)
+    assert set(result.timings) >= {"coarse_s", "refine_s", "total_s"}
+
+
+def test_is_deterministic_for_a_seed(city, localizer, renderer):
+    true = view(city, *CASES["nadir"][0])
+    prior = perturbed(true, np.array([4.0, 3.0, 1.0]), 0.0, 0.0, 3.0)
+    labels = renderer.render(CAMERA, true).labels[0]
+    a = localizer.localize(CAMERA, prior, labels, prior_frame="local")
+    b = localizer.localize(CAMERA, prior, labels, prior_frame="local")
+    np.testing.assert_array_equal(a.pose.R, b.pose.R)
+    np.testing.assert_array_equal(a.pose.t, b.pose.t)
+
+
+def test_empty_mask_is_not_localized(city, localizer):
+    true = view(city, *CASES["nadir"][0])
+    empty = np.zeros((384, 512), dtype=np.uint8)
+    result = localizer.localize(CAMERA, true, empty, prior_frame="local")
+    assert result.status == NOT_LOCALIZED and result.reason == REASON_NO_BUILDINGS_IN_QUERY
+    assert result.pose is None
+
+
+def test_flipped_mask_is_not_localized(city, localizer, renderer):
+    true = view(city, *CASES["nadir"][0])
+    out = renderer.render(CAMERA, true, depth=True)
+    labels, depth = out.labels[0][::-1, ::-1], out.depth[0][::-1, ::-1]  # the image turned upside down
+    prior = perturbed(true, np.array([6.0, -7.0, 3.6]), 0.5, -0.5, 5.0)
+    result = localizer.localize(
+        CAMERA, prior, np.ascontiguousarray(labels), np.ascontiguousarray(depth), prior_frame="local"
+    )
+    assert result.status == NOT_LOCALIZED, (result.score, result.semantic, result.depth_cost)
+    assert result.pose is None
+
+
+def test_prior_far_outside_the_model_is_not_localized(city, localizer, renderer):
+    true = view(city, *CASES["nadir"][0])
+    labels = renderer.render(CAMERA, true).labels[0]
+    far = perturbed(true, np.array([5000.0, 0.0, 0.0]), 0, 0, 0)
+    result = localizer.localize(CAMERA, far, labels, prior_frame="local")
+    assert result.status == NOT_LOCALIZED and result.reason == REASON_NO_GEOMETRY
+
+
+def test_ablation_switches(city, localizer, renderer):
+    true = view(city, *CASES["oblique"][0])
+    prior = perturbed(true, np.array([3.0, -2.0, 1.0]), 0, 0, 2.0)
+    out = renderer.render(CAMERA, true, depth=True)
+    base = LocalizerConfig.preset("fast")
+    no_refine = localizer.localize(
+        CAMERA,
+        prior,
+        out.labels[0],
+        out.depth[0],
+        prior_frame="local",
+        config=base.with_ablation("no-refine"),
+    )
+    assert no_refine.counts["refine_evaluations"] == 0 and no_refine.cost_volume is not None
+    no_coarse = localizer.localize(
+        CAMERA,
+        prior,
+        out.labels[0],
+        out.depth[0],
+        prior_frame="local",
+        config=base.with_ablation("no-coarse"),
+    )
+    assert no_coarse.counts["coarse_hypotheses"] == 0 and no_coarse.cost_volume is None
+    assert no_coarse.counts["refine_evaluations"] > 0
+    no_depth = localizer.localize(
+        CAMERA, prior, out.labels[0], out.depth[0], prior_frame="local", config=base.with_ablation("no-depth")
+    )
+    assert no_depth.depth_cost == 0.0
+    with pytest.raises(KeyError):
+        base.with_ablation("no-such-method")
+
+
+def test_bad_inputs_raise_typed_errors(city, localizer):
+    pose = view(city, *CASES["nadir"][0])
+    with pytest.raises(ShapeError):
+        localizer.localize(CAMERA, pose, np.zeros((10, 10), dtype=np.uint8), prior_frame="local")
+    with pytest.raises(ShapeError):
+        localizer.localize(CAMERA, pose, np.zeros((384, 512, 3), dtype=np.uint8), prior_frame="local")
+    with pytest.raises(PoseError):
+        localizer.localize(
+            CAMERA, Pose.stack([pose, pose]), np.zeros((384, 512), np.uint8), prior_frame="local"
+        )
+
+
+def test_fused_coarse_kernel_matches_direct_rendering(city, localizer, renderer):
+    """Every (centre, yaw) score of the cost volume equals the IoU of a direct render, to within the
+    few pixels where the lookup differs from a direct render."""
+    true = view(city, *CASES["oblique"][0])
+    labels = renderer.render(CAMERA, true).labels[0]
+    cfg = replace(LocalizerConfig.preset("fast"), no_refine=True)
+    result = localizer.localize(CAMERA, true, labels, prior_frame="local", config=cfg)
+    volume = result.cost_volume
+    coarse_cam = CAMERA.scaled(cfg.coarse.width, cfg.coarse.height)
+    from semcityloc.localization.query import Query
+
+    q = Query.from_arrays(labels, None, has_openings=False).at(coarse_cam.width, coarse_cam.height)[0]
+    rng = np.random.default_rng(0)
+    diffs = []
+    for _ in range(12):
+        idx = tuple(rng.integers(0, s) for s in volume.scores.shape)
+        x, y, z, roll, pitch, yaw = volume.xyz_rpy(np.array(idx))
+        direct = renderer.render(coarse_cam, Pose.from_xyz_rpy([x, y, z], roll, pitch, yaw)).labels[0]
+        diffs.append(abs(semantic_score(direct, q.reshape(direct.shape), (1, 2, 3)) - volume.scores[idx]))
+    assert np.median(diffs) < 0.02 and max(diffs) < 0.08
+
+
+def test_yaw_lookup_agrees_with_direct_renders(city, renderer):
+    cam = CAMERA.scaled(64, 48)
+    base = view(city, *CASES["oblique"][0])
+    yaws = np.linspace(-9, 9, 13)
+    wide, lut = yaw_lookup(cam, base.R, yaws)
+    wide_labels = renderer.render(wide, base).labels[0].reshape(-1)
+    agreement = []
+    for k, d in enumerate(yaws):
+        direct = renderer.render(cam, base.rotate_world_z(d)).labels[0].reshape(-1)
+        looked_up = np.where(lut[k] >= 0, wide_labels[np.maximum(lut[k], 0)], 0)
+        agreement.append(np.mean(direct == looked_up))
+    assert np.mean(agreement) >= 0.97
+
+
+def test_depth_cost_is_invariant_to_scale_and_shift():
+    rng = np.random.default_rng(3)
+    d_r = rng.uniform(40, 120, size=(48, 64))
+    noisy = d_r * (1 + 0.01 * rng.normal(size=d_r.shape))
+    base = depth_cost(noisy, d_r)
+    for s, t in [(0.01, 0.0), (3.0, -50.0), (1e3, 7.0)]:
+        assert depth_cost(s * noisy + t, d_r) == pytest.approx(base, rel=1e-6)
+    assert depth_cost(-noisy, d_r) == 1.0  # inverted depth is the worst cost
+    assert depth_cost(d_r, d_r) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_depth_cost_is_minimal_at_the_true_pose_along_a_sweep(city, renderer):
+    true = view(city, *CASES["oblique"][0])
+    cam = CAMERA.scaled(128, 96)
+    d_q = 2.0 * renderer.render(cam, true, depth=True).depth[0] + 3.0
+    offsets = np.linspace(-4, 4, 17)
+    costs = []
+    for dx in offsets:
+        d_r = renderer.render(cam, perturbed(true, np.array([dx, 0.0, 0.0]), 0, 0, 0), depth=True).depth[0]
+        costs.append(depth_cost(d_q, d_r))
+    assert offsets[int(np.argmin(costs))] == 0.0
+    assert costs[0] > costs[8] and costs[-1] > costs[8]

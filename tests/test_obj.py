@@ -1,0 +1,258 @@
+"""OBJ reader: parsing, triangulation, buildings from connectivity, winding fix, classes from normals."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semcityloc.citymodel.obj import read_obj
+from semcityloc.classes import SemanticClass
+from semcityloc.errors import CRSError, EmptyModelError, InputFileError
+
+CUBE_V = [(0, 0, 0), (4, 0, 0), (4, 3, 0), (0, 3, 0), (0, 0, 5), (4, 0, 5), (4, 3, 5), (0, 3, 5)]
+# Counter-clockwise seen from outside (1-based).
+CUBE_F = [(1, 4, 3, 2), (5, 6, 7, 8), (1, 2, 6, 5), (2, 3, 7, 6), (3, 4, 8, 7), (4, 1, 5, 8)]
+
+
+def cube_text(offset=(0.0, 0.0, 0.0), clockwise: bool = False, base: int = 0) -> str:
+    lines = [f"v {x + offset[0]} {y + offset[1]} {z + offset[2]}" for x, y, z in CUBE_V]
+    for face in CUBE_F:
+        idx = face[::-1] if clockwise else face
+        lines.append("f " + " ".join(str(i + base) for i in idx))
+    return "\n".join(lines) + "\n"
+
+
+def write(tmp_path: Path, text: str, name: str = "m.obj") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def class_counts(model) -> tuple[int, int, int]:
+    c = model.class_triangle_counts()
+    return c["roof"], c["wall"], c["ground"]
+
+
+def wall_footprint_area(model) -> np.ndarray:
+    """Footprint area per building from its walls alone (divergence theorem: the x-flux of the walls of
+    a vertical prism with flat roof and base is footprint * height). Independent of the roof faces."""
+    c = model.triangle_corners()
+    n = 0.5 * np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    b, nb = model.building_index, len(model.building_ids)
+    wall = model.classes == SemanticClass.WALL
+    x_lo = np.full(nb, np.inf)
+    np.minimum.at(x_lo, b, c[:, :, 0].min(1))
+    z_lo, z_hi = np.full(nb, np.inf), np.full(nb, -np.inf)
+    np.minimum.at(z_lo, b, c[:, :, 2].min(1))
+    np.maximum.at(z_hi, b, c[:, :, 2].max(1))
+    flux = np.bincount(b[wall], weights=(c[wall][:, :, 0].mean(1) - x_lo[b[wall]]) * n[wall, 0], minlength=nb)
+    height = z_hi - z_lo
+    return np.where(height > 0.5, flux / np.maximum(height, 1e-9), np.nan)
+
+
+# ---------------------------------------------------------------------------------------------- synthetic
+
+
+@pytest.mark.parametrize("clockwise", [False, True])
+def test_cube_both_windings_give_roof_wall_ground(tmp_path, clockwise):
+    model = read_obj(write(tmp_path, cube_text(clockwise=clockwise)))
+    assert class_counts(model) == (2, 8, 2)
+    assert model.building_ids == ["obj_0"]
+    assert model.lods_present() == [1]
+    # After the winding fix every triangle faces outward: the roof's normals point up.
+    normals = model.triangle_normals()
+    assert (normals[model.classes == SemanticClass.ROOF][:, 2] > 0).all()
+    assert np.isclose(model.class_areas()["roof"], 12.0) and np.isclose(model.class_areas()["wall"], 70.0)
+    flipped = [w for w in model.stats.warnings if "flipped" in w]
+    assert bool(flipped) == clockwise
+
+
+def test_open_bottom_clockwise_prism_is_flipped(tmp_path):
+    """LoD1 exports often have no floor: the signed volume against the foot still tells the winding."""
+    text = "\n".join(f"v {x} {y} {z}" for x, y, z in CUBE_V) + "\n"
+    text += "".join("f " + " ".join(map(str, f[::-1])) + "\n" for f in CUBE_F[1:])
+    model = read_obj(write(tmp_path, text))
+    assert class_counts(model) == (2, 8, 0)
+    assert any("flipped the winding of 1 of 1" in w for w in model.stats.warnings)
+
+
+def test_negative_indices_and_slash_forms(tmp_path):
+    positive = read_obj(write(tmp_path, cube_text(), "a.obj"))
+    lines = [f"v {x} {y} {z}" for x, y, z in CUBE_V] + ["vt 0 0", "vn 0 0 1"]
+    forms = ["{i}", "{i}/1", "{i}//1", "{i}/1/1"]
+    for k, face in enumerate(CUBE_F):
+        lines.append("f " + " ".join(forms[k % 4].format(i=i - 9) for i in face))  # -8 .. -1
+    negative = read_obj(write(tmp_path, "\n".join(lines) + "\n", "b.obj"))
+    np.testing.assert_array_equal(positive.triangles, negative.triangles)
+    np.testing.assert_allclose(positive.vertices, negative.vertices)
+    assert class_counts(negative) == (2, 8, 2)
+
+
+def test_relative_index_counts_vertices_defined_so_far(tmp_path):
+    text = cube_text() + "v 10 10 1\nv 11 10 1\nv 10 11 1\nf -3 -2 -1\n"
+    model = read_obj(write(tmp_path, text))
+    assert model.num_triangles == 13
+    corners = model.to_world(model.triangle_corners()[-1])
+    np.testing.assert_allclose(corners, [[10, 10, 1], [11, 10, 1], [10, 11, 1]])
+
+
+def test_polygons_convex_fanned_concave_earcut(tmp_path):
+    # An L-shaped (concave) roof at z = 2 and a convex hexagon at z = 3, both counter-clockwise from above.
+    l_shape = [(0, 0), (6, 0), (6, 2), (2, 2), (2, 6), (0, 6)]
+    hexagon = [(20 + 2 * np.cos(a), 2 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 7)[:-1]]
+    lines = [f"v {x} {y} 2" for x, y in l_shape] + [f"v {x} {y} 3" for x, y in hexagon]
+    lines += ["f 1 2 3 4 5 6", "f 7 8 9 10 11 12"]
+    model = read_obj(write(tmp_path, "\n".join(lines) + "\n"))
+    assert model.num_triangles == 8 and model.num_buildings == 2
+    area = model.triangle_areas()
+    first = model.building_index == 0
+    assert np.isclose(area[first].sum(), 20.0)  # 6*6 - 4*4: earcut did not fill the notch
+    assert np.isclose(area[~first].sum(), 1.5 * np.sqrt(3) * 4)
+    assert (model.triangle_normals()[:, 2] > 0).all()  # winding of the faces kept
+
+
+def test_degenerate_faces_are_counted_not_fatal(tmp_path):
+    text = cube_text() + "v 9 0 0\nv 10 0 0\nv 11 0 0\nf 9 10 11\nf 9 10 11 9\n"
+    model = read_obj(write(tmp_path, text))
+    assert model.stats.degenerate_polygons == 2
+    assert model.stats.polygons == 8
+    assert class_counts(model) == (2, 8, 2)
+
+
+def test_buildings_from_connectivity_groups_and_welding(tmp_path):
+    # Two separate cubes in one object -> two buildings, numbered in file order.
+    text = cube_text() + cube_text(offset=(10, 0, 0), base=8)
+    model = read_obj(write(tmp_path, text, "two.obj"))
+    assert model.building_ids == ["obj_0", "obj_1"]
+    assert model.to_world(model.triangle_corners()[model.building_index == 1])[:, :, 0].min() == 10
+
+    # Blender-style: every face has its own copies of its corners (0.2 mm apart) -> still one building.
+    rng = np.random.default_rng(0)
+    lines, n = [], 0
+    for face in CUBE_F:
+        for i in face:
+            x, y, z = np.asarray(CUBE_V[i - 1], dtype=float) + rng.uniform(-1e-4, 1e-4, 3)
+            lines.append(f"v {x:.6f} {y:.6f} {z:.6f}")
+        lines.append(f"f {n + 1} {n + 2} {n + 3} {n + 4}")
+        n += 4
+    welded = read_obj(write(tmp_path, "\n".join(lines) + "\n", "dup.obj"))
+    assert welded.num_buildings == 1 and class_counts(welded) == (2, 8, 2)
+
+    # Two cubes touching along a wall (coincident vertices, no shared index): one building in one
+    # group, two buildings when each is its own `o`.
+    one = read_obj(write(tmp_path, cube_text() + cube_text(offset=(4, 0, 0), base=8), "joined.obj"))
+    assert one.num_buildings == 1
+    text_o = "o a\n" + cube_text() + "o b\n" + cube_text(offset=(4, 0, 0), base=8)
+    assert read_obj(write(tmp_path, text_o, "objects.obj")).num_buildings == 2
+
+
+def test_y_up_mapping(tmp_path):
+    # The cube exported Y-up: file (x, y, z) = world (x, z, -y).
+    lines = [f"v {x} {z} {-y}" for x, y, z in CUBE_V]
+    lines += ["f " + " ".join(map(str, f)) for f in CUBE_F]
+    path = write(tmp_path, "\n".join(lines) + "\n")
+    model = read_obj(path, z_up=False)
+    np.testing.assert_allclose(model.extent_m, [4, 3, 5])
+    assert class_counts(model) == (2, 8, 2)
+    np.testing.assert_allclose(model.to_world(model.bounds_local), [[0, 0, 0], [4, 3, 5]])
+    assert any("x, -z, y" in w for w in model.stats.warnings)
+    as_z_up = read_obj(path)  # read as Z-up the cube lies on its side: 3 m tall
+    np.testing.assert_allclose(as_z_up.extent_m, [4, 5, 3])
+
+
+def test_crs_option(tmp_path):
+    path = write(tmp_path, cube_text(offset=(500000.0, 5400000.0, 300.0)))
+    model = read_obj(path, crs="EPSG:25832")
+    assert model.crs.to_epsg() == 25832 and model.source_crs.to_epsg() == 25832
+    np.testing.assert_allclose(model.to_world(model.bounds_local)[0], [500000, 5400000, 300])
+    assert read_obj(path).crs is None
+    with pytest.raises(CRSError, match="geographic"):
+        read_obj(path, crs="EPSG:4326")
+    with pytest.raises(CRSError):
+        read_obj(path, crs="EPSG:999999999")
+
+
+def test_ignored_and_unknown_keywords(tmp_path):
+    text = "# comment\nmtllib x.mtl\nusemtl a\ns off\n" + cube_text() + "l 1 2\ncurv 0 1 1 2\n"
+    model = read_obj(write(tmp_path, text))
+    assert class_counts(model) == (2, 8, 2)
+    assert any("curv (1 lines)" in w for w in model.stats.warnings)
+
+
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        ("v 1 2", "line 9: a vertex needs x y z"),
+        ("v 1 two 3", "line 9: vertex coordinates are not numbers"),
+        ("v 1 nan 3", "line 9: vertex coordinates are not finite"),
+        ("v 1 1e300 3", "line 9: vertex coordinates are not finite or beyond"),
+        ("f 1 2", "line 9: a face needs at least 3 vertices"),
+        ("f 1 2 x", "line 9: face vertex 'x' is not an index"),
+        ("f 1 2 0", "line 9: face vertex index 0 refers to no vertex"),
+        ("f 1 2 -9", "line 9: face vertex index -9 refers to no vertex"),
+        ("f 1 2 99", "line 9: face vertex index 99 refers to no vertex"),
+    ],
+)
+def test_malformed_lines_name_the_line(tmp_path, bad, message):
+    text = "\n".join(f"v {x} {y} {z}" for x, y, z in CUBE_V) + "\n" + bad + "\n" + "f 1 2 3\n"
+    with pytest.raises(InputFileError, match=message):
+        read_obj(write(tmp_path, text))
+
+
+def test_unusable_files(tmp_path):
+    with pytest.raises(InputFileError, match="cannot read"):
+        read_obj(tmp_path / "missing.obj")
+    binary = tmp_path / "bin.obj"
+    binary.write_bytes(b"\x00\x01\x02" * 10)
+    with pytest.raises(InputFileError, match="binary"):
+        read_obj(binary)
+    with pytest.raises(EmptyModelError, match="no faces"):
+        read_obj(write(tmp_path, "v 0 0 0\nv 1 0 0\nv 0 1 0\n"))
+    with pytest.raises(EmptyModelError, match="no face of the OBJ has an area"):
+        read_obj(write(tmp_path, "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n"))
+
+
+# ---------------------------------------------------------------------------------------------- real file
+
+
+@functools.cache
+def _read_cached(path: str):
+    return read_obj(path)
+
+
+@pytest.fixture
+def uavd4l(shared):
+    return _read_cached(str(shared("real_uav_lodloc/UAVD4L-LoD1.obj")))
+
+
+def test_real_uavd4l_obj_loads(uavd4l):
+    model = uavd4l
+    assert model.stats.polygons == 16511
+    assert model.num_triangles >= 16511
+    counts = model.class_triangle_counts()
+    assert counts["roof"] > 1000 and counts["wall"] > 1000
+    dx, dy, _ = model.extent_m
+    assert abs(dx - 2100) / 2100 < 0.05 and abs(dy - 950) / 950 < 0.05
+    assert model.num_buildings > 100 and model.building_ids[0] == "obj_0"
+    # The local frame is the file's frame: origin + local = OBJ coordinates (z stays absolute).
+    assert model.origin[2] == 0.0
+    assert np.isclose(model.to_world(model.bounds_local)[1, 2], 125.506, atol=1e-3)
+
+
+def test_real_uavd4l_roofs_face_up(uavd4l):
+    model = uavd4l
+    areas = model.class_areas()
+    normals = model.triangle_normals()
+    down = -0.5 * normals[normals[:, 2] < 0, 2].sum()
+    assert down < 0.01 * areas["roof"]  # almost nothing faces down: the file's LoD1 blocks have no floor
+    footprint = wall_footprint_area(model)
+    ok = np.isfinite(footprint)
+    roof_per_building = np.bincount(
+        model.building_index, weights=model.triangle_areas() * (model.classes == SemanticClass.ROOF)
+    )[ok]
+    ratio = roof_per_building.sum() / footprint[ok].sum()
+    assert 0.9 < ratio < 1.2, ratio  # roof area ~ footprint measured from the walls alone
+    assert np.isclose(np.median(roof_per_building / footprint[ok]), 1.0, atol=0.01)
