@@ -60,3 +60,7 @@ class OptionalDependencyError(SemCityLocError, ImportError):
         )
         self.package = package
         self.extra = extra
+
+
+class ParameterError(SemCityLocError, ValueError):
+    """An option or parameter out of its documented range (generator seed/blocks/lods, LoD1 height mode)."""

@@ -51,7 +51,7 @@ from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SURFACE_CLASS
-from semcityloc.errors import CRSError, InputFileError, SemCityLocError
+from semcityloc.errors import CRSError, InputFileError, ParameterError
 
 GENERATOR_VERSION = 1  # bump whenever the output of the same parameters changes (cache key)
 
@@ -89,8 +89,7 @@ SCHEMA_LOCATION = (
 )
 
 
-class GeneratorParameterError(SemCityLocError, ValueError):
-    """A generator parameter out of range (blocks, lods, lod)."""
+GeneratorParameterError = ParameterError  # kept as a name for callers; the class lives in semcityloc.errors
 
 
 @dataclass(eq=False)

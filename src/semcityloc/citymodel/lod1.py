@@ -44,7 +44,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import EmptyModelError, SemCityLocError
+from semcityloc.errors import EmptyModelError, ParameterError
 
 HEIGHT_MODES = ("median_roof", "max", "eaves")
 WELD_TOLERANCE_M = 1e-3  # footprint vertices closer than this are one vertex
@@ -55,8 +55,7 @@ MIN_HEIGHT_M = 1e-3
 _PAIR_BUDGET = 1_000_000  # edge x vertex pairs per vectorised block (bounds the memory of big buildings)
 
 
-class Lod1ParameterError(SemCityLocError, ValueError):
-    """An unknown option for ``derive_lod1``."""
+Lod1ParameterError = ParameterError  # kept as a name for callers; the class lives in semcityloc.errors
 
 
 @dataclass

@@ -25,17 +25,35 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", help="CityGML (1.0/2.0/3.0), CityJSON, OBJ or semcityloc .npz")
+    add_model_arguments(p, positional=True)
+
+
+def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
+    """The city-model options every command shares: the file (``PATH`` or ``--city``), LoD, CRS, cache."""
+    help_text = "CityGML (1.0/2.0/3.0), CityJSON, OBJ, semcityloc .npz, or 'generated' (embedded city)"
+    if positional:
+        p.add_argument("path", help=help_text)
+    else:
+        p.add_argument("--city", dest="path", required=True, help=help_text)
     p.add_argument("--lod", default=None, help="LoD to read (default: the highest per building)")
     p.add_argument("--crs", default=None, help="override the file's CRS, e.g. EPSG:25832")
     p.add_argument("--no-cache", action="store_true", help="parse again instead of using the cache")
 
 
-def _load(args: argparse.Namespace):
+def load_model_from_args(args: argparse.Namespace):
+    """The ``CityModel`` named by ``add_model_arguments`` options (``generated`` = the embedded city)."""
     lod = args.lod
     if lod is not None and str(lod).isdigit():
         lod = int(lod)
-    return load_city_model(args.path, lod=lod, crs=args.crs, cache=not args.no_cache)
+    path = args.path
+    if path == "generated":
+        from semcityloc.citymodel.generator import default_city_path
+
+        path = default_city_path(lod=lod if isinstance(lod, int) else 2)
+    return load_city_model(path, lod=lod, crs=args.crs, cache=not args.no_cache)
+
+
+_load = load_model_from_args
 
 
 def run_info(args: argparse.Namespace) -> int:

@@ -10,10 +10,10 @@ import argparse
 import sys
 
 from semcityloc import __version__
-from semcityloc.cli import city, demo
+from semcityloc.cli import city, demo, localize, render
 from semcityloc.errors import SemCityLocError
 
-COMMANDS = (city, demo)
+COMMANDS = (city, render, localize, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,103 @@
+"""Label masks as palette PNGs, depth as 16-bit millimetre PNGs and .npy, photos as RGB arrays.
+
+Label PNGs are 8-bit palette images whose index is the ``SemanticClass`` id (palette in
+``semcityloc.classes.PALETTE``; index 255 = ignore, drawn white). Depth PNGs hold z-depth as uint16 in
+millimetres (0 = no surface). Aerial depths often exceed the 65.535 m that millimetres fit in uint16, so
+the unit grows to centimetres or decimetres when needed and is written in the PNG's ``depth_unit_m`` text
+chunk (``load_depth`` reads it); the exact float32 metres always go to a ``.npy`` beside the PNG.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, PngImagePlugin, UnidentifiedImageError
+
+from semcityloc.classes import NUM_CLASSES, PALETTE
+from semcityloc.errors import InputFileError, ShapeError
+
+IGNORE = 255
+
+
+def _palette_bytes() -> list[int]:
+    pal = np.zeros((256, 3), dtype=np.uint8)
+    pal[:NUM_CLASSES] = PALETTE
+    pal[IGNORE] = (255, 255, 255)
+    return pal.reshape(-1).tolist()
+
+
+def save_labels_png(labels: np.ndarray, path: str | Path) -> Path:
+    labels = np.asarray(labels)
+    if labels.ndim != 2:
+        raise ShapeError(f"label mask must be (H, W), got shape {labels.shape}")
+    img = Image.fromarray(labels.astype(np.uint8), mode="P")
+    img.putpalette(_palette_bytes())
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img.save(path)
+    return path
+
+
+def load_labels_png(path: str | Path) -> np.ndarray:
+    """(H, W) uint8 class ids from a palette PNG (or a grey PNG whose values are class ids)."""
+    try:
+        with Image.open(path) as img:
+            if img.mode not in ("P", "L"):
+                raise InputFileError(
+                    f"{path}: label PNG must be a palette or grey image of class ids, got {img.mode}"
+                )
+            return np.array(img, dtype=np.uint8)
+    except (FileNotFoundError, UnidentifiedImageError, OSError) as exc:
+        raise InputFileError(f"{path}: cannot read label image ({exc})") from exc
+
+
+def save_depth(depth: np.ndarray, path_png: str | Path) -> tuple[Path, Path]:
+    """Depth as a 16-bit PNG (unit in its ``depth_unit_m`` chunk, 0 = nothing) + float32 metres in .npy."""
+    depth = np.asarray(depth, dtype=np.float32)
+    path_png = Path(path_png)
+    path_png.parent.mkdir(parents=True, exist_ok=True)
+    finite = np.isfinite(depth)
+    top = float(depth[finite].max()) if finite.any() else 0.0
+    unit = next((u for u in (0.001, 0.01, 0.1, 1.0) if top / u <= 65535), 1.0)
+    q = np.where(finite, np.clip(np.round(depth / unit), 0, 65535), 0).astype(np.uint16)
+    info = PngImagePlugin.PngInfo()
+    info.add_text("depth_unit_m", repr(unit))
+    Image.fromarray(q).save(path_png, pnginfo=info)
+    npy = path_png.with_suffix(".npy")
+    np.save(npy, depth)
+    return path_png, npy
+
+
+def load_depth(path: str | Path) -> np.ndarray:
+    """Depth (H, W) float64 from ``.npy`` (as stored) or a 16-bit PNG in millimetres (0 -> NaN)."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".npy":
+            d = np.load(path, allow_pickle=False).astype(np.float64)
+        else:
+            with Image.open(path) as img:
+                unit = float(img.info.get("depth_unit_m", 0.001))
+                d = np.array(img, dtype=np.float64) * unit
+            d[d == 0] = np.nan
+    except (OSError, ValueError, UnidentifiedImageError) as exc:
+        raise InputFileError(f"{path}: cannot read depth map ({exc})") from exc
+    if d.ndim != 2:
+        raise ShapeError(f"{path}: depth must be a 2-D array, got shape {d.shape}")
+    return d
+
+
+def load_image(path: str | Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB."""
+    try:
+        with Image.open(path) as img:
+            return np.array(img.convert("RGB"))
+    except (FileNotFoundError, UnidentifiedImageError, OSError) as exc:
+        raise InputFileError(f"{path}: cannot read image ({exc})") from exc
+
+
+def save_rgb(image: np.ndarray, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path)
+    return path

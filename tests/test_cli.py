@@ -1,0 +1,163 @@
+"""The ``semcityloc`` command: city info/convert, render and localize, and its one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from semcityloc.citymodel.generator import generate_city
+from semcityloc.cli.main import main
+from semcityloc.io.images import load_depth, load_image, load_labels_png, save_depth, save_labels_png
+
+REAL = "real_uav_lodloc"
+STEM = "DJI_20230513163714_0033_T"
+
+
+@pytest.fixture(scope="module")
+def city_paths(tmp_path_factory):
+    return generate_city(tmp_path_factory.mktemp("gen"), seed=0)
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_city_info_json_has_the_documented_keys(city_paths, capsys, tmp_path):
+    code, out, _ = run(capsys, "city", "info", city_paths[2], "--json", "--no-cache")
+    assert code == 0
+    info = json.loads(out)  # exactly one JSON object
+    assert {"buildings", "triangles", "class_triangles", "class_area_m2", "crs", "lods", "extent_m"} <= set(
+        info
+    )
+    assert info["buildings"] == 80 and info["lods"] == [2] and info["crs"] == "EPSG:25832"
+    assert info["class_triangles"]["roof"] > 0 and len(info["extent_m"]) == 3
+
+
+def test_city_info_text_and_convert(city_paths, capsys, tmp_path):
+    code, out, _ = run(capsys, "city", "info", city_paths[3], "--no-cache")
+    assert code == 0 and "window" in out and "buildings:  80" in out
+    code, out, _ = run(capsys, "city", "convert", city_paths[2], tmp_path / "m.ply", "--no-cache")
+    assert code == 0 and (tmp_path / "m.ply").stat().st_size > 1000
+
+
+@pytest.mark.parametrize(
+    "content, needle",
+    [
+        (b"", "empty"),
+        (b'<CityModel xmlns="http://www.opengis.net/citygml/2.0"><cityObjectMember>', "XML"),
+        (b"<CityModel><unclosed>", "not a known CityGML version"),
+        (b"\x00\x01binary", "not CityGML"),
+    ],
+)
+def test_bad_city_files_give_one_line_and_exit_2(tmp_path, capsys, content, needle):
+    bad = tmp_path / "bad.gml"
+    bad.write_bytes(content)
+    code, out, err = run(capsys, "city", "info", bad, "--no-cache")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("semcityloc: error:") and needle in err
+
+
+def test_missing_file_gives_exit_2(tmp_path, capsys):
+    code, _, err = run(capsys, "city", "info", tmp_path / "nope.gml")
+    assert code == 2 and "no such file" in err
+
+
+def test_label_and_depth_image_round_trip(tmp_path):
+    labels = np.array([[0, 1, 2], [3, 4, 255]], dtype=np.uint8)
+    np.testing.assert_array_equal(load_labels_png(save_labels_png(labels, tmp_path / "l.png")), labels)
+    depth = np.array([[12.345, np.inf], [80.5, 149.99]], dtype=np.float32)
+    png, npy = save_depth(depth, tmp_path / "d.png")
+    np.testing.assert_array_equal(load_depth(npy)[np.isfinite(depth)], depth[np.isfinite(depth)])
+    back = load_depth(png)
+    assert np.isnan(back[0, 1])
+    np.testing.assert_allclose(back[np.isfinite(depth)], depth[np.isfinite(depth)], atol=0.006)
+
+
+def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, capsys):
+    """Render a view with the CLI, then localize it from a prior 8 m and 4 degrees off."""
+    from semcityloc.citymodel.io import load_city_model
+
+    model = load_city_model(city_paths[2], cache=False)
+    lo, hi = model.bounds_local
+    centre = model.origin + 0.5 * (lo + hi)
+    x, y, z = centre[0] + 12.0, centre[1] - 9.0, lo[2] + 85.0
+    truth = f"{x},{y},{z},1.0,35.0,120.0"
+    intr = "364.0,364.0,256.0,192.0,512,384"
+    code, out, _ = run(
+        capsys,
+        "render",
+        "--city",
+        city_paths[2],
+        "--intrinsics",
+        intr,
+        "--pose",
+        truth,
+        "--out",
+        tmp_path / "r",
+        "--no-cache",
+    )
+    assert code == 0
+    assert set(json.loads(out)["pixels_per_class"]) >= {"1", "2", "3"}
+    prior = f"{x + 6.0},{y - 5.0},{z + 2.0},1.5,34.5,124.0"
+    code, out, _ = run(
+        capsys,
+        "localize",
+        "--city",
+        city_paths[2],
+        "--intrinsics",
+        intr,
+        "--prior",
+        prior,
+        "--semantic",
+        tmp_path / "r" / "labels.png",
+        "--depth",
+        tmp_path / "r" / "depth.npy",
+        "--out",
+        tmp_path / "loc",
+        "--no-cache",
+    )
+    assert code == 0, out
+    pose = json.loads((tmp_path / "loc" / "pose.json").read_text())
+    assert pose["frame"] == "crs" and pose["extra"]["status"] == "localized"
+    assert np.linalg.norm(np.array(pose["position"]) - [x, y, z]) < 0.5
+    assert abs((pose["yaw"] - 120.0 + 180) % 360 - 180) < 0.5
+    assert (tmp_path / "loc" / "overlay.png").exists()
+
+
+def _edge_strength(image: np.ndarray, overlay_dir) -> float:
+    """Mean image gradient magnitude under the model edges that ``render --image`` drew in red."""
+    over = load_image(overlay_dir / "overlay_edges.png").astype(int)
+    edges = (over[..., 0] == 255) & (over[..., 1] == 0) & (over[..., 2] == 0)
+    grey = image.mean(axis=2)
+    grad = np.hypot(ndimage.sobel(grey, axis=0), ndimage.sobel(grey, axis=1))
+    return float(grad[edges].mean())
+
+
+def test_real_uav_model_edges_lie_on_image_edges_at_gt_not_prior(shared, tmp_path, capsys):
+    base = shared(REAL)
+    image = load_image(base / "Query_image" / f"{STEM}.JPG")
+    strengths = {}
+    for which in ("GT_pose", "GPS_pose"):
+        out = tmp_path / which
+        code, _, _ = run(
+            capsys,
+            "render",
+            "--city",
+            base / "UAVD4L-LoD1.obj",
+            "--intrinsics",
+            base / "intrinsic" / f"{STEM}_intrinsic.txt",
+            "--pose",
+            base / which / f"{STEM}_pose.txt",
+            "--image",
+            base / "Query_image" / f"{STEM}.JPG",
+            "--out",
+            out,
+        )
+        assert code == 0 and (out / "overlay_edges.png").exists()
+        strengths[which] = _edge_strength(image, out)
+    assert strengths["GT_pose"] > 1.3 * strengths["GPS_pose"], strengths
