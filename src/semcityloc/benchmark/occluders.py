@@ -16,7 +16,7 @@ deterministic from the seed):
 3. Occluders: trees (a 4-15 m tall trunk plus an ellipsoid crown, or a cone for conifers, 30 %) in the
    open ground between buildings, about one per ``tree_m2`` (300 m²) of open ground, at least 0.7 x the
    crown radius from a facade; cars (boxes 3.8-5.0 x 1.7-2.0 x 1.4-1.9 m) 1.5-15 m from a facade,
-   parked parallel to it, about one per ``car_m2`` (250 m²) of that band. Both are BACKGROUND (class 0):
+   parked parallel to it, about one per ``car_m2`` (300 m²) of that band. Both are BACKGROUND (class 0):
    a perfect segmentation labels them background, while their depth still comes from the render
    (a depth network sees trees).
 
@@ -35,8 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
-from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, cKDTree
 
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
@@ -57,7 +56,7 @@ class RealityParams:
     height_change_max_m: float = 0.5
     roof_structure_m2: float = 80.0  # one roof structure per this much roof area (0 = none)
     tree_m2: float = 300.0  # one tree per this much open ground (0 = none)
-    car_m2: float = 250.0  # one car per this much ground 1.5-15 m from a facade (0 = none)
+    car_m2: float = 300.0  # one car per this much ground 1.5-15 m from a facade (0 = none)
     tree_height_m: tuple[float, float] = (4.0, 15.0)
     car_band_m: tuple[float, float] = (1.5, 15.0)
     grid_cell_m: float = 0.5
@@ -83,23 +82,56 @@ class RealityScene:
 
 
 class TerrainHeight:
-    """Ground height (local z) at x, y: linear on the terrain TIN, nearest vertex outside it."""
+    """Ground height (local z) at x, y: linear on a Delaunay triangulation of the terrain TIN's vertices
+    (the TIN is itself a Delaunay triangulation of them), nearest vertex outside it.
+
+    Points are located by a vectorised walk from a triangle at their nearest vertex (no LAPACK: scipy's
+    ``find_simplex`` builds its barycentric transforms with one LAPACK call per triangle, which takes
+    seconds on a busy multi-threaded BLAS)."""
+
+    MAX_WALK = 500
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray):
         v = np.asarray(vertices, dtype=np.float64)
         if len(v) < 3 or len(triangles) == 0:
             raise EmptyModelError("no terrain: the model has no building footprints to lay a ground under")
-        self._linear = LinearNDInterpolator(v[:, :2], v[:, 2])
-        self._tree = cKDTree(v[:, :2])
+        self._xy = v[:, :2]
         self._z = v[:, 2]
+        tri = Delaunay(self._xy)
+        self._simplices = tri.simplices
+        self._neighbors = tri.neighbors  # [i, k]: the triangle opposite vertex k of triangle i (-1: none)
+        self._tree = cKDTree(self._xy)
+        start = np.zeros(len(v), dtype=np.int64)
+        start[self._simplices.reshape(-1)] = np.repeat(np.arange(len(self._simplices)), 3)
+        self._start = start
+
+    def _barycentric(self, t: np.ndarray, p: np.ndarray) -> np.ndarray:
+        c = self._xy[self._simplices[t]]  # (n, 3, 2)
+        e1, e2, q = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0], p - c[:, 0]
+        den = e1[:, 0] * e2[:, 1] - e2[:, 0] * e1[:, 1]
+        l1 = (q[:, 0] * e2[:, 1] - e2[:, 0] * q[:, 1]) / den
+        l2 = (e1[:, 0] * q[:, 1] - q[:, 0] * e1[:, 1]) / den
+        return np.column_stack([1.0 - l1 - l2, l1, l2])
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, dtype=np.float64)
         flat = xy.reshape(-1, 2)
-        z = self._linear(flat)
-        bad = ~np.isfinite(z)
-        if bad.any():
-            z[bad] = self._z[self._tree.query(flat[bad])[1]]
+        _, nearest = self._tree.query(flat)
+        z = self._z[nearest].astype(np.float64)
+        t = self._start[nearest]
+        todo = np.arange(len(flat))
+        for _ in range(self.MAX_WALK):
+            if len(todo) == 0:
+                break
+            bary = self._barycentric(t[todo], flat[todo])
+            k = np.argmin(bary, axis=1)
+            inside = bary[np.arange(len(todo)), k] >= -1e-12
+            hit = todo[inside]
+            z[hit] = (bary[inside] * self._z[self._simplices[t[hit]]]).sum(1)
+            nxt = self._neighbors[t[todo[~inside]], k[~inside]]
+            walking = todo[~inside]
+            t[walking] = np.maximum(nxt, 0)
+            todo = walking[nxt >= 0]  # a step out of the hull: keep the nearest vertex's height
         return z.reshape(xy.shape[:-1])
 
 
@@ -197,7 +229,8 @@ class FootprintGrid:
 
 def footprint_grid(corners: np.ndarray, values: np.ndarray, lo: np.ndarray, hi: np.ndarray, cell: float):
     """Rasterise triangles (T, 3, 3) projected to x, y: each cell whose centre is in a triangle gets that
-    triangle's value (later triangles win). Vertical triangles (no x, y area) are skipped."""
+    triangle's value (later triangles win). Steep triangles (walls: |n_z| < 0.2) are skipped: they add
+    slivers along the roof outlines at the cost of many cells."""
     lo = np.asarray(lo, dtype=np.float64)
     nx = max(int(np.ceil((hi[0] - lo[0]) / cell)), 1)
     ny = max(int(np.ceil((hi[1] - lo[1]) / cell)), 1)
@@ -206,7 +239,9 @@ def footprint_grid(corners: np.ndarray, values: np.ndarray, lo: np.ndarray, hi: 
     area2 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 1, 1] - p[:, 0, 1]) * (
         p[:, 2, 0] - p[:, 0, 0]
     )
-    keep = np.abs(area2) > 1e-9
+    n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    steep = np.abs(n[:, 2]) < 0.2 * np.linalg.norm(n, axis=1)
+    keep = (np.abs(area2) > 1e-9) & ~steep
     p, vals, sign = p[keep], np.asarray(values)[keep], np.sign(area2[keep])
     j0 = np.clip(np.ceil(p[:, :, 0].min(1)), 0, nx).astype(np.int64)
     j1 = np.clip(np.floor(p[:, :, 0].max(1)), -1, nx - 1).astype(np.int64)

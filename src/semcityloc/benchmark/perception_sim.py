@@ -193,12 +193,12 @@ def upsample_bilinear(grid: np.ndarray, height: int, width: int, step: float) ->
 
 
 def smooth_field(rng: np.random.Generator, height: int, width: int, cell_px: float) -> np.ndarray:
-    """(H, W) float64 smooth random field: standard normal values on a grid of ``cell_px`` spacing,
+    """(H, W) float32 smooth random field: standard normal values on a grid of ``cell_px`` spacing,
     bilinearly interpolated (values near a grid node are ~N(0, 1), between nodes smaller)."""
     cell = max(float(cell_px), 1.0)
     gh = int(np.ceil(height / cell)) + 1
     gw = int(np.ceil(width / cell)) + 1
-    return upsample_bilinear(rng.standard_normal((gh, gw)), height, width, cell)
+    return upsample_bilinear(rng.standard_normal((gh, gw)).astype(np.float32), height, width, cell)
 
 
 def _region(rng: np.random.Generator, shape: tuple[int, int], area: float, cell_px: float) -> np.ndarray:
@@ -264,16 +264,22 @@ def _paint_blobs(labels: np.ndarray, preset: SegPreset, rng: np.random.Generator
 def _displacement(shape: tuple[int, int], amplitude: float, cell_px: int, rng: np.random.Generator):
     """A smooth random displacement field (dy, dx) of ``amplitude`` pixels (both drawn even if 0)."""
     h, w = shape
-    dy = smooth_field(rng, h, w, cell_px) * amplitude
-    dx = smooth_field(rng, h, w, cell_px) * amplitude
+    dy = smooth_field(rng, h, w, cell_px) * np.float32(amplitude)
+    dx = smooth_field(rng, h, w, cell_px) * np.float32(amplitude)
     return dy, dx
 
 
 def _warp(labels: np.ndarray, dy: np.ndarray, dx: np.ndarray) -> np.ndarray:
     """``labels`` sampled at (row + dy, col + dx), nearest pixel, clamped at the image border."""
     h, w = labels.shape
-    rows = np.clip(np.rint(np.arange(h)[:, None] + dy), 0, h - 1).astype(np.intp)
-    cols = np.clip(np.rint(np.arange(w)[None, :] + dx), 0, w - 1).astype(np.intp)
+    if not (dy.any() or dx.any()):
+        return labels
+    rows = np.rint(dy).astype(np.intp)
+    rows += np.arange(h)[:, None]
+    np.clip(rows, 0, h - 1, out=rows)
+    cols = np.rint(dx).astype(np.intp)
+    cols += np.arange(w)[None, :]
+    np.clip(cols, 0, w - 1, out=cols)
     return labels[rows, cols]
 
 
@@ -387,14 +393,22 @@ def simulate_depth(clean_depth: np.ndarray, labels_clean: np.ndarray, rng: np.ra
     field = smooth_field(rng, h, w, DEPTH_DISTORTION_CELL * max(h, w))
     field /= max(float(np.abs(field).max()), 1e-12)
     sigma = float(rng.uniform(*DEPTH_NOISE_RANGE))
-    noise = rng.standard_normal(d.shape)
+    noise = rng.standard_normal(d.shape, dtype=np.float32)
 
     # Flying pixels: on class boundaries, depth is the mean of the valid 3x3 neighbourhood.
-    dz = np.where(valid, d, 0.0)
-    num = ndimage.uniform_filter(dz, size=3, mode="nearest")
-    den = ndimage.uniform_filter(valid.astype(np.float64), size=3, mode="nearest")
+    blurred = d.copy()
     edge = (ndimage.maximum_filter(labels, size=3) != ndimage.minimum_filter(labels, size=3)) & valid
-    blurred = np.where(edge, num / np.maximum(den, 1e-12), d)
+    ei, ej = np.nonzero(edge)
+    if len(ei):
+        dz = np.pad(np.where(valid, d, 0.0), 1, mode="edge")
+        ok = np.pad(valid, 1, mode="edge")
+        num = np.zeros(len(ei))
+        den = np.zeros(len(ei))
+        for di in (0, 1, 2):
+            for dj in (0, 1, 2):
+                num += dz[ei + di, ej + dj]
+                den += ok[ei + di, ej + dj]
+        blurred[ei, ej] = num / np.maximum(den, 1.0)
 
     rel = (a * blurred + b) * (1.0 + DEPTH_DISTORTION * field) * np.clip(1.0 + sigma * noise, 0.5, 1.5)
     out[valid] = rel[valid].astype(np.float32)

@@ -24,7 +24,7 @@ from semcityloc.render.scene import RenderScene
 # Wide render focal length relative to the target's: > 1 samples the wide view finer than the target so
 # nearest-neighbour lookups agree with direct renders more often. Measured on Berlin at 64x48, 13 yaws over
 # 18 deg, 20 nadir/oblique centres: agreement 95.3% at 1.0, 96.9% at 1.5, 97.3% at 2.0 for ~14% more time.
-WIDE_OVERSAMPLE = 2.0
+WIDE_OVERSAMPLE = 2.0  # default of CoarseConfig.wide_oversample
 
 
 @dataclass
@@ -132,7 +132,7 @@ def coarse_search(
     zs = axis_samples(z0, config.range_z_m, config.n_z)
     yaw_offsets = axis_samples(0.0, config.range_yaw_deg, config.n_yaw)
     base = Pose.from_xyz_rpy(np.zeros(3), roll, pitch, yaw0)
-    wide, lut = yaw_lookup(camera, base.R, yaw_offsets)
+    wide, lut = yaw_lookup(camera, base.R, yaw_offsets, config.wide_oversample)
     gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
     centres = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
     Rs = np.ascontiguousarray(np.broadcast_to(base.R, (len(centres), 3, 3)))

@@ -22,6 +22,8 @@ class CoarseConfig:
     width: int = 64  # coarse render / mask resolution (the query mask is downsampled to it)
     height: int = 48
     top_k: int = 8  # best cells kept to seed the refinement (the best one is the coarse pose)
+    # Focal of the one wide render per camera centre relative to the coarse camera's (see coarse.py).
+    wide_oversample: float = 2.0
 
     @property
     def hypotheses(self) -> int:

@@ -37,6 +37,28 @@ def _mean_iou(inter, count_r, count_q, class_on):
     return total / n if n > 0 else 0.0
 
 
+@njit(cache=True, inline="always")
+def _iou_from_pairs(pairs, count_q, class_on):
+    """Mean IoU from interleaved (rendered * N_SLOTS + query) pair counts (4 sub-histograms)."""
+    total = 0.0
+    n = 0
+    for c in range(N_SLOTS):
+        if not class_on[c]:
+            continue
+        inter = 0
+        count_r = 0
+        for k in range(4):
+            base = k * N_SLOTS * N_SLOTS + c * N_SLOTS
+            inter += pairs[base + c]
+            for q in range(N_SLOTS):
+                count_r += pairs[base + q]
+        union = count_r + count_q[c] - inter
+        if union > 0:
+            total += inter / union
+            n += 1
+    return total / n if n > 0 else 0.0
+
+
 @njit(parallel=True, cache=True)
 def coarse_scores(
     tri_xyz,
@@ -70,17 +92,29 @@ def coarse_scores(
     n_centres = Rs.shape[0]
     n_yaw, n_pix = lut.shape
     npx = width * height
+    # Only query pixels that take part (not background / ignore): compact them once.
+    n_valid = 0
+    for p in range(n_pix):
+        if query[p] != IGNORE and query[p] != 0:
+            n_valid += 1
+    q_valid = np.empty(n_valid, dtype=np.int64)
+    lut_valid = np.empty((n_yaw, n_valid), dtype=np.int64)
     count_q = np.zeros(N_SLOTS)
+    k = 0
     for p in range(n_pix):
         q = query[p]
         if q != IGNORE and q != 0:
+            q_valid[k] = q
             count_q[q] += 1.0
+            for y in range(n_yaw):
+                # -1 (outside the wide view) points at an extra background pixel past the end.
+                lut_valid[y, k] = lut[y, p] if lut[y, p] >= 0 else npx
+            k += 1
     for chunk in prange(n_chunks):
         inv_z = np.empty(npx)
         tri_id = np.empty(npx, dtype=np.int32)
-        wide = np.empty(npx, dtype=np.uint8)
-        inter = np.empty(N_SLOTS)
-        count_r = np.empty(N_SLOTS)
+        wide = np.zeros(npx + 1, dtype=np.int64)  # class * N_SLOTS per pixel; [npx] = background
+        pairs = np.empty(4 * N_SLOTS * N_SLOTS, dtype=np.int32)
         for c in range(chunk, n_centres, n_chunks):
             render_view(
                 tri_xyz,
@@ -100,22 +134,24 @@ def coarse_scores(
                 inv_z,
                 tri_id,
             )
-            for k in range(npx):
-                f = tri_id[k]
-                wide[k] = classes[f] if f >= 0 else 0
+            for i in range(npx):
+                f = tri_id[i]
+                wide[i] = classes[f] * N_SLOTS if f >= 0 else 0
             for y in range(n_yaw):
-                inter[:] = 0.0
-                count_r[:] = 0.0
-                for p in range(n_pix):
-                    q = query[p]
-                    if q == IGNORE or q == 0:
-                        continue
-                    idx = lut[y, p]
-                    r = wide[idx] if idx >= 0 else 0
-                    count_r[r] += 1.0
-                    if r == q:
-                        inter[r] += 1.0
-                scores[c, y] = _mean_iou(inter, count_r, count_q, class_on)
+                pairs[:] = 0
+                row = lut_valid[y]
+                # Four interleaved sub-histograms break the store-to-load dependency of repeated classes.
+                j = 0
+                while j + 3 < n_valid:
+                    pairs[wide[row[j]] + q_valid[j]] += 1
+                    pairs[64 + wide[row[j + 1]] + q_valid[j + 1]] += 1
+                    pairs[128 + wide[row[j + 2]] + q_valid[j + 2]] += 1
+                    pairs[192 + wide[row[j + 3]] + q_valid[j + 3]] += 1
+                    j += 4
+                while j < n_valid:
+                    pairs[wide[row[j]] + q_valid[j]] += 1
+                    j += 1
+                scores[c, y] = _iou_from_pairs(pairs, count_q, class_on)
 
 
 @njit(parallel=True, cache=True)

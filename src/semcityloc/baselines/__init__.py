@@ -1,0 +1,1 @@
+"""Baselines: LoD-Loc-style wireframe alignment and silhouette IoU."""

@@ -1,0 +1,212 @@
+"""Scoring poses against an edge-probability map: the map pyramid and the fused numba kernels.
+
+Why its own module: the wireframe search scores ~24,000 pose hypotheses x a few thousand model edge
+points per stage, three stages per query. The kernel ``grid_scores`` exploits the grid's structure: all
+hypotheses share roll and pitch, so for each yaw the rotated points ``Q_y = M_y P`` are computed once
+(``M_y`` the cam_from_world rotation of that yaw) and a hypothesis with centre ``C`` only subtracts
+``M_y C``: per point three subtractions, a division and a bilinear lookup.
+
+Score of a pose = mean over ALL map points of the bilinearly interpolated edge probability at their
+projections; points behind the camera or outside the image count 0 (LoD-Loc averages over all points
+too; it clamps outside points to the border instead, see docs/baselines.md).
+
+Pixel convention (``geometry/camera.py``): pixel (row i, col j) holds the value at image coordinates
+(j + 0.5, i + 0.5). Coordinates outside [0, W) x [0, H) read 0; inside, the half-pixel border
+replicates the edge pixels.
+
+``EdgePyramid``: the query map resampled to the working resolution and to each stage's resolution
+(block max when shrinking, so thin lines survive; bilinear when enlarging), then blurred with a
+Gaussian scaled so that a 1 px line of value 1 keeps a peak of 1 (``edge_sim.blur_normalised``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+from scipy import ndimage
+
+from semcityloc.baselines.edge_sim import blur_normalised
+from semcityloc.errors import ShapeError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+
+NEAR_M = 0.5  # points closer than this to the camera plane score 0
+
+
+# ------------------------------------------------------------------------------------------ kernels
+@njit(cache=True, inline="always")
+def _bilinear(emap, u, v):
+    h, w = emap.shape
+    if not (u >= 0.0 and u < w and v >= 0.0 and v < h):
+        return 0.0
+    x = u - 0.5
+    y = v - 0.5
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    ax = x - x0
+    ay = y - y0
+    c0 = max(x0, 0)
+    c1 = min(x0 + 1, w - 1)
+    r0 = max(y0, 0)
+    r1 = min(y0 + 1, h - 1)
+    top = emap[r0, c0] * (1.0 - ax) + emap[r0, c1] * ax
+    bottom = emap[r1, c0] * (1.0 - ax) + emap[r1, c1] * ax
+    return top * (1.0 - ay) + bottom * ay
+
+
+@njit(parallel=True, cache=True)
+def grid_scores(Q, T, fx, fy, cx, cy, emap, near, out):
+    """Mean edge probability of every (centre, yaw) hypothesis.
+
+    Q: (Y, N, 3) points rotated by each yaw's cam_from_world rotation; T: (Y, C, 3) that rotation
+    applied to each centre, so a point's camera coordinates are ``Q[y, i] - T[y, c]``. emap: (H, W)
+    float32. out: (C, Y) float64.
+    """
+    n_yaw, n_pts = Q.shape[0], Q.shape[1]
+    n_centres = T.shape[1]
+    inv_n = 1.0 / max(n_pts, 1)
+    for c in prange(n_centres):
+        for y in range(n_yaw):
+            tx, ty, tz = T[y, c, 0], T[y, c, 1], T[y, c, 2]
+            acc = 0.0
+            for i in range(n_pts):
+                z = Q[y, i, 2] - tz
+                if z <= near:
+                    continue
+                iz = 1.0 / z
+                u = fx * (Q[y, i, 0] - tx) * iz + cx
+                v = fy * (Q[y, i, 1] - ty) * iz + cy
+                acc += _bilinear(emap, u, v)
+            out[c, y] = acc * inv_n
+
+
+@njit(parallel=True, cache=True)
+def pose_scores(P, Rs, ts, fx, fy, cx, cy, emap, near, out):
+    """Mean edge probability of the points P (N, 3) at each pose (Rs (K, 3, 3), ts (K, 3)); out (K,)."""
+    n_pts = P.shape[0]
+    inv_n = 1.0 / max(n_pts, 1)
+    for k in prange(Rs.shape[0]):
+        R = Rs[k]
+        t = ts[k]
+        acc = 0.0
+        for i in range(n_pts):
+            X, Y, Z = P[i, 0], P[i, 1], P[i, 2]
+            z = R[2, 0] * X + R[2, 1] * Y + R[2, 2] * Z + t[2]
+            if z <= near:
+                continue
+            iz = 1.0 / z
+            u = fx * (R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]) * iz + cx
+            v = fy * (R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]) * iz + cy
+            acc += _bilinear(emap, u, v)
+        out[k] = acc * inv_n
+
+
+def sample_bilinear(emap: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """numpy twin of the kernels' lookup: values at image coordinates (u, v), 0 outside the image."""
+    h, w = emap.shape
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    x, y = np.where(inside, u, 0.5) - 0.5, np.where(inside, v, 0.5) - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    ax, ay = x - x0, y - y0
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    c0, c1 = np.maximum(x0, 0), np.minimum(x0 + 1, w - 1)
+    r0, r1 = np.maximum(y0, 0), np.minimum(y0 + 1, h - 1)
+    top = emap[r0, c0] * (1 - ax) + emap[r0, c1] * ax
+    bottom = emap[r1, c0] * (1 - ax) + emap[r1, c1] * ax
+    return np.where(inside, top * (1 - ay) + bottom * ay, 0.0)
+
+
+def score_poses(points: np.ndarray, poses: Pose, camera: Camera, emap: np.ndarray) -> np.ndarray:
+    """Mean edge probability of ``points`` (N, 3, local frame) at each of ``poses`` (single or batch)
+    on ``emap`` (H, W) seen by ``camera`` (same size). Returns (K,) float64."""
+    if emap.shape != (camera.height, camera.width):
+        raise ShapeError(f"edge map {emap.shape} does not match the camera ({camera.height}, {camera.width})")
+    Rs = np.ascontiguousarray(poses.R.reshape(-1, 3, 3))
+    ts = np.ascontiguousarray(poses.t.reshape(-1, 3))
+    out = np.empty(len(Rs))
+    pose_scores(
+        np.ascontiguousarray(points, dtype=np.float64),
+        Rs,
+        ts,
+        camera.fx,
+        camera.fy,
+        camera.cx,
+        camera.cy,
+        np.ascontiguousarray(emap, dtype=np.float32),
+        NEAR_M,
+        out,
+    )
+    return out
+
+
+# ------------------------------------------------------------------------------------------ the map
+def check_edge_map(edge_map: np.ndarray, camera: Camera) -> np.ndarray:
+    """The query edge map as float64 (H, W) in [0, 1] (non-finite -> 0, clipped); ``ShapeError`` unless it
+    is a non-empty numeric 2D array with the camera's aspect ratio (within 2 %)."""
+    arr = np.asarray(edge_map)
+    if arr.ndim != 2 or arr.size == 0:
+        raise ShapeError(f"edge map must be a non-empty (H, W) array, got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise ShapeError(f"edge map must hold numbers (probabilities in [0, 1]), got dtype {arr.dtype}")
+    h, w = arr.shape
+    if abs((w / h) / (camera.width / camera.height) - 1.0) > 0.02:
+        raise ShapeError(
+            f"edge map {w}x{h} does not have the camera's aspect ({camera.width}x{camera.height})"
+        )
+    arr = arr.astype(np.float64)
+    return np.clip(np.where(np.isfinite(arr), arr, 0.0), 0.0, 1.0)
+
+
+def resample_max(img: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(height, width) version of ``img``: block maximum when shrinking, bilinear when enlarging."""
+    h, w = img.shape
+    if (h, w) == (height, width):
+        return img.copy()
+    if h >= height and w >= width:
+        rows = (np.arange(h) * height) // h
+        cols = (np.arange(w) * width) // w
+        idx = (rows[:, None] * width + cols[None, :]).reshape(-1)
+        out = np.zeros(height * width)
+        np.maximum.at(out, idx, img.reshape(-1))
+        return out.reshape(height, width)
+    return ndimage.zoom(img, (height / h, width / w), order=1, mode="nearest", grid_mode=True)
+
+
+@dataclass
+class EdgeLevel:
+    camera: Camera
+    emap: np.ndarray  # (H, W) float32
+
+
+class EdgePyramid:
+    """The query map at the working resolution and at each stage's resolution (module docstring)."""
+
+    def __init__(
+        self,
+        edge_map: np.ndarray,
+        camera: Camera,
+        width: int,
+        scales: tuple[float, ...],
+        blurs_px: tuple[float, ...],
+        refine_blur_px: float,
+    ):
+        base = check_edge_map(edge_map, camera)
+        height = max(1, round(width * camera.height / camera.width))
+        self.camera = camera.scaled(width, height)
+        self.base = resample_max(base, height, width)
+        self.levels: list[EdgeLevel] = []
+        for scale, blur in zip(scales, blurs_px, strict=True):
+            w = max(8, round(width * scale))
+            h = max(6, round(w * height / width))
+            img = resample_max(self.base, h, w)
+            self.levels.append(EdgeLevel(self.camera.scaled(w, h), blur_normalised(img, blur).astype(np.float32)))
+        self.refine = EdgeLevel(self.camera, blur_normalised(self.base, refine_blur_px).astype(np.float32))
+
+    def edge_fraction(self, threshold: float = 0.2) -> float:
+        """Share of working-resolution pixels with edge probability above ``threshold``."""
+        return float(np.mean(self.base > threshold))
