@@ -1,1 +1,30 @@
-"""Baselines: LoD-Loc-style wireframe alignment and silhouette IoU."""
+"""Baselines compared with SemCityLoc on the same benchmark (issue 6, docs/baselines.md).
+
+- ``WireframeLocalizer``: LoD-Loc-style wireframe alignment (model edge points vs an edge-probability
+  map; 3-stage 4D grid search, damped Gauss-Newton refinement).
+- ``SilhouetteLocalizer``: LoD-Loc v2-style building-silhouette IoU on SemCityLoc's own search.
+- ``simulate_edge_map`` / ``EdgeMapSimulator``: the benchmark's simulated wireframe extractor;
+  ``image_edge_map``: gradient edges of a real image.
+- ``make_baseline_method``: the benchmark registry's factory for ``silhouette`` and ``lodloc-wireframe``.
+"""
+
+from semcityloc.baselines.edge_sim import EDGE_PRESETS, EdgeMapSimulator, image_edge_map, simulate_edge_map
+from semcityloc.baselines.edges import ModelEdges, extract_edges
+from semcityloc.baselines.methods import BASELINES, make_baseline_method
+from semcityloc.baselines.silhouette import SilhouetteLocalizer
+from semcityloc.baselines.wireframe import REASON_NO_EDGES, WireframeConfig, WireframeLocalizer
+
+__all__ = [
+    "BASELINES",
+    "EDGE_PRESETS",
+    "EdgeMapSimulator",
+    "ModelEdges",
+    "REASON_NO_EDGES",
+    "SilhouetteLocalizer",
+    "WireframeConfig",
+    "WireframeLocalizer",
+    "extract_edges",
+    "image_edge_map",
+    "make_baseline_method",
+    "simulate_edge_map",
+]

@@ -21,7 +21,6 @@ Gaussian scaled so that a 1 px line of value 1 keeps a peak of 1 (``edge_sim.blu
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,35 +36,39 @@ NEAR_M = 0.5  # points closer than this to the camera plane score 0
 
 
 # ------------------------------------------------------------------------------------------ kernels
-@njit(cache=True, inline="always")
-def _bilinear(emap, u, v):
-    h, w = emap.shape
-    if not (u >= 0.0 and u < w and v >= 0.0 and v < h):
+def pad_map(emap: np.ndarray) -> np.ndarray:
+    """The map with a one-pixel border replicating its edge pixels, float32: the kernels' lookup form.
+
+    Image coordinates (u, v) inside [0, W) x [0, H) read the padded map at (u + 0.5, v + 0.5) with plain
+    bilinear weights and no clamping."""
+    return np.ascontiguousarray(np.pad(np.asarray(emap, dtype=np.float32), 1, mode="edge"))
+
+
+@njit(cache=True, inline="always", fastmath=True)
+def _lookup(pmap, width, height, u, v):
+    """Bilinear value at image coordinates (u, v) of the padded map; 0 outside [0, W) x [0, H)."""
+    x = u + 0.5
+    y = v + 0.5
+    if not (x >= 0.5 and x < width + 0.5 and y >= 0.5 and y < height + 0.5):
         return 0.0
-    x = u - 0.5
-    y = v - 0.5
-    x0 = math.floor(x)
-    y0 = math.floor(y)
-    ax = x - x0
-    ay = y - y0
-    c0 = max(x0, 0)
-    c1 = min(x0 + 1, w - 1)
-    r0 = max(y0, 0)
-    r1 = min(y0 + 1, h - 1)
-    top = emap[r0, c0] * (1.0 - ax) + emap[r0, c1] * ax
-    bottom = emap[r1, c0] * (1.0 - ax) + emap[r1, c1] * ax
-    return top * (1.0 - ay) + bottom * ay
+    c0 = int(x)
+    r0 = int(y)
+    ax = x - c0
+    ay = y - r0
+    top = pmap[r0, c0] + (pmap[r0, c0 + 1] - pmap[r0, c0]) * ax
+    bottom = pmap[r0 + 1, c0] + (pmap[r0 + 1, c0 + 1] - pmap[r0 + 1, c0]) * ax
+    return top + (bottom - top) * ay
 
 
-@njit(parallel=True, cache=True)
-def grid_scores(Q, T, fx, fy, cx, cy, emap, near, out):
+@njit(parallel=True, cache=True, fastmath=True)
+def grid_scores(Qx, Qy, Qz, T, fx, fy, cx, cy, pmap, width, height, near, out):
     """Mean edge probability of every (centre, yaw) hypothesis.
 
-    Q: (Y, N, 3) points rotated by each yaw's cam_from_world rotation; T: (Y, C, 3) that rotation
-    applied to each centre, so a point's camera coordinates are ``Q[y, i] - T[y, c]``. emap: (H, W)
-    float32. out: (C, Y) float64.
+    Qx, Qy, Qz: (Y, N) coordinates of the points rotated by each yaw's cam_from_world rotation; T:
+    (Y, C, 3) that rotation applied to each centre, so a point's camera coordinates are
+    ``Q[y, i] - T[y, c]``. pmap: ``pad_map`` of the (height, width) map. out: (C, Y) float64.
     """
-    n_yaw, n_pts = Q.shape[0], Q.shape[1]
+    n_yaw, n_pts = Qx.shape
     n_centres = T.shape[1]
     inv_n = 1.0 / max(n_pts, 1)
     for c in prange(n_centres):
@@ -73,18 +76,18 @@ def grid_scores(Q, T, fx, fy, cx, cy, emap, near, out):
             tx, ty, tz = T[y, c, 0], T[y, c, 1], T[y, c, 2]
             acc = 0.0
             for i in range(n_pts):
-                z = Q[y, i, 2] - tz
+                z = Qz[y, i] - tz
                 if z <= near:
                     continue
                 iz = 1.0 / z
-                u = fx * (Q[y, i, 0] - tx) * iz + cx
-                v = fy * (Q[y, i, 1] - ty) * iz + cy
-                acc += _bilinear(emap, u, v)
+                u = fx * (Qx[y, i] - tx) * iz + cx
+                v = fy * (Qy[y, i] - ty) * iz + cy
+                acc += _lookup(pmap, width, height, u, v)
             out[c, y] = acc * inv_n
 
 
-@njit(parallel=True, cache=True)
-def pose_scores(P, Rs, ts, fx, fy, cx, cy, emap, near, out):
+@njit(parallel=True, cache=True, fastmath=True)
+def pose_scores(P, Rs, ts, fx, fy, cx, cy, pmap, width, height, near, out):
     """Mean edge probability of the points P (N, 3) at each pose (Rs (K, 3, 3), ts (K, 3)); out (K,)."""
     n_pts = P.shape[0]
     inv_n = 1.0 / max(n_pts, 1)
@@ -100,25 +103,27 @@ def pose_scores(P, Rs, ts, fx, fy, cx, cy, emap, near, out):
             iz = 1.0 / z
             u = fx * (R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]) * iz + cx
             v = fy * (R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]) * iz + cy
-            acc += _bilinear(emap, u, v)
+            acc += _lookup(pmap, width, height, u, v)
         out[k] = acc * inv_n
 
 
-def sample_bilinear(emap: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """numpy twin of the kernels' lookup: values at image coordinates (u, v), 0 outside the image."""
+def sample_bilinear(
+    emap: np.ndarray, u: np.ndarray, v: np.ndarray, pmap: np.ndarray | None = None
+) -> np.ndarray:
+    """numpy twin of the kernels' lookup: values at image coordinates (u, v), 0 outside the image.
+
+    Pass ``pmap = pad_map(emap)`` when calling many times on the same map."""
     h, w = emap.shape
-    u = np.asarray(u, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    x, y = np.where(inside, u, 0.5) - 0.5, np.where(inside, v, 0.5) - 0.5
-    x0, y0 = np.floor(x), np.floor(y)
-    ax, ay = x - x0, y - y0
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    c0, c1 = np.maximum(x0, 0), np.minimum(x0 + 1, w - 1)
-    r0, r1 = np.maximum(y0, 0), np.minimum(y0 + 1, h - 1)
-    top = emap[r0, c0] * (1 - ax) + emap[r0, c1] * ax
-    bottom = emap[r1, c0] * (1 - ax) + emap[r1, c1] * ax
-    return np.where(inside, top * (1 - ay) + bottom * ay, 0.0)
+    pm = pad_map(emap) if pmap is None else pmap
+    x = np.asarray(u, dtype=np.float64) + 0.5
+    y = np.asarray(v, dtype=np.float64) + 0.5
+    inside = (x >= 0.5) & (x < w + 0.5) & (y >= 0.5) & (y < h + 0.5)
+    x, y = np.where(inside, x, 1.0), np.where(inside, y, 1.0)
+    c0, r0 = x.astype(np.int64), y.astype(np.int64)
+    ax, ay = x - c0, y - r0
+    top = pm[r0, c0] + (pm[r0, c0 + 1] - pm[r0, c0]) * ax
+    bottom = pm[r0 + 1, c0] + (pm[r0 + 1, c0 + 1] - pm[r0 + 1, c0]) * ax
+    return np.where(inside, top + (bottom - top) * ay, 0.0)
 
 
 def score_poses(points: np.ndarray, poses: Pose, camera: Camera, emap: np.ndarray) -> np.ndarray:
@@ -137,7 +142,9 @@ def score_poses(points: np.ndarray, poses: Pose, camera: Camera, emap: np.ndarra
         camera.fy,
         camera.cx,
         camera.cy,
-        np.ascontiguousarray(emap, dtype=np.float32),
+        pad_map(emap),
+        camera.width,
+        camera.height,
         NEAR_M,
         out,
     )
@@ -179,8 +186,15 @@ def resample_max(img: np.ndarray, height: int, width: int) -> np.ndarray:
 
 @dataclass
 class EdgeLevel:
+    """One resolution of the query map: its camera, the (H, W) float32 map and its ``pad_map`` form."""
+
     camera: Camera
-    emap: np.ndarray  # (H, W) float32
+    emap: np.ndarray
+    padded: np.ndarray = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        self.emap = np.ascontiguousarray(self.emap, dtype=np.float32)
+        self.padded = pad_map(self.emap)
 
 
 class EdgePyramid:
@@ -204,8 +218,8 @@ class EdgePyramid:
             w = max(8, round(width * scale))
             h = max(6, round(w * height / width))
             img = resample_max(self.base, h, w)
-            self.levels.append(EdgeLevel(self.camera.scaled(w, h), blur_normalised(img, blur).astype(np.float32)))
-        self.refine = EdgeLevel(self.camera, blur_normalised(self.base, refine_blur_px).astype(np.float32))
+            self.levels.append(EdgeLevel(self.camera.scaled(w, h), blur_normalised(img, blur)))
+        self.refine = EdgeLevel(self.camera, blur_normalised(self.base, refine_blur_px))
 
     def edge_fraction(self, threshold: float = 0.2) -> float:
         """Share of working-resolution pixels with edge probability above ``threshold``."""

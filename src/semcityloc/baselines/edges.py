@@ -68,6 +68,15 @@ class ModelEdges:
     def total_length_m(self) -> float:
         return float(self.lengths.sum())
 
+    def subset(self, mask: np.ndarray) -> ModelEdges:
+        """The edges where ``mask`` (E,) is true."""
+        keep = np.asarray(mask, dtype=bool)
+        return ModelEdges(self.segments[keep], self.kind[keep], self.building[keep])
+
+    def physical(self) -> ModelEdges:
+        """Only geometric edges (borders and creases): without window / door frames on flat walls."""
+        return self.subset(self.kind != EDGE_CLASS)
+
     def sample(self, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Points every ``spacing_m`` along every edge: ((P, 3) float64 points, (P,) int edge index).
 
@@ -75,7 +84,7 @@ class ModelEdges:
         pieces, so neighbouring edges never contribute the same corner twice.
         """
         if not (np.isfinite(spacing_m) and spacing_m > 0):
-            raise ParameterError(f"edge sampling spacing must be a positive number of metres, got {spacing_m}")
+            raise ParameterError(f"edge sampling spacing must be a positive number of metres: {spacing_m}")
         lengths = self.lengths
         n = np.maximum(1, np.rint(lengths / spacing_m)).astype(np.int64)
         return _points_along(self.segments, n)
@@ -109,7 +118,6 @@ def extract_edges(
     ok = norm > 1e-9
     if not np.isin(model.classes[ok], BUILDING_CLASSES).any():
         raise EmptyModelError("the city model has no wall or roof triangles: it has no building edges")
-    faces = np.flatnonzero(ok)
     corners, normals = corners[ok], normals[ok] / norm[ok, None]
     classes, buildings = model.classes[ok], model.building_index[ok]
 

@@ -13,20 +13,23 @@ deterministic from the seed):
    building parts, so they keep building semantics, as a LoD3 model would give them (CityGML
    BuildingInstallation surfaces): their tops are ROOF and their sides WALL, and they belong to their
    host building. Their bases are sunk 0.3 m into the roof.
-3. Occluders: trees (a 4-15 m tall trunk plus an ellipsoid crown, or a cone for conifers, 30 %) in the
+3. Occluders: trees 4-15 m tall (a trunk with an ellipsoid crown, or a cone for 30 % conifers) in the
    open ground between buildings, about one per ``tree_m2`` (300 m²) of open ground, at least 0.7 x the
-   crown radius from a facade; cars (boxes 3.8-5.0 x 1.7-2.0 x 1.4-1.9 m) 1.5-15 m from a facade,
-   parked parallel to it, about one per ``car_m2`` (300 m²) of that band. Both are BACKGROUND (class 0):
-   a perfect segmentation labels them background, while their depth still comes from the render
-   (a depth network sees trees).
+   crown radius from a facade (crowns may overhang streets and facades a little); cars (boxes
+   3.8-5.0 x 1.7-2.0 x 1.4-1.9 m) 1.5-15 m from a facade, parked parallel to it, about one per
+   ``car_m2`` (300 m²) of that band. Both are BACKGROUND (class 0): a perfect segmentation labels them
+   background, while their depth still comes from the render (a depth network sees trees).
 
 The reality's ground is the terrain TIN of ``semcityloc.render.terrain`` built from the perturbed
 buildings and added as an explicit GROUND mesh (the renderer runs with ``ground=False``), so occluders
 do not change the terrain. Open ground is found on a ``grid_cell_m`` raster of the building footprints
-(every building triangle projected to x, y) covering the buildings' extent plus ``margin_m``.
+(every non-vertical building triangle projected to x, y) covering the buildings' extent plus
+``margin_m``; a roof structure is kept only if its four corners lie on its host building's cells.
 
 Everything is in the MAP model's local frame (a reality model with another origin is shifted in float64
-first). ``RealityScene.terrain_height`` gives the ground height at any x, y.
+first), rounded to the millimetre: numpy's vectorised sin / cos may differ by an ulp between CPUs (SIMD
+code paths), and rounding keeps the rendered reality bit-identical on every machine.
+``RealityScene.terrain_height`` gives the ground height at any x, y.
 """
 
 from __future__ import annotations
@@ -91,9 +94,9 @@ class TerrainHeight:
 
     MAX_WALK = 500
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray):
-        v = np.asarray(vertices, dtype=np.float64)
-        if len(v) < 3 or len(triangles) == 0:
+    def __init__(self, vertices: np.ndarray):
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        if len(v) < 3:
             raise EmptyModelError("no terrain: the model has no building footprints to lay a ground under")
         self._xy = v[:, :2]
         self._z = v[:, 2]
@@ -506,7 +509,11 @@ def build_reality(
 
     buildings_only = model_of(corners, classes, building, reality.lods, list(reality.building_ids))
     tv, tt = build_terrain(buildings_only)
-    terrain = TerrainHeight(tv, tt)
+    if len(tt) == 0:
+        raise EmptyModelError(
+            "no terrain: the reality model has no building footprints to lay a ground under"
+        )
+    terrain = TerrainHeight(tv)
 
     bc = corners[is_building]
     lo = bc[:, :, :2].reshape(-1, 2).min(0) - params.margin_m
@@ -527,8 +534,9 @@ def build_reality(
         (trv[trt], np.zeros(len(trt)), np.full(len(trt), n_b + 1), np.zeros(len(trt))),
         (cv[ct], np.zeros(len(ct)), np.full(len(ct), n_b + 2), np.zeros(len(ct))),
     ]
+    # Millimetre coordinates (module docstring): the same scene on every machine.
     model = model_of(
-        np.concatenate([p[0].reshape(-1, 3, 3) for p in pieces]),
+        np.round(np.concatenate([p[0].reshape(-1, 3, 3) for p in pieces]), 3),
         np.concatenate([p[1] for p in pieces]).astype(np.uint8),
         np.concatenate([p[2] for p in pieces]).astype(np.int32),
         np.concatenate([p[3] for p in pieces]).astype(np.uint8),

@@ -15,7 +15,7 @@ True pose of query i (attempt k = 0, 1, ... until the view is accepted, at most 
 attempt from its own generator ``default_rng([seed, i, 0, k])``):
 
 - view: oblique or nadir from a golden-ratio sequence over the index (``view_kind``), so any run of n
-  consecutive queries has n x ``oblique_fraction`` oblique views to within 2;
+  consecutive queries has n x ``oblique_fraction`` oblique views to within about 2;
 - height above the ground under the camera: normal around ``nominal_height_m`` with sigma 20 % of it,
   redrawn until inside ``height_range_m``; ground height from the reality's terrain TIN;
 - heading (yaw) uniform in [-180, 180); roll uniform in +-``max_roll_deg``; pitch uniform in
@@ -213,7 +213,9 @@ def query_id(index: int) -> str:
 
 
 def view_kind(seed: int, index: int, oblique_fraction: float) -> str:
-    """ "oblique" or "nadir" for a query: golden-ratio (Weyl) sequence over the index, phase from the seed."""
+    """The view type of a query, ``"oblique"`` or ``"nadir"``: a golden-ratio (Weyl) sequence over the
+    index with a phase drawn from the seed, so any run of n indices holds n x ``oblique_fraction``
+    oblique views to within about 2."""
     phase = float(np.random.default_rng([int(seed), 0x71E4]).random())
     u = (phase + int(index) * GOLDEN) % 1.0
     return "oblique" if u < oblique_fraction else "nadir"
@@ -301,7 +303,8 @@ class QuerySimulator:
             pitch = rng.uniform(-NADIR_PITCH_DEG, NADIR_PITCH_DEG)
         target = rng.uniform(self.target_lo, self.target_hi)
         axis = Pose.from_xyz_rpy(np.zeros(3), roll, pitch, yaw).viewing_direction
-        cam_xy = target - axis[:2] / max(-axis[2], 1e-6) * h
+        # Millimetre camera centre (module docstring of ``occluders``: bit-identical on every machine).
+        cam_xy = np.round(target - axis[:2] / max(-axis[2], 1e-6) * h, 3)
         ground = float(self.reality.terrain_height(cam_xy))
         pose = Pose.from_xyz_rpy(np.array([cam_xy[0], cam_xy[1], ground + h]), roll, pitch, yaw)
         info = {

@@ -10,10 +10,10 @@ import argparse
 import sys
 
 from semcityloc import __version__
-from semcityloc.cli import city, demo, localize, render
+from semcityloc.cli import benchmark, city, demo, localize, render, report
 from semcityloc.errors import SemCityLocError
 
-COMMANDS = (city, render, localize, demo)
+COMMANDS = (city, render, localize, benchmark, report, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

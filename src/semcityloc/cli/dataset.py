@@ -1,0 +1,267 @@
+"""``semcityloc dataset``: look at, overlay, export and benchmark a user's data set; DJI priors.
+
+Sub-commands: ``info`` (queries, frame, prior errors), ``overlay`` (model edges at GT and prior over each
+image, PNG), ``benchmark`` (the real-data benchmark, ``datasets.real_benchmark``), ``colmap`` (the data
+set's GT or prior poses as a COLMAP model), ``dji-prior`` (a prior pose JSON from a DJI photo).
+``add_dataset_benchmark_arguments`` / ``run_dataset_benchmark`` are the same options and run for
+``semcityloc benchmark --dataset PATH --format lodloc``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from semcityloc.errors import InputFileError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    ds = sub.add_parser(
+        "dataset", help="inspect, overlay, export or benchmark a LoD-Loc data set; DJI priors"
+    )
+    ds_sub = ds.add_subparsers(dest="dataset_command", required=True, metavar="ACTION")
+
+    info = ds_sub.add_parser("info", help="queries, model, frame and prior errors of a data set")
+    add_dataset_arguments(info)
+    info.add_argument("--json", action="store_true", help="print exactly one JSON object")
+    info.set_defaults(func=run_info)
+
+    overlay = ds_sub.add_parser("overlay", help="PNG per query: model edges at the GT pose and at the prior")
+    add_dataset_arguments(overlay)
+    overlay.add_argument("--out", required=True, help="output folder for <stem>_gt_vs_prior.png")
+    overlay.add_argument("--name", default=None, help="only this image (file name or stem)")
+    overlay.set_defaults(func=run_overlay)
+
+    bench = ds_sub.add_parser("benchmark", help="localize every query of the data set and score it")
+    add_dataset_arguments(bench)
+    add_dataset_benchmark_arguments(bench)
+    bench.set_defaults(func=run_dataset_benchmark)
+
+    colmap = ds_sub.add_parser("colmap", help="write the data set's GT or prior poses as a COLMAP model")
+    add_dataset_arguments(colmap)
+    colmap.add_argument("--out", required=True, help="output model folder")
+    colmap.add_argument("--poses", choices=("gt", "prior"), default="gt")
+    colmap.add_argument("--binary", action="store_true", help="write .bin files (default .txt)")
+    colmap.set_defaults(func=run_colmap)
+
+    dji = ds_sub.add_parser("dji-prior", help="prior pose JSON from a DJI photo's GPS and gimbal angles")
+    dji.add_argument("image", help="an original DJI photo (EXIF + XMP)")
+    dji.add_argument("--crs", required=True, help="the city model's CRS, e.g. EPSG:25832 or EPSG:25832+7837")
+    dji.add_argument("--offset", default=None, help="x,y,z subtracted from the CRS coordinates")
+    dji.add_argument(
+        "--source-height", default="auto", choices=("auto", "ellipsoidal", "orthometric", "barometric")
+    )
+    dji.add_argument("--target-height", default="auto", choices=("auto", "ellipsoidal", "orthometric"))
+    dji.add_argument("--geoid-separation", type=float, default=None, help="known geoid undulation N (m)")
+    dji.add_argument("--out", default=None, help="write the pose JSON here (default: print it)")
+    dji.set_defaults(func=run_dji_prior)
+
+
+def add_dataset_arguments(p: argparse.ArgumentParser, positional: bool = True) -> None:
+    """Where the data set is and how to read it."""
+    if positional:
+        p.add_argument("dataset", help="LoD-Loc scene folder or a folder of scenes")
+    else:
+        p.add_argument("--dataset", required=True, help="LoD-Loc scene folder or a folder of scenes")
+    p.add_argument("--format", default="lodloc", choices=("lodloc",), help="data set layout (default lodloc)")
+    p.add_argument("--city", default=None, help="the LoD model (default: the *.obj beside the data set)")
+    p.add_argument("--split", default=None, help="LoD-Loc split JSON: keep only its images")
+    p.add_argument("--stage", default=None, help="split stage (default val)")
+    p.add_argument(
+        "--frame",
+        default="auto",
+        choices=("auto", "z-up", "ecef"),
+        help="auto: test the model; ecef: Swiss-EPFL's shifted-ECEF frame (rotated into ENU)",
+    )
+    p.add_argument("--ecef-origin", default=None, help="lat,lon,h of the ECEF origin (default Swiss-EPFL's)")
+
+
+def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of the real-data benchmark (also for ``semcityloc benchmark --dataset``)."""
+    p.add_argument(
+        "--perception",
+        default="oracle",
+        choices=("oracle", "oracle-degraded", "masks"),
+        help="oracle: labels at the GT pose; oracle-degraded: them through --seg-quality; masks: --masks",
+    )
+    p.add_argument(
+        "--masks", default=None, help="folder of <stem>.png / .npy label masks (--perception masks)"
+    )
+    p.add_argument("--depth", default=None, help="folder of <stem>.npy / .png relative depth (optional)")
+    p.add_argument("--seg-quality", default="trained", help="segmentation preset of oracle-degraded")
+    p.add_argument("--method", default="semcityloc", help="semcityloc, no-coarse, no-refine, no-depth, ...")
+    p.add_argument(
+        "--preset", default="wide-z", help="localizer preset: wide-z (default), default, wide, fast"
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the degraded segmentation")
+    p.add_argument("--keep-details", type=int, default=3, help="save details of the first N queries")
+    p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
+    p.add_argument("--overwrite", action="store_true", help="discard results made with other arguments")
+    p.add_argument(
+        "--stop-after", type=int, default=None, metavar="N", help="localize at most N more queries"
+    )
+
+
+def _floats(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise InputFileError(f"{what} must be {n} comma-separated numbers, got {text!r}") from None
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise InputFileError(f"{what} must be {n} finite comma-separated numbers, got {text!r}")
+    return values
+
+
+def _dataset(args: argparse.Namespace):
+    from semcityloc.datasets.lodloc import read_lodloc
+
+    return read_lodloc(
+        args.dataset,
+        city=args.city,
+        split=args.split,
+        stage=args.stage,
+        frame=args.frame,
+        ecef_origin_llh=_floats(args.ecef_origin, 3, "--ecef-origin"),
+    )
+
+
+def run_info(args: argparse.Namespace) -> int:
+    from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+
+    ds = _dataset(args)
+    rows = []
+    for q in ds.queries:
+        row = {"name": q.name, "scene": q.scene, "camera": q.camera.as_dict(), "gt": q.gt_pose is not None}
+        row["prior"] = q.prior_pose is not None
+        if q.gt_pose is not None and q.prior_pose is not None:
+            row["prior_err_m"] = float(center_error_m(q.prior_pose, q.gt_pose))
+            row["prior_rot_deg"] = float(rotation_error_deg(q.prior_pose, q.gt_pose))
+        rows.append(row)
+    info = {
+        "root": str(ds.root),
+        "queries": len(ds.queries),
+        "model": str(ds.model_path) if ds.model_path else None,
+        "frame": ds.frame,
+        "frame_note": ds.frame_note,
+        "warnings": ds.warnings,
+        "images": rows,
+    }
+    if args.json:
+        print(json.dumps(info))
+        return 0
+    print(f"data set:  {info['root']}\nqueries:   {info['queries']}\nmodel:     {info['model']}")
+    print(f"frame:     {ds.frame} ({ds.frame_note})")
+    for w in ds.warnings:
+        print(f"warning:   {w}")
+    for r in rows[:20]:
+        err = (
+            f"prior {r['prior_err_m']:.2f} m / {r['prior_rot_deg']:.2f} deg"
+            if "prior_err_m" in r
+            else "no GT/prior"
+        )
+        print(f"  {r['name']}  {r['camera']['width']}x{r['camera']['height']}  {err}")
+    if len(rows) > 20:
+        print(f"  ... {len(rows) - 20} more")
+    return 0
+
+
+def run_overlay(args: argparse.Namespace) -> int:
+    from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
+    from semcityloc.render import Renderer
+
+    ds = _dataset(args)
+    queries = [ds.query(args.name)] if args.name else ds.queries
+    model = ds.load_model()
+    renderer = Renderer(model, engine="numba")
+    written = 0
+    for q in queries:
+        if q.image_path is None or q.gt_pose is None or q.prior_pose is None:
+            print(f"skipped {q.name}: needs the image, a GT pose and a prior")
+            continue
+        image = read_image(q.image_path)
+        figure = gt_vs_prior_figure(image, model, q.camera, q.gt_pose, q.prior_pose, renderer)
+        path = save_png(figure, Path(args.out) / f"{q.stem}_gt_vs_prior.png")
+        print(f"wrote {path}")
+        written += 1
+    return 0 if written else 2
+
+
+def run_colmap(args: argparse.Namespace) -> int:
+    from semcityloc.datasets.colmap import ColmapModel, write_model
+
+    ds = _dataset(args)
+    entries = {}
+    for q in ds.queries:
+        pose = q.gt_pose if args.poses == "gt" else q.prior_pose
+        if pose is not None:
+            entries[q.name] = (q.camera, pose)
+    if not entries:
+        raise InputFileError(f"{ds.root}: no query has a {args.poses} pose")
+    folder = write_model(ColmapModel.from_poses(entries), args.out, ext=".bin" if args.binary else ".txt")
+    print(f"wrote {len(entries)} {args.poses} poses to {folder}")
+    return 0
+
+
+def run_dji_prior(args: argparse.Namespace) -> int:
+    from semcityloc.datasets.dji import dji_prior
+    from semcityloc.geometry.io import pose_to_dict
+
+    offset = _floats(args.offset, 3, "--offset")
+    prior = dji_prior(
+        args.image,
+        args.crs,
+        offset=None if offset is None else np.array(offset),
+        source_height=args.source_height,
+        target_height=args.target_height,
+        geoid_separation_m=args.geoid_separation,
+    )
+    data = pose_to_dict(prior.pose, crs=prior.crs, extra=prior.as_dict())
+    text = json.dumps(data, indent=2)
+    if args.out:
+        Path(args.out).write_text(text + "\n", encoding="utf-8")
+        print(f"wrote {args.out}")
+    else:
+        print(text)
+    if prior.vertical_flag:
+        print(f"semcityloc: warning: {prior.vertical_flag}", file=sys.stderr)
+    return 0
+
+
+def run_dataset_benchmark(args: argparse.Namespace) -> int:
+    from semcityloc.benchmark.report import summary_markdown
+    from semcityloc.datasets.real_benchmark import RealBenchmarkSpec, run_real_benchmark
+
+    if args.ecef_origin is not None and args.frame != "ecef":
+        raise InputFileError("--ecef-origin needs --frame ecef")
+    spec = RealBenchmarkSpec(
+        dataset=args.dataset,
+        format=args.format,
+        city=args.city,
+        perception=args.perception,
+        masks=args.masks,
+        depth=args.depth,
+        seg_quality=args.seg_quality,
+        method=args.method,
+        preset=args.preset,
+        seed=args.seed,
+        split=args.split,
+        stage=args.stage,
+        frame=args.frame,
+        keep_details=args.keep_details,
+    )
+    outcome = run_real_benchmark(spec, args.out, overwrite=args.overwrite, limit=args.stop_after)
+    out = Path(args.out)
+    if not outcome.complete:
+        print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")
+        return 0
+    label = f"{args.method} [{outcome.summary['perception_label']}]"
+    print(summary_markdown([outcome.summary], [label]))
+    print(f"wrote {out / 'results.csv'} and {out / 'summary.json'}")
+    return 0

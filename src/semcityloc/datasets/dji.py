@@ -1,0 +1,521 @@
+"""A prior pose from a DJI image's own metadata: GPS (EXIF / XMP) and gimbal angles (XMP) -> ``Pose``.
+
+Why: a drone image is its own prior. DJI writes the aircraft position and the gimbal's absolute angles
+into every photo; this module reads them and puts the camera into the city model's CRS with pyproj, so a
+user can localize a flight without any pose file.
+
+What is read (``read_dji_metadata``): the XMP packet (``drone-dji:GpsLatitude``, ``GpsLongitude``,
+``AbsoluteAltitude``, ``RelativeAltitude``, ``GimbalYawDegree`` / ``GimbalPitchDegree`` /
+``GimbalRollDegree``, ``Flight*Degree``, ``AltitudeType``, ``RtkFlag``, ``RtkStdHgt``, ...), found as
+attributes or elements anywhere in the file by a regular expression (no XML parser, no entities), and the
+EXIF GPS block as a fallback for position (``GPSLatitude`` etc., via Pillow). The camera model and image
+size come from EXIF; ``camera_from_exif`` turns the 35 mm-equivalent focal length into an approximate
+pinhole camera when no calibration exists.
+
+Angles (``geometry.conventions.pose_from_dji``): DJI gimbal angles are NED, yaw clockwise from north,
+pitch -90 = nadir. They refer to true north; a projected CRS's grid north differs by the meridian
+convergence, which is measured numerically here (the grid azimuth of a short step due north) and added
+to the yaw. Without that correction a UTM pose is up to ~3 deg off in yaw at the zone edges.
+
+Heights, the part that is easy to get wrong by tens of metres. DJI's ``AbsoluteAltitude`` is:
+
+- the WGS 84 **ellipsoidal** height on RTK aircraft (Matrice 300 / 350 RTK, Phantom 4 RTK, Mavic 3E/3T
+  with RTK; recognised by ``AltitudeType`` containing "Rtk" or ``RtkFlag`` >= 34: float or fixed);
+- a **barometric** value on the others (zeroed at take-off and drifting with the weather: tens of metres
+  wrong). It is used, and flagged with ``BAROMETRIC_UNCERTAINTY_M``.
+
+City models store orthometric heights (above a geoid: NAP, DHHN2016, EGM96 "MSL", ...), which differ from
+ellipsoidal heights by the local geoid undulation N (-107 m .. +86 m worldwide; ``H = h - N``). When the
+target has a vertical datum (a compound CRS such as ``EPSG:25832+7837`` or ``EPSG:7415``), or the user
+says the model's z is orthometric (``target_height="orthometric"``: EGM96 for a 2D CRS), the conversion
+runs through pyproj. pyproj applies a geoid only when its grid file is installed (``projsync`` or
+``PROJ_NETWORK=ON``); otherwise its "ballpark" operation leaves the height unchanged. That case is never
+silent: ``DjiPrior.geoid_applied`` is False, ``vertical_flag`` says what was not done and which grid
+would do it, and ``vertical_uncertainty_m`` grows to ``GEOID_UNDULATION_BOUND_M``. A known N can be
+given as ``geoid_separation_m``. A 2D target CRS with ``target_height="auto"`` keeps the DJI height as
+it is (z of the result = DJI's height reference, stated in ``z_reference``): UAVD4L-LoD's frame is such a
+case (its z is DJI's RTK height: measured on the real demo image, GT z - AbsoluteAltitude = 0.68 m).
+
+Frames: ``offset`` is subtracted from the CRS coordinates (in float64) for data sets whose frame is a CRS
+minus an offset; bring the result into a ``CityModel``'s local frame with ``pose.shift_world(origin)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyproj
+from pyproj.transformer import TransformerGroup
+
+from semcityloc.citymodel.crs import parse_crs_name
+from semcityloc.errors import CameraError, CRSError, InputFileError, PoseError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import pose_from_dji
+from semcityloc.geometry.pose import Pose
+
+HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, HEIGHT_BAROMETRIC = (
+    "auto",
+    "ellipsoidal",
+    "orthometric",
+    "barometric",
+)
+SOURCE_HEIGHTS = (HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, HEIGHT_BAROMETRIC)
+TARGET_HEIGHTS = (HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC)
+RTK_MIN_FLAG = 34  # RtkFlag: 0 none, 16 single point, 34..49 float, 50 fixed (DJI XMP list)
+GEOID_UNDULATION_BOUND_M = 110.0  # |N| <= ~107 m anywhere (EGM2008 extremes: -106.6 / +85.8 m)
+BAROMETRIC_UNCERTAINTY_M = 50.0  # DJI non-RTK "absolute altitude": barometric, weather dependent
+RTK_DEFAULT_UNCERTAINTY_M = 0.1
+GPS_DEFAULT_UNCERTAINTY_M = 5.0
+EGM96 = "EPSG:4326+5773"  # WGS 84 + EGM96 height: DJI's "MSL", the default orthometric system
+WGS84_3D = "EPSG:4979"
+EGM96_GRID = "us_nga_egm96_15.tif"
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)  # the "35 mm equivalent" is defined on the diagonal
+MAX_FILE_BYTES = 256 * 1024 * 1024
+AREA_MARGIN_DEG = 2.0  # tolerance around a CRS's area of use (zones are often used a little beyond)
+_ATTR = re.compile(rb'([A-Za-z][\w.-]*):([A-Za-z][\w.-]*)\s*=\s*"([^"]*)"')
+_ELEM = re.compile(rb"<([A-Za-z][\w.-]*):([A-Za-z][\w.-]*)>([^<]*)</\1:\2>")
+# "EPSG:h+v": parse_crs_name keeps only the horizontal code of this form, pyproj reads it whole.
+_EPSG_PLUS = re.compile(r"^\s*EPSG:\d+\+\d+\s*$", re.IGNORECASE)
+
+
+@dataclass
+class DjiMetadata:
+    """What a DJI image says about where it was taken. ``sources``: field -> the tag it came from."""
+
+    latitude: float | None = None
+    longitude: float | None = None
+    absolute_altitude_m: float | None = None
+    relative_altitude_m: float | None = None
+    gimbal_yaw_deg: float | None = None
+    gimbal_pitch_deg: float | None = None
+    gimbal_roll_deg: float | None = None
+    flight_yaw_deg: float | None = None
+    flight_pitch_deg: float | None = None
+    flight_roll_deg: float | None = None
+    altitude_type: str | None = None
+    rtk_flag: int | None = None
+    rtk_std_height_m: float | None = None
+    make: str | None = None
+    model: str | None = None
+    image_source: str | None = None
+    width: int | None = None
+    height: int | None = None
+    focal_length_mm: float | None = None
+    focal_length_35mm: float | None = None
+    sources: dict[str, str] = field(default_factory=dict)
+    xmp: dict[str, str] = field(default_factory=dict)
+
+    def require(self, *names: str) -> None:
+        missing = [n for n in names if getattr(self, n) is None]
+        if missing:
+            raise InputFileError(
+                f"the image metadata has no {', '.join(missing)} (is it an original DJI photo?)"
+            )
+
+
+@dataclass
+class DjiPrior:
+    """A prior pose from DJI metadata and how its height was treated (module docstring)."""
+
+    pose: Pose  # cam_from_world, world = target CRS minus ``offset``
+    position_crs: np.ndarray  # (3,) float64 camera centre in the target CRS (before the offset)
+    crs: pyproj.CRS
+    source_height: str  # reference of the DJI height: ellipsoidal / orthometric / barometric
+    z_reference: str  # what the result's z is
+    geoid_applied: bool
+    geoid_separation_m: float | None  # N = h - H used, when a conversion was done
+    vertical_flag: str | None  # set when the height could not be handled as asked
+    vertical_uncertainty_m: float
+    grid_convergence_deg: float  # grid azimuth of true north (added to the DJI yaw)
+    gimbal_ypr_deg: tuple[float, float, float]
+    notes: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {
+            "position_crs": self.position_crs.tolist(),
+            "crs": self.crs.to_string(),
+            "source_height": self.source_height,
+            "z_reference": self.z_reference,
+            "geoid_applied": self.geoid_applied,
+            "geoid_separation_m": self.geoid_separation_m,
+            "vertical_flag": self.vertical_flag,
+            "vertical_uncertainty_m": self.vertical_uncertainty_m,
+            "grid_convergence_deg": self.grid_convergence_deg,
+            "gimbal_yaw_pitch_roll_deg": list(self.gimbal_ypr_deg),
+            "notes": list(self.notes),
+        }
+
+
+# ---------------------------------------------------------------------------------------------- reading
+def parse_xmp_fields(data: bytes) -> dict[str, str]:
+    """``{"prefix:Name": value}`` of every XMP property written as ``prefix:Name="value"`` or
+    ``<prefix:Name>value</prefix:Name>`` in ``data`` (the first occurrence wins)."""
+    out: dict[str, str] = {}
+    start = data.find(b"<x:xmpmeta")
+    packet = data[start : data.find(b"</x:xmpmeta>", start) + 12] if start >= 0 else data
+    for pattern in (_ATTR, _ELEM):
+        for prefix, name, value in pattern.findall(packet):
+            key = f"{prefix.decode('ascii', 'replace')}:{name.decode('ascii', 'replace')}"
+            if key.startswith("xmlns:"):
+                continue
+            out.setdefault(key, value.decode("utf-8", "replace").strip())
+    return out
+
+
+def _number(text: str | None, what: str) -> float | None:
+    if text is None or text == "":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputFileError(f"DJI metadata {what} is not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise InputFileError(f"DJI metadata {what} is not finite: {text!r}")
+    return value
+
+
+def _dms(values, ref: str | None, negative: str) -> float:
+    d, m, s = (float(v) for v in values)
+    out = d + m / 60.0 + s / 3600.0
+    return -out if (ref or "").strip().upper().startswith(negative) else out
+
+
+def _exif(path: Path) -> dict:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            out = {"width": im.size[0], "height": im.size[1], "make": exif.get(271), "model": exif.get(272)}
+            gps = exif.get_ifd(0x8825)
+            sub = exif.get_ifd(0x8769)
+    except (OSError, UnidentifiedImageError) as exc:
+        raise InputFileError(f"{path}: not a readable image ({exc})") from exc
+    try:
+        if 2 in gps and 4 in gps:
+            out["latitude"] = _dms(gps[2], gps.get(1), "S")
+            out["longitude"] = _dms(gps[4], gps.get(3), "W")
+        if 6 in gps:
+            ref = gps.get(5, b"\x00")
+            below = (ref[0] if isinstance(ref, bytes) and ref else ref) == 1
+            out["altitude"] = -float(gps[6]) if below else float(gps[6])
+    except (TypeError, ValueError, ZeroDivisionError) as exc:
+        raise InputFileError(f"{path}: unreadable EXIF GPS block ({exc})") from exc
+    if 37386 in sub:
+        out["focal_mm"] = float(sub[37386])
+    if 41989 in sub and float(sub[41989]) > 0:
+        out["focal_35mm"] = float(sub[41989])
+    return out
+
+
+def read_dji_metadata(path: str | os.PathLike) -> DjiMetadata:
+    """GPS, heights, gimbal / flight angles and camera facts of an image (module docstring)."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise InputFileError(f"{path}: {size} bytes is too large for an image")
+        data = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise InputFileError(f"{path}: no such image") from exc
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    xmp = parse_xmp_fields(data)
+    exif = _exif(path)
+    meta = DjiMetadata(xmp=xmp, width=exif.get("width"), height=exif.get("height"))
+
+    def dji(key: str) -> str | None:
+        return xmp.get(f"drone-dji:{key}")
+
+    for attr, key in (
+        ("latitude", "GpsLatitude"),
+        ("longitude", "GpsLongitude"),
+        ("absolute_altitude_m", "AbsoluteAltitude"),
+        ("relative_altitude_m", "RelativeAltitude"),
+        ("gimbal_yaw_deg", "GimbalYawDegree"),
+        ("gimbal_pitch_deg", "GimbalPitchDegree"),
+        ("gimbal_roll_deg", "GimbalRollDegree"),
+        ("flight_yaw_deg", "FlightYawDegree"),
+        ("flight_pitch_deg", "FlightPitchDegree"),
+        ("flight_roll_deg", "FlightRollDegree"),
+        ("rtk_std_height_m", "RtkStdHgt"),
+    ):
+        value = _number(dji(key), key)
+        if value is None and key == "GpsLongitude":
+            value = _number(dji("GpsLongtitude"), key)  # a misspelling some firmware writes
+        if value is not None:
+            setattr(meta, attr, value)
+            meta.sources[attr] = f"xmp:drone-dji:{key}"
+    for attr, key in (
+        ("latitude", "latitude"),
+        ("longitude", "longitude"),
+        ("absolute_altitude_m", "altitude"),
+    ):
+        if getattr(meta, attr) is None and key in exif:
+            setattr(meta, attr, exif[key])
+            meta.sources[attr] = f"exif:GPS{key.capitalize()}"
+    rtk = _number(dji("RtkFlag"), "RtkFlag")
+    meta.rtk_flag = int(rtk) if rtk is not None else None
+    meta.altitude_type = dji("AltitudeType")
+    meta.image_source = dji("ImageSource")
+    meta.make = exif.get("make") or xmp.get("tiff:Make")
+    meta.model = exif.get("model") or xmp.get("tiff:Model")
+    meta.focal_length_mm = exif.get("focal_mm")
+    meta.focal_length_35mm = exif.get("focal_35mm")
+    if meta.latitude is not None and not -90 <= meta.latitude <= 90:
+        raise InputFileError(f"{path}: latitude {meta.latitude} is out of range")
+    if meta.longitude is not None and not -180 <= meta.longitude <= 360:
+        raise InputFileError(f"{path}: longitude {meta.longitude} is out of range")
+    return meta
+
+
+def camera_from_exif(meta: DjiMetadata) -> Camera:
+    """An approximate pinhole camera from the 35 mm-equivalent focal length (principal point at the centre).
+
+    ``f_px = f35 / 43.27 mm x image diagonal in pixels`` (the equivalent focal length is defined on the
+    diagonal of a 36 x 24 mm frame). Measured on the real DJI H20T thermal demo image: 1098.6 px against
+    LoD-Loc's calibrated 1125 px (2.4 % short). Use a calibration when there is one.
+    """
+    if meta.focal_length_35mm is None or meta.width is None or meta.height is None:
+        raise CameraError(
+            "the image has no 35 mm-equivalent focal length (EXIF FocalLengthIn35mmFilm) or size"
+        )
+    f = meta.focal_length_35mm / FULL_FRAME_DIAGONAL_MM * math.hypot(meta.width, meta.height)
+    return Camera(f, f, meta.width / 2.0, meta.height / 2.0, meta.width, meta.height)
+
+
+# ---------------------------------------------------------------------------------------------- geodesy
+def source_height_reference(meta: DjiMetadata) -> tuple[str, str]:
+    """(reference, why) of ``meta.absolute_altitude_m`` (module docstring)."""
+    kind = (meta.altitude_type or "").lower()
+    if "rtk" in kind or (meta.rtk_flag is not None and meta.rtk_flag >= RTK_MIN_FLAG):
+        why = f"RTK aircraft (AltitudeType={meta.altitude_type!r}, RtkFlag={meta.rtk_flag}): DJI writes the"
+        return HEIGHT_ELLIPSOIDAL, why + " WGS 84 ellipsoidal height"
+    return HEIGHT_BAROMETRIC, (
+        f"no RTK (AltitudeType={meta.altitude_type!r}, RtkFlag={meta.rtk_flag}): DJI's absolute altitude is "
+        "barometric and can be tens of metres off"
+    )
+
+
+def _vertical_datum(crs: pyproj.CRS) -> pyproj.CRS | None:
+    if crs.is_compound:
+        for sub in crs.sub_crs_list:
+            if sub.is_vertical:
+                return sub
+    return None
+
+
+def _ballpark(group: TransformerGroup) -> bool:
+    if not group.transformers:
+        return True
+    return (not group.best_available) or "ballpark" in group.transformers[0].description.lower()
+
+
+def _group(source, target) -> TransformerGroup:
+    """pyproj's candidate operations; its warning about missing grids is ours to report (``_ballpark``)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Best transformation is not available")
+        return TransformerGroup(source, target, always_xy=True)
+
+
+def target_crs_of(name: str | pyproj.CRS) -> pyproj.CRS:
+    """A CRS from a name: ``parse_crs_name`` forms, and ``EPSG:h+v`` compounds kept whole."""
+    if isinstance(name, pyproj.CRS):
+        return name
+    if _EPSG_PLUS.match(str(name)):
+        try:
+            return pyproj.CRS.from_user_input(str(name).strip())
+        except pyproj.exceptions.CRSError as exc:
+            raise CRSError(f"unknown EPSG code in CRS {name!r}: {exc}") from exc
+    return parse_crs_name(str(name))
+
+
+def _geoid_separation(
+    lon: float, lat: float, h: float, target_3d: pyproj.CRS | str
+) -> tuple[float | None, str]:
+    """N = h - H from pyproj (None when it would only use a ballpark, i.e. no geoid grid) and a note."""
+    group = _group(WGS84_3D, target_3d)
+    if _ballpark(group):
+        missing = sorted(
+            {g.short_name for op in group.unavailable_operations for g in getattr(op, "grids", []) or []}
+        )
+        grids = ", ".join(missing) or EGM96_GRID
+        return None, (
+            f"pyproj has no geoid grid for this conversion (missing: {grids}; install with "
+            f"'projsync --file <grid>' or set PROJ_NETWORK=ON)"
+        )
+    H = group.transformers[0].transform(lon, lat, h)[2]
+    if not math.isfinite(H):
+        return None, "pyproj's geoid grid does not cover this position"
+    return h - H, group.transformers[0].description
+
+
+def grid_convergence_deg(crs: pyproj.CRS, lon: float, lat: float) -> float:
+    """Grid azimuth (clockwise from grid north, degrees) of true north at (lon, lat) in ``crs``."""
+    t = pyproj.Transformer.from_crs("EPSG:4326", _horizontal(crs), always_xy=True)
+    step = 1e-4 if lat < 89.9 else -1e-4
+    e0, n0 = t.transform(lon, lat)
+    e1, n1 = t.transform(lon, lat + step)
+    if not all(math.isfinite(v) for v in (e0, n0, e1, n1)):
+        raise CRSError(f"{crs.name}: the position (lat {lat}, lon {lon}) is outside its area of use")
+    angle = math.degrees(math.atan2(e1 - e0, n1 - n0))
+    return angle if step > 0 else angle - math.copysign(180.0, angle)
+
+
+def _check_area(crs: pyproj.CRS, lon: float, lat: float) -> None:
+    """``CRSError`` when the image lies more than ``AREA_MARGIN_DEG`` outside the CRS's area of use: the
+    projection would still give numbers, metres to kilometres distorted, for a CRS that was never meant."""
+    area = crs.area_of_use
+    if area is None:
+        return
+    west, south, east, north = area.bounds
+    lon_in = west - AREA_MARGIN_DEG <= lon <= east + AREA_MARGIN_DEG if west <= east else True
+    if not (lon_in and south - AREA_MARGIN_DEG <= lat <= north + AREA_MARGIN_DEG):
+        raise CRSError(
+            f"the image (lat {lat:.6f}, lon {lon:.6f}) is outside the area of use of {crs.name} "
+            f"({area.name}): wrong target CRS?"
+        )
+
+
+def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
+    if crs.is_compound:
+        for sub in crs.sub_crs_list:
+            if not sub.is_vertical:
+                return sub
+    return crs
+
+
+def dji_prior(
+    meta: DjiMetadata | str | os.PathLike,
+    target_crs: str | pyproj.CRS,
+    offset: np.ndarray | None = None,
+    source_height: str = HEIGHT_AUTO,
+    target_height: str = HEIGHT_AUTO,
+    geoid_separation_m: float | None = None,
+) -> DjiPrior:
+    """The camera's prior pose in ``target_crs`` (minus ``offset``) from DJI metadata.
+
+    Args:
+        meta: ``read_dji_metadata`` output or the image path.
+        target_crs: the city model's metric CRS (``CityModel.crs``), e.g. ``"EPSG:25832+7837"``.
+        offset: (3,) subtracted from the CRS coordinates (a data set frame = CRS minus offset).
+        source_height: reference of DJI's height, ``"auto"`` from RTK status (module docstring).
+        target_height: ``"auto"`` (orthometric when the CRS has a vertical datum, else as the source),
+            ``"ellipsoidal"`` or ``"orthometric"`` (EGM96 unless the CRS names a vertical datum).
+        geoid_separation_m: a known geoid undulation N at the site (H = h - N); overrides pyproj.
+    """
+    if not isinstance(meta, DjiMetadata):
+        meta = read_dji_metadata(meta)
+    meta.require("latitude", "longitude", "absolute_altitude_m", "gimbal_yaw_deg", "gimbal_pitch_deg")
+    if source_height not in SOURCE_HEIGHTS:
+        raise InputFileError(
+            f"source_height must be one of {', '.join(SOURCE_HEIGHTS)}, got {source_height!r}"
+        )
+    if target_height not in TARGET_HEIGHTS:
+        raise InputFileError(
+            f"target_height must be one of {', '.join(TARGET_HEIGHTS)}, got {target_height!r}"
+        )
+    crs = target_crs_of(target_crs)
+    if _horizontal(crs).is_geographic:
+        raise CRSError(f"the target CRS must be metric (projected), got {crs.name}")
+    lat, lon, h = float(meta.latitude), float(meta.longitude), float(meta.absolute_altitude_m)
+    notes: list[str] = []
+
+    if source_height == HEIGHT_AUTO:
+        source_height, why = source_height_reference(meta)
+        notes.append(why)
+    vertical = _vertical_datum(crs)
+    if target_height == HEIGHT_AUTO:
+        wanted = HEIGHT_ORTHOMETRIC if vertical is not None else None
+    else:
+        wanted = target_height
+
+    uncertainty = {
+        HEIGHT_ELLIPSOIDAL: meta.rtk_std_height_m or RTK_DEFAULT_UNCERTAINTY_M,
+        HEIGHT_ORTHOMETRIC: GPS_DEFAULT_UNCERTAINTY_M,
+        HEIGHT_BAROMETRIC: BAROMETRIC_UNCERTAINTY_M,
+    }[source_height]
+    flag = None
+    if source_height == HEIGHT_BAROMETRIC:
+        flag = (
+            "DJI absolute altitude is barometric (no RTK): z may be tens of metres off; "
+            "prefer RelativeAltitude + the take-off point's height when known"
+        )
+    z, z_reference, applied, n_used = h, source_height, False, None
+    target_vertical = vertical if vertical is not None else pyproj.CRS(EGM96)
+    if wanted == HEIGHT_ORTHOMETRIC and source_height in (HEIGHT_ELLIPSOIDAL, HEIGHT_BAROMETRIC):
+        vname = target_vertical.name if vertical is not None else "EGM96 height"
+        if geoid_separation_m is not None:
+            n_used, applied = float(geoid_separation_m), True
+            z, z_reference = h - n_used, f"orthometric ({vname}, N = {n_used:g} m given)"
+        elif source_height == HEIGHT_ELLIPSOIDAL:
+            target_3d = crs if vertical is not None else EGM96
+            n_value, how = _geoid_separation(lon, lat, h, target_3d)
+            if n_value is not None:
+                n_used, applied = n_value, True
+                z, z_reference = h - n_value, f"orthometric ({vname}, via {how})"
+            else:
+                z_reference = "ellipsoidal (geoid NOT applied)"
+                flag = (
+                    f"geoid not applied: {how}; z is the WGS 84 ellipsoidal height, not {vname}. They differ "
+                    f"by the local geoid undulation (up to {GEOID_UNDULATION_BOUND_M:g} m); or pass "
+                    "geoid_separation_m (N at the site)"
+                )
+                uncertainty = max(uncertainty, GEOID_UNDULATION_BOUND_M)
+        else:
+            notes.append("barometric height taken as orthometric (DJI's 'MSL' estimate), no geoid applied")
+            z_reference = "barometric, taken as orthometric"
+    elif wanted == HEIGHT_ELLIPSOIDAL and source_height == HEIGHT_ORTHOMETRIC:
+        if geoid_separation_m is None:
+            n_value, how = _geoid_separation(lon, lat, h, EGM96)
+            if n_value is None:
+                z_reference = "orthometric (geoid NOT applied)"
+                flag = f"geoid not applied: {how}; z is the EGM96 height, not ellipsoidal"
+                uncertainty = max(uncertainty, GEOID_UNDULATION_BOUND_M)
+            else:
+                n_used, applied = n_value, True
+        else:
+            n_used, applied = float(geoid_separation_m), True
+        if applied:
+            z, z_reference = h + n_used, "ellipsoidal"
+
+    horizontal = _horizontal(crs)
+    group = _group("EPSG:4326", horizontal)
+    if not group.transformers:
+        raise CRSError(f"pyproj finds no transformation from WGS 84 to {horizontal.name}")
+    if _ballpark(group):
+        notes.append(f"horizontal datum shift WGS 84 -> {horizontal.name} is approximate (pyproj ballpark)")
+    _check_area(horizontal, lon, lat)
+    x, y = group.transformers[0].transform(lon, lat)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise CRSError(f"{crs.name}: the position (lat {lat}, lon {lon}) is outside its area of use")
+    gamma = grid_convergence_deg(crs, lon, lat)
+    position = np.array([x, y, z], dtype=np.float64)
+    world = position - (np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64).reshape(3))
+    roll = meta.gimbal_roll_deg if meta.gimbal_roll_deg is not None else 0.0
+    if meta.gimbal_roll_deg is None:
+        notes.append("no GimbalRollDegree: roll taken as 0")
+    try:
+        pose = pose_from_dji(world, meta.gimbal_yaw_deg + gamma, meta.gimbal_pitch_deg, roll)
+    except PoseError as exc:
+        raise InputFileError(f"DJI gimbal angles give no pose: {exc}") from exc
+    return DjiPrior(
+        pose=pose,
+        position_crs=position,
+        crs=crs,
+        source_height=source_height,
+        z_reference=z_reference,
+        geoid_applied=applied,
+        geoid_separation_m=n_used,
+        vertical_flag=flag,
+        vertical_uncertainty_m=float(uncertainty),
+        grid_convergence_deg=gamma,
+        gimbal_ypr_deg=(float(meta.gimbal_yaw_deg), float(meta.gimbal_pitch_deg), float(roll)),
+        notes=notes,
+    )

@@ -1,0 +1,130 @@
+"""The model's visible edges seen from a pose, drawn over a real image, and how well they meet its edges.
+
+Why: the first thing to check with a real data set is whether the model lands on the buildings at the
+ground-truth pose (every frame convention in the chain right) and how far off the prior is. A person
+looks at the PNG (``gt_vs_prior_figure`` + ``save_png``); a test reads the numbers (``edge_score``).
+
+Visible model edges come from one render's face ids and depth (``render.overlay.visible_edges``: class
+changes, creases and silhouettes of building faces, so occlusion is exact and the triangulation's
+diagonals never show). Image edges (``gradient_magnitude``): Sobel gradient magnitude of the grey image
+after a Gaussian blur of ``GRADIENT_SIGMA_PX``. ``edge_score`` is the mean of that magnitude under the
+model's edges divided by its mean over the whole image: about 1 for edges unrelated to the image, higher
+when they lie on its edges. It is the stand-in for the wireframe baseline's score
+(``semcityloc.baselines.wireframe``) where that module is not installed.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from semcityloc.citymodel.model import CityModel
+from semcityloc.errors import InputFileError, ShapeError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.render.overlay import draw_edges
+
+GRADIENT_SIGMA_PX = 1.0
+GT_COLOR = (40, 230, 60)
+PRIOR_COLOR = (255, 60, 40)
+HEADER_PX = 22
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of an image file (``io.images.load_image``)."""
+    from semcityloc.io.images import load_image
+
+    if not Path(path).is_file():
+        raise InputFileError(f"{path}: no such image")
+    return load_image(path)
+
+
+def _renderer(model: CityModel, renderer=None):
+    if renderer is not None:
+        return renderer
+    from semcityloc.render import Renderer
+
+    return Renderer(model, engine="numba")
+
+
+def visible_edges(model: CityModel, camera: Camera, pose_local: Pose, renderer=None) -> np.ndarray:
+    """(H, W) bool: pixels on a visible model edge at a LOCAL pose (``render.overlay.visible_edges``:
+    class changes, creases and depth jumps of building faces, from one render's face ids and depth)."""
+    from semcityloc.render.overlay import visible_edges as edges_from_render
+
+    r = _renderer(model, renderer)
+    out = r.render(camera, pose_local, depth=True, face_ids=True)
+    return edges_from_render(out.face_ids[0], out.depth[0], r.scene)
+
+
+def gradient_magnitude(image: np.ndarray) -> np.ndarray:
+    """(H, W) float64 Sobel gradient magnitude of the (blurred) grey image."""
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = img[..., :3].astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+    if img.ndim != 2:
+        raise ShapeError(f"image must be (H, W) or (H, W, 3), got shape {np.shape(image)}")
+    grey = ndimage.gaussian_filter(img.astype(np.float64), GRADIENT_SIGMA_PX)
+    return np.hypot(ndimage.sobel(grey, axis=1), ndimage.sobel(grey, axis=0))
+
+
+def edge_score(gradient: np.ndarray, edges: np.ndarray) -> float:
+    """Mean gradient under ``edges`` over the image's mean gradient (module docstring); NaN without edges."""
+    gradient, edges = np.asarray(gradient), np.asarray(edges, dtype=bool)
+    if gradient.shape != edges.shape:
+        raise ShapeError(f"gradient {gradient.shape} and edge mask {edges.shape} differ in shape")
+    mean = float(gradient.mean())
+    if not edges.any() or mean <= 0:
+        return float("nan")
+    return float(gradient[edges].mean() / mean)
+
+
+def _panel(image: np.ndarray, title: str) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    h, w = image.shape[:2]
+    canvas = Image.new("RGB", (w, h + HEADER_PX), (255, 255, 255))
+    canvas.paste(Image.fromarray(image), (0, HEADER_PX))
+    ImageDraw.Draw(canvas).text((6, 5), title, fill=(0, 0, 0))
+    return np.asarray(canvas)
+
+
+def gt_vs_prior_figure(
+    image: np.ndarray,
+    model: CityModel,
+    camera: Camera,
+    gt_world: Pose,
+    prior_world: Pose,
+    renderer=None,
+    titles: tuple[str, str] = ("model edges at the ground-truth pose", "model edges at the prior pose"),
+) -> np.ndarray:
+    """(H + header, 2 W, 3) uint8: the image with the model's visible edges at GT (left) and prior (right).
+
+    Poses are in the model's world frame (``model.origin`` + local). ``camera`` must have the image's size.
+    """
+    if image.shape[:2] != (camera.height, camera.width):
+        raise ShapeError(
+            f"image {image.shape[1]}x{image.shape[0]} is not the camera's {camera.width}x{camera.height}"
+        )
+    r = _renderer(model, renderer)
+    panels = []
+    for pose, color, title in ((gt_world, GT_COLOR, titles[0]), (prior_world, PRIOR_COLOR, titles[1])):
+        edges = visible_edges(model, camera, pose.shift_world(model.origin), r)
+        panels.append(_panel(draw_edges(image, edges, color), title))
+    gap = np.full((panels[0].shape[0], 6, 3), 255, dtype=np.uint8)
+    return np.concatenate([panels[0], gap, panels[1]], axis=1)
+
+
+def save_png(array: np.ndarray, path: str | os.PathLike) -> Path:
+    from PIL import Image
+
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        Image.fromarray(np.asarray(array, dtype=np.uint8)).save(target, optimize=True)
+    except OSError as exc:
+        raise InputFileError(f"{target}: cannot write PNG: {exc.strerror or exc}") from exc
+    return target

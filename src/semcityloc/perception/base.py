@@ -1,0 +1,223 @@
+"""What a perception backend is, what it returns, and the registry that picks one by name.
+
+Why: the localizer needs a semantic mask (and optionally a relative depth map) of the query photo. Where
+they come from is the user's choice: a DINOv3 + DPT head, the offline MobileNetV2 head, MoGe-2, or files
+computed elsewhere (a GPU box). Every such source is a *backend* with one ``predict(image)`` method, and
+``get_segmentation_backend(name, **options)`` / ``get_depth_backend(name, **options)`` build one from a
+name and string options (what ``--backend-option key=value`` passes on the command line).
+
+Conventions of every backend:
+
+- input: an (H, W, 3) uint8 RGB photo (an (H, W) grey image is taken as RGB with equal channels);
+- ``SegmentationOutput.probs`` is (NUM_CLASSES, H, W) float32 at the photo's size, channel index =
+  ``SemanticClass`` id (channels of classes the backend does not predict are 0); ``labels`` is the
+  (H, W) uint8 argmax as class ids;
+- ``DepthOutput.depth`` is (H, W) float32 relative depth (any positive scale; +inf/NaN allowed only where
+  ``valid`` is False), ``K`` the 3x3 pixel intrinsics the model estimated, or None.
+
+Options: each backend declares the option names it accepts. The same option dict may be handed to a
+segmentation and a depth backend (the CLI does), so an option that another registered backend knows is
+ignored; an option no backend knows is a ``ParameterError`` (a typo).
+
+Weights are never fetched silently: a missing file raises ``MissingWeightsError`` naming what to download
+and where to put it (default folder: ``weights_dir()``). Hugging Face hub ids are looked up only when
+``HF_HUB_OFFLINE`` is not set, and hub failures become the same one-line error.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
+from semcityloc.errors import InputFileError, ParameterError, ShapeError
+
+IGNORE = 255
+
+
+class MissingWeightsError(InputFileError):
+    """Model weights that are not on this machine; the message says what to download and where to put it."""
+
+
+# ---------------------------------------------------------------------------------------------- outputs
+@dataclass
+class SegmentationOutput:
+    """Per-pixel class probabilities (NUM_CLASSES, H, W) float32 and labels (H, W) uint8 class ids."""
+
+    probs: np.ndarray
+    labels: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.probs = np.asarray(self.probs, dtype=np.float32)
+        self.labels = np.asarray(self.labels, dtype=np.uint8)
+        if self.probs.ndim != 3 or self.probs.shape[0] != NUM_CLASSES:
+            raise ShapeError(f"probs must be ({NUM_CLASSES}, H, W), got {self.probs.shape}")
+        if self.labels.shape != self.probs.shape[1:]:
+            raise ShapeError(f"labels {self.labels.shape} do not match probs {self.probs.shape}")
+
+
+@dataclass
+class DepthOutput:
+    """Relative depth (H, W) float32, validity (H, W) bool and the estimated 3x3 intrinsics (or None)."""
+
+    depth: np.ndarray
+    valid: np.ndarray
+    K: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.depth = np.asarray(self.depth, dtype=np.float32)
+        self.valid = np.asarray(self.valid, dtype=bool)
+        if self.depth.ndim != 2 or self.valid.shape != self.depth.shape:
+            raise ShapeError(f"depth and valid must be equal (H, W), got {self.depth.shape}, {self.valid.shape}")
+        if self.K is not None:
+            self.K = np.asarray(self.K, dtype=np.float64)
+            if self.K.shape != (3, 3):
+                raise ShapeError(f"K must be 3x3, got {self.K.shape}")
+
+    def masked(self) -> np.ndarray:
+        """Depth as float64 with NaN where not valid (what ``Query.from_arrays`` takes)."""
+        return np.where(self.valid, self.depth.astype(np.float64), np.nan)
+
+
+# ---------------------------------------------------------------------------------------------- protocols
+@runtime_checkable
+class SegmentationBackend(Protocol):
+    name: str
+    classes: tuple[str, ...]  # the class names this backend predicts (a subset of CLASS_NAMES)
+
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput: ...
+
+
+@runtime_checkable
+class DepthBackend(Protocol):
+    name: str
+
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput: ...
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def check_image(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 RGB from an RGB / RGBA / grey uint8 array; anything else -> ShapeError."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        raise ShapeError(f"image must be uint8 (0-255), got dtype {img.dtype}")
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ShapeError(f"image must be (H, W, 3) RGB or (H, W) grey, got shape {img.shape}")
+    return np.ascontiguousarray(img[..., :3])
+
+
+def weights_dir() -> Path:
+    """Where weights are looked for by default: ``$SEMCITYLOC_WEIGHTS`` or ``~/.cache/semcityloc/weights``."""
+    env = os.environ.get("SEMCITYLOC_WEIGHTS")
+    return Path(env) if env else Path.home() / ".cache" / "semcityloc" / "weights"
+
+
+def hub_offline() -> bool:
+    """True when ``HF_HUB_OFFLINE`` is set to a true value (read at call time, not at import)."""
+    return os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in ("1", "true", "yes", "on")
+
+
+def looks_like_hub_id(spec: str) -> bool:
+    """``owner/name`` with no path separators beyond the one slash and no file suffix."""
+    parts = str(spec).split("/")
+    return len(parts) == 2 and all(parts) and not str(spec).startswith((".", "~")) and "\\" not in spec
+
+
+def class_probs_to_output(probs: np.ndarray, classes: tuple[str, ...]) -> SegmentationOutput:
+    """(len(classes), H, W) probabilities of the named classes -> ``SegmentationOutput`` in class-id space."""
+    probs = np.asarray(probs, dtype=np.float32)
+    full = np.zeros((NUM_CLASSES,) + probs.shape[1:], dtype=np.float32)
+    ids = [CLASS_NAMES.index(c) for c in classes]
+    full[ids] = probs
+    labels = np.asarray(ids, dtype=np.uint8)[np.argmax(probs, axis=0)]
+    return SegmentationOutput(full, labels)
+
+
+def check_classes(classes) -> tuple[str, ...]:
+    """Class names as a tuple of known, distinct, lower-case names (ParameterError otherwise)."""
+    if isinstance(classes, str):
+        classes = [c for c in classes.split(",") if c.strip()]
+    out = tuple(str(c).strip().lower() for c in classes)
+    unknown = [c for c in out if c not in CLASS_NAMES]
+    if unknown:
+        raise ParameterError(f"unknown class name(s) {', '.join(unknown)}; known: {', '.join(CLASS_NAMES)}")
+    if len(set(out)) != len(out) or len(out) < 2:
+        raise ParameterError(f"classes must be at least two distinct names, got {list(out)}")
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class BackendEntry:
+    kind: str  # "segmentation" | "depth"
+    name: str
+    factory: Callable[..., Any]
+    options: tuple[str, ...]
+    summary: str
+
+
+_REGISTRY: dict[tuple[str, str], BackendEntry] = {}
+
+
+def register_backend(
+    kind: str, name: str, factory: Callable[..., Any], options: tuple[str, ...], summary: str = ""
+) -> None:
+    """Add a backend: ``factory(**options)`` builds it; ``options`` are the option names it accepts."""
+    if kind not in ("segmentation", "depth"):
+        raise ParameterError(f"backend kind must be 'segmentation' or 'depth', got {kind!r}")
+    _REGISTRY[(kind, name)] = BackendEntry(kind, name, factory, tuple(options), summary)
+
+
+def available_backends(kind: str) -> tuple[str, ...]:
+    _ensure_builtins()
+    return tuple(sorted(n for k, n in _REGISTRY if k == kind))
+
+
+def backend_entry(kind: str, name: str) -> BackendEntry:
+    _ensure_builtins()
+    entry = _REGISTRY.get((kind, str(name)))
+    if entry is None:
+        raise ParameterError(
+            f"unknown {kind} backend {name!r}; choose one of {', '.join(available_backends(kind))}"
+        )
+    return entry
+
+
+def _filter_options(entry: BackendEntry, options: dict[str, Any]) -> dict[str, Any]:
+    known_anywhere = {o for e in _REGISTRY.values() for o in e.options}
+    unknown = sorted(k for k in options if k not in known_anywhere)
+    if unknown:
+        raise ParameterError(
+            f"unknown backend option(s) {', '.join(unknown)} for {entry.name!r}; "
+            f"it accepts {', '.join(entry.options) or 'none'}"
+        )
+    return {k: v for k, v in options.items() if k in entry.options and v is not None}
+
+
+def get_segmentation_backend(name: str, **options: Any) -> SegmentationBackend:
+    """A segmentation backend by name: ``dinov3-dpt``, ``mobilenetv2``, ``files`` (module docstring)."""
+    entry = backend_entry("segmentation", name)
+    return entry.factory(**_filter_options(entry, options))
+
+
+def get_depth_backend(name: str, **options: Any) -> DepthBackend:
+    """A depth backend by name: ``moge2``, ``files`` (module docstring)."""
+    entry = backend_entry("depth", name)
+    return entry.factory(**_filter_options(entry, options))
+
+
+_BUILTINS_LOADED = False
+
+
+def _ensure_builtins() -> None:
+    global _BUILTINS_LOADED
+    if not _BUILTINS_LOADED:
+        _BUILTINS_LOADED = True
+        from semcityloc.perception import registry  # noqa: F401  (registers the built-in backends)

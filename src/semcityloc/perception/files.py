@@ -1,0 +1,131 @@
+"""Backends that read precomputed masks / depth maps from a folder, by the photo's file stem.
+
+Why: the foundation models are best run on a GPU machine; their outputs come back as files and the
+localizer should not care. ``files`` segmentation reads ``<masks>/<stem>.png`` (palette or grey PNG of
+class ids, 255 = ignore) or ``<stem>.npy`` (an (H, W) integer label map or a (NUM_CLASSES, H, W)
+probability stack); ``files`` depth reads ``<depth>/<stem>.npy`` (float depth) or ``<stem>.png`` (16-bit,
+``semcityloc.io.images.save_depth`` format). ``masks=`` / ``depth=`` may also name one file directly.
+
+The stem comes from ``predict(image, name=...)`` (a file name or path; its stem is used). Without a
+name, a folder holding exactly one candidate is used; otherwise a ``ParameterError`` asks for the name.
+Outputs are resized to the photo by nearest neighbour (labels, probabilities and depth alike).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from semcityloc.classes import NUM_CLASSES
+from semcityloc.errors import InputFileError, ParameterError, ShapeError
+from semcityloc.perception.base import IGNORE, DepthOutput, SegmentationOutput, check_image
+
+MASK_SUFFIXES = (".png", ".npy")
+DEPTH_SUFFIXES = (".npy", ".png")
+
+
+def _resize_nearest(a: np.ndarray, width: int, height: int) -> np.ndarray:
+    h, w = a.shape[-2:]
+    if (h, w) == (height, width):
+        return a
+    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
+    return a[..., rows[:, None], cols[None, :]]
+
+
+def find_file(where: Path, name: str | None, suffixes: tuple[str, ...], what: str) -> Path:
+    """The file for ``name``'s stem in folder ``where`` (or ``where`` itself when it is a file)."""
+    if where.is_file():
+        return where
+    if not where.is_dir():
+        raise InputFileError(f"{where}: no such {what} folder or file")
+    if name is not None:
+        stem = Path(str(name)).stem
+        for suffix in suffixes:
+            for candidate in (where / f"{stem}{suffix}", where / f"{stem}{suffix.upper()}"):
+                if candidate.is_file():
+                    return candidate
+        raise InputFileError(f"{where}: no {what} for image {stem!r} (looked for {stem}{'/'.join(suffixes)})")
+    found = sorted(p for p in where.iterdir() if p.is_file() and p.suffix.lower() in suffixes)
+    if len(found) == 1:
+        return found[0]
+    raise ParameterError(
+        f"{where} holds {len(found)} {what} files: pass the image name to pick one (predict(image, name=...))"
+    )
+
+
+class FilesSegmentation:
+    """``files`` segmentation backend (module docstring)."""
+
+    name = "files"
+    classes = ("background", "ground", "wall", "roof", "window", "door")
+
+    def __init__(self, masks: str | Path | None = None):
+        if masks in (None, ""):
+            raise ParameterError("the 'files' segmentation backend needs masks=DIR (or masks=FILE)")
+        self.where = Path(masks).expanduser()
+
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
+        img = check_image(image)
+        H, W = img.shape[:2]
+        path = find_file(self.where, name, MASK_SUFFIXES, "mask")
+        if path.suffix.lower() == ".png":
+            from semcityloc.io.images import load_labels_png
+
+            return _from_labels(_resize_nearest(load_labels_png(path), W, H))
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise InputFileError(f"{path}: cannot read mask array ({exc})") from exc
+        if arr.ndim == 3 and arr.shape[0] == NUM_CLASSES and np.issubdtype(arr.dtype, np.floating):
+            probs = _resize_nearest(np.nan_to_num(arr.astype(np.float32)), W, H)
+            return SegmentationOutput(probs, np.argmax(probs, axis=0).astype(np.uint8))
+        if arr.ndim == 2 and np.issubdtype(arr.dtype, np.integer):
+            return _from_labels(_resize_nearest(arr, W, H))
+        raise ShapeError(
+            f"{path}: expected an (H, W) integer label map or a ({NUM_CLASSES}, H, W) float probability stack, "
+            f"got {arr.dtype} {arr.shape}"
+        )
+
+
+def _from_labels(labels: np.ndarray) -> SegmentationOutput:
+    labels = np.asarray(labels)
+    bad = (labels < 0) | ((labels >= NUM_CLASSES) & (labels != IGNORE))
+    if np.any(bad):
+        raise ShapeError(f"mask holds values outside the class ids 0..{NUM_CLASSES - 1} and {IGNORE}")
+    labels = labels.astype(np.uint8)
+    probs = np.zeros((NUM_CLASSES,) + labels.shape, dtype=np.float32)
+    known = labels != IGNORE
+    rows, cols = np.nonzero(known)
+    probs[labels[known], rows, cols] = 1.0
+    return SegmentationOutput(probs, labels)
+
+
+class FilesDepth:
+    """``files`` depth backend (module docstring)."""
+
+    name = "files"
+
+    def __init__(self, depth: str | Path | None = None):
+        if depth in (None, ""):
+            raise ParameterError("the 'files' depth backend needs depth=DIR (or depth=FILE)")
+        self.where = Path(depth).expanduser()
+
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput:
+        from semcityloc.io.images import load_depth
+
+        img = check_image(image)
+        H, W = img.shape[:2]
+        path = find_file(self.where, name, DEPTH_SUFFIXES, "depth")
+        d = _resize_nearest(load_depth(path), W, H)
+        valid = np.isfinite(d) & (d > 0)
+        return DepthOutput(np.where(valid, d, np.inf).astype(np.float32), valid, None)
+
+
+def files_segmentation_backend(masks=None) -> FilesSegmentation:
+    return FilesSegmentation(masks)
+
+
+def files_depth_backend(depth=None) -> FilesDepth:
+    return FilesDepth(depth)

@@ -1,0 +1,168 @@
+"""MoGe-2 monocular depth (``dlr-moge``: ``moge.model.v2.MoGeModel``) as a ``DepthBackend``.
+
+Loading: a MoGe-2 checkpoint is one ``model.pt`` holding ``{"model_config": {...}, "model": state_dict}``.
+``MoGeModel.from_pretrained`` loads it with ``strict=False`` (a truncated or foreign checkpoint would run
+with random layers) and falls back to the hub for any path that does not exist; ``load_moge2`` instead
+reads the local file itself and compares the key sets and shapes, so a wrong file is an error.
+
+Inference on CPU uses ``use_fp16=False``: MoGe's default fp16 autocast took 146 s instead of 2 s per image
+here. ``depth`` is MoGe's metric-scaled z-depth (treated as relative by the localizer, which fits a scale
+and shift), ``valid`` its mask (finite, positive), ``K`` its estimated intrinsics converted from MoGe's
+normalised form (focal / size, principal point 0.5) to pixels of the photo.
+
+Install: ``pip install --no-deps dlr-moge`` plus ``dlr-utils3d``, ``opencv-python-headless``, ``scipy``,
+``huggingface_hub`` (its declared dependencies pull torchvision and gradio, which we do not need).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from semcityloc.errors import ParameterError
+from semcityloc.perception.base import (
+    DepthOutput,
+    MissingWeightsError,
+    check_image,
+    hub_offline,
+    looks_like_hub_id,
+    weights_dir,
+)
+from semcityloc.perception.torch_utils import device_of, image_tensor, require, require_torch
+
+torch = require_torch("MoGe-2 depth")
+
+DEFAULT_MOGE_DIR = "moge-2-vits-normal"
+# Buffers a checkpoint may omit without harm: fixed ImageNet statistics, rebuilt by the constructor.
+OPTIONAL_KEYS = frozenset({"encoder.image_mean", "encoder.image_std"})
+DOWNLOAD_HINT = (
+    "download a MoGe-2 model.pt (e.g. from https://huggingface.co/Ruicheng/moge-2-vits-normal or "
+    "moge-2-vitl-normal) and pass it as model=PATH (default location: {default})"
+)
+
+
+def default_model_path() -> Path:
+    return weights_dir() / DEFAULT_MOGE_DIR / "model.pt"
+
+
+def _resolve(spec: str | Path | None) -> Path:
+    """A local model.pt path; a hub id is fetched with hf_hub_download unless HF_HUB_OFFLINE is set."""
+    hint = DOWNLOAD_HINT.format(default=default_model_path())
+    if spec is None or str(spec) == "":
+        path = default_model_path()
+        if path.is_file():
+            return path
+        raise MissingWeightsError(f"no MoGe-2 model given and none at {path}: {hint}")
+    path = Path(spec).expanduser()
+    if path.is_dir():
+        path = path / "model.pt"
+    if path.is_file():
+        return path
+    if looks_like_hub_id(str(spec)) and not Path(spec).exists():
+        hub = require("huggingface_hub", "huggingface_hub", "downloading MoGe-2 weights")
+        try:
+            return Path(
+                hub.hf_hub_download(
+                    repo_id=str(spec), filename="model.pt", repo_type="model", local_files_only=hub_offline()
+                )
+            )
+        except Exception as exc:  # hub client errors of many types: one line, no hub traceback
+            why = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+            offline = " (HF_HUB_OFFLINE is set: only the local cache was searched)" if hub_offline() else ""
+            raise MissingWeightsError(f"{spec}: MoGe-2 weights not available{offline}: {why}; {hint}") from None
+    raise MissingWeightsError(f"{path}: no such MoGe-2 model file; {hint}")
+
+
+def load_moge2(spec: str | Path | None = None, device: str | None = None):
+    """``MoGeModel`` from a ``model.pt`` with a strict key/shape check, in eval mode (module docstring)."""
+    require("moge.model.v2", "dlr-moge", "MoGe-2 depth")
+    require("utils3d", "dlr-utils3d", "MoGe-2 depth")
+    from moge.model.v2 import MoGeModel
+
+    path = _resolve(spec)
+    hint = DOWNLOAD_HINT.format(default=default_model_path())
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # pickle / zip errors of many types
+        raise MissingWeightsError(f"{path}: not a readable MoGe-2 checkpoint ({exc}); {hint}") from None
+    if not isinstance(checkpoint, dict) or "model_config" not in checkpoint or "model" not in checkpoint:
+        raise MissingWeightsError(f"{path}: expected {{'model_config', 'model'}} (a MoGe-2 model.pt); {hint}")
+    config = dict(checkpoint["model_config"])
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = MoGeModel(**config)
+    except Exception as exc:  # an unknown config raises what the constructor raises
+        raise MissingWeightsError(f"{path}: its model_config is not a MoGe-2 (v2) model ({exc}); {hint}") from None
+    state = checkpoint["model"]
+    own = model.state_dict()
+    missing = sorted(set(own) - set(state) - OPTIONAL_KEYS)
+    unexpected = sorted(set(state) - set(own))
+    bad = [k for k in own if k in state and tuple(own[k].shape) != tuple(state[k].shape)]
+    if missing or unexpected or bad:
+        raise MissingWeightsError(
+            f"{path}: weights do not match its model_config (missing {missing[:3]}, unexpected "
+            f"{unexpected[:3]}, wrong shape {bad[:3]}); {hint}"
+        )
+    model.load_state_dict(state, strict=False)
+    model.to(device_of(device))
+    model.eval()
+    return model
+
+
+class MoGe2Backend:
+    """``DepthBackend`` running MoGe-2 (module docstring)."""
+
+    name = "moge2"
+
+    def __init__(
+        self,
+        model=None,
+        device: str | None = None,
+        num_tokens: int | str | None = None,
+        resolution_level: int | str = 9,
+        fov_x: float | str | None = None,
+        threads: int | str | None = None,
+        module=None,
+    ):
+        if threads not in (None, ""):
+            torch.set_num_threads(int(threads))
+        self.model = module if module is not None else load_moge2(model, device)
+        self.num_tokens = int(num_tokens) if num_tokens not in (None, "") else None
+        self.resolution_level = int(resolution_level)
+        if not 0 <= self.resolution_level <= 9:
+            raise ParameterError(f"resolution_level must be in 0..9, got {resolution_level}")
+        self.fov_x = float(fov_x) if fov_x not in (None, "") else None
+
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput:
+        img = check_image(image)
+        H, W = img.shape[:2]
+        x = image_tensor(img, normalize=False)[0].to(self.model.device)
+        use_fp16 = self.model.device.type == "cuda"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # MoGe's fp32 autocast warns on CPU
+            out = self.model.infer(
+                x,
+                num_tokens=self.num_tokens,
+                resolution_level=self.resolution_level,
+                fov_x=self.fov_x,
+                apply_mask=False,
+                use_fp16=use_fp16,
+            )
+        depth = out["depth"].float().cpu().numpy()
+        valid = np.isfinite(depth) & (depth > 0)
+        if "mask" in out:
+            valid &= out["mask"].cpu().numpy().astype(bool)
+        K = None
+        if "intrinsics" in out:
+            Kn = out["intrinsics"].double().cpu().numpy()
+            if np.all(np.isfinite(Kn)) and Kn[0, 0] > 0 and Kn[1, 1] > 0:  # untrained nets can give nonsense
+                K = np.array([[Kn[0, 0] * W, 0, Kn[0, 2] * W], [0, Kn[1, 1] * H, Kn[1, 2] * H], [0, 0, 1]])
+        return DepthOutput(np.where(valid, depth, np.inf).astype(np.float32), valid, K)
+
+
+def moge2_backend(model=None, device=None, num_tokens=None, resolution_level=9, fov_x=None, threads=None):
+    """``moge2``: model=PATH to model.pt or its folder (default ``weights_dir()/moge-2-vits-normal``)."""
+    return MoGe2Backend(model, device, num_tokens, resolution_level, fov_x, threads)

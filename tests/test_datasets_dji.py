@@ -1,0 +1,201 @@
+"""DJI metadata -> prior pose: XMP / EXIF reading, grid convergence, heights handled or flagged."""
+
+from __future__ import annotations
+
+import io
+import math
+import struct
+
+import numpy as np
+import pyproj
+import pytest
+from PIL import Image
+
+from semcityloc.datasets.dji import (
+    BAROMETRIC_UNCERTAINTY_M,
+    GEOID_UNDULATION_BOUND_M,
+    HEIGHT_BAROMETRIC,
+    HEIGHT_ELLIPSOIDAL,
+    camera_from_exif,
+    dji_prior,
+    grid_convergence_deg,
+    parse_xmp_fields,
+    read_dji_metadata,
+)
+from semcityloc.datasets.lodloc import read_lodloc
+from semcityloc.errors import CRSError, InputFileError
+from semcityloc.geometry.errors import rotation_error_deg
+
+REAL_IMAGE = "real_uav_lodloc/Query_image/DJI_20230513163714_0033_T.JPG"
+
+
+def xmp_packet(**fields) -> bytes:
+    attrs = "\n".join(f'   drone-dji:{k}="{v}"' for k, v in fields.items())
+    return (
+        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
+        ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
+        '  <rdf:Description rdf:about="DJI Meta Data" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/"\n'
+        f'{attrs}>\n  </rdf:Description>\n </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end="w"?>'
+    ).encode()
+
+
+def dji_jpeg(path, xmp: bytes | None = None, gps: tuple | None = None, size=(64, 48)):
+    """A JPEG with an EXIF GPS block (lat, lon, alt) and an XMP APP1 segment, as DJI writes them."""
+    exif = Image.Exif()
+    exif[271], exif[272] = "DJI", "M3E"
+    if gps is not None:
+        lat, lon, alt = gps
+        g = exif.get_ifd(0x8825)
+
+        def dms(v):
+            d = int(abs(v))
+            m = int((abs(v) - d) * 60)
+            return (float(d), float(m), (abs(v) - d - m / 60) * 3600)
+
+        g[1], g[2], g[3], g[4] = ("N" if lat >= 0 else "S"), dms(lat), ("E" if lon >= 0 else "W"), dms(lon)
+        g[5], g[6] = b"\x00", float(alt)
+    buf = io.BytesIO()
+    Image.new("RGB", size, (90, 90, 90)).save(buf, "JPEG", exif=exif)
+    data = buf.getvalue()
+    if xmp is not None:
+        payload = b"http://ns.adobe.com/xap/1.0/\x00" + xmp
+        data = data[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + data[2:]
+    path.write_bytes(data)
+    return path
+
+
+RTK = dict(
+    GpsLatitude="+48.1000000",
+    GpsLongitude="+11.5000000",
+    AbsoluteAltitude="+612.500",
+    RelativeAltitude="+80.0",
+    GimbalYawDegree="+0.00",
+    GimbalPitchDegree="+0.00",
+    GimbalRollDegree="+0.00",
+    AltitudeType="RtkAlt",
+    RtkFlag="50",
+    RtkStdHgt="0.021",
+)
+
+
+def test_xmp_fields_in_attribute_and_element_form():
+    attr = parse_xmp_fields(xmp_packet(GimbalYawDegree="-102.30", AltitudeType="RtkAlt"))
+    assert attr["drone-dji:GimbalYawDegree"] == "-102.30" and attr["drone-dji:AltitudeType"] == "RtkAlt"
+    assert not any(k.startswith("xmlns:") for k in attr)
+    elem = parse_xmp_fields(
+        b"<x:xmpmeta><drone-dji:GimbalPitchDegree>-90.0</drone-dji:GimbalPitchDegree></x:xmpmeta>"
+    )
+    assert elem == {"drone-dji:GimbalPitchDegree": "-90.0"}
+
+
+def test_rtk_image_gives_a_pose_in_utm_looking_at_true_north(tmp_path):
+    """Gimbal yaw 0 = true north. East of the UTM central meridian grid north differs by ~1.9 deg here; the
+    optical axis must point at a point 1 km due north (geodesic), not along the grid's +y."""
+    image = dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK))
+    meta = read_dji_metadata(image)
+    assert (meta.latitude, meta.longitude, meta.absolute_altitude_m) == (48.1, 11.5, 612.5)
+    assert meta.sources["latitude"] == "xmp:drone-dji:GpsLatitude" and (meta.width, meta.height) == (64, 48)
+    prior = dji_prior(meta, "EPSG:25832")
+    assert prior.source_height == HEIGHT_ELLIPSOIDAL and prior.z_reference == HEIGHT_ELLIPSOIDAL
+    assert prior.vertical_flag is None and prior.vertical_uncertainty_m == pytest.approx(0.021)
+    t = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:25832", always_xy=True)
+    np.testing.assert_allclose(prior.position_crs, [*t.transform(11.5, 48.1), 612.5], atol=1e-6)
+    lon2, lat2, _ = pyproj.Geod(ellps="WGS84").fwd(11.5, 48.1, 0.0, 1000.0)
+    target = np.array(t.transform(lon2, lat2)) - prior.position_crs[:2]
+    axis = prior.pose.viewing_direction
+    angle = math.degrees(math.atan2(axis[0], axis[1]) - math.atan2(target[0], target[1]))
+    assert abs(angle) < 0.01 and abs(axis[2]) < 1e-9  # horizontal, at true north
+    gamma = prior.grid_convergence_deg
+    expected = -math.degrees(math.atan(math.tan(math.radians(11.5 - 9.0)) * math.sin(math.radians(48.1))))
+    assert gamma == pytest.approx(expected, abs=0.01)  # true north lies west of grid north, east of the CM
+
+
+def test_offset_and_nadir_gimbal(tmp_path):
+    fields = dict(RTK, GimbalPitchDegree="-90.0", GimbalYawDegree="+45.0")
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**fields)))
+    off = np.array([690000.0, 5330000.0, 100.0])
+    prior = dji_prior(meta, "EPSG:25832", offset=off)
+    np.testing.assert_allclose(prior.pose.center, prior.position_crs - off, atol=1e-6)
+    np.testing.assert_allclose(prior.pose.viewing_direction, [0, 0, -1], atol=1e-12)
+
+
+def test_exif_gps_fills_in_when_xmp_has_no_position(tmp_path):
+    xmp = xmp_packet(GimbalYawDegree="10", GimbalPitchDegree="-60", GimbalRollDegree="0")
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp, gps=(-33.5, 151.25, 120.0)))
+    assert meta.latitude == pytest.approx(-33.5) and meta.longitude == pytest.approx(151.25)
+    assert meta.sources["latitude"] == "exif:GPSLatitude" and meta.absolute_altitude_m == pytest.approx(120.0)
+    prior = dji_prior(meta, "EPSG:32756")
+    assert prior.source_height == HEIGHT_BAROMETRIC  # no RTK: barometric, flagged
+    assert "barometric" in prior.vertical_flag and prior.vertical_uncertainty_m == BAROMETRIC_UNCERTAINTY_M
+
+
+def test_orthometric_target_applies_the_geoid_or_says_it_did_not(tmp_path):
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
+    prior = dji_prior(meta, "EPSG:25832", target_height="orthometric")
+    if prior.geoid_applied:  # a machine with the EGM96 grid installed
+        assert 40.0 < prior.geoid_separation_m < 55.0  # EGM96 near Munich: ~47 m
+        assert prior.position_crs[2] == pytest.approx(612.5 - prior.geoid_separation_m)
+        assert prior.vertical_flag is None
+    else:
+        assert prior.position_crs[2] == 612.5 and "NOT applied" in prior.z_reference
+        assert "geoid not applied" in prior.vertical_flag and "us_nga_egm96_15.tif" in prior.vertical_flag
+        assert prior.vertical_uncertainty_m == GEOID_UNDULATION_BOUND_M
+    compound = dji_prior(meta, "EPSG:25832+7837")  # DHHN2016 heights: orthometric by the CRS itself
+    assert compound.geoid_applied or "DHHN2016" in compound.vertical_flag
+    given = dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=47.3)
+    assert given.geoid_applied and given.position_crs[2] == pytest.approx(612.5 - 47.3)
+    assert given.vertical_flag is None and "47.3" in given.z_reference
+
+
+def test_bad_targets_and_images_are_typed_errors(tmp_path):
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
+    with pytest.raises(CRSError, match="outside the area of use"):
+        dji_prior(meta, "EPSG:28992")  # Dutch RD New for a Bavarian flight
+    with pytest.raises(CRSError, match="metric"):
+        dji_prior(meta, "EPSG:4326")
+    with pytest.raises(InputFileError, match="target_height"):
+        dji_prior(meta, "EPSG:25832", target_height="geoid")
+    no_gimbal = read_dji_metadata(
+        dji_jpeg(tmp_path / "b.jpg", xmp_packet(GpsLatitude="48", GpsLongitude="11"))
+    )
+    with pytest.raises(InputFileError, match="absolute_altitude_m, gimbal_yaw_deg"):
+        dji_prior(no_gimbal, "EPSG:25832")
+    (tmp_path / "c.jpg").write_bytes(b"not an image")
+    with pytest.raises(InputFileError, match="not a readable image"):
+        read_dji_metadata(tmp_path / "c.jpg")
+    with pytest.raises(InputFileError, match="no such image"):
+        read_dji_metadata(tmp_path / "absent.jpg")
+    with pytest.raises(InputFileError, match="GimbalYawDegree is not a number"):
+        read_dji_metadata(dji_jpeg(tmp_path / "d.jpg", xmp_packet(GimbalYawDegree="north")))
+
+
+def test_grid_convergence_is_zero_on_the_central_meridian():
+    crs = pyproj.CRS("EPSG:32632")
+    assert abs(grid_convergence_deg(crs, 9.0, 50.0)) < 1e-6
+    assert grid_convergence_deg(crs, 7.0, 50.0) > 0 > grid_convergence_deg(crs, 11.0, 50.0)
+
+
+# ------------------------------------------------------------------------------------------ real image
+def test_real_dji_image_metadata(shared):
+    meta = read_dji_metadata(shared(REAL_IMAGE))
+    assert (meta.make, meta.model, meta.image_source) == ("DJI", "ZH20T", "InfraredCamera")
+    assert (meta.latitude, meta.longitude) == (28.2949691, 112.990583)
+    assert meta.absolute_altitude_m == 223.893 and meta.relative_altitude_m == 200.038
+    assert (meta.gimbal_yaw_deg, meta.gimbal_pitch_deg, meta.gimbal_roll_deg) == (-102.3, -90.0, 0.0)
+    assert meta.altitude_type == "RtkAlt" and meta.rtk_flag == 50
+    cam = camera_from_exif(meta)  # 58 mm equivalent on a 640x512 frame
+    assert (cam.width, cam.height) == (640, 512) and abs(cam.fx / 1125.0 - 1) < 0.03
+
+
+def test_real_dji_prior_matches_the_ground_truth_rotation_and_height(shared):
+    """In UAVD4L's frame (CGCS2000 / 3-degree GK CM 114E minus a hidden x, y offset, z = DJI's RTK height)
+    the image's own gimbal angles are 1.1 deg from GT (LoD-Loc's GPS prior: 4.0 deg) and its RTK height is
+    0.7 m from GT z. The x, y offset of the frame is not published, so x, y are not compared."""
+    ds = read_lodloc(shared("real_uav_lodloc"), frame="z-up")
+    gt, lodloc_prior = ds.queries[0].gt_pose, ds.queries[0].prior_pose
+    prior = dji_prior(shared(REAL_IMAGE), "EPSG:4547")
+    assert prior.source_height == HEIGHT_ELLIPSOIDAL and prior.vertical_flag is None
+    rot = float(rotation_error_deg(prior.pose, gt))
+    assert rot < 1.5 and rot < float(rotation_error_deg(lodloc_prior, gt))
+    assert abs(prior.position_crs[2] - gt.center[2]) < 1.0
+    assert prior.grid_convergence_deg == pytest.approx(0.4785, abs=1e-3)  # west of CM 114E: true north east

@@ -1,0 +1,163 @@
+"""Perception backends without any model: registry, options, missing-weight errors, the ``files`` backends."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semcityloc.classes import NUM_CLASSES
+from semcityloc.errors import InputFileError, ParameterError, SemCityLocError, ShapeError
+from semcityloc.io.images import save_depth, save_labels_png
+from semcityloc.perception import (
+    IGNORE,
+    DepthBackend,
+    DepthOutput,
+    MissingWeightsError,
+    SegmentationBackend,
+    SegmentationOutput,
+    available_backends,
+    get_depth_backend,
+    get_segmentation_backend,
+)
+from semcityloc.perception.base import check_classes, check_image, class_probs_to_output, looks_like_hub_id
+
+IMG = np.zeros((12, 16, 3), dtype=np.uint8)
+
+
+@pytest.fixture
+def empty_weights(tmp_path, monkeypatch):
+    """No default weights anywhere and no hub access."""
+    monkeypatch.setenv("SEMCITYLOC_WEIGHTS", str(tmp_path / "weights"))
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    return tmp_path / "weights"
+
+
+def test_registry_lists_the_builtin_backends():
+    assert set(available_backends("segmentation")) >= {"dinov3-dpt", "mobilenetv2", "files"}
+    assert set(available_backends("depth")) >= {"moge2", "files"}
+
+
+def test_unknown_backend_and_unknown_option_are_parameter_errors(tmp_path):
+    with pytest.raises(ParameterError, match="unknown segmentation backend 'segformer'.*mobilenetv2"):
+        get_segmentation_backend("segformer")
+    with pytest.raises(ParameterError, match="unknown backend option.*hed"):
+        get_segmentation_backend("files", masks=str(tmp_path), hed="x")
+
+
+def test_options_meant_for_the_other_backend_are_ignored(tmp_path):
+    # The CLI hands one option dict to both backends: 'model' (moge2) must not break the files backend.
+    seg = get_segmentation_backend("files", masks=str(tmp_path), model="elsewhere/model.pt")
+    assert isinstance(seg, SegmentationBackend) and seg.name == "files"
+    depth = get_depth_backend("files", depth=str(tmp_path), head="elsewhere")
+    assert isinstance(depth, DepthBackend)
+
+
+@pytest.mark.parametrize(
+    "kind, name, options, words",
+    [
+        ("segmentation", "dinov3-dpt", {}, ["no trained segmentation head", "train-segmenter", "head=DIR"]),
+        ("segmentation", "mobilenetv2", {}, ["no trained segmentation head", "head=DIR"]),
+        ("depth", "moge2", {}, ["MoGe-2", "model.pt", "huggingface.co/Ruicheng/moge-2-vits-normal", "weights"]),
+        ("depth", "moge2", {"model": "Ruicheng/moge-2-vits-normal"}, ["HF_HUB_OFFLINE", "model=PATH"]),
+    ],
+)
+def test_missing_weights_give_one_clear_error(empty_weights, kind, name, options, words):
+    pytest.importorskip("torch")
+    getter = get_segmentation_backend if kind == "segmentation" else get_depth_backend
+    with pytest.raises(MissingWeightsError) as info:
+        getter(name, **options)
+    message = str(info.value)
+    for word in words:
+        assert word in message
+    assert "\n" not in message
+    assert info.value.__cause__ is None  # no hub-client traceback chained to it
+    assert isinstance(info.value, SemCityLocError)
+
+
+def test_dinov3_backbone_missing_names_what_to_download(empty_weights, tmp_path):
+    pytest.importorskip("transformers")
+    from semcityloc.perception.dinov3 import load_dinov3_backbone
+
+    with pytest.raises(MissingWeightsError, match="facebook/dinov3-vits16-pretrain-lvd1689m.*dinov3-vits16"):
+        load_dinov3_backbone(None)
+    with pytest.raises(MissingWeightsError, match="no config.json"):
+        load_dinov3_backbone(tmp_path)
+    with pytest.raises(MissingWeightsError, match="HF_HUB_OFFLINE is set"):
+        load_dinov3_backbone("facebook/dinov3-vits16-pretrain-lvd1689m")
+
+
+def test_hub_id_heuristic():
+    assert looks_like_hub_id("facebook/dinov3-vits16-pretrain-lvd1689m")
+    assert not looks_like_hub_id("/abs/path/model.pt") and not looks_like_hub_id("./a/b")
+    assert not looks_like_hub_id("weights")
+
+
+def test_check_image_and_outputs_validate_shapes():
+    assert check_image(np.zeros((4, 5), np.uint8)).shape == (4, 5, 3)
+    assert check_image(np.zeros((4, 5, 4), np.uint8)).shape == (4, 5, 3)
+    with pytest.raises(ShapeError, match="uint8"):
+        check_image(np.zeros((4, 5, 3), np.float32))
+    with pytest.raises(ShapeError):
+        check_image(np.zeros((4, 5, 2), np.uint8))
+    with pytest.raises(ShapeError):
+        SegmentationOutput(np.zeros((3, 4, 5)), np.zeros((4, 5)))
+    with pytest.raises(ShapeError):
+        DepthOutput(np.zeros((4, 5)), np.zeros((4, 6), bool))
+    with pytest.raises(ParameterError):
+        check_classes(["roof", "sky"])
+    assert check_classes("Ground, wall,roof") == ("ground", "wall", "roof")
+
+
+def test_class_probs_map_to_class_id_channels():
+    probs = np.zeros((3, 2, 2), np.float32)
+    probs[2, 0, 0] = probs[0, 0, 1] = probs[1, 1, :] = 1.0  # classes (ground, wall, roof)
+    out = class_probs_to_output(probs, ("ground", "wall", "roof"))
+    assert out.probs.shape == (NUM_CLASSES, 2, 2)
+    assert out.labels.tolist() == [[3, 1], [2, 2]]
+    assert np.all(out.probs[[0, 4, 5]] == 0)
+
+
+def test_files_segmentation_reads_png_and_npy_by_stem(tmp_path):
+    labels = np.zeros((6, 8), np.uint8)
+    labels[:, 4:] = 3
+    labels[0, 0] = IGNORE
+    save_labels_png(labels, tmp_path / "DJI_0001.png")
+    np.save(tmp_path / "DJI_0002.npy", np.full((6, 8), 2, np.int32))
+    seg = get_segmentation_backend("files", masks=str(tmp_path))
+    out = seg.predict(np.zeros((6, 8, 3), np.uint8), name="photos/DJI_0001.JPG")
+    assert out.labels.tolist() == labels.tolist()
+    assert out.probs[:, 0, 0].sum() == 0 and out.probs[3, 0, 7] == 1.0
+    big = seg.predict(np.zeros((12, 16, 3), np.uint8), name="DJI_0001")  # resized to the photo
+    assert big.labels.shape == (12, 16) and big.labels[11, 15] == 3 and big.labels[11, 0] == 0
+    assert np.all(seg.predict(np.zeros((6, 8, 3), np.uint8), name="DJI_0002").labels == 2)
+    with pytest.raises(ParameterError, match="pass the image name"):
+        seg.predict(IMG)
+    with pytest.raises(InputFileError, match="no mask for image 'DJI_0003'"):
+        seg.predict(IMG, name="DJI_0003.jpg")
+
+
+def test_files_segmentation_rejects_bad_values(tmp_path):
+    np.save(tmp_path / "a.npy", np.full((6, 8), 9, np.int32))
+    np.save(tmp_path / "b.npy", np.zeros((2, 6, 8), np.float32))
+    seg = get_segmentation_backend("files", masks=str(tmp_path))
+    with pytest.raises(ShapeError, match="outside the class ids"):
+        seg.predict(np.zeros((6, 8, 3), np.uint8), name="a")
+    with pytest.raises(ShapeError, match="label map or a"):
+        seg.predict(np.zeros((6, 8, 3), np.uint8), name="b")
+    with pytest.raises(ParameterError, match="masks=DIR"):
+        get_segmentation_backend("files")
+
+
+def test_files_depth_reads_npy_and_png(tmp_path):
+    d = np.full((6, 8), 120.5, np.float32)
+    d[0, :] = np.inf
+    np.save(tmp_path / "one.npy", d)
+    png_dir = tmp_path / "png"
+    save_depth(np.full((6, 8), 250.0, np.float32), png_dir / "two.png")
+    (png_dir / "two.npy").unlink()  # the PNG alone must do
+    out = get_depth_backend("files", depth=str(tmp_path)).predict(np.zeros((6, 8, 3), np.uint8), name="one.jpg")
+    assert out.valid[1:].all() and not out.valid[0].any()
+    assert np.allclose(out.depth[1:], 120.5) and out.K is None
+    assert np.isnan(out.masked()[0]).all()
+    out2 = get_depth_backend("files", depth=str(png_dir)).predict(np.zeros((3, 4, 3), np.uint8))
+    assert out2.depth.shape == (3, 4) and np.allclose(out2.depth, 250.0, atol=0.01)

@@ -1,0 +1,91 @@
+"""The render scene: building bottoms dropped, terrain below them, tiles and blocks that hold every
+triangle inside their boxes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semcityloc.classes import SemanticClass
+from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.errors import RenderError
+from semcityloc.render.scene import build_scene
+from semcityloc.render.synthetic import synthetic_city, tile_model
+from semcityloc.render.terrain import TERRAIN_DROP_M, base_points, build_terrain, building_bottom_mask
+
+
+@pytest.fixture(scope="module")
+def city():
+    return synthetic_city(n=5, seed=7, slope=0.05)
+
+
+def test_building_bottoms_are_dropped_and_ground_only_objects_kept(city):
+    bottoms = building_bottom_mask(city)
+    assert bottoms.sum() == (city.classes == SemanticClass.GROUND).sum() > 0
+    # A ground-only object (a road surface) stays.
+    mb = MeshBuilder()
+    o = city.origin
+    road = np.array([[o[0], o[1], 30.0], [o[0] + 50, o[1], 30.0], [o[0] + 50, o[1] + 5, 30.0], [o[0], o[1] + 5, 30.0]])
+    mb.add_polygon(road, semantic=SemanticClass.GROUND, building_id="road", lod=2)
+    roads = mb.build(origin=o)
+    assert not building_bottom_mask(roads).any()
+    scene = build_scene(city, ground=False)
+    assert scene.num_triangles == city.num_triangles - bottoms.sum()
+    assert not (scene.classes == SemanticClass.GROUND).any()
+    assert scene.num_terrain_triangles == 0
+
+
+def test_terrain_lies_just_below_the_building_bottoms_and_follows_the_slope(city):
+    tv, tt = build_terrain(city)
+    assert len(tt) > 0 and tt.dtype == np.int32
+    base = base_points(city)
+    # Every footprint point is a terrain vertex, TERRAIN_DROP_M lower.
+    from scipy.spatial import cKDTree
+
+    d, idx = cKDTree(tv[:, :2]).query(base[:, :2])
+    assert d.max() < 0.02
+    np.testing.assert_allclose(tv[idx, 2], base[:, 2] - TERRAIN_DROP_M, atol=1e-9)
+    # The margin reaches at least 200 m beyond the buildings, and the slope (0.05 along x) shows.
+    lo, hi = city.bounds_local
+    assert tv[:, 0].min() <= lo[0] - 199 and tv[:, 1].max() >= hi[1] + 199
+    west = tv[tv[:, 0] < lo[0]][:, 2].mean()
+    east = tv[tv[:, 0] > hi[0]][:, 2].mean()
+    assert east - west > 3.0
+    # Upward-facing TIN (no vertical slivers) and no triangle above the highest base point.
+    c = tv[tt]
+    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    assert (np.abs(n[:, 2]) > 0).all()
+    assert c[:, :, 2].max() <= base[:, 2].max()
+
+
+def test_scene_tiles_and_blocks_are_a_consistent_csr_index(city):
+    big = tile_model(city, 3, 2)
+    scene = build_scene(big, tile_size_m=20.0)
+    assert scene.tri_xyz.dtype == np.float32 and scene.tri_xyz.shape == (scene.num_triangles, 9)
+    ts, bs = scene.tile_start, scene.block_start
+    assert ts[0] == 0 and ts[-1] == scene.num_triangles and np.all(np.diff(ts) > 0)
+    assert bs[0] == 0 and bs[-1] == scene.num_tiles and np.all(np.diff(bs) > 0)
+    corners = scene.corners
+    tile_of = np.repeat(np.arange(scene.num_tiles), np.diff(ts))
+    box = scene.tile_bbox[tile_of]
+    assert (corners.min(1) >= box[:, :3]).all() and (corners.max(1) <= box[:, 3:]).all()
+    block_of = np.repeat(np.arange(scene.num_blocks), np.diff(bs))
+    bb = scene.block_bbox[block_of]
+    assert (scene.tile_bbox[:, :3] >= bb[:, :3]).all() and (scene.tile_bbox[:, 3:] <= bb[:, 3:]).all()
+    # Ordinary tiles are at most a tile wide (plus the triangles reaching out of them).
+    small = np.diff(ts) > 1
+    assert (scene.tile_bbox[small, 3] - scene.tile_bbox[small, 0]).max() <= 3 * 20.0
+    # source_triangle maps back to the model; terrain is -1 and GROUND.
+    src = scene.source_triangle
+    np.testing.assert_array_equal(scene.classes[src >= 0], big.classes[src[src >= 0]])
+    assert (scene.classes[src < 0] == SemanticClass.GROUND).all()
+    np.testing.assert_allclose(
+        corners[src >= 0], big.vertices[big.triangles[src[src >= 0]]].astype(np.float32), atol=0
+    )
+
+
+def test_bad_tile_size_is_a_render_error(city):
+    with pytest.raises(RenderError, match="tile_size_m"):
+        build_scene(city, tile_size_m=0.0)
+    with pytest.raises(TypeError, match="CityModel"):
+        build_scene("city.gml")
