@@ -199,3 +199,32 @@ def test_real_dji_prior_matches_the_ground_truth_rotation_and_height(shared):
     assert rot < 1.5 and rot < float(rotation_error_deg(lodloc_prior, gt))
     assert abs(prior.position_crs[2] - gt.center[2]) < 1.0
     assert prior.grid_convergence_deg == pytest.approx(0.4785, abs=1e-3)  # west of CM 114E: true north east
+
+
+def test_dji_prior_cli_writes_a_pose_json_with_the_height_treatment(tmp_path, capsys):
+    import argparse
+    import json
+
+    from semcityloc.cli import dataset as cli
+    from semcityloc.geometry.io import read_pose
+
+    parser = argparse.ArgumentParser()
+    cli.register(parser.add_subparsers(dest="command"))
+    image = dji_jpeg(tmp_path / "a.jpg", xmp_packet(**dict(RTK, GimbalPitchDegree="-90")))
+    argv = ["dataset", "dji-prior", str(image), "--crs", "EPSG:25832", "--offset", "690000,5330000,0"]
+    argv += ["--target-height", "orthometric", "--out", str(tmp_path / "p.json")]
+    args = parser.parse_args(argv)
+    assert args.func(args) == 0
+    data = json.loads((tmp_path / "p.json").read_text())
+    assert data["extra"]["offset"] == [690000.0, 5330000.0, 0.0]
+    assert data["extra"]["source_height"] == "ellipsoidal"
+    assert data["extra"]["geoid_applied"] or "geoid not applied" in capsys.readouterr().err
+    pose = read_pose(tmp_path / "p.json")
+    np.testing.assert_allclose(
+        pose.center[:2], np.array(data["extra"]["position_crs"][:2]) - [690000, 5330000]
+    )
+    with pytest.raises(InputFileError, match="--offset must be 3"):
+        args = parser.parse_args(
+            ["dataset", "dji-prior", str(image), "--crs", "EPSG:25832", "--offset", "1,2"]
+        )
+        args.func(args)

@@ -179,3 +179,31 @@ def test_mask_files_are_validated(tmp_path):
     np.save(tmp_path / "float.npy", np.zeros((2, 2)))
     with pytest.raises(ShapeError, match="class ids"):
         read_mask(tmp_path / "float.npy")
+
+
+def test_dataset_cli_actions(dataset_dir, tmp_path, capsys):
+    import argparse
+
+    from semcityloc.cli import dataset as cli
+
+    parser = argparse.ArgumentParser()
+    cli.register(parser.add_subparsers(dest="command"))
+
+    def run(*argv):
+        args = parser.parse_args([str(a) for a in argv])
+        return args.func(args), capsys.readouterr().out
+
+    code, out = run("dataset", "info", dataset_dir, "--json")
+    info = json.loads(out)
+    assert code == 0 and info["queries"] == 3 and info["frame"] == "z-up"
+    assert info["images"][0]["prior_err_m"] > 5.0 and info["images"][2]["gt"] is False
+    code, out = run(
+        "dataset", "colmap", dataset_dir, "--out", tmp_path / "cm", "--poses", "prior", "--binary"
+    )
+    assert code == 0 and len(read_model(tmp_path / "cm").images) == 2
+    code, out = run("dataset", "overlay", dataset_dir, "--out", tmp_path / "ov", "--name", "DJI_0001_W")
+    assert code == 0 and (tmp_path / "ov" / "DJI_0001_W_gt_vs_prior.png").is_file()
+    code, out = run("dataset", "benchmark", dataset_dir, "--out", tmp_path / "b", "--preset", "fast")
+    assert code == 0 and "oracle perception" in out and (tmp_path / "b" / "summary.json").is_file()
+    with pytest.raises(InputFileError, match="--ecef-origin needs --frame ecef"):
+        run("dataset", "benchmark", dataset_dir, "--out", tmp_path / "c", "--ecef-origin", "1,2,3")

@@ -134,6 +134,7 @@ class DjiPrior:
     vertical_uncertainty_m: float
     grid_convergence_deg: float  # grid azimuth of true north (added to the DJI yaw)
     gimbal_ypr_deg: tuple[float, float, float]
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # subtracted from the CRS coordinates
     notes: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
@@ -148,6 +149,7 @@ class DjiPrior:
             "vertical_uncertainty_m": self.vertical_uncertainty_m,
             "grid_convergence_deg": self.grid_convergence_deg,
             "gimbal_yaw_pitch_roll_deg": list(self.gimbal_ypr_deg),
+            "offset": self.offset.tolist(),
             "notes": list(self.notes),
         }
 
@@ -497,7 +499,10 @@ def dji_prior(
         raise CRSError(f"{crs.name}: the position (lat {lat}, lon {lon}) is outside its area of use")
     gamma = grid_convergence_deg(crs, lon, lat)
     position = np.array([x, y, z], dtype=np.float64)
-    world = position - (np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64).reshape(3))
+    shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
+    if shift.shape != (3,) or not np.all(np.isfinite(shift)):
+        raise InputFileError(f"offset must be 3 finite numbers, got {shift.tolist()}")
+    world = position - shift
     roll = meta.gimbal_roll_deg if meta.gimbal_roll_deg is not None else 0.0
     if meta.gimbal_roll_deg is None:
         notes.append("no GimbalRollDegree: roll taken as 0")
@@ -517,5 +522,6 @@ def dji_prior(
         vertical_uncertainty_m=float(uncertainty),
         grid_convergence_deg=gamma,
         gimbal_ypr_deg=(float(meta.gimbal_yaw_deg), float(meta.gimbal_pitch_deg), float(roll)),
+        offset=shift,
         notes=notes,
     )

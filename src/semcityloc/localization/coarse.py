@@ -24,7 +24,7 @@ from semcityloc.render.scene import RenderScene
 # Wide render focal length relative to the target's: > 1 samples the wide view finer than the target so
 # nearest-neighbour lookups agree with direct renders more often. Measured on Berlin at 64x48, 13 yaws over
 # 18 deg, 20 nadir/oblique centres: agreement 95.3% at 1.0, 96.9% at 1.5, 97.3% at 2.0 for ~14% more time.
-WIDE_OVERSAMPLE = 2.0  # default of CoarseConfig.wide_oversample
+WIDE_OVERSAMPLE = 1.0  # default of CoarseConfig.wide_oversample
 
 
 @dataclass

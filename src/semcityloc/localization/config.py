@@ -16,14 +16,14 @@ class CoarseConfig:
     range_xy_m: float = 32.0
     range_z_m: float = 16.0
     range_yaw_deg: float = 18.0
-    n_xy: int = 17
+    n_xy: int = 13
     n_z: int = 7
     n_yaw: int = 13
     width: int = 64  # coarse render / mask resolution (the query mask is downsampled to it)
     height: int = 48
     top_k: int = 8  # best cells kept to seed the refinement (the best one is the coarse pose)
     # Focal of the one wide render per camera centre relative to the coarse camera's (see coarse.py).
-    wide_oversample: float = 2.0
+    wide_oversample: float = 1.0
 
     @property
     def hypotheses(self) -> int:
@@ -46,6 +46,9 @@ class RefineConfig:
     lambda_semantic: float = 1.0  # lambda_1 of the paper
     lambda_depth: float = 1.0  # lambda_2: score = lambda_1 * C_s - lambda_2 * C_d (C_d is a cost)
     scale: int = 2  # render at scale x the coarse resolution (paper: twice)
+    # The first iterations, while perturbations are still large, score at the coarse resolution (4x fewer
+    # pixels); the rest at ``scale`` x. 0 = every iteration at the fine resolution (the paper's setting).
+    low_res_iterations: int = 6
 
 
 @dataclass(frozen=True)
@@ -85,10 +88,10 @@ class LocalizerConfig:
 
 
 PRESETS: dict[str, LocalizerConfig] = {
-    # Covers the benchmark's prior noise (translation up to 15 m, yaw up to 8 deg): 17*17*7*13 = 26,299.
+    # Covers the benchmark's prior noise (translation up to 15 m, yaw up to 8 deg): 13*13*7*13 = 15,379.
     "default": LocalizerConfig(),
     # Wider translation search for priors with extra per-axis perturbation.
-    "wide": LocalizerConfig(coarse=CoarseConfig(range_xy_m=64.0, n_xy=25, range_z_m=20.0, n_z=9)),
+    "wide": LocalizerConfig(coarse=CoarseConfig(range_xy_m=64.0, n_xy=21, range_z_m=24.0, n_z=9)),
     # Small and quick, for tests and the demo's smoke runs.
     "fast": LocalizerConfig(
         coarse=CoarseConfig(range_xy_m=24.0, n_xy=9, n_z=5, n_yaw=9, width=48, height=36),

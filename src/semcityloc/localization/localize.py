@@ -23,7 +23,7 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.localization.coarse import coarse_search
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.query import Query
-from semcityloc.localization.refine import evaluate, particle_filter
+from semcityloc.localization.refine import ScoringLevel, evaluate, particle_filter
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
@@ -97,7 +97,7 @@ class Localizer:
         c = cfg.coarse
         coarse_cam = camera.scaled(c.width, max(1, round(c.width * camera.height / camera.width)))
         fine_cam = coarse_cam.scale(cfg.refine.scale)
-        q_coarse, _ = query.at(coarse_cam.width, coarse_cam.height)
+        q_coarse, d_coarse = query.at(coarse_cam.width, coarse_cam.height)
         q_fine, d_fine = query.at(fine_cam.width, fine_cam.height)
         t_prep = time.perf_counter()
 
@@ -124,9 +124,8 @@ class Localizer:
             result.timings["refine_s"] = 0.0
         else:
             rng = np.random.default_rng(cfg.seed)
-            refined = particle_filter(
-                self.scene, fine_cam, seeds, q_fine, d_fine, self.class_on, cfg.refine, rng
-            )
+            levels = [ScoringLevel(coarse_cam, q_coarse, d_coarse), ScoringLevel(fine_cam, q_fine, d_fine)]
+            refined = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng)
             final = refined.xyz_rpy
             result.semantic, result.depth_cost, result.score = (
                 refined.semantic,

@@ -97,18 +97,26 @@ def _systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nd
     return np.searchsorted(cumulative, positions)
 
 
+@dataclass
+class ScoringLevel:
+    """A camera and the query arrays at its resolution (flat labels, flat depth or None)."""
+
+    camera: Camera
+    labels: np.ndarray
+    depth: np.ndarray | None
+
+
 def particle_filter(
     scene: RenderScene,
-    camera: Camera,
+    levels: list[ScoringLevel],
     seeds: np.ndarray,
-    query_labels: np.ndarray,
-    query_depth: np.ndarray | None,
     class_on: np.ndarray,
     config: RefineConfig,
     rng: np.random.Generator,
 ) -> RefineResult:
-    """Refine from ``seeds`` ((k, 6) states, best first). ``camera`` and query arrays at the fine
-    resolution; ``query_depth`` None runs on semantics alone."""
+    """Refine from ``seeds`` ((k, 6) states, best first). ``levels[-1]`` is the fine resolution; with
+    ``config.low_res_iterations`` > 0 the first iterations score at ``levels[0]``. The best particle is
+    chosen among fine-resolution scores only (scores of different resolutions are not comparable)."""
     sigma = np.array(
         [
             config.sigma_xy_m,
@@ -125,16 +133,19 @@ def particle_filter(
     states = seeds[owner] + rng.normal(size=(n, 6)) * sigma
     states[0] = seeds[0]  # the coarse pose itself is always evaluated
 
-    lam_s, lam_d = config.lambda_semantic, config.lambda_depth if query_depth is not None else 0.0
-    best = (-np.inf, None, 0.0, 0.0)
+    lam_s = config.lambda_semantic
+    lam_d = config.lambda_depth if levels[-1].depth is not None else 0.0
+    best = (-np.inf, seeds[0].copy(), 0.0, 0.0)
     evaluations = 0
     weights = np.full(n, 1.0 / n)
     for it in range(config.iterations):
-        sem, dep = evaluate(scene, camera, states, query_labels, query_depth, class_on)
+        fine = it >= config.low_res_iterations or len(levels) == 1
+        level = levels[-1] if fine else levels[0]
+        sem, dep = evaluate(scene, level.camera, states, level.labels, level.depth, class_on)
         evaluations += n
         score = lam_s * sem - lam_d * dep
         i = int(np.argmax(score))
-        if score[i] > best[0]:
+        if fine and score[i] > best[0]:
             best = (float(score[i]), states[i].copy(), float(sem[i]), float(dep[i]))
         weights = softmax_weights(score, config.temperature)
         if it == config.iterations - 1:
@@ -151,7 +162,8 @@ def particle_filter(
         else:
             keep = _systematic_resample(weights, rng)
             states = states[keep] + rng.normal(size=(n, 6)) * floor
-        states[0] = best[1]  # elitism: the best so far stays in the population
+        if best[0] > -np.inf:
+            states[0] = best[1]  # elitism: the best so far stays in the population
 
     mean = np.average(states, axis=0, weights=weights)
     spread_m = float(np.sqrt(np.average(np.sum((states[:, :3] - mean[:3]) ** 2, axis=1), weights=weights)))

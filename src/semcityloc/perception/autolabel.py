@@ -34,6 +34,7 @@ from semcityloc.perception.base import IGNORE
 from semcityloc.render import Renderer, RenderOutput
 
 DEFAULT_EXTENT_MARGIN_M = 25.0
+IGNORE_REASONS = ("outside_model", "too_far", "grazing", "boundary")
 
 
 @dataclass
@@ -118,11 +119,11 @@ def auto_label_render(
     rng = np.where(hit, depth * ray_len, np.inf)
 
     out = cls.copy()
-    reasons: dict[str, int] = {}
+    reasons = dict.fromkeys(IGNORE_REASONS, 0)
 
     def ignore(mask: np.ndarray, reason: str) -> None:
         new = mask & (out != IGNORE)
-        reasons[reason] = int(new.sum())
+        reasons[reason] += int(new.sum())
         out[new] = IGNORE
 
     # Nothing hit: sky above the horizon is background; below it the model has no surface there.

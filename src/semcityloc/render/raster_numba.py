@@ -35,6 +35,9 @@ from numba import njit, prange
 
 # Geometry closer to the camera than this (metres, along the optical axis) is clipped away.
 NEAR_M = 0.1
+# A pixel centre closer to an edge than EDGE_EPS x (coordinate magnitudes) is decided by the exact edge
+# test; farther ones cannot be misjudged by rounding (errors are ~1e-16 x magnitudes).
+EDGE_EPS = 1e-9
 
 
 # ---------------------------------------------------------------------------------------------- culling
@@ -111,11 +114,12 @@ def _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, tid, width, height, inv
     ax_, ay_, adx, ady, aown = _edge(u0, v0, u1, v1, s)
     bx_, by_, bdx, bdy, bown = _edge(u1, v1, u2, v2, s)
     cx_, cy_, cdx, cdy, cown = _edge(u2, v2, u0, v0, s)
-    # Per row, each edge bounds the run of inside centres from one side: px <= o + r/dy (dy > 0) or
-    # px >= o + r/dy (dy < 0). Each edge value is a monotone function of px even in floating point
-    # (a chain of correctly rounded monotone operations), so the inside centres of a row form ONE run.
-    # The divisions only estimate its ends; the exact edge tests find them (a few tests per row), and
-    # every centre between two inside centres is inside without testing it.
+    # Per row, each edge bounds the inside centres from one side: px <= o + r/dy (dy > 0) or
+    # px >= o + r/dy (dy < 0). Each edge value is a monotone function of px even in floating point (a
+    # chain of correctly rounded monotone operations), so the inside centres of a row form ONE run.
+    # Fast path: when the run's end centres are farther than `eps` from the computed bounds, the exact
+    # edge tests could not decide otherwise, so the run is filled untested. Otherwise (a centre within
+    # eps of an edge: ties, exactly aligned geometry) the exact tests find the run's ends.
     ia = 1.0 / ady if ady != 0.0 else 0.0
     ib = 1.0 / bdy if bdy != 0.0 else 0.0
     ic = 1.0 / cdy if cdy != 0.0 else 0.0
@@ -126,57 +130,77 @@ def _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, tid, width, height, inv
         ra = adx * (py - ay_)
         rb = bdx * (py - by_)
         rc = cdx * (py - cy_)
-        lo = fj0
-        hi = fj1
+        xl = -np.inf
+        xr = np.inf
         if ady > 0.0:
-            hi = min(hi, math.floor(ax_ + ra * ia - 0.5) + 1.0)
+            xr = min(xr, ax_ + ra * ia)
         elif ady < 0.0:
-            lo = max(lo, math.ceil(ax_ + ra * ia - 0.5) - 1.0)
+            xl = max(xl, ax_ + ra * ia)
         elif ra < 0.0 or (ra == 0.0 and not aown):
             continue
         if bdy > 0.0:
-            hi = min(hi, math.floor(bx_ + rb * ib - 0.5) + 1.0)
+            xr = min(xr, bx_ + rb * ib)
         elif bdy < 0.0:
-            lo = max(lo, math.ceil(bx_ + rb * ib - 0.5) - 1.0)
+            xl = max(xl, bx_ + rb * ib)
         elif rb < 0.0 or (rb == 0.0 and not bown):
             continue
         if cdy > 0.0:
-            hi = min(hi, math.floor(cx_ + rc * ic - 0.5) + 1.0)
+            xr = min(xr, cx_ + rc * ic)
         elif cdy < 0.0:
-            lo = max(lo, math.ceil(cx_ + rc * ic - 0.5) - 1.0)
+            xl = max(xl, cx_ + rc * ic)
         elif rc < 0.0 or (rc == 0.0 and not cown):
             continue
-        if lo > hi:
-            continue
-        # First inside centre: from lo rightwards (or leftwards if lo itself is inside: bad estimate).
-        first = int(lo)
-        last = int(hi)
-        if _inside(first, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
-            while first > j0 and _inside(
-                first - 1, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown
-            ):
-                first -= 1
+        exact = False
+        first = fj0
+        if xl - 0.5 > fj0 - 1.0:
+            fl = xl - 0.5
+            first = math.ceil(fl)
+            d = first - fl  # in [0, 1): distance of the first centre past the bound
+            eps = EDGE_EPS * (abs(xl) + abs(ax_) + abs(bx_) + abs(cx_) + width)
+            exact = d < eps or d > 1.0 - eps
+            first = max(first, fj0)
+        last = fj1
+        if xr - 0.5 < fj1 + 1.0:
+            fr = xr - 0.5
+            last = math.floor(fr)
+            d = fr - last
+            eps = EDGE_EPS * (abs(xr) + abs(ax_) + abs(bx_) + abs(cx_) + width)
+            exact = exact or d < eps or d > 1.0 - eps
+            last = min(last, fj1)
+        if exact:
+            # Search the run's ends with the exact tests around the estimates (a few tests).
+            lo = int(max(first - 1.0, fj0))
+            hi = int(min(last + 1.0, fj1))
+            if lo > hi:
+                continue
+            jf = lo
+            if _inside(jf, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                while jf > j0 and _inside(jf - 1, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                    jf -= 1
+            else:
+                jf += 1
+                while jf <= hi and not _inside(jf, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                    jf += 1
+                if jf > hi:
+                    continue
+            jl = hi
+            if _inside(jl, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                while jl < j1 and _inside(jl + 1, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                    jl += 1
+            else:
+                jl -= 1
+                while not _inside(jl, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                    jl -= 1
         else:
-            first += 1
-            while first <= last and not _inside(
-                first, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown
-            ):
-                first += 1
             if first > last:
                 continue
-        # Last inside centre: from hi leftwards (it stops at `first` at the latest).
-        if _inside(last, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
-            while last < j1 and _inside(last + 1, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
-                last += 1
-        else:
-            last -= 1
-            while not _inside(last, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
-                last -= 1
+            jf = int(first)
+            jl = int(last)
         zrow = pb * py + pc
         row = i * width
         # Branch-free depth test: the order triangles arrive in says nothing about depth, so a branch
         # here mispredicts about half the time.
-        for j in range(first, last + 1):
+        for j in range(jf, jl + 1):
             iz = pa * (j + 0.5) + zrow
             k = row + j
             old = inv_z[k]
