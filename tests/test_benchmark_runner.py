@@ -1,19 +1,14 @@
 """Benchmark runner on the generated city: determinism, resume after a kill, workers, files, CLI.
 
-Runs use the real ``semcityloc.benchmark.queries`` simulator when it is installed; until then a small
-fake of the same interface (``FakeSimulator``: perfect labels rendered from the reality model) stands in
-for it, installed as the ``semcityloc.benchmark.queries`` module for the test (``sim`` fixture).
+Runs use the real query simulator (``semcityloc.benchmark.queries``) and the "fast" localizer preset.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-import importlib.util
 import io
 import json
-import sys
-import types
 from pathlib import Path
 
 import numpy as np
@@ -37,23 +32,13 @@ from semcityloc.benchmark.runner import (
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import InputFileError
 
-REAL_SIM = importlib.util.find_spec("semcityloc.benchmark.queries") is not None
 QUERIES = 4
-
-
-# ------------------------------------------------------------------------------- fake of the interface
-@dataclasses.dataclass(frozen=True)
-class FakeQueryConfig:
-    queries: int = 100
-    seed: int = 0
-    width: int = 256
-    height: int = 192
-    seg_quality: str = "perfect"
-    prior_extra_m: tuple[float, float] | None = None
 
 
 @dataclasses.dataclass
 class FakeQuery:
+    """A ``BenchmarkQuery`` built by hand (``make_row`` only reads these attributes)."""
+
     query_id: str
     index: int
     camera: object
@@ -65,57 +50,12 @@ class FakeQuery:
     meta: dict
 
 
-class FakeSimulator:
-    """Nadir / 35-degree oblique views 60-90 m above the ground of the reality model, perfect labels."""
-
-    def __init__(self, map_model, config, reality_model=None):
-        from semcityloc.geometry.camera import Camera
-        from semcityloc.render import Renderer
-
-        self.config = config
-        self.renderer = Renderer(reality_model if reality_model is not None else map_model, engine="numba")
-        f = config.width * 12.29 / 17.3
-        self.camera = Camera(f, f, config.width / 2, config.height / 2, config.width, config.height)
-        lo, hi = map_model.bounds_local
-        self.lo, self.hi, self.ground = lo[:2] * 0.6, hi[:2] * 0.6, float(lo[2])
-
-    def query(self, index: int) -> FakeQuery:
-        from semcityloc.geometry.pose import Pose
-
-        rng = np.random.default_rng([self.config.seed, index])
-        for _ in range(100):
-            xy = rng.uniform(self.lo, self.hi)
-            height, oblique = rng.uniform(60, 90), bool(index % 2)
-            pitch, yaw = (35.0 if oblique else 0.0), rng.uniform(-180, 180)
-            true = Pose.from_xyz_rpy([*xy, self.ground + height], 0.0, pitch, yaw)
-            out = self.renderer.render(self.camera, true, depth=True)
-            labels = out.labels[0]
-            if np.isin(labels, [SemanticClass.WALL, SemanticClass.ROOF]).mean() >= 0.15:
-                break
-        direction = rng.uniform(0, 2 * np.pi)
-        shift = 6.0 * np.array([np.cos(direction), np.sin(direction), 0.3])
-        prior = Pose.from_xyz_rpy(true.center + shift, 0.3, pitch + 0.5, yaw + 3.0)
-        depth = np.where(np.isfinite(out.depth[0]), out.depth[0], np.nan).astype(np.float32)
-        meta = {"view": "oblique" if oblique else "nadir", "height_m": height}
-        return FakeQuery(f"q{index:04d}", index, self.camera, true, prior, labels, depth, 100.0, meta)
-
-
 @pytest.fixture(scope="module")
 def sim():
-    """(QueryConfig class, simulator factory): the real ones when installed, else the fakes installed as
-    ``semcityloc.benchmark.queries`` for this module's tests."""
-    if REAL_SIM:
-        from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+    """(QueryConfig class, simulator factory) of the real simulator."""
+    from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
 
-        yield QueryConfig, QuerySimulator
-        return
-    fake = types.ModuleType("semcityloc.benchmark.queries")
-    fake.QueryConfig, fake.QuerySimulator = FakeQueryConfig, FakeSimulator
-    sys.modules["semcityloc.benchmark.queries"] = fake
-    try:
-        yield FakeQueryConfig, FakeSimulator
-    finally:
-        del sys.modules["semcityloc.benchmark.queries"]
+    return QueryConfig, QuerySimulator
 
 
 def make_spec(sim, **query) -> BenchmarkSpec:
@@ -178,21 +118,64 @@ def test_a_run_writes_one_row_per_query_and_a_summary(baseline):
 
 def test_rows_hold_consistent_poses_errors_and_world_coordinates(baseline):
     origin = run_origin(baseline)
-    localized = 0
     for r in csv_rows(baseline.out_dir / RESULTS_FILE):
         assert float(r["true_world_x"]) == pytest.approx(float(r["true_x"]) + origin[0])
         assert float(r["true_world_y"]) == pytest.approx(float(r["true_y"]) + origin[1])
-        assert float(r["prior_err_m"]) > 0.5
+        assert float(r["prior_err_m"]) > 0.5 and float(r["t_total_s"]) > 0
+        assert r["status"] in ("localized", "not_localized")
         if r["status"] == "localized":
-            localized += 1
             est = np.array([float(r[f"est_{k}"]) for k in "xyz"])
             true = np.array([float(r[f"true_{k}"]) for k in "xyz"])
             assert float(r["err_xyz_m"]) == pytest.approx(np.linalg.norm(est - true))
             assert float(r["est_world_x"]) == pytest.approx(est[0] + origin[0])
-            assert float(r["err_rot_deg"]) >= 0 and float(r["t_total_s"]) > 0
         else:
             assert r["err_xyz_m"] == "inf" and r["est_x"] == "" and r["reason"]
-    assert localized >= QUERIES // 2  # the city is easy from a 6-10 m prior: most queries localize
+
+
+def test_make_row_errors_and_world_coordinates_of_a_known_estimate():
+    from semcityloc.geometry.camera import Camera
+    from semcityloc.geometry.pose import Pose
+    from semcityloc.localization.result import LocalizationResult
+
+    true = Pose.from_xyz_rpy([10.0, 20.0, 600.0], 0.0, 30.0, 45.0)
+    est = Pose.from_xyz_rpy([13.0, 24.0, 600.0], 0.0, 30.0, 47.0)
+    prior = Pose.from_xyz_rpy([16.0, 28.0, 600.0], 0.0, 30.0, 50.0)
+    q = FakeQuery(
+        "q0007",
+        7,
+        Camera(100, 100, 32, 24, 64, 48),
+        true,
+        prior,
+        np.zeros((48, 64), np.uint8),
+        None,
+        87.5,
+        {"view": "oblique", "height_m": 75.0, "accepted": True},
+    )
+    origin = np.array([690000.0, 5336000.0, 0.0])
+    result = LocalizationResult(
+        status="localized",
+        pose=est,
+        pose_local=est,
+        score=0.7,
+        semantic=0.7,
+        timings={"total_s": 1.5, "coarse_s": 1.0, "refine_s": 0.5},
+    )
+    row = runner.make_row(7, q, result, origin)
+    assert tuple(row) == COLUMNS and row["query_id"] == "q0007" and row["view"] == "oblique"
+    assert float(row["err_xyz_m"]) == pytest.approx(5.0) and float(row["err_yaw_deg"]) == pytest.approx(2.0)
+    assert float(row["err_rot_deg"]) == pytest.approx(2.0, abs=1e-6)
+    assert float(row["prior_err_m"]) == pytest.approx(10.0) and float(
+        row["prior_yaw_err_deg"]
+    ) == pytest.approx(5.0)
+    assert float(row["est_world_x"]) == 690013.0 and float(row["est_world_y"]) == 5336024.0
+    assert float(row["est_yaw"]) == pytest.approx(47.0) and row["t_total_s"] == "1.5"
+    assert json.loads(row["meta_json"])["height_m"] == 75.0
+    failed = runner.make_row(
+        7, q, LocalizationResult(status="not_localized", reason="best score below threshold"), origin
+    )
+    assert (
+        failed["err_xyz_m"] == "inf" and failed["est_world_x"] == "" and failed["reason"].startswith("best")
+    )
 
 
 def run_origin(outcome) -> np.ndarray:
@@ -238,6 +221,34 @@ def test_a_killed_run_with_a_torn_line_resumes_to_the_same_file(sim, baseline, t
     rows = csv_rows(out / RESULTS_FILE)
     assert sorted(r["query_id"] for r in rows) == [f"q{i:04d}" for i in range(QUERIES)]
     assert numbers(rows) == numbers(baseline.rows)
+
+
+class RejectingSimulator:
+    """Wraps a simulator; query 1 comes back not accepted (as the real one does after MAX_ATTEMPTS)."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def query(self, index):
+        q = self.inner.query(index)
+        if index == 1:
+            q.meta = {**q.meta, "accepted": False}
+        return q
+
+
+def test_unaccepted_views_are_skipped_and_left_out_of_the_metrics(sim, baseline, tmp_path):
+    _, factory = sim
+    out = tmp_path / "skipping"
+    done = run_benchmark(
+        make_spec(sim),
+        out,
+        progress=False,
+        simulator_factory=lambda m, c, r: RejectingSimulator(factory(m, c, r)),
+    )
+    rows = {r["query_id"]: r for r in csv_rows(out / RESULTS_FILE)}
+    assert rows["q0001"]["status"] == "skipped" and rows["q0001"]["t_total_s"] == ""
+    assert done.summary["skipped"] == 1 and done.summary["queries"] == QUERIES - 1
+    assert numbers([rows["q0002"]]) == numbers([r for r in baseline.rows if r["query_id"] == "q0002"])
 
 
 def test_workers_give_the_same_numbers(sim, baseline, tmp_path):

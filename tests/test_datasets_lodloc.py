@@ -186,6 +186,8 @@ def test_not_a_dataset_and_missing_model_are_clear_errors(tmp_path):
         ds.load_model()
     with pytest.raises(InputFileError, match="frame must be"):
         read_lodloc(folder, frame="ned")
+    with pytest.raises(InputFileError, match="only used with frame='ecef'"):
+        read_lodloc(folder, ecef_origin_llh=(46.5, 6.5, 400.0))
 
 
 def test_shifted_ecef_frame_is_detected_and_rotated_back_into_enu(tmp_path):

@@ -81,7 +81,7 @@ def private_cache(tmp_path, monkeypatch):
 
 
 def spec(dataset_dir, **kw) -> RealBenchmarkSpec:
-    return RealBenchmarkSpec(dataset=str(dataset_dir), preset="fast", **kw)
+    return RealBenchmarkSpec(dataset=str(dataset_dir), preset="default", **kw)
 
 
 def test_oracle_run_writes_the_benchmark_files_and_says_oracle(dataset_dir, tmp_path):
@@ -203,7 +203,38 @@ def test_dataset_cli_actions(dataset_dir, tmp_path, capsys):
     assert code == 0 and len(read_model(tmp_path / "cm").images) == 2
     code, out = run("dataset", "overlay", dataset_dir, "--out", tmp_path / "ov", "--name", "DJI_0001_W")
     assert code == 0 and (tmp_path / "ov" / "DJI_0001_W_gt_vs_prior.png").is_file()
-    code, out = run("dataset", "benchmark", dataset_dir, "--out", tmp_path / "b", "--preset", "fast")
+    code, out = run("dataset", "benchmark", dataset_dir, "--out", tmp_path / "b", "--preset", "default")
     assert code == 0 and "oracle perception" in out and (tmp_path / "b" / "summary.json").is_file()
     with pytest.raises(InputFileError, match="--ecef-origin needs --frame ecef"):
         run("dataset", "benchmark", dataset_dir, "--out", tmp_path / "c", "--ecef-origin", "1,2,3")
+
+
+def test_dataset_options_fit_the_benchmark_command(dataset_dir, tmp_path, capsys):
+    """The flags ``semcityloc benchmark --dataset`` needs, added to that command's own parser, do not
+    clash with its options and run the real-data benchmark."""
+    import argparse
+
+    from semcityloc.cli import benchmark as bench_cli
+    from semcityloc.cli import dataset as cli
+
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers(dest="command")
+    bench_cli.register(sub)
+    bench = sub.choices["benchmark"]
+    cli.add_dataset_arguments(bench, positional=False)
+    cli.add_perception_arguments(bench)
+    argv = [
+        "benchmark",
+        "--dataset",
+        str(dataset_dir),
+        "--format",
+        "lodloc",
+        "--city",
+        str(dataset_dir / "city.obj"),
+    ]
+    args = parser.parse_args(
+        argv + ["--preset", "default", "--out", str(tmp_path / "b"), "--perception", "oracle"]
+    )
+    assert cli.run_dataset_benchmark(args) == 0
+    assert "oracle perception" in capsys.readouterr().out
+    assert json.loads((tmp_path / "b" / "run.json").read_text())["city"] == str(dataset_dir / "city.obj")

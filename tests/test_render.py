@@ -198,8 +198,9 @@ def test_camera_inside_a_building_renders(city):
     cam = Camera.from_fov(32, 24, 90.0)
     inside = Pose.from_xyz_rpy(np.array([[0.0, 0.0, 5.0]] * 3), 0.0, np.array([0.0, 90.0, 180.0]), 0.0)
     out = r.render(cam, inside, depth=True)
-    # Looking down: the terrain under the (dropped) bottom; sideways: walls all around; up: the roof.
-    assert (out.labels[0] == SemanticClass.GROUND).all()
+    # Looking down: nothing (the bottom is dropped and so is the terrain under the footprint, both hidden
+    # from outside); sideways: walls all around; up: the roof.
+    assert (out.labels[0] == 0).all()
     assert (out.labels[1] == SemanticClass.WALL).sum() > 0.5 * 32 * 24
     assert (out.labels[1] > 0).all()
     assert (out.labels[2] == SemanticClass.ROOF).all()

@@ -58,6 +58,37 @@ def test_terrain_lies_just_below_the_building_bottoms_and_follows_the_slope(city
     assert c[:, :, 2].max() <= base[:, 2].max()
 
 
+def test_terrain_under_footprints_is_dropped_without_changing_any_view(city):
+    full_v, full_t = build_terrain(city, drop_hidden=False)
+    kept_v, kept_t = build_terrain(city)
+    assert 0 < len(kept_t) < len(full_t)
+    # Every dropped triangle's centroid is under a footprint (a bottom triangle).
+    from semcityloc.render.terrain import _under_footprints
+
+    bottoms = city.vertices[city.triangles[building_bottom_mask(city)]][:, :, :2].astype(np.float64)
+    kept = {tuple(c) for c in np.round(kept_v[kept_t].mean(1), 6)}
+    full_c = np.round(full_v[full_t].mean(1), 6)
+    dropped = np.array([c for c in full_c if tuple(c) not in kept])
+    assert len(dropped) == len(full_t) - len(kept_t)
+    assert _under_footprints(dropped[:, None, :2].repeat(3, axis=1), bottoms).all()
+    # The synthetic houses are closed: from any camera outside them the masks are identical.
+    from semcityloc.geometry.camera import Camera
+    from semcityloc.geometry.pose import Pose
+    from semcityloc.render.raster_numba import NumbaEngine
+
+    rng = np.random.default_rng(0)
+    lo, hi = city.bounds_local
+    n = 30
+    xyz = np.column_stack([rng.uniform(lo[0], hi[0], n), rng.uniform(lo[1], hi[1], n), np.full(n, hi[2] + 60)])
+    poses = Pose.from_xyz_rpy(xyz, np.zeros(n), rng.uniform(0, 60, n), rng.uniform(-180, 180, n))
+    cam = Camera.from_fov(96, 72, 60.0)
+    R, t = np.ascontiguousarray(poses.R), np.ascontiguousarray(poses.t)
+    a = NumbaEngine(build_scene(city, drop_hidden_terrain=False)).render(cam, R, t, depth=True)
+    b = NumbaEngine(build_scene(city)).render(cam, R, t, depth=True)
+    np.testing.assert_array_equal(a.labels, b.labels)
+    np.testing.assert_array_equal(a.depth, b.depth)
+
+
 def test_scene_tiles_and_blocks_are_a_consistent_csr_index(city):
     big = tile_model(city, 3, 2)
     scene = build_scene(big, tile_size_m=20.0)

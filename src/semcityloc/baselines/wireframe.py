@@ -83,7 +83,7 @@ class WireframeConfig:
     min_points: int = 30
     min_edge_fraction: float = 1e-4  # share of pixels above 0.2 below which the map "has no edges"
     min_score: float = 0.15
-    min_contrast: float = 2.0  # final score / mean of the map: ~1 on a map without structure
+    min_contrast: float = 1.5  # final score / mean of the map: ~1 on a map without structure
     no_refine: bool = False
     seed: int = 0
 

@@ -33,11 +33,13 @@ from semcityloc.benchmark.runner import (
     DETAILS_DIR,
     RESULTS_FILE,
     RUN_FILE,
+    SKIPPED,
     load_details,
     parse_results,
     summarize_rows,
 )
 from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshold_key
+from semcityloc.localization.result import LOCALIZED
 
 # name -> (config key shown, title). "main" is always written; the others when their key varies.
 TABLES: dict[str, tuple[str, str]] = {
@@ -181,6 +183,7 @@ CSV_METRICS = (
     "queries",
     "localized",
     "not_localized",
+    "skipped",
     *(threshold_key(m, d) for m, d in THRESHOLDS),
     *(f"strict_{threshold_key(m, d)}" for m, d in THRESHOLDS),
     "mean_xyz_m",
@@ -245,10 +248,9 @@ def _pyplot():
 
 
 def _errors(run: RunData, column: str) -> np.ndarray:
-    vals = [float(r[column]) if r[column] else math.inf for r in run.rows]
-    return np.array(
-        [v if r["status"] == "localized" else math.inf for v, r in zip(vals, run.rows, strict=True)]
-    )
+    """Per evaluated query (skipped ones left out), inf where not localized."""
+    rows = [r for r in run.rows if r["status"] != SKIPPED]
+    return np.array([float(r[column]) if r["status"] == LOCALIZED and r[column] else math.inf for r in rows])
 
 
 def plot_cumulative(runs: list[RunData], column: str, xlabel: str, path: Path, x_max: float = 10.0) -> Path:
@@ -366,7 +368,9 @@ def plot_details(details: dict, map_model, path: Path, title: str) -> Path:
         bi, bj, bk, bl = np.unravel_index(int(np.argmax(scores)), scores.shape)
         poses = {"true": (true, "g", "x"), "prior": (prior, "b", "+"), "estimate": (est, "r", "o")}
         ax = axes[0, 1]
-        ext = (xs[0], xs[-1], ys[0], ys[-1])
+        hx = (xs[-1] - xs[0]) / max(len(xs) - 1, 1) / 2  # cells centred on the samples
+        hy = (ys[-1] - ys[0]) / max(len(ys) - 1, 1) / 2
+        ext = (xs[0] - hx, xs[-1] + hx, ys[0] - hy, ys[-1] + hy)
         im = ax.imshow(scores[:, :, bk, bl].T, origin="lower", extent=ext, aspect="equal", cmap="viridis")
         fig.colorbar(im, ax=ax, fraction=0.046)
         for name, (pose, color, marker) in poses.items():

@@ -82,6 +82,12 @@ COLUMNS: tuple[str, ...] = tuple(
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
 
 
+# A query whose simulated view the simulator did not accept (``meta["accepted"] is False``): recorded so a
+# resumed run does not redo it, not localized, and left out of every metric (counted as ``skipped``).
+SKIPPED = "skipped"
+REASON_SKIPPED = "simulator found no acceptable view"
+
+
 class ResumeMismatchError(BenchmarkError):
     """The output folder holds a run made with other arguments."""
 
@@ -465,26 +471,31 @@ def _float(text: str) -> float:
 
 
 def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
-    """``summary.json``: the metrics of ``evaluation.metrics`` over the rows, timings, mIoU and config."""
-    ordered = sorted(rows, key=lambda r: int(r["index"]))
-    col = {c: np.array([_float(r[c]) for r in ordered]) for c in ("err_xyz_m", "err_rot_deg", "err_yaw_deg")}
+    """``summary.json``: the metrics of ``evaluation.metrics`` over the rows (``skipped`` rows left out
+    and counted), timings, query mIoU, a per-view breakdown and the run's config."""
+    skipped = sum(r["status"] == SKIPPED for r in rows)
+    ordered = sorted((r for r in rows if r["status"] != SKIPPED), key=lambda r: int(r["index"]))
+    err = {c: np.array([_float(r[c]) for r in ordered]) for c in ("err_xyz_m", "err_rot_deg", "err_yaw_deg")}
     localized = np.array([r["status"] == LOCALIZED for r in ordered], dtype=bool)
+
+    def errors_of(sel: np.ndarray) -> dict:
+        return summarize_errors(
+            err["err_xyz_m"][sel], err["err_rot_deg"][sel], err["err_yaw_deg"][sel], localized[sel]
+        )
+
     s: dict[str, Any] = {"method": config.get("method")}
-    s.update(summarize_errors(col["err_xyz_m"], col["err_rot_deg"], col["err_yaw_deg"], localized))
+    s.update(errors_of(np.ones(len(ordered), dtype=bool)))
+    s["skipped"] = skipped
     miou = np.array([_float(r["query_miou"]) for r in ordered])
     total = np.array([_float(r["t_total_s"]) for r in ordered])
     s["mean_query_miou"] = float(np.nanmean(miou)) if np.isfinite(miou).any() else float("nan")
     s["sec_per_image"] = float(np.nanmean(total)) if np.isfinite(total).any() else float("nan")
     s["sec_per_image_median"] = float(np.nanmedian(total)) if np.isfinite(total).any() else float("nan")
     s["not_localized_reasons"] = dict(Counter(r["reason"] for r in ordered if r["status"] != LOCALIZED))
-    by_view = {}
-    for view in sorted({r["view"] for r in ordered}):
-        sel = np.array([r["view"] == view for r in ordered])
-        sub = summarize_errors(
-            col["err_xyz_m"][sel], col["err_rot_deg"][sel], col["err_yaw_deg"][sel], localized[sel]
-        )
-        by_view[view or "unknown"] = {k: v for k, v in sub.items() if k != "convention"}
-    s["by_view"] = by_view
+    views = np.array([r["view"] or "unknown" for r in ordered])
+    s["by_view"] = {
+        v: {k: x for k, x in errors_of(views == v).items() if k != "convention"} for v in sorted(set(views))
+    }
     s["config"] = config
     return s
 
@@ -611,6 +622,8 @@ class _Worker:
 
     def run(self, index: int) -> dict[str, str]:
         q = self.sim.query(index)
+        if not (q.meta or {}).get("accepted", True):
+            return make_row(index, q, LocalizationResult(status=SKIPPED, reason=REASON_SKIPPED), self.origin)
         result = self.method.localize(q)
         if index < self.keep:
             save_details(self.details / f"{query_id(index)}.npz", q, result, self.origin)

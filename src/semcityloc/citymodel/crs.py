@@ -51,6 +51,11 @@ def parse_crs_name(name: str) -> pyproj.CRS:
             raise CRSError(f"unknown AdV CRS {text!r} (known: {', '.join(sorted(ADV_HORIZONTAL))})")
         return pyproj.CRS.from_epsg(ADV_HORIZONTAL[key])
 
+    if re.fullmatch(r"EPSG:\d+\+\d+", text, re.IGNORECASE):  # "EPSG:4547+5773": horizontal + vertical
+        try:
+            return pyproj.CRS.from_user_input(text)
+        except PyprojCRSError as exc:
+            raise CRSError(f"unknown EPSG code in CRS {text!r}: {exc}") from exc
     codes = _EPSG_CODES.findall(text)
     if codes:
         try:

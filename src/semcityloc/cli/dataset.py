@@ -3,8 +3,10 @@
 Sub-commands: ``info`` (queries, frame, prior errors), ``overlay`` (model edges at GT and prior over each
 image, PNG), ``benchmark`` (the real-data benchmark, ``datasets.real_benchmark``), ``colmap`` (the data
 set's GT or prior poses as a COLMAP model), ``dji-prior`` (a prior pose JSON from a DJI photo).
-``add_dataset_benchmark_arguments`` / ``run_dataset_benchmark`` are the same options and run for
-``semcityloc benchmark --dataset PATH --format lodloc``.
+For ``semcityloc benchmark --dataset PATH --format lodloc [--city MODEL]``, ``cli/benchmark.py`` adds
+``add_dataset_arguments(p, positional=False)`` and ``add_perception_arguments(p)`` and hands a run with
+``--dataset`` to ``run_dataset_benchmark(args)`` (its ``--preset`` must default to None: data sets use
+``wide-z``).
 """
 
 from __future__ import annotations
@@ -63,13 +65,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def add_dataset_arguments(p: argparse.ArgumentParser, positional: bool = True) -> None:
-    """Where the data set is and how to read it."""
+    """Where the data set is and how to read it (``positional``: ``PATH``, else ``--dataset``)."""
     if positional:
         p.add_argument("dataset", help="LoD-Loc scene folder or a folder of scenes")
     else:
-        p.add_argument("--dataset", required=True, help="LoD-Loc scene folder or a folder of scenes")
+        p.add_argument(
+            "--dataset", default=None, help="a real data set (LoD-Loc layout) instead of simulation"
+        )
     p.add_argument("--format", default="lodloc", choices=("lodloc",), help="data set layout (default lodloc)")
-    p.add_argument("--city", default=None, help="the LoD model (default: the *.obj beside the data set)")
+    if positional:  # ``semcityloc benchmark`` has its own --city
+        p.add_argument("--city", default=None, help="the LoD model (default: the *.obj beside the data set)")
     p.add_argument("--split", default=None, help="LoD-Loc split JSON: keep only its images")
     p.add_argument("--stage", default=None, help="split stage (default val)")
     p.add_argument(
@@ -81,8 +86,8 @@ def add_dataset_arguments(p: argparse.ArgumentParser, positional: bool = True) -
     p.add_argument("--ecef-origin", default=None, help="lat,lon,h of the ECEF origin (default Swiss-EPFL's)")
 
 
-def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of the real-data benchmark (also for ``semcityloc benchmark --dataset``)."""
+def add_perception_arguments(p: argparse.ArgumentParser) -> None:
+    """The real-data benchmark's perception options (none of them exists in ``semcityloc benchmark``)."""
     p.add_argument(
         "--perception",
         default="oracle",
@@ -93,10 +98,15 @@ def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
         "--masks", default=None, help="folder of <stem>.png / .npy label masks (--perception masks)"
     )
     p.add_argument("--depth", default=None, help="folder of <stem>.npy / .png relative depth (optional)")
+
+
+def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
+    """All options of ``semcityloc dataset benchmark`` after the data set ones."""
+    add_perception_arguments(p)
     p.add_argument("--seg-quality", default="trained", help="segmentation preset of oracle-degraded")
     p.add_argument("--method", default="semcityloc", help="semcityloc, no-coarse, no-refine, no-depth, ...")
     p.add_argument(
-        "--preset", default="wide-z", help="localizer preset: wide-z (default), default, wide, fast"
+        "--preset", default=None, help="localizer preset: wide-z (default for data sets), default, wide, fast"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the degraded segmentation")
     p.add_argument("--keep-details", type=int, default=3, help="save details of the first N queries")
@@ -249,11 +259,12 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
         depth=args.depth,
         seg_quality=args.seg_quality,
         method=args.method,
-        preset=args.preset,
+        preset=args.preset or "wide-z",
         seed=args.seed,
         split=args.split,
         stage=args.stage,
         frame=args.frame,
+        ecef_origin_llh=_floats(args.ecef_origin, 3, "--ecef-origin"),
         keep_details=args.keep_details,
     )
     outcome = run_real_benchmark(spec, args.out, overwrite=args.overwrite, limit=args.stop_after)

@@ -10,10 +10,10 @@ import argparse
 import sys
 
 from semcityloc import __version__
-from semcityloc.cli import benchmark, city, demo, localize, render, report
+from semcityloc.cli import benchmark, city, dataset, demo, localize, render, report
 from semcityloc.errors import SemCityLocError
 
-COMMANDS = (city, render, localize, benchmark, report, demo)
+COMMANDS = (city, render, localize, benchmark, report, dataset, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -54,12 +54,6 @@ def run(args: argparse.Namespace) -> int:
 
     if (args.val_images is None) != (args.val_labels is None):
         raise ParameterError("give both --val-images and --val-labels, or neither")
-    if args.threads is not None:
-        from semcityloc.perception.torch_utils import require_torch
-
-        if args.threads < 1:
-            raise ParameterError(f"--threads must be >= 1, got {args.threads}")
-        require_torch().set_num_threads(args.threads)
     samples = load_samples(args.images, args.labels)
     if args.val_images is not None:
         train, val = samples, load_samples(args.val_images, args.val_labels)
@@ -76,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
         classes=tuple(args.classes.split(",")) if args.classes else None,
         input_size=parse_size(args.input_size),
         device=args.device,
+        threads=args.threads,
     )
     result = train_segmenter(train, val, args.backbone, args.out, config, resume=args.resume)
     print(f"best epoch {result.best_epoch}: val mIoU {result.best_miou:.1f}%; head saved in {result.out_dir}")

@@ -357,6 +357,8 @@ def read_lodloc(
     root = Path(root)
     if frame not in FRAMES:
         raise InputFileError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+    if ecef_origin_llh is not None and frame != FRAME_ECEF:
+        raise InputFileError("an ECEF origin is only used with frame='ecef'")
     if not root.is_dir():
         raise InputFileError(f"{root}: no such LoD-Loc data set folder")
     scene_dirs = (

@@ -24,7 +24,7 @@ Frames: queries are moved into the model's local frame (``pose.shift_world(model
 simulated ones; ``results.csv`` also holds world coordinates (the data set's frame). Oracle labels are
 rendered at no more than ``ORACLE_MAX_WIDTH`` pixels wide (the localizer searches at 64 px anyway).
 Localizer preset: ``wide-z`` by default (``REAL_PRESETS``): LoD-Loc's priors are up to ±30 m off in
-height (``script/Generate_priors.py``), beyond the ±8 m of the ``default`` and ±10 m of the ``wide``
+height (``script/Generate_priors.py``), beyond the ±8 m of the ``default`` and ±12 m of the ``wide``
 grids. At the end, the estimates are also written as a COLMAP text model (``estimates_colmap/``).
 """
 
@@ -62,9 +62,9 @@ RUN_FORMAT = 1
 
 # Localizer presets for real data sets, on top of ``LocalizerConfig.preset`` names.
 REAL_PRESETS: dict[str, LocalizerConfig] = {
-    # The default grid (x, y +-16 m, yaw +-9 deg) with LoD-Loc's height range (+-30 m in 5 m steps:
-    # 17*17*13*13 = 48,841 hypotheses). Measured on the real UAVD4L image (prior 20.7 m off in z):
-    # default 6.5 m / 1.1 deg, wide 4.9 m / 1.4 deg, wide-z 0.98 m / 0.31 deg.
+    # The default grid (x, y +-16 m, yaw +-9 deg) with LoD-Loc's height range (+-30 m in 5 m steps; 13
+    # samples per axis with the default x, y, yaw counts). Measured on the real UAVD4L image (prior 20.7 m
+    # off in z), oracle labels: default 6.4 m / 1.3 deg, wide 4.5 m / 1.3 deg, wide-z 0.20 m / 0.02 deg.
     "wide-z": LocalizerConfig(coarse=CoarseConfig(range_z_m=60.0, n_z=13)),
 }
 
@@ -184,6 +184,7 @@ class RealBenchmarkSpec:
     split: str | None = None
     stage: str | None = None
     frame: str = FRAME_AUTO
+    ecef_origin_llh: tuple[float, float, float] | None = None  # frame="ecef": default Swiss-EPFL's
     keep_details: int = 3
 
     def check(self) -> None:
@@ -209,7 +210,14 @@ class RealBenchmarkSpec:
 
 
 def load_dataset(spec: RealBenchmarkSpec) -> LodLocDataset:
-    return read_lodloc(spec.dataset, city=spec.city, split=spec.split, stage=spec.stage, frame=spec.frame)
+    return read_lodloc(
+        spec.dataset,
+        city=spec.city,
+        split=spec.split,
+        stage=spec.stage,
+        frame=spec.frame,
+        ecef_origin_llh=spec.ecef_origin_llh,
+    )
 
 
 def _sha256(path: Path) -> str:
@@ -247,6 +255,7 @@ def run_config(spec: RealBenchmarkSpec, dataset: LodLocDataset) -> dict:
             "city_sha256": _sha256(dataset.model_path),
             "frame": dataset.frame,
             "frame_note": dataset.frame_note,
+            "ecef_origin_llh": dataset.ecef_origin_llh,
             "split": spec.split,
             "stage": spec.stage,
             "method": spec.method,

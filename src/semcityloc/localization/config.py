@@ -92,9 +92,12 @@ PRESETS: dict[str, LocalizerConfig] = {
     "default": LocalizerConfig(),
     # Wider translation search for priors with extra per-axis perturbation.
     "wide": LocalizerConfig(coarse=CoarseConfig(range_xy_m=64.0, n_xy=21, range_z_m=24.0, n_z=9)),
+    # Priors whose height is far off (e.g. barometric/GNSS altitude; the real UAVD4L-LoD prior is 20.7 m
+    # high): LoD-Loc's +-30 m height range in 5 m steps.
+    "wide-z": LocalizerConfig(coarse=CoarseConfig(range_z_m=60.0, n_z=13)),
     # Small and quick, for tests and the demo's smoke runs.
     "fast": LocalizerConfig(
         coarse=CoarseConfig(range_xy_m=24.0, n_xy=9, n_z=5, n_yaw=9, width=48, height=36),
-        refine=RefineConfig(particles=64, iterations=6),
+        refine=RefineConfig(particles=64, iterations=6, low_res_iterations=3),
     ),
 }

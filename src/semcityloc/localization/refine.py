@@ -139,7 +139,8 @@ def particle_filter(
     evaluations = 0
     weights = np.full(n, 1.0 / n)
     for it in range(config.iterations):
-        fine = it >= config.low_res_iterations or len(levels) == 1
+        # The last iteration always scores at the fine resolution, whatever low_res_iterations says.
+        fine = it >= min(config.low_res_iterations, config.iterations - 1) or len(levels) == 1
         level = levels[-1] if fine else levels[0]
         sem, dep = evaluate(scene, level.camera, states, level.labels, level.depth, class_on)
         evaluations += n

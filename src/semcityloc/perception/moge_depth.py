@@ -30,7 +30,7 @@ from semcityloc.perception.base import (
     looks_like_hub_id,
     weights_dir,
 )
-from semcityloc.perception.torch_utils import device_of, image_tensor, require, require_torch
+from semcityloc.perception.torch_utils import device_of, image_tensor, parse_threads, require, require_torch
 
 torch = require_torch("MoGe-2 depth")
 
@@ -127,8 +127,7 @@ class MoGe2Backend:
         threads: int | str | None = None,
         module=None,
     ):
-        if threads not in (None, ""):
-            torch.set_num_threads(int(threads))
+        self.threads = parse_threads(threads)
         self.model = module if module is not None else load_moge2(model, device)
         self.num_tokens = int(num_tokens) if num_tokens not in (None, "") else None
         self.resolution_level = int(resolution_level)
@@ -139,6 +138,8 @@ class MoGe2Backend:
     def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput:
         img = check_image(image)
         H, W = img.shape[:2]
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
         x = image_tensor(img, normalize=False)[0].to(self.model.device)
         use_fp16 = self.model.device.type == "cuda"
         with warnings.catch_warnings():

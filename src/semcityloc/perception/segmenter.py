@@ -35,7 +35,14 @@ from semcityloc.perception.base import (
     weights_dir,
 )
 from semcityloc.perception.heads import DPTSegHead, FPNSegHead, build_head
-from semcityloc.perception.torch_utils import device_of, fit_size, image_tensor, require, require_torch
+from semcityloc.perception.torch_utils import (
+    device_of,
+    fit_size,
+    image_tensor,
+    parse_threads,
+    require,
+    require_torch,
+)
 
 torch = require_torch("segmentation")
 nn = torch.nn
@@ -255,14 +262,18 @@ def load_segmenter(head_dir: str | Path, backbone: str | None = None, device: st
 
 # ---------------------------------------------------------------------------------------------- backend
 class SegmenterBackend:
-    """``SegmentationBackend`` over a loaded ``Segmenter``."""
+    """``SegmentationBackend`` over a loaded ``Segmenter``. ``threads``: torch CPU threads, re-applied at
+    every ``predict`` (the renderer's numba OpenMP layer resets the count when it first runs)."""
 
-    def __init__(self, name: str, segmenter: Segmenter):
+    def __init__(self, name: str, segmenter: Segmenter, threads: int | None = None):
         self.name = name
         self.segmenter = segmenter
         self.classes = segmenter.classes
+        self.threads = threads
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
+        if self.threads is not None:
+            torch.set_num_threads(self.threads)
         return class_probs_to_output(self.segmenter.predict_probs(image), self.classes)
 
 
@@ -270,28 +281,20 @@ def _default_head(kind: str) -> Path:
     return weights_dir() / DEFAULT_HEAD_DIRS[kind]
 
 
-def _threads(threads) -> None:
-    if threads not in (None, ""):
-        n = int(threads)
-        if n < 1:
-            raise ParameterError(f"threads must be >= 1, got {threads}")
-        torch.set_num_threads(n)
-
-
 def dinov3_dpt_backend(head=None, backbone=None, device=None, threads=None) -> SegmenterBackend:
     """``dinov3-dpt``: head=DIR (default ``weights_dir()/dinov3-dpt-head``), backbone=DIR (default: the
     folder stored in head.json)."""
-    _threads(threads)
+    n = parse_threads(threads)
     seg = load_segmenter(head if head else _default_head("dinov3"), backbone=backbone, device=device)
     if seg.spec["backbone"]["kind"] != "dinov3":
         raise ParameterError(f"head {head} was trained on {seg.spec['backbone']['kind']}, not DINOv3")
-    return SegmenterBackend("dinov3-dpt", seg)
+    return SegmenterBackend("dinov3-dpt", seg, n)
 
 
 def mobilenetv2_backend(head=None, backbone=None, device=None, threads=None) -> SegmenterBackend:
     """``mobilenetv2``: head=DIR (default ``weights_dir()/mobilenetv2-head``)."""
-    _threads(threads)
+    n = parse_threads(threads)
     seg = load_segmenter(head if head else _default_head("mobilenetv2"), backbone=backbone, device=device)
     if seg.spec["backbone"]["kind"] != "mobilenetv2":
         raise ParameterError(f"head {head} was trained on {seg.spec['backbone']['kind']}, not MobileNetV2")
-    return SegmenterBackend("mobilenetv2", seg)
+    return SegmenterBackend("mobilenetv2", seg, n)

@@ -50,6 +50,18 @@ def device_of(spec: str | None):
     return dev
 
 
+def parse_threads(threads) -> int | None:
+    if threads in (None, ""):
+        return None
+    try:
+        n = int(threads)
+    except (TypeError, ValueError):
+        raise ParameterError(f"threads must be a whole number >= 1, got {threads!r}") from None
+    if n < 1:
+        raise ParameterError(f"threads must be >= 1, got {threads}")
+    return n
+
+
 def fit_size(width: int, height: int, area: int, multiple: int) -> tuple[int, int]:
     """(w, h), multiples of ``multiple``, with the aspect ratio of ``width`` x ``height`` and ~``area`` px."""
     if width <= 0 or height <= 0 or area <= 0 or multiple <= 0:

@@ -17,6 +17,10 @@ head passes, which is what makes CPU training practical. Larger sets recompute t
   ``head.json`` in ``out_dir``; ``checkpoint.pt`` (head, optimiser, epoch, history) is rewritten every
   epoch and ``train_segmenter(..., resume=True)`` continues from it; ``history.jsonl`` keeps one line per
   epoch.
+- Threads: ``threads`` is applied when training starts, i.e. after any rendering. numba's OpenMP
+  threading layer resets the process's OpenMP thread count the first time a parallel kernel runs (the
+  renderer), and torch's and numba's thread pools then compete for the cores: measured here, a frozen
+  MobileNetV2 pass ran 10x slower with 2 torch threads beside a loaded machine than with 1.
 """
 
 from __future__ import annotations
@@ -65,12 +69,15 @@ class TrainConfig:
     input_size: tuple[int, int] | None = None
     head_params: dict = field(default_factory=dict)
     device: str | None = None
+    threads: int | None = None  # torch CPU threads, set when training starts (see module docstring)
 
     def check(self) -> None:
         if int(self.epochs) < 1 or int(self.batch_size) < 1:
             raise ParameterError(f"epochs and batch_size must be >= 1, got {self.epochs}, {self.batch_size}")
         if not (self.lr > 0 and math.isfinite(self.lr)) or self.weight_decay < 0:
             raise ParameterError(f"lr must be > 0 and weight_decay >= 0, got {self.lr}, {self.weight_decay}")
+        if self.threads is not None and int(self.threads) < 1:
+            raise ParameterError(f"threads must be >= 1, got {self.threads}")
 
 
 @dataclass
@@ -249,6 +256,8 @@ def train_segmenter(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     say = log or (lambda _msg: None)
+    if cfg.threads is not None:
+        torch.set_num_threads(int(cfg.threads))
     torch.manual_seed(int(cfg.seed))
     device = device_of(cfg.device)
     kind, _ = parse_backbone_spec(backbone)

@@ -4,7 +4,8 @@ Built once per ``CityModel`` (``build_scene``):
 
 - building bottoms (GroundSurface triangles, see ``terrain.building_bottom_mask``) are dropped: they are
   never visible from the air and cost 15-20% of the raster time;
-- a terrain TIN of class GROUND is added (``terrain.build_terrain``) unless ``ground=False``;
+- a terrain TIN of class GROUND is added (``terrain.build_terrain``) unless ``ground=False``, without
+  the triangles hidden under building footprints;
 - triangles are grouped into square ground tiles of ``tile_size_m`` (by their centroid) and the tiles
   into blocks of ``BLOCK_TILES`` x ``BLOCK_TILES`` tiles. Each tile and block has a 3D bounding box, so
   a view only touches the triangles of tiles whose box meets its frustum. A triangle wider than a tile
@@ -84,8 +85,13 @@ class RenderScene:
         return np.stack([self.block_bbox[:, :3].min(0), self.block_bbox[:, 3:].max(0)]).astype(np.float64)
 
 
-def build_scene(model: CityModel, ground: bool = True, tile_size_m: float = 25.0) -> RenderScene:
-    """Render scene of ``model`` (module docstring). Raises ``EmptyModelError`` if nothing is drawable."""
+def build_scene(
+    model: CityModel, ground: bool = True, tile_size_m: float = 25.0, drop_hidden_terrain: bool = True
+) -> RenderScene:
+    """Render scene of ``model`` (module docstring). Raises ``EmptyModelError`` if nothing is drawable.
+
+    ``drop_hidden_terrain``: leave out terrain under building footprints (``terrain.build_terrain``).
+    """
     if not isinstance(model, CityModel):
         raise TypeError(f"build_scene needs a CityModel, got {type(model).__name__}")
     if not (isinstance(tile_size_m, (int, float)) and np.isfinite(tile_size_m) and tile_size_m > 0):
@@ -99,7 +105,7 @@ def build_scene(model: CityModel, ground: bool = True, tile_size_m: float = 25.0
     classes = model.classes[keep]
     source = np.flatnonzero(keep).astype(np.int32)
     if ground:
-        tv, tt = build_terrain(model)
+        tv, tt = build_terrain(model, drop_hidden=drop_hidden_terrain)
         if len(tt):
             corners = np.concatenate([corners, tv[tt]])
             classes = np.concatenate([classes, np.full(len(tt), SemanticClass.GROUND, dtype=np.uint8)])

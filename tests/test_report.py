@@ -1,0 +1,204 @@
+"""``semcityloc report``: tables grouped by what differs between runs, CSV numbers, plots, CLI."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from semcityloc.benchmark.methods import BenchmarkError
+from semcityloc.benchmark.report import load_run, make_report, markdown_table
+from semcityloc.benchmark.runner import COLUMNS, RESULTS_FILE, RUN_FILE, BenchmarkSpec, run_benchmark
+
+
+# ------------------------------------------------------------------------------ hand-made run folders
+def fake_run(root: Path, name: str, errors: list[tuple[float, float]], **config) -> Path:
+    """A run folder with the given (xyz m, rot deg) errors; inf = not localized."""
+    out = root / name
+    out.mkdir(parents=True)
+    cfg = {
+        "city": "generated",
+        "city_path": "/x/generated_lod2.gml",
+        "lod": None,
+        "method": "semcityloc",
+        "seg_quality": "trained",
+        "prior_extra_m": None,
+        "seed": 0,
+        "queries": len(errors),
+        "localizer_preset": "default",
+        "query_config": {"width": 512},
+        **config,
+    }
+    (out / RUN_FILE).write_text(json.dumps(cfg))
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for i, (xyz, rot) in enumerate(errors):
+        ok = math.isfinite(xyz)
+        row = dict.fromkeys(COLUMNS, "")
+        row.update(
+            query_id=f"q{i:04d}",
+            index=str(i),
+            status="localized" if ok else "not_localized",
+            reason="" if ok else "best score below threshold",
+            view="nadir",
+            query_miou="80.0",
+            err_xyz_m=repr(xyz),
+            err_rot_deg=repr(rot),
+            err_yaw_deg=repr(rot / 2),
+            t_total_s="2.0",
+        )
+        writer.writerow(row)
+    (out / RESULTS_FILE).write_text(buf.getvalue())
+    return out
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_tables_group_runs_by_what_differs(tmp_path):
+    inf = math.inf
+    runs = [
+        fake_run(tmp_path, "lod2_trained", [(2.0, 2.0), (1.0, 1.0), (inf, inf), (4.0, 4.0)], lod=2),
+        fake_run(tmp_path, "lod1_trained", [(6.0, 1.0), (1.0, 1.0), (inf, inf), (inf, inf)], lod=1),
+        fake_run(
+            tmp_path,
+            "lod2_zero",
+            [(1.0, 1.0), (1.0, 1.0), (1.0, 1.0), (9.0, 9.0)],
+            lod=2,
+            seg_quality="zero-shot",
+        ),
+    ]
+    report = make_report(runs, tmp_path / "report")
+    assert set(report.tables) == {"main", "lod", "seg_quality"}  # methods and prior noise do not vary
+    assert any("prior_noise" in n for n in report.notes)
+
+    lod = read_csv(report.tables["lod"][1])
+    # Ordered by the other differing setting (seg quality: trained first), then by LoD.
+    assert [(r["seg_quality"], r["lod"]) for r in lod] == [
+        ("trained", "LoD1"),
+        ("trained", "LoD2"),
+        ("zero-shot", "LoD2"),
+    ]
+    lod2 = lod[1]
+    assert float(lod2["recall_2m2deg"]) == 50.0 and float(lod2["strict_recall_2m2deg"]) == 25.0  # tie at 2/2
+    assert float(lod2["recall_5m5deg"]) == 75.0 and lod2["not_localized"] == "1"
+    assert float(lod2["median_xyz_m"]) == 2.0 and float(lod2["sec_per_image"]) == 2.0
+    assert float(lod[0]["recall_5m5deg"]) == 25.0  # 6 m is outside 5 m; two not localized
+
+    md = report.tables["lod"][0].read_text()
+    assert "| lod | seg_quality | queries |" in md and "| LoD2 | trained | 4 | 3 | 50.0 / 25.0 |" in md
+    seg = read_csv(report.tables["seg_quality"][1])
+    # Grouped by LoD first (LoD1 before LoD2), then by segmentation quality (trained before zero-shot).
+    assert [(r["lod"], r["seg_quality"]) for r in seg] == [
+        ("LoD1", "trained"),
+        ("LoD2", "trained"),
+        ("LoD2", "zero-shot"),
+    ]
+    text = report.markdown.read_text()
+    assert "Map level of detail" in text and "strict `<`" in text
+    for png in report.plots:
+        assert png.suffix == ".png" and Image.open(png).size[0] > 100
+    assert len(report.plots) == 3  # no details saved: no query figures
+
+
+def test_an_unfinished_run_is_reported_as_incomplete(tmp_path):
+    run = fake_run(tmp_path, "partial", [(1.0, 1.0)], queries=5)
+    data = load_run(run)
+    assert not data.complete and data.summary["queries"] == 1
+    report = make_report([run], tmp_path / "r")
+    assert "(incomplete 1/5)" in report.tables["main"][0].read_text()
+
+
+def test_markdown_table_shape():
+    assert markdown_table(["a", "b"], [["1", "2"]]) == "| a | b |\n|---|---|\n| 1 | 2 |\n"
+
+
+def test_bad_run_folders_are_typed_errors(tmp_path):
+    with pytest.raises(BenchmarkError, match="no run.json"):
+        make_report([tmp_path], tmp_path / "r")
+    with pytest.raises(BenchmarkError):
+        make_report([], tmp_path / "r")
+
+
+# ------------------------------------------------------------------------------ two real small runs
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory):
+    from semcityloc.benchmark.queries import QueryConfig
+
+    root = tmp_path_factory.mktemp("runs")
+    a = BenchmarkSpec(city="generated", query=QueryConfig(queries=2, seed=1), preset="fast", keep_details=2)
+    b = BenchmarkSpec(
+        city="generated",
+        query=QueryConfig(queries=2, seed=1, prior_extra_m=(5.0, 10.0)),
+        method="no-refine",
+        preset="fast",
+        keep_details=1,
+    )
+    return [
+        run_benchmark(a, root / "full", progress=False),
+        run_benchmark(b, root / "ablation", progress=False),
+    ]
+
+
+def test_report_from_two_real_runs(two_runs, tmp_path):
+    report = make_report([o.out_dir for o in two_runs], tmp_path / "report", overlays=2)
+    assert set(report.tables) == {"main", "prior_noise"}
+    main = read_csv(report.tables["main"][1])
+    assert [r["method"] for r in main] == ["semcityloc", "no-refine"]
+    for row, outcome in zip(main, two_runs, strict=True):
+        s = json.loads((outcome.out_dir / "summary.json").read_text())
+        for key in ("recall_2m2deg", "recall_5m5deg", "queries", "localized"):
+            assert float(row[key]) == float(s[key])
+        assert row["prior_extra"] == ("none" if outcome.config["prior_extra_m"] is None else "5-10 m")
+    names = sorted(p.name for p in report.plots)
+    assert {"cumulative_translation.png", "cumulative_rotation.png", "recall_vs_prior_noise.png"} <= set(
+        names
+    )
+    queries = [n for n in names if n.startswith("query_")]
+    assert queries == ["query_00_full_q0000.png", "query_00_full_q0001.png", "query_01_ablation_q0000.png"]
+    for png in report.plots:
+        with Image.open(png) as im:
+            assert im.format == "PNG" and im.size[0] >= 400
+    assert "![query_00_full_q0000](plots/query_00_full_q0000.png)" in report.markdown.read_text()
+
+
+def test_overlay_marks_true_and_estimated_boundaries():
+    import numpy as np
+
+    from semcityloc.benchmark.report import overlay_image
+
+    q = np.zeros((20, 30), np.uint8)
+    true = q.copy()
+    true[5:15, 5:15] = 3
+    est = q.copy()
+    est[5:15, 8:18] = 3
+    rgb = overlay_image(q, est, true)
+    assert (rgb[10, 4] == (0, 200, 255)).all() or (rgb[10, 5] == (0, 200, 255)).all()  # true edge: cyan
+    assert (rgb[10, 17] == (255, 0, 255)).all()  # estimate edge: magenta
+    assert (rgb[0, 0] != (255, 0, 255)).any()
+
+
+def test_cli_report(two_runs, tmp_path, monkeypatch, capsys):
+    from semcityloc.cli import benchmark, main, report
+
+    if report not in main.COMMANDS:
+        monkeypatch.setattr(main, "COMMANDS", (*main.COMMANDS, benchmark, report))
+    out = tmp_path / "cli_report"
+    assert (
+        main.main(["report", *(str(o.out_dir) for o in two_runs), "--out", str(out), "--overlays", "0"]) == 0
+    )
+    printed = capsys.readouterr().out
+    assert (
+        "table main:" in printed and (out / "tables" / "main.md").is_file() and (out / "report.md").is_file()
+    )
+    assert main.main(["report", str(tmp_path / "nothing"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("semcityloc: error:") and err.count("\n") == 1
