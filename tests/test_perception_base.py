@@ -57,7 +57,12 @@ def test_options_meant_for_the_other_backend_are_ignored(tmp_path):
     [
         ("segmentation", "dinov3-dpt", {}, ["no trained segmentation head", "train-segmenter", "head=DIR"]),
         ("segmentation", "mobilenetv2", {}, ["no trained segmentation head", "head=DIR"]),
-        ("depth", "moge2", {}, ["MoGe-2", "model.pt", "huggingface.co/Ruicheng/moge-2-vits-normal", "weights"]),
+        (
+            "depth",
+            "moge2",
+            {},
+            ["MoGe-2", "model.pt", "huggingface.co/Ruicheng/moge-2-vits-normal", "weights"],
+        ),
         ("depth", "moge2", {"model": "Ruicheng/moge-2-vits-normal"}, ["HF_HUB_OFFLINE", "model=PATH"]),
     ],
 )
@@ -155,7 +160,9 @@ def test_files_depth_reads_npy_and_png(tmp_path):
     png_dir = tmp_path / "png"
     save_depth(np.full((6, 8), 250.0, np.float32), png_dir / "two.png")
     (png_dir / "two.npy").unlink()  # the PNG alone must do
-    out = get_depth_backend("files", depth=str(tmp_path)).predict(np.zeros((6, 8, 3), np.uint8), name="one.jpg")
+    out = get_depth_backend("files", depth=str(tmp_path)).predict(
+        np.zeros((6, 8, 3), np.uint8), name="one.jpg"
+    )
     assert out.valid[1:].all() and not out.valid[0].any()
     assert np.allclose(out.depth[1:], 120.5) and out.K is None
     assert np.isnan(out.masked()[0]).all()

@@ -65,7 +65,7 @@ def test_dinov3_loads_through_the_production_loader(tiny_dinov3):
     assert grid == (3, 4)
     assert [tuple(t.shape) for t in tokens] == [(2, 1 + 12, 32)] * 4  # class token + patches, no registers
     again, _ = bb(x)
-    assert all(torch.equal(a, b) for a, b in zip(tokens, again))
+    assert all(torch.equal(a, b) for a, b in zip(tokens, again, strict=True))
     with torch.no_grad():
         ref_out = reference.eval()(pixel_values=x)
     assert torch.allclose(tokens[-1][:, 0], ref_out.last_hidden_state[:, 0], atol=1e-5)  # same class token
@@ -113,7 +113,7 @@ def test_dinov3_dpt_segmenter_round_trip(tiny_dinov3, tmp_path):
     assert np.allclose(out.probs[:4], probs, atol=1e-5) and np.all(out.probs[4:] == 0)
     assert set(np.unique(out.labels)) <= {0, 1, 2, 3}
     loaded = load_segmenter(head_dir, backbone=str(path))
-    for (k, a), b in zip(seg.head.state_dict().items(), loaded.head.state_dict().values()):
+    for (k, a), b in zip(seg.head.state_dict().items(), loaded.head.state_dict().values(), strict=True):
         assert torch.equal(a, b), k
 
 
@@ -147,7 +147,12 @@ def test_mobilenetv2_loads_packaged_imagenet_weights_strictly():
     assert torch.equal(bb.features[17].conv[3].running_var, state["17.conv.3.running_var"])
     feats, grid = bb(torch.randn(1, 3, 96, 128))
     assert grid is None
-    assert [tuple(f.shape) for f in feats] == [(1, 24, 24, 32), (1, 32, 12, 16), (1, 96, 6, 8), (1, 320, 3, 4)]
+    assert [tuple(f.shape) for f in feats] == [
+        (1, 24, 24, 32),
+        (1, 32, 12, 16),
+        (1, 96, 6, 8),
+        (1, 320, 3, 4),
+    ]
     bb.train()
     assert not bb.training  # BatchNorm keeps its ImageNet statistics
 

@@ -45,7 +45,10 @@ def test_synthetic_views_are_deterministic_and_labelled(views):
     model = generated_model(seed=0, blocks=(2, 2), lod=2)
     a = synthetic_views(model, 2, seed=5)
     b = synthetic_views(model, 2, seed=5)
-    assert all(np.array_equal(x.image, y.image) and np.array_equal(x.labels, y.labels) for x, y in zip(a, b))
+    assert all(
+        np.array_equal(x.image, y.image) and np.array_equal(x.labels, y.labels)
+        for x, y in zip(a, b, strict=True)
+    )
     train, _ = views
     labels = np.stack([s.labels for s in train])
     assert {1, 2, 3} <= set(np.unique(labels).tolist()) <= {0, 1, 2, 3, IGNORE}
@@ -116,7 +119,9 @@ def test_tiny_dinov3_dpt_head_trains(views, tmp_path):
         input_size=(128, 96),
         head_params={"neck_hidden_sizes": [16, 16, 32, 32], "fusion_hidden_size": 16},
     )
-    result = train_segmenter(train[:12], val[:4], f"dinov3:{tmp_path / 'dinov3'}", tmp_path / "head", config, log=None)
+    result = train_segmenter(
+        train[:12], val[:4], f"dinov3:{tmp_path / 'dinov3'}", tmp_path / "head", config, log=None
+    )
     assert result.history[-1]["train_loss"] < result.history[0]["train_loss"]
     out = get_segmentation_backend("dinov3-dpt", head=str(tmp_path / "head")).predict(val[0].image)
     assert out.probs.shape == (6,) + val[0].labels.shape
@@ -126,7 +131,10 @@ def test_labels_classes_and_split_helpers():
     lut = label_lut(("background", "ground", "wall", "roof"))
     assert lut[[0, 1, 2, 3, 4, 5, 255]].tolist() == [0, 1, 2, 3, 2, 2, IGNORE]  # openings -> wall
     assert label_lut(("ground", "roof"))[2] == IGNORE
-    samples = [Sample(f"s{i}", np.zeros((4, 4, 3), np.uint8), np.full((4, 4), i % 3 + 1, np.uint8)) for i in range(10)]
+    samples = [
+        Sample(f"s{i}", np.zeros((4, 4, 3), np.uint8), np.full((4, 4), i % 3 + 1, np.uint8))
+        for i in range(10)
+    ]
     assert default_classes(samples) == ("background", "ground", "wall", "roof")
     tr, va = split_samples(samples, 0.2, seed=1)
     assert len(tr) == 8 and len(va) == 2 and not {s.name for s in tr} & {s.name for s in va}
@@ -158,7 +166,9 @@ def test_train_cli_reads_folders(views, tmp_path, capsys):
          "--no-hflip", "--threads", "1"]
     )  # fmt: skip
     assert args.func(args) == 0
-    assert (tmp_path / "out" / "head.safetensors").is_file() and (tmp_path / "out" / "checkpoint.pt").is_file()
+    assert (tmp_path / "out" / "head.safetensors").is_file() and (
+        tmp_path / "out" / "checkpoint.pt"
+    ).is_file()
     assert "best epoch 1" in capsys.readouterr().out
     bad = parser.parse_args(["train-segmenter", "--images", str(tmp_path / "images"), "--labels",
                              str(tmp_path / "labels"), "--out", "x", "--input-size", "128by96"])  # fmt: skip

@@ -76,10 +76,10 @@ class WireframeConfig:
     refine_blur_px: float = 1.0
     refine_damping: float = 0.01
     refresh_visibility: bool = False  # re-select the visible points at the grid's best pose before GN
-    spacing_m: float = 1.0  # LoD-Loc samples its wireframe every metre
+    spacing_m: float = 1.0  # LoD-Loc samples its wireframe every metre (used when the localizer is built)
     max_points: int = 4000
     visibility_tol_m: float = 0.3
-    crease_deg: float = DEFAULT_CREASE_DEG
+    crease_deg: float = DEFAULT_CREASE_DEG  # used when the localizer is built
     min_points: int = 30
     min_edge_fraction: float = 1e-4  # share of pixels above 0.2 below which the map "has no edges"
     min_score: float = 0.15

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import SemCityLocError
+from semcityloc.errors import ParameterError
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.result import LocalizationResult
 
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from semcityloc.benchmark.queries import BenchmarkQuery
 
 
-class BenchmarkError(SemCityLocError, ValueError):
+class BenchmarkError(ParameterError):
     """A benchmark request that cannot run: unknown method or preset, bad option, unusable output folder."""
 
 

@@ -3,11 +3,13 @@
 Why: every experiment of the paper is one ``semcityloc benchmark`` run; this module puts runs side by
 side by what differs in their ``run.json``:
 
-- tables (Markdown + CSV): ``main`` (methods and ablations, always written), ``prior_noise`` (runs
-  differing in ``prior_extra_m``), ``lod`` (LoD1/LoD2/LoD3 maps), ``seg_quality`` (segmentation preset)
-  - each written when its factor takes two or more values. One row per run; the factor column first,
-  then any other setting that differs between the runs, then the metrics. Recall cells show both
-  conventions, ``<=`` / ``<`` (see ``evaluation.metrics``);
+- tables (Markdown + CSV): ``main`` (methods and ablations), ``prior_noise`` (``prior_extra_m``),
+  ``lod`` (LoD1/LoD2/LoD3 maps), ``seg_quality`` (segmentation preset). A table of factor F holds the
+  runs whose group - runs agreeing on every setting but F - has two or more values of F (so the LoD
+  table compares LoD1 with LoD2 at the same method, noise and segmentation); it is skipped when there
+  is no such group, except ``main``, which then lists every run. One row per run: F first, then the
+  settings that differ between the table's runs, then the metrics. Recall cells show both conventions,
+  ``<=`` / ``<`` (see ``evaluation.metrics``);
 - plots (matplotlib, Agg): cumulative position and rotation error curves (one line per run,
   ``not_localized`` never reaches the curve), recall vs prior noise, and per run a figure for its first
   saved queries (``details/``): the query mask with the label boundaries of the map rendered at the
@@ -207,8 +209,25 @@ def _csv_metrics(s: dict) -> list[Any]:
     return out
 
 
+def comparable_runs(runs: list[RunData], factor: str) -> list[RunData]:
+    """The runs that form a comparison along ``factor``: those whose group (runs agreeing on every other
+    setting) holds two or more values of ``factor``. Empty when no group does."""
+    groups: dict[str, list[RunData]] = {}
+    for r in runs:
+        other = {k: v for k, v in r.settings.items() if k != factor}
+        groups.setdefault(json.dumps(other, sort_keys=True, default=str), []).append(r)
+    keep = {
+        id(r)
+        for members in groups.values()
+        if len({json.dumps(m.settings.get(factor), default=str) for m in members}) > 1
+        for r in members
+    }
+    return [r for r in runs if id(r) in keep]
+
+
 def build_table(runs: list[RunData], factor: str) -> tuple[str, str]:
-    """(Markdown, CSV) of one table: a row per run, ``factor`` first, other differing settings next."""
+    """(Markdown, CSV) of one table: a row per run, ``factor`` first, then the other settings that differ
+    between these runs (rows sorted by those, then by ``factor``)."""
     context = [k for k in differing_keys(runs) if k != factor]
     ordered = sorted(
         runs,
@@ -432,10 +451,14 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     ]
     tables: dict[str, tuple[Path, Path]] = {}
     for name, (factor, title) in TABLES.items():
-        if name != "main" and factor not in differ:
-            notes.append(f"table {name}: skipped, all runs share {factor} = {runs[0].settings.get(factor)}")
+        members = comparable_runs(runs, factor)
+        if not members and name == "main":
+            members = runs  # no methods to compare: the main table lists every run
+        if not members:
+            why = "all runs share" if factor not in differ else "no two runs differ only in"
+            notes.append(f"table {name}: skipped, {why} {factor}")
             continue
-        md, csv_text = build_table(runs, factor)
+        md, csv_text = build_table(members, factor)
         md_path, csv_path = out / "tables" / f"{name}.md", out / "tables" / f"{name}.csv"
         md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
         csv_path.write_text(csv_text, encoding="utf-8")

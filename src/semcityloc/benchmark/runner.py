@@ -16,7 +16,9 @@ Output folder ``DIR``:
   estimated / coarse poses, the coarse cost volume and its axes) for the report's figures; written
   atomically BEFORE the row, so a row always has its details.
 - ``summary.json``: metrics over all rows (``summarize_rows``), rewritten atomically (tmp + rename)
-  when every query is done.
+  when every query is done. ``queries`` counts the evaluated queries: a view the simulator could not
+  make acceptable (``meta["accepted"] is False``) gets a ``skipped`` row, is not localized and is only
+  counted under ``skipped``.
 
 Frames: queries, poses and the cost volume are in the map model's LOCAL frame; the CSV also gives the
 world x, y, z (``origin + local``). The reality model the simulator renders is moved into the map's

@@ -1,28 +1,55 @@
-"""``semcityloc demo``: the README's main job on the embedded default data (the generated city)."""
+"""``semcityloc demo``: the README's main job, end to end on the embedded generated city.
+
+1. Generate the procedural district (CityGML 2.0, LoD1/LoD2/LoD3 from one set of footprints).
+2. Benchmark: simulated UAV queries (LoD3 reality with trees, cars and roof structures, ≈88% simulated
+   segmentation, MoGe-like depth, priors 5–15 m / ≤ 8° off) localized against the LoD2 map by the full
+   method and, for contrast, its coarse-only ablation. Resumable like any benchmark run.
+3. Report: the Markdown/CSV tables and the figures (error curves, overlays, cost-volume slices).
+
+``--city PATH`` runs the same on any CityGML/CityJSON file instead of the generated district.
+"""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from semcityloc.cli.city import format_summary
-
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="run the main job on the embedded generated city")
+    p = sub.add_parser(
+        "demo", help="generate a city, benchmark the localizer on it, write tables and figures"
+    )
     p.add_argument("--out", default="demo_output", help="output folder")
+    p.add_argument("--city", default="generated", help="city model file (default: the generated city)")
+    p.add_argument("--queries", type=int, default=20, help="simulated queries per method (default 20)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--methods", default="semcityloc,no-refine", help="comma-separated benchmark methods")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from semcityloc.benchmark.queries import QueryConfig
+    from semcityloc.benchmark.report import make_report, summary_markdown
+    from semcityloc.benchmark.runner import BenchmarkSpec, run_benchmark
     from semcityloc.citymodel.generator import generate_city
-    from semcityloc.citymodel.io import load_city_model
 
     out = Path(args.out)
-    paths = generate_city(out / "city", seed=args.seed)
-    for lod, path in sorted(paths.items()):
-        model = load_city_model(path, cache=False)
-        print(f"== generated LoD{lod} city: {path}")
-        print(format_summary(model.summary()))
+    city = args.city
+    if city == "generated":
+        paths = generate_city(out / "city", seed=args.seed)
+        city = str(paths[2])
+        print(f"generated city: {', '.join(str(p) for p in paths.values())}")
+    run_dirs, summaries, labels = [], [], []
+    for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
+        spec = BenchmarkSpec(
+            city=city, query=QueryConfig(queries=args.queries, seed=args.seed), method=method
+        )
+        outcome = run_benchmark(spec, out / f"run_{method}", progress=True)
+        run_dirs.append(outcome.out_dir)
+        summaries.append(outcome.summary)
+        labels.append(method)
+    print()
+    print(summary_markdown(summaries, labels))
+    report = make_report(run_dirs, out / "report", overlays=2)
+    print(f"\nreport: {report.markdown} ({len(report.plots)} figures in {report.out_dir / 'plots'})")
     return 0

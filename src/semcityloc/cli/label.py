@@ -34,11 +34,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_model_arguments(p, positional=False)
     p.add_argument("--images", required=True, help="folder of photos")
     p.add_argument("--poses", required=True, help="COLMAP images.txt, or a folder of LoD-Loc <stem>_pose.txt")
-    p.add_argument("--intrinsics", default=None, help="file, COLMAP cameras.txt, or folder of <stem>_intrinsic.txt")
+    p.add_argument(
+        "--intrinsics", default=None, help="file, COLMAP cameras.txt, or folder of <stem>_intrinsic.txt"
+    )
     p.add_argument("--out", required=True, help="output folder for <stem>.png label maps")
     p.add_argument("--max-range", type=float, default=1500.0, help="ignore surfaces farther than this (m)")
-    p.add_argument("--min-incidence", type=float, default=10.0, help="ignore rays this close to a surface (deg)")
-    p.add_argument("--extent-margin", type=float, default=25.0, help="terrain this far outside the buildings counts (m)")
+    p.add_argument(
+        "--min-incidence", type=float, default=10.0, help="ignore rays this close to a surface (deg)"
+    )
+    p.add_argument(
+        "--extent-margin", type=float, default=25.0, help="terrain this far outside the buildings counts (m)"
+    )
     p.add_argument("--boundary-px", type=int, default=1, help="ignore band at class boundaries (px, 0 = off)")
     p.add_argument("--overlay", action="store_true", help="also write overlays/<stem>.png (photo + labels)")
     p.add_argument("--engine", default="auto", help="render engine: auto (default), numba, embree, gpu")
@@ -201,7 +207,10 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"image": image.name, "labelled": round(labelled, 4), "ignored": res.reasons}))
         written += 1
     if skipped:
-        print(f"no pose for {len(skipped)} image(s): {', '.join(skipped[:5])}{' ...' if len(skipped) > 5 else ''}")
+        print(
+            f"no pose for {len(skipped)} image(s): {', '.join(skipped[:5])}"
+            + (" ..." if len(skipped) > 5 else "")
+        )
     if written == 0:
         raise InputFileError(f"none of the {len(images)} images in {args.images} has a pose in {args.poses}")
     print(f"wrote {written} label map(s) to {out}")

@@ -18,7 +18,9 @@ from semcityloc.errors import ParameterError
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train-segmenter", help="train a segmentation head (frozen backbone) from label PNGs")
     p.add_argument("--images", required=True, help="folder of photos")
-    p.add_argument("--labels", required=True, help="folder of <stem>.png label maps (class ids, 255 = ignore)")
+    p.add_argument(
+        "--labels", required=True, help="folder of <stem>.png label maps (class ids, 255 = ignore)"
+    )
     p.add_argument("--backbone", default="mobilenetv2", help="mobilenetv2 (offline default) or dinov3:DIR")
     p.add_argument("--out", required=True, help="output folder: head.safetensors, head.json, checkpoint.pt")
     p.add_argument("--val-images", default=None, help="validation photos (default: hold out --val-fraction)")
@@ -28,7 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--weight-decay", type=float, default=1e-4)
-    p.add_argument("--classes", default=None, help="comma-separated class names (default: those in the labels)")
+    p.add_argument(
+        "--classes", default=None, help="comma-separated class names (default: those in the labels)"
+    )
     p.add_argument("--input-size", default=None, help="network input WxH (default: backbone's, photo aspect)")
     p.add_argument("--no-hflip", action="store_true", help="do not add mirrored copies of the photos")
     p.add_argument("--cache-mb", type=float, default=2048.0, help="memory for cached backbone features")

@@ -73,7 +73,9 @@ class DepthOutput:
         self.depth = np.asarray(self.depth, dtype=np.float32)
         self.valid = np.asarray(self.valid, dtype=bool)
         if self.depth.ndim != 2 or self.valid.shape != self.depth.shape:
-            raise ShapeError(f"depth and valid must be equal (H, W), got {self.depth.shape}, {self.valid.shape}")
+            raise ShapeError(
+                f"depth and valid must be equal (H, W), got {self.depth.shape}, {self.valid.shape}"
+            )
         if self.K is not None:
             self.K = np.asarray(self.K, dtype=np.float64)
             if self.K.shape != (3, 3):

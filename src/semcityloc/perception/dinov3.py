@@ -58,7 +58,9 @@ def _resolve(spec: str | Path | None) -> tuple[str, bool]:
             raise MissingWeightsError(f"{path}: no config.json, not a Hugging Face checkpoint folder; {hint}")
         return str(path), True
     if path.exists():
-        raise MissingWeightsError(f"{path}: a DINOv3 backbone must be a checkpoint folder, not a file; {hint}")
+        raise MissingWeightsError(
+            f"{path}: a DINOv3 backbone must be a checkpoint folder, not a file; {hint}"
+        )
     if looks_like_hub_id(str(spec)):
         return str(spec), False
     raise MissingWeightsError(f"{spec}: no such DINOv3 checkpoint folder; {hint}")
@@ -77,7 +79,9 @@ def load_dinov3_backbone(spec: str | Path | None, out_indices: list[int] | None 
     try:
         config = DINOv3ViTConfig.from_pretrained(where, local_files_only=local or hub_offline())
     except Exception as exc:  # hub client / JSON errors of many types: one line, no hub traceback
-        raise MissingWeightsError(f"{where}: cannot read the DINOv3 config ({_first_line(exc)}); {hint}") from None
+        raise MissingWeightsError(
+            f"{where}: cannot read the DINOv3 config ({_first_line(exc)}); {hint}"
+        ) from None
     if getattr(config, "model_type", None) != "dinov3_vit":
         raise MissingWeightsError(f"{where}: model_type {config.model_type!r} is not a DINOv3 ViT; {hint}")
     indices = list(out_indices) if out_indices is not None else default_out_indices(config.num_hidden_layers)
@@ -94,7 +98,9 @@ def load_dinov3_backbone(spec: str | Path | None, out_indices: list[int] | None 
             local_files_only=local or hub_offline(),
         )
     except Exception as exc:
-        raise MissingWeightsError(f"{where}: cannot load the DINOv3 weights ({_first_line(exc)}); {hint}") from None
+        raise MissingWeightsError(
+            f"{where}: cannot load the DINOv3 weights ({_first_line(exc)}); {hint}"
+        ) from None
     problems = {
         k: sorted(str(v) for v in info[k])[:3]
         for k in ("missing_keys", "unexpected_keys", "mismatched_keys")
@@ -140,5 +146,8 @@ class DINOv3Backbone(nn.Module):
         if h % self.stride or w % self.stride:
             raise ParameterError(f"DINOv3 input sides must be multiples of {self.stride}, got {w}x{h}")
         out = self.vit(pixel_values=x)
-        tokens = [torch.cat([c[:, None, :], p], dim=1) for c, p in zip(out.cls_tokens, out.feature_maps)]
+        tokens = [
+            torch.cat([c[:, None, :], p], dim=1)
+            for c, p in zip(out.cls_tokens, out.feature_maps, strict=True)
+        ]
         return tokens, (h // self.stride, w // self.stride)

@@ -84,7 +84,8 @@ class FilesSegmentation:
         if arr.ndim == 2 and np.issubdtype(arr.dtype, np.integer):
             return _from_labels(_resize_nearest(arr, W, H))
         raise ShapeError(
-            f"{path}: expected an (H, W) integer label map or a ({NUM_CLASSES}, H, W) float probability stack, "
+            f"{path}: expected an (H, W) integer label map or a ({NUM_CLASSES}, H, W) float probability "
+            "stack, "
             f"got {arr.dtype} {arr.shape}"
         )
 

@@ -75,7 +75,9 @@ class FPNSegHead(nn.Module):
 
     kind = "fpn"
 
-    def __init__(self, in_channels: tuple[int, ...], num_classes: int, channels: int = 64, dropout: float = 0.1):
+    def __init__(
+        self, in_channels: tuple[int, ...], num_classes: int, channels: int = 64, dropout: float = 0.1
+    ):
         super().__init__()
         self.params = {
             "in_channels": [int(c) for c in in_channels],
@@ -84,7 +86,9 @@ class FPNSegHead(nn.Module):
             "dropout": float(dropout),
         }
         self.lateral = nn.ModuleList(
-            nn.Sequential(nn.Conv2d(int(c), channels, 1, bias=False), nn.BatchNorm2d(channels), nn.ReLU(inplace=True))
+            nn.Sequential(
+                nn.Conv2d(int(c), channels, 1, bias=False), nn.BatchNorm2d(channels), nn.ReLU(inplace=True)
+            )
             for c in in_channels
         )
         self.fuse = nn.Sequential(
@@ -98,7 +102,7 @@ class FPNSegHead(nn.Module):
     def forward(self, features, grid=None):
         size = features[0].shape[-2:]
         x = self.lateral[0](features[0])
-        for lateral, f in zip(self.lateral[1:], features[1:]):
+        for lateral, f in zip(self.lateral[1:], features[1:], strict=True):
             x = x + F.interpolate(lateral(f), size=size, mode="bilinear", align_corners=False)
         return self.fuse(x)
 

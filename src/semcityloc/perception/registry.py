@@ -46,8 +46,12 @@ def _files_depth(**options):
     return files_depth_backend(**options)
 
 
-register_backend("segmentation", "dinov3-dpt", _dinov3_dpt, SEG_OPTIONS, "frozen DINOv3 ViT + trained DPT head")
-register_backend("segmentation", "mobilenetv2", _mobilenetv2, SEG_OPTIONS, "frozen ImageNet MobileNetV2 + FPN head")
+register_backend(
+    "segmentation", "dinov3-dpt", _dinov3_dpt, SEG_OPTIONS, "frozen DINOv3 ViT + trained DPT head"
+)
+register_backend(
+    "segmentation", "mobilenetv2", _mobilenetv2, SEG_OPTIONS, "frozen ImageNet MobileNetV2 + FPN head"
+)
 register_backend("segmentation", "files", _files_seg, ("masks",), "precomputed masks read by image stem")
 register_backend(
     "depth",

@@ -63,7 +63,9 @@ def parse_backbone_spec(spec: str) -> tuple[str, str | None]:
     kind, _, path = text.partition(":")
     kind = kind.strip().lower()
     if kind not in ("dinov3", "mobilenetv2"):
-        raise ParameterError(f"backbone must be 'dinov3:DIR', 'dinov3', 'mobilenetv2' or 'mobilenetv2:FILE', got {spec!r}")
+        raise ParameterError(
+            f"backbone must be 'dinov3:DIR', 'dinov3', 'mobilenetv2' or 'mobilenetv2:FILE', got {spec!r}"
+        )
     return kind, (path.strip() or None)
 
 
@@ -202,7 +204,8 @@ def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
     if not path.is_file() or not (head_dir / HEAD_WEIGHTS).is_file():
         raise MissingWeightsError(
             f"{head_dir}: no trained segmentation head ({HEAD_JSON} + {HEAD_WEIGHTS}); train one with "
-            "'semcityloc train-segmenter --images DIR --labels DIR --backbone ... --out DIR' and pass head=DIR"
+            "'semcityloc train-segmenter --images DIR --labels DIR --backbone ... --out DIR' and pass "
+            "head=DIR"
         )
     try:
         spec = json.loads(path.read_text(encoding="utf-8"))
@@ -220,7 +223,8 @@ def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
 
 def load_segmenter(head_dir: str | Path, backbone: str | None = None, device: str | None = None) -> Segmenter:
     """Rebuild a saved segmenter. ``backbone`` overrides the backbone path stored in ``head.json`` (a
-    head trained on one machine is used on another): ``"DIR"`` or ``"dinov3:DIR"`` / ``"mobilenetv2:FILE"``."""
+    head trained on one machine is used on another): ``"DIR"``, ``"dinov3:DIR"`` or
+    ``"mobilenetv2:FILE"``."""
     safetensors_torch = require("safetensors.torch", "safetensors", "loading a segmentation head")
     head_dir = Path(head_dir)
     spec = read_head_spec(head_dir)

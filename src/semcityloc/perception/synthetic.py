@@ -72,7 +72,9 @@ def value_noise(x: np.ndarray, y: np.ndarray, cell: float, seed: int) -> np.ndar
     return (v00 * (1 - fx) + v10 * fx) * (1 - fy) + (v01 * (1 - fx) + v11 * fx) * fy
 
 
-def sample_poses(model: CityModel, n: int, rng: np.random.Generator, altitude=(60.0, 150.0), pitch=(0.0, 40.0)):
+def sample_poses(
+    model: CityModel, n: int, rng: np.random.Generator, altitude=(60.0, 150.0), pitch=(0.0, 40.0)
+):
     """``n`` drone poses in the model's WORLD frame over its buildings: altitude above the lowest model
     point, pitch from nadir, any yaw, roll within +-3 degrees."""
     if n < 1:
@@ -87,7 +89,9 @@ def sample_poses(model: CityModel, n: int, rng: np.random.Generator, altitude=(6
     )
 
 
-def texture_view(renderer: Renderer, camera: Camera, pose_local: Pose, view, rng: np.random.Generator) -> np.ndarray:
+def texture_view(
+    renderer: Renderer, camera: Camera, pose_local: Pose, view, rng: np.random.Generator
+) -> np.ndarray:
     """(H, W, 3) uint8 photo-like image of one rendered view (module docstring)."""
     cls = view.labels[0]
     depth = view.depth[0].astype(np.float64)
@@ -103,7 +107,9 @@ def texture_view(renderer: Renderer, camera: Camera, pose_local: Pose, view, rng
     c = scene.corners[safe].astype(np.float64)
     normals = np.cross(c[..., 1, :] - c[..., 0, :], c[..., 2, :] - c[..., 0, :])
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
-    normals *= np.where(np.sum(normals * rays_world, axis=-1, keepdims=True) > 0, -1.0, 1.0)  # face the camera
+    normals *= np.where(
+        np.sum(normals * rays_world, axis=-1, keepdims=True) > 0, -1.0, 1.0
+    )  # face the camera
     source = scene.source_triangle[safe]
     building = np.where(source >= 0, model.building_index[np.maximum(source, 0)], -1)
 
@@ -119,7 +125,9 @@ def texture_view(renderer: Renderer, camera: Camera, pose_local: Pose, view, rng
     lots = value_noise(x[g], y[g], 18.0, seed) - 0.5
     grain = value_noise(x[g], y[g], 0.8, seed + 1) - 0.5
     tone = base + 0.16 * lots + 0.06 * grain
-    img[g] = tone[:, None] * np.array([1.0, 1.0, 0.96]) + np.clip(lots, 0, None)[:, None] * np.array([-0.05, 0.06, -0.05])
+    img[g] = tone[:, None] * np.array([1.0, 1.0, 0.96]) + np.clip(lots, 0, None)[:, None] * np.array(
+        [-0.05, 0.06, -0.05]
+    )
 
     w = cls == SemanticClass.WALL
     b = building[w]
@@ -132,13 +140,21 @@ def texture_view(renderer: Renderer, camera: Camera, pose_local: Pose, view, rng
     b = building[r]
     coord = np.where(stripe_axis[b] == 0, x[r], y[r])
     stripes = 0.5 + 0.5 * np.sin(2 * math.pi * coord / 0.7)
-    img[r] = roof_pick[b] * (0.9 + 0.12 * stripes + 0.1 * (value_noise(x[r], y[r], 3.0, seed + 2) - 0.5))[:, None]
+    img[r] = (
+        roof_pick[b] * (0.9 + 0.12 * stripes + 0.1 * (value_noise(x[r], y[r], 3.0, seed + 2) - 0.5))[:, None]
+    )
 
     img[cls == SemanticClass.WINDOW] = WINDOW_COLOUR
     img[cls == SemanticClass.DOOR] = DOOR_COLOUR
 
     azimuth, elevation = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(30, 70))
-    sun = np.array([math.cos(azimuth) * math.cos(elevation), math.sin(azimuth) * math.cos(elevation), math.sin(elevation)])
+    sun = np.array(
+        [
+            math.cos(azimuth) * math.cos(elevation),
+            math.sin(azimuth) * math.cos(elevation),
+            math.sin(elevation),
+        ]
+    )
     lambert = np.clip(normals @ sun, 0.0, None)
     shade = np.where(hit, 0.45 + 0.65 * lambert, 1.0)
     img *= shade[..., None]

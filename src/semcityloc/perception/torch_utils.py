@@ -65,7 +65,9 @@ def parse_threads(threads) -> int | None:
 def fit_size(width: int, height: int, area: int, multiple: int) -> tuple[int, int]:
     """(w, h), multiples of ``multiple``, with the aspect ratio of ``width`` x ``height`` and ~``area`` px."""
     if width <= 0 or height <= 0 or area <= 0 or multiple <= 0:
-        raise ParameterError(f"sizes must be positive, got {width}x{height}, area {area}, multiple {multiple}")
+        raise ParameterError(
+            f"sizes must be positive, got {width}x{height}, area {area}, multiple {multiple}"
+        )
     scale = math.sqrt(area / (width * height))
     w = max(multiple, int(round(width * scale / multiple)) * multiple)
     h = max(multiple, int(round(height * scale / multiple)) * multiple)

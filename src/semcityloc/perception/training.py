@@ -107,20 +107,26 @@ def load_samples(images_dir: str | Path, labels_dir: str | Path) -> list[Sample]
             continue
         image, labels = load_image(path), load_labels_png(label_path)
         if labels.shape != image.shape[:2]:
-            raise InputFileError(f"{label_path}: label size {labels.shape} differs from image {image.shape[:2]}")
+            raise InputFileError(
+                f"{label_path}: label size {labels.shape} differs from image {image.shape[:2]}"
+            )
         out.append(Sample(path.stem, image, labels))
     if not out:
         raise InputFileError(f"no image in {images_dir} has a label PNG of the same stem in {labels_dir}")
     return out
 
 
-def split_samples(samples: list[Sample], val_fraction: float, seed: int = 0) -> tuple[list[Sample], list[Sample]]:
+def split_samples(
+    samples: list[Sample], val_fraction: float, seed: int = 0
+) -> tuple[list[Sample], list[Sample]]:
     """Deterministic random split: about ``val_fraction`` of the samples (at least one if > 0) held out."""
     if not 0 <= val_fraction < 1:
         raise ParameterError(f"val_fraction must be in [0, 1), got {val_fraction}")
     n_val = 0 if val_fraction == 0 else max(1, int(round(len(samples) * val_fraction)))
     if n_val >= len(samples):
-        raise ParameterError(f"{len(samples)} sample(s) are too few to hold out {val_fraction:.0%} for validation")
+        raise ParameterError(
+            f"{len(samples)} sample(s) are too few to hold out {val_fraction:.0%} for validation"
+        )
     order = np.random.default_rng(seed).permutation(len(samples))
     val = set(order[:n_val].tolist())
     return [s for i, s in enumerate(samples) if i not in val], [s for i, s in enumerate(samples) if i in val]
@@ -193,14 +199,19 @@ class _FeatureStore:
             return feats, y
         chunks = [self.cache[i // self.batch] for i in idx]
         pos = [i % self.batch for i in idx]
-        feats = [torch.stack([c[level][p] for c, p in zip(chunks, pos)]).to(self.device) for level in range(len(chunks[0]))]
+        feats = [
+            torch.stack([c[level][p] for c, p in zip(chunks, pos, strict=True)]).to(self.device)
+            for level in range(len(chunks[0]))
+        ]
         return feats, y
 
 
 # ---------------------------------------------------------------------------------------------- training
 def _prepare(samples: list[Sample], size: tuple[int, int], lut: np.ndarray):
     images = image_tensor([check_image(s.image) for s in samples], size) if samples else None
-    labels = labels_tensor([lut[np.asarray(s.labels, dtype=np.uint8)] for s in samples], size) if samples else None
+    labels = (
+        labels_tensor([lut[np.asarray(s.labels, dtype=np.uint8)] for s in samples], size) if samples else None
+    )
     if images is not None and images.shape[-2:] != labels.shape[-2:]:
         raise ParameterError("images and labels resized to different sizes")
     return images, labels
@@ -276,15 +287,23 @@ def train_segmenter(
             raise ParameterError(f"{ckpt_path} was trained on {spec['backbone']['kind']}, not {kind}")
         classes = tuple(spec["classes"])
         size = tuple(spec["input_size"])
-        head_params = {k: v for k, v in spec["head"]["params"].items() if k not in ("hidden_size", "in_channels", "num_classes")}
+        head_params = {
+            k: v
+            for k, v in spec["head"]["params"].items()
+            if k not in ("hidden_size", "in_channels", "num_classes")
+        }
     else:
         classes = check_classes(cfg.classes) if cfg.classes else default_classes(train)
         size = None
         head_params = dict(cfg.head_params)
-    seg = new_segmenter(backbone, classes, input_size=None, head_params=head_params, backbone_module=backbone_module)
+    seg = new_segmenter(
+        backbone, classes, input_size=None, head_params=head_params, backbone_module=backbone_module
+    )
     if size is None:
         h0, w0 = train[0].image.shape[:2]
-        area = cfg.input_size[0] * cfg.input_size[1] if cfg.input_size else seg.input_size[0] * seg.input_size[1]
+        area = (
+            cfg.input_size[0] * cfg.input_size[1] if cfg.input_size else seg.input_size[0] * seg.input_size[1]
+        )
         size = tuple(cfg.input_size) if cfg.input_size else fit_size(w0, h0, area, seg.stride)
     w, h = (int(v) for v in size)
     if w % seg.stride or h % seg.stride:
@@ -301,7 +320,8 @@ def train_segmenter(
     val_store = _FeatureStore(seg, x_va, y_va, False, cfg.cache_mb, device, batch) if val else None
     say(
         f"backbone {seg.spec['backbone']['id']}; classes {', '.join(classes)}; input {w}x{h}; "
-        f"{len(train)} train{f' ({len(train_store)} with mirrored copies)' if cfg.hflip else ''} / {len(val)} val images; "
+        f"{len(train)} train{f' ({len(train_store)} with mirrored copies)' if cfg.hflip else ''} / "
+        f"{len(val)} val images; "
         f"features {'cached' if train_store.cache is not None else 'recomputed per batch'} "
         f"({time.perf_counter() - t0:.1f} s)"
     )
@@ -350,7 +370,8 @@ def train_segmenter(
             best_epoch, best_score = epoch, score
             save_head(seg, out, metrics={"best_epoch": epoch + 1, **{k: row[k] for k in row if k != "lr"}})
         say(
-            f"epoch {epoch + 1:3d}/{cfg.epochs}  loss {row['train_loss']:.4f}  val loss {row['val_loss']:.4f}  "
+            f"epoch {epoch + 1:3d}/{cfg.epochs}  loss {row['train_loss']:.4f}  "
+            f"val loss {row['val_loss']:.4f}  "
             f"val mIoU {row['val_miou']:5.1f}%  acc {row['val_acc']:5.1f}%  ({row['seconds']:.1f} s)"
             + ("  * saved" if improved else "")
         )
@@ -364,7 +385,9 @@ def train_segmenter(
     return TrainResult(out, history, best_epoch + 1, best_miou, seg)
 
 
-def _save_checkpoint(path: Path, seg: Segmenter, opt, epoch: int, best_epoch: int, best_score: float, history, cfg) -> None:
+def _save_checkpoint(
+    path: Path, seg: Segmenter, opt, epoch: int, best_epoch: int, best_score: float, history, cfg
+) -> None:
     tmp = path.with_name(path.name + ".tmp")
     torch.save(
         {

@@ -125,6 +125,7 @@ def _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, tid, width, height, inv
     ic = 1.0 / cdy if cdy != 0.0 else 0.0
     fj0 = float(j0)
     fj1 = float(j1)
+    eps0 = EDGE_EPS * (abs(ax_) + abs(bx_) + abs(cx_) + width)
     for i in range(i0, i1 + 1):
         py = i + 0.5
         ra = adx * (py - ay_)
@@ -156,7 +157,7 @@ def _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, tid, width, height, inv
             fl = xl - 0.5
             first = math.ceil(fl)
             d = first - fl  # in [0, 1): distance of the first centre past the bound
-            eps = EDGE_EPS * (abs(xl) + abs(ax_) + abs(bx_) + abs(cx_) + width)
+            eps = eps0 + EDGE_EPS * abs(xl)
             exact = d < eps or d > 1.0 - eps
             first = max(first, fj0)
         last = fj1
@@ -164,7 +165,7 @@ def _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, tid, width, height, inv
             fr = xr - 0.5
             last = math.floor(fr)
             d = fr - last
-            eps = EDGE_EPS * (abs(xr) + abs(ax_) + abs(bx_) + abs(cx_) + width)
+            eps = eps0 + EDGE_EPS * abs(xr)
             exact = exact or d < eps or d > 1.0 - eps
             last = min(last, fj1)
         if exact:

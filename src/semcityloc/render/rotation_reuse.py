@@ -3,7 +3,9 @@
 Views that share a camera centre and differ only by a rotation about the world z axis through it
 (``Pose.rotate_world_z``) see the same rays, so they need not each be rendered. ``render_yaw_fan``:
 
-1. sorts the yaws around the circle and cuts them into clusters spanning at most ``max_span_deg``;
+1. sorts the yaws around the circle and cuts them into clusters spanning at most a yaw span (by default
+   the span with the least estimated cost: near nadir one wide view holds all 360 degrees; oblique
+   views need several);
 2. renders, per cluster, one WIDE pinhole view: the base pose turned by the cluster's middle yaw, with
    ``oversample`` times the target's focal length (pixels per radian) and a field of view (principal
    point off-centre if need be) that holds every target view of the cluster; all clusters share one
@@ -11,7 +13,9 @@ Views that share a camera centre and differ only by a rotation about the world z
 3. resamples each target from its cluster's wide view by the pure-rotation homography
    ``H = K_w R_delta K_t^-1`` (``R_delta = R_wide R_target^T``): nearest neighbour for labels and face
    ids; depth is moved along the ray: a wide z-depth ``d_w`` on the ray ``r_w = R_delta r_t`` (target ray
-   with z = 1) is the target z-depth ``d_w / r_w.z``.
+   with z = 1) is the target z-depth ``d_w / r_w.z``. ``R_delta`` depends only on the yaw offset from
+   the cluster's middle and on the base pose's pitch and roll (not its yaw), so the pixel lookup tables
+   are computed once per distinct ``R_delta`` and shared by every centre of a search grid.
 
 It is an approximation: each target pixel takes the wide pixel its centre falls in, whose centre is up to
 half a wide pixel away, so labels differ from a direct render along class boundaries (measured in
@@ -35,6 +39,10 @@ from semcityloc.render.output import RenderOutput
 
 # A cluster whose wide view would need rays this close to 90 degrees off its axis is split further.
 MAX_OFF_AXIS_TAN = 4.0
+# Yaw spans per wide view tried by default (360: one wide view for all yaws, e.g. near nadir).
+AUTO_SPANS_DEG = (360.0, 180.0, 120.0, 90.0, 60.0, 45.0, 30.0, 20.0, 10.0)
+# Fixed cost of rendering one view, in target-image pixel fills (triangle setup, culling).
+VIEW_COST_PIXELS = 2.0
 
 
 def _cluster_yaws(yaws: np.ndarray, max_span: float) -> tuple[np.ndarray, np.ndarray]:
@@ -69,20 +77,18 @@ def _wide_camera(
     None when some target ray would be too far off the wide axis (cluster too wide for a pinhole).
     """
     w, h = camera.width, camera.height
-    # Target image border, sampled densely enough (lines map to lines, but a corner may be the extreme).
-    s = np.linspace(0.0, 1.0, 9)
-    border = np.concatenate(
-        [np.stack([s * w, np.zeros_like(s)], 1), np.stack([s * w, np.full_like(s, h)], 1),
-         np.stack([np.zeros_like(s), s * h], 1), np.stack([np.full_like(s, w), s * h], 1)]
-    )
-    rays = np.stack([(border[:, 0] - camera.cx) / camera.fx, (border[:, 1] - camera.cy) / camera.fy,
-                     np.ones(len(border))], 1)
-    delta = R_wides[cluster] @ np.swapaxes(R_targets, 1, 2)  # (N, 3, 3): target cam -> wide cam
-    rw = np.einsum("nij,pj->npi", delta, rays)
-    if np.any(rw[..., 2] <= 1.0 / MAX_OFF_AXIS_TAN):
+    # Target image border: corners and edge midpoints (pinhole to pinhole maps lines to lines, so the
+    # extremes are at corners unless the horizon of the wide view cuts the border; the midpoints and
+    # the off-axis limit below guard that case).
+    us = np.array([0.0, w / 2, w, w, w, w / 2, 0.0, 0.0])
+    vs = np.array([0.0, 0.0, 0.0, h / 2, h, h, h, h / 2])
+    rays = np.stack([(us - camera.cx) / camera.fx, (vs - camera.cy) / camera.fy, np.ones(len(us))])  # (3, P)
+    delta = np.matmul(R_wides[cluster], np.swapaxes(R_targets, 1, 2))  # (N, 3, 3): target cam -> wide cam
+    rw = np.matmul(delta, rays)  # (N, 3, P)
+    if np.any(rw[:, 2] <= 1.0 / MAX_OFF_AXIS_TAN):
         return None
-    x = rw[..., 0] / rw[..., 2]
-    y = rw[..., 1] / rw[..., 2]
+    x = rw[:, 0] / rw[:, 2]
+    y = rw[:, 1] / rw[:, 2]
     if max(np.abs(x).max(), np.abs(y).max()) > MAX_OFF_AXIS_TAN:
         return None
     fxw, fyw = oversample * camera.fx, oversample * camera.fy
@@ -93,48 +99,75 @@ def _wide_camera(
 
 
 @njit(parallel=True, cache=True)
-def _resample(
-    wide_labels, wide_depth, wide_ids, cluster, homog, rz_row, width, height, want_depth, want_ids,
-    labels, depth, face_ids,
-):
-    """Nearest-neighbour pull of each target pixel from its wide view.
+def _build_luts(homog, rz_row, width, height, wide_w, wide_h, want_depth, lut, inv_rz):
+    """Per distinct target->wide rotation u: lut[u, p] = flat wide pixel that target pixel p falls in
+    (-1 outside the wide view), and inv_rz[u, p] = 1 / (wide-camera z of the target ray with z = 1).
 
-    homog[v] maps target pixel coordinates (u, v, 1) to homogeneous wide pixel coordinates; rz_row[v]
-    (3,) gives the wide-camera z of the target ray with z = 1: rz = a*u + b*v + c (for depth).
+    homog[u] maps target pixel coordinates (u, v, 1) to homogeneous wide pixel coordinates.
     """
-    n = homog.shape[0]
-    hw, ww = wide_labels.shape[1], wide_labels.shape[2]
-    for v in prange(n):
-        c = cluster[v]
-        h00, h01, h02 = homog[v, 0, 0], homog[v, 0, 1], homog[v, 0, 2]
-        h10, h11, h12 = homog[v, 1, 0], homog[v, 1, 1], homog[v, 1, 2]
-        h20, h21, h22 = homog[v, 2, 0], homog[v, 2, 1], homog[v, 2, 2]
+    fw, fh = float(wide_w), float(wide_h)
+    for q in prange(homog.shape[0]):
+        h00, h01, h02 = homog[q, 0, 0], homog[q, 0, 1], homog[q, 0, 2]
+        h10, h11, h12 = homog[q, 1, 0], homog[q, 1, 1], homog[q, 1, 2]
+        h20, h21, h22 = homog[q, 2, 0], homog[q, 2, 1], homog[q, 2, 2]
         for i in range(height):
             py = i + 0.5
+            bx = h01 * py + h02
+            by = h11 * py + h12
+            bz = h21 * py + h22
             for j in range(width):
                 px = j + 0.5
-                hz = h20 * px + h21 * py + h22
-                jj = -1
-                ii = -1
+                hz = h20 * px + bz
+                k = i * width + j
+                lut[q, k] = -1
                 if hz > 0.0:
-                    uw = (h00 * px + h01 * py + h02) / hz
-                    vw = (h10 * px + h11 * py + h12) / hz
-                    if 0.0 <= uw < ww and 0.0 <= vw < hw:
-                        jj = int(uw)
-                        ii = int(vw)
-                if jj < 0:
-                    labels[v, i, j] = 0
-                    if want_depth:
-                        depth[v, i, j] = np.inf
-                    if want_ids:
-                        face_ids[v, i, j] = -1
-                    continue
-                labels[v, i, j] = wide_labels[c, ii, jj]
+                    inv = 1.0 / hz
+                    uw = (h00 * px + bx) * inv
+                    vw = (h10 * px + by) * inv
+                    if uw >= 0.0 and uw < fw and vw >= 0.0 and vw < fh:
+                        lut[q, k] = int(vw) * wide_w + int(uw)
                 if want_depth:
-                    rz = rz_row[v, 0] * px + rz_row[v, 1] * py + rz_row[v, 2]
-                    depth[v, i, j] = np.float32(wide_depth[c, ii, jj] / rz)
+                    rz = rz_row[q, 0] * px + rz_row[q, 1] * py + rz_row[q, 2]
+                    inv_rz[q, k] = np.float32(1.0 / rz) if rz > 0.0 else np.float32(0.0)
+
+
+@njit(parallel=True, cache=True)
+def _gather(
+    wide_labels, wide_depth, wide_ids, wide_of, lut_of, lut, inv_rz, want_depth, want_ids, labels, depth,
+    face_ids,
+):
+    """Nearest-neighbour pull: target v takes wide view wide_of[v] through lookup table lut_of[v]."""
+    npx = labels.shape[1]
+    for v in prange(labels.shape[0]):
+        c = wide_of[v]
+        q = lut_of[v]
+        for k in range(npx):
+            src = lut[q, k]
+            if src < 0:
+                labels[v, k] = 0
+                if want_depth:
+                    depth[v, k] = np.inf
                 if want_ids:
-                    face_ids[v, i, j] = wide_ids[c, ii, jj]
+                    face_ids[v, k] = -1
+            else:
+                labels[v, k] = wide_labels[c, src]
+                if want_depth:
+                    depth[v, k] = wide_depth[c, src] * inv_rz[q, k]
+                if want_ids:
+                    face_ids[v, k] = wide_ids[c, src]
+
+
+def _turned(base: Pose, yaws_deg: np.ndarray) -> Pose:
+    """(M * N,) poses: every base pose (M,) turned about world z by every yaw (N,), centre-major."""
+    a = np.radians(yaws_deg)
+    c, s = np.cos(a), np.sin(a)
+    rz = np.zeros((len(a), 3, 3))
+    rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1], rz[:, 2, 2] = c, -s, s, c, 1.0
+    rwc = base.R_world_from_cam.reshape(-1, 3, 3)
+    centres = base.center.reshape(-1, 3)
+    R = np.einsum("nij,mjk->mnik", rz, rwc).reshape(-1, 3, 3)
+    C = np.repeat(centres, len(a), axis=0)
+    return Pose.from_rotation_center(R, C)
 
 
 def render_yaw_fan(
@@ -145,66 +178,95 @@ def render_yaw_fan(
     depth: bool = False,
     face_ids: bool = False,
     oversample: float = 2.0,
-    max_span_deg: float = 90.0,
+    max_span_deg: float | None = None,
 ) -> RenderOutput:
     """Render ``base_pose.rotate_world_z(yaw)`` for every yaw by resampling a few wide views.
 
     Args:
         renderer: a ``Renderer``.
         camera: the target camera.
-        base_pose: ONE pose (local frame, like ``Renderer.render``).
+        base_pose: one pose, or a batch of M poses (M camera centres; local frame like ``Renderer.render``).
         yaws_deg: (N,) yaw offsets in degrees, added to the base pose's yaw (any order, any range).
         depth / face_ids: as in ``Renderer.render``.
         oversample: wide-view pixels per target pixel (along each axis, at the image centre).
-        max_span_deg: the widest yaw range one wide view covers.
+        max_span_deg: the widest yaw range one wide view covers; None (default) picks, among
+            ``AUTO_SPANS_DEG``, the one with the least estimated cost (wide pixels + a per-view cost).
 
-    Returns the same ``RenderOutput`` as ``renderer.render(camera, base_pose.rotate_world_z(yaws))``,
-    up to resampling differences along class boundaries (module docstring).
+    Returns the same ``RenderOutput`` as ``renderer.render(camera, base_pose.rotate_world_z(yaws))``
+    (N views; for M base poses M * N views, base-major: view ``m * N + k`` is base m turned by yaw k),
+    up to resampling differences along class boundaries (module docstring). All wide views are one
+    render call and all resampling one kernel call, so batching the centres saves per-call overhead.
     """
     check_camera(camera)
-    R_base, _ = pose_arrays(base_pose)
-    if base_pose.batch_shape != ():
-        raise ShapeError(f"render_yaw_fan needs ONE base pose, got batch shape {base_pose.batch_shape}")
+    if not isinstance(base_pose, Pose):
+        raise TypeError(f"base_pose must be a semcityloc Pose, got {type(base_pose).__name__}")
+    if len(base_pose.batch_shape) > 1:
+        raise ShapeError(f"render_yaw_fan needs one base pose or a 1-D batch, got {base_pose.batch_shape}")
     yaws = np.asarray(yaws_deg, dtype=np.float64).reshape(-1)
     if not np.all(np.isfinite(yaws)):
         raise ShapeError("yaws_deg must be finite")
     if not (oversample >= 1.0 and math.isfinite(oversample)):
         raise RenderError(f"oversample must be >= 1, got {oversample}")
-    if not (0.0 < max_span_deg <= 180.0):
-        raise RenderError(f"max_span_deg must be in (0, 180], got {max_span_deg}")
+    if max_span_deg is not None and not (0.0 < max_span_deg <= 360.0):
+        raise RenderError(f"max_span_deg must be in (0, 360], got {max_span_deg}")
+    m = 1 if base_pose.batch_shape == () else base_pose.batch_shape[0]
     n = len(yaws)
     h, w = camera.height, camera.width
-    if n == 0:
+    if n * m == 0:
         return RenderOutput(
             labels=np.zeros((0, h, w), dtype=np.uint8),
             depth=np.zeros((0, h, w), dtype=np.float32) if depth else None,
             face_ids=np.zeros((0, h, w), dtype=np.int32) if face_ids else None,
         )
-    targets = base_pose.rotate_world_z(yaws)
-    R_t, _ = pose_arrays(targets)
-    span = float(max_span_deg)
-    while True:
+    R_t, _ = pose_arrays(_turned(base_pose, yaws))
+    best = None
+    spans = AUTO_SPANS_DEG if max_span_deg is None else [float(max_span_deg) / 2**k for k in range(12)]
+    for span in spans:
         cluster, mids = _cluster_yaws(yaws, span)
-        wide_poses = base_pose.rotate_world_z(mids)
-        R_w, t_w = pose_arrays(wide_poses)
-        wide_cam = _wide_camera(camera, R_t, R_w, cluster, oversample)
-        if wide_cam is not None:
-            break
-        if span < 1.0:
-            raise RenderError("render_yaw_fan: no pinhole wide view holds these targets")
-        span /= 2.0
+        n_c = len(mids)
+        wide_poses = _turned(base_pose, mids)  # (M * C,)
+        R_w, _ = pose_arrays(wide_poses)
+        # Target m * N + k resamples wide view m * C + cluster[k].
+        wide_of = (np.arange(m)[:, None] * n_c + cluster[None, :]).reshape(-1)
+        cam_w = _wide_camera(camera, R_t, R_w, wide_of, oversample)
+        if cam_w is None:
+            continue
+        # Cost model in pixel-equivalents: the wide pixels plus a fixed cost per view (triangle setup),
+        # measured on Berlin to be about that of filling two target images.
+        cost = n_c * (cam_w.width * cam_w.height + VIEW_COST_PIXELS * w * h)
+        if best is None or cost < best[0]:
+            best = (cost, wide_poses, R_w, wide_of, cam_w)
+        if max_span_deg is not None:
+            break  # the widest feasible span not above the requested one
+    if best is None:
+        raise RenderError("render_yaw_fan: no pinhole wide view holds these targets")
+    _, wide_poses, R_w, wide_of, wide_cam = best
     wide = renderer.render(wide_cam, wide_poses, depth=depth, face_ids=face_ids)
-    delta = R_w[cluster] @ np.swapaxes(R_t, 1, 2)  # target camera -> wide camera
+    delta = R_w[wide_of] @ np.swapaxes(R_t, 1, 2)  # target camera -> wide camera
+    # delta = B^T Rz(yaw - mid) B with B the base orientation without its yaw: targets whose bases
+    # share pitch and roll (a search grid) share their lookup tables.
+    keys, lut_of = np.unique(np.round(delta.reshape(-1, 9), 12), axis=0, return_inverse=True)
+    delta_u = keys.reshape(-1, 3, 3)
     k_inv = np.linalg.inv(camera.K)
-    homog = np.ascontiguousarray(wide_cam.K @ delta @ k_inv)
-    rz_row = np.ascontiguousarray((delta @ k_inv)[:, 2, :])
-    labels = np.empty((n, h, w), dtype=np.uint8)
-    dep = np.empty((n, h, w), dtype=np.float32) if depth else np.empty((1, 1, 1), dtype=np.float32)
-    ids = np.empty((n, h, w), dtype=np.int32) if face_ids else np.empty((1, 1, 1), dtype=np.int32)
-    dummy_f = np.empty((1, 1, 1), dtype=np.float32)
-    dummy_i = np.empty((1, 1, 1), dtype=np.int32)
-    _resample(
-        wide.labels, wide.depth if depth else dummy_f, wide.face_ids if face_ids else dummy_i, cluster, homog,
-        rz_row, w, h, depth, face_ids, labels, dep, ids,
+    homog = np.ascontiguousarray(wide_cam.K @ delta_u @ k_inv)
+    rz_row = np.ascontiguousarray((delta_u @ k_inv)[:, 2, :])
+    n_u, npx = len(delta_u), w * h
+    lut = np.empty((n_u, npx), dtype=np.int64)
+    inv_rz = np.empty((n_u, npx) if depth else (1, 1), dtype=np.float32)
+    _build_luts(homog, rz_row, w, h, wide_cam.width, wide_cam.height, depth, lut, inv_rz)
+    total = n * m
+    labels = np.empty((total, npx), dtype=np.uint8)
+    dep = np.empty((total, npx) if depth else (1, 1), dtype=np.float32)
+    ids = np.empty((total, npx) if face_ids else (1, 1), dtype=np.int32)
+    n_w = len(wide)
+    wide_dep = wide.depth.reshape(n_w, -1) if depth else np.empty((1, 1), dtype=np.float32)
+    wide_ids = wide.face_ids.reshape(n_w, -1) if face_ids else np.empty((1, 1), dtype=np.int32)
+    _gather(
+        wide.labels.reshape(n_w, -1), wide_dep, wide_ids, np.ascontiguousarray(wide_of),
+        np.ascontiguousarray(lut_of.reshape(-1)), lut, inv_rz, depth, face_ids, labels, dep, ids,
     )
-    return RenderOutput(labels=labels, depth=dep if depth else None, face_ids=ids if face_ids else None)
+    return RenderOutput(
+        labels=labels.reshape(total, h, w),
+        depth=dep.reshape(total, h, w) if depth else None,
+        face_ids=ids.reshape(total, h, w) if face_ids else None,
+    )
