@@ -10,8 +10,8 @@ weights of the real architectures (inference time does not depend on the values)
   (neck 48/96/192/384, fusion 64), 4 classes;
 - ``mobilenetv2``: the packaged ImageNet MobileNetV2 + the default FPN head (real weights, random head);
 - ``moge2``: MoGe-2 with a ViT-S/14 encoder and a ViT-S-sized neck and heads (points, mask, normal,
-  scale; the layout third-party code uses for ``moge-2-vits-normal``), ``use_fp16=False``, default
-  ``resolution_level`` 9 (3600 tokens at most);
+  scale; the layout third-party code uses for ``moge-2-vits-normal``), ``use_fp16=False``, at the
+  backend's default ``resolution_level`` 0 (1200 tokens) and as ``moge2-3600`` at MoGe's default 9;
 - ``files``: reading a palette PNG mask and a .npy depth (the GPU-box route);
 - ``autolabel``: ``auto_label`` of the real UAV image (640x512) against its LoD1 OBJ, when
   ``../shared/data/real_uav_lodloc`` is present (the renderer is built once, outside the timing).
@@ -97,6 +97,9 @@ def build_backends(tmp: Path, image: np.ndarray) -> dict:
     from semcityloc.perception import get_depth_backend, get_segmentation_backend
     from semcityloc.perception.segmenter import new_segmenter, save_head
 
+    from semcityloc.perception.torch_utils import quiet_transformers
+
+    quiet_transformers()
     classes = ["background", "ground", "wall", "roof"]
     backends = {}
     torch.manual_seed(0)
@@ -117,6 +120,7 @@ def build_backends(tmp: Path, image: np.ndarray) -> dict:
         model = MoGeModel(**config)
         torch.save({"model_config": config, "model": model.state_dict()}, tmp / "model.pt")
         backends["moge2"] = get_depth_backend("moge2", model=str(tmp / "model.pt"))
+        backends["moge2-3600"] = get_depth_backend("moge2", model=str(tmp / "model.pt"), resolution_level=9)
     except ImportError as exc:
         print(json.dumps({"backend": "moge2", "skipped": str(exc)}))
     save_labels_png(np.zeros(image.shape[:2], np.uint8), tmp / "masks" / "photo.png")

@@ -6,7 +6,8 @@ City: ``--city PATH`` (any format ``load_city_model`` reads). Default: the Berli
 
 Views: aerial, camera centres uniform over the model's footprint at 40-150 m above the model's LOWEST
 point (flight height above ground, so a 40 m view can be lower than the tallest roofs, as a drone's can),
-roll ~ N(0, 2 deg), yaw uniform; nadir = pitch 0-10 deg, oblique = pitch 30-60 deg. Camera: square pixels, principal point at the centre, ``--hfov`` (default 60 deg).
+roll ~ N(0, 2 deg), yaw uniform; nadir = pitch 0-10 deg, oblique = pitch 30-60 deg. Camera: square
+pixels, principal point at the centre, ``--hfov`` (default 60 deg).
 
 Prints one JSON line per case, each with ``case``, ``engine``, ``width``, ``height``, ``depth``,
 ``triangles`` (drawn scene triangles, terrain included), ``views_per_s``:
@@ -14,9 +15,16 @@ Prints one JSON line per case, each with ``case``, ``engine``, ``width``, ``heig
 - ``nadir`` / ``oblique`` for (a) 64 x 48 labels and (b) 128 x 96 labels + depth, numba and Embree in the
   same run, plus a ``ratio`` line (numba / embree);
 - ``scale10_nadir`` / ``scale10_oblique``: the model tiled 5 x 2 side by side (10x the triangles), numba,
-  with ``vs_1x`` = its views/s over the 1x model's (flat time = 1.0);
-- ``rotation_reuse``: ``render_yaw_fan`` vs direct rendering for ``--yaws`` yaws per centre, with
-  ``speedup`` and ``agreement`` (fraction of equal label pixels) per pitch.
+  with ``vs_1x`` = its views/s over the 1x model's (flat time = 1.0); views anywhere over the big city,
+  which see more city around them than views near the 1x model's edge;
+- ``scale10_gap_nadir`` / ``..._oblique``: the 5 x 2 copies 3 km apart and the 1x run's very views moved
+  onto random copies: the same content in view with 10x the triangles, so ``vs_1x`` is the pure cost of
+  size (culling);
+- ``rotation_reuse``: ``render_yaw_fan`` for ``--centres`` camera centres x ``--yaws`` yaws (one call)
+  vs rendering the same views directly (one call), per pitch: ``speedup`` and ``agreement`` (fraction
+  of label pixels equal to the direct render) of the default call (which renders directly where its
+  cost model says the wide views do not pay), and ``fan_speedup`` / ``fan_agreement`` of the wide-view
+  path forced (``allow_direct=False``).
 
 numba is compiled (or loaded from its cache) before anything is timed. Times are wall-clock, best of
 ``--repeats`` runs of the whole batch, on all numba threads (``NUMBA_NUM_THREADS``).
@@ -45,6 +53,7 @@ from semcityloc.render.synthetic import synthetic_city, tile_model
 BERLIN = Path(__file__).resolve().parents[1].parent / "shared/data/berlin_lod2_citygml2/3910_5817.gml"
 PITCH = {"nadir": (0.0, 10.0), "oblique": (30.0, 60.0)}
 SIZES = [(64, 48, False), (128, 96, True)]
+GAP_M = 3000.0  # far enough apart that a 40-150 m high view of one copy sees no other
 
 
 def load_city(path: str | None) -> tuple[CityModel, str]:
@@ -89,7 +98,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--embree-views", type=int, default=200, help="views per Embree case")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--hfov", type=float, default=60.0)
-    ap.add_argument("--yaws", type=int, nargs="+", default=[9, 36, 72], help="yaws per centre (rotation reuse)")
+    ap.add_argument(
+        "--yaws", type=int, nargs="+", default=[9, 36, 72], help="yaws per centre (rotation reuse)"
+    )
     ap.add_argument("--centres", type=int, default=20, help="camera centres per rotation-reuse case")
     ap.add_argument("--quick", action="store_true", help="few views (a smoke run, numbers are noisy)")
     args = ap.parse_args(argv)
@@ -109,51 +120,131 @@ def main(argv: list[str] | None = None) -> None:
             poses = aerial_poses(model, args.views, pitch, seed=1)
             rate = views_per_s(numba_r, cam, poses, depth, args.repeats)
             base_rate[(w, case)] = rate
-            emit(case=case, engine="numba", width=w, height=h, depth=depth, triangles=tri,
-                 views_per_s=round(rate, 1), pitch_deg=pitch, **common)
+            emit(
+                case=case,
+                engine="numba",
+                width=w,
+                height=h,
+                depth=depth,
+                triangles=tri,
+                views_per_s=round(rate, 1),
+                pitch_deg=pitch,
+                **common,
+            )
             if embree_r is not None:
-                e_rate = views_per_s(embree_r, cam, poses[: args.embree_views], depth, max(1, args.repeats // 2))
-                emit(case=case, engine="embree", width=w, height=h, depth=depth, triangles=tri,
-                     views_per_s=round(e_rate, 1), pitch_deg=pitch, **common)
-                emit(case=f"{case}_ratio", engine="numba/embree", width=w, height=h, depth=depth, triangles=tri,
-                     views_per_s=round(rate, 1), ratio=round(rate / e_rate, 2), **common)
+                e_rate = views_per_s(
+                    embree_r, cam, poses[: args.embree_views], depth, max(1, args.repeats // 2)
+                )
+                emit(
+                    case=case,
+                    engine="embree",
+                    width=w,
+                    height=h,
+                    depth=depth,
+                    triangles=tri,
+                    views_per_s=round(e_rate, 1),
+                    pitch_deg=pitch,
+                    **common,
+                )
+                emit(
+                    case=f"{case}_ratio",
+                    engine="numba/embree",
+                    width=w,
+                    height=h,
+                    depth=depth,
+                    triangles=tri,
+                    views_per_s=round(rate, 1),
+                    ratio=round(rate / e_rate, 2),
+                    **common,
+                )
 
-    big = tile_model(model, 5, 2)
-    big_r = Renderer(big, engine="numba")
-    for w, h, depth in SIZES:
-        cam = Camera.from_fov(w, h, args.hfov)
-        for case, pitch in PITCH.items():
-            poses = aerial_poses(big, args.views, pitch, seed=2)
-            rate = views_per_s(big_r, cam, poses, depth, args.repeats)
-            emit(case=f"scale10_{case}", engine="numba", width=w, height=h, depth=depth,
-                 triangles=big_r.scene.num_triangles, views_per_s=round(rate, 1),
-                 vs_1x=round(rate / base_rate[(w, case)], 3), **common)
+    # 10x: (a) copies side by side, views anywhere over them (they also see more city around them than
+    # views near the edge of the 1x model do); (b) copies GAP_M apart and the very views of the 1x run
+    # moved onto a random copy: the same content in view, 10x the triangles: pure size overhead.
+    ext = model.extent_m
+    cases = {
+        "scale10": (tile_model(model, 5, 2), None),
+        "scale10_gap": (
+            tile_model(model, 5, 2, gap_m=GAP_M),
+            np.array([ext[0] + GAP_M, ext[1] + GAP_M, 0.0]),
+        ),
+    }
+    for name, (big, step) in cases.items():
+        big_r = Renderer(big, engine="numba")
+        for w, h, depth in SIZES:
+            cam = Camera.from_fov(w, h, args.hfov)
+            for case, pitch in PITCH.items():
+                if step is None:
+                    poses = aerial_poses(big, args.views, pitch, seed=2)
+                else:
+                    poses = aerial_poses(model, args.views, pitch, seed=1)  # the 1x views
+                    k = np.random.default_rng(4).integers(0, 10, args.views)
+                    shift = np.stack([k % 5, k // 5, np.zeros_like(k)], 1) * step
+                    poses = Pose.from_rotation_center(poses.R_world_from_cam, poses.center + shift)
+                rate = views_per_s(big_r, cam, poses, depth, args.repeats)
+                emit(
+                    case=f"{name}_{case}",
+                    engine="numba",
+                    width=w,
+                    height=h,
+                    depth=depth,
+                    triangles=big_r.scene.num_triangles,
+                    views_per_s=round(rate, 1),
+                    vs_1x=round(rate / base_rate[(w, case)], 3),
+                    **common,
+                )
 
     cam = Camera.from_fov(64, 48, args.hfov)
     rng = np.random.default_rng(3)
     lo, hi = model.bounds_local
+    m = args.centres
     for n_yaw in args.yaws:
         yaws = np.arange(n_yaw) * (360.0 / n_yaw)
         for pitch in (0.0, 30.0, 45.0, 60.0):
-            centres = [np.array([rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]), lo[2] + rng.uniform(40, 150)])
-                       for _ in range(args.centres)]
-            bases = [Pose.from_xyz_rpy(c, 0.0, pitch, rng.uniform(-180, 180)) for c in centres]
-            render_yaw_fan(numba_r, cam, bases[0], yaws)  # compile
-            t_direct = t_fan = 0.0
-            agree = []
-            for base in bases:
-                targets = base.rotate_world_z(yaws)
-                t0 = time.perf_counter()
-                direct = numba_r.render(cam, targets)
-                t_direct += time.perf_counter() - t0
-                t0 = time.perf_counter()
-                fan = render_yaw_fan(numba_r, cam, base, yaws)
-                t_fan += time.perf_counter() - t0
-                agree.append(float((fan.labels == direct.labels).mean()))
-            emit(case="rotation_reuse", engine="numba", width=64, height=48, depth=False, triangles=tri,
-                 views_per_s=round(n_yaw * len(bases) / t_fan, 1), yaws_per_centre=n_yaw, pitch_deg=pitch,
-                 speedup=round(t_direct / t_fan, 2), agreement=round(float(np.mean(agree)), 4),
-                 agreement_min=round(float(np.min(agree)), 4), **common)
+            xyz = np.column_stack(
+                [rng.uniform(lo[0], hi[0], m), rng.uniform(lo[1], hi[1], m), lo[2] + rng.uniform(40, 150, m)]
+            )
+            bases = Pose.from_xyz_rpy(xyz, np.zeros(m), np.full(m, pitch), rng.uniform(-180, 180, m))
+            targets = Pose.from_rotation_center(
+                np.concatenate([bases[i].rotate_world_z(yaws).R_world_from_cam for i in range(m)]),
+                np.repeat(bases.center, n_yaw, axis=0),
+            )
+            direct = numba_r.render(cam, targets)
+            auto = render_yaw_fan(numba_r, cam, bases, yaws)
+            fan = render_yaw_fan(numba_r, cam, bases, yaws, allow_direct=False)
+            t_direct = min(_timed(lambda t=targets: numba_r.render(cam, t)) for _ in range(args.repeats))
+            t_auto = min(
+                _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y))
+                for _ in range(args.repeats)
+            )
+            t_fan = min(
+                _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y, allow_direct=False))
+                for _ in range(args.repeats)
+            )
+            emit(
+                case="rotation_reuse",
+                engine="numba",
+                width=64,
+                height=48,
+                depth=False,
+                triangles=tri,
+                views_per_s=round(n_yaw * m / t_auto, 1),
+                yaws_per_centre=n_yaw,
+                centres=m,
+                pitch_deg=pitch,
+                speedup=round(t_direct / t_auto, 2),
+                agreement=round(float((auto.labels == direct.labels).mean()), 4),
+                fan_speedup=round(t_direct / t_fan, 2),
+                fan_agreement=round(float((fan.labels == direct.labels).mean()), 4),
+                fan_agreement_worst_view=round(float((fan.labels == direct.labels).mean((1, 2)).min()), 4),
+                **common,
+            )
+
+
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
 
 
 if __name__ == "__main__":

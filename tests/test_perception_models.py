@@ -186,6 +186,7 @@ def _tiny_moge_config() -> dict:
         "neck": {"dim_in": [34, 2, 2, 2, 2], "dim_out": [None] * 5, **stack},
         "points_head": {"dim_in": [32] * 5, "dim_out": [None] * 4 + [3], **stack},
         "mask_head": {"dim_in": [32] * 5, "dim_out": [None] * 4 + [1], **stack},
+        "normal_head": {"dim_in": [32] * 5, "dim_out": [None] * 4 + [3], **stack},
         "scale_head": {"dims": [384, 32, 1]},
         "remap_output": "exp",
         "num_tokens_range": [1200, 3600],
@@ -211,9 +212,12 @@ def tiny_moge(tmp_path_factory):
 def test_moge2_through_the_production_loader(tiny_moge):
     path, _, state = tiny_moge
     backend = get_depth_backend("moge2", model=str(path.parent), num_tokens="64")  # folder -> model.pt
+    loaded = backend.model.state_dict()
     for name, tensor in state.items():
-        assert torch.equal(backend.model.state_dict()[name], tensor), name
+        if not name.startswith("normal_head."):
+            assert torch.equal(loaded[name], tensor), name
     assert not backend.model.training
+    assert not hasattr(backend.model, "normal_head")  # checked, then dropped: normals are not used
     out = backend.predict(PHOTO)
     assert out.depth.shape == (90, 120) and out.depth.dtype == np.float32 and out.valid.dtype == bool
     assert out.valid.mean() > 0.99
@@ -235,6 +239,8 @@ def test_moge2_checkpoint_with_missing_or_extra_keys_is_an_error(tiny_moge, tmp_
     torch.save({"model_config": config, "model": extra}, tmp_path / "extra.pt")
     with pytest.raises(MissingWeightsError, match="unexpected"):
         get_depth_backend("moge2", model=str(tmp_path / "extra.pt"))
+    with pytest.raises(ParameterError, match="resolution_level"):
+        get_depth_backend("moge2", model=str(tmp_path / "missing.pt"), resolution_level="high")
     torch.save({"weights": 1}, tmp_path / "foreign.pt")
     with pytest.raises(MissingWeightsError, match="model_config"):
         get_depth_backend("moge2", model=str(tmp_path / "foreign.pt"))

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from semcityloc.classes import SemanticClass
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.model import CityModel
+from semcityloc.classes import SemanticClass
 from semcityloc.errors import EmptyModelError, RenderError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -16,7 +16,9 @@ from semcityloc.render import Renderer, RenderOutput
 from semcityloc.render.embree_ref import embree_available
 from semcityloc.render.synthetic import add_house, synthetic_city
 
-needs_embree = pytest.mark.skipif(not embree_available(), reason="embreex (semcityloc[reference]) not installed")
+needs_embree = pytest.mark.skipif(
+    not embree_available(), reason="embreex (semcityloc[reference]) not installed"
+)
 
 ORIGIN = np.array([391000.0, 5817000.0, 0.0])
 
@@ -93,7 +95,11 @@ def test_class_ids_roof_on_top_walls_when_oblique_ground_around():
     out = r.render(cam, pose, depth=True)
     labels = out.labels[0]
     counts = np.bincount(labels.ravel(), minlength=6)
-    assert counts[SemanticClass.WALL] > 20 and counts[SemanticClass.ROOF] > 20 and counts[SemanticClass.GROUND] > 500
+    assert (
+        counts[SemanticClass.WALL] > 20
+        and counts[SemanticClass.ROOF] > 20
+        and counts[SemanticClass.GROUND] > 500
+    )
     rows_roof = np.nonzero(labels == SemanticClass.ROOF)[0]
     rows_wall = np.nonzero(labels == SemanticClass.WALL)[0]
     assert rows_roof.mean() < rows_wall.mean()  # the roof is above the facade in the image
@@ -233,8 +239,13 @@ def test_bad_inputs_are_rejected_with_typed_errors(city_renderer):
     with pytest.raises(RenderError, match="unknown render engine"):
         Renderer(box_model(), engine="opengl")
     empty = CityModel(
-        origin=ORIGIN, vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3)), classes=[], building_index=[],
-        lods=[], building_ids=[],
+        origin=ORIGIN,
+        vertices=np.zeros((0, 3)),
+        triangles=np.zeros((0, 3)),
+        classes=[],
+        building_index=[],
+        lods=[],
+        building_ids=[],
     )
     with pytest.raises(EmptyModelError):
         Renderer(empty)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from semcityloc.classes import SemanticClass
 from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.classes import SemanticClass
 from semcityloc.errors import RenderError
 from semcityloc.render.scene import build_scene
 from semcityloc.render.synthetic import synthetic_city, tile_model
@@ -25,7 +25,9 @@ def test_building_bottoms_are_dropped_and_ground_only_objects_kept(city):
     # A ground-only object (a road surface) stays.
     mb = MeshBuilder()
     o = city.origin
-    road = np.array([[o[0], o[1], 30.0], [o[0] + 50, o[1], 30.0], [o[0] + 50, o[1] + 5, 30.0], [o[0], o[1] + 5, 30.0]])
+    road = np.array(
+        [[o[0], o[1], 30.0], [o[0] + 50, o[1], 30.0], [o[0] + 50, o[1] + 5, 30.0], [o[0], o[1] + 5, 30.0]]
+    )
     mb.add_polygon(road, semantic=SemanticClass.GROUND, building_id="road", lod=2)
     roads = mb.build(origin=o)
     assert not building_bottom_mask(roads).any()
@@ -80,7 +82,9 @@ def test_terrain_under_footprints_is_dropped_without_changing_any_view(city):
     rng = np.random.default_rng(0)
     lo, hi = city.bounds_local
     n = 30
-    xyz = np.column_stack([rng.uniform(lo[0], hi[0], n), rng.uniform(lo[1], hi[1], n), np.full(n, hi[2] + 60)])
+    xyz = np.column_stack(
+        [rng.uniform(lo[0], hi[0], n), rng.uniform(lo[1], hi[1], n), np.full(n, hi[2] + 60)]
+    )
     poses = Pose.from_xyz_rpy(xyz, np.zeros(n), rng.uniform(0, 60, n), rng.uniform(-180, 180, n))
     cam = Camera.from_fov(96, 72, 60.0)
     R, t = np.ascontiguousarray(poses.R), np.ascontiguousarray(poses.t)

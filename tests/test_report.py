@@ -77,31 +77,26 @@ def test_tables_group_runs_by_what_differs(tmp_path):
         ),
     ]
     report = make_report(runs, tmp_path / "report")
-    assert set(report.tables) == {"main", "lod", "seg_quality"}  # methods and prior noise do not vary
+    assert set(report.tables) == {"main", "lod", "seg_quality"}  # all runs share the prior noise
     assert any("prior_noise" in n for n in report.notes)
 
+    # LoD table: only the runs that differ in nothing but the LoD (the zero-shot run has no LoD1 partner).
     lod = read_csv(report.tables["lod"][1])
-    # Ordered by the other differing setting (seg quality: trained first), then by LoD.
-    assert [(r["seg_quality"], r["lod"]) for r in lod] == [
-        ("trained", "LoD1"),
-        ("trained", "LoD2"),
-        ("zero-shot", "LoD2"),
-    ]
+    assert [r["lod"] for r in lod] == ["LoD1", "LoD2"] and "seg_quality" not in lod[0]
     lod2 = lod[1]
     assert float(lod2["recall_2m2deg"]) == 50.0 and float(lod2["strict_recall_2m2deg"]) == 25.0  # tie at 2/2
     assert float(lod2["recall_5m5deg"]) == 75.0 and lod2["not_localized"] == "1"
     assert float(lod2["median_xyz_m"]) == 2.0 and float(lod2["sec_per_image"]) == 2.0
     assert float(lod[0]["recall_5m5deg"]) == 25.0  # 6 m is outside 5 m; two not localized
-
     md = report.tables["lod"][0].read_text()
-    assert "| lod | seg_quality | queries |" in md and "| LoD2 | trained | 4 | 3 | 50.0 / 25.0 |" in md
+    assert "| lod | queries |" in md and "| LoD2 | 4 | 3 | 50.0 / 25.0 |" in md
+
     seg = read_csv(report.tables["seg_quality"][1])
-    # Grouped by LoD first (LoD1 before LoD2), then by segmentation quality (trained before zero-shot).
-    assert [(r["lod"], r["seg_quality"]) for r in seg] == [
-        ("LoD1", "trained"),
-        ("LoD2", "trained"),
-        ("LoD2", "zero-shot"),
-    ]
+    assert [r["seg_quality"] for r in seg] == ["trained", "zero-shot"]
+    assert float(seg[1]["recall_2m2deg"]) == 75.0 and float(seg[1]["strict_recall_2m2deg"]) == 75.0
+    # No two runs differ only in the method: the main table lists every run with what differs.
+    main = read_csv(report.tables["main"][1])
+    assert len(main) == 3 and {"lod", "seg_quality"} <= set(main[0])
     text = report.markdown.read_text()
     assert "Map level of detail" in text and "strict `<`" in text
     for png in report.plots:
@@ -137,7 +132,7 @@ def two_runs(tmp_path_factory):
     a = BenchmarkSpec(city="generated", query=QueryConfig(queries=2, seed=1), preset="fast", keep_details=2)
     b = BenchmarkSpec(
         city="generated",
-        query=QueryConfig(queries=2, seed=1, prior_extra_m=(5.0, 10.0)),
+        query=QueryConfig(queries=2, seed=1),
         method="no-refine",
         preset="fast",
         keep_details=1,
@@ -150,14 +145,13 @@ def two_runs(tmp_path_factory):
 
 def test_report_from_two_real_runs(two_runs, tmp_path):
     report = make_report([o.out_dir for o in two_runs], tmp_path / "report", overlays=2)
-    assert set(report.tables) == {"main", "prior_noise"}
+    assert set(report.tables) == {"main"} and len(report.notes) == 3  # the runs differ only in the method
     main = read_csv(report.tables["main"][1])
     assert [r["method"] for r in main] == ["semcityloc", "no-refine"]
     for row, outcome in zip(main, two_runs, strict=True):
         s = json.loads((outcome.out_dir / "summary.json").read_text())
         for key in ("recall_2m2deg", "recall_5m5deg", "queries", "localized"):
             assert float(row[key]) == float(s[key])
-        assert row["prior_extra"] == ("none" if outcome.config["prior_extra_m"] is None else "5-10 m")
     names = sorted(p.name for p in report.plots)
     assert {"cumulative_translation.png", "cumulative_rotation.png", "recall_vs_prior_noise.png"} <= set(
         names

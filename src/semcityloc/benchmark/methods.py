@@ -87,3 +87,14 @@ def get_method(name: str, map_model: CityModel, config: LocalizerConfig | None =
 
 for _name in ABLATIONS:
     register_method(_name, LocalizerMethod)
+
+
+def _baseline_factory(name: str, map_model: CityModel, config: LocalizerConfig) -> Method:
+    """The baselines of ``semcityloc.baselines`` (imported only when one is asked for)."""
+    from semcityloc.baselines.methods import make_baseline_method
+
+    return make_baseline_method(name, map_model, config)
+
+
+for _name in ("silhouette", "lodloc-wireframe"):  # = semcityloc.baselines.methods.BASELINES
+    register_method(_name, _baseline_factory)

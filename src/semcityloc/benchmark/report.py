@@ -299,8 +299,10 @@ def _noise_x(run: RunData) -> float:
 
 def plot_recall_vs_prior(runs: list[RunData], path: Path) -> Path:
     """Recall (≤) at each threshold against the extra prior noise (bin centre, 0 = base noise only);
-    one colour per group of runs that agree on everything but the prior noise."""
+    one colour per group of runs that agree on everything but the prior noise (only the runs of such
+    comparisons when there are any, else every run)."""
     plt = _pyplot()
+    runs = comparable_runs(runs, "prior_extra") or runs
     context = [k for k in differing_keys(runs) if k != "prior_extra"]
     groups: dict[str, list[RunData]] = {}
     for run in runs:

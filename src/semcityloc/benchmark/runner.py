@@ -67,7 +67,7 @@ RUN_FORMAT = 1
 GENERATED = "generated"  # --city value meaning the embedded generated district
 
 # Keys of run.json that do not change the numbers (not compared on resume).
-NOT_IDENTITY = ("keep_details", "semcityloc_version")
+NOT_IDENTITY = ("city", "keep_details", "semcityloc_version")  # "city": as typed; city_path counts
 
 _POSE_FIELDS = ("x", "y", "z", "roll", "pitch", "yaw")
 _TRUE = " ".join(f"true_{k}" for k in _POSE_FIELDS) + " true_world_x true_world_y true_world_z"
@@ -618,6 +618,12 @@ class _Worker:
         self.method = get_method(
             config["method"], map_model, LocalizerConfig.preset(config["localizer_preset"])
         )
+        # Baselines that simulate their own query input (the wireframe's edge map) draw it from the same
+        # perturbed reality the query labels come from, not from the exact map.
+        attach = getattr(self.method, "attach_reality", None)
+        reality = getattr(self.sim, "reality", None)
+        if attach is not None and reality is not None:
+            attach(reality)
         self.origin = map_model.origin
         self.details = details
         self.keep = int(config["keep_details"])

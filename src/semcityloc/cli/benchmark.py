@@ -126,5 +126,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")
         return 0
     print(summary_markdown([outcome.summary], [args.method]))
+    skipped = outcome.summary.get("skipped", 0)
+    if skipped:
+        print(
+            f"{skipped} of {outcome.config['queries']} queries skipped: the simulator found no view with "
+            "enough building pixels (a small or sparse city model); they are not in the metrics"
+        )
     print(f"wrote {out / 'results.csv'} and {out / 'summary.json'}")
     return 0

@@ -180,7 +180,9 @@ def _raster_triangle(u0, v0, u1, v1, u2, v2, pa, pb, pc, tid, width, height, inv
                     jf -= 1
             else:
                 jf += 1
-                while jf <= hi and not _inside(jf, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown):
+                while jf <= hi and not _inside(
+                    jf, ra, rb, rc, ax_, bx_, cx_, ady, bdy, cdy, aown, bown, cown
+                ):
                     jf += 1
                 if jf > hi:
                     continue

@@ -18,10 +18,13 @@ Views that share a camera centre and differ only by a rotation about the world z
    are computed once per distinct ``R_delta`` and shared by every centre of a search grid.
 
 It is an approximation: each target pixel takes the wide pixel its centre falls in, whose centre is up to
-half a wide pixel away, so labels differ from a direct render along class boundaries (measured in
-``tests/test_render_rotation.py`` and ``benchmarks/bench_render.py``). Whether it is faster depends on how
-many yaws share a centre: the wide views cost more than one target each (more pixels, wider view), so
-it pays from a few dozen yaws per centre on; below that, render directly.
+half a wide pixel away (none when the target looks the same way as its wide view: the wide pixel grid is
+aligned to the target's), so labels differ from a direct render along class boundaries (about 1-2% of
+the pixels at 64 x 48 and ``oversample=2``; ``tests/test_render_rotation.py``,
+``benchmarks/bench_render.py``). It pays only with many yaws per centre: near nadir one wide view holds
+every yaw, but oblique views need several wide views, each costing a few direct renders. A simple cost
+model (``VIEW_COST_PIXELS``, ``RESAMPLE_COST_PIXELS``) picks the yaw span per wide view and, with
+``allow_direct`` (default), renders the targets directly, exactly, when the wide views would cost more.
 """
 
 from __future__ import annotations
@@ -41,8 +44,11 @@ from semcityloc.render.output import RenderOutput
 MAX_OFF_AXIS_TAN = 4.0
 # Yaw spans per wide view tried by default (360: one wide view for all yaws, e.g. near nadir).
 AUTO_SPANS_DEG = (360.0, 180.0, 120.0, 90.0, 60.0, 45.0, 30.0, 20.0, 10.0)
-# Fixed cost of rendering one view, in target-image pixel fills (triangle setup, culling).
-VIEW_COST_PIXELS = 2.0
+# Cost model, in units of "one target-image pixel rendered": rendering a view of P pixels costs
+# P + VIEW_COST_PIXELS * (target pixels) (triangle setup and culling: ~0 at nadir, ~2 at 45-60 deg
+# pitch on Berlin), resampling one target pixel costs RESAMPLE_COST_PIXELS.
+VIEW_COST_PIXELS = 1.0
+RESAMPLE_COST_PIXELS = 0.15
 
 
 def _cluster_yaws(yaws: np.ndarray, max_span: float) -> tuple[np.ndarray, np.ndarray]:
@@ -92,10 +98,21 @@ def _wide_camera(
     if max(np.abs(x).max(), np.abs(y).max()) > MAX_OFF_AXIS_TAN:
         return None
     fxw, fyw = oversample * camera.fx, oversample * camera.fy
-    x0, x1 = x.min() * fxw - 1.0, x.max() * fxw + 1.0  # one wide pixel of margin
-    y0, y1 = y.min() * fyw - 1.0, y.max() * fyw + 1.0
-    ww, hh = int(math.ceil(x1 - x0)), int(math.ceil(y1 - y0))
-    return Camera(fxw, fyw, -x0, -y0, ww, hh)
+    cxw = _aligned_principal_point(-x.min() * fxw + 1.0, camera.cx, oversample)  # >= 1 px margin
+    cyw = _aligned_principal_point(-y.min() * fyw + 1.0, camera.cy, oversample)
+    ww = int(math.ceil(cxw + x.max() * fxw + 1.0))
+    hh = int(math.ceil(cyw + y.max() * fyw + 1.0))
+    return Camera(fxw, fyw, cxw, cyw, ww, hh)
+
+
+def _aligned_principal_point(at_least: float, c: float, oversample: float) -> float:
+    """Smallest principal point >= ``at_least`` that puts the wide pixel CENTRES on the target's pixel
+    centres when the two cameras look the same way (u_w = s u + c_w - s c; for s = 2 a target centre would
+    otherwise fall exactly on a wide pixel border and be decided by rounding)."""
+    want = (0.5 - 0.5 * oversample) % 1.0  # fractional part of c_w - s c that aligns the centres
+    off = at_least - oversample * c
+    off += (want - off) % 1.0
+    return oversample * c + off
 
 
 @njit(parallel=True, cache=True)
@@ -133,7 +150,17 @@ def _build_luts(homog, rz_row, width, height, wide_w, wide_h, want_depth, lut, i
 
 @njit(parallel=True, cache=True)
 def _gather(
-    wide_labels, wide_depth, wide_ids, wide_of, lut_of, lut, inv_rz, want_depth, want_ids, labels, depth,
+    wide_labels,
+    wide_depth,
+    wide_ids,
+    wide_of,
+    lut_of,
+    lut,
+    inv_rz,
+    want_depth,
+    want_ids,
+    labels,
+    depth,
     face_ids,
 ):
     """Nearest-neighbour pull: target v takes wide view wide_of[v] through lookup table lut_of[v]."""
@@ -179,6 +206,7 @@ def render_yaw_fan(
     face_ids: bool = False,
     oversample: float = 2.0,
     max_span_deg: float | None = None,
+    allow_direct: bool = True,
 ) -> RenderOutput:
     """Render ``base_pose.rotate_world_z(yaw)`` for every yaw by resampling a few wide views.
 
@@ -191,11 +219,14 @@ def render_yaw_fan(
         oversample: wide-view pixels per target pixel (along each axis, at the image centre).
         max_span_deg: the widest yaw range one wide view covers; None (default) picks, among
             ``AUTO_SPANS_DEG``, the one with the least estimated cost (wide pixels + a per-view cost).
+        allow_direct: when the cost model says the wide views cost more than rendering the targets
+            (few yaws per centre, steep oblique views), render them directly (exact) instead.
 
     Returns the same ``RenderOutput`` as ``renderer.render(camera, base_pose.rotate_world_z(yaws))``
     (N views; for M base poses M * N views, base-major: view ``m * N + k`` is base m turned by yaw k),
-    up to resampling differences along class boundaries (module docstring). All wide views are one
-    render call and all resampling one kernel call, so batching the centres saves per-call overhead.
+    up to resampling differences along class boundaries (module docstring), or exactly that when it
+    falls back to direct rendering. All wide views are one render call and all resampling one kernel
+    call, so batching the centres saves per-call overhead.
     """
     check_camera(camera)
     if not isinstance(base_pose, Pose):
@@ -238,6 +269,10 @@ def render_yaw_fan(
             best = (cost, wide_poses, R_w, wide_of, cam_w)
         if max_span_deg is not None:
             break  # the widest feasible span not above the requested one
+    if allow_direct:
+        direct_cost = n * m * (1.0 + VIEW_COST_PIXELS) * w * h
+        if best is None or best[0] * m + RESAMPLE_COST_PIXELS * n * m * w * h >= direct_cost:
+            return renderer.render(camera, _turned(base_pose, yaws), depth=depth, face_ids=face_ids)
     if best is None:
         raise RenderError("render_yaw_fan: no pinhole wide view holds these targets")
     _, wide_poses, R_w, wide_of, wide_cam = best
@@ -262,8 +297,18 @@ def render_yaw_fan(
     wide_dep = wide.depth.reshape(n_w, -1) if depth else np.empty((1, 1), dtype=np.float32)
     wide_ids = wide.face_ids.reshape(n_w, -1) if face_ids else np.empty((1, 1), dtype=np.int32)
     _gather(
-        wide.labels.reshape(n_w, -1), wide_dep, wide_ids, np.ascontiguousarray(wide_of),
-        np.ascontiguousarray(lut_of.reshape(-1)), lut, inv_rz, depth, face_ids, labels, dep, ids,
+        wide.labels.reshape(n_w, -1),
+        wide_dep,
+        wide_ids,
+        np.ascontiguousarray(wide_of),
+        np.ascontiguousarray(lut_of.reshape(-1)),
+        lut,
+        inv_rz,
+        depth,
+        face_ids,
+        labels,
+        dep,
+        ids,
     )
     return RenderOutput(
         labels=labels.reshape(total, h, w),

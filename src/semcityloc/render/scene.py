@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcityloc.classes import SemanticClass
 from semcityloc.citymodel.model import CityModel
+from semcityloc.classes import SemanticClass
 from semcityloc.errors import EmptyModelError, RenderError
 from semcityloc.render.terrain import build_terrain, building_bottom_mask
 

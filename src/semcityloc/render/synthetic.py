@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from semcityloc.classes import SemanticClass
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.model import CityModel
+from semcityloc.classes import SemanticClass
 
 # A realistic UTM origin (Berlin, EPSG:25833) so that float64 -> float32 handling is exercised.
 DEFAULT_ORIGIN = (391000.0, 5817000.0, 0.0)
@@ -43,15 +43,25 @@ def add_house(
         return
     ym, zr = 0.5 * (y0 + y1), z1 + roof_height
     roof = SemanticClass.ROOF
-    mb.add_polygon(np.array([[x0, y0, z1], [x1, y0, z1], [x1, ym, zr], [x0, ym, zr]]), semantic=roof,
-                   building_id=building_id, lod=2)
-    mb.add_polygon(np.array([[x0, ym, zr], [x1, ym, zr], [x1, y1, z1], [x0, y1, z1]]), semantic=roof,
-                   building_id=building_id, lod=2)
+    mb.add_polygon(
+        np.array([[x0, y0, z1], [x1, y0, z1], [x1, ym, zr], [x0, ym, zr]]),
+        semantic=roof,
+        building_id=building_id,
+        lod=2,
+    )
+    mb.add_polygon(
+        np.array([[x0, ym, zr], [x1, ym, zr], [x1, y1, z1], [x0, y1, z1]]),
+        semantic=roof,
+        building_id=building_id,
+        lod=2,
+    )
     wall = SemanticClass.WALL
-    mb.add_polygon(np.array([[x0, y0, z1], [x0, ym, zr], [x0, y1, z1]]), semantic=wall,
-                   building_id=building_id, lod=2)
-    mb.add_polygon(np.array([[x1, y0, z1], [x1, y1, z1], [x1, ym, zr]]), semantic=wall,
-                   building_id=building_id, lod=2)
+    mb.add_polygon(
+        np.array([[x0, y0, z1], [x0, ym, zr], [x0, y1, z1]]), semantic=wall, building_id=building_id, lod=2
+    )
+    mb.add_polygon(
+        np.array([[x1, y0, z1], [x1, y1, z1], [x1, ym, zr]]), semantic=wall, building_id=building_id, lod=2
+    )
 
 
 def synthetic_city(

@@ -19,8 +19,8 @@ import numpy as np
 from numba import njit
 from scipy.spatial import Delaunay, cKDTree
 
-from semcityloc.classes import SemanticClass
 from semcityloc.citymodel.model import CityModel
+from semcityloc.classes import SemanticClass
 
 # Terrain lies this far below the building bottoms: enough for the z-buffer, invisible in a mask.
 TERRAIN_DROP_M = 0.05

@@ -1,0 +1,47 @@
+"""Engine selection without a GPU, and (only where one is present) the nvdiffrast engine vs numba."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semcityloc.errors import RenderError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.render import Renderer
+from semcityloc.render.gpu import gpu_status
+from semcityloc.render.synthetic import synthetic_city
+
+GPU_OK, GPU_WHY = gpu_status()
+
+
+@pytest.fixture(scope="module")
+def city():
+    return synthetic_city(n=4, seed=2)
+
+
+@pytest.mark.skipif(GPU_OK, reason="a usable GPU is present: the no-GPU behaviour cannot be observed")
+def test_without_a_gpu_auto_is_numba_and_gpu_is_a_clear_error(city):
+    assert Renderer(city).engine_name == "numba"
+    with pytest.raises(RenderError, match="pip install torch nvdiffrast"):
+        Renderer(city, engine="gpu")
+
+
+@pytest.mark.skipif(not GPU_OK, reason=f"no GPU engine here: {GPU_WHY}")
+def test_gpu_engine_agrees_with_numba(city):  # pragma: no cover - needs an NVIDIA GPU
+    gpu = Renderer(city, engine="gpu")
+    cpu = Renderer(city, engine="numba")
+    assert gpu.engine_name == "gpu" and Renderer(city).engine_name == "gpu"
+    rng = np.random.default_rng(0)
+    lo, hi = city.bounds_local
+    n = 32
+    xyz = np.column_stack(
+        [rng.uniform(lo[0], hi[0], n), rng.uniform(lo[1], hi[1], n), np.full(n, hi[2] + 80)]
+    )
+    poses = Pose.from_xyz_rpy(xyz, np.zeros(n), rng.uniform(0, 60, n), rng.uniform(-180, 180, n))
+    cam = Camera.from_fov(64, 48, 60.0)
+    a = gpu.render(cam, poses, depth=True, face_ids=True)
+    b = cpu.render(cam, poses, depth=True, face_ids=True)
+    assert (a.labels == b.labels).mean() > 0.99
+    both = np.isfinite(a.depth) & np.isfinite(b.depth)
+    assert np.median(np.abs(a.depth[both] - b.depth[both]) / b.depth[both]) < 1e-4
