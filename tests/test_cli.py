@@ -161,3 +161,13 @@ def test_real_uav_model_edges_lie_on_image_edges_at_gt_not_prior(shared, tmp_pat
         assert code == 0 and (out / "overlay_edges.png").exists()
         strengths[which] = _edge_strength(image, out)
     assert strengths["GT_pose"] > 1.3 * strengths["GPS_pose"], strengths
+
+
+def test_demo_runs_end_to_end_small(tmp_path, capsys):
+    code, out, _ = run(capsys, "demo", "--out", tmp_path / "demo", "--queries", "2", "--methods", "semcityloc")
+    assert code == 0
+    assert "| semcityloc | 2 |" in out
+    summary = json.loads((tmp_path / "demo" / "run_semcityloc" / "summary.json").read_text())
+    assert summary["queries"] == 2 and "recall_2m2deg" in summary
+    assert (tmp_path / "demo" / "report" / "report.md").exists()
+    assert list((tmp_path / "demo" / "report" / "plots").glob("*.png"))

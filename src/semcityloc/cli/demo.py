@@ -3,7 +3,7 @@
 1. Generate the procedural district (CityGML 2.0, LoD1/LoD2/LoD3 from one set of footprints).
 2. Benchmark: simulated UAV queries (LoD3 reality with trees, cars and roof structures, ≈88% simulated
    segmentation, MoGe-like depth, priors 5–15 m / ≤ 8° off) localized against the LoD2 map by the full
-   method and, for contrast, its coarse-only ablation. Resumable like any benchmark run.
+   method and, for contrast, its coarse-only ablation and the LoD-Loc-style wireframe baseline. Resumable.
 3. Report: the Markdown/CSV tables and the figures (error curves, overlays, cost-volume slices).
 
 ``--city PATH`` runs the same on any CityGML/CityJSON file instead of the generated district.
@@ -23,7 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--city", default="generated", help="city model file (default: the generated city)")
     p.add_argument("--queries", type=int, default=20, help="simulated queries per method (default 20)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--methods", default="semcityloc,no-refine", help="comma-separated benchmark methods")
+    p.add_argument(
+        "--methods", default="semcityloc,no-refine,lodloc-wireframe", help="comma-separated benchmark methods"
+    )
     p.set_defaults(func=run)
 
 
