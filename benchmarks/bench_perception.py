@@ -96,7 +96,6 @@ def build_backends(tmp: Path, image: np.ndarray) -> dict:
     from semcityloc.io.images import save_labels_png
     from semcityloc.perception import get_depth_backend, get_segmentation_backend
     from semcityloc.perception.segmenter import new_segmenter, save_head
-
     from semcityloc.perception.torch_utils import quiet_transformers
 
     quiet_transformers()

@@ -164,7 +164,9 @@ def test_real_uav_model_edges_lie_on_image_edges_at_gt_not_prior(shared, tmp_pat
 
 
 def test_demo_runs_end_to_end_small(tmp_path, capsys):
-    code, out, _ = run(capsys, "demo", "--out", tmp_path / "demo", "--queries", "2", "--methods", "semcityloc")
+    code, out, _ = run(
+        capsys, "demo", "--out", tmp_path / "demo", "--queries", "2", "--methods", "semcityloc"
+    )
     assert code == 0
     assert "| semcityloc | 2 |" in out
     summary = json.loads((tmp_path / "demo" / "run_semcityloc" / "summary.json").read_text())

@@ -269,6 +269,10 @@ def test_confusion_kernel_counts_rendered_against_query(city_renderer, city):
         np.add.at(expect, (labels[k].ravel(), query.ravel()), 1)
         np.testing.assert_array_equal(counts[k], expect)
     assert np.trace(counts[0]) == 48 * 36
+    with pytest.raises(ShapeError, match="pixels"):
+        city_renderer.engine.confusion(cam, R, t, query[:10], 6)
+    with pytest.raises(ShapeError, match="n_classes"):
+        city_renderer.engine.confusion(cam, R, t, query, 2)
 
 
 # ------------------------------------------------------------------------------------------ vs Embree

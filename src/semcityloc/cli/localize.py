@@ -57,10 +57,11 @@ def _query_inputs(args, camera):
 
     options = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
     image = load_image(args.image)
-    labels = get_segmentation_backend(args.seg_backend, **options).predict(image).labels
+    name = Path(args.image).name
+    labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
     depth = None
     if args.depth_backend:
-        out = get_depth_backend(args.depth_backend, **options).predict(image)
+        out = get_depth_backend(args.depth_backend, **options).predict(image, name=name)
         depth = np.where(out.valid, out.depth, np.nan)
     return labels, depth
 

@@ -7,11 +7,14 @@ reads the local file itself and compares the key sets and shapes, so a wrong fil
 
 Inference on CPU uses ``use_fp16=False``: MoGe's default fp16 autocast took 146 s instead of 2 s per image
 here. The default ``resolution_level`` is 0 (MoGe's 1200 base tokens) instead of MoGe's 9 (3600 tokens):
-its decoder runs at 16x the token grid, so cost grows with the tokens; measured on CPU with a ViT-S
-model at 512x384, 3600 tokens took 3.4x as long as 1200 (the localizer compares depth at about
-128x96 anyway). The normal head, if the checkpoint has one, is dropped after the strict load check. ``depth`` is MoGe's metric-scaled z-depth (treated as relative by the localizer, which fits a scale
-and shift), ``valid`` its mask (finite, positive), ``K`` its estimated intrinsics converted from MoGe's
-normalised form (focal / size, principal point 0.5) to pixels of the photo.
+its decoder runs at 16x the token grid, so cost grows with the tokens; measured on CPU (1 thread) with a
+ViT-S model at 512x384, 3600 tokens took about 3.5x as long as 1200 (the localizer compares depth at
+about 128x96 anyway). The normal head, if the checkpoint has one, is dropped after the strict load
+check (normals are not used and MoGe runs every head present).
+
+Output: ``depth`` is MoGe's metric-scaled z-depth (treated as relative by the localizer, which fits a
+scale and shift), ``valid`` its mask (finite, positive), ``K`` its estimated intrinsics converted from
+MoGe's normalised form (focal / size, principal point 0.5) to pixels of the photo.
 
 Install: ``pip install --no-deps dlr-moge`` plus ``dlr-utils3d``, ``opencv-python-headless``, ``scipy``,
 ``huggingface_hub`` (its declared dependencies pull torchvision and gradio, which we do not need).

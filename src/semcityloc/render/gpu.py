@@ -19,6 +19,8 @@ The conventions it relies on, so that whoever first runs it can check them again
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 
 from semcityloc.errors import RenderError
@@ -32,20 +34,25 @@ INSTALL_HINT = "pip install torch nvdiffrast (needs an NVIDIA GPU with CUDA); or
 
 
 def gpu_status() -> tuple[bool, str]:
-    """(available, reason it is not) for the nvdiffrast engine; never raises."""
+    """(available, reason it is not) for the nvdiffrast engine; never raises.
+
+    Looks for the packages before importing anything, so that ``engine="auto"`` on a machine without
+    nvdiffrast does not pay for importing torch.
+    """
+    for package in ("nvdiffrast", "torch"):
+        try:
+            if importlib.util.find_spec(package) is None:
+                return False, f"{package} is not installed"
+        except (ImportError, ValueError):
+            return False, f"{package} is not installed"
     try:
         import torch
-    except ImportError:
-        return False, "torch is not installed"
-    try:
+
         if not torch.cuda.is_available():
             return False, "torch finds no CUDA GPU"
-    except Exception as exc:  # a broken CUDA install must not break engine='auto'
-        return False, f"torch.cuda failed: {exc}"
-    try:
         import nvdiffrast.torch  # noqa: F401
-    except ImportError:
-        return False, "nvdiffrast is not installed"
+    except Exception as exc:  # a broken CUDA install must not break engine='auto'
+        return False, f"the GPU stack failed to load: {exc}"
     return True, ""
 
 

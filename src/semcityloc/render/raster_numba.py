@@ -285,6 +285,10 @@ def render_view(
 ):
     """Rasterise one view into the flat buffers inv_z (float64, H*W) and tri_id (int32, H*W).
 
+    Scene arrays as in ``RenderScene``; ``R`` (3, 3) and ``t`` (3,) float64 cam_from_world in the local
+    frame; ``fx, fy, cx, cy, width, height`` the pinhole camera; ``near`` the clipping distance (``NEAR_M``).
+    On return ``tri_id[i * width + j]`` is the scene triangle seen at pixel (i, j) (-1: none) and
+    ``inv_z`` its 1 / z-depth (0: none). Both buffers are overwritten (no need to clear them).
     Returns the number of triangles that reached the rasteriser (after culling), for statistics.
     """
     npx = width * height
@@ -598,7 +602,15 @@ class NumbaEngine:
         self, camera, Rs: np.ndarray, ts: np.ndarray, query: np.ndarray, n_classes: int
     ) -> np.ndarray:
         """(N, C, C) int32 counts of (rendered class, query class) per view; see ``render_confusion``."""
+        from semcityloc.errors import ShapeError
+
         q = np.ascontiguousarray(query, dtype=np.uint8).reshape(-1)
+        if q.size != camera.width * camera.height:
+            raise ShapeError(f"query has {q.size} pixels, the camera {camera.width} x {camera.height}")
+        if q.size and int(q.max()) >= n_classes:
+            raise ShapeError(f"query holds class ids >= n_classes = {n_classes}")
+        if int(self.scene.classes.max()) >= n_classes:
+            raise ShapeError(f"the scene holds class ids >= n_classes = {n_classes}")
         s = self.scene
         return render_confusion(
             s.tri_xyz,
