@@ -27,7 +27,9 @@ Prints one JSON line per case, each with ``case``, ``engine``, ``width``, ``heig
   path forced (``allow_direct=False``).
 
 numba is compiled (or loaded from its cache) before anything is timed. Times are wall-clock, best of
-``--repeats`` runs of the whole batch, on all numba threads (``NUMBA_NUM_THREADS``).
+``--repeats`` runs of the whole batch, on all numba threads (``NUMBA_NUM_THREADS``); runs that are
+compared (1x / 10x, numba / Embree, direct / fan) take turns, so that load from other processes on a
+shared machine hits them alike and their ratios stay meaningful even when absolute rates do not.
 
     python benchmarks/bench_render.py [--city PATH] [--views 2000] [--embree-views 200] [--quick]
 """
@@ -77,14 +79,18 @@ def aerial_poses(model: CityModel, n: int, pitch: tuple[float, float], seed: int
     return Pose.from_xyz_rpy(xyz, rng.normal(0.0, 2.0, n), rng.uniform(*pitch, n), rng.uniform(-180, 180, n))
 
 
-def views_per_s(renderer: Renderer, cam: Camera, poses: Pose, depth: bool, repeats: int) -> float:
-    renderer.render(cam, poses[:4], depth=depth)  # compile / warm up
-    best = np.inf
+def interleaved_rates(runs: list, repeats: int) -> list[float]:
+    """Views/s of each ``(renderer, camera, poses, depth)`` run: the best of ``repeats`` timings, the runs
+    taking turns so that a change in machine load hits all of them alike."""
+    for renderer, cam, poses, depth in runs:
+        renderer.render(cam, poses[:4], depth=depth)  # compile / warm up
+    best = [np.inf] * len(runs)
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        renderer.render(cam, poses, depth=depth)
-        best = min(best, time.perf_counter() - t0)
-    return len(poses) / best
+        for k, (renderer, cam, poses, depth) in enumerate(runs):
+            best[k] = min(
+                best[k], _timed(lambda r=renderer, c=cam, p=poses, d=depth: r.render(c, p, depth=d))
+            )
+    return [len(run[2]) / b for run, b in zip(runs, best, strict=True)]
 
 
 def emit(**row) -> None:
@@ -113,34 +119,47 @@ def main(argv: list[str] | None = None) -> None:
     tri = numba_r.scene.num_triangles
     embree_r = Renderer(model, engine="embree") if embree_available() else None
 
-    base_rate = {}
+    # 10x: (a) copies side by side, views anywhere over them (they also see more city around them than
+    # views near the edge of the 1x model do); (b) copies GAP_M apart and the very views of the 1x run
+    # moved onto random copies: the same content in view, 10x the triangles: the pure cost of size.
+    ext = model.extent_m
+    big_r = Renderer(tile_model(model, 5, 2), engine="numba")
+    gap_r = Renderer(tile_model(model, 5, 2, gap_m=GAP_M), engine="numba")
+    step = np.array([ext[0] + GAP_M, ext[1] + GAP_M, 0.0])
     for w, h, depth in SIZES:
         cam = Camera.from_fov(w, h, args.hfov)
         for case, pitch in PITCH.items():
             poses = aerial_poses(model, args.views, pitch, seed=1)
-            rate = views_per_s(numba_r, cam, poses, depth, args.repeats)
-            base_rate[(w, case)] = rate
+            big_poses = aerial_poses(big_r.model, args.views, pitch, seed=2)
+            k = np.random.default_rng(4).integers(0, 10, args.views)
+            shift = np.stack([k % 5, k // 5, np.zeros_like(k)], 1) * step
+            gap_poses = Pose.from_rotation_center(poses.R_world_from_cam, poses.center + shift)
+            runs = [
+                (numba_r, cam, poses, depth),
+                (big_r, cam, big_poses, depth),
+                (gap_r, cam, gap_poses, depth),
+            ]
+            rate, big_rate, gap_rate = interleaved_rates(runs, args.repeats)
+            row = {"width": w, "height": h, "depth": depth}
             emit(
                 case=case,
                 engine="numba",
-                width=w,
-                height=h,
-                depth=depth,
+                **row,
                 triangles=tri,
                 views_per_s=round(rate, 1),
                 pitch_deg=pitch,
                 **common,
             )
             if embree_r is not None:
-                e_rate = views_per_s(
-                    embree_r, cam, poses[: args.embree_views], depth, max(1, args.repeats // 2)
+                sub = poses[: args.embree_views]
+                # The numba rate on the same views, timed in turns with Embree's.
+                e_rate, n_rate = interleaved_rates(
+                    [(embree_r, cam, sub, depth), (numba_r, cam, sub, depth)], max(1, args.repeats // 2)
                 )
                 emit(
                     case=case,
                     engine="embree",
-                    width=w,
-                    height=h,
-                    depth=depth,
+                    **row,
                     triangles=tri,
                     views_per_s=round(e_rate, 1),
                     pitch_deg=pitch,
@@ -149,48 +168,20 @@ def main(argv: list[str] | None = None) -> None:
                 emit(
                     case=f"{case}_ratio",
                     engine="numba/embree",
-                    width=w,
-                    height=h,
-                    depth=depth,
+                    **row,
                     triangles=tri,
-                    views_per_s=round(rate, 1),
-                    ratio=round(rate / e_rate, 2),
+                    views_per_s=round(n_rate, 1),
+                    ratio=round(n_rate / e_rate, 2),
                     **common,
                 )
-
-    # 10x: (a) copies side by side, views anywhere over them (they also see more city around them than
-    # views near the edge of the 1x model do); (b) copies GAP_M apart and the very views of the 1x run
-    # moved onto a random copy: the same content in view, 10x the triangles: pure size overhead.
-    ext = model.extent_m
-    cases = {
-        "scale10": (tile_model(model, 5, 2), None),
-        "scale10_gap": (
-            tile_model(model, 5, 2, gap_m=GAP_M),
-            np.array([ext[0] + GAP_M, ext[1] + GAP_M, 0.0]),
-        ),
-    }
-    for name, (big, step) in cases.items():
-        big_r = Renderer(big, engine="numba")
-        for w, h, depth in SIZES:
-            cam = Camera.from_fov(w, h, args.hfov)
-            for case, pitch in PITCH.items():
-                if step is None:
-                    poses = aerial_poses(big, args.views, pitch, seed=2)
-                else:
-                    poses = aerial_poses(model, args.views, pitch, seed=1)  # the 1x views
-                    k = np.random.default_rng(4).integers(0, 10, args.views)
-                    shift = np.stack([k % 5, k // 5, np.zeros_like(k)], 1) * step
-                    poses = Pose.from_rotation_center(poses.R_world_from_cam, poses.center + shift)
-                rate = views_per_s(big_r, cam, poses, depth, args.repeats)
+            for name, r, rr in (("scale10", big_r, big_rate), ("scale10_gap", gap_r, gap_rate)):
                 emit(
                     case=f"{name}_{case}",
                     engine="numba",
-                    width=w,
-                    height=h,
-                    depth=depth,
-                    triangles=big_r.scene.num_triangles,
-                    views_per_s=round(rate, 1),
-                    vs_1x=round(rate / base_rate[(w, case)], 3),
+                    **row,
+                    triangles=r.scene.num_triangles,
+                    views_per_s=round(rr, 1),
+                    vs_1x=round(rr / rate, 3),
                     **common,
                 )
 
@@ -212,15 +203,14 @@ def main(argv: list[str] | None = None) -> None:
             direct = numba_r.render(cam, targets)
             auto = render_yaw_fan(numba_r, cam, bases, yaws)
             fan = render_yaw_fan(numba_r, cam, bases, yaws, allow_direct=False)
-            t_direct = min(_timed(lambda t=targets: numba_r.render(cam, t)) for _ in range(args.repeats))
-            t_auto = min(
-                _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y))
-                for _ in range(args.repeats)
-            )
-            t_fan = min(
-                _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y, allow_direct=False))
-                for _ in range(args.repeats)
-            )
+            t_direct = t_auto = t_fan = np.inf
+            for _ in range(args.repeats):
+                t_direct = min(t_direct, _timed(lambda t=targets: numba_r.render(cam, t)))
+                t_auto = min(t_auto, _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y)))
+                t_fan = min(
+                    t_fan,
+                    _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y, allow_direct=False)),
+                )
             emit(
                 case="rotation_reuse",
                 engine="numba",

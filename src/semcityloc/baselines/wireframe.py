@@ -277,7 +277,7 @@ class WireframeLocalizer:
         result.cost_volume = stages[0].volume
         result.coarse_pose_local = _pose(state)
         result.counts["coarse_hypotheses"] = int(sum(s.volume.scores.size for s in stages))
-        result.confidence["score_margin"] = _score_margin(stages[0].volume)
+        result.confidence["score_margin"] = stages[0].volume.score_margin()
         result.confidence["stage_half_ranges"] = [s.half_ranges.tolist() for s in stages]
         result.timings["coarse_s"] = time.perf_counter() - t1
 
@@ -331,12 +331,3 @@ def _finish(result: LocalizationResult, reason: str | None, t0: float) -> Locali
     return result
 
 
-def _score_margin(volume: CostVolume) -> float:
-    """Best score minus the best score of cells more than 2 grid steps away in x or y (ambiguity)."""
-    s = volume.scores
-    best = np.unravel_index(int(np.argmax(s)), s.shape)
-    far = np.ones(s.shape[:2], dtype=bool)
-    far[max(0, best[0] - 2) : best[0] + 3, max(0, best[1] - 2) : best[1] + 3] = False
-    if not far.any():
-        return float("nan")
-    return float(s[best] - s[far].max())

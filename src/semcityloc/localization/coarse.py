@@ -48,6 +48,17 @@ class CostVolume:
         top = top[np.argsort(-flat[top], kind="stable")]
         return np.stack(np.unravel_index(top, self.scores.shape), axis=1)
 
+    def score_margin(self) -> float:
+        """Best score minus the best score of cells more than 2 grid steps away in x or y: how much the
+        winner stands out from look-alikes elsewhere (small = ambiguous). NaN if the grid is too small."""
+        s = self.scores
+        best = np.unravel_index(int(np.argmax(s)), s.shape)
+        far = np.ones(s.shape[:2], dtype=bool)
+        far[max(0, best[0] - 2) : best[0] + 3, max(0, best[1] - 2) : best[1] + 3] = False
+        if not far.any():
+            return float("nan")
+        return float(s[best] - s[far].max())
+
     def xyz_rpy(self, index: np.ndarray) -> np.ndarray:
         """(x, y, z, roll, pitch, yaw) of a grid cell."""
         i, j, k, l = (int(v) for v in index)

@@ -38,6 +38,17 @@ def _mean_iou(inter, count_r, count_q, class_on):
 
 
 @njit(cache=True, inline="always")
+def _query_counts(query):
+    """Pixels per class of a flat query mask, leaving out background (0) and IGNORE."""
+    count_q = np.zeros(N_SLOTS)
+    for p in range(query.shape[0]):
+        q = query[p]
+        if q != IGNORE and q != 0:
+            count_q[q] += 1.0
+    return count_q
+
+
+@njit(cache=True, inline="always")
 def _iou_from_pairs(pairs, count_q, class_on):
     """Mean IoU from interleaved (rendered * N_SLOTS + query) pair counts (4 sub-histograms)."""
     total = 0.0
@@ -99,13 +110,12 @@ def coarse_scores(
             n_valid += 1
     q_valid = np.empty(n_valid, dtype=np.int64)
     lut_valid = np.empty((n_yaw, n_valid), dtype=np.int64)
-    count_q = np.zeros(N_SLOTS)
+    count_q = _query_counts(query)
     k = 0
     for p in range(n_pix):
         q = query[p]
         if q != IGNORE and q != 0:
             q_valid[k] = q
-            count_q[q] += 1.0
             for y in range(n_yaw):
                 # -1 (outside the wide view) points at an extra background pixel past the end.
                 lut_valid[y, k] = lut[y, p] if lut[y, p] >= 0 else npx
@@ -188,11 +198,7 @@ def refine_scores(
     """
     n_views = Rs.shape[0]
     npx = width * height
-    count_q = np.zeros(N_SLOTS)
-    for p in range(npx):
-        q = query[p]
-        if q != IGNORE and q != 0:
-            count_q[q] += 1.0
+    count_q = _query_counts(query)
     for chunk in prange(n_chunks):
         inv_z = np.empty(npx)
         tri_id = np.empty(npx, dtype=np.int32)

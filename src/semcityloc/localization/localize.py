@@ -111,7 +111,7 @@ class Localizer:
             result.cost_volume = volume
             result.coarse_pose_local = _pose(seeds[0])
             result.counts["coarse_hypotheses"] = int(volume.scores.size)
-            result.confidence["score_margin"] = _score_margin(volume)
+            result.confidence["score_margin"] = volume.score_margin()
             result.timings["coarse_s"] = time.perf_counter() - t_prep
         t_coarse = time.perf_counter()
 
@@ -213,15 +213,6 @@ def _pose(state: np.ndarray) -> Pose:
     return Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
 
 
-def _score_margin(volume) -> float:
-    """Best score minus the best score of cells more than 2 grid steps away in x or y (ambiguity)."""
-    s = volume.scores
-    best = np.unravel_index(int(np.argmax(s)), s.shape)
-    far = np.ones(s.shape[:2], dtype=bool)
-    far[max(0, best[0] - 2) : best[0] + 3, max(0, best[1] - 2) : best[1] + 3] = False
-    if not far.any():
-        return float("nan")
-    return float(s[best] - s[far].max())
 
 
 def localize(

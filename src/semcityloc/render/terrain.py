@@ -8,7 +8,11 @@ model whose heights are those of the nearest base point. Terrain slopes therefor
 
 Terrain triangles lying entirely under a building (inside the union of its GroundSurface triangles, the
 footprint) are dropped: the building's walls and roof hide them from every camera outside it, and in
-dense districts they are a third of the terrain and much of the overdraw.
+dense districts they are half of the terrain triangles (Berlin: 2298 of 4564) and 15-20% of the raster
+work. The price: where a model is not watertight (cracks between roof and wall polygons), or a grazing
+ray slips through the ``TERRAIN_DROP_M`` slit under a wall, a pixel that saw ground under the building
+now sees nothing (class 0): 0.03% of the pixels of 400 random aerial Berlin views at 256 x 192.
+``build_terrain(..., drop_hidden=False)`` / ``build_scene(..., drop_hidden_terrain=False)`` keep them.
 
 Everything here is in the model's local frame (float64 in, float64 out; the scene casts to float32).
 """
