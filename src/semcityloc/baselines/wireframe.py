@@ -329,5 +329,3 @@ def _finish(result: LocalizationResult, reason: str | None, t0: float) -> Locali
         result.status = NOT_LOCALIZED
     result.timings["total_s"] = time.perf_counter() - t0
     return result
-
-

@@ -213,8 +213,6 @@ def _pose(state: np.ndarray) -> Pose:
     return Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
 
 
-
-
 def localize(
     city: CityModel,
     camera: Camera,
