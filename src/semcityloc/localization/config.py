@@ -55,6 +55,9 @@ class RefineConfig:
 class LocalizerConfig:
     coarse: CoarseConfig = field(default_factory=CoarseConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
+    # Optional first stage for large prior errors: a wide, sparse grid at a low resolution whose best cell
+    # re-centres the regular coarse grid (LoD-Loc re-centres its 3 stages the same way).
+    pre_coarse: CoarseConfig | None = None
     no_coarse: bool = False  # ablation: refine from the prior
     no_refine: bool = False  # ablation: coarse only
     no_depth: bool = False  # ablation: semantics only in the refinement
@@ -95,6 +98,14 @@ PRESETS: dict[str, LocalizerConfig] = {
     # Priors whose height is far off (e.g. barometric/GNSS altitude; the real UAVD4L-LoD prior is 20.7 m
     # high): LoD-Loc's +-30 m height range in 5 m steps.
     "wide-z": LocalizerConfig(coarse=CoarseConfig(range_z_m=60.0, n_z=13)),
+    # Priors tens of metres off on every axis (the paper's prior-sensitivity bins up to 40-50 m): a
+    # pre-stage over +-65 m in x, y, z (5-6 m steps, 32x24 masks, 23*23*27*7 = 99,981 hypotheses) in front
+    # of the default grid.
+    "extended": LocalizerConfig(
+        pre_coarse=CoarseConfig(
+            range_xy_m=130.0, n_xy=23, range_z_m=130.0, n_z=27, range_yaw_deg=18.0, n_yaw=7, width=32, height=24
+        )
+    ),
     # Small and quick, for tests and the demo's smoke runs.
     "fast": LocalizerConfig(
         coarse=CoarseConfig(range_xy_m=24.0, n_xy=9, n_z=5, n_yaw=9, width=48, height=36),

@@ -105,12 +105,21 @@ class Localizer:
             seeds = prior_state[None, :]
             result.timings["coarse_s"] = 0.0
         else:
-            volume = coarse_search(self.scene, coarse_cam, prior_state, q_coarse, self.class_on, c)
+            centre = prior_state
+            n_pre = 0
+            if cfg.pre_coarse is not None:
+                pre = cfg.pre_coarse
+                pre_cam = camera.scaled(pre.width, max(1, round(pre.width * camera.height / camera.width)))
+                q_pre, _ = query.at(pre_cam.width, pre_cam.height)
+                pre_volume = coarse_search(self.scene, pre_cam, prior_state, q_pre, self.class_on, pre)
+                centre = pre_volume.xyz_rpy(pre_volume.best_indices(1)[0])
+                n_pre = int(pre_volume.scores.size)
+            volume = coarse_search(self.scene, coarse_cam, centre, q_coarse, self.class_on, c)
             top = volume.best_indices(c.top_k)
             seeds = np.stack([volume.xyz_rpy(i) for i in top])
             result.cost_volume = volume
             result.coarse_pose_local = _pose(seeds[0])
-            result.counts["coarse_hypotheses"] = int(volume.scores.size)
+            result.counts["coarse_hypotheses"] = int(volume.scores.size) + n_pre
             result.confidence["score_margin"] = volume.score_margin()
             result.timings["coarse_s"] = time.perf_counter() - t_prep
         t_coarse = time.perf_counter()
@@ -193,7 +202,8 @@ class Localizer:
         s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
         pts = centre[:2, None] + rays[:2] * s
         pts = np.concatenate([pts, centre[:2, None]], axis=1)
-        margin = cfg.coarse.range_xy_m / 2 + 1.0
+        reach = cfg.coarse.range_xy_m + (cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0)
+        margin = reach / 2 + 1.0
         lo, hi = pts.min(1) - margin, pts.max(1) + margin
         inside = np.all((self._building_xy >= lo) & (self._building_xy <= hi), axis=1)
         return bool(inside.any())
