@@ -100,16 +100,36 @@ def test_empty_mask_is_not_localized(city, localizer):
     assert result.pose is None
 
 
-def test_flipped_mask_is_not_localized(city, localizer, renderer):
+@pytest.mark.parametrize("with_depth", [True, False])
+def test_flipped_mask_is_not_localized(city, localizer, renderer, with_depth):
     true = view(city, *CASES["nadir"][0])
     out = renderer.render(CAMERA, true, depth=True)
     labels, depth = out.labels[0][::-1, ::-1], out.depth[0][::-1, ::-1]  # the image turned upside down
     prior = perturbed(true, np.array([6.0, -7.0, 3.6]), 0.5, -0.5, 5.0)
     result = localizer.localize(
-        CAMERA, prior, np.ascontiguousarray(labels), np.ascontiguousarray(depth), prior_frame="local"
+        CAMERA,
+        prior,
+        np.ascontiguousarray(labels),
+        np.ascontiguousarray(depth) if with_depth else None,
+        prior_frame="local",
     )
     assert result.status == NOT_LOCALIZED, (result.score, result.semantic, result.depth_cost)
     assert result.pose is None
+
+
+def test_extended_preset_recovers_a_prior_35m_off_on_every_axis(city, localizer, renderer):
+    true = view(city, *CASES["oblique"][0])
+    out = renderer.render(CAMERA, true, depth=True)
+    prior = perturbed(true, np.array([35.0, -33.0, 31.0]), 0.5, -0.5, 6.0)
+    default = localizer.localize(CAMERA, prior, out.labels[0], out.depth[0], prior_frame="local")
+    assert not default.localized or center_error_m(default.pose_local, true) > 5.0  # outside its grid
+    result = localizer.localize(
+        CAMERA, prior, out.labels[0], out.depth[0], prior_frame="local", config=LocalizerConfig.preset("extended")
+    )
+    assert result.status == LOCALIZED, result.reason
+    assert center_error_m(result.pose_local, true) < 1.0
+    assert rotation_error_deg(result.pose_local, true) < 1.0
+    assert result.counts["coarse_hypotheses"] > 100_000
 
 
 def test_prior_far_outside_the_model_is_not_localized(city, localizer, renderer):

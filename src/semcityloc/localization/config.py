@@ -61,8 +61,12 @@ class LocalizerConfig:
     no_coarse: bool = False  # ablation: refine from the prior
     no_refine: bool = False  # ablation: coarse only
     no_depth: bool = False  # ablation: semantics only in the refinement
-    # Final combined score (lambda_1 C_s - lambda_2 C_d; C_s alone without depth) below this -> not_localized.
+    # Acceptance of the final pose (else not_localized, "best score below threshold"):
+    # without depth, C_s >= min_score; with depth, C_s >= min_semantic_with_depth and C_d <= max_depth_cost
+    # (the depth fit separates true from false matches far better than the IoU alone when masks are poor).
     min_score: float = 0.5
+    min_semantic_with_depth: float = 0.3
+    max_depth_cost: float = 0.05
     min_building_iou: float = 0.1  # building-vs-rest IoU at the final pose below this -> not_localized
     min_building_fraction: float = 0.005  # query mask with fewer wall/roof pixels -> not_localized
     seed: int = 0

@@ -149,13 +149,22 @@ class Localizer:
         result.pose_local = pose_local
         result.pose = pose_local.shift_world(-offset)
         result.confidence["building_iou"] = self._building_iou(fine_cam, pose_local, q_fine)
-        if result.score < cfg.min_score or result.confidence["building_iou"] < cfg.min_building_iou:
+        if not self._accept(result, cfg, with_depth=d_fine is not None):
             result.pose = result.pose_local = None
             return self._finish(result, REASON_LOW_SCORE, t0)
         result.status = LOCALIZED
         return self._finish(result, None, t0)
 
     # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def _accept(result: LocalizationResult, cfg: LocalizerConfig, with_depth: bool) -> bool:
+        """Is the evidence for the final pose strong enough (see ``LocalizerConfig`` thresholds)?"""
+        if result.confidence["building_iou"] < cfg.min_building_iou:
+            return False
+        if with_depth:
+            return result.semantic >= cfg.min_semantic_with_depth and result.depth_cost <= cfg.max_depth_cost
+        return result.semantic >= cfg.min_score
+
     def _finish(self, result: LocalizationResult, reason: str | None, t0: float) -> LocalizationResult:
         result.reason = reason
         if reason is not None:

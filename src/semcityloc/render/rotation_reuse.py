@@ -24,7 +24,8 @@ the pixels at 64 x 48 and ``oversample=2``; ``tests/test_render_rotation.py``,
 ``benchmarks/bench_render.py``). It pays only with many yaws per centre: near nadir one wide view holds
 every yaw, but oblique views need several wide views, each costing a few direct renders. A simple cost
 model (``VIEW_COST_PIXELS``, ``RESAMPLE_COST_PIXELS``) picks the yaw span per wide view and, with
-``allow_direct`` (default), renders the targets directly, exactly, when the wide views would cost more.
+``allow_direct`` (default), renders the targets directly, exactly, unless the wide views are expected to
+be ``FAN_MIN_GAIN`` times faster.
 """
 
 from __future__ import annotations
@@ -44,11 +45,14 @@ from semcityloc.render.output import RenderOutput
 MAX_OFF_AXIS_TAN = 4.0
 # Yaw spans per wide view tried by default (360: one wide view for all yaws, e.g. near nadir).
 AUTO_SPANS_DEG = (360.0, 180.0, 120.0, 90.0, 60.0, 45.0, 30.0, 20.0, 10.0)
-# Cost model, in units of "one target-image pixel rendered": rendering a view of P pixels costs
-# P + VIEW_COST_PIXELS * (target pixels) (triangle setup and culling: ~0 at nadir, ~2 at 45-60 deg
-# pitch on Berlin), resampling one target pixel costs RESAMPLE_COST_PIXELS.
-VIEW_COST_PIXELS = 1.0
-RESAMPLE_COST_PIXELS = 0.15
+# Cost model, in units of "one target-image pixel rendered" (measured on Berlin, 64 x 48 targets):
+# rendering a view of P pixels costs P + v * (target pixels), where the fixed per-view part v (triangle
+# setup and culling; oblique views see many more, mostly tiny, triangles) grows from ~0 at nadir to
+# VIEW_COST_PIXELS from 45 degrees of pitch on; resampling one target pixel costs RESAMPLE_COST_PIXELS.
+# The wide views are used only when the model expects them FAN_MIN_GAIN times faster than direct.
+VIEW_COST_PIXELS = 2.0
+RESAMPLE_COST_PIXELS = 0.18
+FAN_MIN_GAIN = 1.2
 
 
 def _cluster_yaws(yaws: np.ndarray, max_span: float) -> tuple[np.ndarray, np.ndarray]:
@@ -250,6 +254,9 @@ def render_yaw_fan(
             face_ids=np.zeros((0, h, w), dtype=np.int32) if face_ids else None,
         )
     R_t, _ = pose_arrays(_turned(base_pose, yaws))
+    # Pitch = angle of the optical axis from nadir; the per-view cost grows with it (see VIEW_COST_PIXELS).
+    pitch = np.degrees(np.arccos(np.clip(-base_pose.viewing_direction.reshape(-1, 3)[:, 2], -1.0, 1.0)))
+    view_cost = VIEW_COST_PIXELS * float(np.clip(pitch.mean() / 45.0, 0.0, 1.0))
     best = None
     spans = AUTO_SPANS_DEG if max_span_deg is None else [float(max_span_deg) / 2**k for k in range(12)]
     for span in spans:
@@ -264,14 +271,15 @@ def render_yaw_fan(
             continue
         # Cost model in pixel-equivalents: the wide pixels plus a fixed cost per view (triangle setup),
         # measured on Berlin to be about that of filling two target images.
-        cost = n_c * (cam_w.width * cam_w.height + VIEW_COST_PIXELS * w * h)
+        cost = n_c * (cam_w.width * cam_w.height + view_cost * w * h)
         if best is None or cost < best[0]:
             best = (cost, wide_poses, R_w, wide_of, cam_w)
         if max_span_deg is not None:
             break  # the widest feasible span not above the requested one
     if allow_direct:
-        direct_cost = n * m * (1.0 + VIEW_COST_PIXELS) * w * h
-        if best is None or best[0] * m + RESAMPLE_COST_PIXELS * n * m * w * h >= direct_cost:
+        direct_cost = n * m * (1.0 + view_cost) * w * h
+        fan_cost = None if best is None else best[0] * m + RESAMPLE_COST_PIXELS * n * m * w * h
+        if fan_cost is None or FAN_MIN_GAIN * fan_cost >= direct_cost:
             return renderer.render(camera, _turned(base_pose, yaws), depth=depth, face_ids=face_ids)
     if best is None:
         raise RenderError("render_yaw_fan: no pinhole wide view holds these targets")
