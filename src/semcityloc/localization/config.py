@@ -66,7 +66,7 @@ class LocalizerConfig:
     # (the depth fit separates true from false matches far better than the IoU alone when masks are poor).
     min_score: float = 0.5
     min_semantic_with_depth: float = 0.3
-    max_depth_cost: float = 0.05
+    max_depth_cost: float = 0.06
     min_building_iou: float = 0.1  # building-vs-rest IoU at the final pose below this -> not_localized
     min_building_fraction: float = 0.005  # query mask with fewer wall/roof pixels -> not_localized
     seed: int = 0
