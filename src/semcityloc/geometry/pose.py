@@ -24,6 +24,8 @@ CAM_FROM_BODY_FLIP = np.diag([1.0, -1.0, -1.0])
 
 
 def _check_rotation(R: np.ndarray, what: str) -> None:
+    if R.size == 0:  # an empty batch is valid
+        return
     if not np.all(np.isfinite(R)):
         raise PoseError(f"{what} has non-finite entries")
     should_be_eye = np.einsum("...ji,...jk->...ik", R, R)
