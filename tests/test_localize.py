@@ -124,7 +124,12 @@ def test_extended_preset_recovers_a_prior_35m_off_on_every_axis(city, localizer,
     default = localizer.localize(CAMERA, prior, out.labels[0], out.depth[0], prior_frame="local")
     assert not default.localized or center_error_m(default.pose_local, true) > 5.0  # outside its grid
     result = localizer.localize(
-        CAMERA, prior, out.labels[0], out.depth[0], prior_frame="local", config=LocalizerConfig.preset("extended")
+        CAMERA,
+        prior,
+        out.labels[0],
+        out.depth[0],
+        prior_frame="local",
+        config=LocalizerConfig.preset("extended"),
     )
     assert result.status == LOCALIZED, result.reason
     assert center_error_m(result.pose_local, true) < 1.0

@@ -107,7 +107,14 @@ PRESETS: dict[str, LocalizerConfig] = {
     # of the default grid.
     "extended": LocalizerConfig(
         pre_coarse=CoarseConfig(
-            range_xy_m=130.0, n_xy=23, range_z_m=130.0, n_z=27, range_yaw_deg=18.0, n_yaw=7, width=32, height=24
+            range_xy_m=130.0,
+            n_xy=23,
+            range_z_m=130.0,
+            n_z=27,
+            range_yaw_deg=18.0,
+            n_yaw=7,
+            width=32,
+            height=24,
         )
     ),
     # Small and quick, for tests and the demo's smoke runs.
