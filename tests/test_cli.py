@@ -173,3 +173,27 @@ def test_demo_runs_end_to_end_small(tmp_path, capsys):
     assert summary["queries"] == 2 and "recall_2m2deg" in summary
     assert (tmp_path / "demo" / "report" / "report.md").exists()
     assert list((tmp_path / "demo" / "report" / "plots").glob("*.png"))
+
+
+def test_benchmark_on_the_real_lodloc_dataset_with_oracle_perception(shared, tmp_path, capsys):
+    base = shared(REAL)
+    code, out, _ = run(
+        capsys,
+        "benchmark",
+        "--dataset",
+        base,
+        "--format",
+        "lodloc",
+        "--perception",
+        "oracle",
+        "--out",
+        tmp_path / "real",
+    )
+    assert code == 0 and "oracle" in out
+    summary = json.loads((tmp_path / "real" / "summary.json").read_text())
+    assert summary["queries"] == 1 and summary["recall_2m2deg"] == 100.0
+
+
+def test_benchmark_without_city_or_dataset_is_a_one_line_error(capsys):
+    code, _, err = run(capsys, "benchmark", "--queries", "2")
+    assert code == 2 and "--city" in err and err.count("\n") == 1

@@ -210,8 +210,7 @@ def test_dataset_cli_actions(dataset_dir, tmp_path, capsys):
 
 
 def test_dataset_options_fit_the_benchmark_command(dataset_dir, tmp_path, capsys):
-    """The flags ``semcityloc benchmark --dataset`` needs, added to that command's own parser, do not
-    clash with its options and run the real-data benchmark."""
+    """``semcityloc benchmark`` carries the data-set flags beside its own and runs the real-data benchmark."""
     import argparse
 
     from semcityloc.cli import benchmark as bench_cli
@@ -220,9 +219,6 @@ def test_dataset_options_fit_the_benchmark_command(dataset_dir, tmp_path, capsys
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest="command")
     bench_cli.register(sub)
-    bench = sub.choices["benchmark"]
-    cli.add_dataset_arguments(bench, positional=False)
-    cli.add_perception_arguments(bench)
     argv = [
         "benchmark",
         "--dataset",

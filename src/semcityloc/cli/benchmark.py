@@ -17,7 +17,10 @@ from semcityloc.benchmark.methods import BenchmarkError
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("benchmark", help="localize simulated drone queries over a city model and score them")
     p.add_argument(
-        "--city", required=True, help="CityGML / CityJSON file, or 'generated' for the embedded city"
+        "--city",
+        default=None,
+        help="CityGML / CityJSON file, or 'generated' for the embedded city (with --dataset: the LoD model, "
+        "default the *.obj beside the data set)",
     )
     p.add_argument(
         "--lod",
@@ -40,7 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="A-B",
         help="extra per-axis prior perturbation in metres, e.g. 10-20 (default: none)",
     )
-    p.add_argument("--preset", default="default", help="localizer preset: default, wide, fast")
+    p.add_argument(
+        "--preset",
+        default=None,
+        help="localizer preset: default, wide, wide-z, extended, fast (default: default; --dataset: wide-z)",
+    )
     p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
     p.add_argument(
@@ -62,6 +69,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="localize at most N more queries, then stop (run again to continue)",
     )
+    from semcityloc.cli.dataset import add_dataset_arguments, add_perception_arguments
+
+    add_dataset_arguments(p, positional=False)
+    add_perception_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -97,6 +108,13 @@ def run(args: argparse.Namespace) -> int:
     from semcityloc.benchmark.report import summary_markdown
     from semcityloc.benchmark.runner import BenchmarkSpec, resolve_city, run_benchmark
 
+    if args.dataset:  # a real data set (LoD-Loc layout) instead of simulated queries
+        from semcityloc.cli.dataset import run_dataset_benchmark
+
+        return run_dataset_benchmark(args)
+    if not args.city:
+        raise BenchmarkError("give --city MODEL (or 'generated') for simulated queries, or --dataset PATH")
+    args.preset = args.preset or "default"
     resolve_city(args.city)  # a missing file fails before anything else
     if args.queries < 1:
         raise BenchmarkError(f"--queries must be >= 1, got {args.queries}")
