@@ -1,0 +1,60 @@
+"""load_city_model: format sniffing and the npz parse cache keyed by file content and options."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semcityloc.citymodel import io
+from semcityloc.citymodel.generator import generate_city
+from semcityloc.errors import InputFileError, UnsupportedFormatError
+
+
+@pytest.fixture(scope="module")
+def lod2(tmp_path_factory):
+    return generate_city(tmp_path_factory.mktemp("gen"), seed=0, lods=(2,))[2]
+
+
+def test_second_load_comes_from_the_cache(lod2, tmp_path, monkeypatch):
+    first = io.load_city_model(lod2, cache=tmp_path)
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+
+    def no_parsing(*args, **kwargs):
+        raise AssertionError("parsed again although the cache holds this file")
+
+    monkeypatch.setattr(io, "_read", no_parsing)
+    second = io.load_city_model(lod2, cache=tmp_path)
+    for name in ("origin", "vertices", "triangles", "classes", "building_index", "lods"):
+        np.testing.assert_array_equal(getattr(second, name), getattr(first, name))
+    assert second.crs == first.crs and second.source == str(lod2)
+
+
+def test_other_options_or_content_miss_the_cache(lod2, tmp_path):
+    io.load_city_model(lod2, cache=tmp_path)
+    io.load_city_model(lod2, cache=tmp_path, crs="EPSG:25833")
+    assert len(list(tmp_path.glob("*.npz"))) == 2
+    changed = tmp_path / "other" / lod2.name  # same file name, one comment more
+    changed.parent.mkdir()
+    changed.write_bytes(lod2.read_bytes() + b"<!-- edited -->\n")
+    io.load_city_model(changed, cache=tmp_path)
+    assert len(list(tmp_path.glob("*.npz"))) == 3
+
+
+def test_a_corrupt_cache_file_is_replaced(lod2, tmp_path):
+    io.load_city_model(lod2, cache=tmp_path)
+    (cached,) = tmp_path.glob("*.npz")
+    cached.write_bytes(b"not an npz")
+    model = io.load_city_model(lod2, cache=tmp_path)
+    assert model.num_triangles > 0
+    assert io.load_city_model(cached).num_triangles == model.num_triangles  # rewritten, readable
+
+
+def test_sniffing_errors(tmp_path):
+    (tmp_path / "empty.gml").write_bytes(b"")
+    with pytest.raises(InputFileError):
+        io.load_city_model(tmp_path / "empty.gml", cache=False)
+    (tmp_path / "x.bin").write_bytes(b"\x89PNG\r\n")
+    with pytest.raises(UnsupportedFormatError):
+        io.load_city_model(tmp_path / "x.bin", cache=False)
+    with pytest.raises(InputFileError):
+        io.load_city_model(tmp_path / "missing.gml")
