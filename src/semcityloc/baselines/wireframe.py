@@ -39,10 +39,11 @@ from semcityloc.baselines.edge_sim import edge_visibility, max_depth_3x3, render
 from semcityloc.baselines.edges import DEFAULT_CREASE_DEG, ModelEdges, extract_edges
 from semcityloc.baselines.gauss_newton import gauss_newton
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import CameraError, ParameterError, PoseError
+from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.coarse import CostVolume, axis_samples
+from semcityloc.localization.localize import check_camera_and_prior
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
@@ -240,12 +241,7 @@ class WireframeLocalizer:
         """
         cfg = config or self.config
         t0 = time.perf_counter()
-        if not isinstance(camera, Camera):
-            raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
-        if not isinstance(prior, Pose) or prior.batch_shape:
-            raise PoseError("prior must be a single Pose (cam_from_world)")
-        if prior_frame not in ("world", "local"):
-            raise ValueError(f"prior_frame must be 'world' or 'local', got {prior_frame!r}")
+        check_camera_and_prior(camera, prior, prior_frame)
         check_edge_map(edge_map, camera)
         offset = self.model.origin if prior_frame == "world" else np.zeros(3)
         prior_local = prior.shift_world(offset)

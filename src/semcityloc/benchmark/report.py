@@ -42,6 +42,7 @@ from semcityloc.benchmark.runner import (
 )
 from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshold_key
 from semcityloc.localization.result import LOCALIZED
+from semcityloc.perception.autolabel import class_boundaries
 
 # name -> (config key shown, title). "main" is always written; the others when their key varies.
 TABLES: dict[str, tuple[str, str]] = {
@@ -328,17 +329,6 @@ def plot_recall_vs_prior(runs: list[RunData], path: Path) -> Path:
     return path
 
 
-def _boundaries(labels: np.ndarray) -> np.ndarray:
-    edge = np.zeros(labels.shape, dtype=bool)
-    dx = labels[:, 1:] != labels[:, :-1]
-    dy = labels[1:, :] != labels[:-1, :]
-    edge[:, 1:] |= dx
-    edge[:, :-1] |= dx
-    edge[1:, :] |= dy
-    edge[:-1, :] |= dy
-    return edge
-
-
 def overlay_image(
     query_labels: np.ndarray, est_labels: np.ndarray | None, true_labels: np.ndarray
 ) -> np.ndarray:
@@ -347,9 +337,9 @@ def overlay_image(
     from semcityloc.classes import PALETTE
 
     rgb = (0.55 * PALETTE[query_labels] + 0.45 * 255).astype(np.uint8)
-    rgb[_boundaries(true_labels)] = (0, 200, 255)
+    rgb[class_boundaries(true_labels)] = (0, 200, 255)
     if est_labels is not None:
-        rgb[_boundaries(est_labels)] = (255, 0, 255)
+        rgb[class_boundaries(est_labels)] = (255, 0, 255)
     return rgb
 
 

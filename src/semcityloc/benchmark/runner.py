@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import hashlib
 import io
 import json
 import math
@@ -52,6 +51,7 @@ import numpy as np
 
 from semcityloc import __version__
 from semcityloc.benchmark.methods import BenchmarkError, check_method, get_method
+from semcityloc.citymodel.io import file_sha256
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.errors import InputFileError
 from semcityloc.evaluation.metrics import pose_errors, summarize_errors
@@ -143,14 +143,6 @@ def generated_sibling(path: Path, lod: int) -> Path | None:
     return sibling if sibling.is_file() else None
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _plain(value: Any) -> Any:
     """JSON-normalised copy (tuples -> lists, numpy scalars -> Python) for storing and comparing."""
     return json.loads(json.dumps(value, default=_json_default))
@@ -190,7 +182,7 @@ def run_config(spec: BenchmarkSpec) -> dict:
             "format": RUN_FORMAT,
             "city": str(spec.city),
             "city_path": str(city_path),
-            "city_sha256": _sha256(city_path),
+            "city_sha256": file_sha256(city_path),
             "lod": spec.lod,
             "map_source": str(map_source),
             "reality_source": str(reality_source),

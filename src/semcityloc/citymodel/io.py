@@ -49,7 +49,8 @@ def sniff_format(path: Path) -> str:
     raise UnsupportedFormatError(f"{path}: not CityGML, CityJSON or OBJ (starts with {head[:40]!r})")
 
 
-def _file_digest(path: Path) -> str:
+def file_sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes, read in 1 MiB chunks (cache keys, run provenance)."""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
@@ -84,7 +85,7 @@ def load_city_model(
     if cache:
         cache_dir = default_cache_dir() if cache is True else Path(cache)
         options = json.dumps([CACHE_VERSION, fmt, lod, crs, target_crs], sort_keys=True)
-        key = hashlib.sha256((_file_digest(path) + options).encode()).hexdigest()[:32]
+        key = hashlib.sha256((file_sha256(path) + options).encode()).hexdigest()[:32]
         cache_file = cache_dir / f"{path.stem}-{key}.npz"
         if cache_file.exists():
             try:

@@ -30,7 +30,6 @@ grids. At the end, the estimates are also written as a COLMAP text model (``esti
 
 from __future__ import annotations
 
-import hashlib
 import importlib.util
 import json
 import math
@@ -43,6 +42,7 @@ import numpy as np
 
 from semcityloc import __version__
 from semcityloc.benchmark.methods import BenchmarkError, check_method, get_method
+from semcityloc.citymodel.io import file_sha256
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import NUM_CLASSES
 from semcityloc.datasets.lodloc import FRAME_AUTO, LodLocDataset, LodLocQuery, read_lodloc
@@ -220,14 +220,6 @@ def load_dataset(spec: RealBenchmarkSpec) -> LodLocDataset:
     )
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def evaluable(dataset: LodLocDataset) -> tuple[list[LodLocQuery], list[str]]:
     """(queries with both a GT pose and a prior, names of the others)."""
     keep = [q for q in dataset.queries if q.gt_pose is not None and q.prior_pose is not None]
@@ -252,7 +244,7 @@ def run_config(spec: RealBenchmarkSpec, dataset: LodLocDataset) -> dict:
             "dataset_format": spec.format,
             "city": str(dataset.model_path),
             "city_path": str(dataset.model_path.resolve()),
-            "city_sha256": _sha256(dataset.model_path),
+            "city_sha256": file_sha256(dataset.model_path),
             "frame": dataset.frame,
             "frame_note": dataset.frame_note,
             "ecef_origin_llh": dataset.ecef_origin_llh,

@@ -173,12 +173,7 @@ class Localizer:
         return result
 
     def _check_inputs(self, camera, prior, semantic, prior_frame) -> None:
-        if not isinstance(camera, Camera):
-            raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
-        if not isinstance(prior, Pose) or prior.batch_shape:
-            raise PoseError("prior must be a single Pose (cam_from_world)")
-        if prior_frame not in ("world", "local"):
-            raise ValueError(f"prior_frame must be 'world' or 'local', got {prior_frame!r}")
+        check_camera_and_prior(camera, prior, prior_frame)
         shape = np.shape(semantic)
         if len(shape) != 2:
             raise ShapeError(f"semantic mask must be (H, W), got shape {shape}")
@@ -226,6 +221,16 @@ class Localizer:
         q = np.isin(query_flat, BUILDING_CLASSES)[valid]
         union = np.count_nonzero(r | q)
         return float(np.count_nonzero(r & q) / union) if union else 0.0
+
+
+def check_camera_and_prior(camera: Camera, prior: Pose, prior_frame: str) -> None:
+    """Typed errors for the inputs every localizer shares (this one and the baselines)."""
+    if not isinstance(camera, Camera):
+        raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
+    if not isinstance(prior, Pose) or prior.batch_shape:
+        raise PoseError("prior must be a single Pose (cam_from_world)")
+    if prior_frame not in ("world", "local"):
+        raise ValueError(f"prior_frame must be 'world' or 'local', got {prior_frame!r}")
 
 
 def _pose(state: np.ndarray) -> Pose:
