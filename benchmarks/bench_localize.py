@@ -127,11 +127,11 @@ def main() -> int:
 
     # Warm-up: compile every kernel once (numba caches, but the first call in a process still loads it).
     true, prior, labels, depth, _ = queries[0]
-    localizer.localize(camera, prior, labels, depth, prior_frame="local")
+    localizer.localize(camera, prior, labels, depth)
 
     rows = []
     for i, (true, prior, labels, depth, kind) in enumerate(queries):
-        result = localizer.localize(camera, prior, labels, depth, prior_frame="local")
+        result = localizer.localize(camera, prior, labels, depth)
         err_m = float(center_error_m(result.pose_local, true)) if result.localized else float("inf")
         err_deg = float(rotation_error_deg(result.pose_local, true)) if result.localized else float("inf")
         row = {

@@ -1,8 +1,8 @@
-"""Views per second of the renderers: numba rasteriser vs the Embree reference, scaling, rotation reuse.
+"""Views per second of the renderers: numba rasteriser vs the Embree reference, scaling with city size.
 
 City: ``--city PATH`` (any format ``load_city_model`` reads). Default: the Berlin LoD2 district from
-``../shared/data`` when it and the CityGML reader are there, else a generated 20 x 20 houses city
-(``render.synthetic.synthetic_city``); the ``city`` key of every line says which.
+``../shared/data`` when it and the CityGML reader are there, else the generated default district
+(``citymodel.generator``: 4 x 3 blocks, LoD2); the ``city`` key of every line says which.
 
 Views: aerial, camera centres uniform over the model's footprint at 40-150 m above the model's LOWEST
 point (flight height above ground, so a 40 m view can be lower than the tallest roofs, as a drone's can),
@@ -19,16 +19,11 @@ Prints one JSON line per case, each with ``case``, ``engine``, ``width``, ``heig
   which see more city around them than views near the 1x model's edge;
 - ``scale10_gap_nadir`` / ``..._oblique``: the 5 x 2 copies 3 km apart and the 1x run's very views moved
   onto random copies: the same content in view with 10x the triangles, so ``vs_1x`` is the pure cost of
-  size (culling);
-- ``rotation_reuse``: ``render_yaw_fan`` for ``--centres`` camera centres x ``--yaws`` yaws (one call)
-  vs rendering the same views directly (one call), per pitch: ``speedup`` and ``agreement`` (fraction
-  of label pixels equal to the direct render) of the default call (which renders directly where its
-  cost model says the wide views do not pay), and ``fan_speedup`` / ``fan_agreement`` of the wide-view
-  path forced (``allow_direct=False``).
+  size (culling).
 
 numba is compiled (or loaded from its cache) before anything is timed. Times are wall-clock, best of
 ``--repeats`` runs of the whole batch, on all numba threads (``NUMBA_NUM_THREADS``); runs that are
-compared (1x / 10x, numba / Embree, direct / fan) take turns, so that load from other processes on a
+compared (1x / 10x, numba / Embree) take turns, so that load from other processes on a
 shared machine hits them alike and their ratios stay meaningful even when absolute rates do not.
 
     python benchmarks/bench_render.py [--city PATH] [--views 2000] [--embree-views 200] [--quick]
@@ -45,12 +40,12 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from semcityloc.citymodel.generator import footprints_to_model, generate_footprints, tile_model
 from semcityloc.citymodel.model import CityModel
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
-from semcityloc.render import Renderer, render_yaw_fan
+from semcityloc.render import Renderer
 from semcityloc.render.embree_ref import embree_available
-from semcityloc.render.synthetic import synthetic_city, tile_model
 
 BERLIN = Path(__file__).resolve().parents[1].parent / "shared/data/berlin_lod2_citygml2/3910_5817.gml"
 PITCH = {"nadir": (0.0, 10.0), "oblique": (30.0, 60.0)}
@@ -67,7 +62,9 @@ def load_city(path: str | None) -> tuple[CityModel, str]:
         from semcityloc.citymodel.citygml import read_citygml
 
         return read_citygml(BERLIN), "berlin_lod2_citygml2/3910_5817.gml"
-    return synthetic_city(n=20, seed=0), "synthetic_city(n=20)"
+    return footprints_to_model(
+        generate_footprints(), lod=2
+    ), "generated district (seed 0, 4 x 3 blocks, LoD2)"
 
 
 def aerial_poses(model: CityModel, n: int, pitch: tuple[float, float], seed: int) -> Pose:
@@ -104,14 +101,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--embree-views", type=int, default=200, help="views per Embree case")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--hfov", type=float, default=60.0)
-    ap.add_argument(
-        "--yaws", type=int, nargs="+", default=[9, 36, 72], help="yaws per centre (rotation reuse)"
-    )
-    ap.add_argument("--centres", type=int, default=20, help="camera centres per rotation-reuse case")
     ap.add_argument("--quick", action="store_true", help="few views (a smoke run, numbers are noisy)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.views, args.embree_views, args.repeats, args.centres = 200, 20, 2, 3
+        args.views, args.embree_views, args.repeats = 200, 20, 2
 
     model, city = load_city(args.city)
     common = {"city": city, "threads": numba.get_num_threads(), "hfov_deg": args.hfov}
@@ -184,51 +177,6 @@ def main(argv: list[str] | None = None) -> None:
                     vs_1x=round(rr / rate, 3),
                     **common,
                 )
-
-    cam = Camera.from_fov(64, 48, args.hfov)
-    rng = np.random.default_rng(3)
-    lo, hi = model.bounds_local
-    m = args.centres
-    for n_yaw in args.yaws:
-        yaws = np.arange(n_yaw) * (360.0 / n_yaw)
-        for pitch in (0.0, 30.0, 45.0, 60.0):
-            xyz = np.column_stack(
-                [rng.uniform(lo[0], hi[0], m), rng.uniform(lo[1], hi[1], m), lo[2] + rng.uniform(40, 150, m)]
-            )
-            bases = Pose.from_xyz_rpy(xyz, np.zeros(m), np.full(m, pitch), rng.uniform(-180, 180, m))
-            targets = Pose.from_rotation_center(
-                np.concatenate([bases[i].rotate_world_z(yaws).R_world_from_cam for i in range(m)]),
-                np.repeat(bases.center, n_yaw, axis=0),
-            )
-            direct = numba_r.render(cam, targets)
-            auto = render_yaw_fan(numba_r, cam, bases, yaws)
-            fan = render_yaw_fan(numba_r, cam, bases, yaws, allow_direct=False)
-            t_direct = t_auto = t_fan = np.inf
-            for _ in range(args.repeats):
-                t_direct = min(t_direct, _timed(lambda t=targets: numba_r.render(cam, t)))
-                t_auto = min(t_auto, _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y)))
-                t_fan = min(
-                    t_fan,
-                    _timed(lambda b=bases, y=yaws: render_yaw_fan(numba_r, cam, b, y, allow_direct=False)),
-                )
-            emit(
-                case="rotation_reuse",
-                engine="numba",
-                width=64,
-                height=48,
-                depth=False,
-                triangles=tri,
-                views_per_s=round(n_yaw * m / t_auto, 1),
-                yaws_per_centre=n_yaw,
-                centres=m,
-                pitch_deg=pitch,
-                speedup=round(t_direct / t_auto, 2),
-                agreement=round(float((auto.labels == direct.labels).mean()), 4),
-                fan_speedup=round(t_direct / t_fan, 2),
-                fan_agreement=round(float((fan.labels == direct.labels).mean()), 4),
-                fan_agreement_worst_view=round(float((fan.labels == direct.labels).mean((1, 2)).min()), 4),
-                **common,
-            )
 
 
 def _timed(fn) -> float:

@@ -8,21 +8,16 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from semcityloc.classes import SemanticClass
+from semcityloc.classes import IGNORE, SemanticClass
 from semcityloc.errors import InputFileError, ParameterError, PoseError, RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_rgb
-from semcityloc.perception.autolabel import (
-    IGNORE,
-    auto_label,
-    auto_label_render,
-    class_boundaries,
-    label_overlay,
-)
+from semcityloc.perception.autolabel import auto_label, auto_label_render, label_overlay
 from semcityloc.perception.synthetic import generated_model
 from semcityloc.render import Renderer
+from semcityloc.render.overlay import class_boundaries
 
 CAM = Camera.from_fov(160, 120, 70.0)
 REAL = "real_uav_lodloc/"
@@ -48,7 +43,7 @@ def test_nadir_labels_are_the_model_classes_where_not_ignored(city):
     model, renderer = city
     pose = _world_pose(model, _centre(model, 120.0))
     res = auto_label_render(model, CAM, pose, renderer=renderer)
-    truth = renderer.render(CAM, pose.shift_world(model.origin)).labels[0]  # world pose shifted by origin
+    truth = renderer.render(CAM, model.pose_to_local(pose)).labels[0]  # world pose to the local frame
     labels = res.labels
     assert labels.shape == (120, 160) and labels.dtype == np.uint8
     kept = labels != IGNORE
@@ -70,7 +65,7 @@ def test_a_pose_in_local_coordinates_is_not_silently_accepted_as_world(city):
 def test_boundary_band_width(city):
     model, renderer = city
     pose = _world_pose(model, _centre(model, 120.0))
-    truth = renderer.render(CAM, pose.shift_world(model.origin)).labels[0]
+    truth = renderer.render(CAM, model.pose_to_local(pose)).labels[0]
     none = auto_label(model, CAM, pose, renderer=renderer, boundary_px=0)
     one = auto_label(model, CAM, pose, renderer=renderer, boundary_px=1)
     two = auto_label(model, CAM, pose, renderer=renderer, boundary_px=2)
@@ -119,7 +114,7 @@ def test_grazing_surfaces_are_ignored(city):
     c = renderer.scene.corners[faces].astype(np.float64)
     n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    pose_local = pose.shift_world(model.origin)
+    pose_local = model.pose_to_local(pose)
     rays = CAM.ray_directions(normalize=True)[changed] @ pose_local.R
     assert np.all(np.degrees(np.arcsin(np.abs(np.sum(n * rays, axis=1)))) < 10.0 + 1e-6)
 
@@ -132,7 +127,7 @@ def test_terrain_beyond_the_model_and_sky(city):
     res = auto_label_render(model, CAM, pose, renderer=renderer, boundary_px=0, max_range_m=1e5)
     assert res.reasons["outside_model"] > 0
     sky = res.render.face_ids[0] < 0
-    up = (CAM.ray_directions() @ pose.shift_world(model.origin).R)[..., 2] > 0
+    up = (CAM.ray_directions() @ model.pose_to_local(pose).R)[..., 2] > 0
     assert np.all(res.labels[sky & up] == SemanticClass.BACKGROUND) and (sky & up).sum() > 100
     terrain = (res.render.face_ids[0] >= 0) & (renderer.scene.source_triangle[res.render.face_ids[0]] < 0)
     assert np.all(res.labels[terrain & (res.labels != IGNORE)] == SemanticClass.GROUND)

@@ -230,9 +230,10 @@ def test_wireframe_recovers_true_pose_from_prior_5m_3deg(city, wire, edge_sim, n
     assert np.linalg.norm(shift) == pytest.approx(5.0)
     prior = perturbed(true, shift, 0.5, -0.5, 3.0)
     emap = edge_sim.simulate(CAMERA, true, "clean", np.random.default_rng(1))
-    result = wire.localize(CAMERA, prior.shift_world(-city.origin), emap)  # world frame in and out
+    prior_world = city.pose_to_world(prior)  # world frame in and out, converted at the boundary
+    result = wire.localize(CAMERA, city.pose_to_local(prior_world), emap)
     assert result.status == LOCALIZED, result.reason
-    est = result.pose.shift_world(city.origin)
+    est = city.pose_to_local(city.pose_to_world(result.pose_local))
     # Measured: nadir 0.72 m / 0.64 deg, oblique 0.47 m / 0.29 deg (the 4D grid cannot fix roll and
     # pitch; Gauss-Newton recovers most of it).
     assert center_error_m(est, true) < 1.0
@@ -247,16 +248,15 @@ def test_wireframe_recovers_true_pose_from_prior_5m_3deg(city, wire, edge_sim, n
 
 def test_wireframe_refuses_empty_or_structureless_evidence(city, wire):
     true = view(city, *VIEWS["nadir"])
-    local = dict(prior_frame="local")
-    empty = wire.localize(CAMERA, true, np.zeros((384, 512), np.float32), **local)
-    assert (empty.status, empty.reason, empty.pose) == (NOT_LOCALIZED, REASON_NO_EDGES, None)
+    empty = wire.localize(CAMERA, true, np.zeros((384, 512), np.float32))
+    assert (empty.status, empty.reason, empty.pose_local) == (NOT_LOCALIZED, REASON_NO_EDGES, None)
     noise = np.random.default_rng(0).random((384, 512)).astype(np.float32)
-    flat = wire.localize(CAMERA, true, noise, **local)
-    assert (flat.status, flat.reason, flat.pose) == (NOT_LOCALIZED, REASON_LOW_SCORE, None)
+    flat = wire.localize(CAMERA, true, noise)
+    assert (flat.status, flat.reason, flat.pose_local) == (NOT_LOCALIZED, REASON_LOW_SCORE, None)
     away = perturbed(true, [5000.0, 0.0, 0.0], 0, 0, 0)
     lines = np.zeros((384, 512), np.float32)
     lines[::40] = 1.0
-    nothing = wire.localize(CAMERA, away, lines, **local)
+    nothing = wire.localize(CAMERA, away, lines)
     assert (nothing.status, nothing.reason) == (NOT_LOCALIZED, REASON_NO_GEOMETRY)
 
 
@@ -264,17 +264,15 @@ def test_wireframe_bad_inputs(city, wire):
     true = view(city, *VIEWS["nadir"])
     good = np.zeros((384, 512), np.float32)
     with pytest.raises(ShapeError):
-        wire.localize(CAMERA, true, np.zeros((300, 512), np.float32), prior_frame="local")
+        wire.localize(CAMERA, true, np.zeros((300, 512), np.float32))
     with pytest.raises(ShapeError):
-        wire.localize(CAMERA, true, np.zeros((384, 512, 3), np.float32), prior_frame="local")
+        wire.localize(CAMERA, true, np.zeros((384, 512, 3), np.float32))
     with pytest.raises(ShapeError):
-        wire.localize(CAMERA, true, np.zeros((384, 512), dtype=object), prior_frame="local")
+        wire.localize(CAMERA, true, np.zeros((384, 512), dtype=object))
     with pytest.raises(PoseError):
-        wire.localize(CAMERA, Pose.stack([true, true]), good, prior_frame="local")
+        wire.localize(CAMERA, Pose.stack([true, true]), good)
     with pytest.raises(CameraError):
-        wire.localize("camera", true, good, prior_frame="local")
-    with pytest.raises(ValueError):
-        wire.localize(CAMERA, true, good, prior_frame="map")
+        wire.localize("camera", true, good)
 
 
 # ------------------------------------------------------------------------------------------ silhouette
@@ -290,14 +288,14 @@ def test_silhouette_recovers_true_pose_from_prior_5m_3deg(city, renderer, name):
     labels = renderer.render(CAMERA, true).labels[0]
     loc = SilhouetteLocalizer(city, LocalizerConfig.preset("default"), scene=renderer.scene)
     assert loc.scene.classes.max() == BUILDING and loc.class_on.tolist() == [0, 0, 1, 0, 0, 0]
-    result = loc.localize(CAMERA, prior, labels, depth=np.ones((384, 512)), prior_frame="local")
+    result = loc.localize(CAMERA, prior, labels, depth=np.ones((384, 512)))
     assert result.status == LOCALIZED, result.reason
     # Measured: nadir 0.12 m / 0.10 deg, oblique 0.02-0.09 m / 0.03-0.04 deg.
     assert center_error_m(result.pose_local, true) < 0.5
     assert rotation_error_deg(result.pose_local, true) < 0.5
     assert np.isnan(result.depth_cost) or result.depth_cost == 0.0  # depth is never used
     with pytest.raises(ShapeError):
-        loc.localize(CAMERA, prior, labels[:100], prior_frame="local")
+        loc.localize(CAMERA, prior, labels[:100])
 
 
 # ------------------------------------------------------------------------------------------ benchmark
@@ -308,8 +306,8 @@ def test_baseline_methods_localize_a_benchmark_query(city):
     q = SimpleNamespace(
         index=3,
         camera=CAMERA,
-        true_pose=true,
-        prior_pose=perturbed(true, [-4.0, 0.0, 3.0], 0.5, -0.5, 3.0),
+        true_pose_local=true,
+        prior_pose_local=perturbed(true, [-4.0, 0.0, 3.0], 0.5, -0.5, 3.0),
         labels=labels,
         depth=None,
         meta={"seg_quality": "trained"},

@@ -14,23 +14,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from semcityloc.benchmark import runner
-from semcityloc.benchmark.methods import BenchmarkError, available_methods, get_method
-from semcityloc.benchmark.runner import (
-    COLUMNS,
-    RESULTS_FILE,
-    TIMING_COLUMNS,
-    BenchmarkSpec,
-    Progress,
-    ResumeMismatchError,
-    load_details,
-    load_models,
-    read_results,
-    run_benchmark,
-    run_config,
-)
+from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+from semcityloc.benchmark.results import COLUMNS, TIMING_COLUMNS, load_details, make_row, read_results
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.runfiles import RESULTS_FILE, Progress
+from semcityloc.benchmark.spec import BenchmarkSpec, load_models
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import InputFileError
+from semcityloc.errors import BenchmarkError, InputFileError, ParameterError, ResumeMismatchError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.localization.methods import available_methods, get_method
+from semcityloc.localization.result import LocalizationResult
 
 QUERIES = 3
 
@@ -42,8 +36,8 @@ class FakeQuery:
     query_id: str
     index: int
     camera: object
-    true_pose: object
-    prior_pose: object
+    true_pose_local: object
+    prior_pose_local: object
     labels: np.ndarray
     depth: np.ndarray | None
     query_miou: float
@@ -53,8 +47,6 @@ class FakeQuery:
 @pytest.fixture(scope="module")
 def sim():
     """(QueryConfig class, simulator factory) of the real simulator."""
-    from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
-
     return QueryConfig, QuerySimulator
 
 
@@ -142,10 +134,6 @@ def test_rows_hold_consistent_poses_errors_and_world_coordinates(baseline):
 
 
 def test_make_row_errors_and_world_coordinates_of_a_known_estimate():
-    from semcityloc.geometry.camera import Camera
-    from semcityloc.geometry.pose import Pose
-    from semcityloc.localization.result import LocalizationResult
-
     true = Pose.from_xyz_rpy([10.0, 20.0, 600.0], 0.0, 30.0, 45.0)
     est = Pose.from_xyz_rpy([13.0, 24.0, 600.0], 0.0, 30.0, 47.0)
     prior = Pose.from_xyz_rpy([16.0, 28.0, 600.0], 0.0, 30.0, 50.0)
@@ -163,13 +151,12 @@ def test_make_row_errors_and_world_coordinates_of_a_known_estimate():
     origin = np.array([690000.0, 5336000.0, 0.0])
     result = LocalizationResult(
         status="localized",
-        pose=est,
         pose_local=est,
         score=0.7,
         semantic=0.7,
         timings={"total_s": 1.5, "coarse_s": 1.0, "refine_s": 0.5},
     )
-    row = runner.make_row(7, q, result, origin)
+    row = make_row(q, result, origin)
     assert tuple(row) == COLUMNS and row["query_id"] == "q0007" and row["view"] == "oblique"
     assert float(row["err_xyz_m"]) == pytest.approx(5.0) and float(row["err_yaw_deg"]) == pytest.approx(2.0)
     assert float(row["err_rot_deg"]) == pytest.approx(2.0, abs=1e-6)
@@ -179,8 +166,8 @@ def test_make_row_errors_and_world_coordinates_of_a_known_estimate():
     assert float(row["est_world_x"]) == 690013.0 and float(row["est_world_y"]) == 5336024.0
     assert float(row["est_yaw"]) == pytest.approx(47.0) and row["t_total_s"] == "1.5"
     assert json.loads(row["meta_json"])["height_m"] == 75.0
-    failed = runner.make_row(
-        7, q, LocalizationResult(status="not_localized", reason="best score below threshold"), origin
+    failed = make_row(
+        q, LocalizationResult(status="not_localized", reason="best score below threshold"), origin
     )
     assert (
         failed["err_xyz_m"] == "inf" and failed["est_world_x"] == "" and failed["reason"].startswith("best")
@@ -248,12 +235,10 @@ class RejectingSimulator:
 def test_unaccepted_views_are_skipped_and_left_out_of_the_metrics(sim, baseline, tmp_path):
     _, factory = sim
     out = tmp_path / "skipping"
-    done = run_benchmark(
-        make_spec(sim),
-        out,
-        progress=False,
-        simulator_factory=lambda m, c, r: RejectingSimulator(factory(m, c, r)),
+    spec = dataclasses.replace(
+        make_spec(sim), simulator_factory=lambda m, c, r: RejectingSimulator(factory(m, c, r))
     )
+    done = run_benchmark(spec, out, progress=False)
     rows = {r["query_id"]: r for r in csv_rows(out / RESULTS_FILE)}
     assert rows["q0001"]["status"] == "skipped" and rows["q0001"]["t_total_s"] == ""
     assert done.summary["skipped"] == 1 and done.summary["queries"] == QUERIES - 1
@@ -263,7 +248,8 @@ def test_unaccepted_views_are_skipped_and_left_out_of_the_metrics(sim, baseline,
 def test_workers_give_the_same_numbers(sim, baseline, tmp_path):
     _, factory = sim
     out = tmp_path / "workers"
-    pooled = run_benchmark(make_spec(sim), out, workers=2, progress=False, simulator_factory=factory)
+    spec = dataclasses.replace(make_spec(sim), simulator_factory=factory)
+    pooled = run_benchmark(spec, out, workers=2, progress=False)
     assert pooled.complete and differences(csv_rows(out / RESULTS_FILE), baseline.rows) == []
 
 
@@ -291,32 +277,22 @@ def test_details_hold_the_query_poses_and_cost_volume(baseline):
     axes = d["meta"]["cost_volume"]
     assert list(d["cost_scores"].shape) == axes["shape"] == [9, 9, 5, 9]  # the fast preset's grid
     assert len(axes["x"]) == 9 and len(axes["yaw"]) == 9
-    from semcityloc.geometry.pose import Pose
-
     true = Pose.from_cam_from_world(d["true_cam_from_world"])
     assert true.center[0] == pytest.approx(float(row["true_x"]))
     assert np.isfinite(d["prior_cam_from_world"]).all()
 
 
 def test_models_map_lod_choice_and_lod3_reality(sim):
-    cfg = run_config(make_spec(sim))
+    cfg = make_spec(sim).run_config()
     map_model, reality = load_models(cfg)
     assert map_model.lods_present() == [2] and reality.lods_present() == [3]
     assert not np.isin(map_model.classes, [SemanticClass.WINDOW]).any()
     assert np.isin(reality.classes, [SemanticClass.WINDOW]).any()
     np.testing.assert_array_equal(reality.origin, map_model.origin)
-    lod1 = load_models(run_config(dataclasses.replace(make_spec(sim), lod=1)))[0]
+    lod1 = load_models(dataclasses.replace(make_spec(sim), lod=1).run_config())[0]
     assert lod1.lods_present() == [1] and lod1.num_buildings == map_model.num_buildings
-    lod3 = load_models(run_config(dataclasses.replace(make_spec(sim), lod=3)))[0]
+    lod3 = load_models(dataclasses.replace(make_spec(sim), lod=3).run_config())[0]
     assert lod3.lods_present() == [3]
-
-
-def test_in_frame_keeps_world_coordinates(sim):
-    map_model, _ = load_models(run_config(make_spec(sim)))
-    moved = runner.in_frame(map_model, map_model.origin + np.array([10.0, -20.0, 5.0]))
-    np.testing.assert_allclose(
-        moved.to_world(moved.vertices), map_model.to_world(map_model.vertices), atol=1e-4
-    )
 
 
 def test_torn_header_and_bad_files(tmp_path):
@@ -332,12 +308,16 @@ def test_method_registry_and_bad_specs(sim, tmp_path):
     assert set(available_methods()) >= {"semcityloc", "no-coarse", "no-refine", "no-depth"}
     with pytest.raises(BenchmarkError, match="unknown method"):
         get_method("nope", None, None)
-    with pytest.raises(BenchmarkError, match="unknown method"):
-        run_config(dataclasses.replace(make_spec(sim), method="nope"))
-    with pytest.raises(BenchmarkError, match="preset"):
-        run_config(dataclasses.replace(make_spec(sim), preset="nope"))
+    with pytest.raises(BenchmarkError, match="unknown method 'nope'; known: semcityloc, no-coarse"):
+        dataclasses.replace(make_spec(sim), method="nope")
+    with pytest.raises(ParameterError, match="unknown localizer preset .nope.; known: default"):
+        dataclasses.replace(make_spec(sim), preset="nope")
+    with pytest.raises(BenchmarkError, match="keep_details"):
+        dataclasses.replace(make_spec(sim), keep_details=-1)
+    with pytest.raises(BenchmarkError, match="lod"):
+        dataclasses.replace(make_spec(sim), lod=4)
     with pytest.raises(InputFileError):
-        run_config(dataclasses.replace(make_spec(sim), city=str(tmp_path / "missing.gml")))
+        dataclasses.replace(make_spec(sim), city=str(tmp_path / "missing.gml")).run_config()
     with pytest.raises(BenchmarkError, match="workers"):
         run_benchmark(make_spec(sim), tmp_path / "w", workers=0)
 

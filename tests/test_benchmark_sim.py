@@ -12,13 +12,11 @@ import pytest
 from semcityloc.benchmark.occluders import RealityParams, build_reality
 from semcityloc.benchmark.perception_sim import (
     SEG_PRESETS,
-    PerceptionSimError,
     miou,
     simulate_depth,
     simulate_segmentation,
 )
 from semcityloc.benchmark.queries import (
-    BenchmarkConfigError,
     QueryConfig,
     QuerySimulator,
     sample_prior,
@@ -28,7 +26,7 @@ from semcityloc.benchmark.queries import (
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import ShapeError
+from semcityloc.errors import BenchmarkConfigError, PerceptionSimError, ShapeError
 from semcityloc.geometry.pose import Pose
 
 N_QUERIES = 24
@@ -53,10 +51,10 @@ def views(sim):
 def _same_query(a, b) -> None:
     np.testing.assert_array_equal(a.labels, b.labels)
     np.testing.assert_array_equal(a.depth, b.depth)  # NaN == NaN for assert_array_equal
-    np.testing.assert_array_equal(a.true_pose.R, b.true_pose.R)
-    np.testing.assert_array_equal(a.true_pose.t, b.true_pose.t)
-    np.testing.assert_array_equal(a.prior_pose.R, b.prior_pose.R)
-    np.testing.assert_array_equal(a.prior_pose.t, b.prior_pose.t)
+    np.testing.assert_array_equal(a.true_pose_local.R, b.true_pose_local.R)
+    np.testing.assert_array_equal(a.true_pose_local.t, b.true_pose_local.t)
+    np.testing.assert_array_equal(a.prior_pose_local.R, b.prior_pose_local.R)
+    np.testing.assert_array_equal(a.prior_pose_local.t, b.prior_pose_local.t)
     assert a.query_miou == b.query_miou
     assert a.meta == b.meta
     assert a.query_id == b.query_id
@@ -107,17 +105,17 @@ def test_same_seed_and_index_give_identical_queries_in_any_order(city, sim, view
 
 def test_different_index_or_seed_gives_a_different_query(city, views):
     a, b = views[0].query, views[1].query
-    assert not np.allclose(a.true_pose.center, b.true_pose.center)
+    assert not np.allclose(a.true_pose_local.center, b.true_pose_local.center)
     assert a.labels.shape == b.labels.shape and not np.array_equal(a.labels, b.labels)
     other = QuerySimulator(city, QueryConfig(queries=2, seed=1)).query(0)
-    assert not np.allclose(other.true_pose.center, a.true_pose.center)
+    assert not np.allclose(other.true_pose_local.center, a.true_pose_local.center)
 
 
 def test_changing_only_the_segmentation_quality_keeps_pose_prior_and_depth(city, views):
     sim = QuerySimulator(city, QueryConfig(queries=N_QUERIES, seed=0, seg_quality="zero-shot"))
     q, ref = sim.query(2), views[2].query
-    np.testing.assert_array_equal(q.true_pose.t, ref.true_pose.t)
-    np.testing.assert_array_equal(q.prior_pose.t, ref.prior_pose.t)
+    np.testing.assert_array_equal(q.true_pose_local.t, ref.true_pose_local.t)
+    np.testing.assert_array_equal(q.prior_pose_local.t, ref.prior_pose_local.t)
     np.testing.assert_array_equal(q.depth, ref.depth)
     assert q.query_miou < ref.query_miou
 
@@ -135,7 +133,7 @@ def test_queries_cover_buildings_and_follow_the_pose_distribution(sim, views):
         assert m["accepted"]
         coverage = np.isin(v.clean_labels, [2, 3, 4, 5]).mean()
         assert coverage >= cfg.min_building_fraction and coverage == pytest.approx(m["coverage"])
-        x, y, z, roll, pitch, yaw = q.true_pose.to_xyz_rpy()
+        x, y, z, roll, pitch, yaw = q.true_pose_local.to_xyz_rpy()
         assert abs(roll) <= cfg.max_roll_deg + 1e-6
         if m["view"] == "oblique":
             assert cfg.oblique_pitch_deg[0] - 1e-6 <= pitch <= cfg.oblique_pitch_deg[1] + 1e-6
@@ -233,7 +231,7 @@ def test_prior_errors_stay_in_the_configured_bounds():
 def test_query_priors_match_their_meta(views):
     for v in views:
         q = v.query
-        err = q.prior_pose.center - q.true_pose.center
+        err = q.prior_pose_local.center - q.true_pose_local.center
         assert np.linalg.norm(err) == pytest.approx(q.meta["prior_err_m"])
         assert 5.0 - 1e-9 <= np.linalg.norm(err) <= 15.0 + 1e-9
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -11,6 +13,8 @@ from scipy import ndimage
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.cli.main import main
 from semcityloc.io.images import load_depth, load_image, load_labels_png, save_depth, save_labels_png
+from semcityloc.localization.config import PRESETS
+from semcityloc.localization.methods import ABLATIONS
 
 REAL = "real_uav_lodloc"
 STEM = "DJI_20230513163714_0033_T"
@@ -126,6 +130,9 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
     assert pose["frame"] == "crs" and pose["extra"]["status"] == "localized"
     assert np.linalg.norm(np.array(pose["position"]) - [x, y, z]) < 0.5
     assert abs((pose["yaw"] - 120.0 + 180) % 360 - 180) < 0.5
+    # "extra" is the result record: its pose is the same, in the same layout (``pose_to_dict``).
+    for key in ("position", "roll", "pitch", "yaw", "crs", "world_from_cam", "frame"):
+        assert pose["extra"][key] == pose[key], key
     assert (tmp_path / "loc" / "overlay.png").exists()
 
 
@@ -197,3 +204,29 @@ def test_benchmark_on_the_real_lodloc_dataset_with_oracle_perception(shared, tmp
 def test_benchmark_without_city_or_dataset_is_a_one_line_error(capsys):
     code, _, err = run(capsys, "benchmark", "--queries", "2")
     assert code == 2 and "--city" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "option, valid",
+    [
+        ("--preset", tuple(PRESETS)),
+        ("--method", tuple(ABLATIONS)),
+        ("--seg-backend", ("files", "mobilenetv2")),
+    ],
+)
+def test_localize_unknown_choice_exits_2_naming_the_valid_ones(tmp_path, option, valid):
+    argv = (
+        f"localize --city generated --intrinsics x --prior y --out {tmp_path / 'out'} {option} typo".split()
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "semcityloc.cli.main", *argv],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]  # argparse: usage lines, then one error line
+    assert last.startswith("semcityloc localize: error:") and f"{option}: invalid choice: 'typo'" in last
+    assert all(repr(name) in last for name in valid)
+    assert not (tmp_path / "out").exists()

@@ -19,12 +19,11 @@ from semcityloc.geometry.conventions import (
     pose_from_colmap,
     pose_from_dji,
     pose_from_lodloc_c2w,
-    rotation_about_world_z,
     wrap_deg,
 )
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg, yaw_error_deg
 from semcityloc.geometry.io import read_intrinsics, read_pose, read_poses, write_pose_json
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, rotation_about_world_z
 
 GT_POSE = "real_uav_lodloc/GT_pose/DJI_20230513163714_0033_T_pose.txt"
 GPS_POSE = "real_uav_lodloc/GPS_pose/DJI_20230513163714_0033_T_pose.txt"

@@ -192,7 +192,7 @@ def test_real_dji_prior_matches_the_ground_truth_rotation_and_height(shared):
     the image's own gimbal angles are 1.1 deg from GT (LoD-Loc's GPS prior: 4.0 deg) and its RTK height is
     0.7 m from GT z. The x, y offset of the frame is not published, so x, y are not compared."""
     ds = read_lodloc(shared("real_uav_lodloc"), frame="z-up")
-    gt, lodloc_prior = ds.queries[0].gt_pose, ds.queries[0].prior_pose
+    gt, lodloc_prior = ds.queries[0].gt_pose_world, ds.queries[0].prior_pose_world
     prior = dji_prior(shared(REAL_IMAGE), "EPSG:4547")
     assert prior.source_height == HEIGHT_ELLIPSOIDAL and prior.vertical_flag is None
     rot = float(rotation_error_deg(prior.pose, gt))

@@ -63,7 +63,7 @@ def queries(n: int = 3, with_prior: bool = True) -> list[LodLocQuery]:
             rng.normal(0, 50, 3) + [0, 0, 200], *rng.uniform(-3, 3, 2), rng.uniform(-180, 180)
         )
         prior = Pose.from_xyz_rpy(gt.center + rng.normal(0, 10, 3), 1.0, 2.0, 30.0) if with_prior else None
-        out.append(LodLocQuery(f"DJI_{k:04d}_T.JPG", "scene", CAM, gt_pose=gt, prior_pose=prior))
+        out.append(LodLocQuery(f"DJI_{k:04d}_T.JPG", "scene", CAM, gt_pose_world=gt, prior_pose_world=prior))
     return out
 
 
@@ -91,9 +91,9 @@ def test_scene_written_and_read_back_equals_the_input(tmp_path):
     for got, want in zip(ds.queries, qs, strict=True):
         assert got.camera == want.camera  # size from the image, K from [K|0]
         written = np.loadtxt(tmp_path / "scene" / "GT_pose" / f"{want.stem}_pose.txt")
-        assert np.array_equal(written, want.gt_pose.world_from_cam)  # %.18e is exact
-        np.testing.assert_allclose(got.gt_pose.world_from_cam, written, rtol=0, atol=1e-9)
-        assert same_pose(got.prior_pose, want.prior_pose)
+        assert np.array_equal(written, want.gt_pose_world.world_from_cam)  # %.18e is exact
+        np.testing.assert_allclose(got.gt_pose_world.world_from_cam, written, rtol=0, atol=1e-9)
+        assert same_pose(got.prior_pose_world, want.prior_pose_world)
         assert got.image_path.name == want.name
 
 
@@ -112,18 +112,20 @@ def test_text_files_alone_are_read_like_lodlocs_demo(tmp_path):
     assert len(ds) == 2
     for got, want in zip(ds.queries, qs, strict=True):
         assert got.camera == want.camera
-        assert same_pose(got.gt_pose, want.gt_pose, 1e-6, 1e-6)
-        assert same_pose(got.prior_pose, want.prior_pose, 1e-6, 1e-6)
+        assert same_pose(got.gt_pose_world, want.gt_pose_world, 1e-6, 1e-6)
+        assert same_pose(got.prior_pose_world, want.prior_pose_world, 1e-6, 1e-6)
 
 
 def test_per_image_files_win_and_a_disagreeing_text_file_is_reported(tmp_path):
     qs = queries(1)
     folder = make_scene(tmp_path / "s", qs, text_files=True)
-    shifted = LodLocQuery(qs[0].name, "s", CAM, gt_pose=qs[0].gt_pose.shift_world([3.0, 0.0, 0.0]))
+    shifted = LodLocQuery(
+        qs[0].name, "s", CAM, gt_pose_world=qs[0].gt_pose_world.shift_world([3.0, 0.0, 0.0])
+    )
     write_lodloc_scene(tmp_path / "other", [shifted], text_files=True)
     (folder / "GT_pose.txt").write_text((tmp_path / "other" / "GT_pose.txt").read_text())
     ds = read_lodloc(folder)
-    assert same_pose(ds.queries[0].gt_pose, qs[0].gt_pose)
+    assert same_pose(ds.queries[0].gt_pose_world, qs[0].gt_pose_world)
     assert any("differ by 3.000 m" in w for w in ds.warnings)
 
 
@@ -140,7 +142,7 @@ def test_no_image_means_size_from_the_principal_point_or_an_error(tmp_path):
     qs = queries(1)
     folder = make_scene(tmp_path / "s", qs, images=False)
     assert read_lodloc(folder).queries[0].camera == CAM  # 2 cx x 2 cy
-    odd = [LodLocQuery("a.JPG", "s", Camera(100, 100, 33.3, 20, 80, 40), gt_pose=qs[0].gt_pose)]
+    odd = [LodLocQuery("a.JPG", "s", Camera(100, 100, 33.3, 20, 80, 40), gt_pose_world=qs[0].gt_pose_world)]
     write_lodloc_scene(tmp_path / "odd", odd)
     with pytest.raises(CameraError, match="pass the image width"):
         read_lodloc(tmp_path / "odd", frame="z-up")
@@ -184,7 +186,7 @@ def test_not_a_dataset_and_missing_model_are_clear_errors(tmp_path):
     assert "assumed" in ds.frame_note and ds.model_path is None
     with pytest.raises(InputFileError, match="pass the model file"):
         ds.load_model()
-    with pytest.raises(InputFileError, match="frame must be"):
+    with pytest.raises(InputFileError, match="unknown frame 'ned'; known: auto, z-up, ecef"):
         read_lodloc(folder, frame="ned")
     with pytest.raises(InputFileError, match="only used with frame='ecef'"):
         read_lodloc(folder, ecef_origin_llh=(46.5, 6.5, 400.0))
@@ -199,8 +201,8 @@ def test_shifted_ecef_frame_is_detected_and_rotated_back_into_enu(tmp_path):
             q.name,
             q.scene,
             q.camera,
-            gt_pose=rotate_pose(q.gt_pose, R.T),
-            prior_pose=rotate_pose(q.prior_pose, R.T),
+            gt_pose_world=rotate_pose(q.gt_pose_world, R.T),
+            prior_pose_world=rotate_pose(q.prior_pose_world, R.T),
         )
         for q in qs
     ]
@@ -211,7 +213,7 @@ def test_shifted_ecef_frame_is_detected_and_rotated_back_into_enu(tmp_path):
     ds = read_lodloc(folder, frame="ecef")
     assert ds.frame == "ecef" and ds.ecef_origin_llh == SWISS_EPFL_ECEF_ORIGIN_LLH
     for got, want in zip(ds.queries, qs, strict=True):
-        assert same_pose(got.gt_pose, want.gt_pose, 1e-6, 1e-6)
+        assert same_pose(got.gt_pose_world, want.gt_pose_world, 1e-6, 1e-6)
     model = ds.load_model(cache=False)
     world = model.vertices.astype(np.float64) + model.origin
     assert abs(world[:, 2].min()) < 1e-3 and abs(world[:, 2].max() - 30.0) < 1e-3  # z is up again
@@ -226,7 +228,9 @@ def test_real_demo_folder(shared):
     assert len(ds) == 1 and ds.frame == "z-up" and ds.model_path.name == "UAVD4L-LoD1.obj"
     q = ds.queries[0]
     assert q.camera == Camera(1125.0, 1125.0, 320.0, 256.0, 640, 512)
-    np.testing.assert_allclose(q.gt_pose.center, [-466.2421195633942, 286.9394447095692, 224.5679498720671])
-    assert 21.0 < float(center_error_m(q.prior_pose, q.gt_pose)) < 21.2
-    assert 4.0 < float(rotation_error_deg(q.prior_pose, q.gt_pose)) < 4.1
+    np.testing.assert_allclose(
+        q.gt_pose_world.center, [-466.2421195633942, 286.9394447095692, 224.5679498720671]
+    )
+    assert 21.0 < float(center_error_m(q.prior_pose_world, q.gt_pose_world)) < 21.2
+    assert 4.0 < float(rotation_error_deg(q.prior_pose_world, q.gt_pose_world)) < 4.1
     assert q.points_path is not None and q.points_path.name.endswith("_points.npy")

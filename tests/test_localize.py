@@ -9,7 +9,7 @@ import pytest
 
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.generator import generate_city
-from semcityloc.errors import PoseError, ShapeError
+from semcityloc.errors import ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
@@ -71,9 +71,10 @@ def test_recovers_true_pose_from_prior_10m_5deg(city, localizer, renderer, name)
     out = renderer.render(CAMERA, true, depth=True)
     labels, depth = out.labels[0], out.depth[0]
     relative_depth = 0.37 * depth + 12.0  # any positive scale and shift: only the shape counts
-    result = localizer.localize(CAMERA, prior.shift_world(-city.origin), labels, relative_depth)
+    prior_world = city.pose_to_world(prior)  # a prior as a pose file in the CRS gives it
+    result = localizer.localize(CAMERA, city.pose_to_local(prior_world), labels, relative_depth)
     assert result.status == LOCALIZED, result.reason
-    est_local = result.pose.shift_world(city.origin)
+    est_local = city.pose_to_local(city.pose_to_world(result.pose_local))  # CRS out and back
     assert center_error_m(est_local, true) < 0.5
     assert rotation_error_deg(est_local, true) < 0.5
     assert result.counts["coarse_hypotheses"] >= 10_000
@@ -86,18 +87,18 @@ def test_is_deterministic_for_a_seed(city, localizer, renderer):
     true = view(city, *CASES["nadir"][0])
     prior = perturbed(true, np.array([4.0, 3.0, 1.0]), 0.0, 0.0, 3.0)
     labels = renderer.render(CAMERA, true).labels[0]
-    a = localizer.localize(CAMERA, prior, labels, prior_frame="local")
-    b = localizer.localize(CAMERA, prior, labels, prior_frame="local")
-    np.testing.assert_array_equal(a.pose.R, b.pose.R)
-    np.testing.assert_array_equal(a.pose.t, b.pose.t)
+    a = localizer.localize(CAMERA, prior, labels)
+    b = localizer.localize(CAMERA, prior, labels)
+    np.testing.assert_array_equal(a.pose_local.R, b.pose_local.R)
+    np.testing.assert_array_equal(a.pose_local.t, b.pose_local.t)
 
 
 def test_empty_mask_is_not_localized(city, localizer):
     true = view(city, *CASES["nadir"][0])
     empty = np.zeros((384, 512), dtype=np.uint8)
-    result = localizer.localize(CAMERA, true, empty, prior_frame="local")
+    result = localizer.localize(CAMERA, true, empty)
     assert result.status == NOT_LOCALIZED and result.reason == REASON_NO_BUILDINGS_IN_QUERY
-    assert result.pose is None
+    assert result.pose_local is None
 
 
 @pytest.mark.parametrize("with_depth", [True, False])
@@ -111,24 +112,22 @@ def test_flipped_mask_is_not_localized(city, localizer, renderer, with_depth):
         prior,
         np.ascontiguousarray(labels),
         np.ascontiguousarray(depth) if with_depth else None,
-        prior_frame="local",
     )
     assert result.status == NOT_LOCALIZED, (result.score, result.semantic, result.depth_cost)
-    assert result.pose is None
+    assert result.pose_local is None
 
 
 def test_extended_preset_recovers_a_prior_35m_off_on_every_axis(city, localizer, renderer):
     true = view(city, *CASES["oblique"][0])
     out = renderer.render(CAMERA, true, depth=True)
     prior = perturbed(true, np.array([35.0, -33.0, 31.0]), 0.5, -0.5, 6.0)
-    default = localizer.localize(CAMERA, prior, out.labels[0], out.depth[0], prior_frame="local")
+    default = localizer.localize(CAMERA, prior, out.labels[0], out.depth[0])
     assert not default.localized or center_error_m(default.pose_local, true) > 5.0  # outside its grid
     result = localizer.localize(
         CAMERA,
         prior,
         out.labels[0],
         out.depth[0],
-        prior_frame="local",
         config=LocalizerConfig.preset("extended"),
     )
     assert result.status == LOCALIZED, result.reason
@@ -141,7 +140,7 @@ def test_prior_far_outside_the_model_is_not_localized(city, localizer, renderer)
     true = view(city, *CASES["nadir"][0])
     labels = renderer.render(CAMERA, true).labels[0]
     far = perturbed(true, np.array([5000.0, 0.0, 0.0]), 0, 0, 0)
-    result = localizer.localize(CAMERA, far, labels, prior_frame="local")
+    result = localizer.localize(CAMERA, far, labels)
     assert result.status == NOT_LOCALIZED and result.reason == REASON_NO_GEOMETRY
 
 
@@ -155,7 +154,6 @@ def test_ablation_switches(city, localizer, renderer):
         prior,
         out.labels[0],
         out.depth[0],
-        prior_frame="local",
         config=base.with_ablation("no-refine"),
     )
     assert no_refine.counts["refine_evaluations"] == 0 and no_refine.cost_volume is not None
@@ -164,29 +162,31 @@ def test_ablation_switches(city, localizer, renderer):
         prior,
         out.labels[0],
         out.depth[0],
-        prior_frame="local",
         config=base.with_ablation("no-coarse"),
     )
     assert no_coarse.counts["coarse_hypotheses"] == 0 and no_coarse.cost_volume is None
     assert no_coarse.counts["refine_evaluations"] > 0
     no_depth = localizer.localize(
-        CAMERA, prior, out.labels[0], out.depth[0], prior_frame="local", config=base.with_ablation("no-depth")
+        CAMERA, prior, out.labels[0], out.depth[0], config=base.with_ablation("no-depth")
     )
     assert no_depth.depth_cost == 0.0
-    with pytest.raises(KeyError):
+    with pytest.raises(ParameterError, match="unknown method 'no-such-method'; known: semcityloc, no-coarse"):
         base.with_ablation("no-such-method")
+
+
+def test_unknown_preset_is_a_parameter_error_naming_the_presets():
+    with pytest.raises(ParameterError, match=r"^unknown localizer preset 'typo'; known: default, wide, "):
+        LocalizerConfig.preset("typo")
 
 
 def test_bad_inputs_raise_typed_errors(city, localizer):
     pose = view(city, *CASES["nadir"][0])
     with pytest.raises(ShapeError):
-        localizer.localize(CAMERA, pose, np.zeros((10, 10), dtype=np.uint8), prior_frame="local")
+        localizer.localize(CAMERA, pose, np.zeros((10, 10), dtype=np.uint8))
     with pytest.raises(ShapeError):
-        localizer.localize(CAMERA, pose, np.zeros((384, 512, 3), dtype=np.uint8), prior_frame="local")
+        localizer.localize(CAMERA, pose, np.zeros((384, 512, 3), dtype=np.uint8))
     with pytest.raises(PoseError):
-        localizer.localize(
-            CAMERA, Pose.stack([pose, pose]), np.zeros((384, 512), np.uint8), prior_frame="local"
-        )
+        localizer.localize(CAMERA, Pose.stack([pose, pose]), np.zeros((384, 512), np.uint8))
 
 
 def test_fused_coarse_kernel_matches_direct_rendering(city, localizer, renderer):
@@ -195,7 +195,7 @@ def test_fused_coarse_kernel_matches_direct_rendering(city, localizer, renderer)
     true = view(city, *CASES["oblique"][0])
     labels = renderer.render(CAMERA, true).labels[0]
     cfg = replace(LocalizerConfig.preset("fast"), no_refine=True)
-    result = localizer.localize(CAMERA, true, labels, prior_frame="local", config=cfg)
+    result = localizer.localize(CAMERA, true, labels, config=cfg)
     volume = result.cost_volume
     coarse_cam = CAMERA.scaled(cfg.coarse.width, cfg.coarse.height)
     from semcityloc.localization.query import Query
@@ -247,3 +247,22 @@ def test_depth_cost_is_minimal_at_the_true_pose_along_a_sweep(city, renderer):
         costs.append(depth_cost(d_q, d_r))
     assert offsets[int(np.argmin(costs))] == 0.0
     assert costs[0] > costs[8] and costs[-1] > costs[8]
+
+
+def test_result_to_dict_writes_the_world_pose_in_the_pose_json_layout():
+    from semcityloc.geometry.io import pose_to_dict
+    from semcityloc.localization.result import LocalizationResult
+
+    origin = np.array([690190.0, 5336158.0, 12.5])
+    local = Pose.from_xyz_rpy(np.array([11.5, -9.0, 85.25]), 1.0, 35.0, 120.0)
+    done = LocalizationResult(status=LOCALIZED, pose_local=local, score=0.9, counts={"coarse_hypotheses": 3})
+    d = done.to_dict(origin, "EPSG:25832")
+    assert (d["status"], d["score"], d["counts"]) == (LOCALIZED, 0.9, {"coarse_hypotheses": 3})
+    pose = pose_to_dict(local, origin=origin, crs="EPSG:25832")
+    assert {k: d[k] for k in pose} == pose  # the one pose layout, in CRS coordinates
+    np.testing.assert_allclose(d["position"], local.center + origin, rtol=0, atol=1e-9)
+    assert d["frame"] == "crs" and d["crs"] == "EPSG:25832"
+    assert done.to_dict(origin)["crs"] is None  # the key is there without a CRS too
+    refused = LocalizationResult(status=NOT_LOCALIZED, reason=REASON_NO_GEOMETRY).to_dict(origin)
+    assert refused["status"] == NOT_LOCALIZED and refused["reason"] == REASON_NO_GEOMETRY
+    assert not {"position", "world_from_cam", "frame"} & set(refused)

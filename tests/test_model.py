@@ -106,6 +106,51 @@ def test_npz_round_trip(tmp_path):
     assert back.crs == model.crs and back.building_ids == model.building_ids
 
 
+def test_with_origin_shifts_vertices_in_float64_then_casts():
+    model = build_box()
+    new_origin = model.origin + np.array([10.25, -20.5, 5.0])
+    moved = model.with_origin(new_origin)
+    assert moved is not model and moved.origin.dtype == np.float64 and moved.vertices.dtype == np.float32
+    np.testing.assert_array_equal(moved.origin, new_origin)
+    want = (model.vertices.astype(np.float64) + (model.origin - new_origin)).astype(np.float32)
+    np.testing.assert_array_equal(moved.vertices, want)
+    np.testing.assert_allclose(moved.to_world(moved.vertices), model.to_world(model.vertices), atol=1e-5)
+    np.testing.assert_array_equal(moved.triangles, model.triangles)
+    np.testing.assert_array_equal(moved.classes, model.classes)
+    assert moved.building_ids == model.building_ids and moved.crs == model.crs
+    np.testing.assert_array_equal(model.origin, new_origin - [10.25, -20.5, 5.0])  # self is untouched
+    assert model.with_origin(model.origin.copy()) is model
+    assert model.with_origin(model.origin.tolist()) is model
+
+
+def test_pose_to_local_and_to_world_are_the_origin_shift():
+    from semcityloc.geometry.pose import Pose
+
+    model = build_box()
+    world = Pose.from_xyz_rpy(np.array([E + 12.345678, N - 9.87654321, 120.5]), 1.5, 34.5, 124.0)
+    ulps = 4 * np.spacing(np.abs(world.center))  # exact to float64 precision (a few ulp of the CRS value)
+    local = model.pose_to_local(world)
+    np.testing.assert_allclose(local.center, world.center - model.origin, rtol=0, atol=ulps.max())
+    np.testing.assert_array_equal(local.R, world.R)
+    same = world.shift_world(model.origin)
+    np.testing.assert_array_equal(local.R, same.R)
+    np.testing.assert_array_equal(local.t, same.t)
+    back = model.pose_to_world(local)
+    np.testing.assert_array_equal(back.R, world.R)
+    np.testing.assert_array_equal(back.t, local.shift_world(-model.origin).t)
+    np.testing.assert_allclose(back.center, world.center, rtol=0, atol=ulps.max())
+    np.testing.assert_allclose(back.t, world.t, rtol=0, atol=4 * np.spacing(np.abs(world.t)).max())
+    again = model.pose_to_local(back)
+    np.testing.assert_allclose(again.center, local.center, rtol=0, atol=ulps.max())
+    # A pose re-expressed for another origin stays the same camera in the world.
+    moved = model.with_origin(model.origin + [100.0, 50.0, 0.0])
+    round_trip = moved.pose_to_world(moved.pose_to_local(world))
+    np.testing.assert_allclose(round_trip.center, world.center, rtol=0, atol=ulps.max())
+    np.testing.assert_allclose(
+        moved.pose_to_local(world).center, local.center - [100.0, 50.0, 0.0], rtol=0, atol=ulps.max()
+    )
+
+
 def test_select_compacts_vertices():
     model = build_box()
     roof = model.select(model.classes == SemanticClass.ROOF)

@@ -6,13 +6,12 @@ import numpy as np
 import pytest
 
 from semcityloc.classes import NUM_CLASSES
-from semcityloc.errors import InputFileError, ParameterError, SemCityLocError, ShapeError
+from semcityloc.errors import InputFileError, MissingWeightsError, ParameterError, SemCityLocError, ShapeError
 from semcityloc.io.images import save_depth, save_labels_png
 from semcityloc.perception import (
     IGNORE,
     DepthBackend,
     DepthOutput,
-    MissingWeightsError,
     SegmentationBackend,
     SegmentationOutput,
     available_backends,
@@ -40,7 +39,7 @@ def test_registry_lists_the_builtin_backends():
 def test_unknown_backend_and_unknown_option_are_parameter_errors(tmp_path):
     with pytest.raises(ParameterError, match="unknown segmentation backend 'segformer'.*mobilenetv2"):
         get_segmentation_backend("segformer")
-    with pytest.raises(ParameterError, match="unknown backend option.*hed"):
+    with pytest.raises(ParameterError, match="unknown segmentation backend 'files' option.*'hed'; known: "):
         get_segmentation_backend("files", masks=str(tmp_path), hed="x")
 
 

@@ -12,8 +12,8 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
 from semcityloc.classes import NUM_CLASSES  # noqa: E402
-from semcityloc.errors import InputFileError, ParameterError  # noqa: E402
-from semcityloc.perception import MissingWeightsError, get_depth_backend, get_segmentation_backend  # noqa: E402
+from semcityloc.errors import InputFileError, MissingWeightsError, ParameterError  # noqa: E402
+from semcityloc.perception import get_depth_backend, get_segmentation_backend  # noqa: E402
 from semcityloc.perception.segmenter import load_segmenter, new_segmenter, save_head  # noqa: E402
 
 RNG = np.random.default_rng(0)

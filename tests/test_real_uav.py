@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from semcityloc.benchmark.dataset_source import oracle_labels
 from semcityloc.datasets.lodloc import read_lodloc
 from semcityloc.datasets.overlay import (
     GT_COLOR,
@@ -24,13 +25,12 @@ from semcityloc.datasets.overlay import (
     gt_vs_prior_figure,
     read_image,
     save_png,
-    visible_edges,
 )
-from semcityloc.datasets.real_benchmark import REAL_PRESETS, oracle_labels
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.render import Renderer
+from semcityloc.render.overlay import visible_edges
 
 MAX_ERR_M, MAX_ERR_DEG = 2.0, 2.0
 
@@ -41,14 +41,13 @@ def _load(folder: str) -> dict:
     q = ds.queries[0]
     model = ds.load_model()
     renderer = Renderer(model, engine="numba")
-    labels, source = oracle_labels(model, q.camera, q.gt_pose, renderer)
-    localizer = Localizer(model, REAL_PRESETS["wide-z"], scene=renderer.scene)
+    labels = oracle_labels(model, q.camera, q.gt_pose_world, renderer)
+    localizer = Localizer(model, LocalizerConfig.preset("wide-z"), scene=renderer.scene)
     return {
         "q": q,
         "model": model,
         "renderer": renderer,
         "labels": labels,
-        "labels_source": source,
         "loc": localizer,
     }
 
@@ -68,22 +67,24 @@ def test_real_image_and_its_frames(real):
     image = read_image(q.image_path)
     assert image.shape == (512, 640, 3) and (q.camera.width, q.camera.height) == (640, 512)
     # The prior is mostly a height error: beyond the default grid's +-8 m, inside wide-z's +-30 m.
-    dz = abs(q.prior_pose.center[2] - q.gt_pose.center[2])
+    dz = abs(q.prior_pose_world.center[2] - q.gt_pose_world.center[2])
     assert (
         LocalizerConfig.preset("default").coarse.range_z_m / 2
         < dz
-        < REAL_PRESETS["wide-z"].coarse.range_z_m / 2
+        < LocalizerConfig.preset("wide-z").coarse.range_z_m / 2
     )
     # The oracle mask sees buildings: roofs and walls cover a real share of the image.
     building = np.isin(real["labels"], [2, 3]).mean()
-    assert 0.1 < building < 0.5, real["labels_source"]
+    assert 0.1 < building < 0.5
     assert model.origin.tolist() == [96.0, -15.0, 0.0]
 
 
 def test_overlay_png_of_the_model_at_gt_and_prior(real, tmp_path):
     q = real["q"]
     image = read_image(q.image_path)
-    figure = gt_vs_prior_figure(image, real["model"], q.camera, q.gt_pose, q.prior_pose, real["renderer"])
+    figure = gt_vs_prior_figure(
+        image, real["model"], q.camera, q.gt_pose_world, q.prior_pose_world, real["renderer"]
+    )
     assert figure.shape == (512 + 22, 2 * 640 + 6, 3)
     left, right = figure[22:, :640], figure[22:, 646:]
     green = np.all(left == GT_COLOR, axis=-1).mean()
@@ -95,28 +96,34 @@ def test_overlay_png_of_the_model_at_gt_and_prior(real, tmp_path):
 
 
 def test_oracle_perception_from_the_real_prior_lands_within_2m_2deg(real):
-    q = real["q"]
-    result = real["loc"].localize(q.camera, q.prior_pose, real["labels"], prior_frame="world")
+    q, model = real["q"], real["model"]
+    result = real["loc"].localize(q.camera, model.pose_to_local(q.prior_pose_world), real["labels"])
     assert result.localized, result.reason
-    err_m, err_deg = errors(result.pose, q.gt_pose)
-    print(f"oracle ({real['labels_source']}): {err_m:.2f} m, {err_deg:.2f} deg; prior 21.10 m, 4.03 deg")
+    err_m, err_deg = errors(model.pose_to_world(result.pose_local), q.gt_pose_world)
+    print(f"oracle (autolabel): {err_m:.2f} m, {err_deg:.2f} deg; prior 21.10 m, 4.03 deg")
     assert err_m < MAX_ERR_M and err_deg < MAX_ERR_DEG
 
 
 def test_oracle_perception_degraded_by_the_trained_preset_still_lands_within_2m_2deg(real):
     from semcityloc.benchmark.perception_sim import miou, simulate_segmentation
 
-    q, clean = real["q"], real["labels"]
+    q, clean, model = real["q"], real["labels"], real["model"]
     known = np.where(clean == 255, 0, clean).astype(np.uint8)
     noisy = simulate_segmentation(known, "trained", np.random.default_rng([0, 0, 3]))
     noisy[clean == 255] = 255
     quality = miou(np.where(noisy == 255, 0, noisy), known)
     assert 80.0 < quality < 99.0
-    result = real["loc"].localize(q.camera, q.prior_pose, noisy, prior_frame="world")
+    result = real["loc"].localize(q.camera, model.pose_to_local(q.prior_pose_world), noisy)
     assert result.localized, result.reason
-    err_m, err_deg = errors(result.pose, q.gt_pose)
+    err_m, err_deg = errors(model.pose_to_world(result.pose_local), q.gt_pose_world)
     print(f"oracle-degraded (mIoU {quality:.1f} %): {err_m:.2f} m, {err_deg:.2f} deg")
     assert err_m < MAX_ERR_M and err_deg < MAX_ERR_DEG
+
+
+def model_edges(renderer, camera, pose_local):
+    """The visible model edges of one render at a local pose (``render.overlay.visible_edges``)."""
+    out = renderer.render(camera, pose_local, depth=True, face_ids=True)
+    return visible_edges(out.face_ids[0], out.depth[0], renderer.scene)
 
 
 def _wireframe_available() -> bool:
@@ -131,10 +138,10 @@ def test_image_edges_agree_better_with_the_model_at_gt_than_at_the_prior(real):
     gradient under the rendered visible model edges (``overlay.edge_score``)."""
     q, model = real["q"], real["model"]
     image = read_image(q.image_path)
-    gt_local, prior_local = q.gt_pose.shift_world(model.origin), q.prior_pose.shift_world(model.origin)
+    gt_local, prior_local = model.pose_to_local(q.gt_pose_world), model.pose_to_local(q.prior_pose_world)
     grad = gradient_magnitude(image)
-    at_gt = edge_score(grad, visible_edges(model, q.camera, gt_local, real["renderer"]))
-    at_prior = edge_score(grad, visible_edges(model, q.camera, prior_local, real["renderer"]))
+    at_gt = edge_score(grad, model_edges(real["renderer"], q.camera, gt_local))
+    at_prior = edge_score(grad, model_edges(real["renderer"], q.camera, prior_local))
     print(f"gradient under model edges / image mean: GT {at_gt:.2f}, prior {at_prior:.2f}")
     assert at_gt > 1.3 * at_prior and at_gt > 1.5
     if _wireframe_available():
@@ -156,7 +163,7 @@ def test_lodlocs_own_edge_points_land_on_image_edges_at_gt(real):
     points = np.load(q.points_path).astype(np.float64)
     grad = gradient_magnitude(read_image(q.image_path))
     score = {}
-    for name, pose in (("gt", q.gt_pose), ("prior", q.prior_pose)):
+    for name, pose in (("gt", q.gt_pose_world), ("prior", q.prior_pose_world)):
         uv, front = q.camera.project(pose.transform(points))
         ok = front & q.camera.in_image(uv)
         col, row = np.floor(uv[ok]).astype(int).T

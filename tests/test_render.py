@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import EmptyModelError, RenderError, ShapeError
@@ -14,7 +15,6 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.render import Renderer, RenderOutput
 from semcityloc.render.embree_ref import embree_available
-from semcityloc.render.synthetic import add_house, synthetic_city
 
 needs_embree = pytest.mark.skipif(
     not embree_available(), reason="embreex (semcityloc[reference]) not installed"
@@ -28,10 +28,20 @@ def nadir(x: float, y: float, z: float, yaw: float = 0.0) -> Pose:
 
 
 def box_model(size: float = 10.0, height: float = 10.0) -> CityModel:
-    """One flat-roofed box centred on the local origin, ground at local z = 0."""
+    """One flat-roofed box centred on the local origin, ground at local z = 0: four walls, a roof and a
+    bottom, outward-facing polygons with their semantic class."""
     mb = MeshBuilder()
     h = size / 2
-    add_house(mb, ORIGIN[0] - h, ORIGIN[1] - h, ORIGIN[0] + h, ORIGIN[1] + h, 0.0, height, "box")
+    x0, y0, x1, y1 = ORIGIN[0] - h, ORIGIN[1] - h, ORIGIN[0] + h, ORIGIN[1] + h
+    corners = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+    for k in range(4):
+        (ax, ay), (bx, by) = corners[k], corners[(k + 1) % 4]
+        wall = np.array([[ax, ay, 0.0], [bx, by, 0.0], [bx, by, height], [ax, ay, height]])
+        mb.add_polygon(wall, semantic=SemanticClass.WALL, building_id="box", lod=2)
+    bottom = np.array([[x0, y0, 0.0], [x0, y1, 0.0], [x1, y1, 0.0], [x1, y0, 0.0]])
+    mb.add_polygon(bottom, semantic=SemanticClass.GROUND, building_id="box", lod=2)
+    top = np.array([[x0, y0, height], [x1, y0, height], [x1, y1, height], [x0, y1, height]])
+    mb.add_polygon(top, semantic=SemanticClass.ROOF, building_id="box", lod=2)
     return mb.build(origin=ORIGIN)
 
 
@@ -45,7 +55,8 @@ def mesh_model(points: np.ndarray, triangles: np.ndarray, cls: int = SemanticCla
 
 @pytest.fixture(scope="module")
 def city() -> CityModel:
-    return synthetic_city(n=6, seed=3)
+    """The generated district (2 x 2 blocks, LoD2 with flat, gable, hip and mono-pitch roofs)."""
+    return footprints_to_model(generate_footprints(seed=3, blocks=(2, 2)), lod=2)
 
 
 @pytest.fixture(scope="module")
@@ -191,9 +202,10 @@ def test_one_vertex_in_front_clipping_case():
 
 
 # ------------------------------------------------------------------------------------------ degenerate
-def test_sky_view_is_all_background_not_an_error(city_renderer):
+def test_sky_view_is_all_background_not_an_error(city_renderer, city):
     cam = Camera.from_fov(32, 24, 60.0)
-    up = Pose.from_xyz_rpy(np.array([0.0, 0.0, 100.0]), 0.0, 180.0, 0.0)  # optical axis to zenith
+    top = city.bounds_local[1][2]
+    up = Pose.from_xyz_rpy(np.array([0.0, 0.0, top + 50.0]), 0.0, 180.0, 0.0)  # optical axis to zenith
     out = city_renderer.render(cam, up, depth=True, face_ids=True)
     assert out.labels.shape == (1, 24, 32) and out.labels.dtype == np.uint8
     assert (out.labels == 0).all() and np.isinf(out.depth).all() and (out.face_ids == -1).all()

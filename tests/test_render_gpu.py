@@ -5,19 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
 from semcityloc.errors import RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.render import Renderer
 from semcityloc.render.gpu import gpu_status
-from semcityloc.render.synthetic import synthetic_city
 
 GPU_OK, GPU_WHY = gpu_status()
 
 
 @pytest.fixture(scope="module")
 def city():
-    return synthetic_city(n=4, seed=2)
+    return footprints_to_model(generate_footprints(seed=2, blocks=(1, 1)), lod=2)
 
 
 @pytest.mark.skipif(GPU_OK, reason="a usable GPU is present: the no-GPU behaviour cannot be observed")

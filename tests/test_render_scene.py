@@ -7,16 +7,17 @@ import numpy as np
 import pytest
 
 from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.citymodel.generator import footprints_to_model, generate_footprints, tile_model
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import RenderError
 from semcityloc.render.scene import build_scene
-from semcityloc.render.synthetic import synthetic_city, tile_model
 from semcityloc.render.terrain import TERRAIN_DROP_M, base_points, build_terrain, building_bottom_mask
 
 
 @pytest.fixture(scope="module")
 def city():
-    return synthetic_city(n=5, seed=7, slope=0.05)
+    """The generated district (2 x 2 blocks, LoD2): closed buildings on ground with a 1-2 % slope."""
+    return footprints_to_model(generate_footprints(seed=7, blocks=(2, 2)), lod=2)
 
 
 def test_building_bottoms_are_dropped_and_ground_only_objects_kept(city):
@@ -47,12 +48,17 @@ def test_terrain_lies_just_below_the_building_bottoms_and_follows_the_slope(city
     d, idx = cKDTree(tv[:, :2]).query(base[:, :2])
     assert d.max() < 0.02
     np.testing.assert_allclose(tv[idx, 2], base[:, 2] - TERRAIN_DROP_M, atol=1e-9)
-    # The margin reaches at least 200 m beyond the buildings, and the slope (0.05 along x) shows.
+    # The margin reaches at least 200 m beyond the buildings, and the district's slope (1-2 %, fitted to
+    # the base points) shows: the margin beyond the uphill side is higher than beyond the downhill side.
     lo, hi = city.bounds_local
     assert tv[:, 0].min() <= lo[0] - 199 and tv[:, 1].max() >= hi[1] + 199
-    west = tv[tv[:, 0] < lo[0]][:, 2].mean()
-    east = tv[tv[:, 0] > hi[0]][:, 2].mean()
-    assert east - west > 3.0
+    grad = np.linalg.lstsq(np.column_stack([base[:, :2], np.ones(len(base))]), base[:, 2], rcond=None)[0][:2]
+    slope = float(np.hypot(*grad))
+    assert 0.01 <= slope <= 0.02
+    along, base_along = tv[:, :2] @ (grad / slope), base[:, :2] @ (grad / slope)
+    uphill = tv[along > base_along.max()][:, 2].mean()
+    downhill = tv[along < base_along.min()][:, 2].mean()
+    assert uphill - downhill > 0.5 * slope * (base_along.max() - base_along.min()) > 1.0
     # Upward-facing TIN (no vertical slivers) and no triangle above the highest base point.
     c = tv[tt]
     n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
@@ -73,7 +79,7 @@ def test_terrain_under_footprints_is_dropped_without_changing_any_view(city):
     dropped = np.array([c for c in full_c if tuple(c) not in kept])
     assert len(dropped) == len(full_t) - len(kept_t)
     assert _under_footprints(dropped[:, None, :2].repeat(3, axis=1), bottoms).all()
-    # The synthetic houses are closed: from cameras outside them the masks are the same, except where a
+    # The generated buildings are closed: from cameras outside them the masks are the same, except where a
     # grazing ray slips through the TERRAIN_DROP_M slit under a wall and used to meet the dropped terrain.
     from semcityloc.geometry.camera import Camera
     from semcityloc.geometry.pose import Pose

@@ -11,9 +11,12 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from semcityloc.benchmark.methods import BenchmarkError
 from semcityloc.benchmark.report import load_run, make_report, markdown_table
-from semcityloc.benchmark.runner import COLUMNS, RESULTS_FILE, RUN_FILE, BenchmarkSpec, run_benchmark
+from semcityloc.benchmark.results import COLUMNS
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.runfiles import RESULTS_FILE, RUN_FILE
+from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.errors import BenchmarkError
 
 
 # ------------------------------------------------------------------------------ hand-made run folders

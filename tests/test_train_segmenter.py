@@ -10,10 +10,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from semcityloc.classes import IGNORE  # noqa: E402
 from semcityloc.errors import InputFileError, ParameterError  # noqa: E402
 from semcityloc.io.images import save_labels_png, save_rgb  # noqa: E402
 from semcityloc.perception import get_segmentation_backend  # noqa: E402
-from semcityloc.perception.base import IGNORE  # noqa: E402
 from semcityloc.perception.metrics import confusion, mean_iou  # noqa: E402
 from semcityloc.perception.synthetic import generated_model, synthetic_views  # noqa: E402
 from semcityloc.perception.training import (  # noqa: E402

@@ -9,6 +9,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from semcityloc.errors import unknown_choice
+
 
 class SemanticClass(IntEnum):
     BACKGROUND = 0  # sky, vegetation, anything the model does not describe
@@ -21,6 +23,18 @@ class SemanticClass(IntEnum):
 
 NUM_CLASSES = len(SemanticClass)
 CLASS_NAMES: tuple[str, ...] = tuple(c.name.lower() for c in SemanticClass)
+
+# Label id of a pixel that carries no class (label PNGs, query masks, training targets): "don't know",
+# skipped by every score and loss. A plain int so numba kernels can use it as a global.
+IGNORE = 255
+
+# The classes that are part of a building (everything the model describes except the ground).
+BUILDING_CLASSES: tuple[SemanticClass, ...] = (
+    SemanticClass.WALL,
+    SemanticClass.ROOF,
+    SemanticClass.WINDOW,
+    SemanticClass.DOOR,
+)
 
 # Palette for label PNGs (index = class id). Documented in docs/conventions.md.
 PALETTE = np.array(
@@ -66,4 +80,4 @@ def class_id(name: str) -> int:
     try:
         return int(SemanticClass[name.upper()])
     except KeyError as exc:
-        raise ValueError(f"unknown semantic class {name!r}; known: {', '.join(CLASS_NAMES)}") from exc
+        raise unknown_choice("semantic class", name, CLASS_NAMES, ValueError) from exc

@@ -6,6 +6,9 @@ exit code 2) can tell bad input from a bug.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import TypeVar
+
 
 class SemCityLocError(Exception):
     """Base class of all errors raised on purpose by semcityloc."""
@@ -64,3 +67,42 @@ class OptionalDependencyError(SemCityLocError, ImportError):
 
 class ParameterError(SemCityLocError, ValueError):
     """An option or parameter out of its documented range (generator seed/blocks/lods, LoD1 height mode)."""
+
+
+class MissingWeightsError(InputFileError):
+    """Model weights that are not on this machine; the message says what to download and where to put it."""
+
+
+class BenchmarkConfigError(SemCityLocError, ValueError):
+    """A query configuration value out of its range."""
+
+
+class QuerySimulationError(SemCityLocError):
+    """A query that cannot be simulated at all (every attempt put the camera under the model)."""
+
+
+class PerceptionSimError(SemCityLocError, ValueError):
+    """An unknown segmentation preset (bad arrays raise ``ShapeError``)."""
+
+
+class BenchmarkError(ParameterError):
+    """A benchmark request that cannot run: unknown method or preset, bad option, unusable output folder."""
+
+
+class ResumeMismatchError(BenchmarkError):
+    """The output folder holds a run made with other arguments."""
+
+
+_E = TypeVar("_E", bound=Exception)
+
+
+def unknown_choice(what: str, name: object, known: Iterable[object], error: type[_E] = ParameterError) -> _E:
+    """The error for a name that is not among the valid choices: "unknown {what} {name!r}; known: a, b, c".
+
+    ``what`` names the kind of thing ("localizer preset", "render engine"), ``known`` the valid names in
+    the order to show them ("none" when there are none). ``name`` may be a list or tuple of several
+    unknown names (shown as ``'a', 'b'``). Returns the exception for ``raise unknown_choice(...)``;
+    ``error`` is its class (default ``ParameterError``; a narrower one where a module has its own).
+    """
+    names = ", ".join(repr(n) for n in name) if isinstance(name, (list, tuple)) else repr(name)
+    return error(f"unknown {what} {names}; known: {', '.join(str(k) for k in known) or 'none'}")

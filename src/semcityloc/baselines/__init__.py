@@ -5,7 +5,8 @@
 - ``SilhouetteLocalizer``: LoD-Loc v2-style building-silhouette IoU on SemCityLoc's own search.
 - ``simulate_edge_map`` / ``EdgeMapSimulator``: the benchmark's simulated wireframe extractor;
   ``image_edge_map``: gradient edges of a real image.
-- ``make_baseline_method``: the benchmark registry's factory for ``silhouette`` and ``lodloc-wireframe``.
+- ``make_baseline_method``: the factory of ``silhouette`` and ``lodloc-wireframe``, registered in the
+  method table (``localization.methods``) when this package is imported.
 """
 
 from semcityloc.baselines.edge_sim import EDGE_PRESETS, EdgeMapSimulator, image_edge_map, simulate_edge_map

@@ -30,7 +30,7 @@ from scipy import ndimage
 
 from semcityloc.baselines.edges import ModelEdges, extract_edges
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import ParameterError, ShapeError
+from semcityloc.errors import ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.render.engine import Renderer
@@ -101,9 +101,7 @@ def edge_preset(quality: str | EdgePreset) -> EdgePreset:
     try:
         return EDGE_PRESETS[quality]
     except (KeyError, TypeError) as exc:
-        raise ParameterError(
-            f"unknown edge-map quality {quality!r}; known: {', '.join(EDGE_PRESETS)}"
-        ) from exc
+        raise unknown_choice("edge-map quality", quality, EDGE_PRESETS) from exc
 
 
 # ------------------------------------------------------------------------------------------ geometry

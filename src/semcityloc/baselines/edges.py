@@ -30,10 +30,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import SemanticClass
+from semcityloc.classes import BUILDING_CLASSES
 from semcityloc.errors import EmptyModelError, ParameterError
-
-BUILDING_CLASSES = (SemanticClass.WALL, SemanticClass.ROOF, SemanticClass.WINDOW, SemanticClass.DOOR)
 
 EDGE_BORDER = 0  # only one triangle has the edge
 EDGE_CREASE = 1  # two triangles meet at more than crease_deg

@@ -1,12 +1,8 @@
-"""The baselines as benchmark methods: ``make_baseline_method(name, map_model, config)``.
+"""The baselines as localization methods, registered in ``localization.methods`` when imported.
 
-Why here and not in ``benchmark.methods``: the registry there only needs a factory per name; keeping
-the baselines' wiring (edge-map simulation per query, seeds, quality mapping) next to the baselines keeps
-the registry free of baseline details. Register with::
-
-    from semcityloc.baselines.methods import BASELINES, make_baseline_method
-    for _name in BASELINES:
-        register_method(_name, make_baseline_method)
+Why here: the method table only needs a factory per name; keeping the baselines' wiring (edge-map
+simulation per query, seeds, quality mapping) next to the baselines keeps the table free of baseline
+details, and importing ``semcityloc.baselines`` is all it takes to make ``--method silhouette`` work.
 
 - ``silhouette``: ``SilhouetteLocalizer`` with the run's localizer preset (depth is never used).
 - ``lodloc-wireframe``: ``WireframeLocalizer`` on an edge map simulated for each query from its TRUE
@@ -14,12 +10,11 @@ the registry free of baseline details. Register with::
   degraded by the quality preset) with the query's background pixels that are not sky (trees, cars:
   ``labels == 0`` where the depth is finite) as occluders. Random stream ``[config.seed, q.index,
   EDGE_STREAM]``. The quality follows the query's segmentation quality (``EDGE_QUALITY_FOR_SEG``)
-  unless ``edge_quality`` is given.
+  unless ``edge_quality`` is given. A query without a true pose (a user's photo) has no simulated edge
+  map: the wireframe baseline is for benchmarks only.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,13 +24,11 @@ from semcityloc.baselines.silhouette import SilhouetteLocalizer
 from semcityloc.baselines.wireframe import WireframeConfig, WireframeLocalizer
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import ParameterError
+from semcityloc.errors import ParameterError, unknown_choice
 from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.methods import QueryRecord, register_method
 from semcityloc.localization.result import LocalizationResult
-
-if TYPE_CHECKING:
-    from semcityloc.benchmark.occluders import RealityScene
-    from semcityloc.benchmark.queries import BenchmarkQuery
+from semcityloc.render.scene import RenderScene
 
 SILHOUETTE = "silhouette"
 WIREFRAME = "lodloc-wireframe"
@@ -67,8 +60,8 @@ class SilhouetteMethod:
         self.name = name
         self.localizer = SilhouetteLocalizer(map_model, config)
 
-    def localize(self, q: BenchmarkQuery) -> LocalizationResult:
-        return self.localizer.localize(q.camera, q.prior_pose, q.labels, None, prior_frame="local")
+    def localize(self, q: QueryRecord) -> LocalizationResult:
+        return self.localizer.localize(q.camera, q.prior_pose_local, q.labels, None)
 
 
 class WireframeMethod:
@@ -83,7 +76,7 @@ class WireframeMethod:
         edge_quality: str | None = None,
     ):
         if edge_quality is not None and edge_quality not in EDGE_PRESETS:
-            raise ParameterError(f"unknown edge quality {edge_quality!r}; known: {', '.join(EDGE_PRESETS)}")
+            raise unknown_choice("edge-map quality", edge_quality, EDGE_PRESETS)
         self.name = name
         self.seed = int(config.seed)
         self.edge_quality = edge_quality
@@ -91,39 +84,46 @@ class WireframeMethod:
         self.simulator = EdgeMapSimulator(map_model, self.localizer.scene, self.localizer.edges)
         self.edge_source = "map"
 
-    def attach_reality(self, reality: RealityScene) -> None:
+    def attach_reality(self, reality_model: CityModel, reality_scene: RenderScene) -> None:
         """Simulate the edge maps from the benchmark's reality (the world the query images show: its
         buildings with their geometric errors and roof structures, trees and cars occluding them)
         instead of from the map model. Window and door frames are left out: LoD-Loc's extractor is
         trained to predict the map's wireframe, not facade detail. The runner should call this with its
-        simulator's ``reality``; without it the edge maps come from the map model (exact geometry)."""
-        edges = extract_edges(reality.model, self.localizer.config.crease_deg).physical()
-        self.simulator = EdgeMapSimulator(reality.model, reality.renderer.scene, edges)
+        simulator's reality (in the map's local frame); without it the edge maps come from the map model
+        (exact geometry)."""
+        edges = extract_edges(reality_model, self.localizer.config.crease_deg).physical()
+        self.simulator = EdgeMapSimulator(reality_model, reality_scene, edges)
         self.edge_source = "reality"
 
-    def quality_for(self, q: BenchmarkQuery) -> str:
+    def quality_for(self, q: QueryRecord) -> str:
         if self.edge_quality is not None:
             return self.edge_quality
         return EDGE_QUALITY_FOR_SEG.get(str(q.meta.get("seg_quality", "trained")), "trained")
 
-    def edge_map(self, q: BenchmarkQuery) -> np.ndarray:
+    def edge_map(self, q: QueryRecord) -> np.ndarray:
         """The simulated wireframe-extractor output of query ``q`` (deterministic per query)."""
         cam = q.camera
         occ = occluder_mask(q.labels, q.depth, cam.height, cam.width)
+        if q.true_pose_local is None:
+            raise ParameterError("the lodloc-wireframe baseline simulates its edge map from a true pose")
         rng = np.random.default_rng([self.seed, int(q.index), EDGE_STREAM])
-        return self.simulator.simulate(cam, q.true_pose, self.quality_for(q), rng, occ)
+        return self.simulator.simulate(cam, q.true_pose_local, self.quality_for(q), rng, occ)
 
-    def localize(self, q: BenchmarkQuery) -> LocalizationResult:
-        return self.localizer.localize(q.camera, q.prior_pose, self.edge_map(q), prior_frame="local")
+    def localize(self, q: QueryRecord) -> LocalizationResult:
+        return self.localizer.localize(q.camera, q.prior_pose_local, self.edge_map(q))
 
 
 def make_baseline_method(
     name: str, map_model: CityModel, config: LocalizerConfig | None = None
 ) -> SilhouetteMethod | WireframeMethod:
-    """Factory for the benchmark registry: ``name`` is one of ``BASELINES``."""
+    """Factory for the method table: ``name`` is one of ``BASELINES``."""
     config = config if config is not None else LocalizerConfig.preset("default")
     if name == SILHOUETTE:
         return SilhouetteMethod(name, map_model, config)
     if name == WIREFRAME:
         return WireframeMethod(name, map_model, config)
-    raise ParameterError(f"unknown baseline {name!r}; known: {', '.join(BASELINES)}")
+    raise unknown_choice("baseline", name, BASELINES)
+
+
+for _name in BASELINES:
+    register_method(_name, make_baseline_method)

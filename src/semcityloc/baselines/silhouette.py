@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import NUM_CLASSES, SemanticClass
+from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
@@ -35,7 +35,7 @@ BUILDING = int(SemanticClass.WALL)  # the one building class, stored under the w
 def silhouette_lut() -> np.ndarray:
     """uint8 (256,) class map: wall, roof, window, door -> ``BUILDING``; every other value unchanged."""
     lut = np.arange(256, dtype=np.uint8)
-    for c in (SemanticClass.WALL, SemanticClass.ROOF, SemanticClass.WINDOW, SemanticClass.DOOR):
+    for c in BUILDING_CLASSES:
         lut[int(c)] = BUILDING
     return lut
 
@@ -71,13 +71,10 @@ class SilhouetteLocalizer(Localizer):
     def localize(
         self,
         camera: Camera,
-        prior: Pose,
+        prior_local: Pose,
         semantic: np.ndarray,
         depth: np.ndarray | None = None,
         config: LocalizerConfig | None = None,
-        prior_frame: str = "world",
     ) -> LocalizationResult:
         cfg = replace(config or self.config, no_depth=True)
-        return super().localize(
-            camera, prior, silhouette_labels(semantic), None, config=cfg, prior_frame=prior_frame
-        )
+        return super().localize(camera, prior_local, silhouette_labels(semantic), None, config=cfg)

@@ -1,7 +1,7 @@
 """LoD-Loc-style wireframe alignment (Zhu et al., NeurIPS 2024), re-implemented from its description and
 public code as a baseline on the same benchmark as SemCityLoc.
 
-Pipeline of ``WireframeLocalizer.localize(camera, prior, edge_map)``:
+Pipeline of ``WireframeLocalizer.localize(camera, prior_local, edge_map)`` (poses in the local frame):
 
 1. Map side: points every ``spacing_m`` along the model's feature edges (``edges.extract_edges``),
    kept when visible at the PRIOR: a z-depth render at the prior, a point is visible when at most
@@ -226,25 +226,22 @@ class WireframeLocalizer:
     def localize(
         self,
         camera: Camera,
-        prior: Pose,
+        prior_local: Pose,
         edge_map: np.ndarray,
         config: WireframeConfig | None = None,
-        prior_frame: str = "world",
     ) -> LocalizationResult:
         """Estimate the pose of one query from its edge-probability map (module docstring).
 
         Args:
             camera: intrinsics of the query image (any resolution; the map is resampled to ``width``).
-            prior: prior cam_from_world pose in world CRS coordinates (``prior_frame="world"``) or the
-                model's local frame (``"local"``); the result's ``pose`` is in the same frame.
+            prior_local: prior cam_from_world pose in the model's LOCAL frame (a world/CRS pose comes in
+                through ``model.pose_to_local``); the result's poses are in the local frame too.
             edge_map: (H, W) edge probability in [0, 1] with the camera's aspect (``ShapeError`` if not).
         """
         cfg = config or self.config
         t0 = time.perf_counter()
-        check_camera_and_prior(camera, prior, prior_frame)
+        check_camera_and_prior(camera, prior_local)
         check_edge_map(edge_map, camera)
-        offset = self.model.origin if prior_frame == "world" else np.zeros(3)
-        prior_local = prior.shift_world(offset)
         state = prior_local.to_xyz_rpy()
 
         result = LocalizationResult(status=NOT_LOCALIZED)
@@ -301,11 +298,10 @@ class WireframeLocalizer:
         fine = pyramid.levels[-1]
         result.score = float(score_poses(points, pose_local, fine.camera, fine.emap)[0])
         result.pose_local = pose_local
-        result.pose = pose_local.shift_world(-offset)
         chance = float(fine.emap.mean())  # expected score of points thrown anywhere in the image
         result.confidence["contrast"] = result.score / max(chance, 1e-9)
         if not (result.score >= cfg.min_score and result.confidence["contrast"] >= cfg.min_contrast):
-            result.pose = result.pose_local = None
+            result.pose_local = None
             return _finish(result, REASON_LOW_SCORE, t0)
         result.status = LOCALIZED
         return _finish(result, None, t0)

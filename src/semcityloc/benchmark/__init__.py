@@ -1,1 +1,9 @@
-"""Simulated-query benchmark: query simulation, methods, the resumable runner and the paper's report."""
+"""The benchmark: query sources (simulated, data sets), the one resumable run loop, results and report.
+
+- ``queries``, ``occluders``, ``perception_sim``: the query simulator (reality != map, perception noise);
+- ``sources``: the ``QuerySource`` protocol and ``SimulatedSource``; ``dataset_source``: a LoD-Loc data set;
+- ``spec``: ``BenchmarkSpec`` (a simulated run) and the models it loads;
+- ``run``: ``run_queries`` / ``run_benchmark``, the one loop (resume, workers, progress);
+- ``results``: ``results.csv`` rows, details, summary; ``runfiles``: the run folder, atomic writes;
+- ``report``: the paper's tables and figures from run folders.
+"""

@@ -41,12 +41,11 @@ from scipy import ndimage
 from scipy.spatial import Delaunay, cKDTree
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import SemanticClass
+from semcityloc.classes import BUILDING_CLASSES, SemanticClass
 from semcityloc.errors import CRSError, EmptyModelError
 from semcityloc.render import Renderer
 from semcityloc.render.terrain import build_terrain
 
-BUILDING_CLASSES = (SemanticClass.WALL, SemanticClass.ROOF, SemanticClass.WINDOW, SemanticClass.DOOR)
 TERRAIN_ID, TREES_ID, CARS_ID = "__terrain__", "__trees__", "__cars__"
 _MAX_RASTER_PAIRS = 4_000_000  # (triangle, cell) pairs per vectorised rasterisation chunk
 

@@ -57,7 +57,8 @@ import numpy as np
 from scipy import ndimage
 
 from semcityloc.classes import NUM_CLASSES, SemanticClass
-from semcityloc.errors import SemCityLocError, ShapeError
+from semcityloc.errors import PerceptionSimError, ShapeError, unknown_choice
+from semcityloc.perception.metrics import confusion, mean_iou
 
 MIOU_CLASSES = (
     int(SemanticClass.GROUND),
@@ -79,10 +80,6 @@ DEPTH_DISTORTION_CELL = 0.35  # its correlation length, share of the image's lon
 DEPTH_NOISE_RANGE = (0.01, 0.02)  # per-pixel multiplicative noise, standard deviation
 
 _W, _R, _G, _B = int(SemanticClass.WALL), int(SemanticClass.ROOF), int(SemanticClass.GROUND), 0
-
-
-class PerceptionSimError(SemCityLocError, ValueError):
-    """An unknown segmentation preset (bad arrays raise ``ShapeError``)."""
 
 
 @dataclass(frozen=True)
@@ -165,9 +162,7 @@ def get_preset(preset: str | SegPreset) -> SegPreset:
     try:
         return SEG_PRESETS[preset]
     except (KeyError, TypeError) as exc:
-        raise PerceptionSimError(
-            f"unknown segmentation preset {preset!r}; known: {', '.join(SEG_PRESETS)}"
-        ) from exc
+        raise unknown_choice("segmentation preset", preset, SEG_PRESETS, PerceptionSimError) from exc
 
 
 # ------------------------------------------------------------------------------------------ helpers
@@ -368,19 +363,8 @@ def miou(pred: np.ndarray, gt: np.ndarray, min_pixels: int = MIN_PRESENT_PIXELS)
     gt = _check_labels(gt, "gt")
     if pred.shape != gt.shape:
         raise ShapeError(f"pred {pred.shape} and gt {gt.shape} differ in shape")
-    pair = np.bincount(
-        gt.reshape(-1).astype(np.int64) * NUM_CLASSES + pred.reshape(-1), minlength=NUM_CLASSES**2
-    )
-    conf = pair.reshape(NUM_CLASSES, NUM_CLASSES)  # [gt, pred]
-    ious = []
-    for c in MIOU_CLASSES:
-        n_gt = conf[c].sum()
-        if n_gt < max(int(min_pixels), 1):
-            continue
-        inter = conf[c, c]
-        union = n_gt + conf[:, c].sum() - inter
-        ious.append(inter / union)
-    return 100.0 * float(np.mean(ious)) if ious else float("nan")
+    conf = confusion(pred, gt, NUM_CLASSES)  # [gt, pred]
+    return mean_iou(conf, classes=MIOU_CLASSES, min_pixels=min_pixels, percent_of_mean=True)
 
 
 def simulate_depth(clean_depth: np.ndarray, labels_clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -54,10 +54,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from semcityloc.benchmark.occluders import BUILDING_CLASSES, RealityScene, build_reality
+from semcityloc.benchmark.occluders import RealityScene, build_reality
 from semcityloc.benchmark.perception_sim import SEG_PRESETS, miou, simulate_depth, simulate_segmentation
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import EmptyModelError, SemCityLocError
+from semcityloc.classes import BUILDING_CLASSES
+from semcityloc.errors import BenchmarkConfigError, EmptyModelError, QuerySimulationError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 
@@ -69,14 +70,6 @@ PRIOR_Z_RATIO = 0.4
 MIN_CLEARANCE_M = 10.0
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 STREAM_POSE, STREAM_PRIOR, STREAM_PRIOR_EXTRA, STREAM_SEG, STREAM_DEPTH = 0, 1, 2, 3, 4
-
-
-class BenchmarkConfigError(SemCityLocError, ValueError):
-    """A query configuration value out of its range."""
-
-
-class QuerySimulationError(SemCityLocError):
-    """A query that cannot be simulated at all (every attempt put the camera under the model)."""
 
 
 def _pair(value, name: str) -> tuple[float, float]:
@@ -172,9 +165,7 @@ class QueryConfig:
                 raise BenchmarkConfigError(f"prior_extra_m must be >= 0, got {extra}")
             put("prior_extra_m", extra)
         if self.seg_quality not in SEG_PRESETS:
-            raise BenchmarkConfigError(
-                f"unknown seg_quality {self.seg_quality!r}; known: {', '.join(SEG_PRESETS)}"
-            )
+            raise unknown_choice("seg_quality", self.seg_quality, SEG_PRESETS, BenchmarkConfigError)
         put("depth", bool(self.depth))
 
 
@@ -185,8 +176,8 @@ class BenchmarkQuery:
     query_id: str  # "q0000", "q0001", ... (index i -> f"q{i:04d}")
     index: int
     camera: Camera  # at config.width x config.height
-    true_pose: Pose  # cam_from_world, LOCAL frame of the map model (world = origin + local)
-    prior_pose: Pose  # same frame
+    true_pose_local: Pose  # cam_from_world, LOCAL frame of the map model (world = origin + local)
+    prior_pose_local: Pose  # same frame
     labels: np.ndarray  # (H, W) uint8 simulated segmentation (SemanticClass ids; 0 = background)
     depth: np.ndarray | None  # (H, W) float32 simulated relative depth, NaN where invalid (sky)
     query_miou: float  # mIoU (%) of `labels` vs the clean labels of the reality render
@@ -232,7 +223,7 @@ def _height(rng: np.random.Generator, cfg: QueryConfig) -> float:
 
 
 def sample_prior(
-    true_pose: Pose, cfg: QueryConfig, rng_base: np.random.Generator, rng_extra: np.random.Generator
+    true_pose_local: Pose, cfg: QueryConfig, rng_base: np.random.Generator, rng_extra: np.random.Generator
 ) -> tuple[Pose, dict]:
     """The prior pose and its errors (module docstring). Every draw happens whatever the ranges, so the
     streams stay aligned across configurations."""
@@ -246,7 +237,7 @@ def sample_prior(
     extra = np.zeros(3)
     if cfg.prior_extra_m is not None:
         extra = rng_extra.uniform(*cfg.prior_extra_m, 3) * rng_extra.choice([-1.0, 1.0], 3)
-    x, y, z, roll, pitch, yaw = true_pose.to_xyz_rpy()
+    x, y, z, roll, pitch, yaw = true_pose_local.to_xyz_rpy()
     err = base + extra
     prior = Pose.from_xyz_rpy(np.array([x, y, z]) + err, roll + roll_err, pitch + pitch_err, yaw + yaw_err)
     info = {
@@ -382,8 +373,8 @@ class QuerySimulator:
             query_id=query_id(index),
             index=index,
             camera=self.camera,
-            true_pose=pose,
-            prior_pose=prior,
+            true_pose_local=pose,
+            prior_pose_local=prior,
             labels=labels,
             depth=depth,
             query_miou=miou(labels, clean),

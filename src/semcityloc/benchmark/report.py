@@ -30,19 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.benchmark.methods import ABLATIONS, BenchmarkError
-from semcityloc.benchmark.runner import (
-    DETAILS_DIR,
-    RESULTS_FILE,
-    RUN_FILE,
-    SKIPPED,
-    load_details,
-    parse_results,
-    summarize_rows,
-)
+from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
+from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE
+from semcityloc.benchmark.spec import load_map
+from semcityloc.errors import BenchmarkError, SemCityLocError
 from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshold_key
+from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
-from semcityloc.perception.autolabel import class_boundaries
+from semcityloc.render.overlay import class_boundaries
 
 # name -> (config key shown, title). "main" is always written; the others when their key varies.
 TABLES: dict[str, tuple[str, str]] = {
@@ -476,9 +471,6 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
 
 
 def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: list[str]) -> list[Path]:
-    from semcityloc.benchmark.runner import load_map
-    from semcityloc.errors import SemCityLocError
-
     figures: list[Path] = []
     maps: dict[str, Any] = {}
     for n, run in enumerate(runs):

@@ -16,6 +16,9 @@ from semcityloc.citymodel.triangulate import NONPLANAR_TOLERANCE_M, triangulate_
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import EmptyModelError
 
+# Builder-internal sentinel "the source gave no class": ``build()`` replaces every such triangle with a class
+# from its normal (``classify_by_normals``), so it never reaches a CityModel. Not ``classes.IGNORE`` (a
+# label-map value), though both happen to be 255.
 UNLABELLED = 255
 
 # A face whose unit normal has |n_z| below this is a wall: it is within ~10 degrees of vertical.

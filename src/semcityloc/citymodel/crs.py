@@ -15,7 +15,7 @@ import numpy as np
 import pyproj
 from pyproj.exceptions import CRSError as PyprojCRSError
 
-from semcityloc.errors import CRSError
+from semcityloc.errors import CRSError, unknown_choice
 
 # AdV (German surveying authorities) names of horizontal CRSs, as written in state CityGML products.
 # The part after "*" is the height system (DHHN92, DHN92, ...); heights are kept as written.
@@ -48,7 +48,7 @@ def parse_crs_name(name: str) -> pyproj.CRS:
     if adv:
         key = adv.group(1)
         if key not in ADV_HORIZONTAL:
-            raise CRSError(f"unknown AdV CRS {text!r} (known: {', '.join(sorted(ADV_HORIZONTAL))})")
+            raise unknown_choice("AdV CRS", text, sorted(ADV_HORIZONTAL), CRSError)
         return pyproj.CRS.from_epsg(ADV_HORIZONTAL[key])
 
     if re.fullmatch(r"EPSG:\d+\+\d+", text, re.IGNORECASE):  # "EPSG:4547+5773": horizontal + vertical

@@ -30,8 +30,9 @@ The files:
   and openings (a closed shell). Party walls (a neighbour directly behind) get no openings.
 All polygons are counter-clockwise seen from outside (CityGML rule); interior rings run the other way.
 
-``footprints_to_model`` turns the same surfaces straight into a ``CityModel`` (no XML round trip), and
-``default_city_path`` generates the default district once into a user cache directory.
+``footprints_to_model`` turns the same surfaces straight into a ``CityModel`` (no XML round trip) -- the
+one generated city of the library (tests, benchmarks, demo); ``tile_model`` repeats a model side by side
+for a bigger one; ``default_city_path`` generates the default district once into a user cache directory.
 """
 
 from __future__ import annotations
@@ -652,6 +653,37 @@ def footprints_to_model(footprints: list[Footprint], lod: int = 2, crs: str = DE
             for o in s.openings:
                 builder.add_polygon(o.exterior, (), int(SURFACE_CLASS[o.kind]), fp.id, lod)
     return builder.build(crs=metric, source_crs=metric, source=f"generated LoD{lod}")
+
+
+def tile_model(model: CityModel, nx: int, ny: int = 1, gap_m: float = 0.0) -> CityModel:
+    """``model`` repeated nx x ny times side by side (x then y), ``gap_m`` apart, sharing its origin: a
+    bigger city for scaling tests and benchmarks (array copies with offsets)."""
+    ext = model.extent_m
+    verts, tris, extras = [], [], []
+    nv = len(model.vertices)
+    nb = len(model.building_ids)
+    ids: list[str] = []
+    for a in range(ny):
+        for b in range(nx):
+            k = a * nx + b
+            off = np.array([b * (ext[0] + gap_m), a * (ext[1] + gap_m), 0.0])
+            verts.append(model.vertices.astype(np.float64) + off)
+            tris.append(model.triangles + k * nv)
+            extras.append(model.building_index + k * nb)
+            ids.extend(f"{bid}#{k}" for bid in model.building_ids)
+    reps = nx * ny
+    return CityModel(
+        origin=model.origin.copy(),
+        vertices=np.concatenate(verts).astype(np.float32),
+        triangles=np.concatenate(tris),
+        classes=np.tile(model.classes, reps),
+        building_index=np.concatenate(extras),
+        lods=np.tile(model.lods, reps),
+        building_ids=ids,
+        crs=model.crs,
+        source_crs=model.source_crs,
+        source=f"{model.source} x{reps}",
+    )
 
 
 # ---------------------------------------------------------------------------------------------- CityGML

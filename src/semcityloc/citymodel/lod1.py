@@ -44,7 +44,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import EmptyModelError, ParameterError
+from semcityloc.errors import EmptyModelError, ParameterError, unknown_choice
 
 HEIGHT_MODES = ("median_roof", "max", "eaves")
 WELD_TOLERANCE_M = 1e-3  # footprint vertices closer than this are one vertex
@@ -77,7 +77,7 @@ class FootprintPolygon:
 def derive_lod1(model: CityModel, height: str = "median_roof") -> CityModel:
     """An LoD1 block model with one extruded footprint per building of ``model`` (see module doc)."""
     if height not in HEIGHT_MODES:
-        raise Lod1ParameterError(f"unknown LoD1 height {height!r}; choose one of {', '.join(HEIGHT_MODES)}")
+        raise unknown_choice("LoD1 height", height, HEIGHT_MODES, Lod1ParameterError)
     if model.num_triangles == 0:
         raise EmptyModelError(f"{model.source or 'city model'}: no triangles to derive LoD1 from")
     stats = ParseStats()

@@ -6,6 +6,7 @@ float32 *after* the origin was subtracted in float64, so a UTM northing of 5.8e6
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,6 +16,7 @@ import pyproj
 
 from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
 from semcityloc.errors import EmptyModelError, InputFileError, ShapeError
+from semcityloc.geometry.pose import Pose
 
 
 @dataclass
@@ -134,6 +136,26 @@ class CityModel:
     def to_local(self, world: np.ndarray) -> np.ndarray:
         """World (..., 3) float64 -> local coordinates, float64 (cast to float32 only after this)."""
         return np.asarray(world, dtype=np.float64) - self.origin
+
+    def with_origin(self, origin: np.ndarray) -> CityModel:
+        """This model re-expressed with the local frame's origin at ``origin`` (float64 world coordinates).
+
+        World coordinates do not change: the vertices are shifted by ``self.origin - origin`` in float64,
+        then cast to float32. Returns ``self`` when ``origin`` equals ``self.origin``.
+        """
+        origin = np.asarray(origin, dtype=np.float64)
+        if np.array_equal(self.origin, origin):
+            return self
+        shifted = self.vertices.astype(np.float64) + (self.origin - origin)
+        return dataclasses.replace(self, origin=origin.copy(), vertices=shifted.astype(np.float32))
+
+    def pose_to_local(self, pose_world: Pose) -> Pose:
+        """A cam_from_world pose in world (CRS) coordinates -> the same camera in this model's local frame."""
+        return pose_world.shift_world(self.origin)
+
+    def pose_to_world(self, pose_local: Pose) -> Pose:
+        """A cam_from_world pose in this model's local frame -> the same camera in world (CRS) coordinates."""
+        return pose_local.shift_world(-self.origin)
 
     def select(self, triangle_mask: np.ndarray) -> CityModel:
         """A new model with only the triangles where ``triangle_mask`` is true (vertices compacted)."""

@@ -1,7 +1,7 @@
 """``semcityloc benchmark``: simulated queries over a city model, localized, scored, resumable.
 
 Writes ``OUT/results.csv`` (a row per query), ``OUT/summary.json`` and ``OUT/run.json`` and prints the
-summary as a Markdown table (``semcityloc.benchmark.runner`` documents the files). Run the same command
+summary as a Markdown table (``semcityloc.benchmark.runfiles`` documents the files). Run the same command
 again after an interruption and it continues where it stopped.
 """
 
@@ -11,7 +11,15 @@ import argparse
 import math
 from pathlib import Path
 
-from semcityloc.benchmark.methods import BenchmarkError
+from semcityloc.benchmark.perception_sim import SEG_PRESETS
+from semcityloc.benchmark.queries import QueryConfig
+from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.cli.dataset import add_dataset_arguments, add_perception_arguments, run_dataset_benchmark
+from semcityloc.errors import BenchmarkError
+from semcityloc.localization.config import PRESETS
+from semcityloc.localization.methods import available_methods
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,12 +39,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--queries", type=int, default=100, help="number of simulated queries (default 100)")
     p.add_argument("--seed", type=int, default=0, help="seed of the query simulation")
+    p.add_argument("--method", default="semcityloc", choices=available_methods(), help="method or ablation")
     p.add_argument(
-        "--method",
-        default="semcityloc",
-        help="semcityloc, no-coarse, no-refine, no-depth (or a registered baseline)",
+        "--seg-quality",
+        default="trained",
+        choices=tuple(SEG_PRESETS),
+        help="simulated segmentation preset (default trained)",
     )
-    p.add_argument("--seg-quality", default="trained", help="simulated segmentation preset (default trained)")
     p.add_argument(
         "--prior-extra",
         default=None,
@@ -46,7 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--preset",
         default=None,
-        help="localizer preset: default, wide, wide-z, extended, fast (default: default; --dataset: wide-z)",
+        choices=tuple(PRESETS),
+        help="localizer preset (default: default; --dataset: wide-z)",
     )
     p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
@@ -69,8 +79,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="localize at most N more queries, then stop (run again to continue)",
     )
-    from semcityloc.cli.dataset import add_dataset_arguments, add_perception_arguments
-
     add_dataset_arguments(p, positional=False)
     add_perception_arguments(p)
     p.set_defaults(func=run)
@@ -94,35 +102,11 @@ def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
     return a, b
 
 
-def _check_seg_quality(name: str) -> None:
-    try:
-        from semcityloc.benchmark.perception_sim import SEG_PRESETS
-    except ImportError:  # the simulator reports it then
-        return
-    if name not in SEG_PRESETS:
-        raise BenchmarkError(f"unknown --seg-quality {name!r}; known: {', '.join(SEG_PRESETS)}")
-
-
 def run(args: argparse.Namespace) -> int:
-    from semcityloc.benchmark.queries import QueryConfig
-    from semcityloc.benchmark.report import summary_markdown
-    from semcityloc.benchmark.runner import BenchmarkSpec, resolve_city, run_benchmark
-
     if args.dataset:  # a real data set (LoD-Loc layout) instead of simulated queries
-        from semcityloc.cli.dataset import run_dataset_benchmark
-
         return run_dataset_benchmark(args)
     if not args.city:
         raise BenchmarkError("give --city MODEL (or 'generated') for simulated queries, or --dataset PATH")
-    args.preset = args.preset or "default"
-    resolve_city(args.city)  # a missing file fails before anything else
-    if args.queries < 1:
-        raise BenchmarkError(f"--queries must be >= 1, got {args.queries}")
-    if args.workers < 1:
-        raise BenchmarkError(f"--workers must be >= 1, got {args.workers}")
-    if args.keep_details < 0:
-        raise BenchmarkError(f"--keep-details must be >= 0, got {args.keep_details}")
-    _check_seg_quality(args.seg_quality)
     query = QueryConfig(
         queries=args.queries,
         seed=args.seed,
@@ -134,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         query=query,
         lod=args.lod,
         method=args.method,
-        preset=args.preset,
+        preset=args.preset or "default",
         crs=args.crs,
         keep_details=args.keep_details,
     )

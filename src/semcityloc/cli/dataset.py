@@ -1,7 +1,7 @@
 """``semcityloc dataset``: look at, overlay, export and benchmark a user's data set; DJI priors.
 
 Sub-commands: ``info`` (queries, frame, prior errors), ``overlay`` (model edges at GT and prior over each
-image, PNG), ``benchmark`` (the real-data benchmark, ``datasets.real_benchmark``), ``colmap`` (the data
+image, PNG), ``benchmark`` (the real-data benchmark, ``benchmark.dataset_source``), ``colmap`` (the data
 set's GT or prior poses as a COLMAP model), ``dji-prior`` (a prior pose JSON from a DJI photo).
 For ``semcityloc benchmark --dataset PATH --format lodloc [--city MODEL]``, ``cli/benchmark.py`` adds
 ``add_dataset_arguments(p, positional=False)`` and ``add_perception_arguments(p)`` and hands a run with
@@ -19,7 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
+from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
+from semcityloc.benchmark.perception_sim import SEG_PRESETS
+from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS
+from semcityloc.datasets.lodloc import FRAMES
 from semcityloc.errors import InputFileError
+from semcityloc.localization.config import PRESETS
+from semcityloc.localization.methods import available_methods
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -55,10 +63,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     dji.add_argument("image", help="an original DJI photo (EXIF + XMP)")
     dji.add_argument("--crs", required=True, help="the city model's CRS, e.g. EPSG:25832 or EPSG:25832+7837")
     dji.add_argument("--offset", default=None, help="x,y,z subtracted from the CRS coordinates")
-    dji.add_argument(
-        "--source-height", default="auto", choices=("auto", "ellipsoidal", "orthometric", "barometric")
-    )
-    dji.add_argument("--target-height", default="auto", choices=("auto", "ellipsoidal", "orthometric"))
+    dji.add_argument("--source-height", default="auto", choices=SOURCE_HEIGHTS)
+    dji.add_argument("--target-height", default="auto", choices=TARGET_HEIGHTS)
     dji.add_argument("--geoid-separation", type=float, default=None, help="known geoid undulation N (m)")
     dji.add_argument("--out", default=None, help="write the pose JSON here (default: print it)")
     dji.set_defaults(func=run_dji_prior)
@@ -72,7 +78,7 @@ def add_dataset_arguments(p: argparse.ArgumentParser, positional: bool = True) -
         p.add_argument(
             "--dataset", default=None, help="a real data set (LoD-Loc layout) instead of simulation"
         )
-    p.add_argument("--format", default="lodloc", choices=("lodloc",), help="data set layout (default lodloc)")
+    p.add_argument("--format", default="lodloc", choices=FORMATS, help="data set layout (default lodloc)")
     if positional:  # ``semcityloc benchmark`` has its own --city
         p.add_argument("--city", default=None, help="the LoD model (default: the *.obj beside the data set)")
     p.add_argument("--split", default=None, help="LoD-Loc split JSON: keep only its images")
@@ -80,7 +86,7 @@ def add_dataset_arguments(p: argparse.ArgumentParser, positional: bool = True) -
     p.add_argument(
         "--frame",
         default="auto",
-        choices=("auto", "z-up", "ecef"),
+        choices=FRAMES,
         help="auto: test the model; ecef: Swiss-EPFL's shifted-ECEF frame (rotated into ENU)",
     )
     p.add_argument("--ecef-origin", default=None, help="lat,lon,h of the ECEF origin (default Swiss-EPFL's)")
@@ -91,7 +97,7 @@ def add_perception_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--perception",
         default="oracle",
-        choices=("oracle", "oracle-degraded", "masks"),
+        choices=PERCEPTIONS,
         help="oracle: labels at the GT pose; oracle-degraded: them through --seg-quality; masks: --masks",
     )
     p.add_argument(
@@ -103,14 +109,23 @@ def add_perception_arguments(p: argparse.ArgumentParser) -> None:
 def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
     """All options of ``semcityloc dataset benchmark`` after the data set ones."""
     add_perception_arguments(p)
-    p.add_argument("--seg-quality", default="trained", help="segmentation preset of oracle-degraded")
-    p.add_argument("--method", default="semcityloc", help="semcityloc, no-coarse, no-refine, no-depth, ...")
     p.add_argument(
-        "--preset", default=None, help="localizer preset: wide-z (default for data sets), default, wide, fast"
+        "--seg-quality",
+        default="trained",
+        choices=tuple(SEG_PRESETS),
+        help="segmentation preset of oracle-degraded",
+    )
+    p.add_argument("--method", default="semcityloc", choices=available_methods(), help="a benchmark method")
+    p.add_argument(
+        "--preset",
+        default=None,
+        choices=tuple(PRESETS),
+        help="localizer preset (default for data sets: wide-z)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the degraded segmentation")
     p.add_argument("--keep-details", type=int, default=3, help="save details of the first N queries")
     p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
+    p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
     p.add_argument("--overwrite", action="store_true", help="discard results made with other arguments")
     p.add_argument(
         "--stop-after", type=int, default=None, metavar="N", help="localize at most N more queries"
@@ -148,11 +163,12 @@ def run_info(args: argparse.Namespace) -> int:
     ds = _dataset(args)
     rows = []
     for q in ds.queries:
-        row = {"name": q.name, "scene": q.scene, "camera": q.camera.as_dict(), "gt": q.gt_pose is not None}
-        row["prior"] = q.prior_pose is not None
-        if q.gt_pose is not None and q.prior_pose is not None:
-            row["prior_err_m"] = float(center_error_m(q.prior_pose, q.gt_pose))
-            row["prior_rot_deg"] = float(rotation_error_deg(q.prior_pose, q.gt_pose))
+        row = {"name": q.name, "scene": q.scene, "camera": q.camera.as_dict()}
+        row["gt"] = q.gt_pose_world is not None
+        row["prior"] = q.prior_pose_world is not None
+        if q.gt_pose_world is not None and q.prior_pose_world is not None:
+            row["prior_err_m"] = float(center_error_m(q.prior_pose_world, q.gt_pose_world))
+            row["prior_rot_deg"] = float(rotation_error_deg(q.prior_pose_world, q.gt_pose_world))
         rows.append(row)
     info = {
         "root": str(ds.root),
@@ -192,11 +208,11 @@ def run_overlay(args: argparse.Namespace) -> int:
     renderer = Renderer(model, engine="numba")
     written = 0
     for q in queries:
-        if q.image_path is None or q.gt_pose is None or q.prior_pose is None:
+        if q.image_path is None or q.gt_pose_world is None or q.prior_pose_world is None:
             print(f"skipped {q.name}: needs the image, a GT pose and a prior")
             continue
         image = read_image(q.image_path)
-        figure = gt_vs_prior_figure(image, model, q.camera, q.gt_pose, q.prior_pose, renderer)
+        figure = gt_vs_prior_figure(image, model, q.camera, q.gt_pose_world, q.prior_pose_world, renderer)
         path = save_png(figure, Path(args.out) / f"{q.stem}_gt_vs_prior.png")
         print(f"wrote {path}")
         written += 1
@@ -209,7 +225,7 @@ def run_colmap(args: argparse.Namespace) -> int:
     ds = _dataset(args)
     entries = {}
     for q in ds.queries:
-        pose = q.gt_pose if args.poses == "gt" else q.prior_pose
+        pose = q.gt_pose_world if args.poses == "gt" else q.prior_pose_world
         if pose is not None:
             entries[q.name] = (q.camera, pose)
     if not entries:
@@ -245,12 +261,9 @@ def run_dji_prior(args: argparse.Namespace) -> int:
 
 
 def run_dataset_benchmark(args: argparse.Namespace) -> int:
-    from semcityloc.benchmark.report import summary_markdown
-    from semcityloc.datasets.real_benchmark import RealBenchmarkSpec, run_real_benchmark
-
     if args.ecef_origin is not None and args.frame != "ecef":
         raise InputFileError("--ecef-origin needs --frame ecef")
-    spec = RealBenchmarkSpec(
+    spec = DatasetSpec(
         dataset=args.dataset,
         format=args.format,
         city=args.city,
@@ -267,7 +280,9 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
         ecef_origin_llh=_floats(args.ecef_origin, 3, "--ecef-origin"),
         keep_details=args.keep_details,
     )
-    outcome = run_real_benchmark(spec, args.out, overwrite=args.overwrite, limit=args.stop_after)
+    outcome = run_benchmark(
+        spec, args.out, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after
+    )
     out = Path(args.out)
     if not outcome.complete:
         print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")

@@ -32,7 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from semcityloc.benchmark.queries import QueryConfig
     from semcityloc.benchmark.report import make_report, summary_markdown
-    from semcityloc.benchmark.runner import BenchmarkSpec, run_benchmark
+    from semcityloc.benchmark.run import run_benchmark
+    from semcityloc.benchmark.spec import BenchmarkSpec
     from semcityloc.citymodel.generator import generate_city
 
     out = Path(args.out)

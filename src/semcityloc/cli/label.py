@@ -25,6 +25,7 @@ from pathlib import Path
 
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.errors import CameraError, InputFileError
+from semcityloc.render.engine import ENGINES
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 
@@ -47,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--boundary-px", type=int, default=1, help="ignore band at class boundaries (px, 0 = off)")
     p.add_argument("--overlay", action="store_true", help="also write overlays/<stem>.png (photo + labels)")
-    p.add_argument("--engine", default="auto", help="render engine: auto (default), numba, embree, gpu")
+    p.add_argument("--engine", default="auto", choices=ENGINES, help="render engine (default auto)")
     p.set_defaults(func=run)
 
 
@@ -81,12 +82,12 @@ class PoseSource:
     """Poses by image from a COLMAP images.txt (or any read_poses file) or a LoD-Loc pose folder."""
 
     def __init__(self, spec: str):
-        from semcityloc.geometry.io import read_poses
+        from semcityloc.geometry.io import read_colmap_camera_ids, read_poses
 
         self.path = Path(spec)
         self.folder = self.path if self.path.is_dir() else None
         self.entries = {} if self.folder else read_poses(self.path)
-        self.camera_ids = {} if self.folder else _colmap_camera_ids(self.path)
+        self.camera_ids = {} if self.folder else read_colmap_camera_ids(self.path)
 
     def pose(self, image: Path):
         from semcityloc.geometry.io import read_pose
@@ -97,24 +98,6 @@ class PoseSource:
         if list(self.entries) == [""]:
             return self.entries[""]
         return _match(self.entries, image)
-
-
-def _colmap_camera_ids(path: Path) -> dict[str, str]:
-    """image name -> camera id from COLMAP images.txt lines 'ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'."""
-    out: dict[str, str] = {}
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError):
-        return out
-    for line in lines:
-        t = line.split()
-        if len(t) == 10 and not line.lstrip().startswith("#"):
-            try:
-                [float(v) for v in t[:9]]
-            except ValueError:
-                continue
-            out[t[9]] = t[8]
-    return out
 
 
 class IntrinsicsSource:
@@ -159,19 +142,10 @@ class IntrinsicsSource:
         return read_intrinsics(self.path, width=width, height=height, name=camera_id or image.name)
 
 
-def _image_size(path: Path) -> tuple[int, int]:
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as img:
-            return img.size
-    except (OSError, UnidentifiedImageError) as exc:
-        raise InputFileError(f"{path}: cannot read image ({exc})") from exc
-
-
 # ---------------------------------------------------------------------------------------------- run
 def run(args: argparse.Namespace) -> int:
-    from semcityloc.io.images import load_image, save_labels_png, save_rgb
+    from semcityloc.classes import IGNORE
+    from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
     from semcityloc.perception.autolabel import auto_label_render, label_overlay
     from semcityloc.render import Renderer
 
@@ -188,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         if pose is None:
             skipped.append(image.name)
             continue
-        width, height = _image_size(image)
+        width, height = image_size(image)
         camera = intrinsics.camera(image, width, height)
         res = auto_label_render(
             model,
@@ -203,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         save_labels_png(res.labels, out / f"{image.stem}.png")
         if args.overlay:
             save_rgb(label_overlay(load_image(image), res.labels), out / "overlays" / f"{image.stem}.png")
-        labelled = float((res.labels != 255).mean())
+        labelled = float((res.labels != IGNORE).mean())
         print(json.dumps({"image": image.name, "labelled": round(labelled, 4), "ignored": res.reasons}))
         written += 1
     if skipped:

@@ -9,6 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.localization.config import PRESETS
+from semcityloc.localization.methods import ABLATIONS
+from semcityloc.perception.registry import available_backends
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,8 +26,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--semantic", default=None, help="query label mask (palette/grey PNG of class ids)")
     p.add_argument("--depth", default=None, help="query relative depth (.npy or 16-bit PNG); optional")
     p.add_argument("--image", default=None, help="the photo: overlay background, or input to --seg-backend")
-    p.add_argument("--seg-backend", default=None, help="segmentation backend to run on --image")
-    p.add_argument("--depth-backend", default=None, help="depth backend to run on --image")
+    p.add_argument(
+        "--seg-backend",
+        default=None,
+        choices=available_backends("segmentation"),
+        help="segmentation backend to run on --image",
+    )
+    p.add_argument(
+        "--depth-backend",
+        default=None,
+        choices=available_backends("depth"),
+        help="depth backend to run on --image",
+    )
     p.add_argument(
         "--backend-option",
         action="append",
@@ -32,8 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="KEY=VALUE",
         help="option passed to the perception backends (repeatable), e.g. weights=DIR",
     )
-    p.add_argument("--preset", default="default", help="localizer preset: default, wide, fast")
-    p.add_argument("--method", default="semcityloc", help="semcityloc, no-coarse, no-refine or no-depth")
+    p.add_argument(
+        "--preset", default="default", choices=tuple(PRESETS), help="localizer preset (default: default)"
+    )
+    p.add_argument(
+        "--method", default="semcityloc", choices=tuple(ABLATIONS), help="the method or one of its ablations"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--height", type=int, default=None)
@@ -53,7 +70,7 @@ def _query_inputs(args, camera):
         raise InputFileError(
             "give --semantic MASK.png (and optionally --depth), or --image with --seg-backend"
         )
-    from semcityloc.perception.base import get_depth_backend, get_segmentation_backend
+    from semcityloc.perception.registry import get_depth_backend, get_segmentation_backend
 
     options = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
     image = load_image(args.image)
@@ -78,19 +95,20 @@ def run(args: argparse.Namespace) -> int:
 
     model = load_model_from_args(args)
     camera = read_intrinsics(args.intrinsics, width=args.width, height=args.height)
-    prior = read_pose(args.prior)
+    prior_world = read_pose(args.prior)  # the model's CRS
     labels, depth = _query_inputs(args, camera)
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
     localizer = Localizer(model, config)
-    result = localizer.localize(camera, prior, labels, depth)
+    result = localizer.localize(camera, model.pose_to_local(prior_world), labels, depth)
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    summary = result.to_dict()
-    summary.pop("world_from_cam", None)
-    if result.pose is not None:
+    crs = crs_label(model.crs)
+    record = result.to_dict(model.origin, crs)  # the pose, if any, in CRS coordinates
+    if result.pose_local is not None:
+        # pose.json: the pose at the top level (read_pose reads it), the whole result record in "extra".
         data = write_pose_json(
-            result.pose_local, out / "pose.json", origin=model.origin, crs=crs_label(model.crs), extra=summary
+            result.pose_local, out / "pose.json", origin=model.origin, crs=crs, extra=record
         )
         from semcityloc.render.raster_numba import NumbaEngine
 
@@ -118,6 +136,6 @@ def run(args: argparse.Namespace) -> int:
             )
         )
         return 0
-    (out / "pose.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    (out / "pose.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     print(json.dumps({"status": result.status, "reason": result.reason}))
     return 1

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.render.engine import ENGINES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=None, help="image width (when the intrinsics do not say)")
     p.add_argument("--height", type=int, default=None, help="image height")
     p.add_argument("--image", default=None, help="photo to overlay the visible model edges on")
-    p.add_argument("--engine", default="numba", help="numba (default), embree or gpu")
+    p.add_argument("--engine", default="numba", choices=ENGINES, help="render engine (default numba)")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=run)
 
@@ -39,11 +40,11 @@ def run(args: argparse.Namespace) -> int:
 
     model = load_model_from_args(args)
     camera = read_intrinsics(args.intrinsics, width=args.width, height=args.height)
-    pose = read_pose(args.pose)
+    pose_world = read_pose(args.pose)  # the model's CRS
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(model, engine=args.engine)
-    view = renderer.render(camera, pose.shift_world(model.origin), depth=True, face_ids=True)
+    view = renderer.render(camera, model.pose_to_local(pose_world), depth=True, face_ids=True)
     labels, depth, ids = view.labels[0], view.depth[0], view.face_ids[0]
     written = [save_labels_png(labels, out / "labels.png"), *save_depth(depth, out / "depth.png")]
     if args.image:

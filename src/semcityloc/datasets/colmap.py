@@ -5,7 +5,8 @@ optional package whose Python API changes between releases. The two file formats
 (COLMAP's ``src/colmap/scene/reconstruction_io.cc``); this module implements them with ``struct`` and
 numpy. ``colmap_pycolmap.py`` converts to and from ``pycolmap.Reconstruction`` when that is installed.
 
-Text format (``*.txt``; ``#`` lines are comments, tokens are separated by spaces):
+Text format (``*.txt``; ``#`` lines are comments, tokens are separated by spaces; the camera-model table
+and the line parsing and writing are ``geometry.colmap_text``, shared with ``geometry.io``):
 
 - ``cameras.txt``: ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`` per line;
 - ``images.txt``: two lines per image, ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` and then
@@ -39,33 +40,22 @@ from pathlib import Path
 
 import numpy as np
 
-from semcityloc.errors import CameraError, InputFileError, UnsupportedFormatError
+from semcityloc.errors import CameraError, InputFileError, UnsupportedFormatError, unknown_choice
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.colmap_text import (
+    CAMERA_MODELS,
+    MODEL_BY_ID,
+    camera_line,
+    format_float,
+    image_lines,
+    parse_tokens,
+    read_camera_lines,
+    read_image_lines,
+    text_rows,
+)
 from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap
 from semcityloc.geometry.pose import Pose
 
-# COLMAP camera models: name -> (model id, parameter names). Ids and orders as in colmap/sensor/models.h.
-CAMERA_MODELS: dict[str, tuple[int, tuple[str, ...]]] = {
-    "SIMPLE_PINHOLE": (0, ("f", "cx", "cy")),
-    "PINHOLE": (1, ("fx", "fy", "cx", "cy")),
-    "SIMPLE_RADIAL": (2, ("f", "cx", "cy", "k")),
-    "RADIAL": (3, ("f", "cx", "cy", "k1", "k2")),
-    "OPENCV": (4, ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")),
-    "OPENCV_FISHEYE": (5, ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")),
-    "FULL_OPENCV": (6, ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")),
-    "FOV": (7, ("fx", "fy", "cx", "cy", "omega")),
-    "SIMPLE_RADIAL_FISHEYE": (8, ("f", "cx", "cy", "k")),
-    "RADIAL_FISHEYE": (9, ("f", "cx", "cy", "k1", "k2")),
-    "THIN_PRISM_FISHEYE": (
-        10,
-        ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1"),
-    ),
-    "RAD_TAN_THIN_PRISM_FISHEYE": (
-        11,
-        ("fx", "fy", "cx", "cy", "k0", "k1", "k2", "k3", "k4", "k5", "p0", "p1", "s0", "s1", "s2", "s3"),
-    ),
-}
-MODEL_BY_ID: dict[int, str] = {mid: name for name, (mid, _) in CAMERA_MODELS.items()}
 # Models that are a pinhole once their distortion terms are zero: (fx, fy, cx, cy) from params.
 _PINHOLE_PARTS: dict[str, tuple[int, int, int, int]] = {
     "SIMPLE_PINHOLE": (0, 0, 1, 2),
@@ -93,9 +83,7 @@ class ColmapCamera:
 
     def __post_init__(self) -> None:
         if self.model not in CAMERA_MODELS:
-            raise UnsupportedFormatError(
-                f"unknown COLMAP camera model {self.model!r}; known: {', '.join(CAMERA_MODELS)}"
-            )
+            raise unknown_choice("COLMAP camera model", self.model, CAMERA_MODELS, UnsupportedFormatError)
         self.params = np.asarray(self.params, dtype=np.float64).reshape(-1)
         n = len(CAMERA_MODELS[self.model][1])
         if self.params.size != n:
@@ -244,96 +232,41 @@ class ColmapModel:
 
 
 # ---------------------------------------------------------------------------------------------- text
-def _text_rows(path: Path) -> list[tuple[int, str]]:
-    """(line number, line) of a text file, comments dropped, blank lines kept (images.txt needs them)."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise InputFileError(f"{path}: no such COLMAP file") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(f"{path}: cannot read COLMAP text file ({exc})") from exc
-    return [
-        (n, line.strip()) for n, line in enumerate(text.splitlines(), 1) if not line.lstrip().startswith("#")
-    ]
-
-
-def _parse(path: Path, lineno: int, what: str, convert, tokens):
-    try:
-        return [convert(t) for t in tokens]
-    except ValueError:
-        raise InputFileError(
-            f"{path}: line {lineno}: {what} are not numbers: {' '.join(tokens)[:80]!r}"
-        ) from None
-
-
+# Line layouts, the camera-model table and the line parsing live in ``geometry.colmap_text``.
 def read_cameras_text(path: str | os.PathLike) -> dict[int, ColmapCamera]:
     path = Path(path)
     cameras: dict[int, ColmapCamera] = {}
-    for lineno, line in _text_rows(path):
-        if not line:
-            continue
-        tok = line.split()
-        if len(tok) < 4:
-            raise InputFileError(f"{path}: line {lineno}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]'")
-        cam_id, width, height = _parse(path, lineno, "camera id and size", int, [tok[0], tok[2], tok[3]])
-        params = _parse(path, lineno, "camera params", float, tok[4:])
+    for lineno, cam_id, model, width, height, params in read_camera_lines(path):
         try:
-            cameras[cam_id] = ColmapCamera(cam_id, tok[1], width, height, params)
+            cameras[cam_id] = ColmapCamera(cam_id, model, width, height, params)
         except (CameraError, UnsupportedFormatError) as exc:
             raise type(exc)(f"{path}: line {lineno}: {exc}") from exc
     return cameras
 
 
 def read_images_text(path: str | os.PathLike) -> dict[int, ColmapImage]:
-    path = Path(path)
-    rows = _text_rows(path)
     images: dict[int, ColmapImage] = {}
-    i = 0
-    while i < len(rows):
-        lineno, line = rows[i]
-        if not line:
-            i += 1
-            continue
-        tok = line.split(maxsplit=9)
-        if len(tok) < 10:
-            raise InputFileError(
-                f"{path}: line {lineno}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'"
-            )
-        image_id, camera_id = _parse(path, lineno, "image / camera ids", int, [tok[0], tok[8]])
-        values = _parse(path, lineno, "pose values", float, tok[1:8])
-        points = rows[i + 1][1].split() if i + 1 < len(rows) else []
-        if len(points) % 3:
-            raise InputFileError(f"{path}: line {rows[i + 1][0]}: 2D points must be 'X Y POINT3D_ID' triples")
-        points_line = rows[i + 1][0] if i + 1 < len(rows) else lineno + 1
-        xy = _parse(path, points_line, "2D points", float, points[0::3] + points[1::3])
-        ids = _parse(path, points_line, "point3D ids", int, points[2::3])
-        n = len(ids)
-        xys = np.column_stack([xy[:n], xy[n:]]) if n else np.zeros((0, 2))
-        images[image_id] = ColmapImage(image_id, values[:4], values[4:], camera_id, tok[9], xys, ids)
-        i += 2
+    for _, image_id, qvec, tvec, camera_id, name, xys, ids in read_image_lines(path):
+        images[image_id] = ColmapImage(image_id, qvec, tvec, camera_id, name, xys, ids)
     return images
 
 
 def read_points3D_text(path: str | os.PathLike) -> dict[int, ColmapPoint3D]:
     path = Path(path)
     points: dict[int, ColmapPoint3D] = {}
-    for lineno, line in _text_rows(path):
+    for lineno, line in text_rows(path):
         if not line:
             continue
         tok = line.split()
         if len(tok) < 8 or (len(tok) - 8) % 2:
             raise InputFileError(f"{path}: line {lineno}: expected 'POINT3D_ID X Y Z R G B ERROR TRACK[]'")
-        pid = _parse(path, lineno, "point id", int, tok[:1])[0]
-        xyz = _parse(path, lineno, "coordinates", float, tok[1:4])
-        rgb = _parse(path, lineno, "colour", int, tok[4:7])
-        error = _parse(path, lineno, "error", float, tok[7:8])[0]
-        track = _parse(path, lineno, "track", int, tok[8:])
+        pid = parse_tokens(path, lineno, "point id", int, tok[:1])[0]
+        xyz = parse_tokens(path, lineno, "coordinates", float, tok[1:4])
+        rgb = parse_tokens(path, lineno, "colour", int, tok[4:7])
+        error = parse_tokens(path, lineno, "error", float, tok[7:8])[0]
+        track = parse_tokens(path, lineno, "track", int, tok[8:])
         points[pid] = ColmapPoint3D(pid, xyz, rgb, error, track[0::2], track[1::2])
     return points
-
-
-def _f(value: float) -> str:
-    return repr(float(value))
 
 
 def write_cameras_text(cameras: Mapping[int, ColmapCamera], path: str | os.PathLike) -> None:
@@ -343,7 +276,7 @@ def write_cameras_text(cameras: Mapping[int, ColmapCamera], path: str | os.PathL
         f"# Number of cameras: {len(cameras)}",
     ]
     for c in cameras.values():
-        lines.append(" ".join([str(c.camera_id), c.model, str(c.width), str(c.height), *map(_f, c.params)]))
+        lines.append(camera_line(c.camera_id, c.model, c.width, c.height, c.params))
     _write_text(path, lines)
 
 
@@ -356,16 +289,8 @@ def write_images_text(images: Mapping[int, ColmapImage], path: str | os.PathLike
         f"# Number of images: {len(images)}, mean observations per image: {mean_obs:g}",
     ]
     for im in images.values():
-        if not im.name or im.name != im.name.strip() or "\n" in im.name or "\r" in im.name:
-            raise InputFileError(
-                f"image name {im.name!r} cannot be written to COLMAP text (empty, line "
-                "break, or white space at its ends)"
-            )
-        lines.append(
-            " ".join([str(im.image_id), *map(_f, im.qvec), *map(_f, im.tvec), str(im.camera_id), im.name])
-        )
-        lines.append(
-            " ".join(f"{_f(x)} {_f(y)} {int(p)}" for (x, y), p in zip(im.xys, im.point3D_ids, strict=True))
+        lines.extend(
+            image_lines(im.image_id, im.qvec, im.tvec, im.camera_id, im.name, im.xys, im.point3D_ids)
         )
     _write_text(path, lines)
 
@@ -378,10 +303,8 @@ def write_points3D_text(points: Mapping[int, ColmapPoint3D], path: str | os.Path
     ]
     for p in points.values():
         track = " ".join(f"{int(i)} {int(j)}" for i, j in zip(p.image_ids, p.point2D_idxs, strict=True))
-        lines.append(
-            " ".join([str(p.point3D_id), *map(_f, p.xyz), *map(str, p.rgb.tolist()), _f(p.error)])
-            + (" " + track if track else "")
-        )
+        values = [*map(format_float, p.xyz), *map(str, p.rgb.tolist()), format_float(p.error)]
+        lines.append(" ".join([str(p.point3D_id), *values]) + (" " + track if track else ""))
     _write_text(path, lines)
 
 

@@ -37,7 +37,7 @@ it is (z of the result = DJI's height reference, stated in ``z_reference``): UAV
 case (its z is DJI's RTK height: measured on the real demo image, GT z - AbsoluteAltitude = 0.68 m).
 
 Frames: ``offset`` is subtracted from the CRS coordinates (in float64) for data sets whose frame is a CRS
-minus an offset; bring the result into a ``CityModel``'s local frame with ``pose.shift_world(origin)``.
+minus an offset; bring the result into a ``CityModel``'s local frame with ``model.pose_to_local(pose)``.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ import pyproj
 from pyproj.transformer import TransformerGroup
 
 from semcityloc.citymodel.crs import parse_crs_name
-from semcityloc.errors import CameraError, CRSError, InputFileError, PoseError
+from semcityloc.errors import CameraError, CRSError, InputFileError, PoseError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import pose_from_dji
 from semcityloc.geometry.pose import Pose
@@ -416,13 +416,9 @@ def dji_prior(
         meta = read_dji_metadata(meta)
     meta.require("latitude", "longitude", "absolute_altitude_m", "gimbal_yaw_deg", "gimbal_pitch_deg")
     if source_height not in SOURCE_HEIGHTS:
-        raise InputFileError(
-            f"source_height must be one of {', '.join(SOURCE_HEIGHTS)}, got {source_height!r}"
-        )
+        raise unknown_choice("source_height", source_height, SOURCE_HEIGHTS, InputFileError)
     if target_height not in TARGET_HEIGHTS:
-        raise InputFileError(
-            f"target_height must be one of {', '.join(TARGET_HEIGHTS)}, got {target_height!r}"
-        )
+        raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
     crs = target_crs_of(target_crs)
     if _horizontal(crs).is_geographic:
         raise CRSError(f"the target CRS must be metric (projected), got {crs.name}")

@@ -45,7 +45,7 @@ import pyproj
 
 from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
 from semcityloc.citymodel.model import CityModel, ParseStats
-from semcityloc.errors import InputFileError, SemCityLocError
+from semcityloc.errors import InputFileError, SemCityLocError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.io import read_intrinsics, read_pose, read_poses
@@ -79,8 +79,8 @@ class LodLocQuery:
     scene: str
     camera: Camera
     image_path: Path | None = None
-    gt_pose: Pose | None = None  # cam_from_world
-    prior_pose: Pose | None = None  # cam_from_world (LoD-Loc's "GPS" prior)
+    gt_pose_world: Pose | None = None  # cam_from_world, data set's world frame (not a model's local one)
+    prior_pose_world: Pose | None = None  # cam_from_world, same frame (LoD-Loc's "GPS" prior)
     points_path: Path | None = None  # Points_GT/<stem>_points.npy when present
 
     @property
@@ -221,13 +221,9 @@ def _text_intrinsics(path: Path) -> dict[str, str]:
 def _image_size(path: Path | None) -> tuple[int | None, int | None]:
     if path is None:
         return None, None
-    from PIL import Image, UnidentifiedImageError
+    from semcityloc.io.images import image_size
 
-    try:
-        with Image.open(path) as im:
-            return im.size
-    except (OSError, UnidentifiedImageError) as exc:
-        raise InputFileError(f"{path}: cannot read the query image ({exc})") from exc
+    return image_size(path, "the query image")
 
 
 def _names(scene_dir: Path, text_names: set[str]) -> tuple[list[str], dict[str, Path]]:
@@ -291,8 +287,10 @@ def _read_scene(scene_dir: Path, warnings: list[str]) -> list[LodLocQuery]:
                 scene=scene_dir.name,
                 camera=camera,
                 image_path=image,
-                gt_pose=_pose_of(scene_dir / GT_DIR, stem, gt_text, name, warnings, "GT pose"),
-                prior_pose=_pose_of(scene_dir / PRIOR_DIR, stem, prior_text, name, warnings, "GPS prior"),
+                gt_pose_world=_pose_of(scene_dir / GT_DIR, stem, gt_text, name, warnings, "GT pose"),
+                prior_pose_world=_pose_of(
+                    scene_dir / PRIOR_DIR, stem, prior_text, name, warnings, "GPS prior"
+                ),
                 points_path=points if points.is_file() else None,
             )
         )
@@ -356,7 +354,7 @@ def read_lodloc(
     """
     root = Path(root)
     if frame not in FRAMES:
-        raise InputFileError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+        raise unknown_choice("frame", frame, FRAMES, InputFileError)
     if ecef_origin_llh is not None and frame != FRAME_ECEF:
         raise InputFileError("an ECEF origin is only used with frame='ecef'")
     if not root.is_dir():
@@ -396,8 +394,10 @@ def _decide_frame(ds: LodLocDataset, frame: str, ecef_origin_llh) -> None:
         llh = tuple(float(v) for v in (ecef_origin_llh or SWISS_EPFL_ECEF_ORIGIN_LLH))
         R = enu_from_ecef(*llh)
         for q in ds.queries:
-            q.gt_pose = rotate_pose(q.gt_pose, R) if q.gt_pose is not None else None
-            q.prior_pose = rotate_pose(q.prior_pose, R) if q.prior_pose is not None else None
+            q.gt_pose_world = rotate_pose(q.gt_pose_world, R) if q.gt_pose_world is not None else None
+            q.prior_pose_world = (
+                rotate_pose(q.prior_pose_world, R) if q.prior_pose_world is not None else None
+            )
         ds.frame, ds.ecef_origin_llh = FRAME_ECEF, llh
         ds.frame_note = (
             f"ECEF minus an origin, rotated into ENU at lat {llh[0]}, lon {llh[1]}, h {llh[2]} (user said so)"
@@ -452,7 +452,8 @@ def write_lodloc_scene(
         K = np.hstack([c.K, np.zeros((3, 1))])
         _write(folder / INTRINSIC_DIR / f"{q.stem}_intrinsic.txt", _matrix_text(K))
         k_lines.append(f"{q.name} PINHOLE {c.width} {c.height} {c.fx!r} {c.fy!r} {c.cx!r} {c.cy!r}")
-        for pose, sub, lines in ((q.gt_pose, GT_DIR, gt_lines), (q.prior_pose, PRIOR_DIR, prior_lines)):
+        poses = ((q.gt_pose_world, GT_DIR, gt_lines), (q.prior_pose_world, PRIOR_DIR, prior_lines))
+        for pose, sub, lines in poses:
             if pose is None:
                 continue
             _write(folder / sub / f"{q.stem}_pose.txt", _matrix_text(pose.world_from_cam))

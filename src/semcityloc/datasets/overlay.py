@@ -25,7 +25,7 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import InputFileError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
-from semcityloc.render.overlay import draw_edges
+from semcityloc.render.overlay import draw_edges, visible_edges
 
 GRADIENT_SIGMA_PX = 1.0
 GT_COLOR = (40, 230, 60)
@@ -48,16 +48,6 @@ def _renderer(model: CityModel, renderer=None):
     from semcityloc.render import Renderer
 
     return Renderer(model, engine="numba")
-
-
-def visible_edges(model: CityModel, camera: Camera, pose_local: Pose, renderer=None) -> np.ndarray:
-    """(H, W) bool: pixels on a visible model edge at a LOCAL pose (``render.overlay.visible_edges``:
-    class changes, creases and depth jumps of building faces, from one render's face ids and depth)."""
-    from semcityloc.render.overlay import visible_edges as edges_from_render
-
-    r = _renderer(model, renderer)
-    out = r.render(camera, pose_local, depth=True, face_ids=True)
-    return edges_from_render(out.face_ids[0], out.depth[0], r.scene)
 
 
 def gradient_magnitude(image: np.ndarray) -> np.ndarray:
@@ -112,19 +102,21 @@ def gt_vs_prior_figure(
     r = _renderer(model, renderer)
     panels = []
     for pose, color, title in ((gt_world, GT_COLOR, titles[0]), (prior_world, PRIOR_COLOR, titles[1])):
-        edges = visible_edges(model, camera, pose.shift_world(model.origin), r)
+        out = r.render(camera, model.pose_to_local(pose), depth=True, face_ids=True)
+        edges = visible_edges(out.face_ids[0], out.depth[0], r.scene)
         panels.append(_panel(draw_edges(image, edges, color), title))
     gap = np.full((panels[0].shape[0], 6, 3), 255, dtype=np.uint8)
     return np.concatenate([panels[0], gap, panels[1]], axis=1)
 
 
 def save_png(array: np.ndarray, path: str | os.PathLike) -> Path:
-    from PIL import Image
+    """An RGB uint8 figure as an optimised PNG (``io.images.save_rgb``); ``InputFileError`` when it
+    cannot be written."""
+    from semcityloc.io.images import save_rgb
 
     target = Path(path)
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(np.asarray(array, dtype=np.uint8)).save(target, optimize=True)
+        save_rgb(array, target, optimize=True)
     except OSError as exc:
         raise InputFileError(f"{target}: cannot write PNG: {exc.strerror or exc}") from exc
     return target

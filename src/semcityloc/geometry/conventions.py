@@ -39,20 +39,6 @@ def wrap_deg(angle: np.ndarray | float) -> np.ndarray | float:
     return float(out) if out.ndim == 0 else out
 
 
-def rotation_about_world_z(angle_deg: np.ndarray | float) -> np.ndarray:
-    """(..., 3, 3) rotation(s) ``Rz(a) = [[cos a, -sin a, 0], [sin a, cos a, 0], [0, 0, 1]]``.
-
-    Counter-clockwise seen from above (+z up): it turns +x (east) toward +y (north).
-    """
-    a = np.radians(np.asarray(angle_deg, dtype=np.float64))
-    if not np.all(np.isfinite(a)):
-        raise PoseError("rotation angle has non-finite entries")
-    c, s = np.cos(a), np.sin(a)
-    Rz = np.zeros(a.shape + (3, 3))
-    Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1], Rz[..., 2, 2] = c, -s, s, c, 1.0
-    return Rz
-
-
 def _matrices(T: np.ndarray, what: str) -> np.ndarray:
     T = np.asarray(T, dtype=np.float64)
     if T.ndim < 2 or T.shape[-2:] not in ((4, 4), (3, 4)):

@@ -6,7 +6,7 @@ wrong with an input, the error is one of ``PoseError`` / ``CameraError`` / ``Sha
 ``InputFileError`` with a one-line message that starts with the file name or the inline text.
 
 Frames: a pose is read exactly as written (in whatever world frame the file uses, usually the model's
-CRS); bring it to a model's local frame with ``pose.shift_world(model.origin)``. ``write_pose_json`` with
+CRS); bring it to a model's local frame with ``model.pose_to_local(pose)``. ``write_pose_json`` with
 ``origin`` writes the pose in the CRS frame again (local + origin, float64), so its output reads back.
 """
 
@@ -23,6 +23,16 @@ import numpy as np
 
 from semcityloc.errors import CameraError, InputFileError, PoseError, SemCityLocError, ShapeError
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.colmap_text import (
+    CAMERA_MODELS,
+    IMAGE_CAMERA_ID,
+    IMAGE_NAME,
+    IMAGE_POSE,
+    camera_values,
+    is_image_line,
+    is_number,
+    numbers,
+)
 from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap, pose_from_lodloc_c2w
 from semcityloc.geometry.pose import Pose
 
@@ -30,11 +40,8 @@ from semcityloc.geometry.pose import Pose
 MAX_SPEC_FILE_BYTES = 10_000_000
 # COLMAP camera models we read: name -> parameter names. Distortion terms must be zero (we are pinhole).
 COLMAP_MODELS: dict[str, tuple[str, ...]] = {
-    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
-    "PINHOLE": ("fx", "fy", "cx", "cy"),
-    "SIMPLE_RADIAL": ("f", "cx", "cy", "k"),
-    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
-    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    name: CAMERA_MODELS[name][1]
+    for name in ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 }
 # A pose JSON holding both matrices must agree to this (metres / rotation-matrix entries).
 CONSISTENCY_TOL_M = 1e-4
@@ -73,7 +80,7 @@ def _load(spec: str | os.PathLike, error: type[SemCityLocError], what: str) -> t
             if not _is_file(path):
                 # Inline forms end with a number ("x,y,z,roll,pitch,yaw", "name qw ... tz", "fx,...,h")
                 # or are comma separated; anything else is taken for a file name that does not exist.
-                if "," not in stripped and not _is_number(_SPLIT.split(stripped)[-1]):
+                if "," not in stripped and not is_number(_SPLIT.split(stripped)[-1]):
                     raise InputFileError(f"{stripped}: no such {what} file")
                 path = None
     else:
@@ -100,14 +107,6 @@ def _json(text: str) -> Any:
         raise InputFileError(f"invalid JSON ({exc.msg} at line {exc.lineno} column {exc.colno})") from exc
 
 
-def _is_number(token: str) -> bool:
-    try:
-        float(token)
-    except ValueError:
-        return False
-    return True
-
-
 def _lines(text: str) -> list[list[str]]:
     """Token lists of the non-empty, non-comment lines; tokens split on whitespace and commas."""
     out = []
@@ -116,13 +115,6 @@ def _lines(text: str) -> list[list[str]]:
         if line and not line.startswith("#"):
             out.append([t for t in _SPLIT.split(line) if t])
     return out
-
-
-def _floats(tokens: list[str], error: type[SemCityLocError]) -> list[float]:
-    bad = [t for t in tokens if not _is_number(t)]
-    if bad:
-        raise error(f"non-numeric value {bad[0]!r}")
-    return [float(t) for t in tokens]
 
 
 def _pick(entries: dict[str, Any], name: str | None, error: type[SemCityLocError], what: str) -> Any:
@@ -230,12 +222,7 @@ def _pose_from_json(obj: Any) -> Pose:
 
 def _colmap_images(rows: list[list[str]]) -> dict[str, Pose]:
     """COLMAP images.txt: 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME' lines (2D-point lines ignored)."""
-    out = {}
-    for r in rows:
-        if len(r) == 10 and not _is_number(r[9]) and all(_is_number(t) for t in r[:9]):
-            v = [float(t) for t in r[1:8]]
-            out[r[9]] = pose_from_colmap(*v)
-    return out
+    return {r[IMAGE_NAME]: pose_from_colmap(*map(float, r[IMAGE_POSE])) for r in rows if is_image_line(r)}
 
 
 def _pose_entries(text: str) -> dict[str, Pose]:
@@ -246,7 +233,7 @@ def _pose_entries(text: str) -> dict[str, Pose]:
     images = _colmap_images(rows)
     if images:
         return images
-    named = [r for r in rows if not _is_number(r[0])]
+    named = [r for r in rows if not is_number(r[0])]
     if named:
         if len(named) != len(rows):
             raise PoseError(
@@ -254,14 +241,14 @@ def _pose_entries(text: str) -> dict[str, Pose]:
             )
         out = {}
         for r in rows:
-            v = _floats(r[1:], PoseError)
+            v = numbers(r[1:], PoseError)
             if len(v) != 7:
                 raise PoseError(
                     f"line for {r[0]!r} has {len(v)} numbers; expected 'name qw qx qy qz tx ty tz'"
                 )
             out[r[0]] = pose_from_colmap(*v)
         return out
-    values = [_floats(r, PoseError) for r in rows]
+    values = [numbers(r, PoseError) for r in rows]
     counts = [len(v) for v in values]
     if len(rows) in (3, 4) and all(c == 4 for c in counts):
         return {"": pose_from_lodloc_c2w(np.array(values))}
@@ -290,6 +277,13 @@ def _read_pose_entries(spec: str | os.PathLike) -> tuple[dict[str, Pose], str]:
 def read_poses(spec: str | os.PathLike) -> dict[str, Pose]:
     """Every pose in a spec, by image name (``''`` for an unnamed single pose). Forms: ``read_pose``."""
     return _read_pose_entries(spec)[0]
+
+
+def read_colmap_camera_ids(spec: str | os.PathLike) -> dict[str, str]:
+    """Image name -> ``CAMERA_ID`` (as written) of every COLMAP ``images.txt`` image line in a spec, the
+    lines ``read_poses`` takes poses from; ``{}`` for the other pose forms."""
+    text, _ = _load(spec, PoseError, "pose")
+    return {r[IMAGE_NAME]: r[IMAGE_CAMERA_ID] for r in _lines(text) if is_image_line(r)}
 
 
 def read_pose(spec: str | os.PathLike, name: str | None = None) -> Pose:
@@ -391,17 +385,7 @@ def _camera_from_json(obj: Any, width: int | None, height: int | None) -> Camera
 
 
 def _colmap_camera(tokens: list[str], at: int, width: int | None, height: int | None) -> Camera:
-    model = tokens[at].upper()
-    names = COLMAP_MODELS[model]
-    values = _floats(tokens[at + 1 :], CameraError)
-    if len(values) != 2 + len(names):
-        raise CameraError(
-            f"{model} needs 'w h {' '.join(names)}' ({2 + len(names)} numbers), got {len(values)}"
-        )
-    w, h = values[0], values[1]
-    if not (w.is_integer() and h.is_integer()):
-        raise CameraError(f"{model} image size must be whole pixels, got {w:g} x {h:g}")
-    params = dict(zip(names, values[2:], strict=True))
+    model, w, h, params = camera_values(tokens, at, COLMAP_MODELS)
     distortion = {k: v for k, v in params.items() if k not in ("f", "fx", "fy", "cx", "cy") and v != 0}
     if distortion:
         raise CameraError(
@@ -410,7 +394,7 @@ def _colmap_camera(tokens: list[str], at: int, width: int | None, height: int | 
         )
     fx = params.get("fx", params.get("f"))
     fy = params.get("fy", params.get("f"))
-    return _camera(fx, fy, params["cx"], params["cy"], int(w), int(h), width, height)
+    return _camera(fx, fy, params["cx"], params["cy"], w, h, width, height)
 
 
 def _camera_entries(text: str, width: int | None, height: int | None) -> dict[str, Camera]:
@@ -428,9 +412,9 @@ def _camera_entries(text: str, width: int | None, height: int | None) -> dict[st
             out[r[0] if at == 1 else ""] = _colmap_camera(r, at, width, height)
         return out
     for r in rows:
-        if len(r) > 2 and not _is_number(r[1]) and _is_number(r[2]):
+        if len(r) > 2 and not is_number(r[1]) and is_number(r[2]):
             raise CameraError(f"unsupported camera model {r[1]!r} (supported: {', '.join(COLMAP_MODELS)})")
-    values = [_floats(r, CameraError) for r in rows]
+    values = [numbers(r, CameraError) for r in rows]
     counts = [len(v) for v in values]
     if len(rows) == 3 and (all(c == 4 for c in counts) or all(c == 3 for c in counts)):
         return {"": _camera(*_check_K(np.array(values)), None, None, width, height)}

@@ -23,6 +23,21 @@ from semcityloc.errors import PoseError, ShapeError
 CAM_FROM_BODY_FLIP = np.diag([1.0, -1.0, -1.0])
 
 
+def rotation_about_world_z(angle_deg: np.ndarray | float) -> np.ndarray:
+    """(..., 3, 3) float64 rotation(s) ``Rz(a) = [[cos a, -sin a, 0], [sin a, cos a, 0], [0, 0, 1]]``.
+
+    Counter-clockwise seen from above (+z up): it turns +x (east) toward +y (north). The one z rotation of
+    the library (``Pose.rotate_world_z``, the coarse search's yaw fans, rotation reuse).
+    """
+    a = np.radians(np.asarray(angle_deg, dtype=np.float64))
+    if not np.all(np.isfinite(a)):
+        raise PoseError("rotation angle has non-finite entries")
+    c, s = np.cos(a), np.sin(a)
+    Rz = np.zeros(a.shape + (3, 3))
+    Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1], Rz[..., 2, 2] = c, -s, s, c, 1.0
+    return Rz
+
+
 def _check_rotation(R: np.ndarray, what: str) -> None:
     if R.size == 0:  # an empty batch is valid
         return
@@ -156,19 +171,16 @@ class Pose:
     def shift_world(self, offset: np.ndarray) -> Pose:
         """The same camera in a world frame whose origin moved by ``offset`` (new = old - offset).
 
-        Use ``pose.shift_world(model.origin)`` to bring a pose from the model's CRS into its local frame.
+        ``CityModel.pose_to_local`` / ``pose_to_world`` wrap this with the model's origin (CRS <-> local).
         """
         offset = np.asarray(offset, dtype=np.float64)
         return Pose.from_rotation_center(self.R_world_from_cam, self.center - offset)
 
     def rotate_world_z(self, angle_deg: np.ndarray) -> Pose:
         """Turn the camera about the world z axis through its own centre (adds ``angle_deg`` to yaw)."""
-        a = np.radians(np.asarray(angle_deg, dtype=np.float64))
+        a = np.asarray(angle_deg, dtype=np.float64)
         batch = np.broadcast_shapes(a.shape, self.batch_shape)
-        a = np.broadcast_to(a, batch)
-        c, s = np.cos(a), np.sin(a)
-        Rz = np.zeros(batch + (3, 3))
-        Rz[..., 0, 0], Rz[..., 0, 1], Rz[..., 1, 0], Rz[..., 1, 1], Rz[..., 2, 2] = c, -s, s, c, 1.0
+        Rz = rotation_about_world_z(np.broadcast_to(a, batch))
         return Pose.from_rotation_center(
             Rz @ self.R_world_from_cam, np.broadcast_to(self.center, batch + (3,))
         )

@@ -14,10 +14,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, PngImagePlugin, UnidentifiedImageError
 
-from semcityloc.classes import NUM_CLASSES, PALETTE
+from semcityloc.classes import IGNORE, NUM_CLASSES, PALETTE
 from semcityloc.errors import InputFileError, ShapeError
-
-IGNORE = 255
 
 
 def _palette_bytes() -> list[int]:
@@ -96,8 +94,53 @@ def load_image(path: str | Path) -> np.ndarray:
         raise InputFileError(f"{path}: cannot read image ({exc})") from exc
 
 
-def save_rgb(image: np.ndarray, path: str | Path) -> Path:
+def image_size(path: str | Path, what: str = "image") -> tuple[int, int]:
+    """``(width, height)`` of an image file, from its header (the pixels are not decoded)."""
+    try:
+        with Image.open(path) as img:
+            return img.size
+    except (OSError, UnidentifiedImageError) as exc:
+        raise InputFileError(f"{path}: cannot read {what} ({exc})") from exc
+
+
+def save_rgb(image: np.ndarray, path: str | Path, optimize: bool = False) -> Path:
+    """An RGB (or grey) uint8 image as a file (format from the suffix); ``optimize``: smallest PNG."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path)
+    Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path, optimize=optimize)
     return path
+
+
+def read_mask_file(path: str | Path) -> np.ndarray:
+    """(H, W) uint8 class ids (0..5, 255 = ignore) from a ``.npy`` or a label PNG (palette or grey image
+    whose values are class ids, ``load_labels_png``); ids outside the classes are refused."""
+    path = Path(path)
+    if path.suffix.lower() == ".npy":
+        try:
+            labels = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise InputFileError(f"{path}: not a readable .npy mask ({exc})") from exc
+    else:
+        labels = load_labels_png(path)
+    labels = np.asarray(labels)
+    if labels.ndim != 2 or not np.issubdtype(labels.dtype, np.integer):
+        raise ShapeError(
+            f"{path}: a mask must be an (H, W) array of class ids, got {labels.shape} {labels.dtype}"
+        )
+    bad = (labels != IGNORE) & ((labels < 0) | (labels >= NUM_CLASSES))
+    if bad.any():
+        raise InputFileError(
+            f"{path}: class ids must be 0..{NUM_CLASSES - 1} or {IGNORE}, found {int(labels[bad][0])}"
+        )
+    return labels.astype(np.uint8)
+
+
+def read_depth_file(path: str | Path) -> np.ndarray:
+    """(H, W) float64 relative depth from a ``.npy`` or a 16-bit depth PNG (``load_depth``);
+    NaN / <= 0 = invalid."""
+    if not Path(path).is_file():
+        raise InputFileError(f"{path}: no such depth file")
+    depth = load_depth(path)
+    if not np.issubdtype(depth.dtype, np.number):
+        raise ShapeError(f"{path}: depth must be numeric, got {depth.dtype}")
+    return depth.astype(np.float64)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, rotation_about_world_z
 from semcityloc.localization.config import CoarseConfig
 from semcityloc.localization.kernels import N_SLOTS, coarse_scores
 from semcityloc.render.raster_numba import NEAR_M, work_chunks
@@ -84,14 +84,6 @@ def axis_samples(centre: float, full_range: float, n: int) -> np.ndarray:
     return centre + np.linspace(-full_range / 2, full_range / 2, n)
 
 
-def _rz(deg: np.ndarray) -> np.ndarray:
-    a = np.radians(np.asarray(deg, dtype=np.float64))
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(a.shape + (3, 3))
-    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
-    return R
-
-
 def yaw_lookup(
     camera: Camera, R_base: np.ndarray, yaw_offsets_deg: np.ndarray, oversample: float = WIDE_OVERSAMPLE
 ) -> tuple[Camera, np.ndarray]:
@@ -104,7 +96,7 @@ def yaw_lookup(
     pixel indices (-1 where a ray points behind the wide camera).
     """
     rays = camera.ray_directions().reshape(-1, 3)  # target pixel centres, z = 1
-    M = R_base @ _rz(yaw_offsets_deg) @ R_base.T  # (Y, 3, 3)
+    M = R_base @ rotation_about_world_z(yaw_offsets_deg) @ R_base.T  # (Y, 3, 3)
     d = np.einsum("yij,pj->ypi", M, rays)
     front = d[..., 2] > 1e-6
     z = np.where(front, d[..., 2], 1.0)

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
 
+from semcityloc.errors import unknown_choice
+
 
 @dataclass(frozen=True)
 class CoarseConfig:
@@ -76,26 +78,28 @@ class LocalizerConfig:
 
     @classmethod
     def preset(cls, name: str) -> LocalizerConfig:
-        try:
-            return PRESETS[name]
-        except KeyError as exc:
-            raise KeyError(f"unknown localizer preset {name!r}; known: {', '.join(PRESETS)}") from exc
+        """The preset ``name`` of ``PRESETS`` (``ParameterError`` naming the presets otherwise)."""
+        if name not in PRESETS:
+            raise unknown_choice("localizer preset", name, PRESETS)
+        return PRESETS[name]
 
     def with_ablation(self, method: str) -> LocalizerConfig:
-        """The config for a method name of the benchmark (``semcityloc``, ``no-coarse``, ...)."""
-        flags = {
-            "semcityloc": {},
-            "no-coarse": {"no_coarse": True},
-            "no-refine": {"no_refine": True},
-            "no-depth": {"no_depth": True},
-        }
-        if method not in flags:
-            raise KeyError(f"unknown method {method!r}; known: {', '.join(flags)}")
-        return replace(self, **flags[method])
+        """The config of a method of ``ABLATION_FLAGS`` (``semcityloc``, ``no-coarse``, ...)."""
+        if method not in ABLATION_FLAGS:
+            raise unknown_choice("method", method, ABLATION_FLAGS)
+        return replace(self, **ABLATION_FLAGS[method])
 
     def as_dict(self) -> dict:
         return asdict(self)
 
+
+# The localizer's own methods: the full pipeline and its ablations (``with_ablation``), as config flags.
+ABLATION_FLAGS: dict[str, dict[str, bool]] = {
+    "semcityloc": {},
+    "no-coarse": {"no_coarse": True},
+    "no-refine": {"no_refine": True},
+    "no-depth": {"no_depth": True},
+}
 
 PRESETS: dict[str, LocalizerConfig] = {
     # Covers the benchmark's prior noise (translation up to 15 m, yaw up to 8 deg): 13*13*7*13 = 15,379.

@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from semcityloc.classes import IGNORE
 from semcityloc.render.raster_numba import render_view
 
-IGNORE = 255
 N_SLOTS = 8  # class histogram size (class ids 0..5 fit)
 
 

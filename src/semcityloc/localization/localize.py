@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import NUM_CLASSES, SemanticClass
+from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES, SemanticClass
 from semcityloc.errors import CameraError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -36,7 +36,6 @@ from semcityloc.localization.scoring import map_classes
 from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene, build_scene
 
-BUILDING_CLASSES = (SemanticClass.WALL, SemanticClass.ROOF, SemanticClass.WINDOW, SemanticClass.DOOR)
 # Rays that do not meet the ground plane within this distance are cut here when the view's footprint is
 # estimated for the "model geometry in the search volume" check.
 MAX_VIEW_RANGE_M = 1500.0
@@ -64,26 +63,23 @@ class Localizer:
     def localize(
         self,
         camera: Camera,
-        prior: Pose,
+        prior_local: Pose,
         semantic: np.ndarray,
         depth: np.ndarray | None = None,
         config: LocalizerConfig | None = None,
-        prior_frame: str = "world",
     ) -> LocalizationResult:
         """Estimate the pose of one query.
 
         Args:
             camera: intrinsics of the query image (any resolution; masks are resampled to the search's).
-            prior: prior cam_from_world pose, in world CRS coordinates (``prior_frame="world"``) or the
-                model's local frame (``"local"``). The result's ``pose`` is in the same frame.
+            prior_local: prior cam_from_world pose in the model's LOCAL frame (a world/CRS pose comes in
+                through ``model.pose_to_local``). The result's poses are in the local frame too.
             semantic: (H, W) class ids (``SemanticClass``), 255 = ignore. Same aspect as ``camera``.
             depth: optional (H', W') relative depth (any positive scale and shift), NaN/<=0 = invalid.
         """
         cfg = config or self.config
         t0 = time.perf_counter()
-        self._check_inputs(camera, prior, semantic, prior_frame)
-        offset = self.model.origin if prior_frame == "world" else np.zeros(3)
-        prior_local = prior.shift_world(offset)
+        self._check_inputs(camera, prior_local, semantic)
         query = Query.from_arrays(semantic, None if cfg.no_depth else depth, self.has_openings)
         prior_state = prior_local.to_xyz_rpy()
 
@@ -147,10 +143,9 @@ class Localizer:
 
         pose_local = _pose(final)
         result.pose_local = pose_local
-        result.pose = pose_local.shift_world(-offset)
         result.confidence["building_iou"] = self._building_iou(fine_cam, pose_local, q_fine)
         if not self._accept(result, cfg, with_depth=d_fine is not None):
-            result.pose = result.pose_local = None
+            result.pose_local = None
             return self._finish(result, REASON_LOW_SCORE, t0)
         result.status = LOCALIZED
         return self._finish(result, None, t0)
@@ -172,8 +167,8 @@ class Localizer:
         result.timings["total_s"] = time.perf_counter() - t0
         return result
 
-    def _check_inputs(self, camera, prior, semantic, prior_frame) -> None:
-        check_camera_and_prior(camera, prior, prior_frame)
+    def _check_inputs(self, camera, prior, semantic) -> None:
+        check_camera_and_prior(camera, prior)
         shape = np.shape(semantic)
         if len(shape) != 2:
             raise ShapeError(f"semantic mask must be (H, W), got shape {shape}")
@@ -216,21 +211,19 @@ class Localizer:
         """Building (wall/roof/window/door) vs rest IoU at one pose, ignoring query background/ignore."""
         out = NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None])
         labels = out.labels.reshape(1, -1)
-        valid = (query_flat != 0) & (query_flat != 255)
+        valid = (query_flat != 0) & (query_flat != IGNORE)
         r = np.isin(labels[0], BUILDING_CLASSES)[valid]
         q = np.isin(query_flat, BUILDING_CLASSES)[valid]
         union = np.count_nonzero(r | q)
         return float(np.count_nonzero(r & q) / union) if union else 0.0
 
 
-def check_camera_and_prior(camera: Camera, prior: Pose, prior_frame: str) -> None:
+def check_camera_and_prior(camera: Camera, prior: Pose) -> None:
     """Typed errors for the inputs every localizer shares (this one and the baselines)."""
     if not isinstance(camera, Camera):
         raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
     if not isinstance(prior, Pose) or prior.batch_shape:
         raise PoseError("prior must be a single Pose (cam_from_world)")
-    if prior_frame not in ("world", "local"):
-        raise ValueError(f"prior_frame must be 'world' or 'local', got {prior_frame!r}")
 
 
 def _pose(state: np.ndarray) -> Pose:
@@ -240,13 +233,13 @@ def _pose(state: np.ndarray) -> Pose:
 def localize(
     city: CityModel,
     camera: Camera,
-    prior: Pose,
+    prior_local: Pose,
     semantic: np.ndarray,
     depth: np.ndarray | None = None,
     config: LocalizerConfig | str | None = None,
-    prior_frame: str = "world",
 ) -> LocalizationResult:
-    """One-shot ``Localizer(city, config).localize(...)``; ``config`` may be a preset name."""
+    """One-shot ``Localizer(city, config).localize(...)``; ``config`` may be a preset name. Poses in and
+    out are in ``city``'s local frame (``city.pose_to_local`` / ``city.pose_to_world`` at the boundary)."""
     if isinstance(config, str):
         config = LocalizerConfig.preset(config)
-    return Localizer(city, config).localize(camera, prior, semantic, depth, prior_frame=prior_frame)
+    return Localizer(city, config).localize(camera, prior_local, semantic, depth)

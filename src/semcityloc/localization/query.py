@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcityloc.classes import NUM_CLASSES, SemanticClass
+from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
 from semcityloc.errors import ShapeError
-from semcityloc.localization.scoring import IGNORE, merge_openings_lut
+from semcityloc.localization.scoring import merge_openings_lut
 
 
 def _block_index(src_h: int, src_w: int, dst_h: int, dst_w: int) -> np.ndarray:
@@ -89,10 +89,7 @@ class Query:
 
     def building_fraction(self) -> float:
         """Share of pixels labelled wall, roof, window or door."""
-        building = np.isin(
-            self.labels, [SemanticClass.WALL, SemanticClass.ROOF, SemanticClass.WINDOW, SemanticClass.DOOR]
-        )
-        return float(building.mean())
+        return float(np.isin(self.labels, BUILDING_CLASSES).mean())
 
     def at(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray | None]:
         """Labels (flat uint8) and depth (flat float64 or None) at a search resolution."""

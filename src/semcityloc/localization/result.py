@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from semcityloc.geometry.io import pose_to_dict
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.coarse import CostVolume
 
@@ -22,8 +23,8 @@ REASON_LOW_SCORE = "best score below threshold"
 class LocalizationResult:
     """Outcome of one query.
 
-    ``pose`` is in the frame the prior was given in (world CRS coordinates by default); ``pose_local``
-    in the model's local frame. Scores: ``semantic`` = mean per-class IoU (0..1, higher better),
+    ``pose_local`` and ``coarse_pose_local`` are in the model's local frame (world = ``model.origin`` +
+    local; ``model.pose_to_world`` converts). Scores: ``semantic`` = mean per-class IoU (0..1, higher better),
     ``depth_cost`` = affine-invariant relative depth error (lower better), ``score`` = the combined
     ``lambda_1 * semantic - lambda_2 * depth_cost``. ``confidence``: ``score_margin`` (best coarse cell
     minus the best cell more than 2 grid steps away), ``spread_m`` / ``spread_deg`` (weighted spread of
@@ -32,7 +33,6 @@ class LocalizationResult:
 
     status: str
     reason: str | None = None
-    pose: Pose | None = None
     pose_local: Pose | None = None
     score: float = float("nan")
     semantic: float = float("nan")
@@ -47,7 +47,17 @@ class LocalizationResult:
     def localized(self) -> bool:
         return self.status == LOCALIZED
 
-    def to_dict(self, origin: np.ndarray | None = None, crs: str | None = None) -> dict:
+    def to_dict(self, origin: np.ndarray, crs: str | None = None) -> dict:
+        """JSON-ready record: status, reason, scores, confidence, timings, counts and, when localized,
+        the pose in world (CRS) coordinates, ``world = origin + local`` in float64, written in the one
+        layout of ``geometry.io.pose_to_dict`` (``frame``, ``origin``, ``position_local``, ``crs``,
+        ``position``, ``roll`` / ``pitch`` / ``yaw``, ``world_from_cam``, ``cam_from_world``,
+        ``qvec_wxyz`` / ``tvec``, ``convention``).
+
+        Args:
+            origin: float64 (3,) origin of the model the result's local poses are in (``model.origin``).
+            crs: the name of the model's CRS, or None.
+        """
         out = {
             "status": self.status,
             "reason": self.reason,
@@ -58,14 +68,7 @@ class LocalizationResult:
             "timings_s": self.timings,
             "counts": self.counts,
         }
-        if self.pose is not None:
-            x, y, z, roll, pitch, yaw = self.pose.to_xyz_rpy()
-            out.update(
-                world_from_cam=self.pose.world_from_cam.tolist(),
-                position=[x, y, z],
-                roll=roll,
-                pitch=pitch,
-                yaw=yaw,
-                crs=crs,
-            )
+        if self.pose_local is not None:
+            out.update(pose_to_dict(self.pose_local, origin=origin, crs=crs))
+            out.setdefault("crs", None)  # always present for a pose, as in earlier versions
         return out

@@ -19,9 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from semcityloc.classes import NUM_CLASSES, SemanticClass
+from semcityloc.classes import IGNORE, NUM_CLASSES, SemanticClass
 
-IGNORE = 255
 DEPTH_COST_INVALID = 1.0
 MIN_DEPTH_PIXELS = 16
 

@@ -2,7 +2,8 @@
 
 - ``base``: ``SegmentationBackend`` / ``DepthBackend`` protocols, their outputs, the registry
   (``get_segmentation_backend("dinov3-dpt" | "mobilenetv2" | "files", **options)``,
-  ``get_depth_backend("moge2" | "files", **options)``) and ``MissingWeightsError``;
+  ``get_depth_backend("moge2" | "files", **options)``); ``MissingWeightsError`` (from ``semcityloc.errors``)
+  is re-exported here;
 - ``autolabel``: ``auto_label(model, camera, pose)`` projects model classes into a photo (IGNORE = 255
   where the model says nothing reliable) and ``label_overlay`` draws them for a person;
 - ``segmenter`` / ``heads`` / ``dinov3`` / ``mobilenet``: frozen backbones + trainable heads (torch);
@@ -14,17 +15,10 @@ Nothing here imports torch until a torch backend is built: the registry and ``au
 the ``[perception]`` extra.
 """
 
-from semcityloc.perception.base import (
-    IGNORE,
-    DepthBackend,
-    DepthOutput,
-    MissingWeightsError,
-    SegmentationBackend,
-    SegmentationOutput,
-    available_backends,
-    get_depth_backend,
-    get_segmentation_backend,
-)
+from semcityloc.classes import IGNORE
+from semcityloc.errors import MissingWeightsError
+from semcityloc.perception.base import DepthBackend, DepthOutput, SegmentationBackend, SegmentationOutput
+from semcityloc.perception.registry import available_backends, get_depth_backend, get_segmentation_backend
 
 __all__ = [
     "IGNORE",

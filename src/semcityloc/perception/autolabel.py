@@ -26,12 +26,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import PALETTE, SemanticClass
+from semcityloc.classes import IGNORE, PALETTE, SemanticClass
 from semcityloc.errors import ParameterError, PoseError, RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
-from semcityloc.perception.base import IGNORE
 from semcityloc.render import Renderer, RenderOutput
+from semcityloc.render.overlay import class_boundaries
 
 DEFAULT_EXTENT_MARGIN_M = 25.0
 IGNORE_REASONS = ("outside_model", "too_far", "grazing", "boundary")
@@ -61,27 +61,6 @@ def _check(camera: Camera, pose_world: Pose, max_range_m: float, min_incidence_d
         raise ParameterError(f"boundary_px must be an integer in 0..50, got {boundary_px!r}")
 
 
-def class_boundaries(labels: np.ndarray, width_px: int = 1) -> np.ndarray:
-    """(H, W) bool: pixels within ``width_px`` (4-neighbour steps) of a pixel of another class."""
-    edge = np.zeros(labels.shape, dtype=bool)
-    if width_px <= 0:
-        return edge
-    dx = labels[:, 1:] != labels[:, :-1]
-    dy = labels[1:, :] != labels[:-1, :]
-    edge[:, 1:] |= dx
-    edge[:, :-1] |= dx
-    edge[1:, :] |= dy
-    edge[:-1, :] |= dy
-    for _ in range(width_px - 1):
-        grown = edge.copy()
-        grown[1:] |= edge[:-1]
-        grown[:-1] |= edge[1:]
-        grown[:, 1:] |= edge[:, :-1]
-        grown[:, :-1] |= edge[:, 1:]
-        edge = grown
-    return edge
-
-
 def _unit_normals(corners: np.ndarray) -> np.ndarray:
     c = corners.astype(np.float64)
     n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
@@ -105,7 +84,7 @@ def auto_label_render(
         renderer = Renderer(model, engine="auto")
     elif not np.array_equal(renderer.scene.origin, model.origin):
         raise RenderError("the renderer was built for another model (its origin differs from model.origin)")
-    pose_local = pose_world.shift_world(model.origin)
+    pose_local = model.pose_to_local(pose_world)
     view = renderer.render(camera, pose_local, depth=True, face_ids=True)
     cls = view.labels[0]
     depth = view.depth[0].astype(np.float64)

@@ -1,4 +1,4 @@
-"""What a perception backend is, what it returns, and the registry that picks one by name.
+"""What a perception backend is and what it returns (``perception.registry`` picks one by name).
 
 Why: the localizer needs a semantic mask (and optionally a relative depth map) of the query photo. Where
 they come from is the user's choice: a DINOv3 + DPT head, the offline MobileNetV2 head, MoGe-2, or files
@@ -27,21 +27,14 @@ and where to put it (default folder: ``weights_dir()``). Hugging Face hub ids ar
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
-from semcityloc.errors import InputFileError, ParameterError, ShapeError
-
-IGNORE = 255
-
-
-class MissingWeightsError(InputFileError):
-    """Model weights that are not on this machine; the message says what to download and where to put it."""
+from semcityloc.errors import ParameterError, ShapeError, unknown_choice
 
 
 # ---------------------------------------------------------------------------------------------- outputs
@@ -149,77 +142,7 @@ def check_classes(classes) -> tuple[str, ...]:
     out = tuple(str(c).strip().lower() for c in classes)
     unknown = [c for c in out if c not in CLASS_NAMES]
     if unknown:
-        raise ParameterError(f"unknown class name(s) {', '.join(unknown)}; known: {', '.join(CLASS_NAMES)}")
+        raise unknown_choice("class name(s)", unknown, CLASS_NAMES)
     if len(set(out)) != len(out) or len(out) < 2:
         raise ParameterError(f"classes must be at least two distinct names, got {list(out)}")
     return out
-
-
-# ---------------------------------------------------------------------------------------------- registry
-@dataclass(frozen=True)
-class BackendEntry:
-    kind: str  # "segmentation" | "depth"
-    name: str
-    factory: Callable[..., Any]
-    options: tuple[str, ...]
-    summary: str
-
-
-_REGISTRY: dict[tuple[str, str], BackendEntry] = {}
-
-
-def register_backend(
-    kind: str, name: str, factory: Callable[..., Any], options: tuple[str, ...], summary: str = ""
-) -> None:
-    """Add a backend: ``factory(**options)`` builds it; ``options`` are the option names it accepts."""
-    if kind not in ("segmentation", "depth"):
-        raise ParameterError(f"backend kind must be 'segmentation' or 'depth', got {kind!r}")
-    _REGISTRY[(kind, name)] = BackendEntry(kind, name, factory, tuple(options), summary)
-
-
-def available_backends(kind: str) -> tuple[str, ...]:
-    _ensure_builtins()
-    return tuple(sorted(n for k, n in _REGISTRY if k == kind))
-
-
-def backend_entry(kind: str, name: str) -> BackendEntry:
-    _ensure_builtins()
-    entry = _REGISTRY.get((kind, str(name)))
-    if entry is None:
-        raise ParameterError(
-            f"unknown {kind} backend {name!r}; choose one of {', '.join(available_backends(kind))}"
-        )
-    return entry
-
-
-def _filter_options(entry: BackendEntry, options: dict[str, Any]) -> dict[str, Any]:
-    known_anywhere = {o for e in _REGISTRY.values() for o in e.options}
-    unknown = sorted(k for k in options if k not in known_anywhere)
-    if unknown:
-        raise ParameterError(
-            f"unknown backend option(s) {', '.join(unknown)} for {entry.name!r}; "
-            f"it accepts {', '.join(entry.options) or 'none'}"
-        )
-    return {k: v for k, v in options.items() if k in entry.options and v is not None}
-
-
-def get_segmentation_backend(name: str, **options: Any) -> SegmentationBackend:
-    """A segmentation backend by name: ``dinov3-dpt``, ``mobilenetv2``, ``files`` (module docstring)."""
-    entry = backend_entry("segmentation", name)
-    return entry.factory(**_filter_options(entry, options))
-
-
-def get_depth_backend(name: str, **options: Any) -> DepthBackend:
-    """A depth backend by name: ``moge2``, ``files`` (module docstring)."""
-    entry = backend_entry("depth", name)
-    return entry.factory(**_filter_options(entry, options))
-
-
-_BUILTINS_LOADED = False
-
-
-def _ensure_builtins() -> None:
-    global _BUILTINS_LOADED
-    if not _BUILTINS_LOADED:
-        _BUILTINS_LOADED = True
-        from semcityloc.perception import registry  # noqa: F401  (registers the built-in backends)

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from semcityloc.errors import ParameterError
-from semcityloc.perception.base import MissingWeightsError, hub_offline, looks_like_hub_id, weights_dir
+from semcityloc.errors import MissingWeightsError, ParameterError
+from semcityloc.perception.base import hub_offline, looks_like_hub_id, weights_dir
 from semcityloc.perception.torch_utils import quiet_transformers, require, require_torch
 
 torch = require_torch("the DINOv3 backbone")

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from semcityloc.classes import NUM_CLASSES
+from semcityloc.classes import IGNORE, NUM_CLASSES
 from semcityloc.errors import InputFileError, ParameterError, ShapeError
-from semcityloc.perception.base import IGNORE, DepthOutput, SegmentationOutput, check_image
+from semcityloc.perception.base import DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
 DEPTH_SUFFIXES = (".npy", ".png")

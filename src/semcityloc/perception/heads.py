@@ -14,7 +14,7 @@ is how a saved head is rebuilt (``segmenter.py``).
 
 from __future__ import annotations
 
-from semcityloc.errors import ParameterError
+from semcityloc.errors import ParameterError, unknown_choice
 from semcityloc.perception.torch_utils import require_torch
 
 torch = require_torch("segmentation heads")
@@ -113,7 +113,7 @@ HEADS = {"dpt": DPTSegHead, "fpn": FPNSegHead}
 def build_head(kind: str, params: dict) -> nn.Module:
     """A head from its kind and the ``params`` dict it was saved with."""
     if kind not in HEADS:
-        raise ParameterError(f"unknown head type {kind!r}; known: {', '.join(HEADS)}")
+        raise unknown_choice("head type", kind, HEADS)
     try:
         return HEADS[kind](**params)
     except TypeError as exc:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from semcityloc.perception.base import MissingWeightsError
+from semcityloc.errors import MissingWeightsError
 from semcityloc.perception.torch_utils import require_torch
 
 torch = require_torch("the MobileNetV2 backbone")

@@ -27,10 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from semcityloc.errors import ParameterError
+from semcityloc.errors import MissingWeightsError, ParameterError
 from semcityloc.perception.base import (
     DepthOutput,
-    MissingWeightsError,
     check_image,
     hub_offline,
     looks_like_hub_id,

@@ -1,4 +1,7 @@
-"""The built-in perception backends, registered by name (imported lazily: torch loads only when used).
+"""The registry that picks a perception backend by name, and the built-in backends registered in it.
+
+Each built-in factory imports its backend module when called (torch, transformers and moge load only when
+a backend is used, never on ``import semcityloc``).
 
 | kind         | name         | options                                              |
 |--------------|--------------|------------------------------------------------------|
@@ -11,37 +14,95 @@
 
 from __future__ import annotations
 
-from semcityloc.perception.base import register_backend
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from semcityloc.errors import ParameterError, unknown_choice
+from semcityloc.perception.base import DepthBackend, SegmentationBackend
+
+
+@dataclass(frozen=True)
+class BackendEntry:
+    kind: str  # "segmentation" | "depth"
+    name: str
+    factory: Callable[..., Any]
+    options: tuple[str, ...]
+    summary: str
+
+
+_REGISTRY: dict[tuple[str, str], BackendEntry] = {}
+
+
+def register_backend(
+    kind: str, name: str, factory: Callable[..., Any], options: tuple[str, ...], summary: str = ""
+) -> None:
+    """Add a backend: ``factory(**options)`` builds it; ``options`` are the option names it accepts."""
+    if kind not in ("segmentation", "depth"):
+        raise ParameterError(f"backend kind must be 'segmentation' or 'depth', got {kind!r}")
+    _REGISTRY[(kind, name)] = BackendEntry(kind, name, factory, tuple(options), summary)
+
+
+def available_backends(kind: str) -> tuple[str, ...]:
+    return tuple(sorted(n for k, n in _REGISTRY if k == kind))
+
+
+def backend_entry(kind: str, name: str) -> BackendEntry:
+    entry = _REGISTRY.get((kind, str(name)))
+    if entry is None:
+        raise unknown_choice(f"{kind} backend", name, available_backends(kind))
+    return entry
+
+
+def _filter_options(entry: BackendEntry, options: dict[str, Any]) -> dict[str, Any]:
+    known_anywhere = {o for e in _REGISTRY.values() for o in e.options}
+    unknown = sorted(k for k in options if k not in known_anywhere)
+    if unknown:
+        raise unknown_choice(f"{entry.kind} backend {entry.name!r} option(s)", unknown, entry.options)
+    return {k: v for k, v in options.items() if k in entry.options and v is not None}
+
+
+def get_segmentation_backend(name: str, **options: Any) -> SegmentationBackend:
+    """A segmentation backend by name: ``dinov3-dpt``, ``mobilenetv2``, ``files`` (module docstring)."""
+    entry = backend_entry("segmentation", name)
+    return entry.factory(**_filter_options(entry, options))
+
+
+def get_depth_backend(name: str, **options: Any) -> DepthBackend:
+    """A depth backend by name: ``moge2``, ``files`` (module docstring)."""
+    entry = backend_entry("depth", name)
+    return entry.factory(**_filter_options(entry, options))
+
 
 SEG_OPTIONS = ("head", "backbone", "device", "threads")
 
 
 def _dinov3_dpt(**options):
-    from semcityloc.perception.segmenter import dinov3_dpt_backend
+    from semcityloc.perception.segmenter import dinov3_dpt_backend  # torch / heavy: when used
 
     return dinov3_dpt_backend(**options)
 
 
 def _mobilenetv2(**options):
-    from semcityloc.perception.segmenter import mobilenetv2_backend
+    from semcityloc.perception.segmenter import mobilenetv2_backend  # torch / heavy: when used
 
     return mobilenetv2_backend(**options)
 
 
 def _files_seg(**options):
-    from semcityloc.perception.files import files_segmentation_backend
+    from semcityloc.perception.files import files_segmentation_backend  # torch / heavy: when used
 
     return files_segmentation_backend(**options)
 
 
 def _moge2(**options):
-    from semcityloc.perception.moge_depth import moge2_backend
+    from semcityloc.perception.moge_depth import moge2_backend  # torch / heavy: when used
 
     return moge2_backend(**options)
 
 
 def _files_depth(**options):
-    from semcityloc.perception.files import files_depth_backend
+    from semcityloc.perception.files import files_depth_backend  # torch / heavy: when used
 
     return files_depth_backend(**options)
 

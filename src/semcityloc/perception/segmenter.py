@@ -25,9 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.errors import InputFileError, ParameterError
+from semcityloc.errors import InputFileError, MissingWeightsError, ParameterError
 from semcityloc.perception.base import (
-    MissingWeightsError,
     SegmentationOutput,
     check_classes,
     check_image,

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import SemanticClass
+from semcityloc.classes import IGNORE, SemanticClass
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -191,8 +191,8 @@ def synthetic_views(
             raise ParameterError("could not draw views that show the model: is it empty or tiny?")
         pose = sample_poses(model, 1, rng, altitude, pitch)[0]
         res = auto_label_render(model, camera, pose, renderer=renderer)
-        if np.mean(res.labels != 255) < min_labelled:
+        if np.mean(res.labels != IGNORE) < min_labelled:
             continue
-        image = texture_view(renderer, camera, pose.shift_world(model.origin), res.render, rng)
+        image = texture_view(renderer, camera, model.pose_to_local(pose), res.render, rng)
         out.append(SyntheticView(f"synthetic_{len(out):04d}", image, res.labels, pose, camera))
     return out

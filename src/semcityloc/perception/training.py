@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from semcityloc.classes import CLASS_NAMES, SemanticClass
+from semcityloc.classes import CLASS_NAMES, IGNORE, SemanticClass
 from semcityloc.errors import InputFileError, ParameterError
-from semcityloc.perception.base import IGNORE, check_classes, check_image
+from semcityloc.perception.base import check_classes, check_image
 from semcityloc.perception.metrics import confusion, mean_iou, pixel_accuracy
 from semcityloc.perception.segmenter import Segmenter, new_segmenter, parse_backbone_spec, save_head
 from semcityloc.perception.torch_utils import device_of, fit_size, image_tensor, labels_tensor, require_torch

@@ -9,7 +9,7 @@ poses to an engine:
 - ``"auto"``: ``"gpu"`` when it is usable, else ``"numba"``.
 
 Poses are ``cam_from_world`` in the model's LOCAL frame (world = ``model.origin`` + local): bring a
-world pose over with ``pose.shift_world(model.origin)``.
+world pose over with ``model.pose_to_local(pose_world)``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import RenderError, ShapeError
+from semcityloc.errors import RenderError, ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.render.output import RenderOutput
@@ -47,7 +47,7 @@ def check_camera(camera: Camera) -> Camera:
 def make_engine(name: str, scene: RenderScene):
     """The engine object for ``name`` (see module docstring)."""
     if name not in ENGINES:
-        raise RenderError(f"unknown render engine {name!r}; choose one of {', '.join(ENGINES)}")
+        raise unknown_choice("render engine", name, ENGINES, RenderError)
     if name in ("auto", "gpu"):
         from semcityloc.render.gpu import GpuEngine, gpu_status
 

@@ -14,6 +14,27 @@ from semcityloc.classes import PALETTE
 from semcityloc.render.scene import RenderScene
 
 
+def class_boundaries(labels: np.ndarray, width_px: int = 1) -> np.ndarray:
+    """(H, W) bool: pixels within ``width_px`` (4-neighbour steps) of a pixel of another class."""
+    edge = np.zeros(labels.shape, dtype=bool)
+    if width_px <= 0:
+        return edge
+    dx = labels[:, 1:] != labels[:, :-1]
+    dy = labels[1:, :] != labels[:-1, :]
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:, :] |= dy
+    edge[:-1, :] |= dy
+    for _ in range(width_px - 1):
+        grown = edge.copy()
+        grown[1:] |= edge[:-1]
+        grown[:-1] |= edge[1:]
+        grown[:, 1:] |= edge[:, :-1]
+        grown[:, :-1] |= edge[:, 1:]
+        edge = grown
+    return edge
+
+
 def face_normals(scene: RenderScene) -> np.ndarray:
     """(T, 3) unit normals of the scene's triangles."""
     c = scene.corners.astype(np.float64)

@@ -504,53 +504,6 @@ def render_confusion(
     return counts
 
 
-@njit(parallel=True, cache=True)
-def count_drawn(
-    tri_xyz,
-    tile_start,
-    tile_bbox,
-    block_start,
-    block_bbox,
-    Rs,
-    ts,
-    fx,
-    fy,
-    cx,
-    cy,
-    width,
-    height,
-    near,
-    n_chunks,
-):
-    """Triangles that reach the rasteriser per view (after tile culling): a cost diagnostic."""
-    n_views = Rs.shape[0]
-    npx = width * height
-    out = np.zeros(n_views, dtype=np.int64)
-    for c in prange(n_chunks):
-        inv_z = np.empty(npx)
-        tri_id = np.empty(npx, dtype=np.int32)
-        for v in range(c, n_views, n_chunks):
-            out[v] = render_view(
-                tri_xyz,
-                tile_start,
-                tile_bbox,
-                block_start,
-                block_bbox,
-                Rs[v],
-                ts[v],
-                fx,
-                fy,
-                cx,
-                cy,
-                width,
-                height,
-                near,
-                inv_z,
-                tri_id,
-            )
-    return out
-
-
 # ---------------------------------------------------------------------------------------------- engine
 class NumbaEngine:
     """The default CPU engine: ``render_batch`` over a ``RenderScene``."""

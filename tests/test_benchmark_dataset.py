@@ -8,25 +8,30 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from semcityloc.benchmark.methods import BenchmarkError
-from semcityloc.benchmark.runner import ResumeMismatchError
-from semcityloc.datasets.colmap import read_model
-from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
-from semcityloc.datasets.real_benchmark import (
+from semcityloc.benchmark.dataset_source import (
     ESTIMATES_COLMAP_DIR,
-    REAL_PRESETS,
-    RealBenchmarkSpec,
-    localizer_config,
+    DatasetSpec,
     oracle_labels,
-    read_mask,
-    run_real_benchmark,
     working_camera,
 )
-from semcityloc.errors import InputFileError, ShapeError
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.runfiles import ESTIMATES_DIR
+from semcityloc.datasets.colmap import read_model
+from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
+from semcityloc.errors import (
+    BenchmarkError,
+    InputFileError,
+    ParameterError,
+    ResumeMismatchError,
+    SemCityLocError,
+    ShapeError,
+)
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m
+from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
-from semcityloc.io.images import save_labels_png
+from semcityloc.io.images import read_mask_file, save_labels_png
+from semcityloc.localization.config import LocalizerConfig
 
 CAM = Camera.from_fov(160, 120, 60.0)
 BOX_F = [(1, 4, 3, 2), (5, 6, 7, 8), (1, 2, 6, 5), (2, 3, 7, 6), (3, 4, 8, 7), (4, 1, 5, 8)]
@@ -55,17 +60,19 @@ def dataset_dir(tmp_path_factory):
             "DJI_0001_W.JPG",
             "scene",
             CAM,
-            gt_pose=Pose.from_xyz_rpy([5.0, -3.0, 90.0], 0.5, 1.0, 20.0),
-            prior_pose=Pose.from_xyz_rpy([9.0, 1.0, 94.0], 0.0, 0.0, 24.0),
+            gt_pose_world=Pose.from_xyz_rpy([5.0, -3.0, 90.0], 0.5, 1.0, 20.0),
+            prior_pose_world=Pose.from_xyz_rpy([9.0, 1.0, 94.0], 0.0, 0.0, 24.0),
         ),
         LodLocQuery(
             "DJI_0002_W.JPG",
             "scene",
             CAM,
-            gt_pose=Pose.from_xyz_rpy([-10.0, 8.0, 85.0], -0.5, 0.5, -60.0),
-            prior_pose=Pose.from_xyz_rpy([-14.0, 5.0, 89.0], 0.0, 0.0, -55.0),
+            gt_pose_world=Pose.from_xyz_rpy([-10.0, 8.0, 85.0], -0.5, 0.5, -60.0),
+            prior_pose_world=Pose.from_xyz_rpy([-14.0, 5.0, 89.0], 0.0, 0.0, -55.0),
         ),
-        LodLocQuery("DJI_0003_W.JPG", "scene", CAM, gt_pose=None, prior_pose=None),  # no GT: skipped
+        LodLocQuery(
+            "DJI_0003_W.JPG", "scene", CAM, gt_pose_world=None, prior_pose_world=None
+        ),  # no GT: skipped
     ]
     write_lodloc_scene(root, qs)
     (root / "Query_image").mkdir()
@@ -80,17 +87,17 @@ def private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("SEMCITYLOC_CACHE", str(tmp_path / "cache"))
 
 
-def spec(dataset_dir, **kw) -> RealBenchmarkSpec:
-    return RealBenchmarkSpec(dataset=str(dataset_dir), preset="default", **kw)
+def spec(dataset_dir, **kw) -> DatasetSpec:
+    return DatasetSpec(dataset=str(dataset_dir), preset="default", **kw)
 
 
 def test_oracle_run_writes_the_benchmark_files_and_says_oracle(dataset_dir, tmp_path):
-    out = run_real_benchmark(spec(dataset_dir), tmp_path / "run", progress=False)
+    out = run_benchmark(spec(dataset_dir), tmp_path / "run", progress=False)
     assert out.complete and len(out.rows) == 2
     run = json.loads((tmp_path / "run" / "run.json").read_text())
     assert run["perception"] == "oracle" and run["mode"] == "dataset"
     assert run["skipped_no_gt_or_prior"] == ["DJI_0003_W.JPG"]
-    assert run["labels_source"] in ("autolabel", "render")
+    assert run["labels_source"] == "autolabel"
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["perception"] == "oracle" and "oracle" in summary["perception_label"]
     assert summary["queries"] == 2 and summary["recall_2m2deg"] == 100.0  # oracle masks, small prior errors
@@ -103,21 +110,27 @@ def test_oracle_run_writes_the_benchmark_files_and_says_oracle(dataset_dir, tmp_
     ds = read_lodloc(dataset_dir)
     for name, (camera, pose) in model.poses().items():
         assert camera == CAM
-        assert center_error_m(pose, ds.query(name).gt_pose) < 2.0
+        assert center_error_m(pose, ds.query(name).gt_pose_world) < 2.0
+    # ... written from the full-precision estimates kept per query (world frame), one per localized row.
+    localized = [r for r in out.rows if r["status"] == "localized"]
+    assert (
+        len(model.poses()) == len(localized) == len(list((tmp_path / "run" / ESTIMATES_DIR).glob("*.json")))
+    )
+    for row in localized:
+        est = read_pose(tmp_path / "run" / ESTIMATES_DIR / f"{row['query_id']}.json")
+        np.testing.assert_allclose(est.center, [float(row[f"est_world_{k}"]) for k in "xyz"], atol=1e-9)
 
 
 def test_rerun_resumes_and_other_arguments_are_refused(dataset_dir, tmp_path):
-    run_real_benchmark(spec(dataset_dir), tmp_path / "run", progress=False, limit=1)
-    again = run_real_benchmark(spec(dataset_dir), tmp_path / "run", progress=False)
+    run_benchmark(spec(dataset_dir), tmp_path / "run", progress=False, limit=1)
+    again = run_benchmark(spec(dataset_dir), tmp_path / "run", progress=False)
     assert again.complete and again.new_rows == 1
     with pytest.raises(ResumeMismatchError, match="perception"):
-        run_real_benchmark(spec(dataset_dir, perception="oracle-degraded"), tmp_path / "run", progress=False)
+        run_benchmark(spec(dataset_dir, perception="oracle-degraded"), tmp_path / "run", progress=False)
 
 
 def test_degraded_oracle_reports_its_miou(dataset_dir, tmp_path):
-    out = run_real_benchmark(
-        spec(dataset_dir, perception="oracle-degraded"), tmp_path / "deg", progress=False
-    )
+    out = run_benchmark(spec(dataset_dir, perception="oracle-degraded"), tmp_path / "deg", progress=False)
     mious = [float(r["query_miou"]) for r in out.rows]
     assert all(50.0 < m < 100.0 for m in mious)
     assert out.summary["perception"] == "oracle-degraded" and "trained" in out.summary["perception_label"]
@@ -128,42 +141,39 @@ def test_precomputed_masks_give_the_oracle_result(dataset_dir, tmp_path):
     model = ds.load_model()
     masks = tmp_path / "masks"
     for q in ds.queries[:2]:
-        labels, _ = oracle_labels(model, q.camera, q.gt_pose)
+        labels = oracle_labels(model, q.camera, q.gt_pose_world)
         save_labels_png(labels, masks / f"{q.stem}.png")
-    via_masks = run_real_benchmark(
+    via_masks = run_benchmark(
         spec(dataset_dir, perception="masks", masks=str(masks)), tmp_path / "m", progress=False
     )
-    oracle = run_real_benchmark(spec(dataset_dir), tmp_path / "o", progress=False)
+    oracle = run_benchmark(spec(dataset_dir), tmp_path / "o", progress=False)
     for a, b in zip(via_masks.rows, oracle.rows, strict=True):
         assert a["err_xyz_m"] == b["err_xyz_m"] and a["status"] == b["status"]
         assert json.loads(a["meta_json"])["labels_source"] == "masks"
     (masks / "DJI_0002_W.png").unlink()
     with pytest.raises(InputFileError, match="no file for query 'DJI_0002_W'"):
-        run_real_benchmark(
+        run_benchmark(
             spec(dataset_dir, perception="masks", masks=str(masks)), tmp_path / "m2", progress=False
         )
 
 
 def test_options_are_checked_before_anything_runs(dataset_dir, tmp_path):
-    with pytest.raises(BenchmarkError, match="unknown --perception"):
-        run_real_benchmark(spec(dataset_dir, perception="gt"), tmp_path / "x", progress=False)
+    with pytest.raises(BenchmarkError, match="unknown perception 'gt'; known: oracle, oracle-degraded"):
+        run_benchmark(spec(dataset_dir, perception="gt"), tmp_path / "x", progress=False)
     with pytest.raises(BenchmarkError, match="needs --masks"):
-        run_real_benchmark(spec(dataset_dir, perception="masks"), tmp_path / "x", progress=False)
+        run_benchmark(spec(dataset_dir, perception="masks"), tmp_path / "x", progress=False)
     with pytest.raises(BenchmarkError, match="only used with --perception masks"):
-        run_real_benchmark(spec(dataset_dir, masks="m"), tmp_path / "x", progress=False)
-    with pytest.raises(BenchmarkError, match="unknown localizer preset 'huge'"):
-        run_real_benchmark(RealBenchmarkSpec(dataset=str(dataset_dir), preset="huge"), tmp_path / "x")
-    with pytest.raises(BenchmarkError, match="unknown segmentation preset|unknown"):
-        run_real_benchmark(
-            spec(dataset_dir, perception="oracle-degraded", seg_quality="nope"), tmp_path / "x"
-        )
+        run_benchmark(spec(dataset_dir, masks="m"), tmp_path / "x", progress=False)
+    with pytest.raises(ParameterError, match="unknown localizer preset 'huge'"):
+        run_benchmark(DatasetSpec(dataset=str(dataset_dir), preset="huge"), tmp_path / "x")
+    with pytest.raises(SemCityLocError, match="unknown segmentation preset 'nope'"):
+        run_benchmark(spec(dataset_dir, perception="oracle-degraded", seg_quality="nope"), tmp_path / "x")
     assert not (tmp_path / "x").exists()
 
 
 def test_presets_and_helpers():
-    wide_z = localizer_config("wide-z")
-    assert wide_z is REAL_PRESETS["wide-z"] and wide_z.coarse.range_z_m == 60.0
-    assert localizer_config("fast").coarse.width == 48
+    assert DatasetSpec(dataset="x").localizer_config() is LocalizerConfig.preset("wide-z")
+    assert LocalizerConfig.preset("wide-z").coarse.range_z_m == 60.0
     big = Camera(3778.4, 3767.4, 2663.6, 1919.7, 5280, 3956)
     small = working_camera(big)
     assert small.width == 1024 and small.height == 767 and small.hfov_deg == pytest.approx(big.hfov_deg)
@@ -172,13 +182,13 @@ def test_presets_and_helpers():
 
 def test_mask_files_are_validated(tmp_path):
     np.save(tmp_path / "ok.npy", np.array([[0, 3], [255, 2]], dtype=np.uint8))
-    assert read_mask(tmp_path / "ok.npy").tolist() == [[0, 3], [255, 2]]
+    assert read_mask_file(tmp_path / "ok.npy").tolist() == [[0, 3], [255, 2]]
     np.save(tmp_path / "bad.npy", np.array([[0, 9]], dtype=np.uint8))
     with pytest.raises(InputFileError, match="class ids must be"):
-        read_mask(tmp_path / "bad.npy")
+        read_mask_file(tmp_path / "bad.npy")
     np.save(tmp_path / "float.npy", np.zeros((2, 2)))
     with pytest.raises(ShapeError, match="class ids"):
-        read_mask(tmp_path / "float.npy")
+        read_mask_file(tmp_path / "float.npy")
 
 
 def test_dataset_cli_actions(dataset_dir, tmp_path, capsys):

@@ -1,0 +1,293 @@
+"""The benchmark over a real data set (``semcityloc benchmark --dataset PATH --format lodloc``).
+
+Why its own module: the simulated benchmark makes its queries; here they come from a user's data set
+(LoD-Loc layout, ``datasets.lodloc``) with real images, real ground truth and the data set's own priors.
+Everything after the queries is the one run loop (``benchmark.run.run_queries``): the same rows,
+``details/``, ``summary.json`` and resuming, so the numbers mean the same.
+
+Perception (the query mask each method localizes with), ``--perception``:
+
+- ``oracle``: automatic labels at the GT pose (``perception.autolabel.auto_label``). No depth. This
+  measures the search and the data set's frames, not perception: every output (``run.json``,
+  ``summary.json``, each row's ``meta_json``, the printed table) says ``oracle``.
+- ``oracle-degraded``: the same labels through the simulated segmentation preset ``--seg-quality``
+  (default ``trained``, the ≈ 88 % mIoU head; ``benchmark.perception_sim``), seeded per query by
+  ``(seed, index)``.
+- ``masks``: precomputed or model-predicted masks ``<masks>/<stem>.png`` (class ids 0..5, 255 = ignore,
+  as palette indices or grey values: what ``io.images.save_labels_png`` writes) or ``<stem>.npy``;
+  optional depth ``<depth>/<stem>.npy`` or a 16-bit depth PNG (any positive scale; NaN / <= 0 invalid).
+
+Frames: the data set's poses are world-frame (``LodLocQuery.gt_pose_world``); queries are moved into the
+model's local frame at this boundary (``CityModel.pose_to_local``). ``results.csv`` also holds world
+coordinates. Each localized estimate is written as ``estimates/<query_id>.json`` in the world frame
+(``geometry.io.write_pose_json``) and, when every query is done, all of them as a COLMAP text model
+(``estimates_colmap/``) named by image. Oracle labels are rendered at no more than ``ORACLE_MAX_WIDTH``
+pixels wide (the localizer searches at 64 px anyway). Localizer preset: ``wide-z`` by default: LoD-Loc's
+priors are up to ±30 m off in height, beyond the ±8 m of the ``default`` grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semcityloc import __version__
+from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
+from semcityloc.benchmark.perception_sim import miou as seg_miou
+from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
+from semcityloc.benchmark.runfiles import ESTIMATES_DIR, plain
+from semcityloc.citymodel.io import file_sha256
+from semcityloc.citymodel.model import CityModel
+from semcityloc.classes import IGNORE
+from semcityloc.datasets.colmap import ColmapModel, write_model
+from semcityloc.datasets.lodloc import FRAME_AUTO, LodLocDataset, LodLocQuery, read_lodloc
+from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.io import read_pose, write_pose_json
+from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import read_depth_file, read_mask_file
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.methods import Method, check_method
+from semcityloc.localization.result import LocalizationResult
+from semcityloc.perception.autolabel import auto_label
+from semcityloc.render import Renderer
+
+PERCEPTION_ORACLE, PERCEPTION_DEGRADED, PERCEPTION_MASKS = "oracle", "oracle-degraded", "masks"
+PERCEPTIONS = (PERCEPTION_ORACLE, PERCEPTION_DEGRADED, PERCEPTION_MASKS)
+FORMATS = ("lodloc",)
+ORACLE_MAX_WIDTH = 1024
+ESTIMATES_COLMAP_DIR = "estimates_colmap"
+LABELS_SOURCE = "autolabel"
+RUN_FORMAT = 1
+
+
+def oracle_labels(model: CityModel, camera: Camera, pose_world: Pose, renderer=None) -> np.ndarray:
+    """(H, W) uint8 automatic labels (``auto_label``) of ``model`` at a WORLD pose."""
+    return np.asarray(auto_label(model, camera, pose_world, renderer=renderer), dtype=np.uint8)
+
+
+def working_camera(camera: Camera, max_width: int = ORACLE_MAX_WIDTH) -> Camera:
+    """``camera`` scaled down to at most ``max_width`` pixels wide (same field of view)."""
+    if camera.width <= max_width:
+        return camera
+    return camera.scaled(max_width, max(1, round(camera.height * max_width / camera.width)))
+
+
+def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:
+    for suffix in suffixes:
+        for candidate in (folder / f"{stem}{suffix}", folder / f"{stem}{suffix.upper()}"):
+            if candidate.is_file():
+                return candidate
+    raise InputFileError(f"{folder}: no file for query {stem!r} (looked for {stem}{{{','.join(suffixes)}}})")
+
+
+def perception_label(perception: str, seg_quality: str | None = None) -> str:
+    """How a method's row is labelled in printed tables: says ``oracle`` wherever it is."""
+    if perception == PERCEPTION_ORACLE:
+        return "oracle perception (labels at the GT pose)"
+    if perception == PERCEPTION_DEGRADED:
+        return f"oracle perception degraded by the '{seg_quality}' segmentation preset"
+    return "precomputed masks"
+
+
+def evaluable(dataset: LodLocDataset) -> tuple[list[LodLocQuery], list[str]]:
+    """(queries with both a GT pose and a prior, names of the others)."""
+    keep = [q for q in dataset.queries if q.gt_pose_world is not None and q.prior_pose_world is not None]
+    return keep, [q.name for q in dataset.queries if q.gt_pose_world is None or q.prior_pose_world is None]
+
+
+# ---------------------------------------------------------------------------------------------- the spec
+@dataclass(frozen=True)
+class DatasetSpec:
+    """A benchmark run over a real data set (module docstring). Checked when made: a bad value raises
+    ``BenchmarkError`` naming it, before the data set is read."""
+
+    dataset: str
+    format: str = "lodloc"
+    city: str | None = None
+    perception: str = PERCEPTION_ORACLE
+    masks: str | None = None
+    depth: str | None = None
+    seg_quality: str = "trained"
+    method: str = "semcityloc"
+    preset: str = "wide-z"
+    seed: int = 0
+    split: str | None = None
+    stage: str | None = None
+    frame: str = FRAME_AUTO
+    ecef_origin_llh: tuple[float, float, float] | None = None  # frame="ecef": default Swiss-EPFL's
+    keep_details: int = 3
+
+    label = "dataset"  # the progress bar's label
+
+    def __post_init__(self) -> None:
+        if self.format not in FORMATS:
+            raise unknown_choice("data set format", self.format, FORMATS, BenchmarkError)
+        if self.perception not in PERCEPTIONS:
+            raise unknown_choice("perception", self.perception, PERCEPTIONS, BenchmarkError)
+        if self.perception == PERCEPTION_MASKS and not self.masks:
+            raise BenchmarkError("--perception masks needs --masks DIR (one <stem>.png / .npy per image)")
+        if self.perception != PERCEPTION_MASKS and (self.masks or self.depth):
+            raise BenchmarkError("--masks / --depth are only used with --perception masks")
+        if self.perception == PERCEPTION_DEGRADED:
+            get_preset(self.seg_quality)
+        check_method(self.method)
+        self.localizer_config()
+        if int(self.keep_details) < 0:
+            raise BenchmarkError(f"keep_details must be >= 0, got {self.keep_details}")
+
+    def localizer_config(self) -> LocalizerConfig:
+        return LocalizerConfig.preset(self.preset)
+
+    def load_dataset(self) -> LodLocDataset:
+        return read_lodloc(
+            self.dataset,
+            city=self.city,
+            split=self.split,
+            stage=self.stage,
+            frame=self.frame,
+            ecef_origin_llh=self.ecef_origin_llh,
+        )
+
+    def run_config(self) -> dict:
+        """The ``run.json`` of a data-set run (what decides the numbers; compared on resume)."""
+        dataset = self.load_dataset()
+        queries, skipped = evaluable(dataset)
+        if not queries:
+            raise BenchmarkError(f"{dataset.root}: no query has both a ground-truth pose and a prior")
+        if dataset.model_path is None:
+            raise BenchmarkError(f"{dataset.root}: no LoD model found beside the data set; pass --city")
+        return plain(
+            {
+                "format": RUN_FORMAT,
+                "mode": "dataset",
+                "dataset": str(Path(self.dataset).resolve()),
+                "dataset_format": self.format,
+                "city": str(dataset.model_path),
+                "city_path": str(dataset.model_path.resolve()),
+                "city_sha256": file_sha256(dataset.model_path),
+                "frame": dataset.frame,
+                "frame_note": dataset.frame_note,
+                "ecef_origin_llh": dataset.ecef_origin_llh,
+                "split": self.split,
+                "stage": self.stage,
+                "method": self.method,
+                "perception": self.perception,
+                "labels_source": LABELS_SOURCE if self.perception != PERCEPTION_MASKS else "masks",
+                "masks": self.masks,
+                "depth": self.depth,
+                "seg_quality": self.seg_quality if self.perception == PERCEPTION_DEGRADED else None,
+                "seed": self.seed,
+                "queries": len(queries),
+                "query_names": [q.name for q in queries],
+                "skipped_no_gt_or_prior": skipped,
+                "localizer_preset": self.preset,
+                "localizer": self.localizer_config().as_dict(),
+                "keep_details": int(self.keep_details),
+                "semcityloc_version": __version__,
+            }
+        )
+
+    def open_source(self, config: dict) -> DatasetSource:
+        dataset = self.load_dataset()
+        return DatasetSource(self, dataset, dataset.load_model())
+
+    def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
+        """Perception fields in the summary; the estimates as a COLMAP text model."""
+        summary["perception"] = self.perception
+        summary["perception_label"] = perception_label(self.perception, self.seg_quality)
+        summary["labels_source"] = summary["config"]["labels_source"]
+        queries, _ = evaluable(self.load_dataset())
+        write_estimates_colmap(queries, out_dir, out_dir / ESTIMATES_COLMAP_DIR)
+
+
+def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Path) -> Path:
+    """The localized estimates of a run (``estimates/qNNNN.json``, world frame) as a COLMAP text model
+    named by image (``queries``: the run's queries in index order)."""
+    entries: dict[str, tuple[Camera, Pose]] = {}
+    for index, q in enumerate(queries):
+        path = out_dir / ESTIMATES_DIR / f"{query_id(index)}.json"
+        if path.is_file():
+            entries[q.name] = (q.camera, read_pose(path))
+    return write_model(ColmapModel.from_poses(entries), folder, ext=".txt")
+
+
+# ---------------------------------------------------------------------------------------------- queries
+class DatasetSource:
+    """``BenchmarkQuery`` objects of a data set's queries, in the model's local frame (module docstring)."""
+
+    def __init__(self, spec: DatasetSpec, dataset: LodLocDataset, model: CityModel, renderer=None):
+        self.spec = spec
+        self.map_model = model
+        self.queries, _ = evaluable(dataset)
+        self._renderer = renderer
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_renderer"] = None  # rebuilt in each process
+        return state
+
+    @property
+    def renderer(self) -> Renderer:
+        if self._renderer is None:
+            self._renderer = Renderer(self.map_model, engine="numba")
+        return self._renderer
+
+    def __len__(self) -> int:
+        return len(self.queries)
+
+    def query(self, index: int) -> BenchmarkQuery:
+        q = self.queries[index]
+        spec = self.spec
+        camera = working_camera(q.camera)
+        meta: dict[str, Any] = {"name": q.name, "scene": q.scene, "perception": spec.perception}
+        depth = None
+        miou = float("nan")
+        if spec.perception == PERCEPTION_MASKS:
+            camera = q.camera
+            labels = read_mask_file(_find(Path(spec.masks), q.stem, (".png", ".npy")))
+            if spec.depth:
+                depth = read_depth_file(_find(Path(spec.depth), q.stem, (".npy", ".png")))
+            meta["labels_source"] = "masks"
+        else:
+            labels = oracle_labels(self.map_model, camera, q.gt_pose_world, self.renderer)
+            meta["labels_source"] = LABELS_SOURCE
+            miou = 100.0
+            if spec.perception == PERCEPTION_DEGRADED:
+                clean = np.where(labels == IGNORE, 0, labels).astype(np.uint8)
+                rng = np.random.default_rng([spec.seed, index, STREAM_SEG])
+                noisy = simulate_segmentation(clean, spec.seg_quality, rng)
+                noisy[labels == IGNORE] = IGNORE
+                miou = seg_miou(np.where(noisy == IGNORE, 0, noisy), clean)
+                labels = noisy
+                meta["seg_quality"] = spec.seg_quality
+        pitch = float(q.gt_pose_world.to_xyz_rpy()[4])
+        meta["view"] = "nadir" if abs(pitch) < 15.0 else "oblique"
+        return BenchmarkQuery(
+            query_id=query_id(index),
+            index=index,
+            camera=camera,
+            true_pose_local=self.map_model.pose_to_local(q.gt_pose_world),
+            prior_pose_local=self.map_model.pose_to_local(q.prior_pose_world),
+            labels=labels,
+            depth=depth,
+            query_miou=miou,
+            meta=meta,
+        )
+
+    def prepare(self, method: Method) -> None:
+        return None
+
+    def save_estimate(self, out_dir: Path, q: BenchmarkQuery, result: LocalizationResult) -> None:
+        """``estimates/<query_id>.json``: the localized pose in the data set's world frame."""
+        if result.localized and result.pose_local is not None:
+            folder = out_dir / ESTIMATES_DIR
+            folder.mkdir(exist_ok=True)
+            path = folder / f"{q.query_id}.json"
+            tmp = folder / f".{q.query_id}.tmp.json"
+            name = self.queries[q.index].name
+            write_pose_json(result.pose_local, tmp, origin=self.map_model.origin, extra={"image": name})
+            tmp.replace(path)

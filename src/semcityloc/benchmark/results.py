@@ -1,0 +1,271 @@
+"""The results of a run: ``results.csv`` rows, the ``details/`` npz files and the summary.
+
+Why its own module: the row format is what the report, resuming and users' scripts read; keeping it in one
+place (columns, formatting, append/read/repair, summary) keeps every run's files the same.
+
+``results.csv``: one row per finished query (``COLUMNS``), appended as ONE ``write`` of a full line
+followed by ``fsync``, by the parent process only. On start the file is read, a torn last line (no
+newline: the process died mid-write) is cut off, and the ids already there are skipped. Rows may be in any
+order (``--workers``); each id appears once. Poses: the map model's local frame (x y z m, roll pitch yaw
+deg) + world x y z (``origin + local``); errors: camera-centre distance (m), full rotation angle and yaw
+(deg), "inf" when not localized; timings in s.
+
+``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
+coarse poses, the coarse cost volume and its axes, for the report's figures; written atomically BEFORE the
+row, so a row always has its details.
+
+``summary.json``: metrics over all rows (``summarize_rows``). ``queries`` counts the evaluated queries: a
+view the simulator could not make acceptable gets a ``skipped`` row, is not localized and is only counted
+under ``skipped``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semcityloc.benchmark.queries import BenchmarkQuery, query_id
+from semcityloc.benchmark.runfiles import RESULTS_FILE, plain, write_all, write_atomic
+from semcityloc.errors import BenchmarkError
+from semcityloc.evaluation.metrics import pose_errors, summarize_errors
+from semcityloc.geometry.pose import Pose
+from semcityloc.localization.result import LOCALIZED, LocalizationResult
+
+_POSE_FIELDS = ("x", "y", "z", "roll", "pitch", "yaw")
+_TRUE = " ".join(f"true_{k}" for k in _POSE_FIELDS) + " true_world_x true_world_y true_world_z"
+_EST = " ".join(f"est_{k}" for k in _POSE_FIELDS) + " est_world_x est_world_y est_world_z"
+_PRIOR = " ".join(f"prior_{k}" for k in _POSE_FIELDS)
+COLUMNS: tuple[str, ...] = tuple(
+    f"""query_id index status reason view height_m query_miou {_TRUE} {_EST} {_PRIOR}
+    prior_err_m prior_rot_deg prior_yaw_err_deg err_xyz_m err_rot_deg err_yaw_deg
+    coarse_err_xyz_m coarse_err_yaw_deg score semantic depth_cost score_margin spread_m spread_deg
+    building_iou coarse_hypotheses refine_evaluations t_coarse_s t_refine_s t_total_s meta_json""".split()
+)
+TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
+
+# A query whose simulated view the simulator did not accept (``meta["accepted"] is False``): recorded so a
+# resumed run does not redo it, not localized, and left out of every metric (counted as ``skipped``).
+SKIPPED = "skipped"
+REASON_SKIPPED = "simulator found no acceptable view"
+
+
+def skipped_result() -> LocalizationResult:
+    return LocalizationResult(status=SKIPPED, reason=REASON_SKIPPED)
+
+
+# ------------------------------------------------------------------------------------------------ rows
+def _fmt(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool | np.bool_):
+        return "1" if value else "0"
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        return repr(float(value))
+    return str(value).replace("\r", " ").replace("\n", " ")
+
+
+def _pose_values(prefix: str, pose: Pose | None, origin: np.ndarray, world: bool = True) -> dict:
+    keys = [f"{prefix}_{k}" for k in _POSE_FIELDS]
+    if world:
+        keys += [f"{prefix}_world_{k}" for k in "xyz"]
+    if pose is None:
+        return dict.fromkeys(keys)
+    values = list(pose.to_xyz_rpy())
+    if world:
+        values += list(pose.center + origin)
+    return dict(zip(keys, values, strict=True))
+
+
+def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) -> dict[str, str]:
+    """One ``results.csv`` row (all values formatted) from a query and its result (poses local)."""
+    est = result.pose_local if result.localized else None
+    err = pose_errors(est, q.true_pose_local)
+    prior_err = pose_errors(q.prior_pose_local, q.true_pose_local)
+    coarse = result.coarse_pose_local
+    coarse_err = pose_errors(coarse, q.true_pose_local) if coarse is not None else (None, None, None)
+    meta = dict(q.meta or {})
+    conf, counts, timings = result.confidence or {}, result.counts or {}, result.timings or {}
+    row: dict[str, Any] = {
+        "query_id": query_id(q.index),
+        "index": q.index,
+        "status": result.status,
+        "reason": result.reason,
+        "view": meta.get("view"),
+        "height_m": meta.get("height_m"),
+        "query_miou": q.query_miou,
+        **_pose_values("true", q.true_pose_local, origin),
+        **_pose_values("est", est, origin),
+        **_pose_values("prior", q.prior_pose_local, origin, world=False),
+        "prior_err_m": prior_err[0],
+        "prior_rot_deg": prior_err[1],
+        "prior_yaw_err_deg": prior_err[2],
+        "err_xyz_m": err[0],
+        "err_rot_deg": err[1],
+        "err_yaw_deg": err[2],
+        "coarse_err_xyz_m": coarse_err[0],
+        "coarse_err_yaw_deg": coarse_err[2],
+        "score": result.score,
+        "semantic": result.semantic,
+        "depth_cost": result.depth_cost,
+        "score_margin": conf.get("score_margin"),
+        "spread_m": conf.get("spread_m"),
+        "spread_deg": conf.get("spread_deg"),
+        "building_iou": conf.get("building_iou"),
+        "coarse_hypotheses": counts.get("coarse_hypotheses"),
+        "refine_evaluations": counts.get("refine_evaluations"),
+        "t_coarse_s": timings.get("coarse_s"),
+        "t_refine_s": timings.get("refine_s"),
+        "t_total_s": timings.get("total_s"),
+        "meta_json": json.dumps(plain(meta), sort_keys=True),
+    }
+    return {c: _fmt(row.get(c)) for c in COLUMNS}
+
+
+def _csv_line(row: dict[str, str]) -> bytes:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow([row.get(c, "") for c in COLUMNS])
+    return buf.getvalue().encode("utf-8")
+
+
+def append_row(path: Path, row: dict[str, str]) -> None:
+    """Append one row as a single full-line write, then fsync (a crash loses at most this line)."""
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        write_all(fd, _csv_line(row))
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def read_results(path: Path) -> list[dict[str, str]]:
+    """Rows of ``results.csv``, repairing it first: a torn last line is cut off, a missing or torn header is
+    rewritten. Rows with an id seen before are ignored (the first one counts)."""
+    data = path.read_bytes() if path.exists() else b""
+    if data and not data.endswith(b"\n"):
+        cut = data.rfind(b"\n") + 1
+        with open(path, "r+b") as fh:
+            fh.truncate(cut)
+            fh.flush()
+            os.fsync(fh.fileno())
+        data = data[:cut]
+    if not data:
+        write_atomic(path, ",".join(COLUMNS) + "\n")
+        return []
+    return parse_results(data, path)
+
+
+def parse_results(data: bytes, path: Path | str = RESULTS_FILE) -> list[dict[str, str]]:
+    """Rows of the bytes of a ``results.csv`` (read-only; a torn last line is ignored)."""
+    data = data[: data.rfind(b"\n") + 1]
+    if not data:
+        return []
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise BenchmarkError(f"{path}: not a results file of this runner ({exc}); use --overwrite") from exc
+    reader = csv.reader(io.StringIO(text))
+    if tuple(next(reader)) != COLUMNS:
+        raise BenchmarkError(
+            f"{path}: its columns differ from this version's; use --overwrite or another --out"
+        )
+    rows: dict[str, dict[str, str]] = {}
+    for n, values in enumerate(reader, start=2):
+        if len(values) != len(COLUMNS):
+            raise BenchmarkError(
+                f"{path}: line {n} has {len(values)} fields, not {len(COLUMNS)}; use --overwrite"
+            )
+        row = dict(zip(COLUMNS, values, strict=True))
+        rows.setdefault(row["query_id"], row)
+    return list(rows.values())
+
+
+# --------------------------------------------------------------------------------------------- details
+def _pose_matrix(pose: Pose | None) -> np.ndarray:
+    return pose.cam_from_world if pose is not None else np.full((4, 4), np.nan)
+
+
+def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) -> None:
+    """The npz the report's figures need (module docstring), written atomically."""
+    cam = q.camera
+    volume = result.cost_volume
+    est = result.pose_local if result.localized else None
+    meta = {
+        "query_id": path.stem,
+        "status": result.status,
+        "reason": result.reason,
+        "query_miou": q.query_miou,
+        "query_meta": q.meta,
+        "cost_volume": volume.as_dict() if volume is not None else None,
+        "camera": cam.as_dict(),
+    }
+    arrays = {
+        "labels": np.asarray(q.labels, dtype=np.uint8),
+        "depth": np.asarray(q.depth, dtype=np.float32)
+        if q.depth is not None
+        else np.zeros((0, 0), np.float32),
+        "camera": np.array([cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height], dtype=np.float64),
+        "origin": np.asarray(origin, dtype=np.float64),
+        "true_cam_from_world": _pose_matrix(q.true_pose_local),
+        "prior_cam_from_world": _pose_matrix(q.prior_pose_local),
+        "est_cam_from_world": _pose_matrix(est),
+        "coarse_cam_from_world": _pose_matrix(result.coarse_pose_local),
+        "cost_scores": (
+            volume.scores.astype(np.float32) if volume is not None else np.zeros((0, 0, 0, 0), np.float32)
+        ),
+        "meta": np.frombuffer(json.dumps(plain(meta)).encode("utf-8"), dtype=np.uint8),
+    }
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def load_details(path: Path) -> dict:
+    """The arrays of a details npz plus ``meta`` decoded (``cost_volume`` axes, camera, status...)."""
+    with np.load(path, allow_pickle=False) as z:
+        out = {k: z[k] for k in z.files}
+    out["meta"] = json.loads(bytes(out["meta"]).decode("utf-8"))
+    return out
+
+
+# --------------------------------------------------------------------------------------------- summary
+def _float(text: str) -> float:
+    return float(text) if text not in ("", None) else float("nan")
+
+
+def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
+    """``summary.json``: the metrics of ``evaluation.metrics`` over the rows (``skipped`` rows left out
+    and counted), timings, query mIoU, a per-view breakdown and the run's config."""
+    skipped = sum(r["status"] == SKIPPED for r in rows)
+    ordered = sorted((r for r in rows if r["status"] != SKIPPED), key=lambda r: int(r["index"]))
+    err = {c: np.array([_float(r[c]) for r in ordered]) for c in ("err_xyz_m", "err_rot_deg", "err_yaw_deg")}
+    localized = np.array([r["status"] == LOCALIZED for r in ordered], dtype=bool)
+
+    def errors_of(sel: np.ndarray) -> dict:
+        return summarize_errors(
+            err["err_xyz_m"][sel], err["err_rot_deg"][sel], err["err_yaw_deg"][sel], localized[sel]
+        )
+
+    s: dict[str, Any] = {"method": config.get("method")}
+    s.update(errors_of(np.ones(len(ordered), dtype=bool)))
+    s["skipped"] = skipped
+    miou = np.array([_float(r["query_miou"]) for r in ordered])
+    total = np.array([_float(r["t_total_s"]) for r in ordered])
+    s["mean_query_miou"] = float(np.nanmean(miou)) if np.isfinite(miou).any() else float("nan")
+    s["sec_per_image"] = float(np.nanmean(total)) if np.isfinite(total).any() else float("nan")
+    s["sec_per_image_median"] = float(np.nanmedian(total)) if np.isfinite(total).any() else float("nan")
+    s["not_localized_reasons"] = dict(Counter(r["reason"] for r in ordered if r["status"] != LOCALIZED))
+    views = np.array([r["view"] or "unknown" for r in ordered])
+    s["by_view"] = {
+        v: {k: x for k, x in errors_of(views == v).items() if k != "convention"} for v in sorted(set(views))
+    }
+    s["config"] = config
+    return s

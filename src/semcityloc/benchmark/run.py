@@ -1,0 +1,219 @@
+"""The one run loop: queries from a source -> a method -> resumable rows, details and a summary.
+
+Why its own module: a benchmark of hundreds of queries runs for hours, so this loop's job is to make a run
+reproducible and cheap to restart, whatever makes the queries (``benchmark.sources``) and whatever
+localizes them (``localization.methods``). ``run_queries(source, spec, out)`` does resume, rows, details,
+summary and progress for every kind of run; ``run_benchmark(spec, out)`` opens the spec's source first.
+
+A spec is a typed object (``benchmark.spec.BenchmarkSpec`` for simulated runs,
+``benchmark.dataset_source.DatasetSpec`` for data sets) with ``method``, ``preset``, ``keep_details``,
+``label``, ``localizer_config()``, ``run_config()`` (the ``run.json`` dict), ``open_source(config)`` and
+``finish(out, rows, summary)``.
+Workers get the spec and the source (with its models) once, never a dict to read settings back from.
+
+Numbers do not depend on ``workers``: every query is made from ``(seed, index)`` alone and the localizer
+seeds its own generator per query.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, TextIO
+
+import numba
+
+import semcityloc.baselines  # noqa: F401  (registers the baselines' methods)
+from semcityloc.benchmark.queries import query_id
+from semcityloc.benchmark.results import (
+    append_row,
+    make_row,
+    read_results,
+    save_details,
+    skipped_result,
+    summarize_rows,
+)
+from semcityloc.benchmark.runfiles import (
+    DETAILS_DIR,
+    RESULTS_FILE,
+    SUMMARY_FILE,
+    Progress,
+    prepare_output,
+    write_json_atomic,
+)
+from semcityloc.benchmark.sources import QuerySource
+from semcityloc.errors import BenchmarkError
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.methods import get_method
+
+
+class RunSpec(Protocol):
+    """What the loop needs of a spec (module docstring)."""
+
+    method: str
+    keep_details: int
+    label: str
+
+    def localizer_config(self) -> LocalizerConfig: ...
+
+    def run_config(self) -> dict: ...
+
+    def open_source(self, config: dict) -> QuerySource: ...
+
+    def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
+        """Add to ``summary`` and write the run's exports once every query has a row."""
+
+
+@dataclass
+class BenchmarkOutcome:
+    out_dir: Path
+    complete: bool  # every query has a row (summary.json written)
+    new_rows: int  # rows added by this call
+    rows: list[dict[str, str]]
+    summary: dict | None
+    config: dict
+
+
+class _Worker:
+    """A source and a method for one map, built once per process; writes details and estimates."""
+
+    def __init__(self, spec: RunSpec, source: QuerySource, out_dir: Path):
+        self.source = source
+        self.method = get_method(spec.method, source.map_model, spec.localizer_config())
+        source.prepare(self.method)
+        self.origin = source.map_model.origin
+        self.out_dir = out_dir
+        self.keep = int(spec.keep_details)
+
+    def run(self, index: int) -> dict[str, str]:
+        q = self.source.query(index)
+        if not (q.meta or {}).get("accepted", True):
+            return make_row(q, skipped_result(), self.origin)
+        result = self.method.localize(q)
+        if index < self.keep:
+            save_details(self.out_dir / DETAILS_DIR / f"{query_id(index)}.npz", q, result, self.origin)
+        self.source.save_estimate(self.out_dir, q, result)
+        return make_row(q, result, self.origin)
+
+
+_PROCESS_WORKER: _Worker | None = None
+
+
+def _init_process(threads: int, spec: RunSpec, source: QuerySource, out_dir: Path) -> None:
+    global _PROCESS_WORKER
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    _PROCESS_WORKER = _Worker(spec, source, out_dir)
+
+
+def _run_in_process(index: int) -> dict[str, str]:
+    if _PROCESS_WORKER is None:  # pragma: no cover - the pool's initializer always runs first
+        raise RuntimeError("worker process not initialised")
+    return _PROCESS_WORKER.run(index)
+
+
+def run_queries(
+    source: QuerySource | None,
+    spec: RunSpec,
+    out_dir: str | Path,
+    workers: int = 1,
+    overwrite: bool = False,
+    limit: int | None = None,
+    progress: bool | TextIO = True,
+    config: dict | None = None,
+) -> BenchmarkOutcome:
+    """Run (or resume) ``spec`` over ``source`` into ``out_dir`` (``benchmark.runfiles`` has the files).
+
+    Args:
+        source: the queries; None = ``spec.open_source(config)``, opened only when a query is left to do
+            (a finished run is summarised without loading a model).
+        workers: processes localizing queries in parallel (each builds its method once).
+        overwrite: start afresh when ``out_dir`` holds a run with other arguments.
+        limit: process at most this many new queries in this call, then stop (a later call resumes).
+        progress: True for the bar on stderr, False for none, or a stream.
+        config: ``spec.run_config()`` when the caller has it already.
+    """
+    workers = int(workers)
+    if workers < 1:
+        raise BenchmarkError(f"workers must be >= 1, got {workers}")
+    if limit is not None and int(limit) < 0:
+        raise BenchmarkError(f"limit must be >= 0, got {limit}")
+    out = Path(out_dir)
+    config = config if config is not None else spec.run_config()
+    prepare_output(out, config, overwrite)
+    results_path = out / RESULTS_FILE
+    total = int(config["queries"])
+    wanted = {query_id(i) for i in range(total)}
+    rows = [r for r in read_results(results_path) if r["query_id"] in wanted]
+    done = {r["query_id"] for r in rows}
+    todo = [i for i in range(total) if query_id(i) not in done]
+    if limit is not None:
+        todo = todo[: int(limit)]
+
+    if any(i < int(spec.keep_details) for i in todo):
+        (out / DETAILS_DIR).mkdir(exist_ok=True)
+    new_rows: list[dict[str, str]] = []
+    if todo:
+        source = source if source is not None else spec.open_source(config)
+        stream = None if progress is True else progress or None
+        bar = Progress(total, len(done), stream, label=spec.label) if progress is not False else None
+        try:
+            if workers == 1 or len(todo) == 1:
+                worker = _Worker(spec, source, out)
+                for i in todo:
+                    row = worker.run(i)
+                    append_row(results_path, row)
+                    new_rows.append(row)
+                    if bar:
+                        bar.update()
+            else:
+                new_rows = _run_pool(todo, workers, (spec, source, out), results_path, bar)
+        finally:
+            if bar:
+                bar.close()
+    rows += new_rows
+    complete = len(rows) == total
+    summary = None
+    if complete:
+        summary = summarize_rows(rows, config)
+        spec.finish(out, rows, summary)
+        write_json_atomic(out / SUMMARY_FILE, summary)
+    return BenchmarkOutcome(out, complete, len(new_rows), rows, summary, config)
+
+
+def run_benchmark(
+    spec: RunSpec,
+    out_dir: str | Path,
+    workers: int = 1,
+    overwrite: bool = False,
+    limit: int | None = None,
+    progress: bool | TextIO = True,
+) -> BenchmarkOutcome:
+    """Run (or resume) the benchmark of ``spec`` (simulated or data set) into ``out_dir``."""
+    return run_queries(None, spec, out_dir, workers, overwrite, limit, progress)
+
+
+def _run_pool(todo, workers, worker_args, results_path: Path, bar: Progress | None) -> list[dict[str, str]]:
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    ctx = multiprocessing.get_context("spawn")  # numba's thread pools are not fork-safe
+    new_rows: list[dict[str, str]] = []
+    pool = ProcessPoolExecutor(
+        workers, mp_context=ctx, initializer=_init_process, initargs=(threads, *worker_args)
+    )
+    try:
+        pending = {pool.submit(_run_in_process, i) for i in todo}
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                row = fut.result()
+                append_row(results_path, row)
+                new_rows.append(row)
+                if bar:
+                    bar.update()
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    return new_rows

@@ -1,0 +1,160 @@
+"""What a simulated benchmark run is: ``BenchmarkSpec``, its ``run.json`` and the models it loads.
+
+Why its own module: the spec is the one typed description of a run, from the CLI to the workers; its
+range checks live here and nowhere else, and ``run_config`` is exactly what decides the numbers (what a
+resumed run must match).
+
+``city``: a city model file or ``"generated"`` (the embedded generated district); ``lod``: None = the
+file's highest LoD per building, 1 = LoD1 derived from the file (``derive_lod1``) unless the file is LoD1
+already, 2 / 3 = the generated city's sibling file of that LoD. Reality (what the simulated drone sees):
+the city's LoD3 when it has one (the generated city's ``generated_lod3.gml``), else the city file at its
+highest LoD per building, moved into the map's local frame in float64 (its origin may differ).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from semcityloc import __version__
+from semcityloc.benchmark.queries import QueryConfig
+from semcityloc.benchmark.runfiles import plain
+from semcityloc.benchmark.sources import SimulatedSource, SimulatorFactory
+from semcityloc.citymodel.generator import default_city_path
+from semcityloc.citymodel.io import file_sha256, load_city_model
+from semcityloc.citymodel.lod1 import derive_lod1
+from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.errors import BenchmarkError, InputFileError
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.methods import check_method
+
+RUN_FORMAT = 1
+GENERATED = "generated"  # --city value meaning the embedded generated district
+_GENERATED_NAME = re.compile(r"^generated_lod([123])\.gml$")
+
+
+def resolve_city(city: str | Path) -> Path:
+    """The CityGML / CityJSON file of ``city`` (``"generated"``: the default generated LoD2 district)."""
+    if str(city) == GENERATED:
+        return default_city_path(lod=2).resolve()
+    path = Path(city).expanduser()
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such city model file")
+    return path.resolve()
+
+
+def generated_sibling(path: Path, lod: int) -> Path | None:
+    """``generated_lod{lod}.gml`` beside a file named by the generator's scheme, if it exists."""
+    if not _GENERATED_NAME.match(path.name):
+        return None
+    sibling = path.with_name(f"generated_lod{lod}.gml")
+    return sibling if sibling.is_file() else None
+
+
+@dataclass(frozen=True)
+class BenchmarkSpec:
+    """A simulated benchmark run (module docstring). Checked when made: a bad value raises
+    ``BenchmarkError`` naming it, before any model is loaded."""
+
+    city: str
+    query: QueryConfig
+    lod: int | None = None
+    method: str = "semcityloc"
+    preset: str = "default"
+    crs: str | None = None
+    keep_details: int = 3
+    simulator_factory: SimulatorFactory | None = None  # default QuerySimulator; not part of run.json
+
+    label = "benchmark"  # the progress bar's label
+
+    def __post_init__(self) -> None:
+        if self.lod not in (None, 1, 2, 3):
+            raise BenchmarkError(f"lod must be 1, 2 or 3 (or unset for the file's highest), got {self.lod!r}")
+        if not isinstance(self.query, QueryConfig):
+            raise BenchmarkError("spec.query must be a QueryConfig")
+        if int(self.query.queries) < 1:
+            raise BenchmarkError(f"the number of queries must be >= 1, got {self.query.queries}")
+        check_method(self.method)
+        self.localizer_config()
+        if int(self.keep_details) < 0:
+            raise BenchmarkError(f"keep_details must be >= 0, got {self.keep_details}")
+
+    def localizer_config(self) -> LocalizerConfig:
+        return LocalizerConfig.preset(self.preset)
+
+    def run_config(self) -> dict:
+        """The ``run.json`` content (resolves the city file; loads no model)."""
+        city_path = resolve_city(self.city)
+        if self.lod in (2, 3):
+            map_source = generated_sibling(city_path, self.lod) or city_path
+        else:
+            map_source = city_path
+        reality_source = generated_sibling(city_path, 3) or city_path
+        q = self.query
+        return plain(
+            {
+                "format": RUN_FORMAT,
+                "city": str(self.city),
+                "city_path": str(city_path),
+                "city_sha256": file_sha256(city_path),
+                "lod": self.lod,
+                "map_source": str(map_source),
+                "reality_source": str(reality_source),
+                "crs": self.crs,
+                "method": self.method,
+                "seg_quality": q.seg_quality,
+                "prior_extra_m": q.prior_extra_m,
+                "seed": q.seed,
+                "queries": int(q.queries),
+                "localizer_preset": self.preset,
+                "localizer": self.localizer_config().as_dict(),
+                "query_config": dataclasses.asdict(q),
+                "keep_details": int(self.keep_details),
+                "semcityloc_version": __version__,
+            }
+        )
+
+    def open_source(self, config: dict) -> SimulatedSource:
+        """The query source of this run (loads the map and reality models of ``config``)."""
+        map_model, reality = load_models(config)
+        return SimulatedSource(map_model, reality, self.query, self.simulator_factory)
+
+    def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
+        return None
+
+
+def _load(path: Path, config: dict, lod: int | None = None) -> CityModel:
+    return load_city_model(path, lod=lod, crs=config.get("crs"))
+
+
+def _map_from(base: CityModel | None, config: dict) -> CityModel:
+    lod = config.get("lod")
+    if lod in (2, 3):
+        return _load(Path(config["map_source"]), config, lod)
+    if base is None:
+        raise BenchmarkError("internal: no base model for the map")  # pragma: no cover - callers load it
+    if lod == 1 and max(base.lods_present()) > 1:
+        return derive_lod1(base)
+    return base
+
+
+def load_map(config: dict) -> CityModel:
+    """The map model of a run configuration (``run_config``): the chosen LoD (module docstring)."""
+    base = _load(Path(config["city_path"]), config) if config.get("lod") in (None, 1) else None
+    return _map_from(base, config)
+
+
+def load_models(config: dict) -> tuple[CityModel, CityModel]:
+    """(map model, reality model in the map's local frame) of a run configuration (``run_config``)."""
+    city = Path(config["city_path"])
+    reality_source = Path(config["reality_source"])
+    base = _load(city, config) if config.get("lod") in (None, 1) or reality_source == city else None
+    map_model = _map_from(base, config)
+    reality = base if base is not None and reality_source == city else _load(reality_source, config)
+    if map_model.crs is not None and reality.crs is not None and map_model.crs != reality.crs:
+        raise BenchmarkError(
+            f"map ({crs_label(map_model.crs)}) and reality ({crs_label(reality.crs)}) CRSs differ"
+        )
+    return map_model, reality.with_origin(map_model.origin)

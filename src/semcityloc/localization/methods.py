@@ -1,0 +1,98 @@
+"""The table of localization methods by name: SemCityLoc, its ablations, and the baselines.
+
+Why a table: the benchmark, the CLI and the report name methods by string (``--method no-depth``). A
+method is built once per process for one map (``get_method(name, map_model, config)``) and then localizes
+many queries. SemCityLoc and its ablations are registered here; ``semcityloc.baselines`` registers its own
+methods when it is imported (the benchmark imports it), so this module knows nothing of them.
+
+A method localizes a query record (``QueryRecord``): the camera, the prior in the map model's LOCAL
+frame, the query mask and optional depth; simulated queries also carry their true pose, which only
+baselines that simulate their own input (the wireframe's edge map) read.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import numpy as np
+
+from semcityloc.citymodel.model import CityModel
+from semcityloc.errors import BenchmarkError, unknown_choice
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.localization.config import ABLATION_FLAGS, LocalizerConfig
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.result import LocalizationResult
+
+
+class QueryRecord(Protocol):
+    """What a method reads of a query (``benchmark.queries.BenchmarkQuery`` is one)."""
+
+    index: int
+    camera: Camera
+    prior_pose_local: Pose
+    true_pose_local: Pose | None
+    labels: np.ndarray
+    depth: np.ndarray | None
+    meta: dict[str, Any]
+
+
+class Method(Protocol):
+    """What the benchmark calls for every query."""
+
+    name: str
+
+    def localize(self, q: QueryRecord) -> LocalizationResult: ...
+
+
+MethodFactory = Callable[[str, CityModel, LocalizerConfig], Method]
+
+
+class LocalizerMethod:
+    """SemCityLoc (``semcityloc``) or one of its ablations on a ``Localizer`` built once."""
+
+    def __init__(self, name: str, map_model: CityModel, config: LocalizerConfig):
+        self.name = name
+        self.config = config.with_ablation(name)
+        self.localizer = Localizer(map_model, self.config)
+
+    def localize(self, q: QueryRecord) -> LocalizationResult:
+        return self.localizer.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
+
+
+_REGISTRY: dict[str, MethodFactory] = {}
+
+# Order of the paper's main table: the full method first, then the ablations.
+ABLATIONS: tuple[str, ...] = tuple(ABLATION_FLAGS)
+
+
+def register_method(name: str, factory: MethodFactory, replace: bool = False) -> None:
+    """Add a method: ``factory(name, map_model, localizer_config) -> Method``."""
+    if not name or not isinstance(name, str):
+        raise BenchmarkError(f"a method name must be a non-empty string, got {name!r}")
+    if name in _REGISTRY and not replace:
+        raise BenchmarkError(f"method {name!r} is already registered")
+    _REGISTRY[name] = factory
+
+
+def available_methods() -> tuple[str, ...]:
+    return tuple(_REGISTRY)
+
+
+def check_method(name: str) -> str:
+    if name not in _REGISTRY:
+        raise unknown_choice("method", name, _REGISTRY, BenchmarkError)
+    return name
+
+
+def get_method(name: str, map_model: CityModel, config: LocalizerConfig | None = None) -> Method:
+    """Build method ``name`` for ``map_model`` (``config``: the localizer preset, default ``default``)."""
+    check_method(name)
+    return _REGISTRY[name](
+        name, map_model, config if config is not None else LocalizerConfig.preset("default")
+    )
+
+
+for _name in ABLATIONS:
+    register_method(_name, LocalizerMethod)
