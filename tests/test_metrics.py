@@ -116,3 +116,17 @@ def test_cumulative_curve_counts_errors_up_to_each_value():
     y = cumulative_curve([0.5, 1.0, 2.0, INF], [0.0, 1.0, 1.5, 2.0, 100.0])
     np.testing.assert_allclose(y, [0.0, 50.0, 50.0, 75.0, 75.0])
     assert np.isnan(cumulative_curve([], [1.0])).all()
+
+
+def test_errors_over_all_queries_are_capped_and_precision_counts_accepted_poses():
+    from semcityloc.evaluation.metrics import CAP_XYZ_M, summarize_errors
+
+    inf = float("inf")
+    s = summarize_errors([0.5, 8.0, 120.0, inf], [0.2, 1.0, 3.0, inf], [0.1, 0.5, 2.0, inf])
+    assert s["localized"] == 3 and s["coverage"] == 75.0
+    # 8 m and 120 m are accepted but outside 5 m: 1 of 3 accepted poses is right.
+    assert s["acceptance_precision"] == pytest.approx(100.0 / 3)
+    assert s["mean_xyz_m_capped"] == pytest.approx((0.5 + 8.0 + CAP_XYZ_M + CAP_XYZ_M) / 4)
+    assert s["median_xyz_m_capped"] == pytest.approx((8.0 + CAP_XYZ_M) / 2)
+    none = summarize_errors([inf], [inf], [inf])
+    assert none["coverage"] == 0.0 and math.isnan(none["acceptance_precision"])

@@ -92,7 +92,11 @@ def test_tables_group_runs_by_what_differs(tmp_path):
     assert float(lod2["median_xyz_m"]) == 2.0 and float(lod2["sec_per_image"]) == 2.0
     assert float(lod[0]["recall_5m5deg"]) == 25.0  # 6 m is outside 5 m; two not localized
     md = report.tables["lod"][0].read_text()
-    assert "| lod | queries |" in md and "| LoD2 | 4 | 3 | 50.0 / 25.0 |" in md
+    assert "| lod | queries | localized | not loc. | skipped |" in md
+    assert "| LoD2 | 4 | 3 | 1 | 0 | 50.0 / 25.0 |" in md
+    # Over all queries, the not-localized one at the 50 m cap; all 3 accepted poses within 5 m / 5 deg.
+    assert float(lod2["mean_xyz_m_capped"]) == pytest.approx((50.0 + 3 * float(lod2["mean_xyz_m"])) / 4)
+    assert float(lod2["acceptance_precision"]) == 100.0 and float(lod2["coverage"]) == 75.0
 
     seg = read_csv(report.tables["seg_quality"][1])
     assert [r["seg_quality"] for r in seg] == ["trained", "zero-shot"]

@@ -39,6 +39,7 @@ from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentatio
 from semcityloc.benchmark.perception_sim import miou as seg_miou
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import ESTIMATES_DIR, plain
+from semcityloc.benchmark.spec import check_run_options
 from semcityloc.citymodel.io import file_sha256
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE
@@ -50,7 +51,7 @@ from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import read_depth_file, read_mask_file
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import Method, check_method
+from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
 from semcityloc.render import Renderer
@@ -134,10 +135,7 @@ class DatasetSpec:
             raise BenchmarkError("--masks / --depth are only used with --perception masks")
         if self.perception == PERCEPTION_DEGRADED:
             get_preset(self.seg_quality)
-        check_method(self.method)
-        self.localizer_config()
-        if int(self.keep_details) < 0:
-            raise BenchmarkError(f"keep_details must be >= 0, got {self.keep_details}")
+        check_run_options(self.method, self.preset, self.keep_details)
 
     def localizer_config(self) -> LocalizerConfig:
         return LocalizerConfig.preset(self.preset)

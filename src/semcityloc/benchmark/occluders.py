@@ -1,8 +1,8 @@
 """The simulated "reality" a benchmark drone sees: the city model plus what no LoD model describes.
 
 Why: a query rendered from the very map it is localized against would be a perfect match. Real UAV
-images differ from any LoD model in three ways, simulated here once per simulator (``build_reality``,
-deterministic from the seed):
+images differ from any LoD model in the ways below, simulated here once per simulator (``build_reality``,
+deterministic from the seed; applied in the order 1, 6 (missing), 5, 4, 7, 6 (new), 2, 3, 5 (dormers)):
 
 1. Model errors. Each building of the reality model is shifted in x, y by a random vector of length
    uniform in [0, ``shift_xy_max_m``] (0.3 m) and its height (top minus bottom) changed by a signed
@@ -18,13 +18,46 @@ deterministic from the seed):
    crown radius from a facade (crowns may overhang streets and facades a little); cars (boxes
    3.8-5.0 x 1.7-2.0 x 1.4-1.9 m) 1.5-15 m from a facade, parked parallel to it, about one per
    ``car_m2`` (300 m²) of that band. Both are BACKGROUND (class 0): a perfect segmentation labels them
-   background, while their depth still comes from the render (a depth network sees trees).
+   background, while their depth still comes from the render (a depth network sees trees). Trees are
+   ``tree_height_m`` tall and stand ``tree_facade_clearance`` x their crown radius or more from a facade
+   (0.2: the crowns overhang facades and low roofs).
+
+Reality != map (issue 12; every knob off by default, ``REALISTIC_REALITY`` turns them on). Each draws
+from its own generator (keys ``[seed, 0x5EA1, k]``, k = 2..7) and only when on, so a knob that is off
+leaves the scene exactly as it was without it:
+
+4. Roof overhangs (``overhang_m``, e.g. 0.3-1 m): per building an amount o uniform in the range; the roof
+   outline moves o outward horizontally while the walls stay at the footprint (``overhang_roofs``: the
+   roof's boundary edges that lie on its walls are offset by o, or by 0 along a wall shared with another
+   building; corners take the miter, capped at 2 o; each moved vertex follows its roof planes, so an eave
+   drops by o x the slope). ``RealityScene.building_overhang_m``.
+5. Roof shapes that differ (``roof_change_fraction`` of the buildings with a roof, e.g. 0.15, drawn among
+   the eligible ones): a flat roof (>= 95 % of its area flat, one level) whose footprint fills >= 85 % of
+   its minimum-area oriented box gets a gable (60 %) or hip roof over that box, ridge 2-5 m above the old
+   roof, slopes ROOF, gable ends WALL; a sloped roof (< 50 % flat, rising <= 8 m) is flattened to its
+   eaves (its lowest roof point: every vertex of the building is clamped to it) or, for half of them,
+   keeps its shape and gets 2-4 extra dormers (2-4 m wide, 2-3 m deep boxes on the slope).
+   ``RealityScene.building_roof_change`` (index into ``ROOF_CHANGES``).
+6. Missing and new buildings: ``missing_fraction`` of the map's buildings are left out of the reality
+   (their footprint becomes open ground: the terrain, trees and cars); ``new_fraction`` x the building
+   count of buildings the map lacks are added: 8-20 x 8-20 m boxes, 4-15 m from the ground to the top,
+   flat or (half) gable roofed, turned at random, on open ground at least 3 m from every other building
+   and inside the footprint grid, sunk 0.3 m under the lowest terrain point of their corners. They get
+   building indices after the reality model's (``__new_building_k__``) and are part of the footprint grid
+   that places roof structures, trees and cars.
+7. Terrain relief (``terrain_relief_m``, e.g. 3 m, wavelength ``terrain_wavelength_m`` 250 m): a
+   ``terrain_grid_m`` grid of extra terrain vertices whose heights are the footprint TIN's plus a smooth
+   random field (``relief_points``), zero within 3 m of a footprint and faded in by ``terrain_fade_m``
+   (15 m), so walls neither float nor sink. ``RealityScene.terrain_height`` follows it, so trees, cars,
+   new buildings and the queries' cameras stand on it.
+8. Model errors (item 1) at the issue's magnitudes: ``shift_xy_max_m`` 1 m, ``height_change_max_m`` 2 m.
 
 The reality's ground is the terrain TIN of ``semcityloc.render.terrain`` built from the perturbed
-buildings and added as an explicit GROUND mesh (the renderer runs with ``ground=False``), so occluders
-do not change the terrain. Open ground is found on a ``grid_cell_m`` raster of the building footprints
-(every non-vertical building triangle projected to x, y) covering the buildings' extent plus
-``margin_m``; a roof structure is kept only if its four corners lie on its host building's cells.
+buildings (with item 7's relief vertices when on) and added as an explicit GROUND mesh (the renderer
+runs with ``ground=False``), so occluders do not change the terrain. Open ground is found on a
+``grid_cell_m`` raster of the building footprints (every non-vertical building triangle projected to
+x, y) covering the buildings' extent plus ``margin_m``; a roof structure is kept only if its four
+corners lie on its host building's cells.
 
 Everything is in the MAP model's local frame (a reality model with another origin is shifted in float64
 first), rounded to the millimetre: numpy's vectorised sin / cos may differ by an ulp between CPUs (SIMD
@@ -38,21 +71,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import Delaunay, cKDTree
+from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, SemanticClass
-from semcityloc.errors import CRSError, EmptyModelError
+from semcityloc.errors import BenchmarkConfigError, CRSError, EmptyModelError
 from semcityloc.render import Renderer
 from semcityloc.render.terrain import build_terrain
 
 TERRAIN_ID, TREES_ID, CARS_ID = "__terrain__", "__trees__", "__cars__"
 _MAX_RASTER_PAIRS = 4_000_000  # (triangle, cell) pairs per vectorised rasterisation chunk
+RELIEF_ZERO_M = 3.0  # no terrain relief within this distance of a footprint (the fade runs from here)
 
 
 @dataclass(frozen=True)
 class RealityParams:
-    """Magnitudes of the reality's differences from the map (module docstring)."""
+    """Magnitudes of the reality's differences from the map (module docstring). The defaults are the
+    ``clean`` scenario's reality (the first benchmark's); every knob added since is off by default, and
+    ``REALISTIC_REALITY`` sets them to the issue-12 values (docs/benchmark.md)."""
 
     shift_xy_max_m: float = 0.3
     height_change_max_m: float = 0.5
@@ -63,12 +99,76 @@ class RealityParams:
     car_band_m: tuple[float, float] = (1.5, 15.0)
     grid_cell_m: float = 0.5
     margin_m: float = 20.0
+    # --- reality != map (issue 12; module docstring, items 4-8). Defaults: off.
+    overhang_m: tuple[float, float] | None = None  # per-building roof overhang range (None = none)
+    roof_change_fraction: float = 0.0  # share of buildings whose roof shape differs from the map's
+    missing_fraction: float = 0.0  # share of map buildings gone in reality
+    new_fraction: float = 0.0  # buildings missing from the map, as a share of the map's building count
+    terrain_relief_m: float = 0.0  # peak height of the smooth terrain relief (0 = the map's footprint TIN)
+    terrain_wavelength_m: float = 250.0  # typical wavelength of that relief
+    terrain_grid_m: float = 8.0  # spacing of the relief's terrain vertices
+    terrain_fade_m: float = 15.0  # the relief fades to 0 within this distance of a footprint (<= margin_m)
+    tree_facade_clearance: float = 0.7  # a tree stands >= this x its crown radius from a facade
+
+    def __post_init__(self) -> None:
+        def bad(name: str, rule: str) -> BenchmarkConfigError:
+            return BenchmarkConfigError(f"RealityParams.{name} must be {rule}, got {getattr(self, name)!r}")
+
+        for name in ("tree_height_m", "car_band_m", "overhang_m"):
+            value = getattr(self, name)
+            if value is None and name == "overhang_m":
+                continue
+            try:
+                pair = tuple(float(v) for v in value)
+            except (TypeError, ValueError):
+                raise bad(name, "a (low, high) pair") from None
+            if len(pair) != 2 or not (0.0 <= pair[0] <= pair[1] < np.inf):
+                raise bad(name, "a pair 0 <= low <= high")
+            object.__setattr__(self, name, pair)
+        for name in ("roof_change_fraction", "missing_fraction", "new_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise bad(name, "in [0, 1]")
+        for name in ("shift_xy_max_m", "height_change_max_m", "roof_structure_m2", "tree_m2", "car_m2"):
+            if not 0.0 <= getattr(self, name) < np.inf:
+                raise bad(name, ">= 0")
+        for name in ("margin_m", "terrain_relief_m", "tree_facade_clearance"):
+            if not 0.0 <= getattr(self, name) < np.inf:
+                raise bad(name, ">= 0")
+        for name in ("grid_cell_m", "terrain_wavelength_m", "terrain_grid_m"):
+            if not 0.0 < getattr(self, name) < np.inf:
+                raise bad(name, "> 0")
+        if not RELIEF_ZERO_M < self.terrain_fade_m <= self.margin_m:
+            raise bad("terrain_fade_m", f"in ({RELIEF_ZERO_M}, margin_m = {self.margin_m}]")
+        if self.tree_height_m[0] <= 0.0:
+            raise bad("tree_height_m", "positive")
+
+
+# The issue-12 "reality != map" (docs/benchmark.md gives the judgement behind each value).
+REALISTIC_REALITY = RealityParams(
+    shift_xy_max_m=1.0,
+    height_change_max_m=2.0,
+    overhang_m=(0.3, 1.0),
+    roof_change_fraction=0.15,
+    missing_fraction=0.03,
+    new_fraction=0.03,
+    terrain_relief_m=3.0,
+    terrain_wavelength_m=250.0,
+    tree_height_m=(4.0, 20.0),
+    tree_facade_clearance=0.2,
+)
+
+# Per-building roof changes (``RealityScene.building_roof_change`` holds the index).
+ROOF_CHANGES = ("none", "gable", "hip", "flattened", "dormers")
 
 
 @dataclass
 class RealityScene:
     """The rendered reality (module docstring). ``model`` holds buildings, roof structures, terrain and
-    occluders in the map's local frame; ``renderer`` draws it (numba engine, no extra terrain)."""
+    occluders in the map's local frame; ``renderer`` draws it (numba engine, no extra terrain).
+
+    Per-building arrays are indexed like the reality model's ``building_ids`` (B,); the new buildings
+    (module docstring, item 6) follow them in ``model.building_ids`` (indices B .. B + new - 1), then the
+    terrain, trees and cars."""
 
     model: CityModel
     renderer: Renderer
@@ -76,6 +176,9 @@ class RealityScene:
     building_shift_xy: np.ndarray  # (B, 2) per reality building
     building_height_change: np.ndarray  # (B,)
     counts: dict[str, int] = field(default_factory=dict)
+    building_missing: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (B,)
+    building_roof_change: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))  # (B,)
+    building_overhang_m: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (B,), 0 = none
 
     @property
     def occluder_triangles(self) -> np.ndarray:
@@ -357,19 +460,34 @@ def roof_structures(
     edge = e[np.arange(n), longest]
     angle = np.where(flat, np.arctan2(edge[:, 1], edge[:, 0]), slope_dir - np.pi / 2)
 
-    half = size / 2
+    return _roof_boxes(pt, size / 2, angle, nrm, c[pick, 0], extra, building[roof[pick]], grid)
+
+
+def _roof_boxes(
+    pt: np.ndarray,
+    half: np.ndarray,
+    angle: np.ndarray,
+    nrm: np.ndarray,
+    p0: np.ndarray,
+    extra: np.ndarray,
+    host: np.ndarray,
+    grid: FootprintGrid,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Boxes centred at ``pt`` (n, 3) on roof planes (unit normal ``nrm`` through ``p0``), half sizes
+    (n, 2), turned by ``angle``, from 0.3 m under the plane to ``extra`` above its highest corner; a box
+    is kept only if its four corners lie on ``host``'s cells. (vertices, triangles, classes, building)."""
+    empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.uint8), np.zeros(0, np.int64))
+    n = len(pt)
     ca, sa = np.cos(angle)[:, None], np.sin(angle)[:, None]
     sx, sy = np.array([-1, 1, 1, -1.0]), np.array([-1, -1, 1, 1.0])
     lx, ly = sx[None] * half[:, :1], sy[None] * half[:, 1:2]
     cx = pt[:, :1] + ca * lx - sa * ly
     cy = pt[:, 1:2] + sa * lx + ca * ly
-    host = building[roof[pick]]
     ok = np.ones(n, dtype=bool)
     for k in range(4):
         rows, cols, inside = grid.cells(np.stack([cx[:, k], cy[:, k]], 1))
         ok &= inside & (grid.ids[rows, cols] == host)
     # Roof plane height at the four corners (the plane of the picked triangle).
-    p0 = c[pick, 0]
     zc = p0[:, 2:3] - (nrm[:, :1] * (cx - p0[:, :1]) + nrm[:, 1:2] * (cy - p0[:, 1:2])) / nrm[:, 2:3]
     z0 = zc.min(1) - 0.3
     z1 = zc.max(1) + extra
@@ -411,7 +529,7 @@ def trees(
     radius = np.clip(h * rng.uniform(0.25, 0.45, len(xy)), 1.2, 5.0)
     radius = np.where(conifer, np.clip(h * rng.uniform(0.18, 0.28, len(xy)), 1.0, 3.5), radius)
     angle = rng.uniform(0, 2 * np.pi, len(xy))
-    keep = np.flatnonzero(d >= 0.7 * radius)[:n]
+    keep = np.flatnonzero(d >= params.tree_facade_clearance * radius)[:n]
     xy, h, conifer, radius, angle = xy[keep], h[keep], conifer[keep], radius[keep], angle[keep]
     z = terrain(xy)
     crown_half = np.where(conifer, 0.0, h * rng.uniform(0.3, 0.4, len(keep)))
@@ -465,6 +583,414 @@ def cars(
     return v, t, n
 
 
+# ------------------------------------------------------------------------------------------ reality != map
+FLAT_NZ = 0.97  # a roof triangle with |n_z| above this is flat
+RIDGE_RISE_M = (2.0, 5.0)  # ridge height above the eaves of a roof changed to gable / hip
+GABLE_SHARE = 0.6  # of the flat roofs changed to a pitched one, the share made gable (the rest hip)
+FLATTEN_SHARE = 0.5  # of the sloped roofs changed, the share flattened (the rest get dormers)
+DORMERS_PER_ROOF = (2, 4)  # extra dormers on a changed sloped roof (inclusive)
+MIN_BOX_FILL = 0.85  # a flat roof becomes pitched only when it fills this much of its oriented box
+MAX_FLATTEN_RISE_M = 8.0  # a sloped roof is flattened only when it rises at most this much
+NEW_SIZE_M = (8.0, 20.0)  # side lengths of a new building
+NEW_HEIGHT_M = (4.0, 15.0)  # ground to top of a new building
+NEW_CLEARANCE_M = 3.0  # a new building stands this far at least from any other building
+RELIEF_WAVES = 8  # plane waves summed into the relief field
+RELIEF_BORDER_M = 50.0  # the relief also fades to 0 over this much at the terrain's outer border
+_KEY_M = 0.01  # roof vertices closer than this are one vertex (overhang)
+
+
+def _area_normal(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(area (T,), unit normal (T, 3)) of triangles (T, 3, 3)."""
+    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    norm = np.linalg.norm(n, axis=1)
+    return 0.5 * norm, n / np.maximum(norm, 1e-12)[:, None]
+
+
+def _oriented_box(xy: np.ndarray) -> tuple[np.ndarray, float, float, np.ndarray] | None:
+    """Minimum-area oriented rectangle of points (N, 2): (centre, length, width, long-axis unit vector),
+    length >= width; None for fewer than 3 non-collinear points."""
+    try:
+        hull = xy[ConvexHull(xy).vertices]
+    except (QhullError, ValueError):
+        return None
+    e = np.roll(hull, -1, 0) - hull
+    ang = np.arctan2(e[:, 1], e[:, 0])
+    u = np.stack([np.cos(ang), np.sin(ang)], 1)
+    v = np.stack([-u[:, 1], u[:, 0]], 1)
+    pu, pv = hull @ u.T, hull @ v.T  # (H, E)
+    area = (pu.max(0) - pu.min(0)) * (pv.max(0) - pv.min(0))
+    k = int(np.argmin(area))
+    lu, lv = pu[:, k].max() - pu[:, k].min(), pv[:, k].max() - pv[:, k].min()
+    centre = u[k] * (pu[:, k].max() + pu[:, k].min()) / 2 + v[k] * (pv[:, k].max() + pv[:, k].min()) / 2
+    if lu >= lv:
+        return centre, float(lu), float(lv), u[k]
+    return centre, float(lv), float(lu), v[k]
+
+
+def _house(
+    centre: np.ndarray,
+    length: float,
+    width: float,
+    axis: np.ndarray,
+    z0: float,
+    eaves: float,
+    rise: float,
+    kind: str,
+    walls: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A rectangular building, long side along ``axis``: (triangles (T, 3, 3), classes (T,)).
+
+    ``kind``: "flat" (a roof at ``eaves``), "gable" (ridge along the long axis ``rise`` above the eaves,
+    gable ends WALL) or "hip" (45-degree hips in plan). ``walls``: with the four walls from ``z0`` to the
+    eaves (False: the roof only, for an existing building's walls)."""
+    u = np.asarray(axis, dtype=np.float64)
+    v = np.array([-u[1], u[0]])
+    hl, hw = length / 2, width / 2
+    r = [centre + sl * hl * u + sw * hw * v for sl, sw in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    e = [np.array([p[0], p[1], eaves]) for p in r]  # counter-clockwise seen from above
+    tris, cls = [], []
+    if walls:
+        for k in range(4):
+            a, b = r[k], r[(k + 1) % 4]
+            a0, b0 = np.array([a[0], a[1], z0]), np.array([b[0], b[1], z0])
+            tris += [(a0, b0, e[(k + 1) % 4]), (a0, e[(k + 1) % 4], e[k])]
+            cls += [SemanticClass.WALL] * 2
+    if kind == "flat":
+        tris += [(e[0], e[1], e[2]), (e[0], e[2], e[3])]
+        cls += [SemanticClass.ROOF] * 2
+    else:
+        inset = min(hw, hl) if kind == "hip" else 0.0
+        ridge_z = eaves + rise
+        ra = np.append(centre - (hl - inset) * u, ridge_z)  # ridge end over the short side r3-r0
+        rb = np.append(centre + (hl - inset) * u, ridge_z)  # ... over r1-r2
+        tris += [(e[0], e[1], rb), (e[0], rb, ra), (e[2], e[3], ra), (e[2], ra, rb)]
+        cls += [SemanticClass.ROOF] * 4
+        end = SemanticClass.ROOF if kind == "hip" else SemanticClass.WALL
+        tris += [(e[1], e[2], rb), (e[3], e[0], ra)]
+        cls += [end] * 2
+    t = np.array(tris, dtype=np.float64)
+    area, _ = _area_normal(t)
+    keep = area > 1e-6  # a square hip roof's ridge has length 0
+    return t[keep], np.array(cls, dtype=np.uint8)[keep]
+
+
+def change_roofs(
+    corners: np.ndarray,
+    classes: np.ndarray,
+    building: np.ndarray,
+    lods: np.ndarray,
+    n_buildings: int,
+    fraction: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Roof shapes that differ from the map's (module docstring, item 5).
+
+    Returns (corners, classes, building, lods, change (B,) int8 index into ``ROOF_CHANGES``, dormers (B,)
+    int: the number of extra dormers to place on each building's sloped roof)."""
+    change = np.zeros(n_buildings, dtype=np.int8)
+    dormers = np.zeros(n_buildings, dtype=np.int64)
+    roof = np.flatnonzero(classes == SemanticClass.ROOF)
+    if fraction <= 0 or len(roof) == 0:
+        return corners, classes, building, lods, change, dormers
+    c = corners[roof]
+    b = building[roof]
+    area, unit = _area_normal(c)
+    flat_tri = np.abs(unit[:, 2]) > FLAT_NZ
+    roof_area = np.bincount(b, area, n_buildings)
+    flat_area = np.bincount(b, area * flat_tri, n_buildings)
+    zmin = np.full(n_buildings, np.inf)
+    zmax = np.full(n_buildings, -np.inf)
+    np.minimum.at(zmin, b, c[:, :, 2].min(1))
+    np.maximum.at(zmax, b, c[:, :, 2].max(1))
+    has_roof = roof_area > 0
+    share = flat_area / np.maximum(roof_area, 1e-12)
+    flat_b = has_roof & (share >= 0.95) & (zmax - zmin < 0.5)
+    sloped_b = has_roof & (share < 0.5)
+    boxes: dict[int, tuple] = {}
+    e1, e2 = c[:, 1, :2] - c[:, 0, :2], c[:, 2, :2] - c[:, 0, :2]
+    proj = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e2[:, 0] * e1[:, 1])  # area in x, y
+    order = np.argsort(b, kind="stable")
+    starts = np.searchsorted(b[order], np.arange(n_buildings + 1))
+    for i in np.flatnonzero(flat_b):
+        rows = order[starts[i] : starts[i + 1]]
+        box = _oriented_box(c[rows, :, :2].reshape(-1, 2))
+        if box is None or box[2] < 4.0:
+            flat_b[i] = False
+            continue
+        fill = proj[rows].sum() / (box[1] * box[2])
+        if not MIN_BOX_FILL <= fill <= 1.05:
+            flat_b[i] = False
+            continue
+        boxes[int(i)] = box
+    sloped_b &= zmax - zmin <= MAX_FLATTEN_RISE_M
+    eligible = np.flatnonzero(flat_b | sloped_b)
+    n = min(int(round(fraction * has_roof.sum())), len(eligible))
+    if n == 0:
+        return corners, classes, building, lods, change, dormers
+    chosen = np.sort(rng.choice(eligible, n, replace=False))
+    u = rng.random(n)
+    rise = rng.uniform(*RIDGE_RISE_M, n)
+    n_dormers = rng.integers(DORMERS_PER_ROOF[0], DORMERS_PER_ROOF[1] + 1, n)
+    corners = corners.copy()
+    drop = np.zeros(len(corners), dtype=bool)
+    add_c, add_cls, add_b, add_l = [], [], [], []
+    for k, i in enumerate(chosen):
+        rows = order[starts[i] : starts[i + 1]]
+        if flat_b[i]:
+            kind = "gable" if u[k] < GABLE_SHARE else "hip"
+            centre, length, width, axis = boxes[int(i)]
+            t, cl = _house(centre, length, width, axis, 0.0, zmax[i], rise[k], kind, walls=False)
+            drop[roof[rows]] = True
+            add_c.append(t)
+            add_cls.append(cl)
+            add_b.append(np.full(len(t), i))
+            add_l.append(np.full(len(t), lods[roof[rows[0]]]))
+            change[i] = ROOF_CHANGES.index(kind)
+        elif u[k] < FLATTEN_SHARE:
+            tri = np.flatnonzero(building == i)
+            corners[tri, :, 2] = np.minimum(corners[tri, :, 2], zmin[i])
+            drop[tri[_area_normal(corners[tri])[0] < 1e-6]] = True  # gable ends squashed to nothing
+            change[i] = ROOF_CHANGES.index("flattened")
+        else:
+            dormers[i] = n_dormers[k]
+            change[i] = ROOF_CHANGES.index("dormers")
+    keep = ~drop
+    corners = np.concatenate([corners[keep]] + add_c)
+    classes = np.concatenate([classes[keep]] + add_cls).astype(np.uint8)
+    building = np.concatenate([building[keep]] + add_b).astype(np.int64)
+    lods = np.concatenate([lods[keep]] + add_l).astype(np.uint8)
+    return corners, classes, building, lods, change, dormers
+
+
+def extra_dormers(
+    corners: np.ndarray,
+    classes: np.ndarray,
+    building: np.ndarray,
+    dormers: np.ndarray,
+    grid: FootprintGrid,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``dormers[b]`` dormers (2-4 m wide, 2-3 m deep, on the slope) on building b's sloped roof
+    triangles, area-weighted, kept where they fit the building's cells (vertices, triangles, classes,
+    building per triangle)."""
+    roof = np.flatnonzero((classes == SemanticClass.ROOF) & (dormers[building] > 0))
+    c = corners[roof]
+    area, unit = _area_normal(c)
+    up = (unit[:, 2] > 0.3) & (unit[:, 2] <= FLAT_NZ)
+    roof, c, area, unit = roof[up], c[up], area[up], unit[up]
+    b = building[roof]
+    picks = []
+    for i in np.flatnonzero(dormers):
+        rows = np.flatnonzero(b == i)
+        if len(rows):
+            w = area[rows] / area[rows].sum()
+            picks.append(rows[rng.choice(len(rows), dormers[i], p=w)])
+    if not picks:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.uint8), np.zeros(0, np.int64)
+    pick = np.concatenate(picks)
+    n = len(pick)
+    r1, r2 = rng.random(n), rng.random(n)
+    s1 = np.sqrt(r1)
+    pt = (
+        (1 - s1)[:, None] * c[pick, 0]
+        + (s1 * (1 - r2))[:, None] * c[pick, 1]
+        + (s1 * r2)[:, None] * c[pick, 2]
+    )
+    nrm = unit[pick]
+    half = np.stack([rng.uniform(2.0, 4.0, n), rng.uniform(2.0, 3.0, n)], 1) / 2
+    angle = np.arctan2(nrm[:, 1], nrm[:, 0]) - np.pi / 2
+    return _roof_boxes(pt, half, angle, nrm, c[pick, 0], np.full(n, 0.2), b[pick], grid)
+
+
+def overhang_roofs(
+    corners: np.ndarray,
+    classes: np.ndarray,
+    building: np.ndarray,
+    n_buildings: int,
+    overhang_m: tuple[float, float],
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Roof overhangs (module docstring, item 4): (corners, overhang (B,) m, 0 where nothing moved).
+
+    Roof vertices closer than 1 cm are one vertex; a roof edge used by one roof triangle only whose two
+    ends lie on the building's walls (within 3 cm in x, y) is an outline edge, its outward normal the one
+    pointing away from its triangle. Each outline vertex moves horizontally by d solving d . n = o for
+    the normals n of its outline edges (least squares: the miter at a corner, capped at 2 o), where o is
+    the building's overhang, or 0 on an edge shared with another building (a party wall: the roof
+    slides along it, it does not grow into the neighbour); its height follows the adjacent roof planes
+    (an eave drops by o x the slope), so the roof keeps its planes and meets the walls where it did."""
+    over = rng.uniform(overhang_m[0], overhang_m[1], n_buildings)
+    roof = np.flatnonzero(classes == SemanticClass.ROOF)
+    if len(roof) == 0 or overhang_m[1] <= 0:
+        return corners, np.zeros(n_buildings)
+    c = corners[roof]
+    rb = building[roof]
+    pts = c.reshape(-1, 3)
+    pb = np.repeat(rb, 3)
+    key = np.column_stack([pb, np.round(pts / _KEY_M).astype(np.int64)])
+    _, first, vid = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    vid = vid.reshape(-1, 3)
+    vpos, vb = pts[first], pb[first]
+    nv = len(first)
+    ea, eb, et = vid.reshape(-1), vid[:, [1, 2, 0]].reshape(-1), vid[:, [2, 0, 1]].reshape(-1)
+    ekey = np.minimum(ea, eb) * nv + np.maximum(ea, eb)
+    _, einv, ecount = np.unique(ekey, return_inverse=True, return_counts=True)
+    outline = (ecount[einv] == 1) & (ea != eb)
+
+    # Which roof vertices lie on the building's walls / on another building (x, y within 3 cm).
+    walls = np.isin(classes, (SemanticClass.WALL, SemanticClass.WINDOW, SemanticClass.DOOR))
+    wxy = corners[walls][:, :, :2].reshape(-1, 2)
+    wb = np.repeat(building[walls], 3)
+    sep = 1e6  # buildings apart in the tree's third coordinate
+    on_wall = np.zeros(nv, dtype=bool)
+    if len(wxy):
+        d, _ = cKDTree(np.column_stack([wxy, wb * sep])).query(np.column_stack([vpos[:, :2], vb * sep]))
+        on_wall = d <= 0.03
+    bmask = np.isin(classes, BUILDING_CLASSES)
+    axy = corners[bmask][:, :, :2].reshape(-1, 2)
+    ab = np.repeat(building[bmask], 3)
+    akey = np.unique(np.column_stack([ab, np.round(axy / _KEY_M).astype(np.int64)]), axis=0)
+    tree = cKDTree(akey[:, 1:] * _KEY_M)
+    near = tree.query_ball_point(vpos[:, :2], 0.03)
+    shared = np.array([bool(np.any(akey[q, 0] != vb[i])) for i, q in enumerate(near)], dtype=bool)
+
+    e = outline & on_wall[ea] & on_wall[eb]
+    a, b, t = ea[e], eb[e], et[e]
+    dxy = vpos[b, :2] - vpos[a, :2]
+    n = np.stack([dxy[:, 1], -dxy[:, 0]], 1) / np.linalg.norm(dxy, axis=1)[:, None]
+    n *= np.where(((vpos[t, :2] - vpos[a, :2]) * n).sum(1) > 0, -1.0, 1.0)[:, None]
+    target = np.where(shared[a] & shared[b], 0.0, over[vb[a]])
+    axx, axy_, ayy, bx, by = (np.zeros(nv) for _ in range(5))
+    for end in (a, b):
+        np.add.at(axx, end, n[:, 0] ** 2)
+        np.add.at(axy_, end, n[:, 0] * n[:, 1])
+        np.add.at(ayy, end, n[:, 1] ** 2)
+        np.add.at(bx, end, target * n[:, 0])
+        np.add.at(by, end, target * n[:, 1])
+    eps = 1e-9
+    det = (axx + eps) * (ayy + eps) - axy_**2
+    move = np.stack([((ayy + eps) * bx - axy_ * by) / det, ((axx + eps) * by - axy_ * bx) / det], 1)
+    length = np.linalg.norm(move, axis=1)
+    cap = 2.0 * over[vb]
+    move *= np.where(length > cap, cap / np.maximum(length, 1e-12), 1.0)[:, None]
+    # Height: the mean over the vertex's roof triangles of their planes' rise along the move.
+    _, unit = _area_normal(c)
+    nz = unit[:, 2:3]
+    slope = np.where(np.abs(nz) > 0.2, -unit[:, :2] / np.where(np.abs(nz) > 0.2, nz, 1.0), 0.0)
+    slope = np.clip(slope, -np.tan(np.radians(60)), np.tan(np.radians(60)))
+    gsum = np.zeros((nv, 2))
+    gcnt = np.zeros(nv)
+    for k in range(3):
+        np.add.at(gsum, vid[:, k], slope)
+        np.add.at(gcnt, vid[:, k], 1.0)
+    dz = (move * gsum).sum(1) / np.maximum(gcnt, 1.0)
+    out = corners.copy()
+    out[roof, :, :2] += move[vid]
+    out[roof, :, 2] += dz[vid]
+    moved = np.zeros(n_buildings, dtype=bool)
+    moved[vb[length > 1e-9]] = True
+    return out, np.where(moved, over, 0.0)
+
+
+def relief_points(
+    terrain_vertices: np.ndarray,
+    terrain: TerrainHeight,
+    grid: FootprintGrid,
+    dist: np.ndarray,
+    params: RealityParams,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Terrain points with a smooth relief (module docstring, item 7): (K, 3).
+
+    A ``terrain_grid_m`` grid over the terrain's extent (inset by half a step) at the footprint TIN's
+    height plus ``terrain_relief_m`` x f(x, y) x w, where f is a sum of ``RELIEF_WAVES`` plane waves
+    (random directions and phases, wavelengths 0.7-1.4 x ``terrain_wavelength_m``) scaled so that max |f|
+    over the grid is 1, and w a smoothstep of the distance to the nearest footprint cell over
+    ``terrain_fade_m`` (times one over the outer ``RELIEF_BORDER_M``, where the TIN's border ring keeps
+    the footprint heights). Points within 1 m of a footprint are left out."""
+    lo, hi = terrain_vertices[:, :2].min(0), terrain_vertices[:, :2].max(0)
+    s = params.terrain_grid_m
+    xs = np.arange(lo[0] + s / 2, hi[0] - s / 4, s)
+    ys = np.arange(lo[1] + s / 2, hi[1] - s / 4, s)
+    gx, gy = np.meshgrid(xs, ys)
+    p = np.column_stack([gx.reshape(-1), gy.reshape(-1)])
+    rows, cols, inside = grid.cells(p)
+    d = np.where(inside, dist[rows, cols], np.inf)  # outside the grid: >= margin_m >= terrain_fade_m
+    p, d = p[d >= 1.0], d[d >= 1.0]
+    if len(p) == 0:
+        return np.zeros((0, 3))
+    theta = rng.uniform(0, 2 * np.pi, RELIEF_WAVES)
+    k = 2 * np.pi / (params.terrain_wavelength_m * rng.uniform(0.7, 1.4, RELIEF_WAVES))
+    phase = rng.uniform(0, 2 * np.pi, RELIEF_WAVES)
+    amp = rng.uniform(0.5, 1.0, RELIEF_WAVES)
+    wave = np.stack([np.cos(theta), np.sin(theta)], 1) * k[:, None]  # (W, 2)
+    f = (amp[None] * np.cos(p @ wave.T + phase[None])).sum(1)
+    f /= max(float(np.abs(f).max()), 1e-12)
+
+    def smooth(x):
+        x = np.clip(x, 0.0, 1.0)
+        return x * x * (3 - 2 * x)
+
+    edge = np.minimum(p - lo, hi - p).min(1)
+    fade = max(params.terrain_fade_m - RELIEF_ZERO_M, 1e-9)
+    w = smooth((d - RELIEF_ZERO_M) / fade) * smooth(edge / RELIEF_BORDER_M)
+    return np.column_stack([p, terrain(p) + params.terrain_relief_m * f * w])
+
+
+def new_buildings(
+    dist: np.ndarray,
+    grid: FootprintGrid,
+    terrain: TerrainHeight,
+    n: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Up to n buildings the map lacks (module docstring, item 6): (triangles (T, 3, 3), classes (T,),
+    which new building (T,))."""
+    empty = np.zeros((0, 3, 3)), np.zeros(0, np.uint8), np.zeros(0, np.int64)
+    if n == 0:
+        return empty
+    m = 40 * n
+    size = np.sort(rng.uniform(*NEW_SIZE_M, (m, 2)), axis=1)[:, ::-1]  # (length, width)
+    radius = 0.5 * np.linalg.norm(size, axis=1)
+    ok_cells = dist >= NEW_CLEARANCE_M + NEW_SIZE_M[0] / np.sqrt(2)
+    xy, d = _open_ground_samples(dist, ok_cells, grid, m, rng)
+    if len(xy) == 0:
+        return empty
+    angle = rng.uniform(0, np.pi, m)
+    height = rng.uniform(*NEW_HEIGHT_M, m)
+    gable = rng.random(m) < 0.5
+    rise = np.minimum(rng.uniform(*RIDGE_RISE_M, m), height - 3.0)
+    ny, nx = dist.shape
+    span = grid.lo + np.array([nx, ny]) * grid.cell
+    placed: list[int] = []
+    for i in range(m):
+        if len(placed) == n:
+            break
+        if d[i] < NEW_CLEARANCE_M + radius[i] + grid.cell:
+            continue
+        if np.any(xy[i] - radius[i] < grid.lo) or np.any(xy[i] + radius[i] > span):
+            continue
+        if any(np.linalg.norm(xy[i] - xy[j]) < radius[i] + radius[j] + NEW_CLEARANCE_M for j in placed):
+            continue
+        placed.append(i)
+    tris, cls, which = [], [], []
+    for k, i in enumerate(placed):
+        axis = np.array([np.cos(angle[i]), np.sin(angle[i])])
+        v = np.array([-axis[1], axis[0]])
+        signs = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1], [0, 0]], dtype=np.float64)
+        z = terrain(xy[i] + (signs * size[i] / 2) @ np.stack([axis, v]))  # corners and centre
+        r = rise[i] if gable[i] and rise[i] >= 1.0 else 0.0
+        kind = "gable" if r > 0 else "flat"
+        eaves = z.max() + height[i] - r
+        t, c = _house(xy[i], size[i, 0], size[i, 1], axis, z.min() - 0.3, eaves, r, kind, walls=True)
+        tris.append(t)
+        cls.append(c)
+        which.append(np.full(len(t), k))
+    if not tris:
+        return empty
+    return np.concatenate(tris), np.concatenate(cls), np.concatenate(which)
+
+
 # ------------------------------------------------------------------------------------------ public
 def build_reality(
     map_model: CityModel,
@@ -474,21 +1000,46 @@ def build_reality(
 ) -> RealityScene:
     """The reality scene of ``reality_model`` (default: the map itself) in the map's local frame.
 
-    Deterministic: the same models, ``seed`` and ``params`` give the same scene on any machine.
+    Deterministic: the same models, ``seed`` and ``params`` give the same scene on any machine. Each
+    "reality != map" knob draws from its own generator, and only when it is on, so the knobs that are
+    off leave the scene as it was without them.
     """
     params = params or RealityParams()
     reality = reality_model if reality_model is not None else map_model
     rng = np.random.default_rng([int(seed), 0x5EA1])  # the reality's own stream (queries use 3+ keys)
+
+    def knob_rng(k: int) -> np.random.Generator:
+        return np.random.default_rng([int(seed), 0x5EA1, k])
+
     corners = _in_map_frame(map_model, reality)
     building = reality.building_index.astype(np.int64)
     n_b = len(reality.building_ids)
-    corners, shift, dh = perturb_buildings(
-        corners, building, n_b, params, np.random.default_rng([int(seed), 0x5EA1, 1])
-    )
+    corners, shift, dh = perturb_buildings(corners, building, n_b, params, knob_rng(1))
     classes = reality.classes
+    lods = reality.lods
     is_building = np.isin(classes, BUILDING_CLASSES)
     if not is_building.any():
         raise EmptyModelError("the reality model has no walls or roofs: nothing to fly over")
+    present = np.zeros(n_b, dtype=bool)
+    present[building[is_building]] = True
+
+    missing = np.zeros(n_b, dtype=bool)
+    n_missing = min(int(round(params.missing_fraction * present.sum())), int(present.sum()) - 1)
+    if n_missing > 0:
+        missing[knob_rng(2).choice(np.flatnonzero(present), n_missing, replace=False)] = True
+        keep = ~missing[building]
+        corners, classes, building, lods = corners[keep], classes[keep], building[keep], lods[keep]
+    roof_change = np.zeros(n_b, dtype=np.int8)
+    n_dormers = np.zeros(n_b, dtype=np.int64)
+    if params.roof_change_fraction > 0:
+        corners, classes, building, lods, roof_change, n_dormers = change_roofs(
+            corners, classes, building, lods, n_b, params.roof_change_fraction, knob_rng(3)
+        )
+    overhang = np.zeros(n_b)
+    if params.overhang_m is not None:
+        corners, overhang = overhang_roofs(corners, classes, building, n_b, params.overhang_m, knob_rng(4))
+    if n_missing > 0 or params.roof_change_fraction > 0:
+        is_building = np.isin(classes, BUILDING_CLASSES)
 
     def model_of(
         c: np.ndarray, cls: np.ndarray, b: np.ndarray, lods: np.ndarray, ids: list[str]
@@ -506,7 +1057,7 @@ def build_reality(
             source=f"simulated reality of {reality.source or 'the map'}",
         )
 
-    buildings_only = model_of(corners, classes, building, reality.lods, list(reality.building_ids))
+    buildings_only = model_of(corners, classes, building, lods, list(reality.building_ids))
     tv, tt = build_terrain(buildings_only)
     if len(tt) == 0:
         raise EmptyModelError(
@@ -521,18 +1072,55 @@ def build_reality(
     built = grid.ids >= 0
     dist = ndimage.distance_transform_edt(~built) * grid.cell if built.any() else np.full(built.shape, 1e9)
 
+    if params.terrain_relief_m > 0:
+        extra = relief_points(tv, terrain, grid, dist, params, knob_rng(5))
+        tv, tt = build_terrain(buildings_only, extra_points=extra)
+        terrain = TerrainHeight(tv)
+    ids = list(reality.building_ids)
+    n_new = int(round(params.new_fraction * present.sum()))
+    if n_new > 0:
+        nt, ncls, which = new_buildings(dist, grid, terrain, n_new, knob_rng(6))
+        n_new = int(which.max()) + 1 if len(which) else 0
+        if n_new:
+            ids += [f"__new_building_{k}__" for k in range(n_new)]
+            corners = np.concatenate([corners, nt])
+            classes = np.concatenate([classes, ncls]).astype(np.uint8)
+            building = np.concatenate([building, n_b + which])
+            lods = np.concatenate([lods, np.zeros(len(nt), np.uint8)])
+            # Rasterise them on a window of the grid (same cell lattice) and add them to it.
+            j0, i0 = np.floor((nt[:, :, :2].reshape(-1, 2).min(0) - grid.lo) / grid.cell).astype(int)
+            sub = footprint_grid(
+                nt,
+                n_b + which,
+                grid.lo + np.array([j0, i0]) * grid.cell,
+                nt[:, :, :2].reshape(-1, 2).max(0),
+                grid.cell,
+            ).ids
+            window = grid.ids[i0 : i0 + sub.shape[0], j0 : j0 + sub.shape[1]]
+            sub = sub[: window.shape[0], : window.shape[1]]
+            window[sub >= 0] = sub[sub >= 0]
+            built = grid.ids >= 0
+            dist = ndimage.distance_transform_edt(~built) * grid.cell
+    n_all = n_b + n_new
+
     rv, rt, rcls, rb = roof_structures(corners, classes, building, grid, params, rng)
     trv, trt, n_trees = trees(dist, grid, terrain, params, rng)
     cv, ct, n_cars = cars(dist, grid, terrain, params, rng)
 
-    ids = list(reality.building_ids) + [TERRAIN_ID, TREES_ID, CARS_ID]
+    ids += [TERRAIN_ID, TREES_ID, CARS_ID]
     pieces = [
-        (corners, classes, building, reality.lods),
-        (tv[tt], np.full(len(tt), SemanticClass.GROUND), np.full(len(tt), n_b), np.zeros(len(tt))),
+        (corners, classes, building, lods),
+        (tv[tt], np.full(len(tt), SemanticClass.GROUND), np.full(len(tt), n_all), np.zeros(len(tt))),
         (rv[rt], rcls, rb, np.zeros(len(rt))),
-        (trv[trt], np.zeros(len(trt)), np.full(len(trt), n_b + 1), np.zeros(len(trt))),
-        (cv[ct], np.zeros(len(ct)), np.full(len(ct), n_b + 2), np.zeros(len(ct))),
+        (trv[trt], np.zeros(len(trt)), np.full(len(trt), n_all + 1), np.zeros(len(trt))),
+        (cv[ct], np.zeros(len(ct)), np.full(len(ct), n_all + 2), np.zeros(len(ct))),
     ]
+    n_extra_dormers = 0
+    if n_dormers.any():
+        per_building = np.concatenate([n_dormers, np.zeros(n_new, dtype=np.int64)])
+        dv, dt, dcls, db = extra_dormers(corners, classes, building, per_building, grid, knob_rng(7))
+        pieces.insert(3, (dv[dt], dcls, db, np.zeros(len(dt))))
+        n_extra_dormers = len(dt) // 10
     # Millimetre coordinates (module docstring): the same scene on every machine.
     model = model_of(
         np.round(np.concatenate([p[0].reshape(-1, 3, 3) for p in pieces]), 3),
@@ -542,6 +1130,7 @@ def build_reality(
         ids,
     )
     renderer = Renderer(model, engine="numba", ground=False)
+    changed = roof_change > 0
     counts = {
         "buildings": int(n_b),
         "roof_structures": int(len(rt) // 10),
@@ -549,5 +1138,14 @@ def build_reality(
         "cars": int(n_cars),
         "occluder_triangles": int(len(trt) + len(ct)),
         "triangles": int(model.num_triangles),
+        "missing_buildings": int(missing.sum()),
+        "new_buildings": int(n_new),
+        "roof_changes": int(changed.sum()),
+        **{f"roof_changes_{name}": int((roof_change == k).sum()) for k, name in enumerate(ROOF_CHANGES) if k},
+        "extra_dormers": int(n_extra_dormers),
+        "overhang_buildings": int((overhang > 0).sum()),
+        "terrain_vertices": int(len(tv)),
     }
-    return RealityScene(model, renderer, terrain, shift, np.asarray(dh), counts)
+    return RealityScene(
+        model, renderer, terrain, shift, np.asarray(dh), counts, missing, roof_change, overhang
+    )

@@ -28,6 +28,12 @@ about 6 x 7 px and any pixel of boundary noise would erase it. In this order:
 6. the found openings (eroded by ``opening_erode_px``) are pasted over the result: sharp small things, as
    the decoder's high-resolution path gives them.
 
+With ``truth`` (a ``seg_errors.ViewTruth`` of the view: normals, buildings, what is behind trees and
+cars, cast shadows), the preset's structured errors (``SegPreset`` fields from ``occluder_to_behind`` on,
+all 0 = off by default; ``seg_errors`` module docstring) are applied to the clean labels first, from a
+generator seeded by one draw of ``rng`` taken only then; steps 1-6 follow on the result. Without
+``truth`` nothing changes: the same generator state gives the same output as before those fields existed.
+
 Occluders (trees, cars) are already BACKGROUND in the clean labels of the reality render, so they stay
 background here unless noise moves a boundary over them.
 
@@ -100,6 +106,24 @@ class SegPreset:
     patch_px: int = 16
     patch_detail: float = 1.0
     noise: bool = True  # False: the labels are returned unchanged ("perfect")
+    # Structured errors (``seg_errors`` module docstring, steps 1-8), applied only when
+    # ``simulate_segmentation`` is given a ``ViewTruth``; all off by default.
+    occluder_to_behind: float = 0.0  # P(a tree / car is labelled as what lies behind it)
+    steep_roof_nz: float = 0.0  # roofs with |n_z| below this are "steep" ...
+    steep_roof_to_wall: float = 0.0  # ... and each steep roof component is called wall with this P
+    low_wall_m: float = 0.0  # facade segments lower than this are "low" ...
+    low_wall_to_roof: float = 0.0  # ... and each low-wall component is called roof with this P
+    courtyard_share: float = 0.0  # enclosed non-building components below this image share ...
+    courtyard_fill: float = 0.0  # ... are filled as roof with this P
+    small_building_share: float = 0.0  # building components below this image share ...
+    small_building_miss: float = 0.0  # ... are missed (labelled as their surroundings) with this P
+    building_miss: float = 0.0  # P(a visible building is missed whole: labelled ground)
+    segment_swaps: tuple[tuple[int, int, float], ...] = ()  # (from, to, P) per SAM-like segment
+    segment_cell_px: int = 96  # size of the segments' warped grid cells
+    shadow_error: float = 0.0  # share of the shadowed pixels that are mislabelled ...
+    shadow_cell_px: int = 24  # ... in smooth regions of this size ...
+    shadow_to_background: float = 0.5  # ... as background with this P, else as a neighbouring class
+    bleed_px: int = 0  # the nearer surface grows 1..bleed_px px over the farther at depth jumps
 
 
 SEG_PRESETS: dict[str, SegPreset] = {
@@ -329,16 +353,24 @@ def _patch_blur(labels: np.ndarray, patch_px: int, detail: float) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------ public
 def simulate_segmentation(
-    clean_labels: np.ndarray, preset: str | SegPreset, rng: np.random.Generator
+    clean_labels: np.ndarray, preset: str | SegPreset, rng: np.random.Generator, truth=None
 ) -> np.ndarray:
-    """A noisy (H, W) uint8 segmentation of ``clean_labels`` at the quality of ``preset``."""
+    """A noisy (H, W) uint8 segmentation of ``clean_labels`` at the quality of ``preset``.
+
+    ``truth``: a ``seg_errors.ViewTruth`` of the view; when given, the preset's structured errors are
+    applied first (``truth.structured_errors``) from a generator seeded by one draw of ``rng``
+    (taken only then: without ``truth`` the output is what it always was)."""
     clean = _check_labels(clean_labels, "clean_labels")
     p = get_preset(preset)
     if not p.noise:
         return clean.copy()
+    base = clean
+    if truth is not None:
+        # ``ViewTruth.structured_errors`` (seg_errors builds on this module: no import back).
+        base = truth.structured_errors(clean, p, np.random.default_rng(int(rng.integers(2**63))))
     openings = _opening_layer(clean, p, rng)
-    labels = clean.copy()
-    labels[(clean == SemanticClass.WINDOW) | (clean == SemanticClass.DOOR)] = SemanticClass.WALL
+    labels = base.copy()
+    labels[(base == SemanticClass.WINDOW) | (base == SemanticClass.DOOR)] = SemanticClass.WALL
     for src, dst, area, cell in p.confusions:
         region = _region(rng, labels.shape, area, cell)
         labels[region & (labels == src)] = dst

@@ -54,13 +54,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from semcityloc.benchmark.occluders import RealityScene, build_reality
+from semcityloc.benchmark.depth_sim import DepthParams, simulate_depth_realistic
+from semcityloc.benchmark.occluders import RealityParams, RealityScene, build_reality
 from semcityloc.benchmark.perception_sim import SEG_PRESETS, miou, simulate_depth, simulate_segmentation
+from semcityloc.benchmark.seg_errors import (
+    REALISTIC_SEG_PRESETS,
+    fold_to_map_classes,
+    sun_direction,
+    view_truth,
+)
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import BUILDING_CLASSES
+from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
 from semcityloc.errors import BenchmarkConfigError, EmptyModelError, QuerySimulationError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
+from semcityloc.perception.autolabel import auto_label
+from semcityloc.perception.metrics import confusion
+from semcityloc.render import Renderer
 
 SENSOR_WIDTH_MM = 17.3  # DJI Zenmuse L2 RGB, 4/3" CMOS, 17.3 x 13.0 mm, 5280 x 3956 px
 MAX_ATTEMPTS = 64
@@ -70,6 +80,8 @@ PRIOR_Z_RATIO = 0.4
 MIN_CLEARANCE_M = 10.0
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 STREAM_POSE, STREAM_PRIOR, STREAM_PRIOR_EXTRA, STREAM_SEG, STREAM_DEPTH = 0, 1, 2, 3, 4
+STREAM_PRIOR_REALISTIC, STREAM_SUN = 6, 7  # 5 is the wireframe baseline's edge map
+SEG_MODELS = ("blobs", "structured")
 
 
 def _pair(value, name: str) -> tuple[float, float]:
@@ -103,6 +115,14 @@ class QueryConfig:
     prior_extra_m: tuple[float, float] | None = None  # extra per-axis (x, y, z) perturbation magnitude bin
     depth: bool = True
     focal_mm: float = 12.29  # DJI Zenmuse L2 (4/3", 17.3 x 13.0 mm sensor, 5280 x 3956): fx = f/17.3*W
+    # --- knobs of the realistic scenario (``benchmark.scenario``); these defaults are the clean one ---
+    scenario: str = "clean"  # the name of the bundle these values came from (recorded, not used)
+    prior_height_m: float | None = None  # None: z error a part of the 3D base error; else uniform +-this
+    prior_roll_pitch_sigma_deg: float | None = None  # None: uniform +-prior_roll_pitch_deg; else N(0, s)
+    reality: RealityParams = field(default_factory=RealityParams)  # reality != map (occluders.py)
+    seg_model: str = "blobs"  # "blobs": SEG_PRESETS; "structured": REALISTIC_SEG_PRESETS + view truth
+    depth_model: DepthParams | None = None  # None: near-affine depth (simulate_depth); else realistic
+    score_against_map: bool = False  # also measure the labels against the map's own labels (paper's way)
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -167,6 +187,26 @@ class QueryConfig:
         if self.seg_quality not in SEG_PRESETS:
             raise unknown_choice("seg_quality", self.seg_quality, SEG_PRESETS, BenchmarkConfigError)
         put("depth", bool(self.depth))
+        for name in ("prior_height_m", "prior_roll_pitch_sigma_deg"):
+            value = getattr(self, name)
+            if value is not None:
+                if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+                    raise BenchmarkConfigError(f"{name} must be a number or None, got {value!r}")
+                if not (math.isfinite(value) and 0 <= value <= 500):
+                    raise BenchmarkConfigError(f"{name} must be in [0, 500], got {value!r}")
+                put(name, float(value))
+        if self.seg_model not in SEG_MODELS:
+            raise unknown_choice("seg_model", self.seg_model, SEG_MODELS, BenchmarkConfigError)
+        if not isinstance(self.reality, RealityParams):
+            raise BenchmarkConfigError("reality must be a RealityParams")
+        if self.depth_model is not None and not isinstance(self.depth_model, DepthParams):
+            raise BenchmarkConfigError("depth_model must be a DepthParams or None")
+        put("score_against_map", bool(self.score_against_map))
+
+    def seg_preset(self):
+        """The segmentation preset these queries use (``seg_model`` picks the table)."""
+        table = SEG_PRESETS if self.seg_model == "blobs" else REALISTIC_SEG_PRESETS
+        return table[self.seg_quality]
 
 
 @dataclass
@@ -222,11 +262,36 @@ def _height(rng: np.random.Generator, cfg: QueryConfig) -> float:
     return float(np.clip(h, lo, hi))
 
 
+def _realistic_prior_errors(
+    base: np.ndarray, cfg: QueryConfig, rng: np.random.Generator, roll_err: float, pitch_err: float
+) -> tuple[np.ndarray, float, float]:
+    """GNSS/IMU as flown (``prior_height_m`` / ``prior_roll_pitch_sigma_deg`` set): the base error's
+    horizontal part keeps its norm and direction, the height error is uniform in +-``prior_height_m``
+    (barometric and geoid errors), roll and pitch errors are N(0, sigma) clipped to
+    +-``prior_roll_pitch_deg`` (gimbal IMU). Drawn from its own stream, every draw every time."""
+    dz = rng.uniform(-1.0, 1.0)
+    rp = rng.standard_normal(2)
+    out = base.copy()
+    if cfg.prior_height_m is not None:
+        horizontal = float(np.linalg.norm(base))
+        angle = math.atan2(base[1], base[0])
+        out = np.array([horizontal * math.cos(angle), horizontal * math.sin(angle), dz * cfg.prior_height_m])
+    if cfg.prior_roll_pitch_sigma_deg is not None:
+        lim = cfg.prior_roll_pitch_deg
+        roll_err, pitch_err = (float(v) for v in np.clip(rp * cfg.prior_roll_pitch_sigma_deg, -lim, lim))
+    return out, roll_err, pitch_err
+
+
 def sample_prior(
-    true_pose_local: Pose, cfg: QueryConfig, rng_base: np.random.Generator, rng_extra: np.random.Generator
+    true_pose_local: Pose,
+    cfg: QueryConfig,
+    rng_base: np.random.Generator,
+    rng_extra: np.random.Generator,
+    rng_realistic: np.random.Generator | None = None,
 ) -> tuple[Pose, dict]:
     """The prior pose and its errors (module docstring). Every draw happens whatever the ranges, so the
-    streams stay aligned across configurations."""
+    streams stay aligned across configurations; ``rng_realistic`` (given when ``prior_height_m`` or
+    ``prior_roll_pitch_sigma_deg`` is set) draws the realistic height and roll / pitch errors."""
     r = rng_base.uniform(*cfg.prior_translation_m)
     theta = rng_base.uniform(0.0, 2 * np.pi)
     u = rng_base.uniform(-PRIOR_Z_RATIO, PRIOR_Z_RATIO)
@@ -234,6 +299,8 @@ def sample_prior(
     base = r * d / np.linalg.norm(d)
     yaw_err = rng_base.uniform(0.0, cfg.prior_yaw_deg) * rng_base.choice([-1.0, 1.0])
     roll_err, pitch_err = rng_base.uniform(-cfg.prior_roll_pitch_deg, cfg.prior_roll_pitch_deg, 2)
+    if rng_realistic is not None:
+        base, roll_err, pitch_err = _realistic_prior_errors(base, cfg, rng_realistic, roll_err, pitch_err)
     extra = np.zeros(3)
     if cfg.prior_extra_m is not None:
         extra = rng_extra.uniform(*cfg.prior_extra_m, 3) * rng_extra.choice([-1.0, 1.0], 3)
@@ -263,13 +330,17 @@ class QuerySimulator:
         self.map_model = map_model
         self.config = config
         self.camera = zenmuse_l2_camera(config.width, config.height, config.focal_mm)
-        self.reality: RealityScene = build_reality(map_model, reality_model, seed=config.seed)
+        self.reality: RealityScene = build_reality(
+            map_model, reality_model, seed=config.seed, params=config.reality
+        )
         building = np.isin(map_model.classes, BUILDING_CLASSES)
         if not building.any():
             raise EmptyModelError("the map model has no walls or roofs: no query can see a building")
         xy = map_model.vertices[map_model.triangles[building]][:, :, :2].reshape(-1, 2).astype(np.float64)
         self.target_lo, self.target_hi = xy.min(0), xy.max(0)
         self._up_camera = Camera.from_fov(8, 8, 20.0)
+        self.map_model = map_model
+        self._map_renderer: Renderer | None = None
 
     def __len__(self) -> int:
         return self.config.queries
@@ -313,6 +384,33 @@ class QuerySimulator:
         d = self.reality.renderer.render(self._up_camera, up, depth=True).depth
         return bool(np.isfinite(d).any())
 
+    def _segmentation(
+        self, index: int, pose: Pose, clean: np.ndarray, true_depth: np.ndarray, meta: dict
+    ) -> np.ndarray:
+        """The simulated segmentation of a view (``seg_model``: random blobs, or structured errors from
+        the view's truth: normals, occluders and what is behind them, cast shadows)."""
+        cfg = self.config
+        rng = np.random.default_rng([cfg.seed, index, STREAM_SEG])
+        if cfg.seg_model == "blobs":
+            return simulate_segmentation(clean, SEG_PRESETS[cfg.seg_quality], rng)
+        sun = sun_direction(np.random.default_rng([cfg.seed, index, STREAM_SUN]))
+        truth = view_truth(self.reality, self.camera, pose, sun)
+        meta["shadow_fraction"] = float(truth.shadow.mean())
+        return simulate_segmentation(clean, cfg.seg_preset(), rng, truth=truth)
+
+    def map_confusion(self, pose: Pose, labels: np.ndarray) -> np.ndarray:
+        """(C, C) int64 confusion [map label, predicted] of ``labels`` against the MAP's own labels at the
+        true pose, by the automatic labelling rules (ignore pixels left out): the paper's mIoU. Windows and
+        doors are scored as wall when the map has none (an LoD2 map: what its localizer does too)."""
+        if self._map_renderer is None:
+            self._map_renderer = Renderer(self.map_model, engine="numba")
+        reference = auto_label(
+            self.map_model, self.camera, self.map_model.pose_to_world(pose), renderer=self._map_renderer
+        )
+        keep = reference != IGNORE
+        predicted = fold_to_map_classes(labels, self.map_model.classes)
+        return confusion(predicted[keep], reference[keep], NUM_CLASSES)
+
     def query_with_truth(self, index: int) -> SimulatedView:
         """Query ``index`` plus the clean labels and true depth it was simulated from."""
         if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
@@ -344,18 +442,25 @@ class QuerySimulator:
             )
         (ok, _, _), pose, info, clean, true_depth, coverage, clearance = best
 
-        labels = simulate_segmentation(
-            clean, SEG_PRESETS[cfg.seg_quality], np.random.default_rng([cfg.seed, index, STREAM_SEG])
-        )
+        extra_meta: dict = {}
+        labels = self._segmentation(index, pose, clean, true_depth, extra_meta)
         depth = None
         if cfg.depth:
-            depth = simulate_depth(true_depth, clean, np.random.default_rng([cfg.seed, index, STREAM_DEPTH]))
+            rng_depth = np.random.default_rng([cfg.seed, index, STREAM_DEPTH])
+            if cfg.depth_model is None:
+                depth = simulate_depth(true_depth, clean, rng_depth)
+            else:
+                depth = simulate_depth_realistic(true_depth, rng_depth, cfg.depth_model)
+        realistic_prior = cfg.prior_height_m is not None or cfg.prior_roll_pitch_sigma_deg is not None
         prior, prior_info = sample_prior(
             pose,
             cfg,
             np.random.default_rng([cfg.seed, index, STREAM_PRIOR]),
             np.random.default_rng([cfg.seed, index, STREAM_PRIOR_EXTRA]),
+            np.random.default_rng([cfg.seed, index, STREAM_PRIOR_REALISTIC]) if realistic_prior else None,
         )
+        if cfg.score_against_map:
+            extra_meta["map_confusion"] = self.map_confusion(pose, labels).reshape(-1).tolist()
         occluded = (clean == 0) & np.isfinite(true_depth)
         meta = {
             "view": view,
@@ -368,6 +473,7 @@ class QuerySimulator:
             "sky_fraction": float((~np.isfinite(true_depth)).mean()),
             "seg_quality": cfg.seg_quality,
             **prior_info,
+            **extra_meta,
         }
         query = BenchmarkQuery(
             query_id=query_id(index),

@@ -33,10 +33,15 @@ import numpy as np
 from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
 from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE
 from semcityloc.benchmark.spec import load_map
-from semcityloc.errors import BenchmarkError, SemCityLocError
-from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshold_key
+from semcityloc.classes import PALETTE
+from semcityloc.errors import BenchmarkError, OptionalDependencyError, SemCityLocError
+from semcityloc.evaluation.metrics import CAP_XYZ_M, THRESHOLDS, cumulative_curve, threshold_key
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import wrap_deg
+from semcityloc.geometry.pose import Pose
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
+from semcityloc.render import Renderer
 from semcityloc.render.overlay import class_boundaries
 
 # name -> (config key shown, title). "main" is always written; the others when their key varies.
@@ -48,7 +53,7 @@ TABLES: dict[str, tuple[str, str]] = {
 }
 SEG_ORDER = ("perfect", "trained", "medium", "zero-shot")
 # Query-config fields already shown under their own name.
-_SHOWN_QUERY_FIELDS = {"seg_quality", "prior_extra_m", "seed", "queries"}
+_SHOWN_QUERY_FIELDS = {"seg_quality", "prior_extra_m", "seed", "queries", "scenario"}
 
 
 @dataclass
@@ -93,6 +98,7 @@ def describe(config: dict) -> dict[str, Any]:
         "method": config.get("method"),
         "city": "generated" if config.get("city") == "generated" else Path(config.get("city_path", "?")).name,
         "lod": f"LoD{lod}" if lod else "highest",
+        "scenario": (config.get("query_config") or {}).get("scenario", "clean"),
         "seg_quality": config.get("seg_quality"),
         "prior_extra": _prior_label(config.get("prior_extra_m")),
         "seed": config.get("seed"),
@@ -101,7 +107,10 @@ def describe(config: dict) -> dict[str, Any]:
     }
     for k, v in sorted((config.get("query_config") or {}).items()):
         if k not in _SHOWN_QUERY_FIELDS:
-            out[f"q.{k}"] = json.dumps(v) if isinstance(v, list | dict) else v
+            out[f"q.{k}"] = json.dumps(v, sort_keys=True) if isinstance(v, list | dict) else v
+    if config.get("sweep_knob") is not None:
+        out["sweep_knob"] = config["sweep_knob"]
+        out["sweep_value"] = json.dumps(config.get("sweep_value"))
     return out
 
 
@@ -121,7 +130,22 @@ def _order_value(key: str, value: Any):
         return (0.0, "") if value == "none" else (float(str(value).split("-")[0]), str(value))
     if key == "lod":
         return (int(value[3:]), "") if str(value).startswith("LoD") else (9, str(value))
+    if key == "sweep_value":
+        return _sweep_x(value)
     return (0, str(value))
+
+
+def _sweep_x(value: Any) -> tuple[float, str]:
+    """A sweep value's place on the x axis: the number, the mean of a pair, or 0 for anything else."""
+    try:
+        v = json.loads(value) if isinstance(value, str) else value
+    except ValueError:
+        v = value
+    if isinstance(v, list) and v and all(isinstance(x, int | float) for x in v):
+        return (float(np.mean(v)), str(value))
+    if isinstance(v, int | float) and not isinstance(v, bool):
+        return (float(v), str(value))
+    return (0.0, str(value))
 
 
 def label_runs(runs: list[RunData]) -> None:
@@ -152,11 +176,29 @@ def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
 
 def metric_headers() -> list[str]:
     recall = [f"R@{m:g}m,{d:g}° (≤ / <)" for m, d in THRESHOLDS]
-    return ["queries", "localized", *recall, "med. xyz m", "med. yaw °", "mean xyz m", "mean yaw °", "s/img"]
+    return [
+        "queries",
+        "localized",
+        "not loc.",
+        "skipped",
+        *recall,
+        "med. xyz m",
+        "med. yaw °",
+        "mean xyz m",
+        "mean yaw °",
+        f"all: mean / med. xyz m (cap {CAP_XYZ_M:g})",
+        "precision %",
+        "s/img",
+    ]
 
 
 def metric_cells(s: dict) -> list[str]:
-    cells = [str(s.get("queries", "-")), str(s.get("localized", "-"))]
+    cells = [
+        str(s.get("queries", "-")),
+        str(s.get("localized", "-")),
+        str(s.get("not_localized", "-")),
+        str(s.get("skipped", 0)),
+    ]
     strict = s.get("recall_strict", {})
     for m, d in THRESHOLDS:
         key = threshold_key(m, d)
@@ -166,6 +208,8 @@ def metric_cells(s: dict) -> list[str]:
         _num(s.get("median_yaw_deg"), 2),
         _num(s.get("mean_xyz_m"), 2),
         _num(s.get("mean_yaw_deg"), 2),
+        f"{_num(s.get('mean_xyz_m_capped'), 2)} / {_num(s.get('median_xyz_m_capped'), 2)}",
+        _num(s.get("acceptance_precision")),
         _num(s.get("sec_per_image"), 2),
     ]
     return cells
@@ -192,7 +236,14 @@ CSV_METRICS = (
     "median_yaw_deg",
     "median_xyz_m_all",
     "median_yaw_deg_all",
+    "mean_xyz_m_capped",
+    "median_xyz_m_capped",
+    "mean_rot_deg_capped",
+    "coverage",
+    "acceptance_precision",
     "mean_query_miou",
+    "map_miou_pooled",
+    "map_miou_per_image",
     "sec_per_image",
 )
 
@@ -221,10 +272,10 @@ def comparable_runs(runs: list[RunData], factor: str) -> list[RunData]:
     return [r for r in runs if id(r) in keep]
 
 
-def build_table(runs: list[RunData], factor: str) -> tuple[str, str]:
+def build_table(runs: list[RunData], factor: str, hide: tuple[str, ...] = ()) -> tuple[str, str]:
     """(Markdown, CSV) of one table: a row per run, ``factor`` first, then the other settings that differ
-    between these runs (rows sorted by those, then by ``factor``)."""
-    context = [k for k in differing_keys(runs) if k != factor]
+    between these runs (rows sorted by those, then by ``factor``) except those starting with ``hide``."""
+    context = [k for k in differing_keys(runs) if k != factor and not (hide and k.startswith(hide))]
     ordered = sorted(
         runs,
         key=lambda r: (
@@ -238,9 +289,13 @@ def build_table(runs: list[RunData], factor: str) -> tuple[str, str]:
         keys = [str(r.settings.get(k)) for k in headers]
         if not r.complete:
             keys[0] += f" (incomplete {len(r.rows)}/{r.config['queries']})"
-        md_rows.append([*keys, *metric_cells(r.summary), f"{_num(r.summary.get('mean_query_miou'))}"])
+        miou = f"{_num(r.summary.get('map_miou_pooled'))} / {_num(r.summary.get('map_miou_per_image'))}"
+        md_rows.append([*keys, *metric_cells(r.summary), f"{_num(r.summary.get('mean_query_miou'))}", miou])
         csv_rows.append([*keys, *_csv_metrics(r.summary), str(r.path)])
-    md = markdown_table([*headers, *metric_headers(), "query mIoU %"], md_rows)
+    md = markdown_table(
+        [*headers, *metric_headers(), "query mIoU % (vs reality)", "mIoU % vs map: pooled / per image"],
+        md_rows,
+    )
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow([*headers, *CSV_METRICS, "run_dir"])
@@ -251,13 +306,11 @@ def build_table(runs: list[RunData], factor: str) -> tuple[str, str]:
 # ------------------------------------------------------------------------------------------------ plots
 def _pyplot():
     try:
-        import matplotlib
+        import matplotlib  # optional dependency, loaded only when used
     except ImportError as exc:
-        from semcityloc.errors import OptionalDependencyError
-
         raise OptionalDependencyError("matplotlib", "plots", "the report's plots") from exc
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # optional dependency, loaded only when used
 
     return plt
 
@@ -297,23 +350,28 @@ def plot_recall_vs_prior(runs: list[RunData], path: Path) -> Path:
     """Recall (≤) at each threshold against the extra prior noise (bin centre, 0 = base noise only);
     one colour per group of runs that agree on everything but the prior noise (only the runs of such
     comparisons when there are any, else every run)."""
-    plt = _pyplot()
     runs = comparable_runs(runs, "prior_extra") or runs
     context = [k for k in differing_keys(runs) if k != "prior_extra"]
     groups: dict[str, list[RunData]] = {}
     for run in runs:
         name = ", ".join(f"{run.settings.get(k)}" for k in context) or str(run.settings["method"])
         groups.setdefault(name, []).append(run)
+    return plot_recall_lines(groups, _noise_x, "extra prior noise per axis (m, bin centre)", path)
+
+
+def plot_recall_lines(groups: dict[str, list[RunData]], x_of, xlabel: str, path: Path) -> Path:
+    """Recall (≤) at each threshold against ``x_of(run)``, one colour per group of runs."""
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     styles = ("-", "--", ":")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for g, (name, members) in enumerate(groups.items()):
-        members = sorted(members, key=_noise_x)
-        x = [_noise_x(r) for r in members]
+        members = sorted(members, key=x_of)
+        x = [x_of(r) for r in members]
         for (m, d), ls in zip(THRESHOLDS, styles, strict=False):
             y = [r.summary.get(threshold_key(m, d), math.nan) for r in members]
             ax.plot(x, y, ls, marker="o", color=colors[g % len(colors)], label=f"{name} {m:g}m,{d:g}°")
-    ax.set_xlabel("extra prior noise per axis (m, bin centre)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("recall (%)")
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
@@ -324,13 +382,19 @@ def plot_recall_vs_prior(runs: list[RunData], path: Path) -> Path:
     return path
 
 
+def plot_recall_vs_sweep(runs: list[RunData], knob: str, path: Path) -> Path:
+    """Recall (≤) at each threshold against the values of a sweep (one line per method)."""
+    groups: dict[str, list[RunData]] = {}
+    for run in runs:
+        groups.setdefault(str(run.settings["method"]), []).append(run)
+    return plot_recall_lines(groups, lambda r: _sweep_x(r.settings["sweep_value"])[0], knob, path)
+
+
 def overlay_image(
     query_labels: np.ndarray, est_labels: np.ndarray | None, true_labels: np.ndarray
 ) -> np.ndarray:
     """RGB uint8: the query mask (palette, faded) with the label boundaries of the render at the true pose
     (cyan) and at the estimated pose (magenta) drawn on top."""
-    from semcityloc.classes import PALETTE
-
     rgb = (0.55 * PALETTE[query_labels] + 0.45 * 255).astype(np.uint8)
     rgb[class_boundaries(true_labels)] = (0, 200, 255)
     if est_labels is not None:
@@ -339,17 +403,12 @@ def overlay_image(
 
 
 def _pose(matrix: np.ndarray):
-    from semcityloc.geometry.pose import Pose
-
     return None if not np.all(np.isfinite(matrix)) else Pose.from_cam_from_world(matrix)
 
 
 def plot_details(details: dict, map_model, path: Path, title: str) -> Path:
     """One query: overlay (``overlay_image``), xy slice at the best (z, yaw) and yaw slice at the best
     (x, y, z) of the coarse cost volume, with the true (green), prior (blue) and estimated (red) poses."""
-    from semcityloc.geometry.camera import Camera
-    from semcityloc.geometry.conventions import wrap_deg
-    from semcityloc.render import Renderer
 
     plt = _pyplot()
     fx, fy, cx, cy, w, h = details["camera"]
@@ -437,6 +496,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
         "",
     ]
     tables: dict[str, tuple[Path, Path]] = {}
+    sweep_plots: list[Path] = []
     for name, (factor, title) in TABLES.items():
         members = comparable_runs(runs, factor)
         if not members and name == "main":
@@ -452,6 +512,20 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
         tables[name] = (md_path, csv_path)
         doc += [f"## {title}", "", md]
 
+    for knob in sorted({r.config.get("sweep_knob") for r in runs} - {None}):
+        members = [r for r in runs if r.config.get("sweep_knob") == knob]
+        md, csv_text = build_table(members, "sweep_value", hide=("q.",))
+        name = f"sweep_{_slug(knob)}"
+        md_path, csv_path = out / "tables" / f"{name}.md", out / "tables" / f"{name}.csv"
+        title = f"Sweep of `{knob}`"
+        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
+        csv_path.write_text(csv_text, encoding="utf-8")
+        tables[name] = (md_path, csv_path)
+        doc += [f"## {title}", "", md]
+        sweep_plots.append(
+            plot_recall_vs_sweep(members, knob, out / "plots" / f"recall_vs_{_slug(knob)}.png")
+        )
+
     plots = [
         plot_cumulative(
             runs, "err_xyz_m", "camera-centre error (m)", out / "plots" / "cumulative_translation.png"
@@ -461,6 +535,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
         ),
         plot_recall_vs_prior(runs, out / "plots" / "recall_vs_prior_noise.png"),
     ]
+    plots += sweep_plots
     plots += _detail_figures(runs, out / "plots", overlays, notes)
     doc += ["## Figures", ""] + [f"![{p.stem}](plots/{p.name})" for p in plots]
     if notes:

@@ -31,12 +31,15 @@ from typing import Any
 
 import numpy as np
 
+from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import RESULTS_FILE, plain, write_all, write_atomic
+from semcityloc.classes import NUM_CLASSES
 from semcityloc.errors import BenchmarkError
 from semcityloc.evaluation.metrics import pose_errors, summarize_errors
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.result import LOCALIZED, LocalizationResult
+from semcityloc.perception.metrics import mean_iou
 
 _POSE_FIELDS = ("x", "y", "z", "roll", "pitch", "yaw")
 _TRUE = " ".join(f"true_{k}" for k in _POSE_FIELDS) + " true_world_x true_world_y true_world_z"
@@ -237,6 +240,28 @@ def load_details(path: Path) -> dict:
 
 
 # --------------------------------------------------------------------------------------------- summary
+def map_miou(rows: list[dict[str, str]]) -> dict[str, float]:
+    """The query masks' mIoU measured the paper's way: against the map's own labels at the true pose
+    (``meta["map_confusion"]``, written when ``score_against_map``), pooled over the rows (one confusion
+    summed over every query) and as the mean of the per-image values. Empty when no row has it."""
+    confs = []
+    for r in rows:
+        counts = json.loads(r["meta_json"] or "{}").get("map_confusion")
+        if counts is not None:
+            confs.append(np.asarray(counts, dtype=np.int64).reshape(NUM_CLASSES, NUM_CLASSES))
+    if not confs:
+        return {}
+    per_image = [
+        mean_iou(c, classes=MIOU_CLASSES, min_pixels=MIN_PRESENT_PIXELS, percent_of_mean=True) for c in confs
+    ]
+    pooled = mean_iou(np.sum(confs, axis=0), classes=MIOU_CLASSES, min_pixels=1, percent_of_mean=True)
+    finite = [v for v in per_image if np.isfinite(v)]
+    return {
+        "map_miou_pooled": float(pooled),
+        "map_miou_per_image": float(np.mean(finite)) if finite else float("nan"),
+    }
+
+
 def _float(text: str) -> float:
     return float(text) if text not in ("", None) else float("nan")
 
@@ -262,6 +287,7 @@ def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
     s["mean_query_miou"] = float(np.nanmean(miou)) if np.isfinite(miou).any() else float("nan")
     s["sec_per_image"] = float(np.nanmean(total)) if np.isfinite(total).any() else float("nan")
     s["sec_per_image_median"] = float(np.nanmedian(total)) if np.isfinite(total).any() else float("nan")
+    s.update(map_miou(ordered))
     s["not_localized_reasons"] = dict(Counter(r["reason"] for r in ordered if r["status"] != LOCALIZED))
     views = np.array([r["view"] or "unknown" for r in ordered])
     s["by_view"] = {

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -159,18 +160,18 @@ def run_queries(
         source = source if source is not None else spec.open_source(config)
         stream = None if progress is True else progress or None
         bar = Progress(total, len(done), stream, label=spec.label) if progress is not False else None
+        if workers == 1 or len(todo) == 1:
+            finished = _run_serial(todo, (spec, source, out))
+        else:
+            finished = _run_pool(todo, workers, (spec, source, out))
         try:
-            if workers == 1 or len(todo) == 1:
-                worker = _Worker(spec, source, out)
-                for i in todo:
-                    row = worker.run(i)
-                    append_row(results_path, row)
-                    new_rows.append(row)
-                    if bar:
-                        bar.update()
-            else:
-                new_rows = _run_pool(todo, workers, (spec, source, out), results_path, bar)
+            for row in finished:  # the parent alone appends, one fsync'd line per query
+                append_row(results_path, row)
+                new_rows.append(row)
+                if bar:
+                    bar.update()
         finally:
+            finished.close()  # stops the pool at once when the loop ends by an error
             if bar:
                 bar.close()
     rows += new_rows
@@ -195,10 +196,17 @@ def run_benchmark(
     return run_queries(None, spec, out_dir, workers, overwrite, limit, progress)
 
 
-def _run_pool(todo, workers, worker_args, results_path: Path, bar: Progress | None) -> list[dict[str, str]]:
+def _run_serial(todo: list[int], worker_args: tuple) -> Iterator[dict[str, str]]:
+    """Rows of ``todo`` localized in this process, in order."""
+    worker = _Worker(*worker_args)
+    for i in todo:
+        yield worker.run(i)
+
+
+def _run_pool(todo: list[int], workers: int, worker_args: tuple) -> Iterator[dict[str, str]]:
+    """Rows of ``todo`` from ``workers`` processes, in the order they finish."""
     threads = max(1, (os.cpu_count() or 1) // workers)
     ctx = multiprocessing.get_context("spawn")  # numba's thread pools are not fork-safe
-    new_rows: list[dict[str, str]] = []
     pool = ProcessPoolExecutor(
         workers, mp_context=ctx, initializer=_init_process, initargs=(threads, *worker_args)
     )
@@ -207,13 +215,8 @@ def _run_pool(todo, workers, worker_args, results_path: Path, bar: Progress | No
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for fut in finished:
-                row = fut.result()
-                append_row(results_path, row)
-                new_rows.append(row)
-                if bar:
-                    bar.update()
+                yield fut.result()
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
-    return new_rows

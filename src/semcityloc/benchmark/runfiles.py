@@ -26,9 +26,8 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-
 from semcityloc.errors import ResumeMismatchError
+from semcityloc.geometry.io import json_default
 
 RUN_FILE = "run.json"
 RESULTS_FILE = "results.csv"
@@ -42,17 +41,7 @@ NOT_IDENTITY = ("city", "keep_details", "semcityloc_version")  # "city": as type
 
 def plain(value: Any) -> Any:
     """JSON-normalised copy (tuples -> lists, numpy scalars -> Python) for storing and comparing."""
-    return json.loads(json.dumps(value, default=_json_default))
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+    return json.loads(json.dumps(value, default=json_default))
 
 
 def json_safe(value: Any) -> Any:

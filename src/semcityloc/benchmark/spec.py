@@ -17,6 +17,7 @@ import dataclasses
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from semcityloc import __version__
 from semcityloc.benchmark.queries import QueryConfig
@@ -53,6 +54,14 @@ def generated_sibling(path: Path, lod: int) -> Path | None:
     return sibling if sibling.is_file() else None
 
 
+def check_run_options(method: str, preset: str, keep_details: int) -> None:
+    """The checks every spec shares: a registered method, a known localizer preset, ``keep_details >= 0``."""
+    check_method(method)
+    LocalizerConfig.preset(preset)
+    if int(keep_details) < 0:
+        raise BenchmarkError(f"keep_details must be >= 0, got {keep_details}")
+
+
 @dataclass(frozen=True)
 class BenchmarkSpec:
     """A simulated benchmark run (module docstring). Checked when made: a bad value raises
@@ -66,6 +75,7 @@ class BenchmarkSpec:
     crs: str | None = None
     keep_details: int = 3
     simulator_factory: SimulatorFactory | None = None  # default QuerySimulator; not part of run.json
+    sweep: tuple[str, Any] | None = None  # (knob, value) when the run is one point of ``semcityloc sweep``
 
     label = "benchmark"  # the progress bar's label
 
@@ -76,10 +86,7 @@ class BenchmarkSpec:
             raise BenchmarkError("spec.query must be a QueryConfig")
         if int(self.query.queries) < 1:
             raise BenchmarkError(f"the number of queries must be >= 1, got {self.query.queries}")
-        check_method(self.method)
-        self.localizer_config()
-        if int(self.keep_details) < 0:
-            raise BenchmarkError(f"keep_details must be >= 0, got {self.keep_details}")
+        check_run_options(self.method, self.preset, self.keep_details)
 
     def localizer_config(self) -> LocalizerConfig:
         return LocalizerConfig.preset(self.preset)
@@ -93,6 +100,7 @@ class BenchmarkSpec:
             map_source = city_path
         reality_source = generated_sibling(city_path, 3) or city_path
         q = self.query
+        sweep = {} if self.sweep is None else {"sweep_knob": self.sweep[0], "sweep_value": self.sweep[1]}
         return plain(
             {
                 "format": RUN_FORMAT,
@@ -111,8 +119,10 @@ class BenchmarkSpec:
                 "localizer_preset": self.preset,
                 "localizer": self.localizer_config().as_dict(),
                 "query_config": dataclasses.asdict(q),
+                "seg_preset": dataclasses.asdict(q.seg_preset()),  # a retuned preset is another run
                 "keep_details": int(self.keep_details),
                 "semcityloc_version": __version__,
+                **sweep,
             }
         )
 

@@ -13,7 +13,11 @@ import json
 import os
 from pathlib import Path
 
+from semcityloc.citymodel.citygml import read_citygml
+from semcityloc.citymodel.cityjson import read_cityjson
+from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.model import CityModel
+from semcityloc.citymodel.obj import read_obj
 from semcityloc.errors import InputFileError, UnsupportedFormatError
 
 CACHE_VERSION = 1
@@ -106,17 +110,10 @@ def load_city_model(
 
 
 def _read(path: Path, fmt: str, lod, crs, target_crs) -> CityModel:
-    from semcityloc.citymodel.crs import parse_crs_name
-
     target = parse_crs_name(target_crs) if target_crs else None
     if fmt == "citygml":
-        from semcityloc.citymodel.citygml import read_citygml
-
         return read_citygml(path, lod=lod, target_crs=target, crs_override=crs)
     if fmt == "cityjson":
-        from semcityloc.citymodel.cityjson import read_cityjson
-
         return read_cityjson(path, lod=lod, target_crs=target, crs_override=crs)
-    from semcityloc.citymodel.obj import read_obj
 
     return read_obj(path, crs=crs)

@@ -1,8 +1,11 @@
 """``semcityloc benchmark``: simulated queries over a city model, localized, scored, resumable.
 
-Writes ``OUT/results.csv`` (a row per query), ``OUT/summary.json`` and ``OUT/run.json`` and prints the
-summary as a Markdown table (``semcityloc.benchmark.runfiles`` documents the files). Run the same command
-again after an interruption and it continues where it stopped.
+``--scenario realistic`` (default) or ``clean`` picks the simulation (``benchmark.scenario``); ``--set
+knob=value`` (repeatable) changes one knob of it. ``semcityloc sweep`` (``cli/sweep.py``) runs one
+benchmark per value of a knob with the same arguments. Writes ``OUT/results.csv`` (a row per query),
+``OUT/summary.json`` and ``OUT/run.json`` and prints the summary as a Markdown table
+(``semcityloc.benchmark.runfiles`` documents the files). Run the same command again after an
+interruption and it continues where it stopped.
 """
 
 from __future__ import annotations
@@ -12,9 +15,9 @@ import math
 from pathlib import Path
 
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
-from semcityloc.benchmark.queries import QueryConfig
 from semcityloc.benchmark.report import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.scenario import DEFAULT_SCENARIO, SCENARIOS, parse_settings, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.cli.dataset import add_dataset_arguments, add_perception_arguments, run_dataset_benchmark
 from semcityloc.errors import BenchmarkError
@@ -24,6 +27,15 @@ from semcityloc.localization.methods import available_methods
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("benchmark", help="localize simulated drone queries over a city model and score them")
+    add_simulation_arguments(p)
+    p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
+    add_dataset_arguments(p, positional=False)
+    add_perception_arguments(p)
+    p.set_defaults(func=run)
+
+
+def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of a simulated benchmark run (shared by ``benchmark`` and ``sweep``)."""
     p.add_argument(
         "--city",
         default=None,
@@ -58,7 +70,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=tuple(PRESETS),
         help="localizer preset (default: default; --dataset: wide-z)",
     )
-    p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
+    p.add_argument(
+        "--scenario",
+        default=DEFAULT_SCENARIO,
+        choices=tuple(SCENARIOS),
+        help=f"simulation scenario (default {DEFAULT_SCENARIO}; clean = the queries almost the map itself)",
+    )
+    p.add_argument(
+        "--set",
+        dest="settings",
+        action="append",
+        default=[],
+        metavar="KNOB=VALUE",
+        help="change one knob of the scenario, e.g. prior_height_m=10 (repeatable; docs/benchmark.md)",
+    )
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
     p.add_argument(
         "--keep-details",
@@ -79,9 +104,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="localize at most N more queries, then stop (run again to continue)",
     )
-    add_dataset_arguments(p, positional=False)
-    add_perception_arguments(p)
-    p.set_defaults(func=run)
 
 
 def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
@@ -102,18 +124,21 @@ def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
     return a, b
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.dataset:  # a real data set (LoD-Loc layout) instead of simulated queries
-        return run_dataset_benchmark(args)
+def spec_from_args(
+    args: argparse.Namespace, settings: dict | None = None, sweep: tuple | None = None
+) -> BenchmarkSpec:
+    """The simulated run of the parsed arguments (``settings``: knobs set on top of ``--set``)."""
     if not args.city:
         raise BenchmarkError("give --city MODEL (or 'generated') for simulated queries, or --dataset PATH")
-    query = QueryConfig(
+    query = query_config(
+        args.scenario,
+        {**parse_settings(args.settings), **(settings or {})},
         queries=args.queries,
         seed=args.seed,
         seg_quality=args.seg_quality,
         prior_extra_m=parse_prior_extra(args.prior_extra),
     )
-    spec = BenchmarkSpec(
+    return BenchmarkSpec(
         city=args.city,
         query=query,
         lod=args.lod,
@@ -121,7 +146,14 @@ def run(args: argparse.Namespace) -> int:
         preset=args.preset or "default",
         crs=args.crs,
         keep_details=args.keep_details,
+        sweep=sweep,
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.dataset:  # a real data set (LoD-Loc layout) instead of simulated queries
+        return run_dataset_benchmark(args)
+    spec = spec_from_args(args)
     out = Path(args.out)
     outcome = run_benchmark(spec, out, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after)
     if not outcome.complete:

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from semcityloc.citymodel.export import export_model
+from semcityloc.citymodel.generator import default_city_path
 from semcityloc.citymodel.io import load_city_model
 
 
@@ -47,8 +48,6 @@ def load_model_from_args(args: argparse.Namespace):
         lod = int(lod)
     path = args.path
     if path == "generated":
-        from semcityloc.citymodel.generator import default_city_path
-
         path = default_city_path(lod=lod if isinstance(lod, int) else 2)
     return load_city_model(path, lod=lod, crs=args.crs, cache=not args.no_cache)
 

@@ -23,11 +23,16 @@ from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpe
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
-from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS
-from semcityloc.datasets.lodloc import FRAMES
+from semcityloc.datasets.colmap import ColmapModel, write_model
+from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
+from semcityloc.datasets.lodloc import FRAMES, read_lodloc
+from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
 from semcityloc.errors import InputFileError
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.geometry.io import pose_to_dict
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import available_methods
+from semcityloc.render import Renderer
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -145,8 +150,6 @@ def _floats(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
 
 
 def _dataset(args: argparse.Namespace):
-    from semcityloc.datasets.lodloc import read_lodloc
-
     return read_lodloc(
         args.dataset,
         city=args.city,
@@ -158,8 +161,6 @@ def _dataset(args: argparse.Namespace):
 
 
 def run_info(args: argparse.Namespace) -> int:
-    from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-
     ds = _dataset(args)
     rows = []
     for q in ds.queries:
@@ -199,9 +200,6 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def run_overlay(args: argparse.Namespace) -> int:
-    from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
-    from semcityloc.render import Renderer
-
     ds = _dataset(args)
     queries = [ds.query(args.name)] if args.name else ds.queries
     model = ds.load_model()
@@ -220,8 +218,6 @@ def run_overlay(args: argparse.Namespace) -> int:
 
 
 def run_colmap(args: argparse.Namespace) -> int:
-    from semcityloc.datasets.colmap import ColmapModel, write_model
-
     ds = _dataset(args)
     entries = {}
     for q in ds.queries:
@@ -236,9 +232,6 @@ def run_colmap(args: argparse.Namespace) -> int:
 
 
 def run_dji_prior(args: argparse.Namespace) -> int:
-    from semcityloc.datasets.dji import dji_prior
-    from semcityloc.geometry.io import pose_to_dict
-
     offset = _floats(args.offset, 3, "--offset")
     prior = dji_prior(
         args.image,

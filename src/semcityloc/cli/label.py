@@ -23,8 +23,13 @@ import argparse
 import json
 from pathlib import Path
 
+from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.errors import CameraError, InputFileError
+from semcityloc.geometry.io import read_colmap_camera_ids, read_intrinsics, read_pose, read_poses
+from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
+from semcityloc.perception.autolabel import auto_label_render, label_overlay
+from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
@@ -82,16 +87,12 @@ class PoseSource:
     """Poses by image from a COLMAP images.txt (or any read_poses file) or a LoD-Loc pose folder."""
 
     def __init__(self, spec: str):
-        from semcityloc.geometry.io import read_colmap_camera_ids, read_poses
-
         self.path = Path(spec)
         self.folder = self.path if self.path.is_dir() else None
         self.entries = {} if self.folder else read_poses(self.path)
         self.camera_ids = {} if self.folder else read_colmap_camera_ids(self.path)
 
     def pose(self, image: Path):
-        from semcityloc.geometry.io import read_pose
-
         if self.folder is not None:
             f = _per_stem_file(self.folder, image.stem, "pose")
             return read_pose(f) if f is not None else None
@@ -126,8 +127,6 @@ class IntrinsicsSource:
         )
 
     def camera(self, image: Path, width: int, height: int):
-        from semcityloc.geometry.io import read_intrinsics
-
         if self.folder is not None:
             f = _per_stem_file(self.folder, image.stem, "intrinsic")
             if f is None:
@@ -144,11 +143,6 @@ class IntrinsicsSource:
 
 # ---------------------------------------------------------------------------------------------- run
 def run(args: argparse.Namespace) -> int:
-    from semcityloc.classes import IGNORE
-    from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
-    from semcityloc.perception.autolabel import auto_label_render, label_overlay
-    from semcityloc.render import Renderer
-
     images = list_images(Path(args.images))
     poses = PoseSource(args.poses)
     intrinsics = IntrinsicsSource(args.intrinsics, poses)

@@ -4,14 +4,22 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from semcityloc.citymodel.model import crs_label
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.localization.config import PRESETS
+from semcityloc.errors import InputFileError
+from semcityloc.geometry.io import read_intrinsics, read_pose, write_pose_json
+from semcityloc.io.images import load_depth, load_image, load_labels_png, save_rgb
+from semcityloc.localization.config import PRESETS, LocalizerConfig
+from semcityloc.localization.localize import Localizer
 from semcityloc.localization.methods import ABLATIONS
-from semcityloc.perception.registry import available_backends
+from semcityloc.perception.registry import available_backends, get_depth_backend, get_segmentation_backend
+from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
+from semcityloc.render.raster_numba import NumbaEngine
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -59,9 +67,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _query_inputs(args, camera):
-    from semcityloc.errors import InputFileError
-    from semcityloc.io.images import load_depth, load_image, load_labels_png
-
     if args.semantic:
         labels = load_labels_png(args.semantic)
         depth = load_depth(args.depth) if args.depth else None
@@ -70,7 +75,6 @@ def _query_inputs(args, camera):
         raise InputFileError(
             "give --semantic MASK.png (and optionally --depth), or --image with --seg-backend"
         )
-    from semcityloc.perception.registry import get_depth_backend, get_segmentation_backend
 
     options = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
     image = load_image(args.image)
@@ -84,15 +88,6 @@ def _query_inputs(args, camera):
 
 
 def run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from semcityloc.citymodel.model import crs_label
-    from semcityloc.geometry.io import read_intrinsics, read_pose, write_pose_json
-    from semcityloc.io.images import load_image, save_rgb
-    from semcityloc.localization.config import LocalizerConfig
-    from semcityloc.localization.localize import Localizer
-    from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
-
     model = load_model_from_args(args)
     camera = read_intrinsics(args.intrinsics, width=args.width, height=args.height)
     prior_world = read_pose(args.prior)  # the model's CRS
@@ -110,7 +105,6 @@ def run(args: argparse.Namespace) -> int:
         data = write_pose_json(
             result.pose_local, out / "pose.json", origin=model.origin, crs=crs, extra=record
         )
-        from semcityloc.render.raster_numba import NumbaEngine
 
         view = NumbaEngine(localizer.scene).render(
             camera, result.pose_local.R[None], result.pose_local.t[None], depth=True, face_ids=True

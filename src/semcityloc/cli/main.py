@@ -10,10 +10,10 @@ import argparse
 import sys
 
 from semcityloc import __version__
-from semcityloc.cli import benchmark, city, dataset, demo, label, localize, render, report, train
+from semcityloc.cli import benchmark, city, dataset, demo, label, localize, render, report, sweep, train
 from semcityloc.errors import SemCityLocError
 
-COMMANDS = (city, render, localize, benchmark, report, dataset, label, train, demo)
+COMMANDS = (city, render, localize, benchmark, sweep, report, dataset, label, train, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

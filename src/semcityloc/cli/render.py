@@ -7,7 +7,11 @@ import json
 from pathlib import Path
 
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.geometry.io import read_intrinsics, read_pose
+from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
+from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
+from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,11 +37,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from semcityloc.geometry.io import read_intrinsics, read_pose
-    from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
-    from semcityloc.render import Renderer
-    from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
-
     model = load_model_from_args(args)
     camera = read_intrinsics(args.intrinsics, width=args.width, height=args.height)
     pose_world = read_pose(args.pose)  # the model's CRS

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from semcityloc.benchmark.report import make_report
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="tables and plots from one or more benchmark output folders")
@@ -19,8 +21,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from semcityloc.benchmark.report import make_report
-
     report = make_report(args.runs, args.out, overlays=args.overlays)
     for name, (md, csv_path) in report.tables.items():
         print(f"table {name}: {md} {csv_path}")

@@ -54,6 +54,7 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # needs torch (optional [perception] extra): imported only when training runs
     from semcityloc.perception.training import TrainConfig, load_samples, split_samples, train_segmenter
 
     if (args.val_images is None) != (args.val_labels is None):

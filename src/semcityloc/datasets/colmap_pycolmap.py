@@ -22,7 +22,7 @@ from semcityloc.errors import OptionalDependencyError
 
 def _pycolmap() -> Any:
     try:
-        import pycolmap
+        import pycolmap  # optional dependency, loaded only when used
     except ImportError as exc:
         raise OptionalDependencyError("pycolmap", "colmap", "Converting pycolmap reconstructions") from exc
     return pycolmap

@@ -51,6 +51,7 @@ from pathlib import Path
 
 import numpy as np
 import pyproj
+from PIL import Image, UnidentifiedImageError
 from pyproj.transformer import TransformerGroup
 
 from semcityloc.citymodel.crs import parse_crs_name
@@ -189,8 +190,6 @@ def _dms(values, ref: str | None, negative: str) -> float:
 
 
 def _exif(path: Path) -> dict:
-    from PIL import Image, UnidentifiedImageError
-
     try:
         with Image.open(path) as im:
             exif = im.getexif()

@@ -44,12 +44,14 @@ import numpy as np
 import pyproj
 
 from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
+from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.errors import InputFileError, SemCityLocError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.io import read_intrinsics, read_pose, read_poses
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import image_size
 
 IMAGE_DIR = "Query_image"
 GT_DIR, PRIOR_DIR, INTRINSIC_DIR, POINTS_DIR = "GT_pose", "GPS_pose", "intrinsic", "Points_GT"
@@ -118,7 +120,6 @@ class LodLocDataset:
             raise InputFileError(
                 f"{self.root}: no LoD model found beside the data set; pass the model file (--city)"
             )
-        from semcityloc.citymodel.io import load_city_model
 
         model = load_city_model(self.model_path, cache=cache)
         if self.frame == FRAME_ECEF:
@@ -221,7 +222,6 @@ def _text_intrinsics(path: Path) -> dict[str, str]:
 def _image_size(path: Path | None) -> tuple[int | None, int | None]:
     if path is None:
         return None, None
-    from semcityloc.io.images import image_size
 
     return image_size(path, "the query image")
 
@@ -410,7 +410,6 @@ def _decide_frame(ds: LodLocDataset, frame: str, ecef_origin_llh) -> None:
         ds.frame_note = "z up assumed: no model to test the frame with"
         ds.warnings.append(ds.frame_note)
         return
-    from semcityloc.citymodel.io import load_city_model
 
     is_up, share = detect_vertical(load_city_model(ds.model_path))
     if not is_up:

@@ -19,12 +19,15 @@ import os
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
 from scipy import ndimage
 
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import InputFileError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import load_image, save_rgb
+from semcityloc.render import Renderer
 from semcityloc.render.overlay import draw_edges, visible_edges
 
 GRADIENT_SIGMA_PX = 1.0
@@ -35,8 +38,6 @@ HEADER_PX = 22
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """(H, W, 3) uint8 RGB of an image file (``io.images.load_image``)."""
-    from semcityloc.io.images import load_image
-
     if not Path(path).is_file():
         raise InputFileError(f"{path}: no such image")
     return load_image(path)
@@ -45,7 +46,6 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 def _renderer(model: CityModel, renderer=None):
     if renderer is not None:
         return renderer
-    from semcityloc.render import Renderer
 
     return Renderer(model, engine="numba")
 
@@ -73,8 +73,6 @@ def edge_score(gradient: np.ndarray, edges: np.ndarray) -> float:
 
 
 def _panel(image: np.ndarray, title: str) -> np.ndarray:
-    from PIL import Image, ImageDraw
-
     h, w = image.shape[:2]
     canvas = Image.new("RGB", (w, h + HEADER_PX), (255, 255, 255))
     canvas.paste(Image.fromarray(image), (0, HEADER_PX))
@@ -112,8 +110,6 @@ def gt_vs_prior_figure(
 def save_png(array: np.ndarray, path: str | os.PathLike) -> Path:
     """An RGB uint8 figure as an optimised PNG (``io.images.save_rgb``); ``InputFileError`` when it
     cannot be written."""
-    from semcityloc.io.images import save_rgb
-
     target = Path(path)
     try:
         save_rgb(array, target, optimize=True)

@@ -89,6 +89,13 @@ def _median(a: np.ndarray) -> float:
     return float(np.median(a)) if a.size else float("nan")
 
 
+# Errors over ALL queries: a not-localized query (and any error beyond the cap) counts at the cap, so the
+# mean says what a user gets whatever the localizer decided (the prior's own error is usually below it).
+CAP_XYZ_M, CAP_ROT_DEG = 50.0, 45.0
+# Acceptance precision: the share of accepted (localized) poses within 5 m and 5 deg (<=).
+PRECISION_XYZ_M, PRECISION_ROT_DEG = 5.0, 5.0
+
+
 def summarize_errors(
     xyz_err,
     rot_err,
@@ -104,8 +111,10 @@ def summarize_errors(
         localized: per-query bool; default: the queries whose three errors are finite.
     Returns keys ``queries``, ``localized``, ``not_localized``, ``recall_*`` (``<=``), ``recall_strict``
     (dict, ``<``), ``mean_/median_`` ``xyz_m``, ``rot_deg``, ``yaw_deg`` (localized only),
-    ``median_xyz_m_all`` / ``median_rot_deg_all`` / ``median_yaw_deg_all`` (not_localized = inf) and
-    ``convention``.
+    ``median_xyz_m_all`` / ``median_rot_deg_all`` / ``median_yaw_deg_all`` (not_localized = inf),
+    ``mean_/median_`` ``xyz_m_capped`` / ``rot_deg_capped`` (every query, errors capped at ``CAP_XYZ_M`` /
+    ``CAP_ROT_DEG``, not_localized at the cap), ``coverage`` (% of queries localized),
+    ``acceptance_precision`` (% of localized queries within 5 m and 5 deg) and ``convention``.
     """
     xyz, rot = _pair(xyz_err, rot_err)
     yaw = _errors(yaw_err, "yaw_err")
@@ -132,6 +141,14 @@ def summarize_errors(
         out[f"mean_{name}"] = _mean(a[loc])
         out[f"median_{name}"] = _median(a[loc])
         out[f"median_{name}_all"] = _median(a_all)
+    for name, a_all, cap in (("xyz_m", xyz_all, CAP_XYZ_M), ("rot_deg", rot_all, CAP_ROT_DEG)):
+        capped = np.minimum(a_all, cap)
+        out[f"mean_{name}_capped"] = _mean(capped)
+        out[f"median_{name}_capped"] = _median(capped)
+    good = loc & (xyz_all <= PRECISION_XYZ_M) & (rot_all <= PRECISION_ROT_DEG)
+    n_loc = int(np.count_nonzero(loc))
+    out["coverage"] = 100.0 * n_loc / xyz.size if xyz.size else float("nan")
+    out["acceptance_precision"] = 100.0 * int(np.count_nonzero(good)) / n_loc if n_loc else float("nan")
     out["convention"] = CONVENTION
     return out
 

@@ -479,7 +479,8 @@ def _crs_name(crs: Any) -> str | None:
     return to_string() if callable(to_string) else str(crs)
 
 
-def _jsonable(value: Any) -> Any:
+def json_default(value: Any) -> Any:
+    """``json.dumps(..., default=json_default)``: numpy arrays and scalars, paths -> plain JSON values."""
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
@@ -534,7 +535,7 @@ def pose_to_dict(
         if not isinstance(extra, dict):
             raise ShapeError(f"extra must be a dict, got {type(extra).__name__}")
         try:
-            out["extra"] = json.loads(json.dumps(extra, default=_jsonable))
+            out["extra"] = json.loads(json.dumps(extra, default=json_default))
         except (TypeError, ValueError) as exc:
             raise ShapeError(f"extra is not JSON-serialisable: {exc}") from exc
     return out

@@ -70,7 +70,7 @@ def load_dinov3_backbone(spec: str | Path | None, out_indices: list[int] | None 
     """``DINOv3ViTBackbone`` from a local folder (or a hub id when not offline), frozen, in eval mode."""
     require("transformers", "transformers", "the DINOv3 backbone")
     quiet_transformers()
-    from transformers import DINOv3ViTBackbone, DINOv3ViTConfig
+    from transformers import DINOv3ViTBackbone, DINOv3ViTConfig  # optional dependency, loaded only when used
 
     where, local = _resolve(spec)
     hint = DOWNLOAD_HINT.format(default=default_backbone_dir())

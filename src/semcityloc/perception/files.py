@@ -19,6 +19,7 @@ import numpy as np
 
 from semcityloc.classes import IGNORE, NUM_CLASSES
 from semcityloc.errors import InputFileError, ParameterError, ShapeError
+from semcityloc.io.images import load_depth, load_labels_png
 from semcityloc.perception.base import DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
@@ -71,8 +72,6 @@ class FilesSegmentation:
         H, W = img.shape[:2]
         path = find_file(self.where, name, MASK_SUFFIXES, "mask")
         if path.suffix.lower() == ".png":
-            from semcityloc.io.images import load_labels_png
-
             return _from_labels(_resize_nearest(load_labels_png(path), W, H))
         try:
             arr = np.load(path, allow_pickle=False)
@@ -114,8 +113,6 @@ class FilesDepth:
         self.where = Path(depth).expanduser()
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput:
-        from semcityloc.io.images import load_depth
-
         img = check_image(image)
         H, W = img.shape[:2]
         path = find_file(self.where, name, DEPTH_SUFFIXES, "depth")

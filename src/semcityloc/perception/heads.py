@@ -36,8 +36,9 @@ class DPTSegHead(nn.Module):
         dropout: float = 0.1,
     ):
         super().__init__()
+        # transformers: optional [perception] extra, loaded only when a DPT head is built
         from transformers import DPTConfig
-        from transformers.models.dpt.modeling_dpt import DPTNeck, DPTSemanticSegmentationHead
+        from transformers.models.dpt.modeling_dpt import DPTNeck, DPTSemanticSegmentationHead  # optional
 
         if len(neck_hidden_sizes) != 4:
             raise ParameterError(f"neck_hidden_sizes must have 4 entries, got {list(neck_hidden_sizes)}")

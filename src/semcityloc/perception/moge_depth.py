@@ -86,7 +86,7 @@ def load_moge2(spec: str | Path | None = None, device: str | None = None):
     """``MoGeModel`` from a ``model.pt`` with a strict key/shape check, in eval mode (module docstring)."""
     require("moge.model.v2", "dlr-moge", "MoGe-2 depth")
     require("utils3d", "dlr-utils3d", "MoGe-2 depth")
-    from moge.model.v2 import MoGeModel
+    from moge.model.v2 import MoGeModel  # optional dependency, loaded only when used
 
     path = _resolve(spec)
     hint = DOWNLOAD_HINT.format(default=default_model_path())

@@ -1,6 +1,6 @@
 """The registry that picks a perception backend by name, and the built-in backends registered in it.
 
-Each built-in factory imports its backend module when called (torch, transformers and moge load only when
+Each torch-based factory imports its backend module when called (torch, transformers and moge load only when
 a backend is used, never on ``import semcityloc``).
 
 | kind         | name         | options                                              |
@@ -20,6 +20,7 @@ from typing import Any
 
 from semcityloc.errors import ParameterError, unknown_choice
 from semcityloc.perception.base import DepthBackend, SegmentationBackend
+from semcityloc.perception.files import files_depth_backend, files_segmentation_backend
 
 
 @dataclass(frozen=True)
@@ -78,32 +79,31 @@ SEG_OPTIONS = ("head", "backbone", "device", "threads")
 
 
 def _dinov3_dpt(**options):
-    from semcityloc.perception.segmenter import dinov3_dpt_backend  # torch / heavy: when used
+    # needs torch (optional [perception] extra): imported when the backend is built
+    from semcityloc.perception.segmenter import dinov3_dpt_backend
 
     return dinov3_dpt_backend(**options)
 
 
 def _mobilenetv2(**options):
-    from semcityloc.perception.segmenter import mobilenetv2_backend  # torch / heavy: when used
+    # needs torch (optional [perception] extra): imported when the backend is built
+    from semcityloc.perception.segmenter import mobilenetv2_backend
 
     return mobilenetv2_backend(**options)
 
 
 def _files_seg(**options):
-    from semcityloc.perception.files import files_segmentation_backend  # torch / heavy: when used
-
     return files_segmentation_backend(**options)
 
 
 def _moge2(**options):
-    from semcityloc.perception.moge_depth import moge2_backend  # torch / heavy: when used
+    # needs torch (optional [perception] extra): imported when the backend is built
+    from semcityloc.perception.moge_depth import moge2_backend
 
     return moge2_backend(**options)
 
 
 def _files_depth(**options):
-    from semcityloc.perception.files import files_depth_backend  # torch / heavy: when used
-
     return files_depth_backend(**options)
 
 

@@ -33,7 +33,9 @@ from semcityloc.perception.base import (
     class_probs_to_output,
     weights_dir,
 )
+from semcityloc.perception.dinov3 import DINOv3Backbone
 from semcityloc.perception.heads import DPTSegHead, FPNSegHead, build_head
+from semcityloc.perception.mobilenet import MobileNetV2Backbone
 from semcityloc.perception.torch_utils import (
     device_of,
     fit_size,
@@ -70,11 +72,7 @@ def parse_backbone_spec(spec: str) -> tuple[str, str | None]:
 
 def build_backbone(kind: str, path: str | None, out_indices: list[int] | None = None) -> nn.Module:
     if kind == "mobilenetv2":
-        from semcityloc.perception.mobilenet import MobileNetV2Backbone
-
         return MobileNetV2Backbone(weights=path)
-    from semcityloc.perception.dinov3 import DINOv3Backbone
-
     return DINOv3Backbone(path, out_indices)
 
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE, SemanticClass
 from semcityloc.errors import ParameterError
@@ -48,8 +49,6 @@ class SyntheticView:
 
 def generated_model(seed: int = 0, blocks: tuple[int, int] = (2, 2), lod: int = 2) -> CityModel:
     """The generator's district as a ``CityModel`` (same footprints as ``generate_city`` writes)."""
-    from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
-
     return footprints_to_model(generate_footprints(seed=seed, blocks=blocks), lod=lod)
 
 

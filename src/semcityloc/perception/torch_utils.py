@@ -8,6 +8,7 @@ the network stride (16 for a ViT/16, 32 for MobileNetV2).
 
 from __future__ import annotations
 
+import importlib
 import math
 from typing import Any
 
@@ -22,7 +23,7 @@ IMAGENET_STD = (0.229, 0.224, 0.225)
 def require_torch(purpose: str = "perception") -> Any:
     """The ``torch`` module, or ``OptionalDependencyError`` naming the ``[perception]`` extra."""
     try:
-        import torch
+        import torch  # optional dependency, loaded only when used
     except ImportError as exc:
         raise OptionalDependencyError("torch", "perception", purpose) from exc
     return torch
@@ -30,8 +31,6 @@ def require_torch(purpose: str = "perception") -> Any:
 
 def require(module: str, package: str, purpose: str) -> Any:
     """Import ``module`` or raise ``OptionalDependencyError`` for ``package``."""
-    import importlib
-
     try:
         return importlib.import_module(module)
     except ImportError as exc:
@@ -110,7 +109,7 @@ def labels_tensor(labels: np.ndarray | list[np.ndarray], size: tuple[int, int] |
 def quiet_transformers() -> None:
     """No progress bars or info chatter from ``transformers`` while loading local weights."""
     try:
-        from transformers.utils import logging as hf_logging
+        from transformers.utils import logging as hf_logging  # optional dependency, loaded only when used
 
         hf_logging.disable_progress_bar()
         hf_logging.set_verbosity_error()

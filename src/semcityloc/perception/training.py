@@ -36,6 +36,7 @@ import numpy as np
 
 from semcityloc.classes import CLASS_NAMES, IGNORE, SemanticClass
 from semcityloc.errors import InputFileError, ParameterError
+from semcityloc.io.images import load_image, load_labels_png
 from semcityloc.perception.base import check_classes, check_image
 from semcityloc.perception.metrics import confusion, mean_iou, pixel_accuracy
 from semcityloc.perception.segmenter import Segmenter, new_segmenter, parse_backbone_spec, save_head
@@ -94,8 +95,6 @@ def load_samples(images_dir: str | Path, labels_dir: str | Path) -> list[Sample]
     """Photos in ``images_dir`` paired with ``labels_dir/<stem>.png`` by file stem (sorted by name).
 
     Photos without a label file are skipped; no pair at all is an ``InputFileError``."""
-    from semcityloc.io.images import load_image, load_labels_png
-
     images_dir, labels_dir = Path(images_dir), Path(labels_dir)
     for d, what in ((images_dir, "images"), (labels_dir, "labels")):
         if not d.is_dir():

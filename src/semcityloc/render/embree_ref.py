@@ -23,6 +23,7 @@ RAYS_PER_CALL = 1 << 20
 
 def embree_available() -> bool:
     try:
+        # optional [reference] extra: only probed here, never imported with the package
         import embreex.mesh_construction  # noqa: F401
         import embreex.rtcore_scene  # noqa: F401
     except ImportError:
@@ -37,8 +38,8 @@ class EmbreeEngine:
 
     def __init__(self, scene: RenderScene):
         try:
-            from embreex import rtcore_scene as rtcs
-            from embreex.mesh_construction import TriangleMesh
+            from embreex import rtcore_scene as rtcs  # optional dependency, loaded only when used
+            from embreex.mesh_construction import TriangleMesh  # optional dependency, loaded only when used
         except ImportError as exc:
             raise OptionalDependencyError("embreex", "reference", "the Embree reference renderer") from exc
         self.scene = scene

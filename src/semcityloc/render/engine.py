@@ -20,7 +20,10 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import RenderError, ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
+from semcityloc.render.embree_ref import EmbreeEngine
+from semcityloc.render.gpu import GpuEngine, gpu_status
 from semcityloc.render.output import RenderOutput
+from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene, build_scene
 
 ENGINES = ("auto", "numba", "embree", "gpu")
@@ -49,16 +52,11 @@ def make_engine(name: str, scene: RenderScene):
     if name not in ENGINES:
         raise unknown_choice("render engine", name, ENGINES, RenderError)
     if name in ("auto", "gpu"):
-        from semcityloc.render.gpu import GpuEngine, gpu_status
-
         ok, _ = gpu_status()
         if ok or name == "gpu":
             return GpuEngine(scene)  # raises RenderError with an install hint when unavailable
     if name == "embree":
-        from semcityloc.render.embree_ref import EmbreeEngine
-
         return EmbreeEngine(scene)
-    from semcityloc.render.raster_numba import NumbaEngine
 
     return NumbaEngine(scene)
 

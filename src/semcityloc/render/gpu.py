@@ -46,10 +46,11 @@ def gpu_status() -> tuple[bool, str]:
         except (ImportError, ValueError):
             return False, f"{package} is not installed"
     try:
-        import torch
+        import torch  # optional dependency, loaded only when used
 
         if not torch.cuda.is_available():
             return False, "torch finds no CUDA GPU"
+        # optional (nvdiffrast): imported only to probe the GPU engine, never with the package
         import nvdiffrast.torch  # noqa: F401
     except Exception as exc:  # a broken CUDA install must not break engine='auto'
         return False, f"the GPU stack failed to load: {exc}"
@@ -66,8 +67,8 @@ class GpuEngine:
         ok, why = gpu_status()
         if not ok:
             raise RenderError(f"the GPU engine is not available: {why}. {INSTALL_HINT}")
-        import nvdiffrast.torch as dr
-        import torch
+        import nvdiffrast.torch as dr  # optional dependency, loaded only when used
+        import torch  # optional dependency, loaded only when used
 
         self._torch, self._dr = torch, dr
         self.scene = scene

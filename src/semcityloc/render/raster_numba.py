@@ -33,6 +33,9 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from semcityloc.errors import ShapeError
+from semcityloc.render.output import RenderOutput
+
 # Geometry closer to the camera than this (metres, along the optical axis) is clipped away.
 NEAR_M = 0.1
 # A pixel centre closer to an edge than EDGE_EPS x (coordinate magnitudes) is decided by the exact edge
@@ -520,8 +523,6 @@ class NumbaEngine:
         return s.tri_xyz, s.classes, s.tile_start, s.tile_bbox, s.block_start, s.block_bbox
 
     def render(self, camera, Rs: np.ndarray, ts: np.ndarray, depth: bool = False, face_ids: bool = False):
-        from semcityloc.render.output import RenderOutput
-
         n, h, w = len(Rs), camera.height, camera.width
         labels = np.empty((n, h * w), dtype=np.uint8)
         dep = np.empty((n, h * w), dtype=np.float32) if depth else np.empty((1, 1), dtype=np.float32)
@@ -555,8 +556,6 @@ class NumbaEngine:
         self, camera, Rs: np.ndarray, ts: np.ndarray, query: np.ndarray, n_classes: int
     ) -> np.ndarray:
         """(N, C, C) int32 counts of (rendered class, query class) per view; see ``render_confusion``."""
-        from semcityloc.errors import ShapeError
-
         q = np.ascontiguousarray(query, dtype=np.uint8).reshape(-1)
         if q.size != camera.width * camera.height:
             raise ShapeError(f"query has {q.size} pixels, the camera {camera.width} x {camera.height}")

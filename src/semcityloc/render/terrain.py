@@ -105,12 +105,17 @@ def _ring(lo: np.ndarray, hi: np.ndarray, spacing: float) -> np.ndarray:
 
 
 def build_terrain(
-    model: CityModel, margin_m: float | None = None, drop_hidden: bool = True
+    model: CityModel,
+    margin_m: float | None = None,
+    drop_hidden: bool = True,
+    extra_points: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Terrain TIN in the local frame: (vertices (V, 3) float64, triangles (F, 3) int32).
 
     ``drop_hidden``: leave out the triangles that lie under building footprints (module docstring).
-    Returns empty arrays when the model has no building with walls or roofs.
+    ``extra_points``: (K, 3) more terrain points, triangulated with the others as given (not lowered;
+    e.g. the benchmark reality's relief grid). Returns empty arrays when the model has no building with
+    walls or roofs.
     """
     base = base_points(model)
     if len(base) == 0:
@@ -124,6 +129,8 @@ def build_terrain(
     _, nearest = cKDTree(base[:, :2]).query(ring_xy)
     ring = np.column_stack([ring_xy, base[nearest, 2]])
     points = np.concatenate([base, ring])
+    if extra_points is not None and len(extra_points):
+        points = np.concatenate([points, np.asarray(extra_points, dtype=np.float64).reshape(-1, 3)])
     tri = Delaunay(points[:, :2])
     simplices = tri.simplices.astype(np.int32)
     if drop_hidden:

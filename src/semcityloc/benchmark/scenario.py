@@ -1,0 +1,137 @@
+"""Named simulation scenarios (``clean``, ``realistic``) and ``--set knob=value`` overrides.
+
+Why: the benchmark is a proxy for real photos, so its default must be as hard as they are. A scenario is
+a named bundle of knob values of ``QueryConfig`` (and of its nested ``RealityParams`` / ``DepthParams``);
+every knob is documented where it is defined. ``clean`` is the first benchmark (queries almost the map
+itself: kept to compare with); ``realistic`` (the default of ``semcityloc benchmark`` and the demo)
+follows the paper's real data: GNSS/IMU priors as flown, a reality that differs from the map, structured
+segmentation errors and non-affine depth. ``docs/benchmark.md`` gives each value and its source.
+
+Knob names for ``--set``: a ``QueryConfig`` field (``prior_height_m=20``), or a nested field by its own
+name when unambiguous (``shift_xy_max_m=1``) or dotted (``reality.shift_xy_max_m=1``,
+``depth_model.distortion=0.2``). Values are parsed as JSON where they can be (``30``, ``null``,
+``[2, 15]``, ``true``), else taken as strings (``zero-shot``); a pair is also accepted as ``2-15``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any
+
+from semcityloc.benchmark.depth_sim import DepthParams
+from semcityloc.benchmark.occluders import REALISTIC_REALITY, RealityParams
+from semcityloc.benchmark.queries import QueryConfig
+from semcityloc.errors import BenchmarkConfigError, unknown_choice
+
+DEFAULT_SCENARIO = "realistic"
+
+SCENARIOS: dict[str, dict[str, Any]] = {
+    "clean": {},
+    "realistic": {
+        # GNSS/IMU as flown: horizontal 2-15 m, height +-30 m (barometric / geoid: LoD-Loc searches
+        # +-30 m for this reason; both real priors in ../shared are mostly height), yaw +-8 deg,
+        # roll / pitch N(0, 1 deg) clipped to +-3 deg (gimbal IMU).
+        "prior_translation_m": (2.0, 15.0),
+        "prior_height_m": 30.0,
+        "prior_yaw_deg": 8.0,
+        "prior_roll_pitch_sigma_deg": 1.0,
+        "prior_roll_pitch_deg": 3.0,
+        "reality": REALISTIC_REALITY,
+        "seg_model": "structured",
+        "depth_model": DepthParams(),
+        "score_against_map": True,
+    },
+}
+
+
+def query_config(
+    scenario: str = DEFAULT_SCENARIO, settings: dict[str, Any] | None = None, **fields
+) -> QueryConfig:
+    """The ``QueryConfig`` of ``scenario`` with ``fields`` (queries, seed, seg_quality, ...) and the
+    ``settings`` knob overrides applied (``parse_settings``)."""
+    if scenario not in SCENARIOS:
+        raise unknown_choice("scenario", scenario, SCENARIOS, BenchmarkConfigError)
+    cfg = QueryConfig(**{**SCENARIOS[scenario], **fields, "scenario": scenario})
+    for name, value in (settings or {}).items():
+        cfg = set_knob(cfg, name, value)
+    return cfg
+
+
+def knob_names() -> tuple[str, ...]:
+    """Every name ``--set`` accepts (top-level fields, then the nested ones dotted)."""
+    out = [f.name for f in dataclasses.fields(QueryConfig) if f.name not in ("queries", "scenario")]
+    for outer, cls in _NESTED.items():
+        out += [f"{outer}.{f.name}" for f in dataclasses.fields(cls)]
+    return tuple(out)
+
+
+_NESTED = {"reality": RealityParams, "depth_model": DepthParams}
+
+
+def _resolve(name: str) -> tuple[str | None, str]:
+    """(nested field or None, field name) of a knob name (module docstring)."""
+    top = {f.name for f in dataclasses.fields(QueryConfig)}
+    if "." in name:
+        outer, inner = name.split(".", 1)
+        if outer in _NESTED and inner in {f.name for f in dataclasses.fields(_NESTED[outer])}:
+            return outer, inner
+    elif name in top:
+        return None, name
+    else:
+        owners = [o for o, cls in _NESTED.items() if name in {f.name for f in dataclasses.fields(cls)}]
+        if len(owners) == 1:
+            return owners[0], name
+    raise unknown_choice("knob", name, knob_names(), BenchmarkConfigError)
+
+
+def parse_value(text: str) -> Any:
+    """A knob value from the command line (module docstring)."""
+    try:
+        return json.loads(text)
+    except ValueError:
+        pass
+    parts = text.split("-")
+    if len(parts) == 2:
+        try:
+            return [float(parts[0]), float(parts[1])]
+        except ValueError:
+            pass
+    return text
+
+
+def parse_settings(items: list[str] | None) -> dict[str, Any]:
+    """``["knob=value", ...]`` -> {knob: value}; each knob checked (``BenchmarkConfigError``)."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise BenchmarkConfigError(f"--set takes knob=value, got {item!r}")
+        _resolve(name.strip())
+        out[name.strip()] = parse_value(text.strip())
+    return out
+
+
+def _coerce(value: Any, current: Any) -> Any:
+    if isinstance(value, list):
+        return tuple(value)
+    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def set_knob(cfg: QueryConfig, name: str, value: Any) -> QueryConfig:
+    """``cfg`` with knob ``name`` set to ``value`` (checked by the dataclasses' own range checks)."""
+    outer, inner = _resolve(name)
+    try:
+        if outer is None:
+            return dataclasses.replace(cfg, **{inner: _coerce(value, getattr(cfg, inner))})
+        nested = getattr(cfg, outer)
+        if nested is None:  # e.g. depth_model in the clean scenario: start from the realistic defaults
+            nested = _NESTED[outer]()
+        nested = dataclasses.replace(nested, **{inner: _coerce(value, getattr(nested, inner))})
+        return dataclasses.replace(cfg, **{outer: nested})
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, BenchmarkConfigError):
+            raise
+        raise BenchmarkConfigError(f"--set {name}={value!r}: {exc}") from exc

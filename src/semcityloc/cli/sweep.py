@@ -1,0 +1,61 @@
+"""``semcityloc sweep``: one benchmark run per value of one knob, the rest of the arguments the same.
+
+``semcityloc sweep --knob prior_roll_pitch_sigma_deg --values 0,1,2,3 --city MODEL --out DIR`` runs
+``DIR/<knob>=<value>/`` for each value (each resumable like ``semcityloc benchmark``; a killed sweep
+continues where it stopped), prints one table with a row per value and tells how to draw the report:
+``semcityloc report DIR/*`` writes the sweep's table and a recall-against-value plot.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.scenario import parse_settings, parse_value
+from semcityloc.cli.benchmark import add_simulation_arguments, spec_from_args
+from semcityloc.errors import BenchmarkError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sweep", help="one benchmark run per value of one simulation knob")
+    p.add_argument("--knob", required=True, help="the knob to sweep (any name --set takes)")
+    p.add_argument("--values", required=True, help="comma-separated values, e.g. 0,1,2 or 2-5,5-10 for pairs")
+    add_simulation_arguments(p)
+    p.add_argument("--out", required=True, help="folder of the sweep: one run folder per value")
+    p.set_defaults(func=run)
+
+
+def sweep_values(text: str) -> list:
+    """The values of ``--values`` (each parsed as ``--set`` parses a value)."""
+    values = [parse_value(v.strip()) for v in text.split(",") if v.strip()]
+    if not values:
+        raise BenchmarkError("--values needs at least one value")
+    return values
+
+
+def run(args: argparse.Namespace) -> int:
+    knob = args.knob.strip()
+    parse_settings([f"{knob}=0"])  # an unknown knob fails before anything runs
+    values = sweep_values(args.values)
+    specs = [spec_from_args(args, {knob: v}, sweep=(knob, v)) for v in values]  # all checked first
+    out = Path(args.out)
+    summaries, labels, done = [], [], True
+    for value, spec in zip(values, specs, strict=True):
+        run_dir = out / f"{knob}={value}".replace("/", "_").replace(" ", "")
+        outcome = run_benchmark(
+            spec, run_dir, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after
+        )
+        if not outcome.complete:
+            done = False
+            print(
+                f"{knob}={value}: {len(outcome.rows)}/{outcome.config['queries']} queries done in {run_dir}"
+            )
+            continue
+        summaries.append(outcome.summary)
+        labels.append(f"{knob}={value}")
+    if summaries:
+        print(summary_markdown(summaries, labels, label_header=f"{args.method}, {knob}"))
+    print(("" if done else "run again to continue; ") + f"report: semcityloc report {out}/*")
+    return 0

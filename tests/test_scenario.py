@@ -1,0 +1,179 @@
+"""Scenarios and knobs of the simulated benchmark: the realistic prior and depth, --set, sweep, report."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from semcityloc.benchmark.depth_sim import DepthParams, simulate_depth_realistic
+from semcityloc.benchmark.perception_sim import simulate_depth
+from semcityloc.benchmark.queries import (
+    STREAM_PRIOR,
+    STREAM_PRIOR_EXTRA,
+    STREAM_PRIOR_REALISTIC,
+    QueryConfig,
+    sample_prior,
+)
+from semcityloc.benchmark.scenario import (
+    SCENARIOS,
+    knob_names,
+    parse_settings,
+    parse_value,
+    query_config,
+    set_knob,
+)
+from semcityloc.errors import BenchmarkConfigError
+from semcityloc.geometry.pose import Pose
+
+TRUE = Pose.from_xyz_rpy([100.0, 200.0, 90.0], 1.0, 35.0, 40.0)
+
+
+def prior_errors(cfg: QueryConfig, n: int = 600) -> np.ndarray:
+    """(n, 5): dx, dy, dz, roll error, pitch error of the priors of n queries."""
+    out = []
+    for i in range(n):
+        realistic = cfg.prior_height_m is not None or cfg.prior_roll_pitch_sigma_deg is not None
+        _, info = sample_prior(
+            TRUE,
+            cfg,
+            np.random.default_rng([cfg.seed, i, STREAM_PRIOR]),
+            np.random.default_rng([cfg.seed, i, STREAM_PRIOR_EXTRA]),
+            np.random.default_rng([cfg.seed, i, STREAM_PRIOR_REALISTIC]) if realistic else None,
+        )
+        out.append([*info["prior_err_xyz"], info["prior_roll_err_deg"], info["prior_pitch_err_deg"]])
+    return np.array(out)
+
+
+def test_realistic_prior_has_the_stated_distribution():
+    e = prior_errors(query_config("realistic", queries=1))
+    horizontal = np.linalg.norm(e[:, :2], axis=1)
+    assert horizontal.min() >= 2.0 - 1e-9 and horizontal.max() <= 15.0 + 1e-9
+    assert np.abs(e[:, 2]).max() <= 30.0 and np.abs(e[:, 2]).max() > 27.0  # uniform in +-30 m
+    assert np.mean(np.abs(e[:, 2]) > 8.0) > 0.6  # most height errors beyond the old +-8 m grid
+    rp = e[:, 3:].reshape(-1)
+    assert np.abs(rp).max() <= 3.0 + 1e-12  # clipped at the gimbal limit
+    assert 0.9 < np.std(rp) < 1.1  # N(0, 1 deg)
+    assert np.mean(np.abs(rp) > 2.0) > 0.02  # the tails are there (N(0,1): 4.6 %)
+
+
+def test_clean_prior_keeps_the_old_distribution():
+    e = prior_errors(query_config("clean", queries=1), n=300)
+    norm = np.linalg.norm(e[:, :3], axis=1)
+    assert norm.min() >= 5.0 - 1e-9 and norm.max() <= 15.0 + 1e-9
+    assert np.all(np.abs(e[:, 2]) <= 0.4 * norm + 1e-9)  # |dz| <= 0.37 x the norm
+    assert np.abs(e[:, 3:]).max() <= 1.0
+
+
+def test_clean_scenario_is_the_plain_query_config():
+    assert dataclasses.replace(query_config("clean", queries=7, seed=3), scenario="clean") == QueryConfig(
+        queries=7, seed=3
+    )
+    realistic = query_config("realistic", queries=7)
+    assert realistic.scenario == "realistic" and realistic.seg_model == "structured"
+    assert realistic.depth_model is not None and realistic.prior_height_m == 30.0
+    assert set(SCENARIOS) == {"clean", "realistic"}
+
+
+def test_settings_reach_every_knob_and_are_checked():
+    cfg = query_config(
+        "realistic",
+        parse_settings(
+            [
+                "prior_height_m=10",
+                "shift_xy_max_m=0.5",
+                "depth_model.distortion=0.2",
+                "prior_translation_m=2-5",
+            ]
+        ),
+        queries=3,
+    )
+    assert cfg.prior_height_m == 10.0 and cfg.reality.shift_xy_max_m == 0.5
+    assert cfg.depth_model.distortion == 0.2 and cfg.prior_translation_m == (2.0, 5.0)
+    clean = set_knob(query_config("clean", queries=1), "depth_model.noise", [0.05, 0.08])
+    assert clean.depth_model == DepthParams(noise=(0.05, 0.08))  # starts from the realistic depth
+    assert parse_value("zero-shot") == "zero-shot" and parse_value("null") is None
+    assert "reality.shift_xy_max_m" in knob_names() and "prior_height_m" in knob_names()
+    with pytest.raises(BenchmarkConfigError, match="unknown knob 'nope'; known: seed"):
+        parse_settings(["nope=1"])
+    with pytest.raises(BenchmarkConfigError, match="knob=value"):
+        parse_settings(["prior_height_m"])
+    with pytest.raises(BenchmarkConfigError, match="prior_height_m"):
+        query_config("realistic", {"prior_height_m": -3}, queries=1)
+    with pytest.raises(BenchmarkConfigError, match="unknown scenario 'hard'"):
+        query_config("hard", queries=1)
+
+
+def depth_scene() -> tuple[np.ndarray, np.ndarray]:
+    """A nadir-like depth: ground at 80 m, a block at 50 m, sky in one corner."""
+    d = np.full((96, 128), 80.0)
+    d[30:60, 40:90] = 50.0
+    d[:10, :10] = np.inf
+    labels = np.ones(d.shape, np.uint8)
+    labels[30:60, 40:90] = 3
+    labels[:10, :10] = 0
+    return d, labels
+
+
+def affine_residual(rel: np.ndarray, d: np.ndarray) -> float:
+    """Relative RMS residual of the best affine fit rel ~ a d + b (what the depth cost assumes)."""
+    ok = np.isfinite(rel) & np.isfinite(d)
+    A = np.column_stack([d[ok], np.ones(ok.sum())])
+    coef, *_ = np.linalg.lstsq(A, rel[ok], rcond=None)
+    return float(np.sqrt(np.mean((A @ coef - rel[ok]) ** 2)) / np.mean(rel[ok]))
+
+
+def test_realistic_depth_is_not_affine_and_keeps_sky_invalid():
+    d, labels = depth_scene()
+    clean = [affine_residual(simulate_depth(d, labels, np.random.default_rng(s)), d) for s in range(8)]
+    real = [affine_residual(simulate_depth_realistic(d, np.random.default_rng(s)), d) for s in range(8)]
+    assert np.median(real) > 2.0 * np.median(clean)
+    out = simulate_depth_realistic(d, np.random.default_rng(0))
+    assert np.isnan(out[:10, :10]).all() and np.isfinite(out[10:, 10:]).all() and (out[10:, 10:] > 0).all()
+    # Edges bled: next to the block, the ground's relative depth moves toward the block's.
+    quiet = DepthParams(noise=(0.0, 0.0), distortion=0.0, warp_gamma=(1.0, 1.0), bleed_px=(2, 2))
+    q = simulate_depth_realistic(d, np.random.default_rng(1), quiet)
+    far, near, beside = np.median(q[80:, 100:]), np.median(q[35:55, 50:80]), q[45, 91]
+    assert abs(beside - near) < abs(far - near) * 0.6
+    with pytest.raises(Exception, match="non-empty"):
+        simulate_depth_realistic(np.zeros((0, 0)), np.random.default_rng(0))
+
+
+def test_realistic_depth_warp_flattens_or_exaggerates_relief():
+    d, _ = depth_scene()
+    p = DepthParams(noise=(0.0, 0.0), distortion=0.0, bleed_px=(0, 0), warp_gamma=(0.6, 0.6))
+    q = simulate_depth_realistic(d, np.random.default_rng(2), p)
+    ratio = (np.median(q[80:, 100:]) - np.median(q[35:55, 50:80])) / np.median(q[80:, 100:])
+    true_ratio = (80.0 - 50.0) / 80.0
+    assert abs(ratio - true_ratio) > 0.02  # not the affine image of the truth
+
+
+@pytest.fixture
+def cli():
+    from semcityloc.cli import main
+
+    return main.main
+
+
+def test_cli_scenario_set_and_sweep_with_a_report(cli, capsys, tmp_path):
+    out = tmp_path / "sweep"
+    args = ["--city", "generated", "--queries", "2", "--preset", "fast", "--set", "seg_model=blobs"]
+    assert cli(["sweep", "--knob", "prior_height_m", "--values", "0,20", *args, "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "prior_height_m=0" in printed and "prior_height_m=20" in printed
+    runs = sorted(out.iterdir())
+    assert [r.name for r in runs] == ["prior_height_m=0", "prior_height_m=20"]
+    cfg = json.loads((runs[1] / "run.json").read_text())
+    assert cfg["sweep_knob"] == "prior_height_m" and cfg["sweep_value"] == 20
+    assert cfg["query_config"]["prior_height_m"] == 20.0 and cfg["query_config"]["scenario"] == "realistic"
+    assert cli(["report", *map(str, runs), "--out", str(tmp_path / "rep"), "--overlays", "0"]) == 0
+    capsys.readouterr()
+    table = (tmp_path / "rep" / "tables" / "sweep_prior_height_m.md").read_text()
+    assert "| sweep_value |" in table and "| 0 |" in table and "| 20 |" in table
+    assert (tmp_path / "rep" / "plots" / "recall_vs_prior_height_m.png").is_file()
+    assert cli(["sweep", "--knob", "nope", "--values", "1", *args, "--out", str(out)]) == 2
+    assert "unknown knob 'nope'" in capsys.readouterr().err
+    assert cli(["benchmark", *args, "--set", "prior_height_m=-1", "--out", str(tmp_path / "b")]) == 2
+    assert "prior_height_m" in capsys.readouterr().err
