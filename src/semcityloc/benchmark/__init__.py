@@ -1,6 +1,8 @@
 """The benchmark: query sources (simulated, data sets), the one resumable run loop, results and report.
 
-- ``queries``, ``occluders``, ``perception_sim``: the query simulator (reality != map, perception noise);
+- ``scenario``: the named simulations (``clean``, ``realistic``) and ``--set`` knobs;
+- ``queries``, ``occluders``, ``seg_errors``, ``shadows``, ``perception_sim``, ``depth_sim``: the query
+  simulator (reality != map, segmentation and depth errors);
 - ``sources``: the ``QuerySource`` protocol and ``SimulatedSource``; ``dataset_source``: a LoD-Loc data set;
 - ``spec``: ``BenchmarkSpec`` (a simulated run) and the models it loads;
 - ``run``: ``run_queries`` / ``run_benchmark``, the one loop (resume, workers, progress);
