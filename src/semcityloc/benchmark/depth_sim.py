@@ -33,9 +33,9 @@ from semcityloc.benchmark.perception_sim import (
     DEPTH_MIN_SHARE,
     DEPTH_SCALE_RANGE,
     DEPTH_SHIFT_RANGE,
+    clean_depth_input,
     smooth_field,
 )
-from semcityloc.errors import ShapeError
 
 
 @dataclass(frozen=True)
@@ -54,10 +54,7 @@ def simulate_depth_realistic(
 ) -> np.ndarray:
     """(H, W) float32 relative depth from the rendered z-depth (module docstring); NaN where not finite."""
     p = params or DepthParams()
-    d = np.asarray(clean_depth, dtype=np.float64)
-    if d.ndim != 2 or d.size == 0:
-        raise ShapeError(f"clean_depth must be a non-empty (H, W) array, got shape {d.shape}")
-    valid = np.isfinite(d) & (d > 0)
+    d, valid = clean_depth_input(clean_depth)
     out = np.full(d.shape, np.nan, dtype=np.float32)
     if not valid.any():
         return out

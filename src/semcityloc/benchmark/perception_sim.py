@@ -399,15 +399,20 @@ def miou(pred: np.ndarray, gt: np.ndarray, min_pixels: int = MIN_PRESENT_PIXELS)
     return mean_iou(conf, classes=MIOU_CLASSES, min_pixels=min_pixels, percent_of_mean=True)
 
 
-def simulate_depth(clean_depth: np.ndarray, labels_clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(H, W) float32 relative depth from the rendered z-depth (module docstring); NaN where not finite."""
+def clean_depth_input(clean_depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(float64 depth, bool mask of valid pixels) of a rendered z-depth (ShapeError unless (H, W))."""
     d = np.asarray(clean_depth, dtype=np.float64)
     if d.ndim != 2 or d.size == 0:
         raise ShapeError(f"clean_depth must be a non-empty (H, W) array, got shape {d.shape}")
+    return d, np.isfinite(d) & (d > 0)
+
+
+def simulate_depth(clean_depth: np.ndarray, labels_clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) float32 relative depth from the rendered z-depth (module docstring); NaN where not finite."""
+    d, valid = clean_depth_input(clean_depth)
     labels = _check_labels(labels_clean, "labels_clean")
     if labels.shape != d.shape:
         raise ShapeError(f"labels_clean {labels.shape} and clean_depth {d.shape} differ in shape")
-    valid = np.isfinite(d) & (d > 0)
     out = np.full(d.shape, np.nan, dtype=np.float32)
     if not valid.any():
         return out
