@@ -7,12 +7,10 @@ Usage::
 
 For each city (default: the generated city and Fuerth, ``../shared/data/fuerth_lod2_citygml1/
 LOD2_4424_5482_solid.gml``; never Berlin, whose numbers are reported, not tuned on), the script simulates
-``--views`` benchmark views (``QuerySimulator(map, QueryConfig(...), reality).query_with_truth(i)``: the
-true pose and the reality's clean labels, at the benchmark's camera and pose distribution; views the
-simulator does not accept are skipped, as the benchmark skips them), computes each view's truth
-(``seg_errors.view_truth`` with the sun of ``default_rng([seed, i, 7])``) and simulates the segmentation of
-every realistic preset (``simulate_segmentation(clean, preset, default_rng([seed, i, 3]), truth=truth)``:
-the benchmark's streams).
+``--views`` benchmark views (``benchmark.seg_calibration.calibration_views``: the benchmark's poses,
+reality render, ``ViewTruth`` with the query's sun and the map's labels; views the simulator does not
+accept are skipped, as the benchmark skips them) and scores every realistic preset on them
+(``score_preset``: the queries' own segmentation streams).
 
 Measured the paper's way: against the MAP's own labels projected at the true pose by the automatic
 labelling rules (``perception.autolabel.auto_label``; IGNORE pixels left out), confusion matrices summed
@@ -29,6 +27,7 @@ alone cost. ``--cache DIR`` keeps the simulated views (truth + map labels) in ``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import sys
 import time
@@ -36,107 +35,64 @@ from pathlib import Path
 
 import numpy as np
 
+from semcityloc.benchmark.occluders import REALISTIC_REALITY, RealityParams
+from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
+from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+from semcityloc.benchmark.scenario import query_config
+from semcityloc.benchmark.seg_calibration import CalibrationView, calibration_views, score_preset
+from semcityloc.benchmark.seg_errors import REALISTIC_SEG_PRESETS, SEG_TARGETS, ViewTruth
+from semcityloc.benchmark.spec import BenchmarkSpec, load_models
+from semcityloc.classes import NUM_CLASSES
+from semcityloc.perception.metrics import iou_per_class, mean_iou
+
 REPO = Path(__file__).resolve().parents[1]
 FUERTH = REPO.parent / "shared" / "data" / "fuerth_lod2_citygml1" / "LOD2_4424_5482_solid.gml"
-STREAM_SEG, STREAM_SUN = 3, 7  # the benchmark's streams (benchmark/queries.py)
+TRUTH_FIELDS = [f.name for f in dataclasses.fields(ViewTruth)]
 
 
 def prepare_views(city: str, views: int, seed: int, reality: str, cache: Path | None = None) -> dict:
-    """{"truths": [ViewTruth], "refs": [(H, W) uint8 map labels], "map_classes": array, "meta": [...]}"""
-    from semcityloc.benchmark.occluders import RealityParams
-    from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
-    from semcityloc.benchmark.seg_errors import ViewTruth, sun_direction, view_truth
-    from semcityloc.benchmark.spec import BenchmarkSpec, load_models
-    from semcityloc.perception.autolabel import auto_label
-    from semcityloc.render import Renderer
-
-    if reality == "realistic":
-        from semcityloc.benchmark.occluders import REALISTIC_REALITY as params
-    else:
-        params = RealityParams()
+    """{"views": [CalibrationView], "map_classes": array, "s_per_view": float} (``--cache``: kept in npz)."""
+    params = REALISTIC_REALITY if reality == "realistic" else RealityParams()
     key = hashlib.sha1(f"{city}|{views}|{seed}|{params!r}".encode()).hexdigest()[:12]
     path = None if cache is None else Path(cache) / f"views_{Path(city).stem}_{key}.npz"
     if path is not None and path.exists():
         z = np.load(path, allow_pickle=False)
-        n = int(z["n"])
-        names = [f.name for f in __import__("dataclasses").fields(ViewTruth)]
-        truths = [ViewTruth(**{k: z[f"{k}_{i}"] for k in names}) for i in range(n)]
-        return {
-            "truths": truths,
-            "refs": [z[f"ref_{i}"] for i in range(n)],
-            "map_classes": z["map_classes"],
-            "view": [str(v) for v in z["view"]],
-            "truth_s": float(z["truth_s"]),
-        }
+        out = [
+            CalibrationView(
+                int(z[f"index_{i}"]),
+                str(z[f"view_{i}"]),
+                ViewTruth(**{k: z[f"{k}_{i}"] for k in TRUTH_FIELDS}),
+                z[f"ref_{i}"],
+            )
+            for i in range(int(z["n"]))
+        ]
+        return {"views": out, "map_classes": z["map_classes"], "s_per_view": float(z["s_per_view"])}
     cfg = QueryConfig(queries=views, seed=seed, reality=params)
-    spec = BenchmarkSpec(city=city, query=cfg)
-    map_model, reality_model = load_models(spec.run_config())
-    sim = QuerySimulator(map_model, cfg, reality_model)
-    map_renderer = Renderer(map_model, engine="numba")
-    truths, refs, kinds, spent = [], [], [], 0.0
-    for i in range(views):
-        sv = sim.query_with_truth(i)
-        if not sv.query.meta.get("accepted", True):
-            continue
-        pose = sv.query.true_pose_local
-        t0 = time.perf_counter()
-        truth = view_truth(
-            sim.reality, sim.camera, pose, sun_direction(np.random.default_rng([seed, i, STREAM_SUN]))
-        )
-        spent += time.perf_counter() - t0
-        truths.append(truth)
-        refs.append(auto_label(map_model, sim.camera, map_model.pose_to_world(pose), renderer=map_renderer))
-        kinds.append(sv.query.meta["view"])
-    out = {
-        "truths": truths,
-        "refs": refs,
-        "map_classes": np.unique(map_model.classes),
-        "view": kinds,
-        "truth_s": spent / max(len(truths), 1),
-    }
+    map_model, reality_model = load_models(BenchmarkSpec(city=city, query=cfg).run_config())
+    t0 = time.perf_counter()
+    out, map_classes = calibration_views(map_model, cfg, reality_model)
+    spent = (time.perf_counter() - t0) / max(views, 1)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        arrays = {"n": len(truths), "map_classes": out["map_classes"], "view": np.array(kinds)}
-        arrays["truth_s"] = out["truth_s"]
-        for i, (t, r) in enumerate(zip(truths, refs, strict=True)):
-            arrays[f"ref_{i}"] = r
-            for f in __import__("dataclasses").fields(ViewTruth):
-                arrays[f"{f.name}_{i}"] = getattr(t, f.name)
+        arrays = {"n": len(out), "map_classes": map_classes, "s_per_view": spent}
+        for i, v in enumerate(out):
+            arrays[f"index_{i}"], arrays[f"view_{i}"], arrays[f"ref_{i}"] = v.index, v.view, v.map_labels
+            for k in TRUTH_FIELDS:
+                arrays[f"{k}_{i}"] = getattr(v.truth, k)
         np.savez_compressed(path, **arrays)
-    return out
+    return {"views": out, "map_classes": map_classes, "s_per_view": spent}
 
 
 def score(data: dict, preset, seed: int = 0, perfect: bool = False) -> dict:
     """Pooled and per-image mIoU (%) of ``preset`` on prepared views (module docstring)."""
-    from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES, simulate_segmentation
-    from semcityloc.benchmark.seg_errors import fold_to_map_classes
-    from semcityloc.classes import IGNORE, NUM_CLASSES
-    from semcityloc.perception.metrics import confusion, iou_per_class, mean_iou
-
-    pooled = np.zeros((NUM_CLASSES, NUM_CLASSES), dtype=np.int64)
-    per_image, spent = [], 0.0
-    for i, (truth, ref) in enumerate(zip(data["truths"], data["refs"], strict=True)):
-        t0 = time.perf_counter()
-        if perfect:
-            pred = np.where(truth.occluder, truth.behind, truth.labels).astype(np.uint8)
-        else:
-            rng = np.random.default_rng([seed, i, STREAM_SEG])
-            pred = simulate_segmentation(truth.labels, preset, rng, truth=truth)
-        spent += time.perf_counter() - t0
-        pred = fold_to_map_classes(pred, data["map_classes"])
-        keep = ref != IGNORE
-        conf = confusion(pred[keep], ref[keep], NUM_CLASSES)
-        pooled += conf
-        per_image.append(
-            mean_iou(conf, classes=MIOU_CLASSES, min_pixels=MIN_PRESENT_PIXELS, percent_of_mean=True)
-        )
+    t0 = time.perf_counter()
+    res = score_preset(data["views"], data["map_classes"], None if perfect else preset, seed)
     return {
-        "pooled": mean_iou(pooled, classes=MIOU_CLASSES, min_pixels=1, percent_of_mean=True),
-        "per_image": float(np.nanmean(per_image)),
-        "per_image_all": per_image,
-        "iou": iou_per_class(pooled),
-        "confusion": pooled,
-        "seg_s": spent / max(len(data["truths"]), 1),
+        "pooled": res.pooled,
+        "per_image": res.per_image,
+        "iou": res.iou,
+        "confusion": res.confusion,
+        "seg_s": (time.perf_counter() - t0) / max(len(data["views"]), 1),
     }
 
 
@@ -144,13 +100,6 @@ def direct(city: str, views: int, seed: int, quality: str, reality: str) -> dict
     """The benchmark's own path (``--direct``): ``QuerySimulator(map, query_config("realistic", ...),
     reality)``, ``query_with_truth(i)`` (runs ``view_truth`` + ``simulate_segmentation``) and
     ``sim.map_confusion`` pooled over the accepted views; no class folding (what the benchmark reports)."""
-    from semcityloc.benchmark.occluders import RealityParams
-    from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
-    from semcityloc.benchmark.queries import QuerySimulator
-    from semcityloc.benchmark.scenario import query_config
-    from semcityloc.benchmark.spec import BenchmarkSpec, load_models
-    from semcityloc.classes import NUM_CLASSES
-    from semcityloc.perception.metrics import iou_per_class, mean_iou
 
     extra = {} if reality == "realistic" else {"reality": RealityParams()}
     cfg = query_config("realistic", queries=views, seed=seed, seg_quality=quality, **extra)
@@ -198,7 +147,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--direct", action="store_true", help="the benchmark's own path (no cache, slower)")
     args = ap.parse_args(argv)
-    from semcityloc.benchmark.seg_errors import REALISTIC_SEG_PRESETS, SEG_TARGETS
 
     cities = args.city or ["generated", str(FUERTH)]
     if any("berlin" in c.lower() for c in cities):
@@ -222,10 +170,10 @@ def main(argv: list[str] | None = None) -> int:
     for city in cities:
         t0 = time.perf_counter()
         data = prepare_views(city, args.views, args.seed, args.reality, args.cache)
-        n = len(data["truths"])
+        n = len(data["views"])
         print(
             f"== {Path(city).name}: {n} views ({args.reality} reality), prepared in "
-            f"{time.perf_counter() - t0:.1f} s; view_truth {data['truth_s']:.3f} s/view"
+            f"{time.perf_counter() - t0:.1f} s ({data['s_per_view']:.3f} s/view)"
         )
         ceiling = score(data, None, args.seed, perfect=True)
         print(

@@ -147,6 +147,44 @@ def test_height_error_and_shift_stay_within_their_bounds(city):
     np.testing.assert_allclose(shift, np.linalg.norm(r.building_shift_xy, axis=1)[b], atol=MM)
 
 
+def test_normal_model_error_spread_is_half_normal_within_the_bound(city):
+    params = RealityParams(**{**OFF, "shift_xy_max_m": 1.0, "height_change_max_m": 2.0})
+    uni = build_reality(city, None, seed=0, params=params)
+    nor = build_reality(city, None, seed=0, params=dataclasses.replace(params, model_error_spread="normal"))
+    for r in (uni, nor):
+        assert np.abs(r.building_height_change).max() <= 2.0 + MM
+        assert np.linalg.norm(r.building_shift_xy, axis=1).max() <= 1.0 + MM
+    dh = np.abs(nor.building_height_change[nor.building_height_change != 0])
+    shift = np.linalg.norm(nor.building_shift_xy, axis=1)
+    # |N(0, max / 3)|: mean 0.266 x max (uniform: 0.5 x max); about a third of the buildings beyond max / 3.
+    assert 0.18 < dh.mean() / 2.0 < 0.36 and 0.18 < shift.mean() < 0.36
+    assert 0.15 < np.mean(dh > 2.0 / 3) < 0.5
+    assert np.abs(uni.building_height_change).mean() > 0.8  # uniform: mean 1 m
+    with pytest.raises(BenchmarkConfigError, match="model_error_spread"):
+        RealityParams(model_error_spread="gaussian")
+
+
+def test_flat_roofs_can_be_left_without_overhang(city):
+    r = build_reality(city, None, seed=0, params=RealityParams(**OFF, overhang_m=(0.3, 1.0)))
+    p = build_reality(
+        city, None, seed=0, params=RealityParams(**OFF, overhang_m=(0.3, 1.0), overhang_flat_roofs=False)
+    )
+    roof = city.classes == SemanticClass.ROOF
+    c = _corners(city, roof)
+    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    area = 0.5 * np.linalg.norm(n, axis=1)
+    flat_area = area * (np.abs(n[:, 2]) / np.maximum(2 * area, 1e-12) > np.cos(np.radians(10)))
+    b = city.building_index[roof]
+    share = np.bincount(b, flat_area, len(city.building_ids)) / np.maximum(
+        np.bincount(b, area, len(city.building_ids)), 1e-12
+    )
+    flat = share > 0.5
+    assert flat.any() and (~flat).any()
+    assert not p.building_overhang_m[flat].any()
+    sloped = ~flat & (r.building_overhang_m > 0)
+    np.testing.assert_array_equal(p.building_overhang_m[sloped], r.building_overhang_m[sloped])
+
+
 # ------------------------------------------------------------------------------------------ overhangs
 def test_overhangs_push_roofs_out_along_their_planes_and_leave_walls(city):
     r = build_reality(city, None, seed=0, params=RealityParams(**OFF, overhang_m=(0.3, 1.0)))
