@@ -2,80 +2,36 @@
 
 from __future__ import annotations
 
-import io
 import math
-import struct
 
 import numpy as np
 import pyproj
 import pytest
-from PIL import Image
 
+from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
 from semcityloc.datasets.dji import (
     BAROMETRIC_UNCERTAINTY_M,
     GEOID_UNDULATION_BOUND_M,
     HEIGHT_BAROMETRIC,
     HEIGHT_ELLIPSOIDAL,
+    RTK_FLOAT_FLOOR_M,
     camera_from_exif,
+    dji_geotag,
     dji_prior,
     grid_convergence_deg,
     parse_xmp_fields,
+    prior_uncertainty,
     read_dji_metadata,
 )
 from semcityloc.datasets.lodloc import read_lodloc
 from semcityloc.errors import CRSError, InputFileError
 from semcityloc.geometry.errors import rotation_error_deg
+from semcityloc.geometry.uncertainty import RTK_FLOOR_M, PriorUncertainty
 
 REAL_IMAGE = "real_uav_lodloc/Query_image/DJI_20230513163714_0033_T.JPG"
 
 
-def xmp_packet(**fields) -> bytes:
-    attrs = "\n".join(f'   drone-dji:{k}="{v}"' for k, v in fields.items())
-    return (
-        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
-        ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
-        '  <rdf:Description rdf:about="DJI Meta Data" xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/"\n'
-        f'{attrs}>\n  </rdf:Description>\n </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end="w"?>'
-    ).encode()
-
-
-def dji_jpeg(path, xmp: bytes | None = None, gps: tuple | None = None, size=(64, 48)):
-    """A JPEG with an EXIF GPS block (lat, lon, alt) and an XMP APP1 segment, as DJI writes them."""
-    exif = Image.Exif()
-    exif[271], exif[272] = "DJI", "M3E"
-    if gps is not None:
-        lat, lon, alt = gps
-        g = exif.get_ifd(0x8825)
-
-        def dms(v):
-            d = int(abs(v))
-            m = int((abs(v) - d) * 60)
-            return (float(d), float(m), (abs(v) - d - m / 60) * 3600)
-
-        g[1], g[2], g[3], g[4] = ("N" if lat >= 0 else "S"), dms(lat), ("E" if lon >= 0 else "W"), dms(lon)
-        g[5], g[6] = b"\x00", float(alt)
-    buf = io.BytesIO()
-    Image.new("RGB", size, (90, 90, 90)).save(buf, "JPEG", exif=exif)
-    data = buf.getvalue()
-    if xmp is not None:
-        payload = b"http://ns.adobe.com/xap/1.0/\x00" + xmp
-        data = data[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + data[2:]
-    path.write_bytes(data)
-    return path
-
-
-RTK = dict(
-    GpsLatitude="+48.1000000",
-    GpsLongitude="+11.5000000",
-    AbsoluteAltitude="+612.500",
-    RelativeAltitude="+80.0",
-    GimbalYawDegree="+0.00",
-    GimbalPitchDegree="+0.00",
-    GimbalRollDegree="+0.00",
-    AltitudeType="RtkAlt",
-    RtkFlag="50",
-    RtkStdHgt="0.021",
-)
+RTK = RTK_FIELDS
 
 
 def test_xmp_fields_in_attribute_and_element_form():
@@ -228,3 +184,68 @@ def test_dji_prior_cli_writes_a_pose_json_with_the_height_treatment(tmp_path, ca
             ["dataset", "dji-prior", str(image), "--crs", "EPSG:25832", "--offset", "1,2"]
         )
         args.func(args)
+
+
+# ------------------------------------------------------------------------------------ uncertainty, geotags
+def test_prior_uncertainty_follows_the_rtk_tags(tmp_path):
+    fixed = read_dji_metadata(
+        dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK, RtkStdLon="0.9", RtkStdLat="0.012"))
+    )
+    assert (fixed.rtk_std_lon_m, fixed.rtk_std_lat_m) == (0.9, 0.012)
+    sigma = prior_uncertainty(fixed)
+    assert sigma.xy_m == 0.9 and sigma.z_m == RTK_FLOOR_M  # the larger std; height 0.021 m floored
+    assert "RTK fixed" in sigma.source and sigma.yaw_deg == PriorUncertainty().yaw_deg
+    float_fix = read_dji_metadata(dji_jpeg(tmp_path / "b.jpg", xmp_packet(**dict(RTK, RtkFlag="34"))))
+    assert prior_uncertainty(float_fix).xy_m == RTK_FLOAT_FLOOR_M == prior_uncertainty(float_fix).z_m
+    plain = read_dji_metadata(
+        dji_jpeg(
+            tmp_path / "c.jpg", xmp_packet(GimbalYawDegree="1", GimbalPitchDegree="-60"), gps=(48, 11, 500)
+        )
+    )
+    base = PriorUncertainty(xy_m=7.0, z_m=20.0)
+    got = prior_uncertainty(plain, base)
+    assert (got.xy_m, got.z_m) == (7.0, 20.0) and "no RTK" in got.source
+    # The same RTK photo into a CRS whose heights need a geoid that pyproj lacks (or not, on a machine
+    # with the grid): the height uncertainty then covers the undulation.
+    prior = dji_prior(fixed, "EPSG:25832+7837")
+    if not prior.geoid_applied:
+        assert prior_uncertainty(prior).z_m == pytest.approx(GEOID_UNDULATION_BOUND_M / 3)
+    assert prior_uncertainty(dji_prior(fixed, "EPSG:25832")).z_m == RTK_FLOOR_M
+    with pytest.raises(InputFileError, match="DjiMetadata"):
+        prior_uncertainty("not metadata")
+
+
+@pytest.mark.parametrize("crs", ["EPSG:25832", "EPSG:32632", "EPSG:25832+7837"])
+@pytest.mark.parametrize("gimbal", [(33.0, -50.0, 0.0), (-150.0, -90.0, 0.0), (10.0, -20.0, 2.5)])
+def test_geotag_of_a_prior_gives_the_photo_back(tmp_path, crs, gimbal):
+    """``dji_geotag`` inverts ``dji_prior``: latitude / longitude to 1e-9 deg, height to 1 mm, and the
+    rotation (gimbal angles are gimbal-locked at nadir, so the rotation is compared, not the angles)."""
+    yaw, pitch, roll = gimbal
+    fields = dict(RTK, GimbalYawDegree=yaw, GimbalPitchDegree=pitch, GimbalRollDegree=roll)
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**fields)))
+    off = np.array([690000.0, 5330000.0, 0.0])
+    prior = dji_prior(meta, crs, offset=off, geoid_separation_m=47.0 if "+" in crs else None)
+    tag = dji_geotag(prior.pose, crs, offset=off)
+    assert tag.latitude == pytest.approx(48.1, abs=1e-9) and tag.longitude == pytest.approx(11.5, abs=1e-9)
+    if "+" in crs and tag.vertical_flag is None:  # the grid is installed: back to the ellipsoid
+        assert "ellipsoidal" in tag.height_reference
+    elif "+" in crs:
+        assert tag.height_m == pytest.approx(612.5 - 47.0) and "NOT applied" in tag.height_reference
+    else:
+        assert tag.height_m == pytest.approx(612.5, abs=1e-3) and "as it is" in tag.height_reference
+    back = dji_prior(tag.metadata(), crs, offset=off, source_height="ellipsoidal", geoid_separation_m=0.0)
+    assert float(rotation_error_deg(back.pose, prior.pose)) < 1e-7
+    if pitch > -89:
+        assert (tag.yaw_deg, tag.pitch_deg, tag.roll_deg) == pytest.approx(gimbal, abs=1e-7)
+
+
+def test_geotag_needs_a_metric_crs_and_a_valid_offset():
+    from semcityloc.geometry.pose import Pose
+
+    pose = Pose.from_xyz_rpy(np.array([690000.0, 5330000.0, 600.0]), 0.0, 30.0, 0.0)
+    with pytest.raises(CRSError, match="metric"):
+        dji_geotag(pose, "EPSG:4326")
+    with pytest.raises(InputFileError, match="offset"):
+        dji_geotag(pose, "EPSG:25832", offset=np.array([1.0, 2.0]))
+    with pytest.raises(InputFileError, match="target_height"):
+        dji_geotag(pose, "EPSG:25832", target_height="geoid")

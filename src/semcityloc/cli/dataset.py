@@ -137,7 +137,7 @@ def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _floats(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
+def parse_floats(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
     if text is None:
         return None
     try:
@@ -156,7 +156,7 @@ def _dataset(args: argparse.Namespace):
         split=args.split,
         stage=args.stage,
         frame=args.frame,
-        ecef_origin_llh=_floats(args.ecef_origin, 3, "--ecef-origin"),
+        ecef_origin_llh=parse_floats(args.ecef_origin, 3, "--ecef-origin"),
     )
 
 
@@ -232,7 +232,7 @@ def run_colmap(args: argparse.Namespace) -> int:
 
 
 def run_dji_prior(args: argparse.Namespace) -> int:
-    offset = _floats(args.offset, 3, "--offset")
+    offset = parse_floats(args.offset, 3, "--offset")
     prior = dji_prior(
         args.image,
         args.crs,
@@ -270,7 +270,7 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
         split=args.split,
         stage=args.stage,
         frame=args.frame,
-        ecef_origin_llh=_floats(args.ecef_origin, 3, "--ecef-origin"),
+        ecef_origin_llh=parse_floats(args.ecef_origin, 3, "--ecef-origin"),
         keep_details=args.keep_details,
     )
     outcome = run_benchmark(

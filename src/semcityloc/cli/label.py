@@ -25,14 +25,12 @@ from pathlib import Path
 
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.errors import CameraError, InputFileError
-from semcityloc.geometry.io import read_colmap_camera_ids, read_intrinsics, read_pose, read_poses
+from semcityloc.datasets.photos import IntrinsicsFiles, PoseFiles, list_images
+from semcityloc.errors import InputFileError
 from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
 from semcityloc.perception.autolabel import auto_label_render, label_overlay
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
-
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -57,95 +55,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-# ---------------------------------------------------------------------------------------------- inputs
-def list_images(folder: Path) -> list[Path]:
-    if not folder.is_dir():
-        raise InputFileError(f"{folder}: no such images folder")
-    images = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if not images:
-        raise InputFileError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
-    return images
-
-
-def _match(entries: dict, image: Path):
-    """Entry for ``image`` in a name-keyed dict: exact file name, then stem (paths in keys allowed)."""
-    for key in (lambda n: Path(n).name, lambda n: Path(n).stem):
-        hits = [k for k in entries if key(k) == key(image.name)]
-        if len(hits) == 1:
-            return entries[hits[0]]
-    return None
-
-
-def _per_stem_file(folder: Path, stem: str, suffix: str) -> Path | None:
-    for name in (f"{stem}_{suffix}.txt", f"{stem}.txt"):
-        if (folder / name).is_file():
-            return folder / name
-    return None
-
-
-class PoseSource:
-    """Poses by image from a COLMAP images.txt (or any read_poses file) or a LoD-Loc pose folder."""
-
-    def __init__(self, spec: str):
-        self.path = Path(spec)
-        self.folder = self.path if self.path.is_dir() else None
-        self.entries = {} if self.folder else read_poses(self.path)
-        self.camera_ids = {} if self.folder else read_colmap_camera_ids(self.path)
-
-    def pose(self, image: Path):
-        if self.folder is not None:
-            f = _per_stem_file(self.folder, image.stem, "pose")
-            return read_pose(f) if f is not None else None
-        if list(self.entries) == [""]:
-            return self.entries[""]
-        return _match(self.entries, image)
-
-
-class IntrinsicsSource:
-    """Camera per image (module docstring)."""
-
-    def __init__(self, spec: str | None, poses: PoseSource):
-        self.poses = poses
-        if spec is None:
-            spec = self._default(poses)
-        self.path = Path(spec)
-        self.folder = self.path if self.path.is_dir() else None
-
-    @staticmethod
-    def _default(poses: PoseSource) -> str:
-        if poses.folder is not None:
-            sibling = poses.folder.parent / "intrinsic"
-            if sibling.is_dir():
-                return str(sibling)
-        else:
-            sibling = poses.path.parent / "cameras.txt"
-            if sibling.is_file():
-                return str(sibling)
-        raise InputFileError(
-            "no --intrinsics given and none found beside the poses (expected cameras.txt beside images.txt "
-            "or an intrinsic/ folder beside the pose folder)"
-        )
-
-    def camera(self, image: Path, width: int, height: int):
-        if self.folder is not None:
-            f = _per_stem_file(self.folder, image.stem, "intrinsic")
-            if f is None:
-                raise InputFileError(f"{self.folder}: no {image.stem}_intrinsic.txt for {image.name}")
-            return read_intrinsics(f, width=width, height=height)
-        try:  # one camera for every photo
-            return read_intrinsics(self.path, width=width, height=height)
-        except CameraError:
-            pass
-        # Several cameras: COLMAP cameras.txt is keyed by camera id (from images.txt), other files by name.
-        camera_id = _match(self.poses.camera_ids, image) if self.poses.camera_ids else None
-        return read_intrinsics(self.path, width=width, height=height, name=camera_id or image.name)
-
-
 # ---------------------------------------------------------------------------------------------- run
 def run(args: argparse.Namespace) -> int:
     images = list_images(Path(args.images))
-    poses = PoseSource(args.poses)
-    intrinsics = IntrinsicsSource(args.intrinsics, poses)
+    poses = PoseFiles(args.poses)
+    intrinsics = IntrinsicsFiles(args.intrinsics, poses)
     model = load_model_from_args(args)
     renderer = Renderer(model, engine=args.engine)
     out = Path(args.out)

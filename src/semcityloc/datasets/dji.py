@@ -46,7 +46,7 @@ import math
 import os
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -57,8 +57,9 @@ from pyproj.transformer import TransformerGroup
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.errors import CameraError, CRSError, InputFileError, PoseError, unknown_choice
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.conventions import pose_from_dji
+from semcityloc.geometry.conventions import dji_gimbal_angles, pose_from_dji, wrap_deg
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
 
 HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, HEIGHT_BAROMETRIC = (
     "auto",
@@ -69,6 +70,8 @@ HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, HEIGHT_BAROMETRIC = (
 SOURCE_HEIGHTS = (HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, HEIGHT_BAROMETRIC)
 TARGET_HEIGHTS = (HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC)
 RTK_MIN_FLAG = 34  # RtkFlag: 0 none, 16 single point, 34..49 float, 50 fixed (DJI XMP list)
+RTK_FIXED_FLAG = 50
+RTK_FLOAT_FLOOR_M = 1.0  # an RTK float solution: decimetres to a metre, whatever it reports
 GEOID_UNDULATION_BOUND_M = 110.0  # |N| <= ~107 m anywhere (EGM2008 extremes: -106.6 / +85.8 m)
 BAROMETRIC_UNCERTAINTY_M = 50.0  # DJI non-RTK "absolute altitude": barometric, weather dependent
 RTK_DEFAULT_UNCERTAINTY_M = 0.1
@@ -102,6 +105,8 @@ class DjiMetadata:
     altitude_type: str | None = None
     rtk_flag: int | None = None
     rtk_std_height_m: float | None = None
+    rtk_std_lon_m: float | None = None  # RtkStdLon / RtkStdLat: metres (east / north), as DJI writes them
+    rtk_std_lat_m: float | None = None
     make: str | None = None
     model: str | None = None
     image_source: str | None = None
@@ -137,6 +142,7 @@ class DjiPrior:
     gimbal_ypr_deg: tuple[float, float, float]
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # subtracted from the CRS coordinates
     notes: list[str] = field(default_factory=list)
+    meta: DjiMetadata | None = None  # what the prior was made from (``prior_uncertainty`` reads its RTK tags)
 
     def as_dict(self) -> dict:
         return {
@@ -171,15 +177,16 @@ def parse_xmp_fields(data: bytes) -> dict[str, str]:
     return out
 
 
-def _number(text: str | None, what: str) -> float | None:
-    if text is None or text == "":
+def finite_number(text: str | None, what: str) -> float | None:
+    """``text`` as a finite float (None when empty); ``InputFileError`` naming ``what`` otherwise."""
+    if text is None or text.strip() == "":
         return None
     try:
         value = float(text)
     except ValueError:
-        raise InputFileError(f"DJI metadata {what} is not a number: {text!r}") from None
+        raise InputFileError(f"{what} is not a number: {text!r}") from None
     if not math.isfinite(value):
-        raise InputFileError(f"DJI metadata {what} is not finite: {text!r}")
+        raise InputFileError(f"{what} is not finite: {text!r}")
     return value
 
 
@@ -246,10 +253,14 @@ def read_dji_metadata(path: str | os.PathLike) -> DjiMetadata:
         ("flight_pitch_deg", "FlightPitchDegree"),
         ("flight_roll_deg", "FlightRollDegree"),
         ("rtk_std_height_m", "RtkStdHgt"),
+        ("rtk_std_lon_m", "RtkStdLon"),
+        ("rtk_std_lat_m", "RtkStdLat"),
     ):
-        value = _number(dji(key), key)
+        value = finite_number(dji(key), f"DJI metadata {key}")
         if value is None and key == "GpsLongitude":
-            value = _number(dji("GpsLongtitude"), key)  # a misspelling some firmware writes
+            value = finite_number(
+                dji("GpsLongtitude"), f"DJI metadata {key}"
+            )  # a misspelling some firmware writes
         if value is not None:
             setattr(meta, attr, value)
             meta.sources[attr] = f"xmp:drone-dji:{key}"
@@ -261,7 +272,7 @@ def read_dji_metadata(path: str | os.PathLike) -> DjiMetadata:
         if getattr(meta, attr) is None and key in exif:
             setattr(meta, attr, exif[key])
             meta.sources[attr] = f"exif:GPS{key.capitalize()}"
-    rtk = _number(dji("RtkFlag"), "RtkFlag")
+    rtk = finite_number(dji("RtkFlag"), "DJI metadata RtkFlag")
     meta.rtk_flag = int(rtk) if rtk is not None else None
     meta.altitude_type = dji("AltitudeType")
     meta.image_source = dji("ImageSource")
@@ -382,6 +393,11 @@ def _check_area(crs: pyproj.CRS, lon: float, lat: float) -> None:
             f"the image (lat {lat:.6f}, lon {lon:.6f}) is outside the area of use of {crs.name} "
             f"({area.name}): wrong target CRS?"
         )
+
+
+def horizontal_crs(crs: str | pyproj.CRS) -> pyproj.CRS:
+    """The horizontal part of a CRS (a compound's non-vertical part; the CRS itself otherwise)."""
+    return _horizontal(target_crs_of(crs))
 
 
 def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
@@ -519,4 +535,152 @@ def dji_prior(
         gimbal_ypr_deg=(float(meta.gimbal_yaw_deg), float(meta.gimbal_pitch_deg), float(roll)),
         offset=shift,
         notes=notes,
+        meta=meta,
+    )
+
+
+# ---------------------------------------------------------------------------------------------- uncertainty
+def prior_uncertainty(
+    prior: DjiPrior | DjiMetadata, base: PriorUncertainty | None = None
+) -> PriorUncertainty:
+    """How far a DJI prior may be off (``geometry.uncertainty.PriorUncertainty``), from the image's tags.
+
+    - RTK fixed (``RtkFlag`` 50, or ``AltitudeType`` RTK with reported standard deviations and no flag):
+      ``PriorUncertainty.rtk`` of the reported ``RtkStdLon`` / ``RtkStdLat`` (the larger) and
+      ``RtkStdHgt``, floored at ``RTK_FLOOR_M`` (a map is good to about a metre);
+    - RTK float (``RtkFlag`` 34..49): the same, floored at ``RTK_FLOAT_FLOOR_M``;
+    - anything else (single-point GNSS, barometric height): ``base`` (default: ``PriorUncertainty()``,
+      whose numbers are those of a DJI drone on plain GNSS).
+
+    Orientation (yaw, roll / pitch) always comes from ``base``: DJI writes no accuracy for the gimbal. Given
+    a ``DjiPrior`` whose height could not be brought into the model's reference (``geoid_applied`` False
+    where a geoid was needed: ``vertical_uncertainty_m`` = ``GEOID_UNDULATION_BOUND_M``), the height
+    uncertainty grows to a third of that bound (the search covers 3 sigma).
+    """
+    meta = prior.meta if isinstance(prior, DjiPrior) else prior
+    if not isinstance(meta, DjiMetadata):
+        raise InputFileError("prior_uncertainty needs DjiMetadata or a DjiPrior made from it")
+    base = base or PriorUncertainty()
+    flag = meta.rtk_flag
+    stds = [v for v in (meta.rtk_std_lon_m, meta.rtk_std_lat_m) if v is not None]
+    std_xy = max(stds) if stds else None
+    rtk_type = "rtk" in (meta.altitude_type or "").lower()
+    if (flag is not None and flag >= RTK_FIXED_FLAG) or (
+        flag is None and rtk_type and (std_xy is not None or meta.rtk_std_height_m is not None)
+    ):
+        out = PriorUncertainty.rtk(std_xy, meta.rtk_std_height_m, base)
+    elif flag is not None and flag >= RTK_MIN_FLAG:
+        rtk = PriorUncertainty.rtk(std_xy, meta.rtk_std_height_m, base)
+        out = replace(
+            rtk,
+            xy_m=max(rtk.xy_m, RTK_FLOAT_FLOOR_M),
+            z_m=max(rtk.z_m, RTK_FLOAT_FLOOR_M),
+            source="RTK float (image metadata)",
+        )
+    else:
+        out = replace(base, source=f"no RTK fix (RtkFlag={flag}): {base.source}")
+    if isinstance(prior, DjiPrior) and prior.vertical_uncertainty_m >= GEOID_UNDULATION_BOUND_M:
+        out = replace(
+            out,
+            z_m=max(out.z_m, GEOID_UNDULATION_BOUND_M / 3.0),
+            source=f"{out.source}; height reference not converted ({prior.z_reference})",
+        )
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- geotags
+@dataclass(frozen=True)
+class DjiGeotag:
+    """A camera as drone photos describe it: WGS 84 position and DJI gimbal angles (``dji_geotag``).
+
+    ``height_m`` is in ``height_reference`` (the WGS 84 ellipsoid when the model's heights could be
+    converted, else the model's own z, said so); angles in DJI's convention (NED, yaw clockwise from
+    TRUE north, pitch -90 = nadir, roll about the optical axis; ``geometry.conventions.pose_from_dji``).
+    """
+
+    latitude: float
+    longitude: float
+    height_m: float
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    height_reference: str
+    vertical_flag: str | None = None  # set when a height conversion the model's CRS asks for was not done
+
+    def metadata(self) -> DjiMetadata:
+        """The geotag as ``DjiMetadata`` (what ``dji_prior`` reads): a prior from a geotag file."""
+        return DjiMetadata(
+            latitude=self.latitude,
+            longitude=self.longitude,
+            absolute_altitude_m=self.height_m,
+            gimbal_yaw_deg=self.yaw_deg,
+            gimbal_pitch_deg=self.pitch_deg,
+            gimbal_roll_deg=self.roll_deg,
+            sources={"latitude": "geotag"},
+        )
+
+
+def dji_geotag(
+    pose_world: Pose,
+    target_crs: str | pyproj.CRS,
+    offset: np.ndarray | None = None,
+    target_height: str = HEIGHT_AUTO,
+) -> DjiGeotag:
+    """The geotag of a camera pose in a model's CRS (minus ``offset``): the inverse of ``dji_prior``.
+
+    Position: the CRS's horizontal part -> WGS 84 latitude / longitude with pyproj (``always_xy``).
+    Height, as ``dji_prior`` brought heights in: a CRS with a vertical datum (or ``target_height=
+    "orthometric"``: EGM96 for a 2D CRS) -> WGS 84 ellipsoidal height through pyproj (``vertical_flag``
+    set and the height left as it is when pyproj has no geoid grid); a 2D CRS with ``target_height``
+    ``"auto"`` or ``"ellipsoidal"`` -> the model's z as it is (``dji_prior`` took DJI's height as z, so a
+    prior read back gives the photo's own height). Angles: ``dji_gimbal_angles`` minus the grid
+    convergence (grid north -> true north). ``dji_prior(geotag.metadata(), crs, offset, "ellipsoidal")``
+    gives the pose back.
+    """
+    if target_height not in TARGET_HEIGHTS:
+        raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
+    crs = target_crs_of(target_crs)
+    horizontal = _horizontal(crs)
+    if horizontal.is_geographic:
+        raise CRSError(f"the model's CRS must be metric (projected), got {crs.name}")
+    shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
+    if shift.shape != (3,) or not np.all(np.isfinite(shift)):
+        raise InputFileError(f"offset must be 3 finite numbers, got {shift.tolist()}")
+    x, y, z = (np.asarray(pose_world.center, dtype=np.float64) + shift).tolist()
+    group = _group(horizontal, "EPSG:4326")
+    if not group.transformers:
+        raise CRSError(f"pyproj finds no transformation from {horizontal.name} to WGS 84")
+    lon, lat = group.transformers[0].transform(x, y)
+    if not (math.isfinite(lon) and math.isfinite(lat)):
+        raise CRSError(f"{crs.name}: the position ({x}, {y}) is outside its area of use")
+
+    vertical = _vertical_datum(crs)
+    flag = None
+    if vertical is not None or target_height == HEIGHT_ORTHOMETRIC:
+        source_3d = crs if vertical is not None else EGM96
+        vname = vertical.name if vertical is not None else "EGM96 height"
+        heights = _group(source_3d, WGS84_3D)
+        if _ballpark(heights):
+            h, reference = z, f"orthometric ({vname}; geoid NOT applied: not ellipsoidal)"
+            flag = (
+                f"geoid not applied: pyproj has no geoid grid for {vname} -> WGS 84 (install one with "
+                "'projsync --file <grid>' or set PROJ_NETWORK=ON); heights are the model's, not ellipsoidal"
+            )
+        else:
+            xy_in = (lon, lat) if vertical is None else (x, y)
+            h = float(heights.transformers[0].transform(*xy_in, z)[2])
+            reference = "ellipsoidal (WGS 84)"
+    else:
+        h, reference = z, "the model's z as it is (2D CRS: no vertical datum)"
+    yaw, pitch, roll = dji_gimbal_angles(pose_world).tolist()
+    gamma = grid_convergence_deg(crs, lon, lat)
+    return DjiGeotag(
+        latitude=float(lat),
+        longitude=float(lon),
+        height_m=float(h),
+        yaw_deg=float(wrap_deg(yaw - gamma)),
+        pitch_deg=float(pitch),
+        roll_deg=float(roll),
+        height_reference=reference,
+        vertical_flag=flag,
     )

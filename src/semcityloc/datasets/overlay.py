@@ -80,6 +80,35 @@ def _panel(image: np.ndarray, title: str) -> np.ndarray:
     return np.asarray(canvas)
 
 
+def edges_figure(
+    image: np.ndarray,
+    model: CityModel,
+    camera: Camera,
+    panels: list[tuple[Pose, tuple[int, int, int], str]],
+    renderer=None,
+) -> np.ndarray:
+    """(H + header, n W + gaps, 3) uint8: one panel per ``(pose_world, colour, title)``, the image with the
+    model's visible edges at that pose drawn in that colour, side by side.
+
+    Poses are in the model's world frame (``model.origin`` + local). ``camera`` must have the image's size.
+    """
+    if image.shape[:2] != (camera.height, camera.width):
+        raise ShapeError(
+            f"image {image.shape[1]}x{image.shape[0]} is not the camera's {camera.width}x{camera.height}"
+        )
+    r = _renderer(model, renderer)
+    out = []
+    for pose, color, title in panels:
+        view = r.render(camera, model.pose_to_local(pose), depth=True, face_ids=True)
+        edges = visible_edges(view.face_ids[0], view.depth[0], r.scene)
+        out.append(_panel(draw_edges(image, edges, color), title))
+    gap = np.full((out[0].shape[0], 6, 3), 255, dtype=np.uint8)
+    joined = [out[0]]
+    for panel in out[1:]:
+        joined += [gap, panel]
+    return np.concatenate(joined, axis=1)
+
+
 def gt_vs_prior_figure(
     image: np.ndarray,
     model: CityModel,
@@ -89,22 +118,10 @@ def gt_vs_prior_figure(
     renderer=None,
     titles: tuple[str, str] = ("model edges at the ground-truth pose", "model edges at the prior pose"),
 ) -> np.ndarray:
-    """(H + header, 2 W, 3) uint8: the image with the model's visible edges at GT (left) and prior (right).
-
-    Poses are in the model's world frame (``model.origin`` + local). ``camera`` must have the image's size.
-    """
-    if image.shape[:2] != (camera.height, camera.width):
-        raise ShapeError(
-            f"image {image.shape[1]}x{image.shape[0]} is not the camera's {camera.width}x{camera.height}"
-        )
-    r = _renderer(model, renderer)
-    panels = []
-    for pose, color, title in ((gt_world, GT_COLOR, titles[0]), (prior_world, PRIOR_COLOR, titles[1])):
-        out = r.render(camera, model.pose_to_local(pose), depth=True, face_ids=True)
-        edges = visible_edges(out.face_ids[0], out.depth[0], r.scene)
-        panels.append(_panel(draw_edges(image, edges, color), title))
-    gap = np.full((panels[0].shape[0], 6, 3), 255, dtype=np.uint8)
-    return np.concatenate([panels[0], gap, panels[1]], axis=1)
+    """(H + header, 2 W, 3) uint8: the image with the model's visible edges at GT (left) and prior (right)
+    (``edges_figure``)."""
+    panels = [(gt_world, GT_COLOR, titles[0]), (prior_world, PRIOR_COLOR, titles[1])]
+    return edges_figure(image, model, camera, panels, renderer)
 
 
 def save_png(array: np.ndarray, path: str | os.PathLike) -> Path:

@@ -85,13 +85,42 @@ def load_depth(path: str | Path) -> np.ndarray:
     return d
 
 
-def load_image(path: str | Path) -> np.ndarray:
-    """(H, W, 3) uint8 RGB."""
+def load_image(path: str | Path, max_width: int | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB; with ``max_width``, a wider photo is shrunk (area filter) to that width, its
+    height in proportion (``scaled_size``)."""
     try:
         with Image.open(path) as img:
-            return np.array(img.convert("RGB"))
+            rgb = img.convert("RGB")
+            if max_width is not None and rgb.width > max_width:
+                rgb = rgb.resize(scaled_size(rgb.width, rgb.height, max_width), Image.Resampling.BOX)
+            return np.array(rgb)
     except (FileNotFoundError, UnidentifiedImageError, OSError) as exc:
         raise InputFileError(f"{path}: cannot read image ({exc})") from exc
+
+
+def scaled_size(width: int, height: int, max_width: int) -> tuple[int, int]:
+    """(w, h) of a ``width`` x ``height`` image shrunk to at most ``max_width`` wide, same aspect."""
+    if width <= max_width:
+        return int(width), int(height)
+    return int(max_width), max(1, round(height * max_width / width))
+
+
+# Masks and depth may come at any resolution, but must show the photo's field of view: their aspect may
+# differ from the camera's by this much (rounding of a downscaled size), as the localizer checks masks.
+ASPECT_TOLERANCE = 0.02
+
+
+def check_aspect(shape: tuple[int, ...], width: int, height: int, what: str, source: object = None) -> None:
+    """``ShapeError`` when an (H, W) array does not have the aspect of a ``width`` x ``height`` image
+    (``ASPECT_TOLERANCE``): a mask or depth map of another photo, or cropped."""
+    if len(shape) != 2 or min(shape) < 1:
+        raise ShapeError(f"{source or what}: {what} must be an (H, W) array, got shape {tuple(shape)}")
+    ratio = (shape[1] / shape[0]) / (width / height)
+    if abs(ratio - 1.0) > ASPECT_TOLERANCE:
+        raise ShapeError(
+            f"{source or what}: {what} {shape[1]}x{shape[0]} does not have the photo's aspect "
+            f"({width}x{height})"
+        )
 
 
 def image_size(path: str | Path, what: str = "image") -> tuple[int, int]:

@@ -1,0 +1,118 @@
+"""Camera centres and ground footprints of posed photos as GeoJSON, for a GIS (QGIS opens it as it is).
+
+Per photo two features with the same properties (``image``, ``status``, ...): a ``Point`` at the camera
+centre and a ``Polygon``, the photo's footprint: the rays through ``FOOTPRINT_SAMPLES`` points along each
+image border meet the horizontal plane at ``ground_z`` (the model's ground), rays that never meet it
+(above the horizon) are cut at ``max_range_m`` horizontally. Coordinates: WGS 84 longitude, latitude
+(RFC 7946) when the model's CRS is known (pyproj, ``always_xy``, on whole arrays); otherwise the model's
+own frame, which the collection says in its ``semcityloc_frame`` member (a GIS then shows it as a local
+plane, not on a map).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyproj
+
+from semcityloc.datasets.dji import horizontal_crs
+from semcityloc.errors import CRSError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.io import json_default
+from semcityloc.geometry.pose import Pose
+
+FOOTPRINT_SAMPLES = 8  # points per image border
+MAX_RANGE_M = 1500.0
+
+
+@dataclass
+class CameraFeature:
+    """One photo for the GeoJSON: its camera, pose in the model's frame (CRS minus offset) and properties."""
+
+    name: str
+    camera: Camera
+    pose_world: Pose
+    properties: dict = field(default_factory=dict)
+
+
+def footprint_xy(camera: Camera, pose_world: Pose, ground_z: float, max_range_m: float = MAX_RANGE_M):
+    """(N, 2) float64 x, y of the photo's footprint on the plane z = ``ground_z`` (module docstring), in
+    the order of the image border (a closed ring without the repeated first point)."""
+    w, h = float(camera.width), float(camera.height)
+    t = np.arange(FOOTPRINT_SAMPLES) / FOOTPRINT_SAMPLES
+    uv = np.concatenate(
+        [
+            np.stack([t * w, np.zeros_like(t)], 1),
+            np.stack([np.full_like(t, w), t * h], 1),
+            np.stack([w - t * w, np.full_like(t, h)], 1),
+            np.stack([np.zeros_like(t), h - t * h], 1),
+        ]
+    )
+    rays = pose_world.R_world_from_cam @ camera.unproject(uv).T  # (3, N)
+    centre = pose_world.center
+    dz = float(ground_z) - centre[2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(rays[2] * dz > 0, dz / rays[2], np.inf)
+    horizontal = np.maximum(np.linalg.norm(rays[:2], axis=0), 1e-12)
+    s = np.minimum(s, max_range_m / horizontal)
+    return (centre[:2, None] + rays[:2] * s).T
+
+
+def _to_output(xy: np.ndarray, crs: pyproj.CRS | None, offset: np.ndarray) -> np.ndarray:
+    """(N, 2) model-frame x, y -> lon, lat (crs known) or the model frame itself."""
+    if crs is None:
+        return np.asarray(xy, dtype=np.float64)
+    t = pyproj.Transformer.from_crs(horizontal_crs(crs), "EPSG:4326", always_xy=True)
+    lon, lat = t.transform(xy[:, 0] + offset[0], xy[:, 1] + offset[1])
+    out = np.stack([np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)], 1)
+    if not np.all(np.isfinite(out)):
+        raise CRSError(f"{crs.name}: a camera lies outside the CRS's area of use")
+    return out
+
+
+def cameras_geojson(
+    features: list[CameraFeature],
+    crs: pyproj.CRS | None,
+    ground_z: float,
+    offset: np.ndarray | None = None,
+) -> dict:
+    """A GeoJSON ``FeatureCollection`` of camera centres and footprints (module docstring)."""
+    shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
+    out = []
+    for f in features:
+        centre = f.pose_world.center
+        ring = footprint_xy(f.camera, f.pose_world, ground_z)
+        xy = _to_output(np.vstack([centre[None, :2], ring]), crs, shift)
+        ring_out = np.vstack([xy[1:], xy[1:2]]).tolist()  # closed ring
+        props = {"image": f.name, **f.properties}
+        out.append(
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": xy[0].tolist()},
+                "properties": {**props, "feature": "camera centre"},
+            }
+        )
+        out.append(
+            {
+                "type": "Feature",
+                "geometry": {"type": "Polygon", "coordinates": [ring_out]},
+                "properties": {**props, "feature": "footprint", "footprint_ground_z": float(ground_z)},
+            }
+        )
+    collection: dict = {"type": "FeatureCollection", "features": out}
+    if crs is None:
+        collection["semcityloc_frame"] = "the city model's own frame (its file names no CRS): x, y in metres"
+    return collection
+
+
+def write_geojson(collection: dict, path: str | os.PathLike) -> Path:
+    """Strict JSON (``allow_nan=False``), written through a temporary file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(collection, default=json_default, allow_nan=False) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path

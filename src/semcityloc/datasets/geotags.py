@@ -1,0 +1,209 @@
+"""Geotag files: per-photo WGS 84 positions and DJI angles (CSV), OpenDroneMap's ``geo.txt``.
+
+Why: photogrammetry tools take a table of camera positions as "reference" or "geolocation" input in
+place of the photos' EXIF, and users bring priors in such tables. One CSV layout is read and written here:
+
+``geotags.csv`` (``GEOTAG_COLUMNS``)::
+
+    image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg,accuracy_xy_m,accuracy_z_m,source,height_reference
+
+- ``latitude`` / ``longitude``: WGS 84 degrees; ``height_m``: in ``height_reference`` (WGS 84 ellipsoidal
+  when the model's heights could be converted, else the model's own z: ``datasets.dji.dji_geotag``);
+- ``yaw_deg`` / ``pitch_deg`` / ``roll_deg``: DJI's gimbal convention (yaw clockwise from true north,
+  pitch -90 = straight down, roll about the optical axis), as DJI writes them into the photos;
+- ``accuracy_xy_m`` / ``accuracy_z_m``: one-sigma accuracy where known (empty otherwise); read back as a
+  prior's ``PriorUncertainty``;
+- ``source``: what the row is (``semcityloc`` for a corrected pose, ``prior`` for a photo that was not
+  localized and keeps its prior).
+
+Reading accepts any column order and these names too: ``name`` / ``label`` / ``filename`` for the image,
+``lat`` / ``lon`` / ``long``, ``alt`` / ``altitude`` / ``height`` / ``height_ellipsoidal_m``, ``yaw`` /
+``pitch`` / ``roll`` (always the DJI convention). ``geo.txt``: OpenDroneMap's image geolocation file, a
+projection line (the model's horizontal CRS, so no height conversion is involved) and one line per image:
+``image_name x y z yaw pitch roll``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyproj
+
+from semcityloc.datasets.dji import DjiGeotag, finite_number, horizontal_crs
+from semcityloc.errors import CRSError, InputFileError
+from semcityloc.geometry.uncertainty import PriorUncertainty
+
+GEOTAG_COLUMNS = (
+    "image",
+    "latitude",
+    "longitude",
+    "height_m",
+    "yaw_deg",
+    "pitch_deg",
+    "roll_deg",
+    "accuracy_xy_m",
+    "accuracy_z_m",
+    "source",
+    "height_reference",
+)
+_ALIASES = {
+    "image": ("image", "name", "label", "filename", "file", "image_name", "photo"),
+    "latitude": ("latitude", "lat"),
+    "longitude": ("longitude", "lon", "long", "lng"),
+    "height_m": ("height_m", "height", "alt", "altitude", "height_ellipsoidal_m", "absolute_altitude"),
+    "yaw_deg": ("yaw_deg", "yaw", "gimbal_yaw"),
+    "pitch_deg": ("pitch_deg", "pitch", "gimbal_pitch"),
+    "roll_deg": ("roll_deg", "roll", "gimbal_roll"),
+    "accuracy_xy_m": ("accuracy_xy_m", "accuracy_xy", "horizontal_accuracy"),
+    "accuracy_z_m": ("accuracy_z_m", "accuracy_z", "vertical_accuracy"),
+    "source": ("source",),
+}
+_REQUIRED = ("image", "latitude", "longitude", "height_m", "yaw_deg", "pitch_deg")
+
+
+@dataclass(frozen=True)
+class GeotagRow:
+    """One row of a geotag file: the photo's name, its geotag, accuracies and what the row is."""
+
+    image: str
+    geotag: DjiGeotag
+    accuracy_xy_m: float | None = None
+    accuracy_z_m: float | None = None
+    source: str = ""
+
+    def uncertainty(self, base: PriorUncertainty | None = None) -> PriorUncertainty | None:
+        """The row's accuracies as a prior uncertainty (orientation from ``base``); None without any."""
+        if self.accuracy_xy_m is None and self.accuracy_z_m is None:
+            return None
+        base = base or PriorUncertainty()
+        return PriorUncertainty(
+            xy_m=self.accuracy_xy_m if self.accuracy_xy_m is not None else base.xy_m,
+            z_m=self.accuracy_z_m if self.accuracy_z_m is not None else base.z_m,
+            yaw_deg=base.yaw_deg,
+            roll_pitch_deg=base.roll_pitch_deg,
+            source="geotag file accuracy columns",
+        )
+
+
+def _number(value: str, what: str, where: str, optional: bool = False) -> float | None:
+    out = finite_number(value, f"{where}: {what}")
+    if out is None and not optional:
+        raise InputFileError(f"{where}: no {what}")
+    return out
+
+
+def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
+    """``{image name: GeotagRow}`` of a geotag CSV (module docstring); ``InputFileError`` naming the line
+    of a bad value or the missing columns."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError as exc:
+        raise InputFileError(f"{path}: no such geotag file") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(f"{path}: cannot read geotag file ({exc})") from exc
+    sample = text[:4096]
+    try:
+        dialect = csv.Sniffer().sniff(sample, delimiters=",;\t")
+    except csv.Error:
+        dialect = csv.excel
+    reader = csv.reader(io.StringIO(text), dialect)
+    header = [h.strip().lower() for h in next(reader, [])]
+    where: dict[str, int] = {}
+    for key, names in _ALIASES.items():
+        for name in names:
+            if name in header:
+                where[key] = header.index(name)
+                break
+    missing = [k for k in _REQUIRED if k not in where]
+    if missing:
+        raise InputFileError(
+            f"{path}: a geotag CSV needs the columns {', '.join(_REQUIRED)} (+ roll_deg, accuracy_xy_m, "
+            f"accuracy_z_m); missing {', '.join(missing)} in the header {header}"
+        )
+    rows: dict[str, GeotagRow] = {}
+    for n, values in enumerate(reader, start=2):
+        if not values or all(not v.strip() for v in values) or values[0].lstrip().startswith("#"):
+            continue
+        line = f"{path}: line {n}"
+
+        def get(key: str, values=values, line=line, optional: bool = False) -> float | None:
+            i = where.get(key)
+            value = values[i] if i is not None and i < len(values) else ""
+            return _number(value, key, line, optional=optional or i is None)
+
+        image = values[where["image"]].strip() if where["image"] < len(values) else ""
+        if not image:
+            raise InputFileError(f"{line}: no image name")
+        lat, lon = get("latitude"), get("longitude")
+        if not (-90 <= lat <= 90 and -180 <= lon <= 360):
+            raise InputFileError(f"{line}: latitude {lat} / longitude {lon} out of range")
+        roll = get("roll_deg", optional=True)
+        tag = DjiGeotag(
+            latitude=lat,
+            longitude=lon,
+            height_m=get("height_m"),
+            yaw_deg=get("yaw_deg"),
+            pitch_deg=get("pitch_deg"),
+            roll_deg=0.0 if roll is None else roll,
+            height_reference="as given in the geotag file",
+        )
+        source = values[where["source"]] if "source" in where and where["source"] < len(values) else ""
+        rows[image] = GeotagRow(
+            image,
+            tag,
+            get("accuracy_xy_m", optional=True),
+            get("accuracy_z_m", optional=True),
+            source.strip(),
+        )
+    if not rows:
+        raise InputFileError(f"{path}: no geotag rows")
+    return rows
+
+
+def _cell(value: float | None, digits: int) -> str:
+    return "" if value is None else f"{value:.{digits}f}"
+
+
+def geotags_csv_text(rows: list[GeotagRow]) -> str:
+    """The CSV text of ``rows`` (module docstring): 9 decimals of a degree (0.1 mm), 4 of a metre."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(GEOTAG_COLUMNS)
+    for r in rows:
+        g = r.geotag
+        writer.writerow(
+            [
+                r.image,
+                f"{g.latitude:.10f}",
+                f"{g.longitude:.10f}",
+                f"{g.height_m:.4f}",
+                f"{g.yaw_deg:.6f}",
+                f"{g.pitch_deg:.6f}",
+                f"{g.roll_deg:.6f}",
+                _cell(r.accuracy_xy_m, 3),
+                _cell(r.accuracy_z_m, 3),
+                r.source,
+                g.height_reference,
+            ]
+        )
+    return buf.getvalue()
+
+
+def odm_geo_text(crs: pyproj.CRS | str, rows: list[tuple[str, tuple[float, float, float], DjiGeotag]]) -> str:
+    """OpenDroneMap's ``geo.txt``: the projection of the model's horizontal CRS, then per image
+    ``name x y z yaw pitch roll`` (``rows``: (name, position in that CRS, geotag for the angles))."""
+    horizontal = horizontal_crs(crs)
+    code = horizontal.to_epsg()
+    if code is None:
+        raise CRSError(f"{horizontal.name}: no EPSG code for OpenDroneMap's geo.txt projection line")
+    lines = [f"EPSG:{code}"]
+    for name, (x, y, z), g in rows:
+        if any(c.isspace() for c in name):
+            raise InputFileError(f"{name!r}: geo.txt cannot hold image names with spaces")
+        lines.append(f"{name} {x:.4f} {y:.4f} {z:.4f} {g.yaw_deg:.6f} {g.pitch_deg:.6f} {g.roll_deg:.6f}")
+    return "\n".join(lines) + "\n"

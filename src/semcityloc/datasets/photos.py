@@ -1,0 +1,236 @@
+"""A folder of a user's photos and what belongs to each: intrinsics, a prior pose (and its uncertainty),
+optionally a ground-truth pose.
+
+Why: ``semcityloc label`` and ``semcityloc run`` take photos as users have them: a folder of images and
+per-photo information in whatever form they come with. This module matches each photo to it by name
+(exact file name, then stem):
+
+- poses (``PoseFiles``): a COLMAP ``images.txt`` (or any file ``geometry.io.read_poses`` reads) or a
+  folder of LoD-Loc ``<stem>_pose.txt`` (4x4 camera-to-world), in the model's CRS / frame;
+- intrinsics (``IntrinsicsFiles``): ``exif`` (``dji.camera_from_exif``: the 35 mm-equivalent focal length
+  of the photo's EXIF), one file for every photo (LoD-Loc ``*_intrinsic.txt``, COLMAP line, JSON,
+  ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids from the ``images.txt`` of the poses) or a
+  folder of ``<stem>_intrinsic.txt``. The photo's own size always wins (intrinsics of another size are
+  rescaled);
+- priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
+  uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
+  + DJI angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above.
+
+A photo lacking something is not an error of the whole batch: ``PhotoMissing`` names what is missing and
+the caller skips that photo with the reason.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyproj
+
+from semcityloc.datasets.dji import (
+    HEIGHT_AUTO,
+    HEIGHT_ELLIPSOIDAL,
+    camera_from_exif,
+    dji_prior,
+    prior_uncertainty,
+    read_dji_metadata,
+)
+from semcityloc.datasets.geotags import read_geotags_csv
+from semcityloc.errors import CameraError, CRSError, InputFileError, SemCityLocError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.io import read_colmap_camera_ids, read_intrinsics, read_pose, read_poses
+from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+EXIF = "exif"  # --priors / --intrinsics value: from the photo's own metadata
+
+
+class PhotoMissing(InputFileError):
+    """One photo lacks something (a prior, intrinsics, a mask); the batch goes on without it."""
+
+
+def list_images(folder: str | os.PathLike) -> list[Path]:
+    """The image files of a folder (``IMAGE_SUFFIXES``), sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputFileError(f"{folder}: no such images folder")
+    images = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not images:
+        raise InputFileError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
+    return images
+
+
+def match_name(entries: dict, image: Path):
+    """Entry for ``image`` in a name-keyed dict: exact file name, then stem (paths in keys allowed)."""
+    for key in (lambda n: Path(n).name, lambda n: Path(n).stem):
+        hits = [k for k in entries if key(k) == key(image.name)]
+        if len(hits) == 1:
+            return entries[hits[0]]
+    return None
+
+
+def per_stem_file(folder: Path, stem: str, suffix: str) -> Path | None:
+    """``<stem>_<suffix>.txt`` or ``<stem>.txt`` in ``folder`` (LoD-Loc's per-image files)."""
+    for name in (f"{stem}_{suffix}.txt", f"{stem}.txt"):
+        if (folder / name).is_file():
+            return folder / name
+    return None
+
+
+class PoseFiles:
+    """Poses by image from a COLMAP images.txt (or any read_poses file) or a LoD-Loc pose folder."""
+
+    def __init__(self, spec: str | os.PathLike):
+        self.path = Path(spec)
+        if not self.path.exists():
+            raise InputFileError(f"{self.path}: no such pose file or folder")
+        self.folder = self.path if self.path.is_dir() else None
+        self.entries = {} if self.folder else read_poses(self.path)
+        self.camera_ids = {} if self.folder else read_colmap_camera_ids(self.path)
+
+    def pose(self, image: Path) -> Pose | None:
+        if self.folder is not None:
+            f = per_stem_file(self.folder, image.stem, "pose")
+            return read_pose(f) if f is not None else None
+        if list(self.entries) == [""]:
+            return self.entries[""]
+        return match_name(self.entries, image)
+
+
+class IntrinsicsFiles:
+    """Camera per image (module docstring); ``spec`` None: the file or folder beside ``poses``."""
+
+    def __init__(self, spec: str | os.PathLike | None, poses: PoseFiles | None = None):
+        self.poses = poses
+        if spec is None:
+            spec = self._default(poses)
+        self.exif = str(spec) == EXIF
+        self.path = Path(spec)
+        if not self.exif and not self.path.exists():
+            raise InputFileError(f"{self.path}: no such intrinsics file or folder")
+        self.folder = self.path if not self.exif and self.path.is_dir() else None
+
+    @staticmethod
+    def _default(poses: PoseFiles | None) -> str:
+        if poses is not None and poses.folder is not None:
+            sibling = poses.folder.parent / "intrinsic"
+            if sibling.is_dir():
+                return str(sibling)
+        elif poses is not None:
+            sibling = poses.path.parent / "cameras.txt"
+            if sibling.is_file():
+                return str(sibling)
+        raise InputFileError(
+            "no --intrinsics given and none found beside the poses (expected cameras.txt beside images.txt "
+            "or an intrinsic/ folder beside the pose folder)"
+        )
+
+    def camera(self, image: Path, width: int, height: int) -> Camera:
+        if self.exif:
+            try:
+                camera = camera_from_exif(read_dji_metadata(image))
+            except CameraError as exc:
+                raise PhotoMissing(f"{exc}: pass --intrinsics (a calibration file or folder)") from None
+            return camera if camera.size == (width, height) else camera.scaled(width, height)
+        if self.folder is not None:
+            f = per_stem_file(self.folder, image.stem, "intrinsic")
+            if f is None:
+                raise PhotoMissing(f"{self.folder}: no {image.stem}_intrinsic.txt for {image.name}")
+            return read_intrinsics(f, width=width, height=height)
+        try:  # one camera for every photo
+            return read_intrinsics(self.path, width=width, height=height)
+        except CameraError:
+            pass
+        # Several cameras: COLMAP cameras.txt is keyed by camera id (from images.txt), other files by name.
+        camera_id = None
+        if self.poses is not None and self.poses.camera_ids:
+            camera_id = match_name(self.poses.camera_ids, image)
+        try:
+            return read_intrinsics(self.path, width=width, height=height, name=camera_id or image.name)
+        except CameraError as exc:
+            raise PhotoMissing(f"{self.path}: no intrinsics for {image.name} ({exc})") from None
+
+
+@dataclass
+class PhotoPrior:
+    """A photo's prior pose in the model's frame (its CRS minus ``offset``), how far it may be off and
+    where it came from (``details``: JSON-ready, e.g. how the height was treated)."""
+
+    pose_world: Pose
+    uncertainty: PriorUncertainty | None  # None: the caller's default
+    source: str
+    details: dict = field(default_factory=dict)
+
+
+class PriorFiles:
+    """Priors by image (module docstring): ``exif``, a geotag ``.csv`` or a pose file / folder.
+
+    ``crs``: the model's CRS (needed for ``exif`` and CSV priors, which are WGS 84); ``offset``: the
+    model's frame is that CRS minus ``offset``; ``target_height`` / ``geoid_separation_m``: as in
+    ``dji.dji_prior``.
+    """
+
+    def __init__(
+        self,
+        spec: str | os.PathLike,
+        crs: pyproj.CRS | str | None,
+        offset: np.ndarray | None = None,
+        target_height: str = HEIGHT_AUTO,
+        geoid_separation_m: float | None = None,
+    ):
+        self.spec = str(spec)
+        self.crs, self.offset = crs, offset
+        self.target_height, self.geoid_separation_m = target_height, geoid_separation_m
+        self.geotags = None
+        self.files = None
+        path = Path(self.spec)
+        if self.spec != EXIF and path.suffix.lower() == ".csv":
+            self.geotags = read_geotags_csv(path)
+        elif self.spec != EXIF:
+            self.files = PoseFiles(path)
+        if self.files is None and crs is None:
+            what = "the photos' DJI GPS priors" if self.spec == EXIF else f"WGS 84 priors ({path.name})"
+            raise CRSError(
+                f"{what} need the city model's CRS, and the model names none: pass --crs (e.g. EPSG:25832), "
+                "or priors already in the model's frame (--priors GPS_pose/ or a COLMAP images.txt)"
+            )
+
+    def _from_dji(self, meta, source: str, source_height: str) -> PhotoPrior:
+        try:
+            prior = dji_prior(
+                meta,
+                self.crs,
+                offset=self.offset,
+                source_height=source_height,
+                target_height=self.target_height,
+                geoid_separation_m=self.geoid_separation_m,
+            )
+        except InputFileError as exc:
+            raise PhotoMissing(f"no usable GPS prior: {exc}") from None
+        details = prior.as_dict()
+        return PhotoPrior(prior.pose, prior_uncertainty(prior), source, details)
+
+    def prior(self, image: Path) -> PhotoPrior:
+        """The prior of ``image``; ``PhotoMissing`` when it has none (``SemCityLocError`` for a CRS that
+        cannot hold it)."""
+        if self.files is not None:
+            pose = self.files.pose(image)
+            if pose is None:
+                raise PhotoMissing(f"no prior pose for {image.name} in {self.files.path}")
+            return PhotoPrior(pose, None, f"pose file {self.files.path.name}")
+        if self.geotags is not None:
+            row = match_name(self.geotags, image)
+            if row is None:
+                raise PhotoMissing(f"no row for {image.name} in {self.spec}")
+            source = f"geotags {Path(self.spec).name}"
+            prior = self._from_dji(row.geotag.metadata(), source, HEIGHT_ELLIPSOIDAL)
+            prior.uncertainty = row.uncertainty()
+            return prior
+        try:
+            meta = read_dji_metadata(image)
+        except SemCityLocError as exc:
+            raise PhotoMissing(str(exc)) from None
+        return self._from_dji(meta, "exif", HEIGHT_AUTO)

@@ -1,0 +1,163 @@
+"""A user's photos and their files: geotag CSVs, OpenDroneMap geo.txt, priors / intrinsics by photo,
+camera footprints as GeoJSON."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyproj
+import pytest
+
+from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
+from semcityloc.datasets.dji import DjiGeotag, dji_geotag
+from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, footprint_xy
+from semcityloc.datasets.geotags import (
+    GEOTAG_COLUMNS,
+    GeotagRow,
+    geotags_csv_text,
+    odm_geo_text,
+    read_geotags_csv,
+)
+from semcityloc.datasets.photos import (
+    EXIF,
+    IntrinsicsFiles,
+    PhotoMissing,
+    PriorFiles,
+    list_images,
+)
+from semcityloc.errors import CRSError, InputFileError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.geometry.pose import Pose
+
+RTK = dict(RTK_FIELDS, GimbalYawDegree="+30.00", GimbalPitchDegree="-60.00", RtkStdLon="0.8", RtkStdLat="0.7")
+RTK["RtkStdHgt"] = "1.5"
+
+
+def tag(lat=48.1, lon=11.5, h=612.5, ypr=(30.0, -60.0, 0.0)) -> DjiGeotag:
+    return DjiGeotag(lat, lon, h, *ypr, height_reference="ellipsoidal (WGS 84)")
+
+
+# ------------------------------------------------------------------------------------------ geotag files
+def test_geotag_csv_round_trip_keeps_a_tenth_of_a_millimetre(tmp_path):
+    rows = [
+        GeotagRow("a.JPG", tag(48.123456789012, 11.987654321098, 612.34567), source="semcityloc"),
+        GeotagRow("b.JPG", tag(ypr=(-179.5, -90.0, 0.0)), 5.0, 10.0, "prior (not localized: x)"),
+    ]
+    text = geotags_csv_text(rows)
+    assert text.splitlines()[0] == ",".join(GEOTAG_COLUMNS)
+    path = tmp_path / "g.csv"
+    path.write_text(text)
+    back = read_geotags_csv(path)
+    a, b = back["a.JPG"], back["b.JPG"]
+    geod = pyproj.Geod(ellps="WGS84")
+    _, _, dist = geod.inv(11.987654321098, 48.123456789012, a.geotag.longitude, a.geotag.latitude)
+    assert dist < 1e-4 and abs(a.geotag.height_m - 612.34567) < 1e-4
+    assert a.uncertainty() is None and a.source == "semcityloc"
+    sigma = b.uncertainty()
+    assert (sigma.xy_m, sigma.z_m, b.geotag.yaw_deg) == (5.0, 10.0, -179.5)
+
+
+def test_geotag_csv_accepts_other_headers_and_refuses_bad_rows(tmp_path):
+    path = tmp_path / "g.csv"
+    path.write_text("Label;Lat;Lon;Alt;Yaw;Pitch\nx.jpg;48.1;11.5;600;10;-45\n")
+    row = read_geotags_csv(path)["x.jpg"]
+    assert (row.geotag.latitude, row.geotag.roll_deg, row.geotag.pitch_deg) == (48.1, 0.0, -45.0)
+    path.write_text("image,latitude,longitude\nx.jpg,1,2\n")
+    with pytest.raises(InputFileError, match="missing height_m, yaw_deg, pitch_deg"):
+        read_geotags_csv(path)
+    path.write_text("image,latitude,longitude,height_m,yaw_deg,pitch_deg\nx.jpg,95,2,3,4,5\n")
+    with pytest.raises(InputFileError, match="line 2: latitude 95"):
+        read_geotags_csv(path)
+    path.write_text("image,latitude,longitude,height_m,yaw_deg,pitch_deg\nx.jpg,45,2,high,4,5\n")
+    with pytest.raises(InputFileError, match="line 2: height_m is not a number"):
+        read_geotags_csv(path)
+    with pytest.raises(InputFileError, match="no such geotag file"):
+        read_geotags_csv(tmp_path / "absent.csv")
+
+
+def test_odm_geo_txt_is_in_the_horizontal_crs():
+    text = odm_geo_text("EPSG:25833+7837", [("a.JPG", (392000.12345, 5819000.5, 80.25), tag())])
+    lines = text.splitlines()
+    assert lines[0] == "EPSG:25833"
+    name, x, y, z, yaw, pitch, roll = lines[1].split()
+    assert (name, float(x), float(y), float(z)) == ("a.JPG", 392000.1235, 5819000.5, 80.25)
+    assert (float(yaw), float(pitch), float(roll)) == (30.0, -60.0, 0.0)
+    with pytest.raises(InputFileError, match="spaces"):
+        odm_geo_text("EPSG:25833", [("a b.JPG", (0.0, 0.0, 0.0), tag())])
+
+
+# ------------------------------------------------------------------------------------------ photos
+def test_priors_from_exif_csv_and_pose_files_agree(tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    dji_jpeg(folder / "a.JPG", xmp_packet(**RTK), focal_35mm=24, size=(80, 60))
+    (folder / "notes.txt").write_text("not a photo")
+    images = list_images(folder)
+    assert [p.name for p in images] == ["a.JPG"]
+    exif = PriorFiles(EXIF, pyproj.CRS("EPSG:25832"))
+    prior = exif.prior(images[0])
+    assert prior.source == "exif" and prior.uncertainty.xy_m == 0.8 and prior.uncertainty.z_m == 1.5
+    assert prior.details["source_height"] == "ellipsoidal"
+    # The same camera as a geotag row, then as a COLMAP pose line in the CRS: the same prior.
+    g = dji_geotag(prior.pose_world, "EPSG:25832")
+    (tmp_path / "g.csv").write_text(geotags_csv_text([GeotagRow("a.JPG", g, 2.0, 3.0)]))
+    from_csv = PriorFiles(tmp_path / "g.csv", pyproj.CRS("EPSG:25832")).prior(images[0])
+    assert center_error_m(from_csv.pose_world, prior.pose_world) < 1e-3
+    assert rotation_error_deg(from_csv.pose_world, prior.pose_world) < 1e-5
+    assert (from_csv.uncertainty.xy_m, from_csv.uncertainty.z_m) == (2.0, 3.0)
+    from semcityloc.geometry.conventions import colmap_qvec_tvec
+
+    qvec, tvec = colmap_qvec_tvec(prior.pose_world)
+    values = " ".join(repr(float(v)) for v in [*qvec, *tvec])
+    (tmp_path / "images.txt").write_text(f"1 {values} 1 a.JPG\n\n")
+    from_colmap = PriorFiles(tmp_path / "images.txt", None).prior(images[0])
+    assert from_colmap.uncertainty is None and center_error_m(from_colmap.pose_world, prior.pose_world) < 1e-6
+    # Intrinsics from EXIF: 24 mm equivalent on 80 x 60 px.
+    cam = IntrinsicsFiles(EXIF).camera(images[0], 80, 60)
+    assert cam.fx == pytest.approx(24.0 / np.hypot(36, 24) * 100.0)
+
+
+def test_a_photo_without_what_it_needs_is_missing_not_a_crash(tmp_path):
+    photo = dji_jpeg(tmp_path / "plain.jpg", None, size=(40, 30))
+    with pytest.raises(PhotoMissing, match="no latitude"):
+        PriorFiles(EXIF, pyproj.CRS("EPSG:25832")).prior(photo)
+    with pytest.raises(PhotoMissing, match="FocalLengthIn35mmFilm.*pass --intrinsics"):
+        IntrinsicsFiles(EXIF).camera(photo, 40, 30)
+    (tmp_path / "poses").mkdir()
+    with pytest.raises(PhotoMissing, match="no prior pose for plain.jpg"):
+        PriorFiles(tmp_path / "poses", None).prior(photo)
+    with pytest.raises(CRSError, match="need the city model's CRS.*--crs"):
+        PriorFiles(EXIF, None)
+    with pytest.raises(InputFileError, match="no such pose file"):
+        PriorFiles(tmp_path / "absent", None)
+
+
+# ------------------------------------------------------------------------------------------ GeoJSON
+def test_nadir_footprint_is_the_ground_rectangle_the_camera_sees():
+    camera = Camera(100.0, 100.0, 50.0, 40.0, 100, 80)
+    pose = Pose.from_xyz_rpy(np.array([10.0, 20.0, 150.0]), 0.0, 0.0, 0.0)  # nadir, 150 m above z = 0
+    xy = footprint_xy(camera, pose, ground_z=0.0)
+    # half extents at 150 m: 150 * 50 / 100 = 75 m across, 150 * 40 / 100 = 60 m along.
+    np.testing.assert_allclose(xy.min(0), [10 - 75, 20 - 60], atol=1e-9)
+    np.testing.assert_allclose(xy.max(0), [10 + 75, 20 + 60], atol=1e-9)
+    horizon = Pose.from_xyz_rpy(np.array([0.0, 0.0, 50.0]), 0.0, 90.0, 0.0)  # looking at the horizon
+    far = footprint_xy(camera, horizon, ground_z=0.0, max_range_m=500.0)
+    assert np.linalg.norm(far, axis=1).max() <= 500.0 * 1.0001
+
+
+def test_geojson_is_wgs84_when_the_crs_is_known():
+    camera = Camera(100.0, 100.0, 50.0, 40.0, 100, 80)
+    t = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:25833", always_xy=True)
+    x, y = t.transform(13.40, 52.52)
+    pose = Pose.from_xyz_rpy(np.array([x, y, 150.0]), 0.0, 0.0, 0.0)
+    features = [CameraFeature("a.JPG", camera, pose, {"status": "localized"})]
+    doc = json.loads(json.dumps(cameras_geojson(features, pyproj.CRS("EPSG:25833"), 0.0)))
+    point, footprint = doc["features"]
+    assert point["geometry"]["coordinates"] == pytest.approx([13.40, 52.52], abs=1e-9)
+    ring = footprint["geometry"]["coordinates"][0]
+    assert ring[0] == ring[-1] and len(ring) == 4 * 8 + 1
+    assert footprint["properties"]["image"] == "a.JPG" and "semcityloc_frame" not in doc
+    local = cameras_geojson(features, None, 0.0)
+    assert "semcityloc_frame" in local and local["features"][0]["geometry"]["coordinates"] == [x, y]
