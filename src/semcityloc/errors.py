@@ -55,11 +55,13 @@ class RenderError(SemCityLocError):
 
 
 class OptionalDependencyError(SemCityLocError, ImportError):
-    """An optional extra is needed; the message names the pip command that installs it."""
+    """An optional extra is needed; the message names the pip command that installs it (``command``, when
+    the extra alone does not: a package installed on its own, e.g. with ``--no-deps``)."""
 
-    def __init__(self, package: str, extra: str, purpose: str):
+    def __init__(self, package: str, extra: str, purpose: str, command: str | None = None):
         super().__init__(
-            f"{purpose} needs the optional package '{package}': pip install 'semcityloc[{extra}]'"
+            f"{purpose} needs the optional package '{package}': "
+            + (command or f"pip install 'semcityloc[{extra}]'")
         )
         self.package = package
         self.extra = extra

@@ -53,7 +53,7 @@ import pyproj
 from lxml import etree
 
 from semcityloc.citymodel.builder import MeshBuilder
-from semcityloc.citymodel.crs import MetricFrame, parse_crs_name
+from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS, SemanticClass
 from semcityloc.errors import (
@@ -812,14 +812,12 @@ class CityGMLReader:
                 "the file names no CRS (srsName): coordinates are used as they are, in a local metric frame"
             )
             if self.target_crs is not None:
-                self.stats.warnings.append(
-                    "target_crs ignored: the source CRS is unknown (pass crs_override)"
-                )
+                self.stats.warnings.append(f"target_crs ignored: the source CRS is unknown ({CRS_HINT})")
         else:
             try:
                 source = parse_crs_name(name)
             except CRSError as exc:
-                hint = "" if self.crs_override is not None else "; pass crs_override to read the file anyway"
+                hint = "" if self.crs_override is not None else f"; {CRS_HINT} to read the file anyway"
                 raise CRSError(f"{self.path}: {exc}{hint}") from exc
         sample = self._envelope_sample
         if sample is None:

