@@ -203,3 +203,64 @@ def test_cli_report(two_runs, tmp_path, monkeypatch, capsys):
     assert main.main(["report", str(tmp_path / "nothing"), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("semcityloc: error:") and err.count("\n") == 1
+
+
+# ------------------------------------------------------------------------------ real-data runs (issue 14)
+@pytest.fixture(scope="module")
+def real_data_runs(tmp_path_factory):
+    """Two runs over a small LoD-Loc-layout data set (box city, photos): oracle and degraded-oracle labels,
+    whose masks hold IGNORE (255) at class boundaries, as every real-data run's do."""
+    import numpy as np
+
+    from semcityloc.benchmark.dataset_source import DatasetSpec
+    from semcityloc.benchmark.warmup import box_city_obj
+    from semcityloc.datasets.lodloc import LodLocQuery, write_lodloc_scene
+    from semcityloc.geometry.camera import Camera
+    from semcityloc.geometry.pose import Pose
+
+    root = tmp_path_factory.mktemp("realdata")
+    scene = root / "scene"
+    cam = Camera.from_fov(160, 120, 60.0)
+    truth = Pose.from_xyz_rpy(np.array([5.0, -4.0, 90.0]), 0.5, 20.0, 30.0)
+    prior = Pose.from_xyz_rpy(np.array([8.0, -2.0, 92.0]), 0.0, 19.0, 33.0)
+    write_lodloc_scene(scene, [LodLocQuery("DJI_0001_W.JPG", "scene", cam, None, truth, prior)])
+    (scene / "Query_image").mkdir()
+    Image.new("RGB", (cam.width, cam.height), (100, 100, 100)).save(scene / "Query_image" / "DJI_0001_W.JPG")
+    (scene / "city.obj").write_text(box_city_obj())
+    outs = []
+    for perception in ("oracle", "oracle-degraded"):
+        spec = DatasetSpec(dataset=str(scene), perception=perception, preset="fast", keep_details=1)
+        outs.append(run_benchmark(spec, root / perception, progress=False).out_dir)
+    return outs
+
+
+def test_report_on_real_data_runs_draws_overlays_and_labels_by_perception(real_data_runs, tmp_path):
+    import numpy as np
+
+    from semcityloc.benchmark.results import load_details
+
+    assert (load_details(real_data_runs[0] / "details" / "q0000.npz")["labels"] == 255).any()
+    report = make_report(real_data_runs, tmp_path / "report", overlays=1)  # IndexError: index 255 before
+    text = report.markdown.read_text()
+    assert "semcityloc [oracle]" in text and "semcityloc [oracle-degraded (trained)]" in text
+    assert "None" not in text.split("## Figures")[0]
+    assert "perception" in report.tables and not any("lod" in n or "prior_noise" in n for n in report.notes)
+    rows = read_csv(report.tables["perception"][1])
+    assert [r["perception"] for r in rows] == ["oracle", "oracle-degraded (trained)"]
+    figures = [p for p in report.plots if p.name.startswith("query_")]
+    assert len(figures) == 2
+    with Image.open(figures[0]) as im:
+        assert im.size[0] > 1500  # mask, photo with model edges, two cost-volume slices
+        pixels = np.asarray(im.convert("RGB"))
+    assert (np.all(pixels == (255, 0, 255), axis=-1)).any()  # the estimate's edges are drawn
+
+
+def test_overlay_of_a_mask_with_ignore_pixels():
+    import numpy as np
+
+    from semcityloc.benchmark.report import overlay_image
+
+    q = np.full((10, 10), 255, np.uint8)
+    q[:5] = 3
+    rgb = overlay_image(q, None, None)  # no estimate, no true pose (a user's photo not localized)
+    assert (rgb[9, 9] == 255).all() and not (rgb[0, 0] == 255).all()

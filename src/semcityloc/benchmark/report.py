@@ -33,25 +33,37 @@ import numpy as np
 from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
 from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE
 from semcityloc.benchmark.spec import load_map
-from semcityloc.classes import PALETTE
+from semcityloc.citymodel.io import load_city_model
+from semcityloc.citymodel.model import CityModel
+from semcityloc.datasets.lodloc import FRAME_ECEF, IMAGE_DIR, enu_from_ecef, rotate_model
 from semcityloc.errors import BenchmarkError, OptionalDependencyError, SemCityLocError
 from semcityloc.evaluation.metrics import CAP_XYZ_M, THRESHOLDS, cumulative_curve, threshold_key
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import load_image, scaled_size
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
-from semcityloc.render.overlay import class_boundaries
+from semcityloc.render.overlay import (
+    class_boundaries,
+    draw_edges,
+    label_colors,
+    resize_nearest,
+    visible_edges,
+)
 
 # name -> (config key shown, title). "main" is always written; the others when their key varies.
 TABLES: dict[str, tuple[str, str]] = {
     "main": ("method", "Methods and ablations"),
+    "perception": ("perception", "Perception (oracle labels, degraded, masks, backends) on real data"),
     "prior_noise": ("prior_extra", "Prior-noise sensitivity"),
     "lod": ("lod", "Map level of detail (LoD1 / LoD2 / LoD3)"),
     "seg_quality": ("seg_quality", "Segmentation-quality sensitivity"),
 }
 SEG_ORDER = ("perfect", "trained", "medium", "zero-shot")
+REAL_MODES = ("dataset", "photos")  # runs over real images (``mode`` in run.json); others are simulated
+FIGURE_MAX_WIDTH = 1024  # query figures are drawn at most this wide
 # Query-config fields already shown under their own name.
 _SHOWN_QUERY_FIELDS = {"seg_quality", "prior_extra_m", "seed", "queries", "scenario"}
 
@@ -91,8 +103,34 @@ def _prior_label(extra) -> str:
     return f"{a:g}-{b:g} m"
 
 
+def perception_of(config: dict) -> str:
+    """Short perception label of a real-data run: ``oracle``, ``oracle-degraded (trained)``, ``masks``,
+    ``dinov3-dpt + moge2``, ..."""
+    perception = str(config.get("perception"))
+    if perception == "oracle-degraded":
+        return f"{perception} ({config.get('seg_quality')})"
+    return perception
+
+
+def _data_name(value: Any) -> str:
+    values = value if isinstance(value, list) else [value]
+    return " + ".join(Path(str(v)).name for v in values)
+
+
 def describe(config: dict) -> dict[str, Any]:
-    """The settings of a run that a reader tells runs apart by (display values)."""
+    """The settings of a run that a reader tells runs apart by (display values). Real-data runs (a data
+    set, a user's photos) are told apart by method, data, perception, preset and their number of queries;
+    simulated runs by the simulation's settings."""
+    if config.get("mode") in REAL_MODES:
+        return {
+            "method": config.get("method"),
+            "data": _data_name(config.get("dataset") or config.get("images")),
+            "perception": perception_of(config),
+            "city": Path(config.get("city_path", "?")).name,
+            "preset": config.get("localizer_preset"),
+            "seed": config.get("seed"),
+            "queries": config.get("queries"),
+        }
     lod = config.get("lod")
     out: dict[str, Any] = {
         "method": config.get("method"),
@@ -132,6 +170,10 @@ def _order_value(key: str, value: Any):
         return (int(value[3:]), "") if str(value).startswith("LoD") else (9, str(value))
     if key == "sweep_value":
         return _sweep_x(value)
+    if key == "perception":
+        order = ("oracle", "oracle-degraded", "masks")
+        head = str(value).split(" ")[0]
+        return (order.index(head), str(value)) if head in order else (len(order), str(value))
     return (0, str(value))
 
 
@@ -149,11 +191,14 @@ def _sweep_x(value: Any) -> tuple[float, str]:
 
 
 def label_runs(runs: list[RunData]) -> None:
-    """Short labels: the method, plus ``key=value`` of every other setting that differs."""
+    """Short labels: the method (with ``[perception]`` on real data), plus ``key=value`` of every other
+    setting that differs."""
     keys = differing_keys(runs)
     for run in runs:
-        parts = [str(run.settings["method"])]
-        parts += [f"{k}={run.settings.get(k)}" for k in keys if k != "method"]
+        method = str(run.settings["method"])
+        perception = run.settings.get("perception")
+        parts = [f"{method} [{perception}]" if perception is not None else method]
+        parts += [f"{k}={run.settings.get(k)}" for k in keys if k not in ("method", "perception")]
         run.label = ", ".join(parts) + (
             "" if run.complete else f" (incomplete {len(run.rows)}/{run.config['queries']})"
         )
@@ -390,49 +435,81 @@ def plot_recall_vs_sweep(runs: list[RunData], knob: str, path: Path) -> Path:
     return plot_recall_lines(groups, lambda r: _sweep_x(r.settings["sweep_value"])[0], knob, path)
 
 
+TRUE_COLOR, EST_COLOR = (0, 200, 255), (255, 0, 255)
+
+
 def overlay_image(
-    query_labels: np.ndarray, est_labels: np.ndarray | None, true_labels: np.ndarray
+    query_labels: np.ndarray, est_labels: np.ndarray | None, true_labels: np.ndarray | None
 ) -> np.ndarray:
-    """RGB uint8: the query mask (palette, faded) with the label boundaries of the render at the true pose
-    (cyan) and at the estimated pose (magenta) drawn on top."""
-    rgb = (0.55 * PALETTE[query_labels] + 0.45 * 255).astype(np.uint8)
-    rgb[class_boundaries(true_labels)] = (0, 200, 255)
+    """RGB uint8: the query mask (palette, faded; IGNORE white) with the label boundaries of the render at
+    the true pose (cyan, when there is one) and at the estimated pose (magenta) drawn on top."""
+    rgb = (0.55 * label_colors(query_labels) + 0.45 * 255).astype(np.uint8)
+    if true_labels is not None:
+        rgb[class_boundaries(true_labels)] = TRUE_COLOR
     if est_labels is not None:
-        rgb[class_boundaries(est_labels)] = (255, 0, 255)
+        rgb[class_boundaries(est_labels)] = EST_COLOR
     return rgb
+
+
+def photo_overlay(photo: np.ndarray, renderer: Renderer, camera: Camera, true, est) -> np.ndarray:
+    """RGB uint8: the photo (at ``camera``'s size) with the model's visible edges at the true pose (cyan)
+    and at the estimate (magenta)."""
+    out = photo
+    for pose, color in ((true, TRUE_COLOR), (est, EST_COLOR)):
+        if pose is not None:
+            view = renderer.render(camera, pose, depth=True, face_ids=True)
+            out = draw_edges(out, visible_edges(view.face_ids[0], view.depth[0], renderer.scene), color)
+    return out
 
 
 def _pose(matrix: np.ndarray):
     return None if not np.all(np.isfinite(matrix)) else Pose.from_cam_from_world(matrix)
 
 
-def plot_details(details: dict, map_model, path: Path, title: str) -> Path:
-    """One query: overlay (``overlay_image``), xy slice at the best (z, yaw) and yaw slice at the best
-    (x, y, z) of the coarse cost volume, with the true (green), prior (blue) and estimated (red) poses."""
+def plot_details(
+    details: dict, map_model, path: Path, title: str, photo_path: Path | None = None, renderer=None
+) -> Path:
+    """One query: overlay (``overlay_image``), the photo with the model's edges (``photo_overlay``, when
+    ``photo_path`` is given: real-data runs), xy slice at the best (z, yaw) and yaw slice at the best
+    (x, y, z) of the coarse cost volume, with the true (green), prior (blue) and estimated (red) poses.
+    Drawn at most ``FIGURE_MAX_WIDTH`` wide; a query without a true pose (a user's photo) shows the
+    estimate alone."""
 
     plt = _pyplot()
     fx, fy, cx, cy, w, h = details["camera"]
-    labels = details["labels"]
     camera = Camera(fx, fy, cx, cy, int(w), int(h))
+    camera = camera.scaled(*scaled_size(camera.width, camera.height, FIGURE_MAX_WIDTH))
+    labels = resize_nearest(details["labels"], camera.width, camera.height)
     true, prior, est = (_pose(details[f"{k}_cam_from_world"]) for k in ("true", "prior", "est"))
-    renderer = Renderer(map_model, engine="numba")
-    true_lab = renderer.render(camera, true).labels[0]
+    renderer = renderer or Renderer(map_model, engine="numba")
+    true_lab = renderer.render(camera, true).labels[0] if true is not None else None
     est_lab = renderer.render(camera, est).labels[0] if est is not None else None
     scores = details["cost_scores"]
     axes_info = details["meta"].get("cost_volume")
     has_volume = scores.size > 0 and axes_info is not None
+    photo = load_image(photo_path, max_width=camera.width) if photo_path is not None else None
+    if photo is not None and photo.shape[:2] != (camera.height, camera.width):
+        photo = None  # not the photo of these details (its size differs): no photo panel
 
-    fig, axes = plt.subplots(1, 3 if has_volume else 1, figsize=(15 if has_volume else 6, 4.2), squeeze=False)
-    ax = axes[0, 0]
+    n_panels = 1 + (photo is not None) + 2 * has_volume
+    fig, axes = plt.subplots(1, n_panels, figsize=(5 * n_panels, 4.2), squeeze=False)
+    panels = iter(axes[0])
+    ax = next(panels)
     ax.imshow(overlay_image(labels, est_lab, true_lab))
     status = details["meta"].get("status")
-    ax.set_title(f"{title}: {status}\nboundaries: cyan = true pose, magenta = estimate", fontsize=8)
+    truth_note = "cyan = true pose, " if true is not None else "(no true pose) "
+    ax.set_title(f"{title}: {status}\nmask; boundaries: {truth_note}magenta = estimate", fontsize=8)
     ax.axis("off")
+    if photo is not None:
+        ax = next(panels)
+        ax.imshow(photo_overlay(photo, renderer, camera, true, est))
+        ax.set_title(f"photo; model edges: {truth_note}magenta = estimate", fontsize=8)
+        ax.axis("off")
     if has_volume:
         xs, ys, zs, yaws = (np.asarray(axes_info[k]) for k in ("x", "y", "z", "yaw"))
         bi, bj, bk, bl = np.unravel_index(int(np.argmax(scores)), scores.shape)
         poses = {"true": (true, "g", "x"), "prior": (prior, "b", "+"), "estimate": (est, "r", "o")}
-        ax = axes[0, 1]
+        ax = next(panels)
         hx = (xs[-1] - xs[0]) / max(len(xs) - 1, 1) / 2  # cells centred on the samples
         hy = (ys[-1] - ys[0]) / max(len(ys) - 1, 1) / 2
         ext = (xs[0] - hx, xs[-1] + hx, ys[0] - hy, ys[-1] + hy)
@@ -446,7 +523,7 @@ def plot_details(details: dict, map_model, path: Path, title: str) -> Path:
         ax.set_xlabel("x (local m)")
         ax.set_ylabel("y (local m)")
         ax.legend(fontsize=7)
-        ax = axes[0, 2]
+        ax = next(panels)
         ax.plot(yaws, scores[bi, bj, bk, :], "k.-")
         mid = yaws[len(yaws) // 2]
         for name, (pose, color, _) in poses.items():
@@ -498,6 +575,8 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     tables: dict[str, tuple[Path, Path]] = {}
     sweep_plots: list[Path] = []
     for name, (factor, title) in TABLES.items():
+        if name != "main" and not any(factor in r.settings for r in runs):
+            continue  # a setting none of these runs has (perception of simulated runs, LoD of real ones)
         members = comparable_runs(runs, factor)
         if not members and name == "main":
             members = runs  # no methods to compare: the main table lists every run
@@ -545,6 +624,34 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     return ReportOutput(out, tables, plots, md_file, notes)
 
 
+def run_map(config: dict) -> CityModel:
+    """The map model a run localized against, in its queries' frame: a simulated run's (``spec.load_map``),
+    a data set's model (rotated into ENU for Swiss-EPFL's ECEF frame, as ``read_lodloc`` does) or a photo
+    run's city model."""
+    mode = config.get("mode")
+    if mode == "photos":
+        return load_city_model(config["city_path"], lod=config.get("lod"), crs=config.get("crs"))
+    if mode == "dataset":
+        model = load_city_model(config["city_path"])
+        if config.get("frame") == FRAME_ECEF:
+            model = rotate_model(model, enu_from_ecef(*config["ecef_origin_llh"]))
+        return model
+    return load_map(config)
+
+
+def photo_of(config: dict, query_meta: dict) -> Path | None:
+    """The photo of a real-data query, when it is still where the run found it."""
+    candidates = []
+    if query_meta.get("image"):
+        candidates.append(Path(query_meta["image"]))
+    name, scene = query_meta.get("name"), query_meta.get("scene")
+    if config.get("mode") == "dataset" and name:
+        roots = config["dataset"] if isinstance(config["dataset"], list) else [config["dataset"]]
+        for root in map(Path, roots):
+            candidates += [root / IMAGE_DIR / name, root / str(scene) / IMAGE_DIR / name]
+    return next((c for c in candidates if c.is_file()), None)
+
+
 def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: list[str]) -> list[Path]:
     figures: list[Path] = []
     maps: dict[str, Any] = {}
@@ -552,16 +659,22 @@ def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: l
         files = sorted((run.path / DETAILS_DIR).glob("q*.npz"))[: max(0, overlays)]
         if not files:
             continue
-        key = json.dumps([run.config.get(k) for k in ("city_path", "lod", "map_source", "crs")])
+        keys = ("mode", "city_path", "lod", "map_source", "crs", "frame", "ecef_origin_llh")
+        key = json.dumps([run.config.get(k) for k in keys])
         if key not in maps:
             try:
-                maps[key] = load_map(run.config)
+                model = run_map(run.config)
+                maps[key] = (model, Renderer(model, engine="numba"))
             except SemCityLocError as exc:
                 maps[key] = None
                 notes.append(f"{run.path}: no query figures, its map cannot be loaded ({exc})")
         if maps[key] is None:
             continue
+        model, renderer = maps[key]
         for f in files:
+            details = load_details(f)
+            photo = photo_of(run.config, details["meta"].get("query_meta") or {})
             name = f"query_{n:02d}_{_slug(run.path.name)}_{f.stem}.png"
-            figures.append(plot_details(load_details(f), maps[key], plot_dir / name, f"{run.label} {f.stem}"))
+            title = f"{run.label} {f.stem}"
+            figures.append(plot_details(details, model, plot_dir / name, title, photo, renderer))
     return figures

@@ -85,6 +85,17 @@ def draw_edges(image: np.ndarray, edges: np.ndarray, color=(255, 0, 0)) -> np.nd
     return out
 
 
+def label_colors(labels: np.ndarray, unknown=(255, 255, 255)) -> np.ndarray:
+    """(H, W, 3) uint8 palette colour of each class id; IGNORE (255) and any id without a colour get
+    ``unknown`` (white, as in label PNGs)."""
+    lab = np.asarray(labels)
+    out = np.empty(lab.shape + (3,), dtype=np.uint8)
+    out[:] = unknown
+    known = (lab >= 0) & (lab < len(PALETTE))
+    out[known] = PALETTE[lab[known]]
+    return out
+
+
 def blend_labels(image: np.ndarray, labels: np.ndarray, alpha: float = 0.45) -> np.ndarray:
     """RGB image with the label palette blended on top (label 0 and 255 left as they are)."""
     img = np.asarray(image)
