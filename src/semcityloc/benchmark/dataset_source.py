@@ -38,7 +38,7 @@ from semcityloc import __version__
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
-from semcityloc.benchmark.runfiles import ESTIMATES_DIR, plain
+from semcityloc.benchmark.runfiles import ESTIMATES_COLMAP_DIR, ESTIMATES_DIR, plain
 from semcityloc.benchmark.spec import check_run_options
 from semcityloc.citymodel.io import file_sha256
 from semcityloc.citymodel.model import CityModel
@@ -49,7 +49,7 @@ from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
-from semcityloc.io.images import read_depth_file, read_mask_file
+from semcityloc.io.images import read_depth_file, read_mask_file, scaled_size
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
@@ -60,7 +60,6 @@ PERCEPTION_ORACLE, PERCEPTION_DEGRADED, PERCEPTION_MASKS = "oracle", "oracle-deg
 PERCEPTIONS = (PERCEPTION_ORACLE, PERCEPTION_DEGRADED, PERCEPTION_MASKS)
 FORMATS = ("lodloc",)
 ORACLE_MAX_WIDTH = 1024
-ESTIMATES_COLMAP_DIR = "estimates_colmap"
 LABELS_SOURCE = "autolabel"
 RUN_FORMAT = 1
 
@@ -74,7 +73,7 @@ def working_camera(camera: Camera, max_width: int = ORACLE_MAX_WIDTH) -> Camera:
     """``camera`` scaled down to at most ``max_width`` pixels wide (same field of view)."""
     if camera.width <= max_width:
         return camera
-    return camera.scaled(max_width, max(1, round(camera.height * max_width / camera.width)))
+    return camera.scaled(*scaled_size(camera.width, camera.height, max_width))
 
 
 def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:

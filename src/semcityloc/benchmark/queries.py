@@ -68,6 +68,7 @@ from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
 from semcityloc.errors import BenchmarkConfigError, EmptyModelError, QuerySimulationError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.perception.autolabel import auto_label
 from semcityloc.perception.metrics import confusion
 from semcityloc.render import Renderer
@@ -211,17 +212,21 @@ class QueryConfig:
 
 @dataclass
 class BenchmarkQuery:
-    """One simulated query (module docstring). Poses in the map model's LOCAL frame."""
+    """One query of a run (simulated: module docstring; or from a data set or a user's photos). Poses in
+    the map model's LOCAL frame."""
 
     query_id: str  # "q0000", "q0001", ... (index i -> f"q{i:04d}")
     index: int
     camera: Camera  # at config.width x config.height
-    true_pose_local: Pose  # cam_from_world, LOCAL frame of the map model (world = origin + local)
+    true_pose_local: Pose | None  # cam_from_world, LOCAL frame of the map model; None: a user's photo
     prior_pose_local: Pose  # same frame
     labels: np.ndarray  # (H, W) uint8 simulated segmentation (SemanticClass ids; 0 = background)
     depth: np.ndarray | None  # (H, W) float32 simulated relative depth, NaN where invalid (sky)
     query_miou: float  # mIoU (%) of `labels` vs the clean labels of the reality render
     meta: dict = field(default_factory=dict)  # view, height_m, prior errors, ... (JSON-friendly)
+    # How far the prior may be off, when the source knows it per query (a photo's RTK tags); None: the
+    # localizer's own default. Passed on by ``benchmark.run.localize_query``.
+    prior_uncertainty: PriorUncertainty | None = None
 
 
 @dataclass

@@ -91,10 +91,12 @@ def _pose_values(prefix: str, pose: Pose | None, origin: np.ndarray, world: bool
 def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) -> dict[str, str]:
     """One ``results.csv`` row (all values formatted) from a query and its result (poses local)."""
     est = result.pose_local if result.localized else None
-    err = pose_errors(est, q.true_pose_local)
-    prior_err = pose_errors(q.prior_pose_local, q.true_pose_local)
+    true = q.true_pose_local
+    none = (None, None, None)  # no ground truth (a user's photo): no error
+    err = pose_errors(est, true) if true is not None else none
+    prior_err = pose_errors(q.prior_pose_local, true) if true is not None else none
     coarse = result.coarse_pose_local
-    coarse_err = pose_errors(coarse, q.true_pose_local) if coarse is not None else (None, None, None)
+    coarse_err = pose_errors(coarse, true) if coarse is not None and true is not None else none
     meta = dict(q.meta or {})
     conf, counts, timings = result.confidence or {}, result.counts or {}, result.timings or {}
     row: dict[str, Any] = {
@@ -268,9 +270,13 @@ def _float(text: str) -> float:
 
 def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
     """``summary.json``: the metrics of ``evaluation.metrics`` over the rows (``skipped`` rows left out
-    and counted), timings, query mIoU, a per-view breakdown and the run's config."""
+    and counted), timings, query mIoU, a per-view breakdown and the run's config.
+
+    Errors need a true pose: rows without one (a user's photos) count in ``queries`` / ``localized`` /
+    ``not_localized`` but not in the error metrics, which cover the ``with_ground_truth`` rows only."""
     skipped = sum(r["status"] == SKIPPED for r in rows)
-    ordered = sorted((r for r in rows if r["status"] != SKIPPED), key=lambda r: int(r["index"]))
+    every = sorted((r for r in rows if r["status"] != SKIPPED), key=lambda r: int(r["index"]))
+    ordered = [r for r in every if r["err_xyz_m"] != ""]  # rows with a true pose have an error
     err = {c: np.array([_float(r[c]) for r in ordered]) for c in ("err_xyz_m", "err_rot_deg", "err_yaw_deg")}
     localized = np.array([r["status"] == LOCALIZED for r in ordered], dtype=bool)
 
@@ -281,14 +287,18 @@ def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
 
     s: dict[str, Any] = {"method": config.get("method")}
     s.update(errors_of(np.ones(len(ordered), dtype=bool)))
+    s["with_ground_truth"] = len(ordered)
+    if len(ordered) < len(every):
+        n_loc = sum(r["status"] == LOCALIZED for r in every)
+        s.update(queries=len(every), localized=n_loc, not_localized=len(every) - n_loc)
     s["skipped"] = skipped
-    miou = np.array([_float(r["query_miou"]) for r in ordered])
-    total = np.array([_float(r["t_total_s"]) for r in ordered])
+    miou = np.array([_float(r["query_miou"]) for r in every])
+    total = np.array([_float(r["t_total_s"]) for r in every])
     s["mean_query_miou"] = float(np.nanmean(miou)) if np.isfinite(miou).any() else float("nan")
     s["sec_per_image"] = float(np.nanmean(total)) if np.isfinite(total).any() else float("nan")
     s["sec_per_image_median"] = float(np.nanmedian(total)) if np.isfinite(total).any() else float("nan")
     s.update(map_miou(ordered))
-    s["not_localized_reasons"] = dict(Counter(r["reason"] for r in ordered if r["status"] != LOCALIZED))
+    s["not_localized_reasons"] = dict(Counter(r["reason"] for r in every if r["status"] != LOCALIZED))
     views = np.array([r["view"] or "unknown" for r in ordered])
     s["by_view"] = {
         v: {k: x for k, x in errors_of(views == v).items() if k != "convention"} for v in sorted(set(views))

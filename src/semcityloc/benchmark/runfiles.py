@@ -12,7 +12,13 @@ Folder ``DIR`` of a run:
 - ``results.csv``: one row per finished query (``benchmark.results``).
 - ``details/qNNNN.npz``: the report's figures for the first ``keep_details`` queries.
 - ``summary.json``: the metrics, written when every query is done.
-- ``estimates/<name>.json``: the localized poses in the data set's world frame (data-set runs only).
+- ``estimates/<name>.json``: the localized poses in the data set's world frame (data-set runs only);
+  ``estimates_colmap/``: all of them as a COLMAP text model.
+- a photo run (``semcityloc run``, ``benchmark.photo_source``): ``poses/<stem>.json`` per photo,
+  ``overlays/<stem>.png``, and when every photo is done ``colmap/``, ``geotags.csv``, ``geo.txt``,
+  ``cameras.geojson``.
+
+A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) before it starts.
 """
 
 from __future__ import annotations
@@ -34,6 +40,23 @@ RESULTS_FILE = "results.csv"
 SUMMARY_FILE = "summary.json"
 DETAILS_DIR = "details"
 ESTIMATES_DIR = "estimates"
+ESTIMATES_COLMAP_DIR = "estimates_colmap"
+POSES_DIR, OVERLAYS_DIR, COLMAP_DIR = "poses", "overlays", "colmap"
+GEOTAGS_FILE, ODM_GEO_FILE, GEOJSON_FILE = "geotags.csv", "geo.txt", "cameras.geojson"
+# Everything a run writes besides run.json (removed when a run with other arguments overwrites the folder).
+RUN_OUTPUTS = (
+    RESULTS_FILE,
+    SUMMARY_FILE,
+    DETAILS_DIR,
+    ESTIMATES_DIR,
+    ESTIMATES_COLMAP_DIR,
+    POSES_DIR,
+    OVERLAYS_DIR,
+    COLMAP_DIR,
+    GEOTAGS_FILE,
+    ODM_GEO_FILE,
+    GEOJSON_FILE,
+)
 
 # Keys of run.json that do not change the numbers (not compared on resume).
 NOT_IDENTITY = ("city", "keep_details", "semcityloc_version")  # "city": as typed; city_path counts
@@ -107,10 +130,12 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> None
             f"{out_dir} holds another benchmark run: {mismatch}; pass --overwrite or choose another --out"
         )
     if mismatch:
-        for name in (RESULTS_FILE, SUMMARY_FILE):
-            (out_dir / name).unlink(missing_ok=True)
-        shutil.rmtree(out_dir / DETAILS_DIR, ignore_errors=True)
-        shutil.rmtree(out_dir / ESTIMATES_DIR, ignore_errors=True)
+        for name in RUN_OUTPUTS:
+            path = out_dir / name
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
     if mismatch or not run_file.exists():
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
 

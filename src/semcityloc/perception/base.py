@@ -36,6 +36,11 @@ import numpy as np
 from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
 from semcityloc.errors import ParameterError, ShapeError, unknown_choice
 
+# Photos are shrunk to this width before a backend runs on them (``io.images.load_image(max_width=...)``):
+# the localizer compares masks at 64-128 px and resamples any size itself, so a 5280 px photo costs no more
+# than a 1024 px one and gives the same masks.
+PHOTO_MAX_WIDTH = 1024
+
 
 # ---------------------------------------------------------------------------------------------- outputs
 @dataclass

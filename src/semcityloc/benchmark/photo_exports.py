@@ -1,0 +1,131 @@
+"""The combined outputs of a photo run (``semcityloc run``), written once every photo is done.
+
+Read back from the per-photo ``poses/<stem>.json`` files (so a run finished over several sessions exports
+the same), in the formats users import elsewhere:
+
+- ``colmap/``: ``cameras.txt``, ``images.txt``, ``points3D.txt`` (empty): the localized photos' poses in
+  the model's frame, named by image (``datasets.colmap.write_model``, the one COLMAP writer);
+- ``geotags.csv`` (model CRS known): every photo's WGS 84 position and DJI angles
+  (``datasets.geotags``; ``source`` = ``semcityloc`` for a corrected pose, ``prior (not localized: ...)``
+  for a photo that keeps its prior, with the prior's uncertainty as accuracy), what Metashape and Pix4D
+  import as reference positions;
+- ``geo.txt`` (model CRS known): OpenDroneMap's image geolocation file of the localized photos, in the
+  model's horizontal CRS (its own coordinates: no height conversion);
+- ``cameras.geojson``: camera centres and ground footprints for a GIS (``datasets.geojson``), every
+  photo (at its estimate, or at its prior when not localized).
+
+Without a CRS (a model in a local frame such as UAVD4L-LoD's) the geotag files cannot be written: the
+summary says so and names ``--crs`` / ``--offset``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semcityloc.benchmark.runfiles import (
+    COLMAP_DIR,
+    GEOJSON_FILE,
+    GEOTAGS_FILE,
+    ODM_GEO_FILE,
+    POSES_DIR,
+    json_safe,
+    write_atomic,
+)
+from semcityloc.citymodel.model import CityModel
+from semcityloc.classes import BUILDING_CLASSES
+from semcityloc.datasets.colmap import ColmapModel, write_model
+from semcityloc.datasets.dji import dji_geotag
+from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
+from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
+from semcityloc.errors import InputFileError
+from semcityloc.geometry.errors import center_error_m
+from semcityloc.geometry.io import read_pose
+from semcityloc.localization.result import LOCALIZED
+
+NO_CRS = (
+    "the city model names no CRS, so no geotags.csv / geo.txt (WGS 84 needs one); pass --crs (and "
+    "--offset when the model's frame is its CRS minus an offset)"
+)
+
+
+def ground_z(model: CityModel) -> float:
+    """The model's ground height (world frame): the median lowest point of its building triangles."""
+    building = np.isin(model.classes, BUILDING_CLASSES)
+    tris = model.triangles[building] if building.any() else model.triangles
+    z = model.vertices[tris][:, :, 2].astype(np.float64).min(1)
+    return float(np.median(z) + model.origin[2]) if z.size else float(model.origin[2])
+
+
+def _read_record(path: Path) -> dict | None:
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputFileError(f"{path}: unreadable pose file ({exc}); run again with --overwrite") from exc
+
+
+def write_exports(
+    out_dir: Path, model: CityModel, inputs: list, offset: np.ndarray | None, target_height: str
+) -> dict[str, Any]:
+    """Write the exports (module docstring) of ``inputs`` (``photo_source.PhotoInput``); returns
+    ``{output: path or None}`` and ``notes`` for the summary."""
+    out_dir = Path(out_dir)
+    shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
+    records, estimates = {}, {}
+    for inp in inputs:
+        path = out_dir / POSES_DIR / f"{inp.stem}.json"
+        records[inp.name] = _read_record(path) or {}
+        status = records[inp.name].get("status", records[inp.name].get("extra", {}).get("status"))
+        if status == LOCALIZED:
+            estimates[inp.name] = read_pose(path)
+    outputs: dict[str, Any] = {"poses": str(out_dir / POSES_DIR), "notes": []}
+
+    cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
+    outputs["colmap"] = str(write_model(ColmapModel.from_poses(cameras), out_dir / COLMAP_DIR, ext=".txt"))
+
+    features = []
+    for inp in inputs:
+        record = records[inp.name]
+        est = estimates.get(inp.name)
+        pose = est if est is not None else inp.prior.pose_world
+        reason = record.get("reason") or "no result"
+        props = {
+            "status": LOCALIZED if est is not None else f"not localized: {reason}",
+            "pose": "semcityloc estimate" if est is not None else "prior",
+            "position": (pose.center + shift).tolist(),
+            "prior_shift_m": float(center_error_m(est, inp.prior.pose_world)) if est is not None else None,
+        }
+        if inp.truth_world is not None and est is not None:
+            props["error_m"] = float(center_error_m(est, inp.truth_world))
+        features.append(CameraFeature(inp.name, inp.camera, pose, json_safe(props)))
+    collection = cameras_geojson(features, model.crs, ground_z(model), shift)
+    outputs["geojson"] = str(write_geojson(collection, out_dir / GEOJSON_FILE))
+
+    if model.crs is None:
+        outputs["geotags"] = outputs["geo_txt"] = None
+        outputs["notes"].append(NO_CRS)
+        return outputs
+    rows, odm = [], []
+    for inp in inputs:
+        est = estimates.get(inp.name)
+        if est is not None:
+            tag = dji_geotag(est, model.crs, shift, target_height)
+            rows.append(GeotagRow(inp.name, tag, source="semcityloc"))
+            odm.append((inp.name, tuple((est.center + shift).tolist()), tag))
+        else:
+            tag = dji_geotag(inp.prior.pose_world, model.crs, shift, target_height)
+            reason = records[inp.name].get("reason") or "no result"
+            sigma = inp.uncertainty
+            rows.append(GeotagRow(inp.name, tag, sigma.xy_m, sigma.z_m, f"prior (not localized: {reason})"))
+        if tag.vertical_flag and tag.vertical_flag not in outputs["notes"]:
+            outputs["notes"].append(tag.vertical_flag)
+    write_atomic(out_dir / GEOTAGS_FILE, geotags_csv_text(rows))
+    outputs["geotags"] = str(out_dir / GEOTAGS_FILE)
+    write_atomic(out_dir / ODM_GEO_FILE, odm_geo_text(model.crs, odm))
+    outputs["geo_txt"] = str(out_dir / ODM_GEO_FILE)
+    return outputs

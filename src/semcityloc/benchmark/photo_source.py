@@ -1,0 +1,396 @@
+"""``semcityloc run``: a folder of a user's photos localized against a city model, through the one run loop.
+
+Why its own source: users come with a flight of photos and a CityGML / CityJSON tile, not a data set with
+ground truth. Everything after the queries is ``benchmark.run.run_queries`` (resumable rows, progress
+with ETA, workers, details), so a run of a thousand photos can be stopped and continued like a benchmark.
+
+Per photo (``datasets.photos`` matches files to photos by name):
+
+- intrinsics: ``exif`` (the 35 mm-equivalent focal length, ``dji.camera_from_exif``) by default, or a
+  calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all);
+- prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
+  COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
+- how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
+  photo), else the photo's RTK tags (``dji.prior_uncertainty``) or the geotag file's accuracy columns,
+  else the defaults. Kept in each query (``BenchmarkQuery.prior_uncertainty``) and in the outputs;
+- perception: precomputed masks (``<masks>/<stem>.png|.npy``, any resolution with the photo's aspect),
+  or a segmentation backend run on the photo (shrunk to ``PHOTO_MAX_WIDTH``); optional depth likewise;
+- optional ground truth (``truth``, same forms as the priors): rows then carry errors and the summary
+  recall.
+
+A photo that lacks any of these is skipped before anything is localized, with the reason (``run.json``
+``skipped_photos``, the summary, the CLI's closing lines); the others run. Outputs (``runfiles``):
+``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level when localized, in
+``geometry.io.pose_to_dict``'s layout, and the result record, prior, uncertainty and perception in
+``extra``; the record alone when not localized), ``overlays/<stem>.png`` (the model's edges at the estimate
+and at the prior over the photo) and, when every photo is done, the exports of
+``benchmark.photo_exports`` (COLMAP model, geotag CSV, OpenDroneMap ``geo.txt``, GeoJSON).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semcityloc import __version__
+from semcityloc.benchmark.photo_exports import write_exports
+from semcityloc.benchmark.queries import BenchmarkQuery, query_id
+from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, plain, write_json_atomic
+from semcityloc.benchmark.spec import check_run_options, resolve_city
+from semcityloc.citymodel.io import file_sha256, load_city_model
+from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
+from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
+from semcityloc.datasets.photos import (
+    EXIF,
+    IntrinsicsFiles,
+    PhotoMissing,
+    PhotoPrior,
+    PriorFiles,
+    list_images,
+)
+from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.io import pose_to_dict
+from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.io.images import check_aspect, image_size, load_image, read_depth_file, read_mask_file
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.methods import ABLATIONS, Method
+from semcityloc.localization.result import LocalizationResult
+from semcityloc.perception.base import PHOTO_MAX_WIDTH
+from semcityloc.perception.files import DEPTH_SUFFIXES, MASK_SUFFIXES, find_file
+from semcityloc.perception.registry import backend_entry, get_depth_backend, get_segmentation_backend
+from semcityloc.render import Renderer
+
+RUN_FORMAT = 1
+NO_PERCEPTION = (
+    "no perception source: give --masks DIR (label PNGs by photo stem), or --seg-backend dinov3-dpt "
+    "--backend-option backbone=DINOV3_DIR --backend-option head=HEAD_DIR (the paper's perception: DINOv3 "
+    "ViT + a DPT head trained on your posed photos with 'semcityloc label' + 'semcityloc train-segmenter'; "
+    "depth: --depth-backend moge2 --backend-option model=MOGE2_MODEL_PT); see docs/your-data.md"
+)
+ESTIMATE_TITLE, PRIOR_TITLE = "model edges at the semcityloc estimate", "model edges at the prior"
+
+
+@dataclass
+class PhotoInput:
+    """One photo's resolved inputs (module docstring); poses in the model's world frame."""
+
+    name: str
+    path: Path
+    camera: Camera
+    prior: PhotoPrior
+    uncertainty: PriorUncertainty
+    truth_world: Pose | None = None
+    mask: Path | None = None
+    depth: Path | None = None
+
+    @property
+    def stem(self) -> str:
+        return self.path.stem
+
+
+@dataclass(frozen=True)
+class PhotoSpec:
+    """A run over a folder of photos (module docstring). Checked when made: a bad value raises a typed error
+    naming it, before any file is read."""
+
+    images: str
+    city: str
+    lod: int | str | None = None
+    crs: str | None = None
+    priors: str = EXIF
+    intrinsics: str = EXIF
+    truth: str | None = None
+    masks: str | None = None
+    depth: str | None = None
+    seg_backend: str | None = None
+    depth_backend: str | None = None
+    backend_options: tuple[tuple[str, str], ...] = ()
+    prior_sigma: str | None = None  # "xy=5,z=15,yaw=5,rp=1" for every photo; None: per photo
+    offset: tuple[float, float, float] | None = None  # the model's frame = its CRS minus this
+    target_height: str = HEIGHT_AUTO
+    geoid_separation_m: float | None = None
+    method: str = "semcityloc"
+    preset: str = "default"
+    keep_details: int = 3
+    overlays: bool = True
+
+    label = "photos"  # the progress bar's label
+
+    def __post_init__(self) -> None:
+        if not (self.masks or self.seg_backend):
+            raise InputFileError(NO_PERCEPTION)
+        if self.masks and self.seg_backend:
+            raise InputFileError("give --masks DIR or --seg-backend NAME, not both")
+        if self.depth and self.depth_backend:
+            raise InputFileError("give --depth DIR or --depth-backend NAME, not both")
+        for kind, name in (("segmentation", self.seg_backend), ("depth", self.depth_backend)):
+            if name:
+                backend_entry(kind, name)
+        if self.method not in ABLATIONS:
+            raise unknown_choice("method for photos", self.method, ABLATIONS, BenchmarkError)
+        if self.target_height not in TARGET_HEIGHTS:
+            raise unknown_choice("target height", self.target_height, TARGET_HEIGHTS, BenchmarkError)
+        self.fixed_uncertainty()
+        check_run_options(self.method, self.preset, self.keep_details)
+
+    # ------------------------------------------------------------------ what the run is
+    def fixed_uncertainty(self) -> PriorUncertainty | None:
+        return PriorUncertainty.parse(self.prior_sigma) if self.prior_sigma else None
+
+    def perception(self) -> str:
+        """How the masks (and depth) are made, for labels: ``masks``, ``dinov3-dpt + moge2``, ..."""
+        seg = "masks" if self.masks else str(self.seg_backend)
+        depth = "depth files" if self.depth else self.depth_backend
+        return f"{seg} + {depth}" if depth else seg
+
+    def localizer_config(self) -> LocalizerConfig:
+        return LocalizerConfig.preset(self.preset)
+
+    def load_model(self) -> CityModel:
+        lod = int(self.lod) if self.lod is not None and str(self.lod).isdigit() else self.lod
+        return load_city_model(resolve_city(self.city), lod=lod, crs=self.crs)
+
+    def resolved(self) -> tuple[CityModel, list[PhotoInput], dict[str, str]]:
+        """(model, the photos that can run, ``{name: why not}`` of the others), computed once."""
+        return _resolve(self)
+
+    def run_config(self) -> dict:
+        """The ``run.json`` of a photo run (what decides the numbers; compared on resume)."""
+        model, inputs, skipped = self.resolved()
+        if not inputs:
+            reasons = "; ".join(f"{k}: {v}" for k, v in list(skipped.items())[:3])
+            raise InputFileError(f"{self.images}: no photo can be localized ({reasons})")
+        city = resolve_city(self.city)
+        return plain(
+            {
+                "format": RUN_FORMAT,
+                "mode": "photos",
+                "images": str(Path(self.images).resolve()),
+                "city": str(self.city),
+                "city_path": str(city),
+                "city_sha256": file_sha256(city),
+                "lod": self.lod,
+                "crs": self.crs,
+                "model_crs": crs_label(model.crs),
+                "priors": self.priors,
+                "intrinsics": self.intrinsics,
+                "truth": self.truth,
+                "prior_sigma": self.prior_sigma,
+                "offset": self.offset,
+                "target_height": self.target_height,
+                "geoid_separation_m": self.geoid_separation_m,
+                "perception": self.perception(),
+                "masks": self.masks,
+                "depth": self.depth,
+                "seg_backend": self.seg_backend,
+                "depth_backend": self.depth_backend,
+                "backend_options": [list(kv) for kv in self.backend_options],
+                "method": self.method,
+                "localizer_preset": self.preset,
+                "localizer": self.localizer_config().as_dict(),
+                "overlays": self.overlays,
+                "queries": len(inputs),
+                "query_names": [i.name for i in inputs],
+                "skipped_photos": skipped,
+                "keep_details": int(self.keep_details),
+                "semcityloc_version": __version__,
+            }
+        )
+
+    def open_source(self, config: dict) -> PhotoSource:
+        model, inputs, _ = self.resolved()
+        source = PhotoSource(self, model, inputs)
+        source.backends()  # weights missing or wrong: said now, before the first photo
+        return source
+
+    def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
+        """The photo counts and reasons in the summary; the exports (``photo_exports``)."""
+        model, inputs, skipped = self.resolved()
+        summary["mode"] = "photos"
+        summary["perception"] = self.perception()
+        summary["photos"] = len(inputs) + len(skipped)
+        summary["skipped_photos"] = skipped
+        offset = None if self.offset is None else np.asarray(self.offset, dtype=np.float64)
+        summary["outputs"] = write_exports(out_dir, model, inputs, offset, self.target_height)
+
+
+@functools.lru_cache(maxsize=2)
+def _resolve(spec: PhotoSpec) -> tuple[CityModel, list[PhotoInput], dict[str, str]]:
+    model = spec.load_model()
+    offset = None if spec.offset is None else np.asarray(spec.offset, dtype=np.float64)
+    priors = PriorFiles(spec.priors, model.crs, offset, spec.target_height, spec.geoid_separation_m)
+    truth = None
+    if spec.truth:
+        truth = PriorFiles(spec.truth, model.crs, offset, spec.target_height, spec.geoid_separation_m)
+    intrinsics = IntrinsicsFiles(spec.intrinsics, priors.files)
+    fixed = spec.fixed_uncertainty()
+    inputs: list[PhotoInput] = []
+    skipped: dict[str, str] = {}
+    for path in list_images(spec.images):
+        try:
+            width, height = image_size(path, "photo")
+            camera = intrinsics.camera(path, width, height)
+            prior = priors.prior(path)
+            mask = _input_file(spec.masks, path, MASK_SUFFIXES, "mask", camera)
+            depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera)
+        except PhotoMissing as exc:
+            skipped[path.name] = str(exc)
+            continue
+        true_pose = None
+        if truth is not None:
+            try:
+                true_pose = truth.prior(path).pose_world
+            except PhotoMissing:
+                true_pose = None  # ground truth is optional per photo
+        sigma = fixed or prior.uncertainty or PriorUncertainty()
+        inputs.append(PhotoInput(path.name, path, camera, prior, sigma, true_pose, mask, depth))
+    return model, inputs, skipped
+
+
+def _array_shape(path: Path) -> tuple[int, int]:
+    """(H, W) of a mask / depth file from its header (PNG) or array header (``.npy``)."""
+    if path.suffix.lower() == ".npy":
+        try:
+            shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+        except (OSError, ValueError) as exc:
+            raise PhotoMissing(f"{path}: not a readable .npy array ({exc})") from None
+        return tuple(int(v) for v in shape)
+    width, height = image_size(path, "mask or depth image")
+    return height, width
+
+
+def _input_file(folder: str | None, photo: Path, suffixes, what: str, camera: Camera) -> Path | None:
+    """The photo's mask / depth file in ``folder`` (None without a folder), checked to show the photo's
+    field of view; ``PhotoMissing`` when absent or of another aspect."""
+    if not folder:
+        return None
+    try:
+        path = find_file(Path(folder), photo.name, suffixes, what)
+        check_aspect(_array_shape(path), camera.width, camera.height, what, path)
+    except (InputFileError, ValueError) as exc:
+        raise PhotoMissing(str(exc)) from None
+    return path
+
+
+class PhotoSource:
+    """``BenchmarkQuery`` objects of a user's photos, in the model's local frame (module docstring)."""
+
+    def __init__(self, spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput]):
+        self.spec = spec
+        self.map_model = model
+        self.inputs = inputs
+        self._backends: tuple[Any, Any] | None = None
+        self._renderer: Renderer | None = None
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_backends"] = state["_renderer"] = None  # rebuilt in each process
+        return state
+
+    def __len__(self) -> int:
+        return len(self.inputs)
+
+    def backends(self) -> tuple[Any, Any]:
+        """(segmentation backend or None, depth backend or None), built once per process."""
+        if self._backends is None:
+            options, spec = dict(self.spec.backend_options), self.spec
+            seg = get_segmentation_backend(spec.seg_backend, **options) if spec.seg_backend else None
+            dep = get_depth_backend(spec.depth_backend, **options) if spec.depth_backend else None
+            self._backends = (seg, dep)
+        return self._backends
+
+    @property
+    def renderer(self) -> Renderer:
+        if self._renderer is None:
+            self._renderer = Renderer(self.map_model, engine="numba")
+        return self._renderer
+
+    def query(self, index: int) -> BenchmarkQuery:
+        inp = self.inputs[index]
+        cam = inp.camera
+        seg, dep = self.backends()
+        photo = load_image(inp.path, max_width=PHOTO_MAX_WIDTH) if (seg or dep) else None
+        if inp.mask is not None:
+            labels = read_mask_file(inp.mask)
+        else:
+            labels = seg.predict(photo, name=inp.name).labels
+        check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask or inp.name)
+        depth = None
+        if inp.depth is not None:
+            depth = read_depth_file(inp.depth)
+        elif dep is not None:
+            depth = dep.predict(photo, name=inp.name).masked()
+        if depth is not None:
+            check_aspect(depth.shape, cam.width, cam.height, "depth", inp.depth or inp.name)
+        pitch = float(inp.prior.pose_world.to_xyz_rpy()[4])
+        meta = {
+            "name": inp.name,
+            "image": str(inp.path.absolute()),
+            "perception": self.spec.perception(),
+            "prior_source": inp.prior.source,
+            "prior_uncertainty": inp.uncertainty.as_dict(),
+            "view": "nadir" if abs(pitch) < 15.0 else "oblique",
+        }
+        model = self.map_model
+        return BenchmarkQuery(
+            query_id=query_id(index),
+            index=index,
+            camera=cam,
+            true_pose_local=model.pose_to_local(inp.truth_world) if inp.truth_world is not None else None,
+            prior_pose_local=model.pose_to_local(inp.prior.pose_world),
+            labels=labels,
+            depth=depth,
+            query_miou=math.nan,
+            meta=meta,
+            prior_uncertainty=inp.uncertainty,
+        )
+
+    def prepare(self, method: Method) -> None:
+        return None
+
+    def record(self, inp: PhotoInput, result: LocalizationResult) -> dict:
+        """What ``poses/<stem>.json`` says besides the pose: the result, the prior, its uncertainty."""
+        model = self.map_model
+        crs = crs_label(model.crs)
+        record = result.to_dict(model.origin, crs)
+        record.update(
+            image=inp.name,
+            perception=self.spec.perception(),
+            intrinsics=inp.camera.as_dict(),
+            prior=pose_to_dict(inp.prior.pose_world, crs=crs, extra=inp.prior.details),
+            prior_source=inp.prior.source,
+            # TODO(issue13 merge): the localizer searches this; until then it is recorded only.
+            prior_uncertainty=inp.uncertainty.as_dict(),
+        )
+        return record
+
+    def save_estimate(self, out_dir: Path, q: BenchmarkQuery, result: LocalizationResult) -> None:
+        """``poses/<stem>.json`` and ``overlays/<stem>.png`` of a finished photo (module docstring)."""
+        inp = self.inputs[q.index]
+        model = self.map_model
+        record = self.record(inp, result)
+        folder = out_dir / POSES_DIR
+        folder.mkdir(exist_ok=True)
+        estimate = result.pose_local if result.localized else None
+        if estimate is not None:
+            data = pose_to_dict(estimate, origin=model.origin, crs=crs_label(model.crs), extra=record)
+        else:
+            data = record
+        write_json_atomic(folder / f"{inp.stem}.json", data)
+        if self.spec.overlays:
+            photo = load_image(inp.path, max_width=PHOTO_MAX_WIDTH)
+            camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
+            panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]
+            if estimate is not None:
+                panels.insert(0, (model.pose_to_world(estimate), GT_COLOR, ESTIMATE_TITLE))
+            figure = edges_figure(photo, model, camera, panels, self.renderer)
+            (out_dir / OVERLAYS_DIR).mkdir(exist_ok=True)
+            save_png(figure, out_dir / OVERLAYS_DIR / f"{inp.stem}.png")

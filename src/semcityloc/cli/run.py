@@ -1,0 +1,163 @@
+"""``semcityloc run``: a folder of photos + a city model -> a corrected pose per photo, and the files
+photogrammetry tools and GIS read (``benchmark.photo_source`` / ``photo_exports``; docs/your-data.md).
+
+Resumable like the benchmark: run the same command again after an interruption and it continues; other
+arguments on the same ``--out`` are refused unless ``--overwrite``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from pathlib import Path
+
+from semcityloc.benchmark.photo_source import PhotoSpec
+from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.cli.city import add_model_arguments
+from semcityloc.cli.dataset import parse_floats
+from semcityloc.datasets.dji import TARGET_HEIGHTS
+from semcityloc.datasets.photos import EXIF
+from semcityloc.errors import InputFileError
+from semcityloc.localization.config import PRESETS
+from semcityloc.localization.methods import ABLATIONS
+from semcityloc.localization.result import LOCALIZED
+from semcityloc.perception.registry import available_backends
+
+SHOWN_PHOTOS = 10  # photos named per reason in the closing lines
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="localize a folder of photos against a city model: pose per photo, COLMAP, geotags, GeoJSON",
+    )
+    p.add_argument("images", help="folder of photos (DJI JPEGs carry their own prior and intrinsics)")
+    add_model_arguments(p, positional=False)
+    p.add_argument(
+        "--priors",
+        default=EXIF,
+        help="exif (default: the photos' DJI GPS + gimbal angles), a geotag .csv (WGS 84 + DJI angles), "
+        "a COLMAP images.txt or a folder of LoD-Loc <stem>_pose.txt (in the model's frame)",
+    )
+    p.add_argument(
+        "--intrinsics",
+        default=EXIF,
+        help="exif (default: 35 mm-equivalent focal length), a calibration file, COLMAP cameras.txt, or a "
+        "folder of <stem>_intrinsic.txt",
+    )
+    p.add_argument(
+        "--truth", default=None, help="ground-truth poses (same forms as --priors): errors in the summary"
+    )
+    p.add_argument(
+        "--prior-sigma",
+        default=None,
+        metavar="xy=5,z=15,yaw=5,rp=1",
+        help="1-sigma error of every prior (default: per photo, from its RTK tags or the geotag accuracy, "
+        "else xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg)",
+    )
+    p.add_argument("--masks", default=None, help="folder of precomputed label masks <stem>.png / .npy")
+    p.add_argument("--depth", default=None, help="folder of precomputed relative depth <stem>.npy / .png")
+    p.add_argument("--seg-backend", default=None, choices=available_backends("segmentation"))
+    p.add_argument("--depth-backend", default=None, choices=available_backends("depth"))
+    p.add_argument(
+        "--backend-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="option of the perception backends (repeatable): head=DIR, backbone=DIR, model=PATH, device",
+    )
+    p.add_argument("--offset", default=None, help="x,y,z: the model's frame is its CRS minus this")
+    p.add_argument(
+        "--target-height",
+        default="auto",
+        choices=TARGET_HEIGHTS,
+        help="what the model's z is (auto: orthometric when its CRS has a vertical datum, else DJI's height "
+        "as it is; orthometric: EGM96 for a 2D CRS)",
+    )
+    p.add_argument("--geoid-separation", type=float, default=None, help="known geoid undulation N (m)")
+    p.add_argument("--method", default="semcityloc", choices=ABLATIONS, help="the method or an ablation")
+    p.add_argument("--preset", default="default", choices=tuple(PRESETS), help="localizer preset")
+    p.add_argument("--out", default="semcityloc_run", help="output folder (default semcityloc_run)")
+    p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
+    p.add_argument("--keep-details", type=int, default=3, help="save details of the first N photos")
+    p.add_argument("--no-overlays", action="store_true", help="do not draw overlays/<stem>.png")
+    p.add_argument("--overwrite", action="store_true", help="discard results made with other arguments")
+    p.add_argument("--stop-after", type=int, default=None, metavar="N", help="localize at most N more photos")
+    p.set_defaults(func=run)
+
+
+def _options(pairs: list[str]) -> tuple[tuple[str, str], ...]:
+    bad = [p for p in pairs if "=" not in p]
+    if bad:
+        raise InputFileError(f"--backend-option must be KEY=VALUE, got {bad[0]!r}")
+    return tuple(tuple(p.split("=", 1)) for p in pairs)
+
+
+def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
+    if not Path(args.images).is_dir():
+        raise InputFileError(f"{args.images}: no such images folder")
+    return PhotoSpec(
+        images=args.images,
+        city=args.path,
+        lod=args.lod,
+        crs=args.crs,
+        priors=args.priors,
+        intrinsics=args.intrinsics,
+        truth=args.truth,
+        masks=args.masks,
+        depth=args.depth,
+        seg_backend=args.seg_backend,
+        depth_backend=args.depth_backend,
+        backend_options=_options(args.backend_option),
+        prior_sigma=args.prior_sigma,
+        offset=parse_floats(args.offset, 3, "--offset"),
+        target_height=args.target_height,
+        geoid_separation_m=args.geoid_separation,
+        method=args.method,
+        preset=args.preset,
+        keep_details=args.keep_details,
+        overlays=not args.no_overlays,
+    )
+
+
+def _names(names: list[str]) -> str:
+    shown = ", ".join(names[:SHOWN_PHOTOS])
+    return shown + (f" (+{len(names) - SHOWN_PHOTOS} more)" if len(names) > SHOWN_PHOTOS else "")
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = spec_from_args(args)
+    out = Path(args.out)
+    outcome = run_benchmark(spec, out, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after)
+    config = outcome.config
+    skipped = config["skipped_photos"]
+    if not outcome.complete:
+        print(f"{len(outcome.rows)}/{config['queries']} photos done in {out}; run again to continue")
+        return 0
+    s = outcome.summary
+    refused: dict[str, list[str]] = {}
+    for row in outcome.rows:
+        if row["status"] != LOCALIZED:
+            name = config["query_names"][int(row["index"])]
+            refused.setdefault(row["reason"] or row["status"], []).append(name)
+    print(
+        f"{s['photos']} photos: {s['localized']} localized, {s['not_localized']} not localized, "
+        f"{len(skipped)} skipped (perception: {s['perception']})"
+    )
+    for reason, names in refused.items():
+        print(f"  not localized ({reason}): {_names(names)}")
+    for reason, count in Counter(skipped.values()).most_common():
+        names = [n for n, r in skipped.items() if r == reason]
+        print(f"  skipped ({count}): {reason}: {_names(names)}")
+    if s.get("with_ground_truth"):
+        print(summary_markdown([s], [f"{spec.method} [{s['perception']}] vs --truth"]))
+    outputs = s["outputs"]
+    for note in outputs.get("notes", []):
+        print(f"semcityloc: note: {note}", file=sys.stderr)
+    written = [outputs[k] for k in ("poses", "colmap", "geotags", "geo_txt", "geojson") if outputs.get(k)]
+    if spec.overlays:
+        written.append(str(out / "overlays"))
+    print("wrote " + ", ".join(written))
+    return 0

@@ -1,0 +1,340 @@
+"""``semcityloc run``: a folder of photos + a city model -> poses, COLMAP, geotags, GeoJSON, overlays.
+
+Three cases: a small box city in a local frame (no ../shared needed: skips, resume, one-line errors), a
+simulated DJI flight over Berlin LoD2 with DJI-style EXIF written here (the geotags go back through pyproj
+to the model's CRS within 1 cm), and the two real UAV images with precomputed degraded masks (every output
+file parses; accuracy from the GPS priors with default settings).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import pytest
+from PIL import Image
+
+from conftest import shared_file
+from dji_photo import dji_jpeg, xmp_packet
+from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
+from semcityloc.benchmark.perception_sim import simulate_segmentation
+from semcityloc.benchmark.queries import STREAM_SEG
+from semcityloc.benchmark.warmup import box_city_obj
+from semcityloc.citymodel.io import load_city_model
+from semcityloc.classes import IGNORE
+from semcityloc.cli.main import main
+from semcityloc.datasets.colmap import read_model
+from semcityloc.datasets.dji import camera_from_exif, read_dji_metadata
+from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import pose_from_dji
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.geometry.io import read_pose
+from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import save_labels_png
+
+BERLIN = "berlin_lod2_citygml2/3910_5817.gml"
+REAL = ("real_uav_lodloc", "real_uav_lodloc_oblique")
+THERMAL, OBLIQUE = "DJI_20230513163714_0033_T", "DJI_20231018114619_0636_D"
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SEMCITYLOC_CACHE", str(tmp_path / "cache"))
+
+
+# ------------------------------------------------------------------------------ a box city, local frame
+CAM = Camera.from_fov(160, 120, 60.0)
+
+
+@pytest.fixture
+def box_flight(tmp_path) -> dict:
+    """Three photos over the box city: a LoD-Loc GPS_pose/ and intrinsic/ beside them, oracle masks; the
+    third photo's mask has another aspect."""
+    root = tmp_path / "flight"
+    (root / "images").mkdir(parents=True)
+    city = root / "city.obj"
+    city.write_text(box_city_obj())
+    model = load_city_model(city, cache=False)
+    truths = [
+        Pose.from_xyz_rpy([5.0, -4.0, 90.0], 0.5, 20.0, 30.0),
+        Pose.from_xyz_rpy([-10.0, 8.0, 85.0], -0.5, 5.0, -60.0),
+        Pose.from_xyz_rpy([0.0, 0.0, 95.0], 0.0, 10.0, 0.0),
+    ]
+    offsets = [np.array([3.0, 2.0, 2.0]), np.array([-2.5, 3.0, -1.5]), np.array([1.0, 1.0, 1.0])]
+    queries = []
+    for i, (truth, shift) in enumerate(zip(truths, offsets, strict=True)):
+        name = f"P{i}.JPG"
+        prior = Pose.from_rotation_center(truth.R_world_from_cam, truth.center + shift)
+        queries.append(LodLocQuery(name, "flight", CAM, gt_pose_world=truth, prior_pose_world=prior))
+        Image.new("RGB", (CAM.width, CAM.height), (120, 120, 120)).save(root / "images" / name)
+        labels = oracle_labels(model, CAM, truth)
+        if i == 2:
+            labels = labels[:, :100]  # another photo's aspect
+        save_labels_png(labels, root / "masks" / f"P{i}.png")
+    write_lodloc_scene(root, queries)
+    Image.new("RGB", (CAM.width, CAM.height)).save(root / "images" / "P9.JPG")  # no pose, no mask
+    argv = ["run", root / "images", "--city", city, "--priors", root / "GPS_pose"]
+    argv += ["--intrinsics", root / "intrinsic", "--masks", root / "masks", "--truth", root / "GT_pose"]
+    return {"root": root, "argv": argv}
+
+
+def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
+    code, stdout, _ = run(capsys, *argv, "--stop-after", "1")
+    assert code == 0 and "1/2 photos done" in stdout and "run again" in stdout
+    assert len(list((out / "poses").glob("*.json"))) == 1
+    code, stdout, err = run(capsys, *argv)
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["photos"] == 4 and summary["queries"] == 2 and summary["localized"] == 2
+    skipped = summary["skipped_photos"]
+    assert set(skipped) == {"P2.JPG", "P9.JPG"}
+    assert "aspect" in skipped["P2.JPG"] and "intrinsic" in skipped["P9.JPG"]
+    assert "4 photos: 2 localized, 0 not localized, 2 skipped" in stdout
+    assert summary["with_ground_truth"] == 2 and summary["recall_2m2deg"] == 100.0
+    # No CRS: poses, COLMAP and GeoJSON in the model's frame, no WGS 84 geotags, and it says why.
+    assert not (out / "geotags.csv").exists() and "--crs" in err
+    geojson = json.loads((out / "cameras.geojson").read_text())
+    assert len(geojson["features"]) == 4 and "semcityloc_frame" in geojson
+    model = read_model(out / "colmap")
+    for name, (camera, pose) in model.poses().items():
+        truth = read_pose(box_flight["root"] / "GT_pose" / f"{Path(name).stem}_pose.txt")
+        assert camera == CAM and center_error_m(pose, truth) < 1.0
+        record = json.loads((out / "poses" / f"{Path(name).stem}.json").read_text())
+        assert (
+            record["extra"]["status"] == "localized" and record["extra"]["prior_uncertainty"]["xy_m"] == 5.0
+        )
+    # The same folder with other arguments is refused, in one line.
+    code, _, err = run(capsys, *argv, "--prior-sigma", "xy=2")
+    assert code == 2 and "other benchmark run" in err and err.count("\n") == 1
+
+
+def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_path, capsys):
+    base = [a for a in box_flight["argv"] if a not in ("--masks", box_flight["root"] / "masks")]
+    code, _, err = run(capsys, *base, "--out", tmp_path / "o")
+    assert code == 2 and err.count("\n") == 1
+    assert "no perception source" in err and "dinov3-dpt" in err and "train-segmenter" in err
+    code, _, err = run(capsys, *box_flight["argv"], "--prior-sigma", "xy=five", "--out", tmp_path / "o")
+    assert code == 2 and "not a number" in err and err.count("\n") == 1
+    code, _, err = run(capsys, "run", tmp_path / "absent", "--city", "generated", "--masks", tmp_path)
+    assert code == 2 and "no such images folder" in err
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------ Berlin, DJI EXIF priors
+def _dji_angles_true_north(crs, lon, lat, pose) -> tuple[float, float, float]:
+    """DJI gimbal (yaw from TRUE north, pitch, roll) of a pose in a projected CRS, with pyproj's meridian
+    convergence (independent of the library's own geodesy)."""
+    from semcityloc.geometry.conventions import dji_gimbal_angles
+
+    convergence = pyproj.Proj(crs).get_factors(lon, lat).meridian_convergence  # grid north from true north
+    yaw, pitch, roll = dji_gimbal_angles(pose).tolist()
+    return yaw + convergence, pitch, roll
+
+
+@pytest.fixture(scope="module")
+def berlin_run(tmp_path_factory):
+    """A simulated DJI flight over Berlin LoD2 (EPSG:25833): photos with DJI XMP / EXIF (single-point GNSS,
+    priors metres off), oracle masks; one photo sees no building, one has no GPS. Run once, then checked."""
+    gml = shared_file(BERLIN)
+    root = tmp_path_factory.mktemp("berlin")
+    (root / "photos").mkdir()
+    model = load_city_model(gml)
+    crs = pyproj.CRS("EPSG:25833")
+    to_wgs = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    centre = model.origin + [0.0, 0.0, 0.0]
+    views = {  # name: (position in the CRS, grid yaw, DJI pitch); the last looks at the sky
+        "DJI_0001.JPG": (centre + [-60.0, -40.0, 150.0], 60.0, -45.0),
+        "DJI_0002.JPG": (centre + [100.0, 20.0, 170.0], -20.0, -88.0),
+        "DJI_0003.JPG": (centre + [0.0, 0.0, 150.0], 10.0, 30.0),
+    }
+    size, focal_35mm = (640, 480), 24
+    truths = {}
+    for i, (name, (position, grid_yaw, pitch)) in enumerate(views.items()):
+        truth = pose_from_dji(position, grid_yaw, pitch, 0.0)
+        truths[name] = truth
+        prior_position = position + [4.0, -3.0, 3.0]
+        lon, lat = to_wgs.transform(prior_position[0], prior_position[1])
+        yaw, pitch_, roll = _dji_angles_true_north(crs, lon, lat, truth)
+        fields = dict(
+            GpsLatitude=f"{lat:+.10f}",
+            GpsLongitude=f"{lon:+.10f}",
+            AbsoluteAltitude=f"{prior_position[2]:+.3f}",
+            GimbalYawDegree=f"{yaw + 2.0:+.6f}",
+            GimbalPitchDegree=f"{pitch_:+.6f}",
+            GimbalRollDegree=f"{roll:+.6f}",
+            AltitudeType="GpsFusionAlt",
+            RtkFlag="16",
+        )
+        photo = dji_jpeg(root / "photos" / name, xmp_packet(**fields), size=size, focal_35mm=focal_35mm)
+        camera = camera_from_exif(read_dji_metadata(photo))
+        labels = oracle_labels(model, camera, truth)
+        if i == 0:  # masks at any size with the photo's aspect
+            labels = labels[::2, ::2]
+        save_labels_png(labels, root / "masks" / f"{Path(name).stem}.png")
+    dji_jpeg(root / "photos" / "NOGPS.JPG", None, size=size, focal_35mm=focal_35mm)
+    save_labels_png(np.zeros((480, 640), np.uint8), root / "masks" / "NOGPS.png")
+    out = root / "out"
+    code = main(
+        ["run", str(root / "photos"), "--city", str(gml), "--masks", str(root / "masks"), "--out", str(out)]
+    )
+    assert code == 0
+    return {"out": out, "truths": truths, "crs": crs, "model": model}
+
+
+def test_berlin_run_localizes_from_exif_priors_and_counts_what_it_did(berlin_run):
+    out = berlin_run["out"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["photos"] == 4 and summary["localized"] == 2 and summary["not_localized"] == 1
+    assert (
+        list(summary["skipped_photos"]) == ["NOGPS.JPG"]
+        and "latitude" in summary["skipped_photos"]["NOGPS.JPG"]
+    )
+    assert summary["not_localized_reasons"] == {"query mask has no building pixels": 1}
+    for name in ("DJI_0001", "DJI_0002"):
+        pose = read_pose(out / "poses" / f"{name}.json")
+        truth = berlin_run["truths"][f"{name}.JPG"]
+        assert center_error_m(pose, truth) < 1.5 and rotation_error_deg(pose, truth) < 1.5
+        record = json.loads((out / "poses" / f"{name}.json").read_text())
+        assert record["frame"] == "crs" and record["extra"]["crs"] == "EPSG:25833"
+        assert (
+            record["extra"]["prior_source"] == "exif"
+            and "no RTK" in record["extra"]["prior_uncertainty"]["source"]
+        )
+        assert (out / "overlays" / f"{name}.png").is_file()
+    refused = json.loads((out / "poses" / "DJI_0003.json").read_text())
+    assert refused["status"] == "not_localized" and "position" not in refused
+    assert refused["prior"]["crs"] == "EPSG:25833"
+
+
+def test_berlin_geotags_go_back_to_the_model_crs_within_a_centimetre(berlin_run):
+    out, crs = berlin_run["out"], berlin_run["crs"]
+    with open(out / "geotags.csv", newline="") as fh:
+        rows = {r["image"]: r for r in csv.DictReader(fh)}
+    assert set(rows) == {"DJI_0001.JPG", "DJI_0002.JPG", "DJI_0003.JPG"}
+    to_crs = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    for name, r in rows.items():
+        record = json.loads((out / "poses" / f"{Path(name).stem}.json").read_text())
+        lon, lat, h = float(r["longitude"]), float(r["latitude"]), float(r["height_m"])
+        x, y = to_crs.transform(lon, lat)
+        if r["source"] == "semcityloc":
+            expected, pose = (
+                np.array(record["position"]),
+                read_pose(out / "poses" / f"{Path(name).stem}.json"),
+            )
+        else:  # not localized: the photo keeps its prior, with its uncertainty as accuracy
+            assert r["source"].startswith("prior (not localized") and float(r["accuracy_xy_m"]) == 5.0
+            expected, pose = np.array(record["prior"]["position"]), read_pose(json.dumps(record["prior"]))
+        assert np.abs(np.array([x, y, h]) - expected).max() < 0.01, name
+        # The angles, DJI's convention (yaw from true north): the same rotation back.
+        convergence = pyproj.Proj(crs).get_factors(lon, lat).meridian_convergence
+        yaw, pitch, roll = (float(r[k]) for k in ("yaw_deg", "pitch_deg", "roll_deg"))
+        back = pose_from_dji(np.array([x, y, h]), yaw - convergence, pitch, roll)
+        assert float(rotation_error_deg(back, pose)) < 1e-4, name
+    lines = (out / "geo.txt").read_text().splitlines()
+    assert lines[0] == "EPSG:25833" and len(lines) == 3
+    for line in lines[1:]:
+        name, x, y, z = line.split()[:4]
+        position = read_pose(out / "poses" / f"{Path(name).stem}.json").center
+        np.testing.assert_allclose([float(x), float(y), float(z)], position, atol=1e-3)
+
+
+def test_berlin_geojson_and_colmap_parse_and_agree(berlin_run):
+    out = berlin_run["out"]
+    doc = json.loads((out / "cameras.geojson").read_text())
+    assert doc["type"] == "FeatureCollection" and len(doc["features"]) == 6
+    points = [f for f in doc["features"] if f["geometry"]["type"] == "Point"]
+    for f in points:
+        lon, lat = f["geometry"]["coordinates"]
+        assert 13.3 < lon < 13.5 and 52.4 < lat < 52.6
+    assert {f["properties"]["pose"] for f in points} == {"semcityloc estimate", "prior"}
+    model = read_model(out / "colmap")
+    poses = model.poses()
+    assert set(poses) == {"DJI_0001.JPG", "DJI_0002.JPG"}
+    for name, (camera, pose) in poses.items():
+        assert (camera.width, camera.height) == (640, 480)
+        assert center_error_m(pose, read_pose(out / "poses" / f"{Path(name).stem}.json")) < 1e-6
+
+
+# ------------------------------------------------------------------------------ the two real images
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory):
+    """Both real images in one folder (each beside its own GPS prior, intrinsics and GT), masks: the oracle
+    labels at GT degraded by the 'trained' segmentation preset, the oblique one at 1024 px wide."""
+    roots = [shared_file(name) for name in REAL]
+    root = tmp_path_factory.mktemp("real")
+    for sub in ("photos", "GPS_pose", "GT_pose", "intrinsic", "masks"):
+        (root / sub).mkdir()
+    ds = read_lodloc(roots[0].parent)  # a folder of scenes: both images, the one LoD1 model
+    model = ds.load_model()
+    for i, q in enumerate(sorted(ds.queries, key=lambda q: q.name)):
+        scene = q.image_path.parent.parent
+        shutil.copy(q.image_path, root / "photos" / q.name)
+        for sub, suffix in (("GPS_pose", "pose"), ("GT_pose", "pose"), ("intrinsic", "intrinsic")):
+            shutil.copy(scene / sub / f"{q.stem}_{suffix}.txt", root / sub)
+        camera = working_camera(q.camera)
+        clean = oracle_labels(model, camera, q.gt_pose_world)
+        noisy = simulate_segmentation(
+            np.where(clean == IGNORE, 0, clean).astype(np.uint8),
+            "trained",
+            np.random.default_rng([0, i, STREAM_SEG]),
+        )
+        noisy[clean == IGNORE] = IGNORE
+        save_labels_png(noisy, root / "masks" / f"{q.stem}.png")
+    out = root / "out"
+    argv = ["run", root / "photos", "--city", ds.model_path, "--priors", root / "GPS_pose"]
+    argv += ["--intrinsics", root / "intrinsic", "--truth", root / "GT_pose", "--masks", root / "masks"]
+    assert main([str(a) for a in [*argv, "--out", out]]) == 0
+    return {"out": out, "root": root}
+
+
+def test_run_over_both_real_images_writes_files_that_parse(real_run):
+    out = real_run["out"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["photos"] == 2 and summary["queries"] == 2 and summary["with_ground_truth"] == 2
+    assert summary["localized"] == 2 and summary["skipped_photos"] == {}
+    model = read_model(out / "colmap")
+    assert set(model.poses()) == {f"{THERMAL}.JPG", f"{OBLIQUE}.JPG"}
+    assert {c.width for c, _ in model.poses().values()} == {640, 2325}
+    doc = json.loads((out / "cameras.geojson").read_text())
+    assert len(doc["features"]) == 4 and "names no CRS" in doc["semcityloc_frame"]
+    for stem in (THERMAL, OBLIQUE):
+        record = json.loads((out / "poses" / f"{stem}.json").read_text())
+        assert (
+            record["extra"]["perception"] == "masks"
+            and record["extra"]["prior_source"] == "pose file GPS_pose"
+        )
+        with Image.open(out / "overlays" / f"{stem}.png") as im:
+            assert im.size[0] > 1000  # two panels: estimate and prior
+    assert not (out / "geotags.csv").exists()  # UAVD4L-LoD's frame has no published CRS
+
+
+def _errors(real_run, stem):
+    pose = read_pose(real_run["out"] / "poses" / f"{stem}.json")
+    truth = read_pose(real_run["root"] / "GT_pose" / f"{stem}_pose.txt")
+    return float(center_error_m(pose, truth)), float(rotation_error_deg(pose, truth))
+
+
+def test_oblique_real_image_within_1m_1deg_from_its_gps_prior(real_run):
+    err_m, err_deg = _errors(real_run, OBLIQUE)
+    print(f"oblique, degraded masks, default settings: {err_m:.2f} m, {err_deg:.2f} deg")
+    assert err_m < 1.0 and err_deg < 1.0
+
+
+@pytest.mark.xfail(reason="needs the issue-13 search (height error 20.7 m)", strict=False)
+def test_thermal_real_image_within_1m_1deg_from_its_gps_prior(real_run):
+    err_m, err_deg = _errors(real_run, THERMAL)
+    print(f"thermal, degraded masks, default settings: {err_m:.2f} m, {err_deg:.2f} deg")
+    assert err_m < 1.0 and err_deg < 1.0
