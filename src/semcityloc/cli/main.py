@@ -10,10 +10,26 @@ import argparse
 import sys
 
 from semcityloc import __version__
-from semcityloc.cli import benchmark, city, dataset, demo, label, localize, render, report, sweep, train
+from semcityloc.benchmark.warmup import COMPILE_NOTICE, kernels_cached
+from semcityloc.cli import (
+    benchmark,
+    city,
+    dataset,
+    demo,
+    label,
+    localize,
+    render,
+    report,
+    run,
+    sweep,
+    train,
+    warmup,
+)
 from semcityloc.errors import SemCityLocError
 
-COMMANDS = (city, render, localize, benchmark, sweep, report, dataset, label, train, demo)
+COMMANDS = (city, render, localize, run, benchmark, sweep, report, dataset, label, train, demo, warmup)
+# Commands that run numba kernels (render, localize, auto-label): they say so once when about to compile.
+COMPILING = {"render", "localize", "run", "benchmark", "sweep", "report", "dataset", "label", "demo"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -32,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if args.command in COMPILING and not kernels_cached():
+            print(f"semcityloc: {COMPILE_NOTICE}", file=sys.stderr, flush=True)
         return int(args.func(args) or 0)
     except SemCityLocError as exc:
         print(f"semcityloc: error: {exc}", file=sys.stderr)

@@ -1,0 +1,122 @@
+"""Compile the numba kernels once, ahead of use: ``semcityloc warmup``, and "will this command compile?".
+
+Why: the renderer, the localizer's fused scoring kernels and the wireframe baseline's edge scoring are numba
+functions compiled on their first call and cached on disk (``cache=True``: ``__pycache__`` beside the
+source, or ``NUMBA_CACHE_DIR``). That first call costs tens of seconds to a minute and a half on 2 cores
+(measured in docs/your-data.md), once per install and again after a kernel's source changes. Unannounced,
+it looks like a hang or a slow localizer; so ``warm_up()`` runs every kernel once on a tiny model (what
+``make demo`` / ``make test`` do after installing), and ``kernels_cached()`` tells the CLI whether a command
+is about to compile, so it can say so once.
+
+``KERNEL_MODULES``: the modules holding cached kernels. Every non-inlined ``cache=True`` dispatcher defined
+in them is checked; inlined helpers are compiled into their callers and have no cache of their own.
+"""
+
+from __future__ import annotations
+
+import importlib
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from numba.core.registry import CPUDispatcher
+
+import semcityloc.baselines  # noqa: F401  (registers the baselines' methods, whose kernels are warmed)
+from semcityloc.benchmark.queries import BenchmarkQuery
+from semcityloc.citymodel.io import load_city_model
+from semcityloc.classes import NUM_CLASSES
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.methods import get_method
+from semcityloc.render import Renderer
+
+KERNEL_MODULES = (
+    "semcityloc.render.raster_numba",
+    "semcityloc.render.terrain",
+    "semcityloc.localization.kernels",
+    "semcityloc.baselines.edge_score",
+)
+COMPILE_NOTICE = (
+    "compiling numba kernels: about a minute, once per install ('semcityloc warmup' does it ahead of time)"
+)
+# Methods run by the warm-up: each reaches kernels (or signatures) the others do not.
+WARMUP_METHODS = ("semcityloc", "no-depth", "lodloc-wireframe")
+
+
+def cached_kernels() -> list[CPUDispatcher]:
+    """The cached, non-inlined numba dispatchers of ``KERNEL_MODULES``."""
+    out = []
+    for name in KERNEL_MODULES:
+        module = importlib.import_module(name)
+        for obj in vars(module).values():
+            if (
+                isinstance(obj, CPUDispatcher)
+                and obj.py_func.__module__ == name
+                and obj.targetoptions.get("inline", "never") != "always"
+                and getattr(obj, "_cache", None) is not None
+                and type(obj._cache).__name__ != "NullCache"
+            ):
+                out.append(obj)
+    return out
+
+
+def _has_cache_entry(kernel: CPUDispatcher) -> bool | None:
+    """Whether ``kernel`` has a compiled version in its on-disk cache valid for its current source; None
+    when numba's cache cannot be inspected (its internals changed)."""
+    try:
+        return bool(kernel._cache._cache_file._load_index())
+    except Exception:  # numba-internal API: any failure means "cannot tell"
+        return None
+
+
+def kernels_cached() -> bool:
+    """False when at least one kernel has no cached compilation (the next command will compile)."""
+    return all(_has_cache_entry(k) is not False for k in cached_kernels())
+
+
+def box_city_obj() -> str:
+    """A 4 x 4 block of boxes of varied heights as Wavefront OBJ text (a tiny model for the warm-up)."""
+    faces = [(1, 4, 3, 2), (5, 6, 7, 8), (1, 2, 6, 5), (2, 3, 7, 6), (3, 4, 8, 7), (4, 1, 5, 8)]
+    lines, base = [], 0
+    for i in range(4):
+        for j in range(4):
+            x0, y0, h = i * 30.0 - 60.0, j * 30.0 - 60.0, 8.0 + 5.0 * ((i * 3 + j * 5) % 5)
+            corners = [(x0, y0, 0.0), (x0 + 18, y0, 0.0), (x0 + 18, y0 + 16, 0.0), (x0, y0 + 16, 0.0)]
+            corners += [(x, y, h) for x, y, _ in corners]
+            lines += [f"v {x:.1f} {y:.1f} {z:.1f}" for x, y, z in corners]
+            lines += ["f " + " ".join(str(k + base) for k in f) for f in faces]
+            base += 8
+    return "\n".join(lines) + "\n"
+
+
+def warm_up(say: Callable[[str], None] | None = None) -> dict[str, float]:
+    """Run every kernel once (render, the localizer with and without depth, the wireframe baseline) so
+    numba compiles and caches it; returns seconds per step."""
+    say = say or (lambda text: None)
+    times: dict[str, float] = {}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "warmup_city.obj"
+        path.write_text(box_city_obj(), encoding="utf-8")
+        model = load_city_model(path, cache=False)
+    camera = Camera.from_fov(128, 96, 60.0)
+    truth = Pose.from_xyz_rpy(np.array([5.0, -4.0, 90.0]), 1.0, 25.0, 30.0)
+    prior = Pose.from_xyz_rpy(np.array([8.0, -1.0, 92.0]), 0.0, 24.0, 33.0)
+    say("render")
+    renderer = Renderer(model, engine="numba")
+    view = renderer.render(camera, truth, depth=True, face_ids=True)
+    labels, depth = view.labels[0], np.where(np.isfinite(view.depth[0]), view.depth[0], np.nan)
+    renderer.engine.confusion(camera, truth.R[None], truth.t[None], labels, NUM_CLASSES)  # the fused example
+    times["render_s"] = time.perf_counter() - t0
+    config = LocalizerConfig.preset("fast")
+    for name in WARMUP_METHODS:
+        t = time.perf_counter()
+        say(name)
+        query = BenchmarkQuery("q0000", 0, camera, truth, prior, labels, depth, 100.0, {})
+        get_method(name, model, config).localize(query)
+        times[f"{name}_s"] = time.perf_counter() - t
+    times["total_s"] = time.perf_counter() - t0
+    return times
