@@ -350,9 +350,16 @@ def test_warmup_compiles_every_kernel_and_commands_say_when_they_will_compile(mo
     assert kernels_cached() and times["total_s"] > 0
     code, out, err = run(capsys, "warmup", "--check")
     assert code == 0 and "compiled and cached" in out and COMPILE_NOTICE not in err
-    monkeypatch.setattr(cli_main, "kernels_cached", lambda: False)  # as on a fresh install
+    monkeypatch.setattr(cli_main, "kernels_cached", lambda groups=None: False)  # as on a fresh install
     code, _, err = run(capsys, "render", "--city", tmp_path / "absent.gml", "--intrinsics", "x",
                        "--pose", "y", "--out", tmp_path / "o")  # fmt: skip
     assert code == 2 and err.count(COMPILE_NOTICE) == 1 and "about a minute" in err
     code, _, err = run(capsys, "city", "info", tmp_path / "absent.gml")
     assert code == 2 and COMPILE_NOTICE not in err  # reading a model compiles nothing
+    parser = cli_main.build_parser()
+    assert cli_main.kernels_of(parser.parse_args(["benchmark", "--method", "lodloc-wireframe"])) == (
+        "render",
+        "localize",
+        "wireframe",
+    )
+    assert cli_main.kernels_of(parser.parse_args(["run", "x", "--city", "y"])) == ("render", "localize")

@@ -121,6 +121,7 @@ class PhotoSpec:
     preset: str = "default"
     keep_details: int = 3
     overlays: bool = True
+    cache: bool = True  # parse cache of the city model (not part of the run's identity)
 
     label = "photos"  # the progress bar's label
 
@@ -156,7 +157,7 @@ class PhotoSpec:
 
     def load_model(self) -> CityModel:
         lod = int(self.lod) if self.lod is not None and str(self.lod).isdigit() else self.lod
-        return load_city_model(resolve_city(self.city), lod=lod, crs=self.crs)
+        return load_city_model(resolve_city(self.city), lod=lod, crs=self.crs, cache=self.cache)
 
     def resolved(self) -> tuple[CityModel, list[PhotoInput], dict[str, str]]:
         """(model, the photos that can run, ``{name: why not}`` of the others), computed once."""

@@ -8,8 +8,11 @@ it looks like a hang or a slow localizer; so ``warm_up()`` runs every kernel onc
 ``make demo`` / ``make test`` do after installing), and ``kernels_cached()`` tells the CLI whether a command
 is about to compile, so it can say so once.
 
-``KERNEL_MODULES``: the modules holding cached kernels. Every non-inlined ``cache=True`` dispatcher defined
-in them is checked; inlined helpers are compiled into their callers and have no cache of their own.
+``KERNEL_GROUPS``: the modules holding cached kernels, by what needs them (``render``: every render and
+automatic label; ``localize``: the localizer's scoring; ``wireframe``: the LoD-Loc-style baseline). Every
+non-inlined ``cache=True`` dispatcher defined in them is warmed; inlined helpers are compiled into their
+callers and have no cache of their own. ``kernels_cached(groups)`` checks the groups a command uses, so a
+command that will not compile says nothing.
 """
 
 from __future__ import annotations
@@ -33,12 +36,13 @@ from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
 from semcityloc.render import Renderer
 
-KERNEL_MODULES = (
-    "semcityloc.render.raster_numba",
-    "semcityloc.render.terrain",
-    "semcityloc.localization.kernels",
-    "semcityloc.baselines.edge_score",
-)
+KERNEL_GROUPS = {
+    "render": ("semcityloc.render.raster_numba", "semcityloc.render.terrain"),
+    "localize": ("semcityloc.localization.kernels",),
+    "wireframe": ("semcityloc.baselines.edge_score",),
+}
+# Warmed, but used by no command (a worked example of a fused render-and-score kernel, and its tests).
+NOT_USED_BY_COMMANDS = frozenset({"render_confusion"})
 COMPILE_NOTICE = (
     "compiling numba kernels: about a minute, once per install ('semcityloc warmup' does it ahead of time)"
 )
@@ -46,10 +50,11 @@ COMPILE_NOTICE = (
 WARMUP_METHODS = ("semcityloc", "no-depth", "lodloc-wireframe")
 
 
-def cached_kernels() -> list[CPUDispatcher]:
-    """The cached, non-inlined numba dispatchers of ``KERNEL_MODULES``."""
+def cached_kernels(groups: tuple[str, ...] | None = None) -> list[CPUDispatcher]:
+    """The cached, non-inlined numba dispatchers of ``KERNEL_GROUPS`` (``groups``: those only)."""
     out = []
-    for name in KERNEL_MODULES:
+    modules = [m for g, ms in KERNEL_GROUPS.items() if groups is None or g in groups for m in ms]
+    for name in modules:
         module = importlib.import_module(name)
         for obj in vars(module).values():
             if (
@@ -72,9 +77,11 @@ def _has_cache_entry(kernel: CPUDispatcher) -> bool | None:
         return None
 
 
-def kernels_cached() -> bool:
-    """False when at least one kernel has no cached compilation (the next command will compile)."""
-    return all(_has_cache_entry(k) is not False for k in cached_kernels())
+def kernels_cached(groups: tuple[str, ...] | None = None) -> bool:
+    """False when a kernel of ``groups`` (default: every group) that commands use has no cached
+    compilation: the next command using it will compile."""
+    kernels = [k for k in cached_kernels(groups) if k.__name__ not in NOT_USED_BY_COMMANDS]
+    return all(_has_cache_entry(k) is not False for k in kernels)
 
 
 def box_city_obj() -> str:

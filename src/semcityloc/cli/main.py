@@ -28,8 +28,30 @@ from semcityloc.cli import (
 from semcityloc.errors import SemCityLocError
 
 COMMANDS = (city, render, localize, run, benchmark, sweep, report, dataset, label, train, demo, warmup)
-# Commands that run numba kernels (render, localize, auto-label): they say so once when about to compile.
-COMPILING = {"render", "localize", "run", "benchmark", "sweep", "report", "dataset", "label", "demo"}
+# Commands that run numba kernels, and which (``benchmark.warmup.KERNEL_GROUPS``): each says so once when it
+# is about to compile them.
+RENDERS, LOCALIZES = ("render",), ("render", "localize")
+KERNELS_OF = {
+    "render": RENDERS,
+    "label": RENDERS,
+    "report": RENDERS,
+    "localize": LOCALIZES,
+    "run": LOCALIZES,
+    "dataset": LOCALIZES,
+    "benchmark": LOCALIZES,
+    "sweep": LOCALIZES,
+    "demo": None,  # every group: the demo runs the wireframe baseline too
+}
+
+
+def kernels_of(args: argparse.Namespace) -> tuple[str, ...] | None | bool:
+    """The kernel groups ``args``' command runs (None: all), or False when it runs none."""
+    if args.command not in KERNELS_OF:
+        return False
+    groups = KERNELS_OF[args.command]
+    if groups is not None and getattr(args, "method", None) == "lodloc-wireframe":
+        groups = (*groups, "wireframe")
+    return groups
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        if args.command in COMPILING and not kernels_cached():
+        groups = kernels_of(args)
+        if groups is not False and not kernels_cached(groups):
             print(f"semcityloc: {COMPILE_NOTICE}", file=sys.stderr, flush=True)
         return int(args.func(args) or 0)
     except SemCityLocError as exc:

@@ -101,7 +101,7 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
     return PhotoSpec(
         images=args.images,
         city=args.path,
-        lod=args.lod,
+        lod=int(args.lod) if args.lod and str(args.lod).isdigit() else args.lod,
         crs=args.crs,
         priors=args.priors,
         intrinsics=args.intrinsics,
@@ -119,6 +119,7 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
         preset=args.preset,
         keep_details=args.keep_details,
         overlays=not args.no_overlays,
+        cache=not args.no_cache,
     )
 
 

@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    n = len(cached_kernels())
+    n = len(cached_kernels())  # every group
     if args.check:
         cached = kernels_cached()
         print(f"{n} numba kernels: {'compiled and cached' if cached else 'not all compiled yet'}")
