@@ -12,6 +12,7 @@ from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
 from semcityloc.datasets.dji import (
     BAROMETRIC_UNCERTAINTY_M,
     GEOID_UNDULATION_BOUND_M,
+    HEIGHT_AS_IS_NOTE,
     HEIGHT_BAROMETRIC,
     HEIGHT_ELLIPSOIDAL,
     RTK_FLOAT_FLOOR_M,
@@ -210,7 +211,9 @@ def test_prior_uncertainty_follows_the_rtk_tags(tmp_path):
     prior = dji_prior(fixed, "EPSG:25832+7837")
     if not prior.geoid_applied:
         assert prior_uncertainty(prior).z_m == pytest.approx(GEOID_UNDULATION_BOUND_M / 3)
-    assert prior_uncertainty(dji_prior(fixed, "EPSG:25832")).z_m == RTK_FLOOR_M
+    as_is = dji_prior(fixed, "EPSG:25832")  # 2D CRS: the ellipsoidal height becomes z, and it says so
+    assert prior_uncertainty(as_is).z_m == RTK_FLOOR_M and HEIGHT_AS_IS_NOTE in as_is.notes
+    assert HEIGHT_AS_IS_NOTE not in prior.notes
     with pytest.raises(InputFileError, match="DjiMetadata"):
         prior_uncertainty("not metadata")
 

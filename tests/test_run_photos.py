@@ -203,6 +203,8 @@ def test_berlin_run_localizes_from_exif_priors_and_counts_what_it_did(berlin_run
         and "latitude" in summary["skipped_photos"]["NOGPS.JPG"]
     )
     assert summary["not_localized_reasons"] == {"query mask has no building pixels": 1}
+    # Single-point GNSS photos: how their heights were taken is said once for the run.
+    assert [n for n in summary["outputs"]["notes"] if "barometric" in n] != []
     for name in ("DJI_0001", "DJI_0002"):
         pose = read_pose(out / "poses" / f"{name}.json")
         truth = berlin_run["truths"][f"{name}.JPG"]

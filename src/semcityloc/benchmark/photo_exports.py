@@ -38,7 +38,7 @@ from semcityloc.benchmark.runfiles import (
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES
 from semcityloc.datasets.colmap import ColmapModel, write_model
-from semcityloc.datasets.dji import dji_geotag
+from semcityloc.datasets.dji import HEIGHT_AS_IS_NOTE, dji_geotag
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.errors import InputFileError
@@ -84,6 +84,13 @@ def write_exports(
         if status == LOCALIZED:
             estimates[inp.name] = read_pose(path)
     outputs: dict[str, Any] = {"poses": str(out_dir / POSES_DIR), "notes": []}
+    for inp in inputs:  # how the priors' heights were treated, said once for the run
+        details = inp.prior.details
+        said = [
+            details.get("vertical_flag"),
+            *(n for n in details.get("notes", []) if n == HEIGHT_AS_IS_NOTE),
+        ]
+        outputs["notes"] += [n for n in said if n and n not in outputs["notes"]]
 
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     outputs["colmap"] = str(write_model(ColmapModel.from_poses(cameras), out_dir / COLMAP_DIR, ext=".txt"))

@@ -76,6 +76,13 @@ GEOID_UNDULATION_BOUND_M = 110.0  # |N| <= ~107 m anywhere (EGM2008 extremes: -1
 BAROMETRIC_UNCERTAINTY_M = 50.0  # DJI non-RTK "absolute altitude": barometric, weather dependent
 RTK_DEFAULT_UNCERTAINTY_M = 0.1
 GPS_DEFAULT_UNCERTAINTY_M = 5.0
+# Said (in the prior's notes) when a 2D CRS gets DJI's ellipsoidal height as its z unchanged: right for
+# UAVD4L-like frames, ~40 m wrong for a German LoD2 tile whose heights are DHHN2016.
+HEIGHT_AS_IS_NOTE = (
+    "the model's CRS names no vertical datum: the photos' WGS 84 ellipsoidal heights are used as its z "
+    "unchanged; if the model's heights are orthometric (most city models), pass a compound CRS (--crs "
+    "EPSG:xxxx+vvvv) or --target-height orthometric"
+)
 EGM96 = "EPSG:4326+5773"  # WGS 84 + EGM96 height: DJI's "MSL", the default orthometric system
 WGS84_3D = "EPSG:4979"
 EGM96_GRID = "us_nga_egm96_15.tif"
@@ -446,6 +453,8 @@ def dji_prior(
     vertical = _vertical_datum(crs)
     if target_height == HEIGHT_AUTO:
         wanted = HEIGHT_ORTHOMETRIC if vertical is not None else None
+        if wanted is None and source_height == HEIGHT_ELLIPSOIDAL:
+            notes.append(HEIGHT_AS_IS_NOTE)
     else:
         wanted = target_height
 
