@@ -340,3 +340,28 @@ def test_thermal_real_image_within_1m_1deg_from_its_gps_prior(real_run):
     err_m, err_deg = _errors(real_run, THERMAL)
     print(f"thermal, degraded masks, default settings: {err_m:.2f} m, {err_deg:.2f} deg")
     assert err_m < 1.0 and err_deg < 1.0
+
+
+def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight):
+    """Workers get the source pickled once: models and inputs travel, the renderer and backends are
+    rebuilt in each process; a query made there is the same."""
+    import pickle
+
+    from semcityloc.benchmark.photo_source import PhotoSpec
+
+    root = box_flight["root"]
+    spec = PhotoSpec(
+        images=str(root / "images"),
+        city=str(root / "city.obj"),
+        priors=str(root / "GPS_pose"),
+        intrinsics=str(root / "intrinsic"),
+        masks=str(root / "masks"),
+    )
+    source = spec.open_source(spec.run_config())
+    assert source.renderer is not None and len(source) == 2
+    copy = pickle.loads(pickle.dumps(source))
+    assert copy._renderer is None and copy._backends is None
+    a, b = source.query(1), copy.query(1)
+    np.testing.assert_array_equal(a.labels, b.labels)
+    assert a.prior_pose_local.cam_from_world.tolist() == b.prior_pose_local.cam_from_world.tolist()
+    assert b.prior_uncertainty == a.prior_uncertainty and b.meta["image"].endswith("P1.JPG")
