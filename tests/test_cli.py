@@ -363,3 +363,14 @@ def test_warmup_compiles_every_kernel_and_commands_say_when_they_will_compile(mo
         "wireframe",
     )
     assert cli_main.kernels_of(parser.parse_args(["run", "x", "--city", "y"])) == ("render", "localize")
+    assert cli_main.kernels_of(parser.parse_args(["dataset", "info", "x"])) is False
+    # A timed command checks its arguments first, then compiles before its first query (the run loop).
+    code, _, err = run(capsys, "benchmark", "--queries", "2")  # no --city: refused before compiling
+    assert code == 2 and COMPILE_NOTICE not in err and err.count("\n") == 1
+    from semcityloc.benchmark import warmup as warmup_module
+
+    calls = []
+    monkeypatch.setattr(warmup_module, "kernels_cached", lambda groups=None: False)
+    monkeypatch.setattr(warmup_module, "warm_up", lambda: calls.append(1) or {"total_s": 1.0})
+    code, _, err = run(capsys, "demo", "--out", tmp_path / "demo", "--queries", "1", "--methods", "no-refine")
+    assert code == 0 and calls == [1] and err.count(COMPILE_NOTICE) == 1 and "cached in 1 s" in err

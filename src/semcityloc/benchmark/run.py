@@ -47,6 +47,7 @@ from semcityloc.benchmark.runfiles import (
     write_json_atomic,
 )
 from semcityloc.benchmark.sources import QuerySource
+from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
@@ -176,8 +177,9 @@ def run_queries(
         (out / DETAILS_DIR).mkdir(exist_ok=True)
     new_rows: list[dict[str, str]] = []
     if todo:
-        source = source if source is not None else spec.open_source(config)
         stream = None if progress is True else progress or None
+        ensure_compiled(kernel_groups(spec.method), stream)
+        source = source if source is not None else spec.open_source(config)
         bar = Progress(total, len(done), stream, label=spec.label) if progress is not False else None
         if workers == 1 or len(todo) == 1:
             finished = _run_serial(todo, (spec, source, out))

@@ -18,10 +18,12 @@ command that will not compile says nothing.
 from __future__ import annotations
 
 import importlib
+import sys
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 from numba.core.registry import CPUDispatcher
@@ -48,6 +50,11 @@ COMPILE_NOTICE = (
 )
 # Methods run by the warm-up: each reaches kernels (or signatures) the others do not.
 WARMUP_METHODS = ("semcityloc", "no-depth", "lodloc-wireframe")
+
+
+def kernel_groups(method: str) -> tuple[str, ...]:
+    """The kernel groups a run of ``method`` uses (every localizer and baseline renders and scores)."""
+    return ("render", "localize", "wireframe") if method == "lodloc-wireframe" else ("render", "localize")
 
 
 def cached_kernels(groups: tuple[str, ...] | None = None) -> list[CPUDispatcher]:
@@ -82,6 +89,21 @@ def kernels_cached(groups: tuple[str, ...] | None = None) -> bool:
     compilation: the next command using it will compile."""
     kernels = [k for k in cached_kernels(groups) if k.__name__ not in NOT_USED_BY_COMMANDS]
     return all(_has_cache_entry(k) is not False for k in kernels)
+
+
+def ensure_compiled(groups: tuple[str, ...] | None, stream: TextIO | None = None) -> float | None:
+    """Compile (``warm_up``) when a kernel of ``groups`` is not cached, saying so on ``stream`` (default
+    stderr); the seconds it took, or None when nothing was to compile. The run loop calls it before the
+    first query, so that no query's time holds a compilation."""
+    if kernels_cached(groups):
+        return None
+    stream = stream if stream is not None else sys.stderr
+    stream.write(f"semcityloc: {COMPILE_NOTICE}\n")
+    stream.flush()
+    seconds = warm_up()["total_s"]
+    stream.write(f"semcityloc: kernels compiled and cached in {seconds:.0f} s\n")
+    stream.flush()
+    return seconds
 
 
 def box_city_obj() -> str:
