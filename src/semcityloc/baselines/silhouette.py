@@ -59,6 +59,8 @@ class SilhouetteLocalizer(Localizer):
     """SemCityLoc's search on building silhouettes only (module docstring). Same API as ``Localizer``;
     the ``depth`` argument is accepted and ignored."""
 
+    confidence_kind = "silhouette"
+
     def __init__(
         self, model: CityModel, config: LocalizerConfig | None = None, scene: RenderScene | None = None
     ):

@@ -164,6 +164,90 @@ def coarse_scores(
                 scores[c, y] = _iou_from_pairs(pairs, count_q, class_on)
 
 
+@njit(cache=True, inline="always")
+def _depth_cost_affine(query, query_depth, tri_id, inv_z, npx, min_depth_pixels, invalid_cost):
+    """Global least-squares scale/shift, then mean relative residual (the paper's C_d)."""
+    n = 0.0
+    sq = 0.0
+    sr = 0.0
+    sqq = 0.0
+    sqr = 0.0
+    for p in range(npx):
+        q = query[p]
+        if q == IGNORE or q == 0 or tri_id[p] < 0:
+            continue
+        dq = query_depth[p]
+        if dq > 0.0:
+            dr = 1.0 / inv_z[p]
+            n += 1.0
+            sq += dq
+            sr += dr
+            sqq += dq * dq
+            sqr += dq * dr
+    det = n * sqq - sq * sq
+    if n < min_depth_pixels or det <= 1e-12 * n * sqq:
+        return invalid_cost
+    s = (n * sqr - sq * sr) / det
+    t = (sr - s * sq) / n
+    if s <= 0.0:
+        return invalid_cost
+    acc = 0.0
+    for p in range(npx):
+        q = query[p]
+        if q == IGNORE or q == 0 or tri_id[p] < 0:
+            continue
+        dq = query_depth[p]
+        if dq > 0.0:
+            dr = 1.0 / inv_z[p]
+            acc += abs(s * dq + t - dr) / dr
+    return acc / n
+
+
+@njit(cache=True, inline="always")
+def _depth_cost_robust(query, query_depth, tri_id, inv_z, npx, cap, min_depth_pixels, invalid_cost):
+    """Scale/shift by relative least squares (minimise sum(((s dq + t) - dr) / dr)^2: every pixel's error
+    relative to its depth, the cost's own measure, so near and far pixels count alike), then the mean
+    relative residual with each pixel's capped at ``cap`` (a tree, a bled edge or a wrong label costs at
+    most that)."""
+    n = 0.0
+    saa = 0.0
+    sab = 0.0
+    sbb = 0.0
+    sa = 0.0
+    sb = 0.0
+    for p in range(npx):
+        q = query[p]
+        if q == IGNORE or q == 0 or tri_id[p] < 0:
+            continue
+        dq = query_depth[p]
+        if dq > 0.0:
+            b = inv_z[p]  # 1 / dr
+            a = dq * b
+            n += 1.0
+            saa += a * a
+            sab += a * b
+            sbb += b * b
+            sa += a
+            sb += b
+    det = saa * sbb - sab * sab
+    if n < min_depth_pixels or det <= 1e-12 * saa * sbb:
+        return invalid_cost
+    s = (sa * sbb - sb * sab) / det
+    t = (saa * sb - sab * sa) / det
+    if s <= 0.0:
+        return invalid_cost
+    acc = 0.0
+    for p in range(npx):
+        q = query[p]
+        if q == IGNORE or q == 0 or tri_id[p] < 0:
+            continue
+        dq = query_depth[p]
+        if dq > 0.0:
+            e = abs((s * dq + t) * inv_z[p] - 1.0)
+            acc += e if e < cap else cap
+    return acc / n
+
+
 @njit(parallel=True, cache=True)
 def refine_scores(
     tri_xyz,
@@ -190,11 +274,14 @@ def refine_scores(
     sem_out,
     depth_out,
     n_chunks,
+    depth_robust=False,
+    depth_cap=1.0,
 ):
     """Semantic IoU and depth cost of each view (Rs, ts at the fine camera).
 
     query: uint8 (H*W,); query_depth: float64 (H*W,) relative depth, NaN where invalid. The depth term
-    uses pixels with a rendered surface, a finite positive query depth and a non-background query label.
+    uses pixels with a rendered surface, a finite positive query depth and a non-background query label:
+    ``_depth_cost_affine`` (the paper's), or ``_depth_cost_robust`` when ``depth_robust``.
     """
     n_views = Rs.shape[0]
     npx = width * height
@@ -225,11 +312,6 @@ def refine_scores(
             )
             inter[:] = 0.0
             count_r[:] = 0.0
-            n = 0.0
-            sq = 0.0
-            sr = 0.0
-            sqq = 0.0
-            sqr = 0.0
             for p in range(npx):
                 q = query[p]
                 if q == IGNORE or q == 0:
@@ -239,38 +321,14 @@ def refine_scores(
                 count_r[r] += 1.0
                 if r == q:
                     inter[r] += 1.0
-                if use_depth and f >= 0:
-                    dq = query_depth[p]
-                    if dq > 0.0:
-                        dr = 1.0 / inv_z[p]
-                        n += 1.0
-                        sq += dq
-                        sr += dr
-                        sqq += dq * dq
-                        sqr += dq * dr
             sem_out[v] = _mean_iou(inter, count_r, count_q, class_on)
             if not use_depth:
                 depth_out[v] = 0.0
-                continue
-            det = n * sqq - sq * sq
-            if n < min_depth_pixels or det <= 1e-12 * n * sqq:
-                depth_out[v] = invalid_cost
-                continue
-            s = (n * sqr - sq * sr) / det
-            t = (sr - s * sq) / n
-            if s <= 0.0:
-                depth_out[v] = invalid_cost
-                continue
-            acc = 0.0
-            for p in range(npx):
-                q = query[p]
-                if q == IGNORE or q == 0:
-                    continue
-                f = tri_id[p]
-                if f < 0:
-                    continue
-                dq = query_depth[p]
-                if dq > 0.0:
-                    dr = 1.0 / inv_z[p]
-                    acc += abs(s * dq + t - dr) / dr
-            depth_out[v] = acc / n
+            elif depth_robust:
+                depth_out[v] = _depth_cost_robust(
+                    query, query_depth, tri_id, inv_z, npx, depth_cap, min_depth_pixels, invalid_cost
+                )
+            else:
+                depth_out[v] = _depth_cost_affine(
+                    query, query_depth, tri_id, inv_z, npx, min_depth_pixels, invalid_cost
+                )

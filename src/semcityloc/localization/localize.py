@@ -1,10 +1,15 @@
 """``localize()``: the SemCityLoc pipeline from a query (mask + depth) and a prior to a 6DoF pose.
 
 1. Prepare: the query mask (any resolution with the camera's aspect) is majority-downsampled to the
-   coarse and fine search resolutions; window/door merge into wall when the map has no openings.
-2. Coarse: 4D cost volume over (x, y, z, yaw) around the prior (``coarse.coarse_search``).
-3. Refine: particle filter from the top-k coarse cells, semantic IoU + depth (``refine.particle_filter``).
-4. Decide: ``not_localized`` with a reason when the evidence is empty or too weak.
+   search resolutions; window/door merge into wall when the map has no openings.
+2. Search (``config.search``): the cascade over the prior's uncertainty volume (``cascade.py``: sweep,
+   edge extension, local grids with roll/pitch) gives a few distinct hypotheses; or the first design's
+   uniform 4D grid (``coarse.coarse_search``, preset ``legacy``).
+3. Refine: the particle filter (``refine.particle_filter``), semantic IoU + depth, from each hypothesis
+   on its own (cascade) or from the best grid cells together (grid); the best final score wins.
+4. Decide: ``not_localized`` with a reason when the evidence is empty, the best hypothesis sits on the
+   edge of the search volume, or the calibrated probability of being right (``confidence.py``) is
+   below ``min_confidence`` (``acceptance="thresholds"``: the first design's hand-set gates).
 
 ``Localizer`` keeps the render scene of one city model, so a batch of queries builds it once.
 """
@@ -17,16 +22,27 @@ import numpy as np
 
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES, SemanticClass
-from semcityloc.errors import CameraError, PoseError, ShapeError
+from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.localization.cascade import local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
+from semcityloc.localization.confidence import confidence_model
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.query import Query
-from semcityloc.localization.refine import ScoringLevel, evaluate, particle_filter
+from semcityloc.localization.refine import (
+    PriorTerm,
+    ScoringLevel,
+    evaluate,
+    initial_sigma,
+    particle_filter,
+)
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
+    REASON_AT_EDGE,
+    REASON_LOW_CONFIDENCE,
     REASON_LOW_SCORE,
     REASON_NO_BUILDINGS_IN_QUERY,
     REASON_NO_GEOMETRY,
@@ -43,6 +59,10 @@ MAX_VIEW_RANGE_M = 1500.0
 
 class Localizer:
     """Localize queries against one city model. Thread-compatible; build once, call many times."""
+
+    # Which fitted confidence model applies (``confidence.confidence_model``); a subclass scoring
+    # something else (the silhouette baseline) names its own.
+    confidence_kind = "semantic"
 
     def __init__(
         self, model: CityModel, config: LocalizerConfig | None = None, scene: RenderScene | None = None
@@ -67,6 +87,7 @@ class Localizer:
         semantic: np.ndarray,
         depth: np.ndarray | None = None,
         config: LocalizerConfig | None = None,
+        prior_uncertainty: PriorUncertainty | None = None,
     ) -> LocalizationResult:
         """Estimate the pose of one query.
 
@@ -75,28 +96,69 @@ class Localizer:
             prior_local: prior cam_from_world pose in the model's LOCAL frame (a world/CRS pose comes in
                 through ``model.pose_to_local``). The result's poses are in the local frame too.
             semantic: (H, W) class ids (``SemanticClass``), 255 = ignore. Same aspect as ``camera``.
-            depth: optional (H', W') relative depth (any positive scale and shift), NaN/<=0 = invalid.
+            depth: optional (H', W') relative depth (any positive scale and shift), NaN/<=0 = invalid;
+                same aspect as ``semantic``.
+            prior_uncertainty: how far the prior may be off (1 sigma); default ``config.prior_uncertainty``
+                (DJI single-point GNSS + gimbal IMU). The cascade searches ``n_sigma`` of it.
         """
         cfg = config or self.config
+        unc = prior_uncertainty if prior_uncertainty is not None else cfg.prior_uncertainty
+        if not isinstance(unc, PriorUncertainty):
+            raise ParameterError(f"prior_uncertainty must be a PriorUncertainty, got {type(unc).__name__}")
         t0 = time.perf_counter()
-        self._check_inputs(camera, prior_local, semantic)
+        self._check_inputs(camera, prior_local, semantic, depth)
         query = Query.from_arrays(semantic, None if cfg.no_depth else depth, self.has_openings)
         prior_state = prior_local.to_xyz_rpy()
 
         result = LocalizationResult(status=NOT_LOCALIZED)
         result.counts = {"coarse_hypotheses": 0, "refine_evaluations": 0}
-        if query.building_fraction() < cfg.min_building_fraction:
+        result.search = {"search": cfg.search, "prior_uncertainty": unc.as_dict()}
+        building_fraction = query.building_fraction()
+        if building_fraction < cfg.min_building_fraction:
             return self._finish(result, REASON_NO_BUILDINGS_IN_QUERY, t0)
-        if not self._geometry_near(camera, prior_local, cfg):
+        if not self._geometry_near(camera, prior_local, cfg, unc):
             return self._finish(result, REASON_NO_GEOMETRY, t0)
+        if cfg.search == "grid":
+            self._localize_grid(result, camera, query, prior_state, cfg)
+        else:
+            self._localize_cascade(result, camera, query, prior_state, cfg, unc)
+        if result.reason is not None:
+            return self._finish(result, result.reason, t0)
 
+        fine_cam = self._fine_camera(camera, cfg)
+        q_fine, _ = query.at(fine_cam.width, fine_cam.height)
+        result.confidence["building_iou"] = self._building_iou(fine_cam, result.pose_local, q_fine)
+        result.confidence["building_fraction"] = building_fraction
+        with_depth = query.depth is not None
+        if cfg.acceptance == "calibrated":
+            p = confidence_model(self.confidence_kind, with_depth).probability(result)
+            result.confidence["probability"] = p
+            accepted, reason = p >= cfg.min_confidence, REASON_LOW_CONFIDENCE
+        else:
+            accepted, reason = self._accept(result, cfg, with_depth), REASON_LOW_SCORE
+        if not accepted:
+            result.rejected_pose_local = result.pose_local
+            result.pose_local = None
+            return self._finish(result, reason, t0)
+        result.status = LOCALIZED
+        return self._finish(result, None, t0)
+
+    # ------------------------------------------------------------------ searches
+    def _fine_camera(self, camera: Camera, cfg: LocalizerConfig) -> Camera:
+        if cfg.search == "grid":
+            w = cfg.coarse.width
+        else:
+            w = cfg.cascade.local.width
+        return _scaled(camera, w).scale(cfg.refine.scale)
+
+    def _localize_grid(self, result, camera, query, prior_state, cfg) -> None:
+        """The first design: one 4D grid (optionally re-centred by a pre-stage), one particle filter."""
         c = cfg.coarse
-        coarse_cam = camera.scaled(c.width, max(1, round(c.width * camera.height / camera.width)))
+        coarse_cam = _scaled(camera, c.width)
         fine_cam = coarse_cam.scale(cfg.refine.scale)
         q_coarse, d_coarse = query.at(coarse_cam.width, coarse_cam.height)
         q_fine, d_fine = query.at(fine_cam.width, fine_cam.height)
         t_prep = time.perf_counter()
-
         if cfg.no_coarse:
             seeds = prior_state[None, :]
             result.timings["coarse_s"] = 0.0
@@ -105,7 +167,7 @@ class Localizer:
             n_pre = 0
             if cfg.pre_coarse is not None:
                 pre = cfg.pre_coarse
-                pre_cam = camera.scaled(pre.width, max(1, round(pre.width * camera.height / camera.width)))
+                pre_cam = _scaled(camera, pre.width)
                 q_pre, _ = query.at(pre_cam.width, pre_cam.height)
                 pre_volume = coarse_search(self.scene, pre_cam, prior_state, q_pre, self.class_on, pre)
                 centre = pre_volume.xyz_rpy(pre_volume.best_indices(1)[0])
@@ -118,37 +180,96 @@ class Localizer:
             result.counts["coarse_hypotheses"] = int(volume.scores.size) + n_pre
             result.confidence["score_margin"] = volume.score_margin()
             result.timings["coarse_s"] = time.perf_counter() - t_prep
-        t_coarse = time.perf_counter()
+        levels = [ScoringLevel(coarse_cam, q_coarse, d_coarse), ScoringLevel(fine_cam, q_fine, d_fine)]
+        self._refine(result, levels, seeds, cfg, initial_sigma(cfg.refine, 0.3))
 
+    def _localize_cascade(self, result, camera, query, prior_state, cfg, unc) -> None:
+        """The default: sweep, local grids with roll/pitch, each distinct hypothesis refined on its own."""
+        cc = cfg.cascade
+        local_cam = _scaled(camera, cc.local.width)
+        fine_cam = local_cam.scale(cfg.refine.scale)
+        q_local, d_local = query.at(local_cam.width, local_cam.height)
+        q_fine, d_fine = query.at(fine_cam.width, fine_cam.height)
+        levels = [ScoringLevel(local_cam, q_local, d_local), ScoringLevel(fine_cam, q_fine, d_fine)]
+        sigma = initial_sigma(cfg.refine, unc.roll_pitch_deg)
+        prior = None
+        if cfg.refine.prior_roll_pitch_weight > 0 and unc.roll_pitch_deg > 0:
+            rp = unc.roll_pitch_deg
+            prior_sigma = np.array([np.inf, np.inf, np.inf, rp, rp, np.inf])
+            prior = PriorTerm(prior_state, prior_sigma, cfg.refine.prior_roll_pitch_weight)
+        t_prep = time.perf_counter()
+        if cfg.no_coarse:
+            result.timings["coarse_s"] = 0.0
+            self._refine(result, levels, prior_state[None, :], cfg, sigma, prior=prior)
+            return
+        volume = search_volume(prior_state, unc, cc)
+        sweep_cam = _scaled(camera, cc.sweep.width)
+        q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
+        sw = sweep(self.scene, sweep_cam, volume, q_sweep, self.class_on, cc.sweep)
+        result.search.update(
+            volume=volume.as_dict(),
+            sweep_step=sw.step.tolist(),
+            extensions=sw.extensions,
+            at_edge=sw.at_edge,
+        )
+        result.confidence["score_margin"] = sw.score_margin()
+        result.coarse_pose_local = _pose(sw.state(sw.best()))
+        if sw.at_edge:
+            result.counts["coarse_hypotheses"] = sw.hypotheses
+            result.timings["coarse_s"] = time.perf_counter() - t_prep
+            result.rejected_pose_local = result.coarse_pose_local
+            result.reason = REASON_AT_EDGE
+            return
+        seeds = [sw.state(c) for c in sw.top_distinct(cc.sweep.keep, cc.sweep.nms_radius)]
+        hyps = local_search(
+            self.scene, local_cam, seeds, sw.step, unc.roll_pitch_deg, q_local, self.class_on, cc.local
+        )
+        result.coarse_pose_local = _pose(hyps.states[0])
+        result.counts["coarse_hypotheses"] = sw.hypotheses + hyps.evaluated
+        result.timings["coarse_s"] = time.perf_counter() - t_prep
+        result.hypotheses = [
+            {"state": st.tolist(), "local_score": float(sc)}
+            for st, sc in zip(hyps.states, hyps.scores, strict=True)
+        ]
+        result.confidence["hypothesis_margin"] = (
+            float(hyps.scores[0] - hyps.scores[1]) if len(hyps.scores) > 1 else float("nan")
+        )
+        self._refine(result, levels, hyps.states, cfg, sigma, prior=prior)
+
+    def _refine(self, result, levels, seeds: np.ndarray, cfg: LocalizerConfig, sigma, prior=None) -> None:
+        """One particle filter seeded by ``seeds`` ((k, 6), best first); ``no_refine`` keeps the first
+        seed, scored at the fine resolution."""
+        t0 = time.perf_counter()
+        fine = levels[-1]
         if cfg.no_refine:
             final = seeds[0]
-            sem, dep = evaluate(self.scene, fine_cam, final[None], q_fine, d_fine, self.class_on)
-            lam_d = cfg.refine.lambda_depth if d_fine is not None else 0.0
-            result.semantic, result.depth_cost = float(sem[0]), float(dep[0])
-            result.score = cfg.refine.lambda_semantic * result.semantic - lam_d * result.depth_cost
-            result.timings["refine_s"] = 0.0
+            r = cfg.refine
+            sem, dep = evaluate(
+                self.scene,
+                fine.camera,
+                final[None],
+                fine.labels,
+                fine.depth,
+                self.class_on,
+                r.depth_cost == "robust",
+                r.depth_cap,
+            )
+            lam_d = cfg.refine.lambda_depth if fine.depth is not None else 0.0
+            score = cfg.refine.lambda_semantic * sem - lam_d * dep
+            if prior is not None:
+                score = score - prior.penalty(final[None])
+            result.score, result.semantic, result.depth_cost = float(score[0]), float(sem[0]), float(dep[0])
         else:
             rng = np.random.default_rng(cfg.seed)
-            levels = [ScoringLevel(coarse_cam, q_coarse, d_coarse), ScoringLevel(fine_cam, q_fine, d_fine)]
-            refined = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng)
-            final = refined.xyz_rpy
-            result.semantic, result.depth_cost, result.score = (
-                refined.semantic,
-                refined.depth_cost,
-                refined.score,
+            best = particle_filter(
+                self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior
             )
-            result.confidence.update(spread_m=refined.spread_m, spread_deg=refined.spread_deg)
-            result.counts["refine_evaluations"] = refined.evaluations
-            result.timings["refine_s"] = time.perf_counter() - t_coarse
-
-        pose_local = _pose(final)
-        result.pose_local = pose_local
-        result.confidence["building_iou"] = self._building_iou(fine_cam, pose_local, q_fine)
-        if not self._accept(result, cfg, with_depth=d_fine is not None):
-            result.pose_local = None
-            return self._finish(result, REASON_LOW_SCORE, t0)
-        result.status = LOCALIZED
-        return self._finish(result, None, t0)
+            final = best.xyz_rpy
+            result.counts["refine_evaluations"] += best.evaluations
+            result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
+            result.confidence.update(spread_m=best.spread_m, spread_deg=best.spread_deg)
+        result.pose_local = _pose(final)
+        result.timings["refine_s"] = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -167,19 +288,30 @@ class Localizer:
         result.timings["total_s"] = time.perf_counter() - t0
         return result
 
-    def _check_inputs(self, camera, prior, semantic) -> None:
+    def _check_inputs(self, camera, prior, semantic, depth) -> None:
         check_camera_and_prior(camera, prior)
         shape = np.shape(semantic)
-        if len(shape) != 2:
-            raise ShapeError(f"semantic mask must be (H, W), got shape {shape}")
+        if len(shape) != 2 or 0 in shape:
+            raise ShapeError(f"semantic mask must be a non-empty (H, W) array, got shape {shape}")
         aspect_mask, aspect_cam = shape[1] / shape[0], camera.width / camera.height
         if abs(aspect_mask / aspect_cam - 1) > 0.02:
             raise ShapeError(
                 f"semantic mask {shape[1]}x{shape[0]} does not have the camera's aspect "
                 f"({camera.width}x{camera.height})"
             )
+        if depth is not None:
+            dshape = np.shape(depth)
+            if len(dshape) != 2 or 0 in dshape:
+                raise ShapeError(f"depth must be a non-empty (H, W) array, got shape {dshape}")
+            if abs((dshape[1] / dshape[0]) / aspect_mask - 1) > 0.02:
+                raise ShapeError(
+                    f"depth map {dshape[1]}x{dshape[0]} does not have the semantic mask's aspect "
+                    f"({shape[1]}x{shape[0]})"
+                )
 
-    def _geometry_near(self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig) -> bool:
+    def _geometry_near(
+        self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
+    ) -> bool:
         """Does any building lie where the prior's view, widened by the search range, could see it?"""
         if not len(self._building_xy):
             return False
@@ -201,8 +333,14 @@ class Localizer:
         s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
         pts = centre[:2, None] + rays[:2] * s
         pts = np.concatenate([pts, centre[:2, None]], axis=1)
-        reach = cfg.coarse.range_xy_m + (cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0)
-        margin = reach / 2 + 1.0
+        if cfg.search == "grid":
+            pre = cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0
+            half = (cfg.coarse.range_xy_m + pre) / 2
+        else:
+            s = cfg.cascade.sweep
+            half = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade).half_xy_m
+            half *= 1 + s.max_extensions * s.extension
+        margin = half + 1.0
         lo, hi = pts.min(1) - margin, pts.max(1) + margin
         inside = np.all((self._building_xy >= lo) & (self._building_xy <= hi), axis=1)
         return bool(inside.any())
@@ -228,6 +366,11 @@ def check_camera_and_prior(camera: Camera, prior: Pose) -> None:
 
 def _pose(state: np.ndarray) -> Pose:
     return Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
+
+
+def _scaled(camera: Camera, width: int) -> Camera:
+    """``camera`` at ``width`` pixels across, the height following its aspect."""
+    return camera.scaled(width, max(1, round(width * camera.height / camera.width)))
 
 
 def localize(

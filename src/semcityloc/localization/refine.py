@@ -34,6 +34,8 @@ class RefineResult:
     spread_m: float  # weighted std of the final particle centres (metres, 3D)
     spread_deg: float  # weighted std of the final particles' yaw (degrees)
     evaluations: int
+    states: np.ndarray | None = None  # (n, 6) final population
+    weights: np.ndarray | None = None  # (n,) its weights
 
 
 def evaluate(
@@ -43,8 +45,11 @@ def evaluate(
     query_labels: np.ndarray,
     query_depth: np.ndarray | None,
     class_on: np.ndarray,
+    depth_robust: bool = False,
+    depth_cap: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Semantic score and depth cost of each state (N, 6); depth cost 0 where ``query_depth`` is None."""
+    """Semantic score and depth cost of each state (N, 6); depth cost 0 where ``query_depth`` is None.
+    ``depth_robust`` / ``depth_cap``: the depth cost's form (``RefineConfig.depth_cost``)."""
     poses = Pose.from_xyz_rpy(states[:, :3], states[:, 3], states[:, 4], states[:, 5])
     n = len(states)
     sem = np.empty(n)
@@ -76,6 +81,8 @@ def evaluate(
         sem,
         dep,
         work_chunks(n),
+        bool(depth_robust),
+        float(depth_cap),
     )
     return sem, dep
 
@@ -98,12 +105,35 @@ def _systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nd
 
 
 @dataclass
+class PriorTerm:
+    """What the prior says, as a penalty on the score: ``weight * 0.5 * sum(((s - prior) / sigma)^2)``
+    over the components with a finite sigma (the gimbal's roll and pitch: the image alone barely tells a
+    nadir camera's tilt from a sideways shift, the IMU does; the score is a mean IoU, so ``weight`` is
+    in IoU units per squared sigma)."""
+
+    state: np.ndarray  # (6,) the prior's state
+    sigma: np.ndarray  # (6,) 1-sigma per component; inf = not penalised
+    weight: float
+
+    def penalty(self, states: np.ndarray) -> np.ndarray:
+        d = (np.atleast_2d(states) - self.state) / self.sigma
+        return self.weight * 0.5 * np.sum(np.where(np.isfinite(d), d * d, 0.0), axis=1)
+
+
+@dataclass
 class ScoringLevel:
     """A camera and the query arrays at its resolution (flat labels, flat depth or None)."""
 
     camera: Camera
     labels: np.ndarray
     depth: np.ndarray | None
+
+
+def initial_sigma(config: RefineConfig, roll_pitch_deg: float) -> np.ndarray:
+    """(6,) initial perturbation scales in state order; ``roll_pitch_deg`` is used when the config leaves
+    roll/pitch to the prior (``sigma_roll_pitch_deg=None``)."""
+    rp = config.sigma_roll_pitch_deg if config.sigma_roll_pitch_deg is not None else roll_pitch_deg
+    return np.array([config.sigma_xy_m, config.sigma_xy_m, config.sigma_z_m, rp, rp, config.sigma_yaw_deg])
 
 
 def particle_filter(
@@ -113,21 +143,22 @@ def particle_filter(
     class_on: np.ndarray,
     config: RefineConfig,
     rng: np.random.Generator,
+    sigma: np.ndarray | None = None,
+    particles: int | None = None,
+    iterations: int | None = None,
+    low_res_iterations: int | None = None,
+    prior: PriorTerm | None = None,
 ) -> RefineResult:
     """Refine from ``seeds`` ((k, 6) states, best first). ``levels[-1]`` is the fine resolution; with
     ``config.low_res_iterations`` > 0 the first iterations score at ``levels[0]``. The best particle is
-    chosen among fine-resolution scores only (scores of different resolutions are not comparable)."""
-    sigma = np.array(
-        [
-            config.sigma_xy_m,
-            config.sigma_xy_m,
-            config.sigma_z_m,
-            config.sigma_roll_pitch_deg,
-            config.sigma_roll_pitch_deg,
-            config.sigma_yaw_deg,
-        ]
-    )
-    n = config.particles
+    chosen among fine-resolution scores only (scores of different resolutions are not comparable).
+    ``sigma``: (6,) initial perturbation scales (default ``initial_sigma(config, 0.3)``);
+    ``particles`` / ``iterations`` / ``low_res_iterations`` override the config's; ``prior``: the
+    prior's penalty subtracted from every score (``PriorTerm``)."""
+    sigma = initial_sigma(config, 0.3) if sigma is None else np.asarray(sigma, dtype=np.float64)
+    n = config.particles if particles is None else int(particles)
+    n_iter = config.iterations if iterations is None else int(iterations)
+    low_res = config.low_res_iterations if low_res_iterations is None else int(low_res_iterations)
     # Initial population: half around the best seed, the rest spread over the other seeds.
     owner = np.where(np.arange(n) < n // 2, 0, np.arange(n) % len(seeds))
     states = seeds[owner] + rng.normal(size=(n, 6)) * sigma
@@ -138,18 +169,29 @@ def particle_filter(
     best = (-np.inf, seeds[0].copy(), 0.0, 0.0)
     evaluations = 0
     weights = np.full(n, 1.0 / n)
-    for it in range(config.iterations):
+    for it in range(n_iter):
         # The last iteration always scores at the fine resolution, whatever low_res_iterations says.
-        fine = it >= min(config.low_res_iterations, config.iterations - 1) or len(levels) == 1
+        fine = it >= min(low_res, n_iter - 1) or len(levels) == 1
         level = levels[-1] if fine else levels[0]
-        sem, dep = evaluate(scene, level.camera, states, level.labels, level.depth, class_on)
+        sem, dep = evaluate(
+            scene,
+            level.camera,
+            states,
+            level.labels,
+            level.depth,
+            class_on,
+            config.depth_cost == "robust",
+            config.depth_cap,
+        )
         evaluations += n
         score = lam_s * sem - lam_d * dep
+        if prior is not None:
+            score = score - prior.penalty(states)
         i = int(np.argmax(score))
         if fine and score[i] > best[0]:
             best = (float(score[i]), states[i].copy(), float(sem[i]), float(dep[i]))
         weights = softmax_weights(score, config.temperature)
-        if it == config.iterations - 1:
+        if it == n_iter - 1:
             break
         floor = sigma * config.shrink ** (it + 1)
         if config.update == "gaussian":
@@ -169,4 +211,6 @@ def particle_filter(
     mean = np.average(states, axis=0, weights=weights)
     spread_m = float(np.sqrt(np.average(np.sum((states[:, :3] - mean[:3]) ** 2, axis=1), weights=weights)))
     spread_deg = float(np.sqrt(np.average((states[:, 5] - mean[5]) ** 2, weights=weights)))
-    return RefineResult(best[1], best[0], best[2], best[3], spread_m, spread_deg, evaluations)
+    return RefineResult(
+        best[1], best[0], best[2], best[3], spread_m, spread_deg, evaluations, states, weights
+    )

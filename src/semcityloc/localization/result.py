@@ -17,6 +17,8 @@ NOT_LOCALIZED = "not_localized"
 REASON_NO_BUILDINGS_IN_QUERY = "query mask has no building pixels"
 REASON_NO_GEOMETRY = "no model geometry within the search volume around the prior"
 REASON_LOW_SCORE = "best score below threshold"
+REASON_LOW_CONFIDENCE = "confidence below the acceptance probability"
+REASON_AT_EDGE = "best hypothesis on the edge of the search volume (state a larger prior uncertainty)"
 
 
 @dataclass
@@ -28,7 +30,12 @@ class LocalizationResult:
     ``depth_cost`` = affine-invariant relative depth error (lower better), ``score`` = the combined
     ``lambda_1 * semantic - lambda_2 * depth_cost``. ``confidence``: ``score_margin`` (best coarse cell
     minus the best cell more than 2 grid steps away), ``spread_m`` / ``spread_deg`` (weighted spread of
-    the final particles), ``building_iou`` (building-vs-rest overlap at the final pose).
+    the final particles), ``building_iou`` (building-vs-rest overlap at the final pose),
+    ``hypothesis_margin`` (final score of the winner minus the best other refined hypothesis),
+    ``building_fraction`` (share of building pixels in the query), ``probability`` (the calibrated
+    probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume searched, its
+    extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores, best first.
+    ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never a result).
     """
 
     status: str
@@ -42,6 +49,9 @@ class LocalizationResult:
     counts: dict = field(default_factory=dict)
     cost_volume: CostVolume | None = None
     coarse_pose_local: Pose | None = None
+    search: dict = field(default_factory=dict)
+    hypotheses: list = field(default_factory=list)
+    rejected_pose_local: Pose | None = None
 
     @property
     def localized(self) -> bool:
@@ -67,6 +77,7 @@ class LocalizationResult:
             "confidence": self.confidence,
             "timings_s": self.timings,
             "counts": self.counts,
+            "search": self.search,
         }
         if self.pose_local is not None:
             out.update(pose_to_dict(self.pose_local, origin=origin, crs=crs))

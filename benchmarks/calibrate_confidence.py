@@ -1,0 +1,220 @@
+"""Fit the localizer's calibrated acceptance (``localization/confidence.py``) and check it on held-out data.
+
+Usage::
+
+    python benchmarks/calibrate_confidence.py [--queries 60] [--workers 2] [--cache DIR] [--write]
+        [--fit-city generated --fit-city FUERTH ...] [--check-city BERLIN ...] [--seed 0]
+
+Fit data (never a reporting city): the realistic scenario on the generated city and Fürth, with every
+segmentation quality (trained, medium, zero-shot) and with the paper's extra prior errors (20-30 and
+40-50 m per axis, so that look-alikes and edge cases are seen), ``--queries`` per condition. Every query
+is localized by SemCityLoc with depth, without depth (``no-depth``) and by the silhouette baseline, with
+acceptance switched off, and the features of each result (``confidence.FEATURES_*``) are kept with the
+answer (within 5 m and 5 deg of the truth or not). One sign-constrained logistic model is fitted per
+(kind, with depth) and, with ``--write``, saved to ``src/semcityloc/localization/confidence_models.json``.
+
+Check (``--check-city``, default Berlin, seed 1 so that no benchmark query is reused): the same
+conditions; prints the expected calibration error (10 bins), the Brier score, and the risk-coverage
+curve (coverage and precision at the acceptance probabilities 0.3 ... 0.9) of each model.
+
+``--cache DIR`` keeps every condition's features (``DIR/<city>_<condition>_<seed>.json``), so a refit
+does not localize again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from semcityloc.baselines.silhouette import SilhouetteLocalizer
+from semcityloc.benchmark.scenario import query_config
+from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.localization.confidence import (
+    FEATURES_DEPTH,
+    FEATURES_NO_DEPTH,
+    calibration_error,
+    features_of,
+    fit_logistic,
+    risk_coverage,
+    save_models,
+)
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.localize import Localizer
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared" / "data"
+FUERTH = SHARED / "fuerth_lod2_citygml1" / "LOD2_4424_5482_solid.gml"
+BERLIN = SHARED / "berlin_lod2_citygml2" / "3910_5817.gml"
+# condition -> (seg_quality, prior_extra_m)
+CONDITIONS = {
+    "trained": ("trained", None),
+    "medium": ("medium", None),
+    "zero-shot": ("zero-shot", None),
+    "prior20-30": ("trained", (20.0, 30.0)),
+    "prior40-50": ("trained", (40.0, 50.0)),
+}
+# (kind, with depth) -> the localizer variant whose results fit it
+VARIANTS = {
+    ("semantic", True): "semcityloc",
+    ("semantic", False): "no-depth",
+    ("silhouette", False): "silhouette",
+}
+RIGHT_M, RIGHT_DEG = 5.0, 5.0
+
+_WORKER: dict = {}
+
+
+def _open_config() -> LocalizerConfig:
+    """The default localizer with acceptance switched off (every result keeps its pose)."""
+    base = LocalizerConfig.preset("default")
+    return replace(
+        base,
+        acceptance="thresholds",
+        min_building_iou=0.0,
+        min_score=-1e9,
+        min_semantic_with_depth=-1e9,
+        max_depth_cost=1e9,
+    )
+
+
+def _init(city: str, seed: int, queries: int, condition: str) -> None:
+    seg, extra = CONDITIONS[condition]
+    spec = BenchmarkSpec(
+        city=city,
+        query=query_config("realistic", queries=queries, seed=seed, seg_quality=seg, prior_extra_m=extra),
+    )
+    source = spec.open_source(spec.run_config())
+    cfg = _open_config()
+    _WORKER.update(
+        source=source,
+        semcityloc=Localizer(source.map_model, cfg),
+        silhouette=SilhouetteLocalizer(source.map_model, cfg),
+        cfg=cfg,
+    )
+
+
+def _one(index: int) -> list[dict]:
+    source, cfg = _WORKER["source"], _WORKER["cfg"]
+    q = source.query(index)
+    if not q.meta.get("accepted", True):
+        return []
+    out = []
+    for variant in ("semcityloc", "no-depth", "silhouette"):
+        if variant == "silhouette":
+            r = _WORKER["silhouette"].localize(q.camera, q.prior_pose_local, q.labels, None)
+        else:
+            c = replace(cfg, no_depth=variant == "no-depth")
+            r = _WORKER["semcityloc"].localize(q.camera, q.prior_pose_local, q.labels, q.depth, config=c)
+        pose = r.pose_local if r.pose_local is not None else r.rejected_pose_local
+        row = {"query": q.query_id, "variant": variant, "status": r.status, "reason": r.reason}
+        if pose is not None:
+            e_m = float(center_error_m(pose, q.true_pose_local))
+            e_deg = float(rotation_error_deg(pose, q.true_pose_local))
+            row.update(error_m=e_m, error_deg=e_deg, right=bool(e_m <= RIGHT_M and e_deg <= RIGHT_DEG))
+            names = FEATURES_DEPTH if variant == "semcityloc" else FEATURES_NO_DEPTH
+            row["features"] = dict(zip(names, features_of(r, names).tolist(), strict=True))
+        out.append(row)
+    return out
+
+
+def condition_rows(city: str, seed: int, queries: int, condition: str, workers: int, cache: Path | None):
+    name = f"{Path(city).stem}_{condition}_{seed}_{queries}.json"
+    path = cache / name if cache is not None else None
+    if path is not None and path.exists():
+        return json.loads(path.read_text())
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(workers, initializer=_init, initargs=(city, seed, queries, condition)) as pool:
+        rows = [row for chunk in pool.map(_one, range(queries)) for row in chunk]
+    print(f"# {Path(city).stem} {condition} seed {seed}: {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(rows))
+    return rows
+
+
+def matrix(rows: list[dict], variant: str, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    sel = [r for r in rows if r["variant"] == variant and "features" in r]
+    X = np.array([[r["features"][n] if r["features"][n] is not None else np.nan for n in names] for r in sel])
+    y = np.array([r["right"] for r in sel], dtype=float)
+    return X.reshape(len(sel), len(names)), y
+
+
+def report(model, X: np.ndarray, y: np.ndarray, label: str) -> dict:
+    p = model.probability_of(X)
+    curve = risk_coverage(p, y)
+    at = {}
+    for t in (0.3, 0.5, 0.7, 0.9):
+        acc = p >= t
+        at[t] = (float(acc.mean()), float(y[acc].mean()) if acc.any() else float("nan"))
+    ece = calibration_error(p, y)
+    brier = float(np.mean((p - y) ** 2))
+    print(
+        f"{label}: n={len(y)} right={y.mean():.3f} ECE={ece:.3f} Brier={brier:.3f} "
+        + " ".join(f"p>={t}: cover {c:.2f} prec {pr:.3f}" for t, (c, pr) in at.items())
+    )
+    return {"n": len(y), "ece": ece, "brier": brier, "at": at, "curve": curve}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--fit-city", action="append", default=None)
+    ap.add_argument("--check-city", action="append", default=None)
+    ap.add_argument("--queries", type=int, default=60)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--check-seed", type=int, default=1)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--write", action="store_true", help="save the fitted models into the package")
+    args = ap.parse_args()
+
+    fit_cities = args.fit_city or ["generated", str(FUERTH)]
+    check_cities = (
+        args.check_city if args.check_city is not None else ([str(BERLIN)] if BERLIN.exists() else [])
+    )
+    fit_rows, check_rows = [], []
+    for city in fit_cities:
+        for cond in CONDITIONS:
+            fit_rows += condition_rows(city, args.seed, args.queries, cond, args.workers, args.cache)
+    for city in check_cities:
+        for cond in CONDITIONS:
+            check_rows += condition_rows(city, args.check_seed, args.queries, cond, args.workers, args.cache)
+
+    described = ", ".join(Path(c).stem for c in fit_cities)
+    models = []
+    for (kind, with_depth), variant in VARIANTS.items():
+        names = FEATURES_DEPTH if with_depth else FEATURES_NO_DEPTH
+        X, y = matrix(fit_rows, variant, names)
+        model = fit_logistic(
+            X,
+            y,
+            names,
+            kind,
+            with_depth,
+            fitted_on=f"realistic scenario, {described}, seed {args.seed}, conditions {', '.join(CONDITIONS)}",
+        )
+        models.append(model)
+        print(
+            f"## {kind} {'with' if with_depth else 'without'} depth ({variant}): "
+            + ", ".join(f"{n} {w:+.3f}" for n, w in zip(names, model.weights, strict=True))
+            + f", bias {model.bias:+.3f}"
+        )
+        report(model, X, y, "  fit")
+        if check_rows:
+            Xc, yc = matrix(check_rows, variant, names)
+            report(model, Xc, yc, "  check")
+    if args.write:
+        save_models(models)
+        print("# written", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,301 @@
+"""Coarse-to-fine hypothesis search over the prior's uncertainty volume (the default search).
+
+Why: a real GNSS prior can be 30 m off in height and a gimbal 2-3 deg off in roll and pitch. A uniform
+4D grid fine enough for the refinement to take over costs time in proportion to the volume, and a grid
+sized for a smaller error gives a confident wrong pose at its edge. So:
+
+1. **Volume** (``search_volume``): centred on the prior, half-widths ``n_sigma`` x the stated sigma
+   (``PriorUncertainty``), floored so that an RTK prior still leaves room for the map's own errors.
+2. **Sweep** (``sweep``): the volume's lattice (steps ``SweepConfig.step_*``, grown when it would need
+   more than ``max_centres`` camera centres) scored at a low resolution, one wide render per centre and
+   every yaw read through a lookup table (``coarse.score_rotations``). If the best cell lies on the
+   volume's edge, the volume grows in that direction (bounded) and only the new cells are scored; still
+   on the edge at the bound -> ``at_edge`` (the localizer refuses: a pose at the edge of what was
+   searched is not a pose that was found).
+3. **Local** (``local_search``): around the sweep's best distinct cells (greedy non-maximum suppression
+   on the lattice), a small grid at a finer resolution that also samples roll and pitch (one wide render
+   per centre again; a roll/pitch/yaw hypothesis is a rotation about the centre, read through the lookup
+   table). The best distinct hypotheses go to the refinement, each on its own.
+
+Hypothesis states are ``(x, y, z, roll, pitch, yaw)`` in the model's local frame, degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.localization.coarse import rotation_offsets, score_rotations
+from semcityloc.localization.config import CascadeConfig, LocalConfig, SweepConfig
+from semcityloc.render.scene import RenderScene
+
+AXES = ("x", "y", "z", "yaw")
+
+
+@dataclass(frozen=True)
+class SearchVolume:
+    """A box around ``centre`` (6-vector state): half-widths in x/y (m), z (m), yaw (deg); roll and
+    pitch are not swept but sampled locally within ``half_roll_pitch_deg``."""
+
+    centre: np.ndarray
+    half_xy_m: float
+    half_z_m: float
+    half_yaw_deg: float
+    half_roll_pitch_deg: float
+
+    def as_dict(self) -> dict:
+        return {
+            "half_xy_m": self.half_xy_m,
+            "half_z_m": self.half_z_m,
+            "half_yaw_deg": self.half_yaw_deg,
+            "half_roll_pitch_deg": self.half_roll_pitch_deg,
+        }
+
+
+def search_volume(
+    prior_state: np.ndarray, uncertainty: PriorUncertainty, config: CascadeConfig
+) -> SearchVolume:
+    """The volume the cascade searches for a prior with this uncertainty (module docstring, step 1)."""
+    k = config.n_sigma
+    return SearchVolume(
+        centre=np.asarray(prior_state, dtype=np.float64).copy(),
+        half_xy_m=max(k * uncertainty.xy_m, config.min_half_xy_m),
+        half_z_m=max(k * uncertainty.z_m, config.min_half_z_m),
+        half_yaw_deg=max(k * uncertainty.yaw_deg, config.min_half_yaw_deg),
+        half_roll_pitch_deg=k * uncertainty.roll_pitch_deg,
+    )
+
+
+@dataclass
+class Sweep:
+    """The scored lattice of stage 2 of the module docstring. Lattice index ``i`` on an axis is the value
+    ``origin + i * step``; ``lo``/``hi`` the scored index box (inclusive), ``scores`` over that box."""
+
+    origin: np.ndarray  # (4,) x, y, z, yaw of lattice index 0 (the prior's)
+    step: np.ndarray  # (4,)
+    lo: np.ndarray  # (4,) int
+    hi: np.ndarray  # (4,) int
+    scores: np.ndarray  # (nx, ny, nz, nyaw)
+    roll: float
+    pitch: float
+    extensions: list[str] = field(default_factory=list)  # e.g. ["z-", "x+"]
+    at_edge: list[str] = field(default_factory=list)  # edges the best cell still sits on at the bound
+    hypotheses: int = 0  # cells scored (the lattice plus any extension)
+
+    def values(self, axis: int) -> np.ndarray:
+        return self.origin[axis] + np.arange(self.lo[axis], self.hi[axis] + 1) * self.step[axis]
+
+    def state(self, index: np.ndarray) -> np.ndarray:
+        """(6,) state of a cell given by its position in ``scores``."""
+        v = self.origin + (self.lo + np.asarray(index)) * self.step
+        return np.array([v[0], v[1], v[2], self.roll, self.pitch, v[3]])
+
+    def best(self) -> np.ndarray:
+        return np.array(np.unravel_index(int(np.argmax(self.scores)), self.scores.shape))
+
+    def score_margin(self) -> float:
+        """Best score minus the best score of cells more than 2 steps away in x or y (NaN if none)."""
+        s = self.scores
+        b = self.best()
+        far = np.ones(s.shape[:2], dtype=bool)
+        far[max(0, b[0] - 2) : b[0] + 3, max(0, b[1] - 2) : b[1] + 3] = False
+        return float(s[tuple(b)] - s[far].max()) if far.any() else float("nan")
+
+    def top_distinct(self, k: int, radius: int) -> list[np.ndarray]:
+        """Up to ``k`` cells, best first, none within ``radius`` lattice steps (all four axes) of a
+        better kept one (greedy non-maximum suppression)."""
+        flat = self.scores.reshape(-1)
+        order = np.argsort(-flat, kind="stable")
+        kept: list[np.ndarray] = []
+        for f in order[: max(64 * k, 256)]:
+            idx = np.array(np.unravel_index(int(f), self.scores.shape))
+            if all(np.any(np.abs(idx - other) > radius) for other in kept):
+                kept.append(idx)
+                if len(kept) == k:
+                    break
+        return kept
+
+
+def _lattice_extent(half: float, step: float) -> int:
+    """Lattice indices -n..n cover +-half with spacing <= step."""
+    return max(1, int(math.ceil(half / step - 1e-9)))
+
+
+def _rotations(roll: float, pitch: float, yaws: np.ndarray) -> np.ndarray:
+    n = len(yaws)
+    return Pose.from_xyz_rpy(np.zeros((n, 3)), np.full(n, roll), np.full(n, pitch), yaws).R
+
+
+class _SweepScorer:
+    """Scores lattice cells of a sweep; keeps the base rotation and query fixed."""
+
+    def __init__(self, scene, camera, query_labels, class_on, origin, step, roll, pitch):
+        self.scene, self.camera, self.query, self.class_on = scene, camera, query_labels, class_on
+        self.origin, self.step, self.roll, self.pitch = origin, step, roll, pitch
+        self.R_base = Pose.from_xyz_rpy(np.zeros(3), roll, pitch, origin[3]).R
+        self.count = 0
+
+    def score(self, ix, iy, iz, iyaw) -> np.ndarray:
+        """Scores (len(ix), len(iy), len(iz), len(iyaw)) of the cells with these lattice indices."""
+        o, s = self.origin, self.step
+        xs, ys, zs = o[0] + ix * s[0], o[1] + iy * s[1], o[2] + iz * s[2]
+        yaws = o[3] + iyaw * s[3]
+        gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
+        centres = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
+        offsets = rotation_offsets(self.R_base, _rotations(self.roll, self.pitch, yaws))
+        out = score_rotations(
+            self.scene, self.camera, centres, self.R_base, offsets, self.query, self.class_on
+        )
+        self.count += out.size
+        return out.reshape(len(xs), len(ys), len(zs), len(yaws))
+
+
+def sweep(
+    scene: RenderScene,
+    camera: Camera,
+    volume: SearchVolume,
+    query_labels: np.ndarray,
+    class_on: np.ndarray,
+    config: SweepConfig,
+) -> Sweep:
+    """Stage 2 of the module docstring. ``camera``/``query_labels`` at the sweep's resolution."""
+    c = volume.centre
+    step = np.array([config.step_xy_m, config.step_xy_m, config.step_z_m, config.step_yaw_deg], dtype=float)
+    half = np.array([volume.half_xy_m, volume.half_xy_m, volume.half_z_m, volume.half_yaw_deg])
+    n = np.array([_lattice_extent(h, st) for h, st in zip(half, step, strict=True)])
+    centres = (2 * n[0] + 1) ** 2 * (2 * n[2] + 1)
+    if centres > config.max_centres:
+        grow = (centres / config.max_centres) ** (1.0 / 3.0)
+        step[:3] *= grow
+        n[:3] = [_lattice_extent(h, st) for h, st in zip(half[:3], step[:3], strict=True)]
+    origin = np.array([c[0], c[1], c[2], c[5]])
+    scorer = _SweepScorer(scene, camera, query_labels, class_on, origin, step, float(c[3]), float(c[4]))
+    lo, hi = -n.copy(), n.copy()
+    bound = n + np.ceil(config.max_extensions * config.extension * n).astype(int)
+    scores = scorer.score(*(np.arange(lo[a], hi[a] + 1) for a in range(4)))
+    result = Sweep(origin, step, lo, hi, scores, float(c[3]), float(c[4]))
+    for _ in range(config.max_extensions + 1):
+        edges = _edges(result)
+        if not edges:
+            break
+        grow = [(a, sgn) for a, sgn in edges if (hi[a] < bound[a] if sgn > 0 else lo[a] > -bound[a])]
+        if not grow:
+            result.at_edge = [f"{AXES[a]}{'+' if s > 0 else '-'}" for a, s in edges]
+            break
+        for a, sgn in grow:
+            amount = max(1, int(math.ceil(config.extension * n[a])))
+            if sgn > 0:
+                new = np.arange(hi[a] + 1, min(hi[a] + amount, bound[a]) + 1)
+            else:
+                new = np.arange(max(lo[a] - amount, -bound[a]), lo[a])
+            ranges = [np.arange(lo[b], hi[b] + 1) for b in range(4)]
+            ranges[a] = new
+            block = scorer.score(*ranges)
+            result.scores = (
+                np.concatenate([result.scores, block], axis=a)
+                if sgn > 0
+                else np.concatenate([block, result.scores], axis=a)
+            )
+            if sgn > 0:
+                hi[a] = new[-1]
+            else:
+                lo[a] = new[0]
+            result.extensions.append(f"{AXES[a]}{'+' if sgn > 0 else '-'}")
+        result.lo, result.hi = lo.copy(), hi.copy()
+    else:
+        result.at_edge = [f"{AXES[a]}{'+' if s > 0 else '-'}" for a, s in _edges(result)]
+    result.hypotheses = scorer.count
+    return result
+
+
+def _edges(sw: Sweep) -> list[tuple[int, int]]:
+    """(axis, +1/-1) of every volume face the best cell lies on (axes with a single sample excluded)."""
+    best = sw.best()
+    out = []
+    for a in range(4):
+        size = sw.scores.shape[a]
+        if size < 3:
+            continue
+        if best[a] == 0:
+            out.append((a, -1))
+        elif best[a] == size - 1:
+            out.append((a, +1))
+    return out
+
+
+@dataclass
+class Hypotheses:
+    """Distinct hypotheses from the local stage, best first."""
+
+    states: np.ndarray  # (K, 6)
+    scores: np.ndarray  # (K,) mean per-class IoU at the local stage's resolution
+    evaluated: int  # hypotheses scored in the local stage
+
+
+def local_search(
+    scene: RenderScene,
+    camera: Camera,
+    seeds: list[np.ndarray],
+    step: np.ndarray,
+    roll_pitch_sigma_deg: float,
+    query_labels: np.ndarray,
+    class_on: np.ndarray,
+    config: LocalConfig,
+) -> Hypotheses:
+    """Stage 3 of the module docstring. ``seeds``: (6,) states of the kept sweep cells; ``step``: the
+    sweep's (x, y, z, yaw) steps; ``camera``/``query_labels`` at the local resolution."""
+
+    def offsets(n: int, half: float) -> np.ndarray:
+        return np.linspace(-half, half, n) if n > 1 else np.zeros(1)
+
+    dxy = offsets(config.n_xy, step[0] / 2)
+    dz = offsets(config.n_z, step[2] / 2)
+    dyaw = offsets(config.n_yaw, step[3])
+    s = config.roll_pitch_sigmas * roll_pitch_sigma_deg
+    drp = np.array([-s, 0.0, s]) if s > 0 else np.zeros(1)
+    dr, dp, dy = np.meshgrid(drp, drp, dyaw, indexing="ij")
+    dr, dp, dy = dr.ravel(), dp.ravel(), dy.ravel()
+    gx, gy, gz = np.meshgrid(dxy, dxy, dz, indexing="ij")
+    dcentres = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
+
+    # Every sweep cell has the prior's roll and pitch, so one table of offsets serves all seeds.
+    roll0, pitch0, yaw0 = (float(v) for v in seeds[0][3:6])
+    n_rot = len(dr)
+    R_base0 = Pose.from_xyz_rpy(np.zeros(3), roll0, pitch0, yaw0).R
+    R_hyps0 = Pose.from_xyz_rpy(np.zeros((n_rot, 3)), roll0 + dr, pitch0 + dp, yaw0 + dy).R
+    offsets = rotation_offsets(R_base0, R_hyps0)
+    seeds_arr = np.asarray(seeds, dtype=np.float64)
+    if not np.allclose(seeds_arr[:, 3:5], seeds_arr[0, 3:5]):
+        raise ValueError("local_search: seeds must share roll and pitch")  # internal invariant
+    R_seed = Pose.from_xyz_rpy(np.zeros((len(seeds), 3)), seeds_arr[:, 3], seeds_arr[:, 4], seeds_arr[:, 5]).R
+    centres = (seeds_arr[:, None, :3] + dcentres[None]).reshape(-1, 3)
+    R_bases = np.repeat(R_seed, len(dcentres), axis=0)
+    scores = score_rotations(scene, camera, centres, R_bases, offsets, query_labels, class_on).reshape(-1)
+    states = np.empty((len(seeds), len(dcentres), n_rot, 6))
+    states[..., :3] = centres.reshape(len(seeds), len(dcentres), 1, 3)
+    states[..., 3] = roll0 + dr
+    states[..., 4] = pitch0 + dp
+    states[..., 5] = seeds_arr[:, 5, None, None] + dy
+    states = states.reshape(-1, 6)
+    order = np.argsort(-scores, kind="stable")
+    kept: list[int] = []
+    for i in order:
+        st = states[i]
+        if all(not _same(st, states[j], config) for j in kept):
+            kept.append(int(i))
+            if len(kept) == config.keep:
+                break
+    return Hypotheses(states[kept], scores[kept], int(scores.size))
+
+
+def _same(a: np.ndarray, b: np.ndarray, config: LocalConfig) -> bool:
+    return (
+        np.hypot(a[0] - b[0], a[1] - b[1]) < config.distinct_xy_m
+        and abs(a[2] - b[2]) < config.distinct_z_m
+        and abs(a[5] - b[5]) < config.distinct_yaw_deg
+    )

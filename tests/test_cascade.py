@@ -1,0 +1,249 @@
+"""The default search (issue 13): the prior's stated uncertainty sets the volume, roll and pitch are
+estimated, a best cell on the edge extends the volume or is refused, and the acceptance is a calibrated,
+monotone probability."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from semcityloc.citymodel.citygml import read_citygml
+from semcityloc.citymodel.generator import generate_city
+from semcityloc.errors import ParameterError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.localization.cascade import search_volume
+from semcityloc.localization.confidence import (
+    FEATURES_DEPTH,
+    calibration_error,
+    confidence_model,
+    fit_logistic,
+    risk_coverage,
+)
+from semcityloc.localization.config import CascadeConfig, LocalizerConfig
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, REASON_AT_EDGE, LocalizationResult
+from semcityloc.render import Renderer
+
+CAMERA = Camera.from_fov(512, 384, 70.0)
+
+
+@pytest.fixture(scope="module")
+def city(tmp_path_factory):
+    paths = generate_city(tmp_path_factory.mktemp("city"), seed=0)
+    return read_citygml(paths[2])
+
+
+@pytest.fixture(scope="module")
+def localizer(city):
+    return Localizer(city)
+
+
+@pytest.fixture(scope="module")
+def renderer(city):
+    return Renderer(city, engine="numba")
+
+
+def view(city, dx, dy, height, roll, pitch, yaw) -> Pose:
+    lo, hi = city.bounds_local
+    centre = 0.5 * (lo + hi)
+    return Pose.from_xyz_rpy([centre[0] + dx, centre[1] + dy, lo[2] + height], roll, pitch, yaw)
+
+
+def shifted(pose: Pose, dxyz, droll=0.0, dpitch=0.0, dyaw=0.0) -> Pose:
+    x, y, z, roll, pitch, yaw = pose.to_xyz_rpy()
+    return Pose.from_xyz_rpy(np.array([x, y, z]) + dxyz, roll + droll, pitch + dpitch, yaw + dyaw)
+
+
+def query(renderer, pose):
+    out = renderer.render(CAMERA, pose, depth=True)
+    return out.labels[0], 0.5 * out.depth[0] + 7.0
+
+
+VIEWS = {"nadir": (10.0, -20.0, 80.0, 0.5, 1.0, 30.0), "oblique": (-30.0, 15.0, 90.0, -1.0, 40.0, 200.0)}
+
+
+@pytest.mark.parametrize("name", list(VIEWS))
+def test_roll_and_pitch_errors_of_2_5_deg_are_recovered(city, localizer, renderer, name):
+    true = view(city, *VIEWS[name])
+    prior = shifted(true, [6.0, -5.0, 8.0], droll=2.5, dpitch=-2.5, dyaw=4.0)
+    labels, depth = query(renderer, true)
+    result = localizer.localize(CAMERA, prior, labels, depth)
+    assert result.status == LOCALIZED, result.reason
+    _, _, _, roll, pitch, _ = result.pose_local.to_xyz_rpy()
+    _, _, _, roll_t, pitch_t, _ = true.to_xyz_rpy()
+    assert abs(roll - roll_t) < 0.5 and abs(pitch - pitch_t) < 0.5
+    assert rotation_error_deg(result.pose_local, true) < 0.5
+    assert center_error_m(result.pose_local, true) < 1.0
+
+
+def test_a_prior_25m_too_high_is_recovered_with_default_settings(city, localizer, renderer):
+    true = view(city, *VIEWS["oblique"])
+    prior = shifted(true, [3.0, 4.0, 25.0], dyaw=-3.0)
+    labels, depth = query(renderer, true)
+    result = localizer.localize(CAMERA, prior, labels, depth)
+    assert result.status == LOCALIZED, result.reason
+    assert center_error_m(result.pose_local, true) < 1.0
+    assert rotation_error_deg(result.pose_local, true) < 0.5
+    assert result.search["volume"]["half_z_m"] == pytest.approx(30.0)
+
+
+def test_best_on_the_edge_extends_the_volume_toward_it(city, localizer, renderer):
+    """The prior is 13 m off in x but states a 3 m sigma (+-9 m searched): the sweep grows toward the
+    truth instead of returning the edge."""
+    true = view(city, *VIEWS["nadir"])
+    prior = shifted(true, [13.0, 0.0, 0.0])
+    labels, depth = query(renderer, true)
+    unc = PriorUncertainty(xy_m=3.0, z_m=3.0)
+    result = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=unc)
+    assert "x-" in result.search["extensions"]
+    assert result.status == LOCALIZED, result.reason
+    assert center_error_m(result.pose_local, true) < 1.0
+
+
+def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
+    """A prior 25 m too high that claims a 2 m height sigma: the volume may grow to +-12 m only; the
+    best cell stays on its lower face, and the answer is a refusal naming the edge, not a pose 13 m off."""
+    true = view(city, *VIEWS["oblique"])
+    prior = shifted(true, [0.0, 0.0, 25.0])
+    labels, depth = query(renderer, true)
+    unc = PriorUncertainty(z_m=2.0)
+    result = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=unc)
+    assert result.status == NOT_LOCALIZED
+    assert result.reason == REASON_AT_EDGE
+    assert result.pose_local is None
+    assert "z-" in result.search["at_edge"]
+
+
+def test_search_volume_follows_the_stated_uncertainty():
+    cfg = CascadeConfig()
+    state = np.array([1.0, 2.0, 3.0, 0.0, 0.0, 10.0])
+    default = search_volume(state, PriorUncertainty(), cfg)
+    assert (default.half_xy_m, default.half_z_m, default.half_yaw_deg) == (15.0, 30.0, 9.0)
+    rtk = search_volume(state, PriorUncertainty.rtk(0.02, 0.03), cfg)
+    assert rtk.half_xy_m == cfg.min_half_xy_m and rtk.half_z_m == cfg.min_half_z_m  # floors hold
+    wide = search_volume(state, PriorUncertainty.parse("xy=10,z=20"), cfg)
+    assert (wide.half_xy_m, wide.half_z_m) == (30.0, 60.0)
+
+
+def test_wider_uncertainty_keeps_the_number_of_camera_centres_bounded(city, localizer, renderer):
+    true = view(city, *VIEWS["nadir"])
+    labels, depth = query(renderer, true)
+    small = localizer.localize(CAMERA, true, labels, depth, prior_uncertainty=PriorUncertainty())
+    big = localizer.localize(CAMERA, true, labels, depth, prior_uncertainty=PriorUncertainty.parse("xy=20,z=20"))
+    assert big.search["sweep_step"][0] > small.search["sweep_step"][0]  # steps grow, not the centre count
+    assert big.counts["coarse_hypotheses"] < 3 * small.counts["coarse_hypotheses"]
+    assert big.status == LOCALIZED and center_error_m(big.pose_local, true) < 1.0
+
+
+def test_prior_uncertainty_parsing_and_errors():
+    u = PriorUncertainty.parse("xy=5, z=15, yaw=5, rp=1")
+    assert (u.xy_m, u.z_m, u.yaw_deg, u.roll_pitch_deg) == (5.0, 15.0, 5.0, 1.0)
+    assert PriorUncertainty.parse("z=40").xy_m == PriorUncertainty().xy_m
+    for bad in ("", "xy", "q=3", "z=abc", "z=-1", "yaw=90"):
+        with pytest.raises(ParameterError):
+            PriorUncertainty.parse(bad)
+
+
+def test_localize_refuses_a_non_uncertainty(city, localizer, renderer):
+    true = view(city, *VIEWS["nadir"])
+    labels, depth = query(renderer, true)
+    with pytest.raises(ParameterError):
+        localizer.localize(CAMERA, true, labels, depth, prior_uncertainty={"xy": 5})
+
+
+def test_legacy_preset_runs_the_first_design(city, renderer):
+    legacy = Localizer(city, LocalizerConfig.preset("legacy"))
+    true = view(city, *VIEWS["nadir"])
+    labels, depth = query(renderer, true)
+    result = legacy.localize(CAMERA, shifted(true, [5.0, -5.0, 2.0], dyaw=3.0), labels, depth)
+    assert result.search["search"] == "grid"
+    assert result.counts["coarse_hypotheses"] == LocalizerConfig.preset("legacy").coarse.hypotheses
+    assert result.status == LOCALIZED and center_error_m(result.pose_local, true) < 1.0
+
+
+# ----------------------------------------------------------------------------- confidence
+
+
+def _result(**features) -> LocalizationResult:
+    r = LocalizationResult(status=LOCALIZED, semantic=features.pop("semantic"), depth_cost=features.pop("depth_cost"))
+    r.confidence.update(features)
+    return r
+
+
+BASE = dict(
+    semantic=0.75,
+    depth_cost=0.06,
+    building_iou=0.85,
+    hypothesis_margin=0.02,
+    score_margin=0.05,
+    spread_m=0.4,
+    building_fraction=0.4,
+)
+
+
+@pytest.mark.parametrize("kind,with_depth", [("semantic", True), ("semantic", False), ("silhouette", False)])
+def test_confidence_is_monotone_in_every_piece_of_evidence(kind, with_depth):
+    model = confidence_model(kind, with_depth)
+    base = model.probability(_result(**BASE))
+    assert 0.0 < base < 1.0
+    for name in model.features:
+        step = 0.1 * (abs(BASE[name]) + 0.1)
+        more = model.probability(_result(**{**BASE, name: BASE[name] + step}))
+        less = model.probability(_result(**{**BASE, name: BASE[name] - step}))
+        sign = {"depth_cost": -1, "spread_m": -1}.get(name, +1)
+        assert sign * (more - base) >= 0 and sign * (base - less) >= 0, name
+    # A missing feature (one hypothesis only) sits at its mean: no NaN comes out.
+    assert np.isfinite(model.probability(_result(**{**BASE, "hypothesis_margin": float("nan")})))
+
+
+def test_fit_logistic_is_calibrated_on_held_out_data():
+    rng = np.random.default_rng(3)
+    n = 4000
+    X = rng.normal(size=(n, len(FEATURES_DEPTH)))
+    # True model: depends on semantic (+) and depth_cost (-) only.
+    z = 1.5 * X[:, 0] - 1.0 * X[:, 1] + 0.3
+    y = (rng.random(n) < 1 / (1 + np.exp(-z))).astype(float)
+    model = fit_logistic(X[:3000], y[:3000], FEATURES_DEPTH, "semantic", True)
+    p = model.probability_of(X[3000:])
+    assert calibration_error(p, y[3000:]) < 0.05
+    assert model.weights[0] > 1.0 and model.weights[1] < -0.5
+    curve = risk_coverage(p, y[3000:])
+    assert curve[-1][1] == pytest.approx(1.0)  # all accepted at the lowest threshold
+    assert curve[len(curve) // 10][2] > curve[-1][2]  # the most confident tenth is more often right
+
+
+def test_calibration_error_of_a_perfect_and_a_useless_forecast():
+    rng = np.random.default_rng(0)
+    p = rng.random(20000)
+    y = (rng.random(20000) < p).astype(float)
+    assert calibration_error(p, y) < 0.02
+    assert calibration_error(np.full(20000, 0.9), (rng.random(20000) < 0.5).astype(float)) > 0.35
+
+
+def test_fit_refuses_one_class_data():
+    with pytest.raises(ParameterError):
+        fit_logistic(np.zeros((5, len(FEATURES_DEPTH))), np.ones(5), FEATURES_DEPTH, "semantic", True)
+
+
+def test_calibrated_acceptance_refuses_a_look_alike_that_thresholds_would_pass(city, localizer, renderer):
+    """A flipped mask gives a pose, but the probability says it is not to be trusted."""
+    true = view(city, *VIEWS["nadir"])
+    labels, _ = query(renderer, true)
+    result = localizer.localize(CAMERA, true, labels[::-1, ::-1].copy(), None)
+    assert result.status == NOT_LOCALIZED
+    assert result.confidence.get("probability", 0.0) < LocalizerConfig().min_confidence or result.reason
+
+
+def test_acceptance_probability_is_a_config_knob(city, localizer, renderer):
+    true = view(city, *VIEWS["nadir"])
+    labels, depth = query(renderer, true)
+    prior = shifted(true, [4.0, -3.0, 6.0], dyaw=2.0)
+    strict = localizer.localize(CAMERA, prior, labels, depth, config=replace(localizer.config, min_confidence=1.0))
+    assert strict.status == NOT_LOCALIZED and strict.rejected_pose_local is not None
+    ok = localizer.localize(CAMERA, prior, labels, depth)
+    assert ok.status == LOCALIZED and ok.confidence["probability"] >= 0.5
