@@ -198,7 +198,7 @@ def main() -> int:
             names,
             kind,
             with_depth,
-            fitted_on=f"realistic scenario, {described}, seed {args.seed}, conditions {', '.join(CONDITIONS)}",
+            fitted_on=f"realistic, {described}, seed {args.seed}, conditions {', '.join(CONDITIONS)}",
         )
         models.append(model)
         print(

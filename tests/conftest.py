@@ -21,3 +21,14 @@ def shared_file(relative: str) -> Path:
 @pytest.fixture
 def shared():
     return shared_file
+
+
+@pytest.fixture(scope="session")
+def generated_lod2(tmp_path_factory):
+    """The generated city (seed 0) at LoD2, parsed once per test session."""
+    # Imported here: conftest is loaded before any test module, keep its import light.
+    from semcityloc.citymodel.citygml import read_citygml
+    from semcityloc.citymodel.generator import generate_city
+
+    paths = generate_city(tmp_path_factory.mktemp("generated_city"), seed=0)
+    return read_citygml(paths[2])

@@ -172,8 +172,11 @@ def test_options_are_checked_before_anything_runs(dataset_dir, tmp_path):
 
 
 def test_presets_and_helpers():
-    assert DatasetSpec(dataset="x").localizer_config() is LocalizerConfig.preset("wide-z")
-    assert LocalizerConfig.preset("wide-z").coarse.range_z_m == 60.0
+    assert DatasetSpec(dataset="x").localizer_config() is LocalizerConfig.preset("default")
+    sigma = DatasetSpec(dataset="x", prior_sigma="z=20").localizer_config().prior_uncertainty
+    assert (sigma.z_m, sigma.xy_m) == (20.0, LocalizerConfig().prior_uncertainty.xy_m)
+    with pytest.raises(ParameterError, match="prior uncertainty"):
+        DatasetSpec(dataset="x", prior_sigma="z=much")
     big = Camera(3778.4, 3767.4, 2663.6, 1919.7, 5280, 3956)
     small = working_camera(big)
     assert small.width == 1024 and small.height == 767 and small.hfov_deg == pytest.approx(big.hfov_deg)

@@ -2,8 +2,9 @@
 
 ``tests/data/reference/*_rows.csv`` were written by the code as it was before the run loop, the method
 table and the frame names were reshaped (3 queries, seed 0, every method, the then ``default`` preset,
-now ``legacy``: the first design is kept unchanged beside the issue-13 search; timing columns dropped). A change of any status, reason or number in these rows is a change of behaviour: if it
-is intended, regenerate the files and say why in the commit.
+now ``legacy``: the first design is kept unchanged beside the issue-13 search; timing columns dropped).
+A change of any status, reason or number in these rows is a change of behaviour: if it is intended,
+regenerate the files and say why in the commit.
 
 Numbers are compared to 1e-9 relative, not to the last bit: the old localizers re-composed a local prior
 through a zero shift (``prior.shift_world(np.zeros(3))``, a float64 round trip of R and t), which the

@@ -113,7 +113,7 @@ def test_a_run_writes_one_row_per_query_and_a_summary(baseline):
     assert cfg["city"] == "generated" and Path(cfg["city_path"]).name == "generated_lod2.gml"
     assert Path(cfg["reality_source"]).name == "generated_lod3.gml"
     assert cfg["method"] == "semcityloc" and cfg["seed"] == 3 and cfg["queries"] == QUERIES
-    assert cfg["localizer_preset"] == "fast" and cfg["localizer"]["coarse"]["n_xy"] == 9
+    assert cfg["localizer_preset"] == "fast" and cfg["localizer"]["cascade"]["sweep"]["max_centres"] == 600
     assert cfg["query_config"]["queries"] == QUERIES and "seg_quality" in cfg and "prior_extra_m" in cfg
 
 
@@ -275,8 +275,10 @@ def test_details_hold_the_query_poses_and_cost_volume(baseline):
     assert d["labels"].dtype == np.uint8 and d["labels"].ndim == 2
     assert d["camera"][4:].tolist() == [d["labels"].shape[1], d["labels"].shape[0]]
     axes = d["meta"]["cost_volume"]
-    assert list(d["cost_scores"].shape) == axes["shape"] == [9, 9, 5, 9]  # the fast preset's grid
-    assert len(axes["x"]) == 9 and len(axes["yaw"]) == 9
+    nx, ny, nz, nyaw = axes["shape"]
+    assert list(d["cost_scores"].shape) == axes["shape"]  # the fast preset's sweep: <= 600 centres
+    assert nx * ny * nz <= 600
+    assert len(axes["x"]) == nx and len(axes["yaw"]) == nyaw
     true = Pose.from_cam_from_world(d["true_cam_from_world"])
     assert true.center[0] == pytest.approx(float(row["true_x"]))
     assert np.isfinite(d["prior_cam_from_world"]).all()

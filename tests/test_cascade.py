@@ -9,8 +9,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from semcityloc.citymodel.citygml import read_citygml
-from semcityloc.citymodel.generator import generate_city
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
@@ -33,9 +31,8 @@ CAMERA = Camera.from_fov(512, 384, 70.0)
 
 
 @pytest.fixture(scope="module")
-def city(tmp_path_factory):
-    paths = generate_city(tmp_path_factory.mktemp("city"), seed=0)
-    return read_citygml(paths[2])
+def city(generated_lod2):
+    return generated_lod2
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +131,9 @@ def test_wider_uncertainty_keeps_the_number_of_camera_centres_bounded(city, loca
     true = view(city, *VIEWS["nadir"])
     labels, depth = query(renderer, true)
     small = localizer.localize(CAMERA, true, labels, depth, prior_uncertainty=PriorUncertainty())
-    big = localizer.localize(CAMERA, true, labels, depth, prior_uncertainty=PriorUncertainty.parse("xy=20,z=20"))
+    big = localizer.localize(
+        CAMERA, true, labels, depth, prior_uncertainty=PriorUncertainty.parse("xy=20,z=20")
+    )
     assert big.search["sweep_step"][0] > small.search["sweep_step"][0]  # steps grow, not the centre count
     assert big.counts["coarse_hypotheses"] < 3 * small.counts["coarse_hypotheses"]
     assert big.status == LOCALIZED and center_error_m(big.pose_local, true) < 1.0
@@ -170,7 +169,9 @@ def test_legacy_preset_runs_the_first_design(city, renderer):
 
 
 def _result(**features) -> LocalizationResult:
-    r = LocalizationResult(status=LOCALIZED, semantic=features.pop("semantic"), depth_cost=features.pop("depth_cost"))
+    r = LocalizationResult(
+        status=LOCALIZED, semantic=features.pop("semantic"), depth_cost=features.pop("depth_cost")
+    )
     r.confidence.update(features)
     return r
 
@@ -183,6 +184,7 @@ BASE = dict(
     score_margin=0.05,
     spread_m=0.4,
     building_fraction=0.4,
+    prior_distance=1.5,
 )
 
 
@@ -195,7 +197,7 @@ def test_confidence_is_monotone_in_every_piece_of_evidence(kind, with_depth):
         step = 0.1 * (abs(BASE[name]) + 0.1)
         more = model.probability(_result(**{**BASE, name: BASE[name] + step}))
         less = model.probability(_result(**{**BASE, name: BASE[name] - step}))
-        sign = {"depth_cost": -1, "spread_m": -1}.get(name, +1)
+        sign = {"depth_cost": -1, "spread_m": -1, "prior_distance": -1}.get(name, +1)
         assert sign * (more - base) >= 0 and sign * (base - less) >= 0, name
     # A missing feature (one hypothesis only) sits at its mean: no NaN comes out.
     assert np.isfinite(model.probability(_result(**{**BASE, "hypothesis_margin": float("nan")})))
@@ -206,12 +208,13 @@ def test_fit_logistic_is_calibrated_on_held_out_data():
     n = 4000
     X = rng.normal(size=(n, len(FEATURES_DEPTH)))
     # True model: depends on semantic (+) and depth_cost (-) only.
-    z = 1.5 * X[:, 0] - 1.0 * X[:, 1] + 0.3
+    sem, dep = FEATURES_DEPTH.index("semantic"), FEATURES_DEPTH.index("depth_cost")
+    z = 1.5 * X[:, sem] - 1.0 * X[:, dep] + 0.3
     y = (rng.random(n) < 1 / (1 + np.exp(-z))).astype(float)
     model = fit_logistic(X[:3000], y[:3000], FEATURES_DEPTH, "semantic", True)
     p = model.probability_of(X[3000:])
     assert calibration_error(p, y[3000:]) < 0.05
-    assert model.weights[0] > 1.0 and model.weights[1] < -0.5
+    assert model.weights[sem] > 1.0 and model.weights[dep] < -0.5
     curve = risk_coverage(p, y[3000:])
     assert curve[-1][1] == pytest.approx(1.0)  # all accepted at the lowest threshold
     assert curve[len(curve) // 10][2] > curve[-1][2]  # the most confident tenth is more often right
@@ -243,7 +246,9 @@ def test_acceptance_probability_is_a_config_knob(city, localizer, renderer):
     true = view(city, *VIEWS["nadir"])
     labels, depth = query(renderer, true)
     prior = shifted(true, [4.0, -3.0, 6.0], dyaw=2.0)
-    strict = localizer.localize(CAMERA, prior, labels, depth, config=replace(localizer.config, min_confidence=1.0))
+    strict = localizer.localize(
+        CAMERA, prior, labels, depth, config=replace(localizer.config, min_confidence=1.0)
+    )
     assert strict.status == NOT_LOCALIZED and strict.rejected_pose_local is not None
     ok = localizer.localize(CAMERA, prior, labels, depth)
     assert ok.status == LOCALIZED and ok.confidence["probability"] >= 0.5

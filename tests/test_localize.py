@@ -7,12 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from semcityloc.citymodel.citygml import read_citygml
-from semcityloc.citymodel.generator import generate_city
 from semcityloc.errors import ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.coarse import yaw_lookup
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
@@ -29,9 +28,8 @@ CAMERA = Camera.from_fov(512, 384, 70.0)
 
 
 @pytest.fixture(scope="module")
-def city(tmp_path_factory):
-    paths = generate_city(tmp_path_factory.mktemp("city"), seed=0)
-    return read_citygml(paths[2])
+def city(generated_lod2):
+    return generated_lod2
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +77,8 @@ def test_recovers_true_pose_from_prior_10m_5deg(city, localizer, renderer, name)
     assert rotation_error_deg(est_local, true) < 0.5
     assert result.counts["coarse_hypotheses"] >= 10_000
     assert result.counts["refine_evaluations"] >= 1_000
-    assert result.cost_volume.scores.shape == (13, 13, 7, 13)
+    volume = result.cost_volume  # the sweep's lattice over the default +-15 m, +-30 m, +-9 deg
+    assert volume.scores.ndim == 4 and np.ptp(volume.z_values) >= 60.0 and np.ptp(volume.x_values) >= 30.0
     assert set(result.timings) >= {"coarse_s", "refine_s", "total_s"}
 
 
@@ -117,23 +116,19 @@ def test_flipped_mask_is_not_localized(city, localizer, renderer, with_depth):
     assert result.pose_local is None
 
 
-def test_extended_preset_recovers_a_prior_35m_off_on_every_axis(city, localizer, renderer):
+def test_a_stated_wide_uncertainty_recovers_a_prior_35m_off_on_every_axis(city, localizer, renderer):
+    """35 m per axis is beyond the default volume (+-15 m xy): the default refuses or misses it; stating
+    the prior's uncertainty (12 m / 12 m, +-36 m searched) finds it, with no special preset."""
     true = view(city, *CASES["oblique"][0])
     out = renderer.render(CAMERA, true, depth=True)
     prior = perturbed(true, np.array([35.0, -33.0, 31.0]), 0.5, -0.5, 6.0)
     default = localizer.localize(CAMERA, prior, out.labels[0], out.depth[0])
-    assert not default.localized or center_error_m(default.pose_local, true) > 5.0  # outside its grid
-    result = localizer.localize(
-        CAMERA,
-        prior,
-        out.labels[0],
-        out.depth[0],
-        config=LocalizerConfig.preset("extended"),
-    )
+    assert not default.localized or center_error_m(default.pose_local, true) > 5.0  # outside its volume
+    wide = PriorUncertainty.parse("xy=12,z=12")
+    result = localizer.localize(CAMERA, prior, out.labels[0], out.depth[0], prior_uncertainty=wide)
     assert result.status == LOCALIZED, result.reason
     assert center_error_m(result.pose_local, true) < 1.0
     assert rotation_error_deg(result.pose_local, true) < 1.0
-    assert result.counts["coarse_hypotheses"] > 100_000
 
 
 def test_prior_far_outside_the_model_is_not_localized(city, localizer, renderer):
@@ -175,7 +170,7 @@ def test_ablation_switches(city, localizer, renderer):
 
 
 def test_unknown_preset_is_a_parameter_error_naming_the_presets():
-    with pytest.raises(ParameterError, match=r"^unknown localizer preset 'typo'; known: default, wide, "):
+    with pytest.raises(ParameterError, match=r"^unknown localizer preset 'typo'; known: default, legacy, "):
         LocalizerConfig.preset("typo")
 
 
@@ -189,15 +184,17 @@ def test_bad_inputs_raise_typed_errors(city, localizer):
         localizer.localize(CAMERA, Pose.stack([pose, pose]), np.zeros((384, 512), np.uint8))
 
 
-def test_fused_coarse_kernel_matches_direct_rendering(city, localizer, renderer):
-    """Every (centre, yaw) score of the cost volume equals the IoU of a direct render, to within the
-    few pixels where the lookup differs from a direct render."""
+@pytest.mark.parametrize("preset", ["legacy", "default"])
+def test_fused_coarse_kernel_matches_direct_rendering(city, localizer, renderer, preset):
+    """Every (centre, yaw) score of the cost volume (the first design's grid; the cascade's sweep)
+    equals the IoU of a direct render, to within the few pixels where the lookup differs from it."""
     true = view(city, *CASES["oblique"][0])
     labels = renderer.render(CAMERA, true).labels[0]
-    cfg = replace(LocalizerConfig.preset("fast"), no_refine=True)
+    cfg = replace(LocalizerConfig.preset(preset), no_refine=True)
     result = localizer.localize(CAMERA, true, labels, config=cfg)
     volume = result.cost_volume
-    coarse_cam = CAMERA.scaled(cfg.coarse.width, cfg.coarse.height)
+    width = cfg.coarse.width if cfg.search == "grid" else cfg.cascade.sweep.width
+    coarse_cam = CAMERA.scaled(width, width * 3 // 4)
     from semcityloc.localization.query import Query
 
     q = Query.from_arrays(labels, None, has_openings=False).at(coarse_cam.width, coarse_cam.height)[0]

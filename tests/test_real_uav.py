@@ -42,7 +42,7 @@ def _load(folder: str) -> dict:
     model = ds.load_model()
     renderer = Renderer(model, engine="numba")
     labels = oracle_labels(model, q.camera, q.gt_pose_world, renderer)
-    localizer = Localizer(model, LocalizerConfig.preset("wide-z"), scene=renderer.scene)
+    localizer = Localizer(model, LocalizerConfig(), scene=renderer.scene)  # default settings
     return {
         "q": q,
         "model": model,
@@ -54,7 +54,7 @@ def _load(folder: str) -> dict:
 
 @pytest.fixture
 def real(shared):
-    """The data set, model, renderer, oracle labels and a wide-z localizer, built once per session."""
+    """The data set, model, renderer, oracle labels and a default localizer, built once per session."""
     return _load(str(shared("real_uav_lodloc")))
 
 
@@ -66,12 +66,14 @@ def test_real_image_and_its_frames(real):
     q, model = real["q"], real["model"]
     image = read_image(q.image_path)
     assert image.shape == (512, 640, 3) and (q.camera.width, q.camera.height) == (640, 512)
-    # The prior is mostly a height error: beyond the default grid's +-8 m, inside wide-z's +-30 m.
+    # The prior is mostly a height error: beyond the first design's +-8 m grid, inside the default
+    # search's 3 sigma (+-30 m) of the default height uncertainty.
     dz = abs(q.prior_pose_world.center[2] - q.gt_pose_world.center[2])
+    default = LocalizerConfig()
     assert (
-        LocalizerConfig.preset("default").coarse.range_z_m / 2
+        LocalizerConfig.preset("legacy").coarse.range_z_m / 2
         < dz
-        < LocalizerConfig.preset("wide-z").coarse.range_z_m / 2
+        < default.cascade.n_sigma * default.prior_uncertainty.z_m
     )
     # The oracle mask sees buildings: roofs and walls cover a real share of the image.
     building = np.isin(real["labels"], [2, 3]).mean()

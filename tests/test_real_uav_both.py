@@ -30,7 +30,6 @@ from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 
 FOLDERS = {"thermal": "real_uav_lodloc", "oblique": "real_uav_lodloc_oblique"}
-HEIGHT_XFAIL = pytest.mark.xfail(reason="needs the issue-13 search (height error 20.7 m)", strict=False)
 MAX_M, MAX_DEG = 1.0, 1.0
 
 
@@ -68,8 +67,8 @@ def _labels(both, q, perception: str, index: int) -> np.ndarray:
 @pytest.mark.parametrize(
     "which, perception",
     [
-        pytest.param("thermal", "oracle", marks=HEIGHT_XFAIL),
-        pytest.param("thermal", "oracle-degraded", marks=HEIGHT_XFAIL),
+        ("thermal", "oracle"),
+        ("thermal", "oracle-degraded"),
         ("oblique", "oracle"),
         ("oblique", "oracle-degraded"),
     ],
@@ -112,7 +111,6 @@ def test_the_real_data_benchmark_runs_over_both_folders_at_once(tmp_path, capsys
     assert "semcityloc [oracle-degraded (trained)]" in report.markdown.read_text()
 
 
-@HEIGHT_XFAIL
 def test_both_real_images_within_1m_1deg_in_the_benchmark_with_default_settings(tmp_path):
     data = shared_file(FOLDERS["thermal"]).parent
     outcome = run_benchmark(DatasetSpec(dataset=str(data), preset="default"), tmp_path / "b", progress=False)

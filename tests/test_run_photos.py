@@ -335,7 +335,6 @@ def test_oblique_real_image_within_1m_1deg_from_its_gps_prior(real_run):
     assert err_m < 1.0 and err_deg < 1.0
 
 
-@pytest.mark.xfail(reason="needs the issue-13 search (height error 20.7 m)", strict=False)
 def test_thermal_real_image_within_1m_1deg_from_its_gps_prior(real_run):
     err_m, err_deg = _errors(real_run, THERMAL)
     print(f"thermal, degraded masks, default settings: {err_m:.2f} m, {err_deg:.2f} deg")

@@ -61,7 +61,13 @@ class SilhouetteMethod:
         self.localizer = SilhouetteLocalizer(map_model, config)
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
-        return self.localizer.localize(q.camera, q.prior_pose_local, q.labels, None)
+        return self.localizer.localize(
+            q.camera,
+            q.prior_pose_local,
+            q.labels,
+            None,
+            prior_uncertainty=getattr(q, "prior_uncertainty", None),
+        )
 
 
 class WireframeMethod:

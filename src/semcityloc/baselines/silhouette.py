@@ -24,6 +24,7 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.result import LocalizationResult
@@ -77,6 +78,14 @@ class SilhouetteLocalizer(Localizer):
         semantic: np.ndarray,
         depth: np.ndarray | None = None,
         config: LocalizerConfig | None = None,
+        prior_uncertainty: PriorUncertainty | None = None,
     ) -> LocalizationResult:
         cfg = replace(config or self.config, no_depth=True)
-        return super().localize(camera, prior_local, silhouette_labels(semantic), None, config=cfg)
+        return super().localize(
+            camera,
+            prior_local,
+            silhouette_labels(semantic),
+            None,
+            config=cfg,
+            prior_uncertainty=prior_uncertainty,
+        )

@@ -22,8 +22,9 @@ model's local frame at this boundary (``CityModel.pose_to_local``). ``results.cs
 coordinates. Each localized estimate is written as ``estimates/<query_id>.json`` in the world frame
 (``geometry.io.write_pose_json``) and, when every query is done, all of them as a COLMAP text model
 (``estimates_colmap/``) named by image. Oracle labels are rendered at no more than ``ORACLE_MAX_WIDTH``
-pixels wide (the localizer searches at 64 px anyway). Localizer preset: ``wide-z`` by default: LoD-Loc's
-priors are up to ±30 m off in height, beyond the ±8 m of the ``default`` grid.
+pixels wide (the localizer searches at 64 px anyway). Localizer: the ``default`` preset, whose search
+covers the prior's stated uncertainty (``prior_sigma``; default: DJI GNSS, +-30 m in height, which
+covers LoD-Loc's priors).
 """
 
 from __future__ import annotations
@@ -113,7 +114,10 @@ class DatasetSpec:
     depth: str | None = None
     seg_quality: str = "trained"
     method: str = "semcityloc"
-    preset: str = "wide-z"
+    preset: str = "default"
+    prior_sigma: str | None = (
+        None  # "xy=5,z=15,yaw=5,rp=1": the priors' 1-sigma error (default: the preset's)
+    )
     seed: int = 0
     split: str | None = None
     stage: str | None = None
@@ -135,9 +139,10 @@ class DatasetSpec:
         if self.perception == PERCEPTION_DEGRADED:
             get_preset(self.seg_quality)
         check_run_options(self.method, self.preset, self.keep_details)
+        self.localizer_config()  # a malformed prior_sigma fails here, before anything loads
 
     def localizer_config(self) -> LocalizerConfig:
-        return LocalizerConfig.preset(self.preset)
+        return LocalizerConfig.preset(self.preset).with_prior_sigma(self.prior_sigma)
 
     def load_dataset(self) -> LodLocDataset:
         return read_lodloc(

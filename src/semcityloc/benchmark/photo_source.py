@@ -368,8 +368,7 @@ class PhotoSource:
             intrinsics=inp.camera.as_dict(),
             prior=pose_to_dict(inp.prior.pose_world, crs=crs, extra=inp.prior.details),
             prior_source=inp.prior.source,
-            # TODO(issue13 merge): the localizer searches this; until then it is recorded only.
-            prior_uncertainty=inp.uncertainty.as_dict(),
+            prior_uncertainty=inp.uncertainty.as_dict(),  # what the localizer searched
         )
         return record
 

@@ -17,7 +17,6 @@ seeds its own generator per query.
 
 from __future__ import annotations
 
-import inspect
 import multiprocessing
 import os
 from collections.abc import Iterator
@@ -29,7 +28,7 @@ from typing import Protocol, TextIO
 import numba
 
 import semcityloc.baselines  # noqa: F401  (registers the baselines' methods)
-from semcityloc.benchmark.queries import BenchmarkQuery, query_id
+from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.results import (
     append_row,
     make_row,
@@ -50,9 +49,7 @@ from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer
-from semcityloc.localization.methods import Method, get_method
-from semcityloc.localization.result import LocalizationResult
+from semcityloc.localization.methods import get_method
 
 
 class RunSpec(Protocol):
@@ -97,27 +94,11 @@ class _Worker:
         q = self.source.query(index)
         if not (q.meta or {}).get("accepted", True):
             return make_row(q, skipped_result(), self.origin)
-        result = localize_query(self.method, q)
+        result = self.method.localize(q)
         if index < self.keep:
             save_details(self.out_dir / DETAILS_DIR / f"{query_id(index)}.npz", q, result, self.origin)
         self.source.save_estimate(self.out_dir, q, result)
         return make_row(q, result, self.origin)
-
-
-def localize_query(method: Method, q: BenchmarkQuery) -> LocalizationResult:
-    """``method.localize(q)``, with the query's own prior uncertainty (a photo's RTK tags) when it has one
-    and the method's localizer takes it."""
-    sigma = q.prior_uncertainty
-    localizer = getattr(method, "localizer", None)
-    # TODO(issue13 merge): Localizer.localize gains ``prior_uncertainty=``; LocalizerMethod should then pass
-    # ``q.prior_uncertainty`` itself and this branch go. Until then it is passed only where accepted.
-    if (
-        sigma is not None
-        and isinstance(localizer, Localizer)
-        and "prior_uncertainty" in inspect.signature(localizer.localize).parameters
-    ):
-        return localizer.localize(q.camera, q.prior_pose_local, q.labels, q.depth, prior_uncertainty=sigma)
-    return method.localize(q)
 
 
 _PROCESS_WORKER: _Worker | None = None

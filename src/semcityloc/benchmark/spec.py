@@ -72,6 +72,9 @@ class BenchmarkSpec:
     lod: int | None = None
     method: str = "semcityloc"
     preset: str = "default"
+    prior_sigma: str | None = (
+        None  # "xy=5,z=15,yaw=5,rp=1": the priors' 1-sigma error (default: the preset's)
+    )
     crs: str | None = None
     keep_details: int = 3
     simulator_factory: SimulatorFactory | None = None  # default QuerySimulator; not part of run.json
@@ -87,9 +90,10 @@ class BenchmarkSpec:
         if int(self.query.queries) < 1:
             raise BenchmarkError(f"the number of queries must be >= 1, got {self.query.queries}")
         check_run_options(self.method, self.preset, self.keep_details)
+        self.localizer_config()  # a malformed prior_sigma fails here, before anything loads
 
     def localizer_config(self) -> LocalizerConfig:
-        return LocalizerConfig.preset(self.preset)
+        return LocalizerConfig.preset(self.preset).with_prior_sigma(self.prior_sigma)
 
     def run_config(self) -> dict:
         """The ``run.json`` content (resolves the city file; loads no model)."""

@@ -20,6 +20,7 @@ from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO, SCENARIOS, parse_settings, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.cli.dataset import add_dataset_arguments, add_perception_arguments, run_dataset_benchmark
+from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import available_methods
@@ -68,8 +69,9 @@ def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
         "--preset",
         default=None,
         choices=tuple(PRESETS),
-        help="localizer preset (default: default; --dataset: wide-z)",
+        help="localizer preset (default: default)",
     )
+    add_prior_sigma_argument(p)
     p.add_argument(
         "--scenario",
         default=DEFAULT_SCENARIO,
@@ -144,6 +146,7 @@ def spec_from_args(
         lod=args.lod,
         method=args.method,
         preset=args.preset or "default",
+        prior_sigma=args.prior_sigma,
         crs=args.crs,
         keep_details=args.keep_details,
         sweep=sweep,

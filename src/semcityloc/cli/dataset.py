@@ -5,8 +5,7 @@ image, PNG), ``benchmark`` (the real-data benchmark, ``benchmark.dataset_source`
 set's GT or prior poses as a COLMAP model), ``dji-prior`` (a prior pose JSON from a DJI photo).
 For ``semcityloc benchmark --dataset PATH --format lodloc [--city MODEL]``, ``cli/benchmark.py`` adds
 ``add_dataset_arguments(p, positional=False)`` and ``add_perception_arguments(p)`` and hands a run with
-``--dataset`` to ``run_dataset_benchmark(args)`` (its ``--preset`` must default to None: data sets use
-``wide-z``).
+``--dataset`` to ``run_dataset_benchmark(args)``.
 """
 
 from __future__ import annotations
@@ -23,6 +22,7 @@ from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpe
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
+from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
@@ -125,8 +125,9 @@ def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
         "--preset",
         default=None,
         choices=tuple(PRESETS),
-        help="localizer preset (default for data sets: wide-z)",
+        help="localizer preset (default: default)",
     )
+    add_prior_sigma_argument(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the degraded segmentation")
     p.add_argument("--keep-details", type=int, default=3, help="save details of the first N queries")
     p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
@@ -265,7 +266,8 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
         depth=args.depth,
         seg_quality=args.seg_quality,
         method=args.method,
-        preset=args.preset or "wide-z",
+        preset=args.preset or "default",
+        prior_sigma=args.prior_sigma,
         seed=args.seed,
         split=args.split,
         stage=args.stage,

@@ -14,6 +14,7 @@ from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.datasets.photos import EXIF, IntrinsicsFiles
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.io import read_intrinsics, read_pose, write_pose_json
+from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import check_aspect, image_size, load_depth, load_image, load_labels_png, save_rgb
 from semcityloc.localization.config import PRESETS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
@@ -22,6 +23,19 @@ from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.registry import available_backends, get_depth_backend, get_segmentation_backend
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
 from semcityloc.render.raster_numba import NumbaEngine
+
+
+def add_prior_sigma_argument(p: argparse.ArgumentParser, default_text: str | None = None) -> None:
+    """``--prior-sigma xy=5,z=15,yaw=5,rp=1``: how far the priors may be off (1 sigma); the search covers
+    3 sigma of it."""
+    p.add_argument(
+        "--prior-sigma",
+        default=None,
+        metavar="xy=5,z=15,yaw=5,rp=1",
+        help=default_text
+        or "1-sigma error of the prior (any subset; default xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg: "
+        "DJI GNSS + gimbal IMU); the search covers 3 sigma",
+    )
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,6 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--preset", default="default", choices=tuple(PRESETS), help="localizer preset (default: default)"
     )
+    add_prior_sigma_argument(p)
     p.add_argument(
         "--method", default="semcityloc", choices=tuple(ABLATIONS), help="the method or one of its ablations"
     )
@@ -121,13 +136,16 @@ def _query_inputs(args, camera):
 
 def run(args: argparse.Namespace) -> int:
     _check_files(args)
+    uncertainty = PriorUncertainty.parse(args.prior_sigma) if args.prior_sigma else None
     model = load_model_from_args(args)
     camera = _camera(args)
     prior_world = read_pose(args.prior)  # the model's CRS
     labels, depth = _query_inputs(args, camera)
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
     localizer = Localizer(model, config)
-    result = localizer.localize(camera, model.pose_to_local(prior_world), labels, depth)
+    result = localizer.localize(
+        camera, model.pose_to_local(prior_world), labels, depth, prior_uncertainty=uncertainty
+    )
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -17,6 +17,7 @@ from semcityloc.benchmark.report import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.cli.city import add_model_arguments
 from semcityloc.cli.dataset import parse_floats
+from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF
 from semcityloc.errors import InputFileError
@@ -50,12 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--truth", default=None, help="ground-truth poses (same forms as --priors): errors in the summary"
     )
-    p.add_argument(
-        "--prior-sigma",
-        default=None,
-        metavar="xy=5,z=15,yaw=5,rp=1",
-        help="1-sigma error of every prior (default: per photo, from its RTK tags or the geotag accuracy, "
-        "else xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg)",
+    add_prior_sigma_argument(
+        p,
+        "1-sigma error of every prior (default: per photo, from its RTK tags or the geotag accuracy, "
+        "else xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg); the search covers 3 sigma",
     )
     p.add_argument("--masks", default=None, help="folder of precomputed label masks <stem>.png / .npy")
     p.add_argument("--depth", default=None, help="folder of precomputed relative depth <stem>.npy / .png")

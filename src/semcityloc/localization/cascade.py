@@ -30,7 +30,7 @@ import numpy as np
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.coarse import rotation_offsets, score_rotations
+from semcityloc.localization.coarse import CostVolume, rotation_offsets, score_rotations
 from semcityloc.localization.config import CascadeConfig, LocalConfig, SweepConfig
 from semcityloc.render.scene import RenderScene
 
@@ -94,6 +94,12 @@ class Sweep:
         """(6,) state of a cell given by its position in ``scores``."""
         v = self.origin + (self.lo + np.asarray(index)) * self.step
         return np.array([v[0], v[1], v[2], self.roll, self.pitch, v[3]])
+
+    def cost_volume(self) -> CostVolume:
+        """The scored lattice as the paper's 4D cost volume (axis order x, y, z, yaw)."""
+        return CostVolume(
+            self.scores, self.values(0), self.values(1), self.values(2), self.values(3), self.roll, self.pitch
+        )
 
     def best(self) -> np.ndarray:
         return np.array(np.unravel_index(int(np.argmax(self.scores)), self.scores.shape))
@@ -168,10 +174,8 @@ def sweep(
     step = np.array([config.step_xy_m, config.step_xy_m, config.step_z_m, config.step_yaw_deg], dtype=float)
     half = np.array([volume.half_xy_m, volume.half_xy_m, volume.half_z_m, volume.half_yaw_deg])
     n = np.array([_lattice_extent(h, st) for h, st in zip(half, step, strict=True)])
-    centres = (2 * n[0] + 1) ** 2 * (2 * n[2] + 1)
-    if centres > config.max_centres:
-        grow = (centres / config.max_centres) ** (1.0 / 3.0)
-        step[:3] *= grow
+    while (2 * n[0] + 1) ** 2 * (2 * n[2] + 1) > config.max_centres and n[:3].max() > 1:
+        step[:3] *= 1.1
         n[:3] = [_lattice_extent(h, st) for h, st in zip(half[:3], step[:3], strict=True)]
     origin = np.array([c[0], c[1], c[2], c[5]])
     scorer = _SweepScorer(scene, camera, query_labels, class_on, origin, step, float(c[3]), float(c[4]))

@@ -44,6 +44,7 @@ FEATURE_SIGNS: dict[str, int] = {
     "depth_cost": -1,
     "spread_m": -1,
     "building_fraction": +1,
+    "prior_distance": -1,
 }
 FEATURES_DEPTH = tuple(FEATURE_SIGNS)
 FEATURES_NO_DEPTH = tuple(f for f in FEATURE_SIGNS if f != "depth_cost")

@@ -58,7 +58,7 @@ class SweepConfig:
     width: int = 32
     height: int = 24
     step_xy_m: float = 3.0
-    step_z_m: float = 5.0
+    step_z_m: float = 7.5
     step_yaw_deg: float = 2.0
     max_centres: int = 2000
     keep: int = 8  # best distinct cells (greedy non-maximum suppression on the lattice) passed on
@@ -98,18 +98,6 @@ class CascadeConfig:
     min_half_z_m: float = 3.0
     min_half_yaw_deg: float = 3.0
 
-    @property
-    def nominal_hypotheses(self) -> int:
-        """Hypotheses scored for the default prior uncertainty without extension (sweep + local)."""
-        s, lo = self.sweep, self.local
-        u = PriorUncertainty()
-        n_xy = int(round(2 * self.n_sigma * u.xy_m / s.step_xy_m)) + 1
-        n_z = int(round(2 * self.n_sigma * u.z_m / s.step_z_m)) + 1
-        n_yaw = int(round(2 * self.n_sigma * u.yaw_deg / s.step_yaw_deg)) + 1
-        n_rp = 9 if lo.roll_pitch_sigmas > 0 else 1
-        local = s.keep * lo.n_xy * lo.n_xy * lo.n_z * lo.n_yaw * n_rp
-        return n_xy * n_xy * n_z * n_yaw + local
-
 
 @dataclass(frozen=True)
 class RefineConfig:
@@ -125,7 +113,7 @@ class RefineConfig:
     sigma_xy_m: float = 1.5
     sigma_z_m: float = 1.0
     sigma_yaw_deg: float = 1.0
-    sigma_roll_pitch_deg: float | None = None  # None: the prior's roll/pitch sigma (cascade)
+    sigma_roll_pitch_deg: float | None = None  # None: half the prior's roll/pitch sigma (cascade)
     shrink: float = 0.65
     temperature: float = 0.3  # softmax temperature, in units of the population's score std
     update: str = "gaussian"  # "gaussian": weighted mean + covariance; "resample": systematic resampling
@@ -144,6 +132,10 @@ class RefineConfig:
     # The first iterations, while perturbations are still large, score at the coarse resolution (4x fewer
     # pixels); the rest at ``scale`` x. 0 = every iteration at the fine resolution (the paper's setting).
     low_res_iterations: int = 6
+    # Polish: a second, narrow filter around the best particle at the fine resolution (0 iterations: none).
+    polish_iterations: int = 4
+    polish_particles: int = 64
+    polish_sigma: tuple[float, float, float, float] = (0.5, 0.5, 0.15, 0.15)  # xy m, z m, roll/pitch, yaw deg
 
     def __post_init__(self) -> None:
         if self.depth_cost not in DEPTH_COSTS:
@@ -202,6 +194,13 @@ class LocalizerConfig:
             raise unknown_choice("method", method, ABLATION_FLAGS)
         return replace(self, **ABLATION_FLAGS[method])
 
+    def with_prior_sigma(self, text: str | None) -> LocalizerConfig:
+        """This config with the prior uncertainty ``"xy=5,z=15,yaw=5,rp=1"`` (any subset, the rest from
+        this config's; None: unchanged). ``ParameterError`` on a malformed text."""
+        if text is None:
+            return self
+        return replace(self, prior_uncertainty=PriorUncertainty.parse(text, self.prior_uncertainty))
+
     def as_dict(self) -> dict:
         return asdict(self)
 
@@ -218,7 +217,9 @@ ABLATION_FLAGS: dict[str, dict[str, bool]] = {
 # roll and pitch held at the prior's and moved by 0.3 deg in the refinement, hand-set acceptance.
 LEGACY = LocalizerConfig(
     search="grid",
-    refine=RefineConfig(sigma_roll_pitch_deg=0.3, prior_roll_pitch_weight=0.0, depth_cost="affine"),
+    refine=RefineConfig(
+        sigma_roll_pitch_deg=0.3, prior_roll_pitch_weight=0.0, depth_cost="affine", polish_iterations=0
+    ),
     acceptance="thresholds",
 )
 

@@ -129,6 +129,7 @@ class Localizer:
         q_fine, _ = query.at(fine_cam.width, fine_cam.height)
         result.confidence["building_iou"] = self._building_iou(fine_cam, result.pose_local, q_fine)
         result.confidence["building_fraction"] = building_fraction
+        result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         with_depth = query.depth is not None
         if cfg.acceptance == "calibrated":
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
@@ -213,6 +214,7 @@ class Localizer:
             at_edge=sw.at_edge,
         )
         result.confidence["score_margin"] = sw.score_margin()
+        result.cost_volume = sw.cost_volume()
         result.coarse_pose_local = _pose(sw.state(sw.best()))
         if sw.at_edge:
             result.counts["coarse_hypotheses"] = sw.hypotheses
@@ -264,6 +266,24 @@ class Localizer:
             best = particle_filter(
                 self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior
             )
+            if cfg.refine.polish_iterations > 0:
+                xy, z, rp, yaw = cfg.refine.polish_sigma
+                polished = particle_filter(
+                    self.scene,
+                    levels[-1:],
+                    best.xyz_rpy[None],
+                    self.class_on,
+                    cfg.refine,
+                    np.random.default_rng([cfg.seed, 1]),
+                    np.array([xy, xy, z, rp, rp, yaw]),
+                    particles=cfg.refine.polish_particles,
+                    iterations=cfg.refine.polish_iterations,
+                    low_res_iterations=0,
+                    prior=prior,
+                )
+                polished.evaluations += best.evaluations
+                polished.spread_m, polished.spread_deg = best.spread_m, best.spread_deg  # the search's
+                best = polished  # its first particle is the filter's best: never worse
             final = best.xyz_rpy
             result.counts["refine_evaluations"] += best.evaluations
             result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
@@ -362,6 +382,16 @@ def check_camera_and_prior(camera: Camera, prior: Pose) -> None:
         raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
     if not isinstance(prior, Pose) or prior.batch_shape:
         raise PoseError("prior must be a single Pose (cam_from_world)")
+
+
+def prior_distance(pose_local: Pose, prior_state: np.ndarray, unc: PriorUncertainty) -> float:
+    """How many sigmas of the prior's uncertainty the pose is from the prior (Mahalanobis distance over
+    x, y, z and yaw): a pose found far out in the search volume is a priori less likely to be right."""
+    d = pose_local.to_xyz_rpy() - np.asarray(prior_state, dtype=np.float64)
+    d[5] = (d[5] + 180.0) % 360.0 - 180.0
+    sig = np.array([unc.xy_m, unc.xy_m, unc.z_m, unc.yaw_deg])
+    v = d[[0, 1, 2, 5]] / np.maximum(sig, 1e-6)
+    return float(np.sqrt(np.sum(v * v)))
 
 
 def _pose(state: np.ndarray) -> Pose:

@@ -21,6 +21,7 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import BenchmarkError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import ABLATION_FLAGS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.result import LocalizationResult
@@ -36,6 +37,7 @@ class QueryRecord(Protocol):
     labels: np.ndarray
     depth: np.ndarray | None
     meta: dict[str, Any]
+    prior_uncertainty: PriorUncertainty | None  # optional attribute; None or absent: config.prior_uncertainty
 
 
 class Method(Protocol):
@@ -58,7 +60,13 @@ class LocalizerMethod:
         self.localizer = Localizer(map_model, self.config)
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
-        return self.localizer.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
+        return self.localizer.localize(
+            q.camera,
+            q.prior_pose_local,
+            q.labels,
+            q.depth,
+            prior_uncertainty=getattr(q, "prior_uncertainty", None),
+        )
 
 
 _REGISTRY: dict[str, MethodFactory] = {}

@@ -130,9 +130,9 @@ class ScoringLevel:
 
 
 def initial_sigma(config: RefineConfig, roll_pitch_deg: float) -> np.ndarray:
-    """(6,) initial perturbation scales in state order; ``roll_pitch_deg`` is used when the config leaves
-    roll/pitch to the prior (``sigma_roll_pitch_deg=None``)."""
-    rp = config.sigma_roll_pitch_deg if config.sigma_roll_pitch_deg is not None else roll_pitch_deg
+    """(6,) initial perturbation scales in state order; half of ``roll_pitch_deg`` (the prior's sigma) is
+    used when the config leaves roll/pitch to the prior (``sigma_roll_pitch_deg=None``)."""
+    rp = config.sigma_roll_pitch_deg if config.sigma_roll_pitch_deg is not None else 0.5 * roll_pitch_deg
     return np.array([config.sigma_xy_m, config.sigma_xy_m, config.sigma_z_m, rp, rp, config.sigma_yaw_deg])
 
 

@@ -32,7 +32,8 @@ class LocalizationResult:
     minus the best cell more than 2 grid steps away), ``spread_m`` / ``spread_deg`` (weighted spread of
     the final particles), ``building_iou`` (building-vs-rest overlap at the final pose),
     ``hypothesis_margin`` (final score of the winner minus the best other refined hypothesis),
-    ``building_fraction`` (share of building pixels in the query), ``probability`` (the calibrated
+    ``building_fraction`` (share of building pixels in the query), ``prior_distance`` (sigmas of the
+    prior's uncertainty between the pose and the prior, x/y/z/yaw), ``probability`` (the calibrated
     probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume searched, its
     extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores, best first.
     ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never a result).
