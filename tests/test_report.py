@@ -152,7 +152,8 @@ def two_runs(tmp_path_factory):
 
 def test_report_from_two_real_runs(two_runs, tmp_path):
     report = make_report([o.out_dir for o in two_runs], tmp_path / "report", overlays=2)
-    assert set(report.tables) == {"main"} and len(report.notes) == 3  # the runs differ only in the method
+    # the runs differ only in the method; both have calibrated probabilities: an acceptance table
+    assert set(report.tables) == {"main", "acceptance"} and len(report.notes) == 3
     main = read_csv(report.tables["main"][1])
     assert [r["method"] for r in main] == ["semcityloc", "no-refine"]
     for row, outcome in zip(main, two_runs, strict=True):
@@ -160,9 +161,19 @@ def test_report_from_two_real_runs(two_runs, tmp_path):
         for key in ("recall_2m2deg", "recall_5m5deg", "queries", "localized"):
             assert float(row[key]) == float(s[key])
     names = sorted(p.name for p in report.plots)
-    assert {"cumulative_translation.png", "cumulative_rotation.png", "recall_vs_prior_noise.png"} <= set(
-        names
-    )
+    assert {
+        "cumulative_translation.png",
+        "cumulative_rotation.png",
+        "recall_vs_prior_noise.png",
+        "risk_coverage.png",
+    } <= set(names)
+    acceptance = read_csv(report.tables["acceptance"][1])
+    assert [r["run"] for r in acceptance] == ["semcityloc", "no-refine"]
+    for row, outcome in zip(acceptance, two_runs, strict=True):
+        probs = [float(r["probability"]) for r in outcome.rows if r["probability"]]
+        assert int(row["poses"]) == len(probs) == 2  # every query found a pose with a probability
+        assert float(row["cov_0.3"]) == pytest.approx(sum(p >= 0.3 for p in probs) / 2)
+        assert 0.0 <= float(row["ece"]) <= 1.0
     queries = [n for n in names if n.startswith("query_")]
     assert queries == ["query_00_full_q0000.png", "query_00_full_q0001.png", "query_01_ablation_q0000.png"]
     for png in report.plots:

@@ -42,6 +42,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_image, scaled_size
+from semcityloc.localization.confidence import calibration_error, risk_coverage
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
@@ -550,6 +551,72 @@ class ReportOutput:
     notes: list[str]
 
 
+ACCEPT_THRESHOLDS = (0.3, 0.5, 0.7, 0.9)
+RIGHT_M, RIGHT_DEG = 5.0, 5.0  # "right" for the acceptance: the calibrated probability's own event
+
+
+def _acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
+    """(probability, right) of the queries with a found pose and a calibrated probability, or None."""
+    p, right = [], []
+    for row in run.rows:
+        prob, e_m, e_deg = (row.get(k, "") for k in ("probability", "found_err_xyz_m", "found_err_rot_deg"))
+        if not (prob and e_m and e_deg):
+            continue
+        try:
+            prob_f, e_m_f, e_deg_f = float(prob), float(e_m), float(e_deg)
+        except ValueError:
+            continue
+        if np.isfinite(prob_f) and np.isfinite(e_m_f) and np.isfinite(e_deg_f):
+            p.append(prob_f)
+            right.append(e_m_f <= RIGHT_M and e_deg_f <= RIGHT_DEG)
+    return (np.array(p), np.array(right, dtype=float)) if p else None
+
+
+def risk_coverage_table(runs: list[RunData]) -> tuple[str, str]:
+    """Per run: coverage and precision (found pose within 5 m / 5 deg) when accepting at each threshold,
+    and the expected calibration error of the probability."""
+    headers = ["run", "poses", "right %", "ECE"] + [
+        f"p ≥ {t}: coverage / precision %" for t in ACCEPT_THRESHOLDS
+    ]
+    rows, csv_rows = (
+        [],
+        [["run", "poses", "right", "ece"] + [f"{k}_{t}" for t in ACCEPT_THRESHOLDS for k in ("cov", "prec")]],
+    )
+    for run in runs:
+        p, y = _acceptance_data(run)
+        cells, values = [], []
+        for t in ACCEPT_THRESHOLDS:
+            acc = p >= t
+            prec = float(y[acc].mean()) if acc.any() else float("nan")
+            cells.append(f"{100 * acc.mean():.0f} / {_num(100 * prec)}")
+            values += [float(acc.mean()), prec]
+        ece = calibration_error(p, y)
+        rows.append([run.label, str(len(p)), f"{100 * y.mean():.0f}", f"{ece:.3f}"] + cells)
+        csv_rows.append([run.label, len(p), float(y.mean()), ece] + values)
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(csv_rows)
+    return markdown_table(headers, rows), buf.getvalue()
+
+
+def plot_risk_coverage(runs: list[RunData], path: Path) -> Path:
+    """Precision of the accepted poses against the share accepted, as the threshold falls."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for run in runs:
+        p, y = _acceptance_data(run)
+        curve = risk_coverage(p, y)
+        ax.plot([c for _, c, _ in curve], [100 * pr for _, _, pr in curve], label=run.label)
+    ax.set_xlabel("coverage (share of queries accepted)")
+    ax.set_ylabel("precision of accepted poses (%; within 5 m / 5°)")
+    ax.set_xlim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def _slug(text: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in text).strip("_")[:60] or "run"
 
@@ -615,6 +682,16 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
         plot_recall_vs_prior(runs, out / "plots" / "recall_vs_prior_noise.png"),
     ]
     plots += sweep_plots
+    acceptance = [r for r in runs if _acceptance_data(r) is not None]
+    if acceptance:
+        md, csv_text = risk_coverage_table(acceptance)
+        md_path, csv_path = out / "tables" / "acceptance.md", out / "tables" / "acceptance.csv"
+        title = "Acceptance: coverage and precision by probability threshold"
+        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
+        csv_path.write_text(csv_text, encoding="utf-8")
+        tables["acceptance"] = (md_path, csv_path)
+        doc += [f"## {title}", "", md]
+        plots.append(plot_risk_coverage(acceptance, out / "plots" / "risk_coverage.png"))
     plots += _detail_figures(runs, out / "plots", overlays, notes)
     doc += ["## Figures", ""] + [f"![{p.stem}](plots/{p.name})" for p in plots]
     if notes:

@@ -49,7 +49,8 @@ COLUMNS: tuple[str, ...] = tuple(
     f"""query_id index status reason view height_m query_miou {_TRUE} {_EST} {_PRIOR}
     prior_err_m prior_rot_deg prior_yaw_err_deg err_xyz_m err_rot_deg err_yaw_deg
     coarse_err_xyz_m coarse_err_yaw_deg score semantic depth_cost score_margin spread_m spread_deg
-    building_iou coarse_hypotheses refine_evaluations t_coarse_s t_refine_s t_total_s meta_json""".split()
+    building_iou probability found_err_xyz_m found_err_rot_deg coarse_hypotheses refine_evaluations
+    t_coarse_s t_refine_s t_total_s meta_json""".split()
 )
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
 
@@ -97,6 +98,9 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
     prior_err = pose_errors(q.prior_pose_local, true) if true is not None else none
     coarse = result.coarse_pose_local
     coarse_err = pose_errors(coarse, true) if coarse is not None and true is not None else none
+    # The pose the search found, accepted or refused: what the acceptance's risk-coverage curve needs.
+    found = result.pose_local if result.pose_local is not None else result.rejected_pose_local
+    found_err = pose_errors(found, true) if found is not None and true is not None else none
     meta = dict(q.meta or {})
     conf, counts, timings = result.confidence or {}, result.counts or {}, result.timings or {}
     row: dict[str, Any] = {
@@ -125,6 +129,9 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "spread_m": conf.get("spread_m"),
         "spread_deg": conf.get("spread_deg"),
         "building_iou": conf.get("building_iou"),
+        "probability": conf.get("probability"),
+        "found_err_xyz_m": found_err[0],
+        "found_err_rot_deg": found_err[1],
         "coarse_hypotheses": counts.get("coarse_hypotheses"),
         "refine_evaluations": counts.get("refine_evaluations"),
         "t_coarse_s": timings.get("coarse_s"),
