@@ -275,3 +275,19 @@ def test_overlay_of_a_mask_with_ignore_pixels():
     q[:5] = 3
     rgb = overlay_image(q, None, None)  # no estimate, no true pose (a user's photo not localized)
     assert (rgb[9, 9] == 255).all() and not (rgb[0, 0] == 255).all()
+
+
+def test_report_reads_results_of_an_earlier_version(tmp_path):
+    """A run written before a column was added is still reported on (missing columns empty); resuming it
+    is refused."""
+    from semcityloc.benchmark.results import COLUMNS, parse_results
+
+    old = [c for c in COLUMNS if c not in ("probability", "found_err_xyz_m", "found_err_rot_deg")]
+    values = {c: "" for c in old} | {"query_id": "q0000", "index": "0", "status": "localized"}
+    data = (",".join(old) + "\n" + ",".join(values[c] for c in old) + "\n").encode()
+    (row,) = parse_results(data, tmp_path / "results.csv", strict=False)
+    assert row["status"] == "localized" and row["probability"] == "" and set(row) == set(COLUMNS)
+    with pytest.raises(BenchmarkError, match="columns differ"):
+        parse_results(data, tmp_path / "results.csv")
+    with pytest.raises(BenchmarkError, match="columns differ"):
+        parse_results(b"a,b\n1,2\n", tmp_path / "results.csv", strict=False)  # not a results file at all

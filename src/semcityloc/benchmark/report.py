@@ -91,7 +91,7 @@ def load_run(path: str | Path) -> RunData:
     except (OSError, ValueError) as exc:
         raise BenchmarkError(f"{run_file}: unreadable ({exc})") from exc
     results = path / RESULTS_FILE
-    rows = parse_results(results.read_bytes(), results) if results.is_file() else []
+    rows = parse_results(results.read_bytes(), results, strict=False) if results.is_file() else []
     complete = len(rows) == int(config.get("queries", -1))
     summary = summarize_rows(rows, config)  # from the rows: the same numbers as summary.json
     return RunData(path, config, rows, summary, complete, describe(config))

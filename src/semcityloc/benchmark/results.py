@@ -175,8 +175,10 @@ def read_results(path: Path) -> list[dict[str, str]]:
     return parse_results(data, path)
 
 
-def parse_results(data: bytes, path: Path | str = RESULTS_FILE) -> list[dict[str, str]]:
-    """Rows of the bytes of a ``results.csv`` (read-only; a torn last line is ignored)."""
+def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = True) -> list[dict[str, str]]:
+    """Rows of the bytes of a ``results.csv`` (read-only; a torn last line is ignored). ``strict``: the
+    columns must be this version's (a run to resume); else a file of an earlier version is read by its
+    own header, with this version's columns it lacks left empty (a run to report on)."""
     data = data[: data.rfind(b"\n") + 1]
     if not data:
         return []
@@ -185,17 +187,18 @@ def parse_results(data: bytes, path: Path | str = RESULTS_FILE) -> list[dict[str
     except UnicodeDecodeError as exc:
         raise BenchmarkError(f"{path}: not a results file of this runner ({exc}); use --overwrite") from exc
     reader = csv.reader(io.StringIO(text))
-    if tuple(next(reader)) != COLUMNS:
+    header = tuple(next(reader))
+    if header != COLUMNS and (strict or "query_id" not in header):
         raise BenchmarkError(
             f"{path}: its columns differ from this version's; use --overwrite or another --out"
         )
     rows: dict[str, dict[str, str]] = {}
     for n, values in enumerate(reader, start=2):
-        if len(values) != len(COLUMNS):
+        if len(values) != len(header):
             raise BenchmarkError(
-                f"{path}: line {n} has {len(values)} fields, not {len(COLUMNS)}; use --overwrite"
+                f"{path}: line {n} has {len(values)} fields, not {len(header)}; use --overwrite"
             )
-        row = dict(zip(COLUMNS, values, strict=True))
+        row = {c: "" for c in COLUMNS} | dict(zip(header, values, strict=True))
         rows.setdefault(row["query_id"], row)
     return list(rows.values())
 
