@@ -9,10 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from helpers import CAMERA, perturbed, view
 from semcityloc.errors import ParameterError
-from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.confidence import (
@@ -26,8 +25,6 @@ from semcityloc.localization.config import CascadeConfig, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, REASON_AT_EDGE, LocalizationResult
 from semcityloc.render import Renderer
-
-CAMERA = Camera.from_fov(512, 384, 70.0)
 
 
 @pytest.fixture(scope="module")
@@ -45,17 +42,6 @@ def renderer(city):
     return Renderer(city, engine="numba")
 
 
-def view(city, dx, dy, height, roll, pitch, yaw) -> Pose:
-    lo, hi = city.bounds_local
-    centre = 0.5 * (lo + hi)
-    return Pose.from_xyz_rpy([centre[0] + dx, centre[1] + dy, lo[2] + height], roll, pitch, yaw)
-
-
-def shifted(pose: Pose, dxyz, droll=0.0, dpitch=0.0, dyaw=0.0) -> Pose:
-    x, y, z, roll, pitch, yaw = pose.to_xyz_rpy()
-    return Pose.from_xyz_rpy(np.array([x, y, z]) + dxyz, roll + droll, pitch + dpitch, yaw + dyaw)
-
-
 def query(renderer, pose):
     out = renderer.render(CAMERA, pose, depth=True)
     return out.labels[0], 0.5 * out.depth[0] + 7.0
@@ -67,7 +53,7 @@ VIEWS = {"nadir": (10.0, -20.0, 80.0, 0.5, 1.0, 30.0), "oblique": (-30.0, 15.0, 
 @pytest.mark.parametrize("name", list(VIEWS))
 def test_roll_and_pitch_errors_of_2_5_deg_are_recovered(city, localizer, renderer, name):
     true = view(city, *VIEWS[name])
-    prior = shifted(true, [6.0, -5.0, 8.0], droll=2.5, dpitch=-2.5, dyaw=4.0)
+    prior = perturbed(true, [6.0, -5.0, 8.0], droll=2.5, dpitch=-2.5, dyaw=4.0)
     labels, depth = query(renderer, true)
     result = localizer.localize(CAMERA, prior, labels, depth)
     assert result.status == LOCALIZED, result.reason
@@ -80,7 +66,7 @@ def test_roll_and_pitch_errors_of_2_5_deg_are_recovered(city, localizer, rendere
 
 def test_a_prior_25m_too_high_is_recovered_with_default_settings(city, localizer, renderer):
     true = view(city, *VIEWS["oblique"])
-    prior = shifted(true, [3.0, 4.0, 25.0], dyaw=-3.0)
+    prior = perturbed(true, [3.0, 4.0, 25.0], dyaw=-3.0)
     labels, depth = query(renderer, true)
     result = localizer.localize(CAMERA, prior, labels, depth)
     assert result.status == LOCALIZED, result.reason
@@ -93,7 +79,7 @@ def test_best_on_the_edge_extends_the_volume_toward_it(city, localizer, renderer
     """The prior is 13 m off in x but states a 3 m sigma (+-9 m searched): the sweep grows toward the
     truth instead of returning the edge."""
     true = view(city, *VIEWS["nadir"])
-    prior = shifted(true, [13.0, 0.0, 0.0])
+    prior = perturbed(true, [13.0, 0.0, 0.0])
     labels, depth = query(renderer, true)
     unc = PriorUncertainty(xy_m=3.0, z_m=3.0)
     result = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=unc)
@@ -106,7 +92,7 @@ def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
     """A prior 25 m too high that claims a 2 m height sigma: the volume may grow to +-12 m only; the
     best cell stays on its lower face, and the answer is a refusal naming the edge, not a pose 13 m off."""
     true = view(city, *VIEWS["oblique"])
-    prior = shifted(true, [0.0, 0.0, 25.0])
+    prior = perturbed(true, [0.0, 0.0, 25.0])
     labels, depth = query(renderer, true)
     unc = PriorUncertainty(z_m=2.0)
     result = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=unc)
@@ -159,7 +145,7 @@ def test_legacy_preset_runs_the_first_design(city, renderer):
     legacy = Localizer(city, LocalizerConfig.preset("legacy"))
     true = view(city, *VIEWS["nadir"])
     labels, depth = query(renderer, true)
-    result = legacy.localize(CAMERA, shifted(true, [5.0, -5.0, 2.0], dyaw=3.0), labels, depth)
+    result = legacy.localize(CAMERA, perturbed(true, [5.0, -5.0, 2.0], dyaw=3.0), labels, depth)
     assert result.search["search"] == "grid"
     assert result.counts["coarse_hypotheses"] == LocalizerConfig.preset("legacy").coarse.hypotheses
     assert result.status == LOCALIZED and center_error_m(result.pose_local, true) < 1.0
@@ -245,7 +231,7 @@ def test_calibrated_acceptance_refuses_a_look_alike_that_thresholds_would_pass(c
 def test_acceptance_probability_is_a_config_knob(city, localizer, renderer):
     true = view(city, *VIEWS["nadir"])
     labels, depth = query(renderer, true)
-    prior = shifted(true, [4.0, -3.0, 6.0], dyaw=2.0)
+    prior = perturbed(true, [4.0, -3.0, 6.0], dyaw=2.0)
     strict = localizer.localize(
         CAMERA, prior, labels, depth, config=replace(localizer.config, min_confidence=1.0)
     )

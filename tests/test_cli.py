@@ -134,6 +134,41 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
     for key in ("position", "roll", "pitch", "yaw", "crs", "world_from_cam", "frame"):
         assert pose["extra"][key] == pose[key], key
     assert (tmp_path / "loc" / "overlay.png").exists()
+    assert pose["extra"]["confidence"]["probability"] >= 0.5
+    assert pose["extra"]["search"]["prior_uncertainty"]["z_m"] == 10.0  # the default
+    # The stated uncertainty reaches the search: a prior 25 m too high with z sigma 2 m is refused at
+    # the edge of its volume, not returned 13 m off.
+    code, out, _ = run(
+        capsys,
+        "localize",
+        "--city",
+        city_paths[2],
+        "--intrinsics",
+        intr,
+        "--prior",
+        f"{x},{y},{z + 25.0},1.0,35.0,120.0",
+        "--semantic",
+        tmp_path / "r" / "labels.png",
+        "--prior-sigma",
+        "z=2",
+        "--out",
+        tmp_path / "edge",
+        "--no-cache",
+    )
+    refused = json.loads((tmp_path / "edge" / "pose.json").read_text())
+    assert code == 1 and refused["status"] == "not_localized", out
+    assert "edge of the search volume" in refused["reason"]
+    assert refused["search"]["prior_uncertainty"]["z_m"] == 2.0
+
+
+def test_bad_prior_sigma_is_one_line_exit_2(tmp_path, capsys):
+    code, out, err = run(
+        capsys,
+        *f"localize --city generated --intrinsics x --prior y --semantic m.png --out {tmp_path}".split(),
+        "--prior-sigma",
+        "z=lots",
+    )
+    assert code == 2 and "prior uncertainty" in err and len(err.strip().splitlines()) == 1
 
 
 def _edge_strength(image: np.ndarray, overlay_dir) -> float:

@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from helpers import CAMERA, perturbed, view
 from semcityloc.errors import ParameterError, PoseError, ShapeError
-from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -24,8 +24,6 @@ from semcityloc.localization.result import (
 from semcityloc.localization.scoring import depth_cost, semantic_score
 from semcityloc.render import Renderer
 
-CAMERA = Camera.from_fov(512, 384, 70.0)
-
 
 @pytest.fixture(scope="module")
 def city(generated_lod2):
@@ -40,17 +38,6 @@ def localizer(city):
 @pytest.fixture(scope="module")
 def renderer(city):
     return Renderer(city, engine="numba")
-
-
-def view(city, dx, dy, height, roll, pitch, yaw) -> Pose:
-    lo, hi = city.bounds_local
-    centre = 0.5 * (lo + hi)
-    return Pose.from_xyz_rpy([centre[0] + dx, centre[1] + dy, lo[2] + height], roll, pitch, yaw)
-
-
-def perturbed(pose: Pose, dxyz, droll, dpitch, dyaw) -> Pose:
-    x, y, z, roll, pitch, yaw = pose.to_xyz_rpy()
-    return Pose.from_xyz_rpy(np.array([x, y, z]) + dxyz, roll + droll, pitch + dpitch, yaw + dyaw)
 
 
 # A nadir and an oblique view; priors 10 m and 5 degrees of yaw off (plus 0.5 degrees roll/pitch).

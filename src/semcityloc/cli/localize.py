@@ -135,8 +135,8 @@ def _query_inputs(args, camera):
 
 
 def run(args: argparse.Namespace) -> int:
-    _check_files(args)
     uncertainty = PriorUncertainty.parse(args.prior_sigma) if args.prior_sigma else None
+    _check_files(args)
     model = load_model_from_args(args)
     camera = _camera(args)
     prior_world = read_pose(args.prior)  # the model's CRS
