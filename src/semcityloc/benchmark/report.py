@@ -379,8 +379,13 @@ def plot_cumulative(runs: list[RunData], column: str, xlabel: str, path: Path, x
     ax.set_ylim(0, 100)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("queries with error ≤ x (%)")
+    return _save_figure(plt, fig, ax, path, legend_loc="lower right")
+
+
+def _save_figure(plt, fig, ax, path: Path, legend_loc: str = "best") -> Path:
+    """Grid, legend, tight layout, PNG at 120 dpi; the figure is closed."""
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc=legend_loc)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -420,12 +425,7 @@ def plot_recall_lines(groups: dict[str, list[RunData]], x_of, xlabel: str, path:
     ax.set_xlabel(xlabel)
     ax.set_ylabel("recall (%)")
     ax.set_ylim(0, 100)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save_figure(plt, fig, ax, path)
 
 
 def plot_recall_vs_sweep(runs: list[RunData], knob: str, path: Path) -> Path:
@@ -609,12 +609,7 @@ def plot_risk_coverage(runs: list[RunData], path: Path) -> Path:
     ax.set_xlabel("coverage (share of queries accepted)")
     ax.set_ylabel("precision of accepted poses (%; within 5 m / 5°)")
     ax.set_xlim(0, 1)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save_figure(plt, fig, ax, path)
 
 
 def _slug(text: str) -> str:

@@ -15,7 +15,7 @@ sized for a smaller error gives a confident wrong pose at its edge. So:
 3. **Local** (``local_search``): around the sweep's best distinct cells (greedy non-maximum suppression
    on the lattice), a small grid at a finer resolution that also samples roll and pitch (one wide render
    per centre again; a roll/pitch/yaw hypothesis is a rotation about the centre, read through the lookup
-   table). The best distinct hypotheses go to the refinement, each on its own.
+   table). The best distinct hypotheses seed the refinement (one particle filter over all of them).
 
 Hypothesis states are ``(x, y, z, roll, pitch, yaw)`` in the model's local frame, degrees.
 """

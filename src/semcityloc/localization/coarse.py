@@ -1,10 +1,11 @@
 """Coarse pose selection: a 4D (x, y, z, yaw) semantic cost volume around the prior (paper Sec. 3.1).
 
-Roll and pitch stay at the prior's (gravity). The hypotheses are a uniform grid: along each axis
-``n`` samples from ``prior - range/2`` to ``prior + range/2``. Hypotheses sharing a camera centre differ
-only by a rotation about world z through that centre, so each centre is rendered once, at a wider field
-of view, and every yaw reads its pixels through a lookup table (``yaw_lookup``): a pure rotation maps
-rays to rays, independent of the scene.
+``score_rotations`` is the shared primitive: hypotheses sharing a camera centre differ only by a rotation
+about it, so each centre is rendered once, at a wider field of view, and every rotation reads its pixels
+through a lookup table (``rotation_lookup``; ``yaw_lookup`` for a fan of yaws): a pure rotation maps rays
+to rays, independent of the scene. The cascade search (``cascade.py``) and the first design's uniform
+grid (``coarse_search``: along each axis ``n`` samples from ``prior - range/2`` to ``prior + range/2``,
+roll and pitch at the prior's) both score through it.
 """
 
 from __future__ import annotations

@@ -165,6 +165,17 @@ def coarse_scores(
 
 
 @njit(cache=True, inline="always")
+def _depth_at(query, query_depth, tri_id, p):
+    """The query depth of pixel p where the depth cost uses it (a labelled, non-background query pixel
+    with a rendered surface and a positive query depth), else 0."""
+    q = query[p]
+    if q == IGNORE or q == 0 or tri_id[p] < 0:
+        return 0.0
+    dq = query_depth[p]
+    return dq if dq > 0.0 else 0.0
+
+
+@njit(cache=True, inline="always")
 def _depth_cost_affine(query, query_depth, tri_id, inv_z, npx, min_depth_pixels, invalid_cost):
     """Global least-squares scale/shift, then mean relative residual (the paper's C_d)."""
     n = 0.0
@@ -173,10 +184,7 @@ def _depth_cost_affine(query, query_depth, tri_id, inv_z, npx, min_depth_pixels,
     sqq = 0.0
     sqr = 0.0
     for p in range(npx):
-        q = query[p]
-        if q == IGNORE or q == 0 or tri_id[p] < 0:
-            continue
-        dq = query_depth[p]
+        dq = _depth_at(query, query_depth, tri_id, p)
         if dq > 0.0:
             dr = 1.0 / inv_z[p]
             n += 1.0
@@ -193,10 +201,7 @@ def _depth_cost_affine(query, query_depth, tri_id, inv_z, npx, min_depth_pixels,
         return invalid_cost
     acc = 0.0
     for p in range(npx):
-        q = query[p]
-        if q == IGNORE or q == 0 or tri_id[p] < 0:
-            continue
-        dq = query_depth[p]
+        dq = _depth_at(query, query_depth, tri_id, p)
         if dq > 0.0:
             dr = 1.0 / inv_z[p]
             acc += abs(s * dq + t - dr) / dr
@@ -216,10 +221,7 @@ def _depth_cost_robust(query, query_depth, tri_id, inv_z, npx, cap, min_depth_pi
     sa = 0.0
     sb = 0.0
     for p in range(npx):
-        q = query[p]
-        if q == IGNORE or q == 0 or tri_id[p] < 0:
-            continue
-        dq = query_depth[p]
+        dq = _depth_at(query, query_depth, tri_id, p)
         if dq > 0.0:
             b = inv_z[p]  # 1 / dr
             a = dq * b
@@ -238,10 +240,7 @@ def _depth_cost_robust(query, query_depth, tri_id, inv_z, npx, cap, min_depth_pi
         return invalid_cost
     acc = 0.0
     for p in range(npx):
-        q = query[p]
-        if q == IGNORE or q == 0 or tri_id[p] < 0:
-            continue
-        dq = query_depth[p]
+        dq = _depth_at(query, query_depth, tri_id, p)
         if dq > 0.0:
             e = abs((s * dq + t) * inv_z[p] - 1.0)
             acc += e if e < cap else cap

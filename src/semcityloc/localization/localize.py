@@ -119,15 +119,13 @@ class Localizer:
         if not self._geometry_near(camera, prior_local, cfg, unc):
             return self._finish(result, REASON_NO_GEOMETRY, t0)
         if cfg.search == "grid":
-            self._localize_grid(result, camera, query, prior_state, cfg)
+            fine = self._localize_grid(result, camera, query, prior_state, cfg)
         else:
-            self._localize_cascade(result, camera, query, prior_state, cfg, unc)
+            fine = self._localize_cascade(result, camera, query, prior_state, cfg, unc)
         if result.reason is not None:
             return self._finish(result, result.reason, t0)
 
-        fine_cam = self._fine_camera(camera, cfg)
-        q_fine, _ = query.at(fine_cam.width, fine_cam.height)
-        result.confidence["building_iou"] = self._building_iou(fine_cam, result.pose_local, q_fine)
+        result.confidence["building_iou"] = self._building_iou(fine.camera, result.pose_local, fine.labels)
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         with_depth = query.depth is not None
@@ -145,14 +143,9 @@ class Localizer:
         return self._finish(result, None, t0)
 
     # ------------------------------------------------------------------ searches
-    def _fine_camera(self, camera: Camera, cfg: LocalizerConfig) -> Camera:
-        if cfg.search == "grid":
-            w = cfg.coarse.width
-        else:
-            w = cfg.cascade.local.width
-        return _scaled(camera, w).scale(cfg.refine.scale)
-
-    def _localize_grid(self, result, camera, query, prior_state, cfg) -> None:
+    # Each search fills ``result`` and returns the fine scoring level (camera and query at the refinement's
+    # resolution), which the acceptance reuses.
+    def _localize_grid(self, result, camera, query, prior_state, cfg) -> ScoringLevel:
         """The first design: one 4D grid (optionally re-centred by a pre-stage), one particle filter."""
         c = cfg.coarse
         coarse_cam = _scaled(camera, c.width)
@@ -183,9 +176,11 @@ class Localizer:
             result.timings["coarse_s"] = time.perf_counter() - t_prep
         levels = [ScoringLevel(coarse_cam, q_coarse, d_coarse), ScoringLevel(fine_cam, q_fine, d_fine)]
         self._refine(result, levels, seeds, cfg, initial_sigma(cfg.refine, 0.3))
+        return levels[-1]
 
-    def _localize_cascade(self, result, camera, query, prior_state, cfg, unc) -> None:
-        """The default: sweep, local grids with roll/pitch, each distinct hypothesis refined on its own."""
+    def _localize_cascade(self, result, camera, query, prior_state, cfg, unc) -> ScoringLevel:
+        """The default: sweep, local grids with roll/pitch, one particle filter over the best distinct
+        hypotheses, a polish."""
         cc = cfg.cascade
         local_cam = _scaled(camera, cc.local.width)
         fine_cam = local_cam.scale(cfg.refine.scale)
@@ -202,7 +197,7 @@ class Localizer:
         if cfg.no_coarse:
             result.timings["coarse_s"] = 0.0
             self._refine(result, levels, prior_state[None, :], cfg, sigma, prior=prior)
-            return
+            return levels[-1]
         volume = search_volume(prior_state, unc, cc)
         sweep_cam = _scaled(camera, cc.sweep.width)
         q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
@@ -221,7 +216,7 @@ class Localizer:
             result.timings["coarse_s"] = time.perf_counter() - t_prep
             result.rejected_pose_local = result.coarse_pose_local
             result.reason = REASON_AT_EDGE
-            return
+            return levels[-1]
         seeds = [sw.state(c) for c in sw.top_distinct(cc.sweep.keep, cc.sweep.nms_radius)]
         hyps = local_search(
             self.scene, local_cam, seeds, sw.step, unc.roll_pitch_deg, q_local, self.class_on, cc.local
@@ -237,6 +232,7 @@ class Localizer:
             float(hyps.scores[0] - hyps.scores[1]) if len(hyps.scores) > 1 else float("nan")
         )
         self._refine(result, levels, hyps.states, cfg, sigma, prior=prior)
+        return levels[-1]
 
     def _refine(self, result, levels, seeds: np.ndarray, cfg: LocalizerConfig, sigma, prior=None) -> None:
         """One particle filter seeded by ``seeds`` ((k, 6), best first); ``no_refine`` keeps the first
