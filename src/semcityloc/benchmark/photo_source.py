@@ -41,9 +41,9 @@ from semcityloc import __version__
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, plain, write_json_atomic
-from semcityloc.benchmark.spec import check_run_options, resolve_city
-from semcityloc.citymodel.io import file_sha256, load_city_model
+from semcityloc.benchmark.spec import check_run_options, open_tile_store, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.citymodel.tiles import TileStore, city_sha256, load_city
 from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.datasets.photos import (
@@ -157,7 +157,7 @@ class PhotoSpec:
 
     def load_model(self) -> CityModel:
         lod = int(self.lod) if self.lod is not None and str(self.lod).isdigit() else self.lod
-        return load_city_model(resolve_city(self.city), lod=lod, crs=self.crs, cache=self.cache)
+        return load_city(resolve_city(self.city), lod=lod, crs=self.crs, cache=self.cache)
 
     def resolved(self) -> tuple[CityModel, list[PhotoInput], dict[str, str]]:
         """(model, the photos that can run, ``{name: why not}`` of the others), computed once."""
@@ -177,7 +177,7 @@ class PhotoSpec:
                 "images": str(Path(self.images).resolve()),
                 "city": str(self.city),
                 "city_path": str(city),
-                "city_sha256": file_sha256(city),
+                "city_sha256": city_sha256(city),
                 "lod": self.lod,
                 "crs": self.crs,
                 "model_crs": crs_label(model.crs),
@@ -209,6 +209,7 @@ class PhotoSpec:
     def open_source(self, config: dict) -> PhotoSource:
         model, inputs, _ = self.resolved()
         source = PhotoSource(self, model, inputs)
+        source.tile_store = open_tile_store(resolve_city(self.city), None)
         source.backends()  # weights missing or wrong: said now, before the first photo
         return source
 
@@ -287,6 +288,7 @@ class PhotoSource:
     def __init__(self, spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput]):
         self.spec = spec
         self.map_model = model
+        self.tile_store: TileStore | None = None  # a store's parts per photo (``localization.tiled``)
         self.inputs = inputs
         self._backends: tuple[Any, Any] | None = None
         self._renderer: Renderer | None = None

@@ -9,7 +9,9 @@ A spec is a typed object (``benchmark.spec.BenchmarkSpec`` for simulated runs,
 ``benchmark.dataset_source.DatasetSpec`` for data sets) with ``method``, ``preset``, ``keep_details``,
 ``label``, ``localizer_config()``, ``run_config()`` (the ``run.json`` dict), ``open_source(config)`` and
 ``finish(out, rows, summary)``.
-Workers get the spec and the source (with its models) once, never a dict to read settings back from.
+Workers get the spec and the source (with its models) once, never a dict to read settings back from. A
+source with a ``tile_store`` (a ``--city`` tile store) gets a ``localization.tiled.TiledMethod``: each query
+loads the parts of the city it can see.
 
 Numbers do not depend on ``workers``: every query is made from ``(seed, index)`` alone and the localizer
 seeds its own generator per query.
@@ -50,6 +52,7 @@ from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
+from semcityloc.localization.tiled import TiledMethod
 
 
 class RunSpec(Protocol):
@@ -84,7 +87,11 @@ class _Worker:
 
     def __init__(self, spec: RunSpec, source: QuerySource, out_dir: Path):
         self.source = source
-        self.method = get_method(spec.method, source.map_model, spec.localizer_config())
+        store = getattr(source, "tile_store", None)
+        if store is not None:  # the parts of the store each query can see (localization.tiled)
+            self.method = TiledMethod(spec.method, store, spec.localizer_config())
+        else:
+            self.method = get_method(spec.method, source.map_model, spec.localizer_config())
         source.prepare(self.method)
         self.origin = source.map_model.origin
         self.out_dir = out_dir
