@@ -12,7 +12,7 @@ from lxml import etree
 
 from conftest import shared_file
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator, zenmuse_l2_camera
-from semcityloc.benchmark.results import TIMING_COLUMNS, make_row
+from semcityloc.benchmark.results import TIMING_COLUMNS, make_row, read_results
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.tiles import TileCache, TileStore, build_store, load_city, model_nbytes
@@ -199,6 +199,25 @@ def test_mixed_formats_one_origin_and_the_cli(tmp_path, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["buildings"] == len(single.building_ids) + 1
     assert load_city(tmp_path / "store").num_triangles == single.num_triangles + 12
+
+
+@pytest.mark.slow
+def test_benchmark_on_a_store_loads_per_query(tmp_path, capsys):
+    """``semcityloc benchmark --city STORE``: the simulator sees the whole city, the localizer its part."""
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    gml = generate_city(tmp_path / "gen", seed=0, lods=(2,))[2]
+    (tiles / "a.gml").write_bytes(gml.read_bytes())
+    far = load_city_model(gml, cache=False).origin + [600.0, 0.0, 0.0]
+    _cityjson_box(tiles / "b.json", 25832, far[0], far[1])
+    store = tmp_path / "store"
+    assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 0
+    out = tmp_path / "run"
+    args = ["benchmark", "--city", str(store), "--queries", "2", "--preset", "fast", "--out", str(out)]
+    assert main(args) == 0
+    rows = read_results(out / "results.csv")
+    assert len(rows) == 2 and all(r["status"] in ("localized", "not_localized") for r in rows)
+    assert json.loads((out / "run.json").read_text())["city_sha256"] == TileStore.open(store).sha256
 
 
 def test_tiles_in_different_crss_are_refused(tmp_path):

@@ -31,6 +31,7 @@ import numba
 
 import semcityloc.baselines  # noqa: F401  (registers the baselines' methods)
 from semcityloc.benchmark.queries import query_id
+from semcityloc.benchmark.ray_executor import import_ray, run_ray
 from semcityloc.benchmark.results import (
     append_row,
     make_row,
@@ -49,10 +50,12 @@ from semcityloc.benchmark.runfiles import (
 )
 from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, unknown_choice
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
 from semcityloc.localization.tiled import TiledMethod
+
+EXECUTORS = ("local", "ray")  # where queries run: this process / a process pool, or Ray
 
 
 class RunSpec(Protocol):
@@ -132,6 +135,8 @@ def run_queries(
     limit: int | None = None,
     progress: bool | TextIO = True,
     config: dict | None = None,
+    executor: str = "local",
+    ray_address: str | None = None,
 ) -> BenchmarkOutcome:
     """Run (or resume) ``spec`` over ``source`` into ``out_dir`` (``benchmark.runfiles`` has the files).
 
@@ -143,10 +148,17 @@ def run_queries(
         limit: process at most this many new queries in this call, then stop (a later call resumes).
         progress: True for the bar on stderr, False for none, or a stream.
         config: ``spec.run_config()`` when the caller has it already.
+        executor: ``local`` (this process, or a process pool for ``workers > 1``) or ``ray``
+            (``benchmark.ray_executor``: a local Ray runtime of ``workers`` CPUs, or the cluster at
+            ``ray_address``).
     """
     workers = int(workers)
     if workers < 1:
         raise BenchmarkError(f"workers must be >= 1, got {workers}")
+    if executor not in EXECUTORS:
+        raise unknown_choice("executor", executor, EXECUTORS, BenchmarkError)
+    if executor == "ray":
+        import_ray()  # missing: the install hint now, before any file is written
     if limit is not None and int(limit) < 0:
         raise BenchmarkError(f"limit must be >= 0, got {limit}")
     out = Path(out_dir)
@@ -169,7 +181,9 @@ def run_queries(
         ensure_compiled(kernel_groups(spec.method), stream)
         source = source if source is not None else spec.open_source(config)
         bar = Progress(total, len(done), stream, label=spec.label) if progress is not False else None
-        if workers == 1 or len(todo) == 1:
+        if executor == "ray":
+            finished = run_ray(todo, workers, _Worker, (spec, source, out), ray_address)
+        elif workers == 1 or len(todo) == 1:
             finished = _run_serial(todo, (spec, source, out))
         else:
             finished = _run_pool(todo, workers, (spec, source, out))
@@ -200,9 +214,13 @@ def run_benchmark(
     overwrite: bool = False,
     limit: int | None = None,
     progress: bool | TextIO = True,
+    executor: str = "local",
+    ray_address: str | None = None,
 ) -> BenchmarkOutcome:
     """Run (or resume) the benchmark of ``spec`` (simulated or data set) into ``out_dir``."""
-    return run_queries(None, spec, out_dir, workers, overwrite, limit, progress)
+    return run_queries(
+        None, spec, out_dir, workers, overwrite, limit, progress, executor=executor, ray_address=ray_address
+    )
 
 
 def _run_serial(todo: list[int], worker_args: tuple) -> Iterator[dict[str, str]]:
