@@ -322,6 +322,26 @@ class TileStore:
         """The tiles holding a building within ``radius_m`` of local point ``xy`` (store order)."""
         return tuple(int(t) for t in np.unique(self.tile_of[self.buildings_within(xy, radius_m)]))
 
+    def tiles_around(self, xy: np.ndarray, radius_m: float) -> tuple[int, ...]:
+        """The tiles holding a building within ``radius_m`` of any of the local points ``xy`` (N, 2)."""
+        points = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        return tuple(sorted({t for p in points for t in self.tiles_within(p, radius_m)}))
+
+    def frame(self) -> CityModel:
+        """A model without buildings in the store's frame (origin, CRS): for what needs only the frame."""
+        return CityModel(
+            origin=self.origin.copy(),
+            vertices=np.zeros((0, 3), np.float32),
+            triangles=np.zeros((0, 3), np.int32),
+            classes=np.zeros(0, np.uint8),
+            building_index=np.zeros(0, np.int32),
+            lods=np.zeros(0, np.uint8),
+            building_ids=[],
+            crs=self.crs,
+            source_crs=self.crs,
+            source=str(self.root),
+        )
+
     def tiles_near(self, xy: Sequence[float]) -> tuple[int, ...]:
         """The tile of the building nearest to local point ``xy``."""
         nearest = self.tree.nearest(shapely.Point(float(xy[0]), float(xy[1])))

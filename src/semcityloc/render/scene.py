@@ -2,8 +2,8 @@
 
 Built once per ``CityModel`` (``build_scene``):
 
-- building bottoms (GroundSurface triangles, see ``terrain.building_bottom_mask``) are dropped: they are
-  never visible from the air and cost 15-20% of the raster time;
+- building bottoms (GroundSurface triangles, see ``citymodel.ground.building_bottom_mask``) are dropped:
+  they are never visible from the air and cost 15-20% of the raster time;
 - a terrain TIN of class GROUND is added (``terrain.build_terrain``) unless ``ground=False``, without
   the triangles hidden under building footprints;
 - triangles are grouped into square ground tiles of ``tile_size_m`` (by their centroid) and the tiles
