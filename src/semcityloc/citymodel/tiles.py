@@ -126,7 +126,8 @@ def build_store(
     folder, root = Path(folder), Path(out)
     if not folder.is_dir():
         raise InputFileError(f"{folder}: no such folder of tiles")
-    files = tile_files(folder)
+    inside = root.resolve()
+    files = [f for f in tile_files(folder) if inside not in f.resolve().parents]  # not an old store's files
     if not files:
         raise InputFileError(f"{folder}: no CityGML or CityJSON files in it")
     say = progress or (lambda _msg: None)

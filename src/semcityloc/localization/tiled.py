@@ -9,7 +9,8 @@ renderer triangulates through the building bases is the same in view as with the
 ring is the whole city's too: ``TileStore.terrain_ring``; baselines get their part's own). The tiles
 holding a building within that disc (``TileStore.tiles_within``) are merged into one model in the store's
 local frame and the method is built on it; the last ``keep_models`` tile sets keep their method (and
-render scene), so the photos of a flight over one area build it once. Tiles come through the store's LRU
+render scene), and a query whose tiles are all in a kept set uses it (the extra tiles lie beyond its
+reach), so the photos of a flight over one area build it once. Tiles come through the store's LRU
 (``TileStore.cache``, a byte budget).
 
 The queries are in the store's local frame (``TileStore.origin``), as they would be in a single file's.
@@ -79,7 +80,7 @@ class TiledMethod:
         store: TileStore,
         config: LocalizerConfig | None = None,
         camera_range_m: float = MAX_VIEW_RANGE_M,
-        keep_models: int = 1,
+        keep_models: int = 2,
     ):
         if not (math.isfinite(camera_range_m) and camera_range_m > 0):
             raise ParameterError(f"camera_range_m must be a positive number of metres, got {camera_range_m}")
@@ -91,7 +92,8 @@ class TiledMethod:
         self.camera_range_m = float(camera_range_m)
         self.keep_models = int(keep_models)
         self._methods: OrderedDict[tuple[int, ...], Method] = OrderedDict()
-        self.last_tiles: tuple[int, ...] = ()
+        self.last_tiles: tuple[int, ...] = ()  # the tiles the last query needed
+        self.used_tiles: tuple[int, ...] = ()  # the tile set its method was built on (holds them)
 
     def tiles_for(self, camera: Camera, prior_local: Pose, uncertainty: PriorUncertainty) -> tuple[int, ...]:
         """The tiles a search from ``prior_local`` can see; the nearest building's tile when none is in
@@ -104,10 +106,13 @@ class TiledMethod:
         return self.store.tiles_within(xy, radius) or self.store.tiles_near(xy)
 
     def method_for(self, tiles: tuple[int, ...]) -> Method:
-        """The method built on ``tiles`` merged (kept for the next ``keep_models`` tile sets)."""
-        if tiles in self._methods:
-            self._methods.move_to_end(tiles)
-            return self._methods[tiles]
+        """The method built on ``tiles`` merged, or on a kept tile set that holds them all (the last
+        ``keep_models`` sets are kept: a flight's next photo usually needs the same tiles or fewer)."""
+        for kept in reversed(self._methods):
+            if set(tiles) <= set(kept):
+                self._methods.move_to_end(kept)
+                self.used_tiles = kept
+                return self._methods[kept]
         while len(self._methods) >= self.keep_models:
             self._methods.popitem(last=False)
         model = self.store.load(tiles)
@@ -117,6 +122,7 @@ class TiledMethod:
         else:
             method = get_method(self.name, model, self.config)
         self._methods[tiles] = method
+        self.used_tiles = tiles
         return method
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
