@@ -101,7 +101,7 @@ def run_ray(
 
 
 def _schedule(ray, todo, workers, make_worker, worker_args) -> Iterator[dict[str, str]]:
-    threads = max(1, int(ray.available_resources().get("CPU", workers)) // workers)
+    threads = max(1, (os.cpu_count() or 1) // workers)  # numba threads per actor, as the process pool
     args_ref = ray.put(worker_args)  # shipped once; every actor reads the same copy
     actor_class = ray.remote(num_cpus=1, max_restarts=0)(_RayWorker)
 

@@ -188,7 +188,7 @@ def build_store(
 
 def _building_boxes(model: CityModel) -> np.ndarray:
     """(B, 6) float64 local boxes ``xmin ymin zmin xmax ymax zmax`` of the model's buildings (index order;
-    a building without triangles gets an empty box at the origin)."""
+    NaN for a building without triangles: it is in no query's reach)."""
     nb = len(model.building_ids)
     lo = np.full((nb, 3), np.inf)
     hi = np.full((nb, 3), -np.inf)
@@ -196,7 +196,7 @@ def _building_boxes(model: CityModel) -> np.ndarray:
     np.minimum.at(lo, model.building_index, corners.min(1))
     np.maximum.at(hi, model.building_index, corners.max(1))
     empty = ~np.isfinite(lo[:, 0])
-    lo[empty], hi[empty] = 0.0, 0.0
+    lo[empty], hi[empty] = np.nan, np.nan
     return np.concatenate([lo, hi], 1)
 
 
@@ -311,7 +311,10 @@ class TileStore:
     def tree(self) -> shapely.STRtree:
         if self._tree is None:
             b = self.bbox
-            self._tree = shapely.STRtree(shapely.box(b[:, 0], b[:, 1], b[:, 3], b[:, 4]))
+            boxes = np.full(len(b), None, dtype=object)  # None: a building without triangles, never found
+            valid = np.isfinite(b).all(1)
+            boxes[valid] = shapely.box(b[valid, 0], b[valid, 1], b[valid, 3], b[valid, 4])
+            self._tree = shapely.STRtree(boxes)
         return self._tree
 
     def buildings_within(self, xy: Sequence[float], radius_m: float) -> np.ndarray:
