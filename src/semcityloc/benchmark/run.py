@@ -9,7 +9,9 @@ A spec is a typed object (``benchmark.spec.BenchmarkSpec`` for simulated runs,
 ``benchmark.dataset_source.DatasetSpec`` for data sets) with ``method``, ``preset``, ``keep_details``,
 ``label``, ``localizer_config()``, ``run_config()`` (the ``run.json`` dict), ``open_source(config)`` and
 ``finish(out, rows, summary)``.
-Workers get the spec and the source (with its models) once, never a dict to read settings back from.
+Workers get the spec and the source (with its models) once, never a dict to read settings back from. A
+source with a ``tile_store`` (a ``--city`` tile store) gets a ``localization.tiled.TiledMethod``: each query
+loads the parts of the city it can see.
 
 Numbers do not depend on ``workers``: every query is made from ``(seed, index)`` alone and the localizer
 seeds its own generator per query.
@@ -29,6 +31,7 @@ import numba
 
 import semcityloc.baselines  # noqa: F401  (registers the baselines' methods)
 from semcityloc.benchmark.queries import query_id
+from semcityloc.benchmark.ray_executor import import_ray, run_ray
 from semcityloc.benchmark.results import (
     append_row,
     make_row,
@@ -47,9 +50,12 @@ from semcityloc.benchmark.runfiles import (
 )
 from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, unknown_choice
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
+from semcityloc.localization.tiled import TiledMethod
+
+EXECUTORS = ("local", "ray")  # where queries run: this process / a process pool, or Ray
 
 
 class RunSpec(Protocol):
@@ -84,7 +90,11 @@ class _Worker:
 
     def __init__(self, spec: RunSpec, source: QuerySource, out_dir: Path):
         self.source = source
-        self.method = get_method(spec.method, source.map_model, spec.localizer_config())
+        store = getattr(source, "tile_store", None)
+        if store is not None:  # the parts of the store each query can see (localization.tiled)
+            self.method = TiledMethod(spec.method, store, spec.localizer_config())
+        else:
+            self.method = get_method(spec.method, source.map_model, spec.localizer_config())
         source.prepare(self.method)
         self.origin = source.map_model.origin
         self.out_dir = out_dir
@@ -125,6 +135,8 @@ def run_queries(
     limit: int | None = None,
     progress: bool | TextIO = True,
     config: dict | None = None,
+    executor: str = "local",
+    ray_address: str | None = None,
 ) -> BenchmarkOutcome:
     """Run (or resume) ``spec`` over ``source`` into ``out_dir`` (``benchmark.runfiles`` has the files).
 
@@ -136,10 +148,17 @@ def run_queries(
         limit: process at most this many new queries in this call, then stop (a later call resumes).
         progress: True for the bar on stderr, False for none, or a stream.
         config: ``spec.run_config()`` when the caller has it already.
+        executor: ``local`` (this process, or a process pool for ``workers > 1``) or ``ray``
+            (``benchmark.ray_executor``: a local Ray runtime of ``workers`` CPUs, or the cluster at
+            ``ray_address``).
     """
     workers = int(workers)
     if workers < 1:
         raise BenchmarkError(f"workers must be >= 1, got {workers}")
+    if executor not in EXECUTORS:
+        raise unknown_choice("executor", executor, EXECUTORS, BenchmarkError)
+    if executor == "ray":
+        import_ray()  # missing: the install hint now, before any file is written
     if limit is not None and int(limit) < 0:
         raise BenchmarkError(f"limit must be >= 0, got {limit}")
     out = Path(out_dir)
@@ -162,7 +181,9 @@ def run_queries(
         ensure_compiled(kernel_groups(spec.method), stream)
         source = source if source is not None else spec.open_source(config)
         bar = Progress(total, len(done), stream, label=spec.label) if progress is not False else None
-        if workers == 1 or len(todo) == 1:
+        if executor == "ray":
+            finished = run_ray(todo, workers, _Worker, (spec, source, out), ray_address)
+        elif workers == 1 or len(todo) == 1:
             finished = _run_serial(todo, (spec, source, out))
         else:
             finished = _run_pool(todo, workers, (spec, source, out))
@@ -193,9 +214,13 @@ def run_benchmark(
     overwrite: bool = False,
     limit: int | None = None,
     progress: bool | TextIO = True,
+    executor: str = "local",
+    ray_address: str | None = None,
 ) -> BenchmarkOutcome:
     """Run (or resume) the benchmark of ``spec`` (simulated or data set) into ``out_dir``."""
-    return run_queries(None, spec, out_dir, workers, overwrite, limit, progress)
+    return run_queries(
+        None, spec, out_dir, workers, overwrite, limit, progress, executor=executor, ray_address=ray_address
+    )
 
 
 def _run_serial(todo: list[int], worker_args: tuple) -> Iterator[dict[str, str]]:

@@ -17,6 +17,7 @@ from typing import Any, Protocol
 
 from semcityloc.benchmark.queries import BenchmarkQuery, QueryConfig, QuerySimulator
 from semcityloc.citymodel.model import CityModel
+from semcityloc.citymodel.tiles import TileStore
 from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
 
@@ -43,7 +44,9 @@ class SimulatedSource:
     """Queries made by the simulator (``benchmark.queries.QuerySimulator``) over a map and its reality.
 
     ``reality_model``: what the simulated drone sees (in the map's local frame); ``simulator_factory``
-    (default ``QuerySimulator``) must be picklable by reference for ``workers > 1``.
+    (default ``QuerySimulator``) must be picklable by reference for ``workers > 1``; ``tile_store``: when
+    the map is a tile store (``citymodel.tiles``), the methods load their parts of it per query
+    (``localization.tiled``) while the simulator sees the whole (merged) city.
     """
 
     def __init__(
@@ -52,8 +55,10 @@ class SimulatedSource:
         reality_model: CityModel,
         query_config: QueryConfig,
         simulator_factory: SimulatorFactory | None = None,
+        tile_store: TileStore | None = None,
     ):
         self.map_model = map_model
+        self.tile_store = tile_store
         self.reality_model = reality_model
         self.query_config = query_config
         self.simulator_factory = simulator_factory or QuerySimulator

@@ -24,9 +24,9 @@ from semcityloc.benchmark.queries import QueryConfig
 from semcityloc.benchmark.runfiles import plain
 from semcityloc.benchmark.sources import SimulatedSource, SimulatorFactory
 from semcityloc.citymodel.generator import default_city_path
-from semcityloc.citymodel.io import file_sha256, load_city_model
 from semcityloc.citymodel.lod1 import derive_lod1
 from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city
 from semcityloc.errors import BenchmarkError, InputFileError
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import check_method
@@ -37,13 +37,22 @@ _GENERATED_NAME = re.compile(r"^generated_lod([123])\.gml$")
 
 
 def resolve_city(city: str | Path) -> Path:
-    """The CityGML / CityJSON file of ``city`` (``"generated"``: the default generated LoD2 district)."""
+    """The CityGML / CityJSON file or tile store of ``city`` (``"generated"``: the default generated LoD2
+    district)."""
     if str(city) == GENERATED:
         return default_city_path(lod=2).resolve()
     path = Path(city).expanduser()
-    if not path.is_file():
-        raise InputFileError(f"{path}: no such city model file")
+    if not path.is_file() and not is_store(path):
+        raise InputFileError(f"{path}: no such city model file or tile store")
     return path.resolve()
+
+
+def open_tile_store(city_path: str | Path, lod: int | None) -> TileStore | None:
+    """The tile store the localizer loads its parts from (``localization.tiled``), or None: ``city_path``
+    is a file, or the map is LoD1 derived from the store's LoD2 (then the merged, derived map is used)."""
+    if not is_store(city_path) or lod == 1:
+        return None
+    return TileStore.open(city_path)
 
 
 def generated_sibling(path: Path, lod: int) -> Path | None:
@@ -110,7 +119,7 @@ class BenchmarkSpec:
                 "format": RUN_FORMAT,
                 "city": str(self.city),
                 "city_path": str(city_path),
-                "city_sha256": file_sha256(city_path),
+                "city_sha256": city_sha256(city_path),
                 "lod": self.lod,
                 "map_source": str(map_source),
                 "reality_source": str(reality_source),
@@ -133,14 +142,15 @@ class BenchmarkSpec:
     def open_source(self, config: dict) -> SimulatedSource:
         """The query source of this run (loads the map and reality models of ``config``)."""
         map_model, reality = load_models(config)
-        return SimulatedSource(map_model, reality, self.query, self.simulator_factory)
+        store = open_tile_store(config["city_path"], config.get("lod"))
+        return SimulatedSource(map_model, reality, self.query, self.simulator_factory, tile_store=store)
 
     def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
         return None
 
 
 def _load(path: Path, config: dict, lod: int | None = None) -> CityModel:
-    return load_city_model(path, lod=lod, crs=config.get("crs"))
+    return load_city(path, lod=lod, crs=config.get("crs"))
 
 
 def _map_from(base: CityModel | None, config: dict) -> CityModel:

@@ -846,6 +846,7 @@ def read_citygml(
     lod: int | None = None,
     target_crs: pyproj.CRS | None = None,
     crs_override: str | None = None,
+    origin: np.ndarray | None = None,
 ) -> CityModel:
     """Read the buildings of a CityGML 1.0 / 2.0 / 3.0 file (``.gml``, ``.xml``, gzip) into a ``CityModel``.
 
@@ -854,11 +855,12 @@ def read_citygml(
     or the UTM zone of the data for a geographic CRS). ``crs_override``: CRS name replacing the file's
     ``srsName``. Raises ``InputFileError`` (missing file), ``MalformedXMLError`` (not XML, truncated,
     entity declarations), ``UnsupportedFormatError`` (not a CityGML 1-3 CityModel), ``CRSError``,
-    ``EmptyModelError``.
+    ``EmptyModelError``. ``origin``: the local frame's float64 origin (default: the data's rounded centre;
+    a tile store gives all its tiles one).
     """
     reader = CityGMLReader(path, lod, target_crs, crs_override)
     builder = MeshBuilder(reader.stats)
     add = builder.add_polygon
     for p in reader.polygons():
         add(p.exterior, p.interiors, p.semantic, p.building_id, p.lod)
-    return builder.build(crs=reader.crs, source_crs=reader.source_crs, source=str(reader.path))
+    return builder.build(crs=reader.crs, source_crs=reader.source_crs, source=str(reader.path), origin=origin)

@@ -69,6 +69,7 @@ def read_cityjson(
     lod: str | int | float | None = None,
     target_crs: str | pyproj.CRS | None = None,
     crs_override: str | None = None,
+    origin: np.ndarray | None = None,
 ) -> CityModel:
     """Read the buildings of a CityJSON file as a semantic triangle mesh.
 
@@ -78,6 +79,7 @@ def read_cityjson(
             str/float = that exact LoD, e.g. ``"1.2"`` (a value that is no LoD matches nothing).
         target_crs: metric CRS to project a geographic source to (default: its UTM zone).
         crs_override: CRS of the coordinates when the file names none or a wrong one.
+        origin: the local frame's float64 origin (default: the data's rounded centre).
 
     Raises:
         InputFileError: the file cannot be read.
@@ -89,7 +91,7 @@ def read_cityjson(
     path = Path(path)
     doc = _load_json(path)
     version = _check_header(doc, path)
-    return _CityJSONReader(doc, path, version, lod).read(target_crs, crs_override)
+    return _CityJSONReader(doc, path, version, lod).read(target_crs, crs_override, origin)
 
 
 # ---------------------------------------------------------------------------------------------- file
@@ -465,7 +467,7 @@ class _CityJSONReader:
             builder.add_polygon(rings[0], rings[1:], self._semantic(value, surfaces), building_id, lod)
 
     # ------------------------------------------------------------------ driver
-    def read(self, target_crs, crs_override) -> CityModel:
+    def read(self, target_crs, crs_override, origin=None) -> CityModel:
         scale, translate = _transform(self.doc, self.path)
         raw = _vertex_array(self.doc["vertices"], "vertices", self.path) * scale + translate
         frame = self._frame(raw, target_crs, crs_override)
@@ -497,7 +499,9 @@ class _CityJSONReader:
 
         self._warn()
         try:
-            return builder.build(crs=frame.target, source_crs=frame.source, source=str(self.path))
+            return builder.build(
+                crs=frame.target, source_crs=frame.source, source=str(self.path), origin=origin
+            )
         except EmptyModelError:
             present = ", ".join(sorted(lods_present, key=_lod_order)) or "none"
             if self.lod_request is not None and lods_present:

@@ -13,6 +13,8 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
+
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.crs import parse_crs_name
@@ -68,6 +70,7 @@ def load_city_model(
     crs: str | None = None,
     target_crs: str | None = None,
     cache: bool | str | Path = True,
+    origin=None,
 ) -> CityModel:
     """Read a city model file.
 
@@ -77,6 +80,8 @@ def load_city_model(
         crs: override of the CRS the file states (or states nothing about), e.g. ``"EPSG:25832"``.
         target_crs: metric CRS to project a geographic source to (default: its UTM zone).
         cache: True for the default cache dir, a path for another, False to parse every time.
+        origin: float64 (3,) origin of the local frame (default: the data's rounded centre); a tile store
+            parses all its tiles into its one origin. Ignored for OBJ and npz.
     """
     path = Path(path)
     if not path.is_file():
@@ -89,6 +94,8 @@ def load_city_model(
     if cache:
         cache_dir = default_cache_dir() if cache is True else Path(cache)
         options = json.dumps([CACHE_VERSION, fmt, lod, crs, target_crs], sort_keys=True)
+        if origin is not None:  # appended only when given: the keys of existing caches stay valid
+            options += json.dumps([float(v) for v in np.asarray(origin, dtype=np.float64).reshape(3)])
         key = hashlib.sha256((file_sha256(path) + options).encode()).hexdigest()[:32]
         cache_file = cache_dir / f"{path.stem}-{key}.npz"
         if cache_file.exists():
@@ -99,7 +106,7 @@ def load_city_model(
             except InputFileError:
                 cache_file.unlink(missing_ok=True)
 
-    model = _read(path, fmt, lod, crs, target_crs)
+    model = _read(path, fmt, lod, crs, target_crs, origin)
     if cache_file is not None:
         try:
             cache_file.parent.mkdir(parents=True, exist_ok=True)
@@ -109,11 +116,11 @@ def load_city_model(
     return model
 
 
-def _read(path: Path, fmt: str, lod, crs, target_crs) -> CityModel:
+def _read(path: Path, fmt: str, lod, crs, target_crs, origin=None) -> CityModel:
     target = parse_crs_name(target_crs) if target_crs else None
     if fmt == "citygml":
-        return read_citygml(path, lod=lod, target_crs=target, crs_override=crs)
+        return read_citygml(path, lod=lod, target_crs=target, crs_override=crs, origin=origin)
     if fmt == "cityjson":
-        return read_cityjson(path, lod=lod, target_crs=target, crs_override=crs)
+        return read_cityjson(path, lod=lod, target_crs=target, crs_override=crs, origin=origin)
 
     return read_obj(path, crs=crs)

@@ -16,10 +16,10 @@ from pathlib import Path
 
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
-from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO, SCENARIOS, parse_settings, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.cli.dataset import add_dataset_arguments, add_perception_arguments, run_dataset_benchmark
+from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import PRESETS
@@ -29,6 +29,7 @@ from semcityloc.localization.methods import available_methods
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("benchmark", help="localize simulated drone queries over a city model and score them")
     add_simulation_arguments(p)
+    add_executor_arguments(p)
     p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
     add_dataset_arguments(p, positional=False)
     add_perception_arguments(p)
@@ -158,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         return run_dataset_benchmark(args)
     spec = spec_from_args(args)
     out = Path(args.out)
-    outcome = run_benchmark(spec, out, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after)
+    outcome = run_from_args(spec, out, args)
     if not outcome.complete:
         print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")
         return 0

@@ -7,7 +7,7 @@ import json
 
 from semcityloc.citymodel.export import export_model
 from semcityloc.citymodel.generator import default_city_path
-from semcityloc.citymodel.io import load_city_model
+from semcityloc.citymodel.tiles import load_city
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,7 +31,10 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
     """The city-model options every command shares: the file (``PATH`` or ``--city``), LoD, CRS, cache."""
-    help_text = "CityGML (1.0/2.0/3.0), CityJSON, OBJ, semcityloc .npz, or 'generated' (embedded city)"
+    help_text = (
+        "CityGML (1.0/2.0/3.0), CityJSON, OBJ, semcityloc .npz, a tile store (semcityloc tiles build), "
+        "or 'generated' (embedded city)"
+    )
     if positional:
         p.add_argument("path", help=help_text)
     else:
@@ -49,7 +52,7 @@ def load_model_from_args(args: argparse.Namespace):
     path = args.path
     if path == "generated":
         path = default_city_path(lod=lod if isinstance(lod, int) else 2)
-    return load_city_model(path, lod=lod, crs=args.crs, cache=not args.no_cache)
+    return load_city(path, lod=lod, crs=args.crs, cache=not args.no_cache)
 
 
 _load = load_model_from_args

@@ -21,7 +21,7 @@ import numpy as np
 from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
-from semcityloc.benchmark.run import run_benchmark
+from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
@@ -275,9 +275,7 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
         ecef_origin_llh=parse_floats(args.ecef_origin, 3, "--ecef-origin"),
         keep_details=args.keep_details,
     )
-    outcome = run_benchmark(
-        spec, args.out, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after
-    )
+    outcome = run_from_args(spec, args.out, args)
     out = Path(args.out)
     if not outcome.complete:
         print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")

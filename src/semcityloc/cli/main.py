@@ -22,12 +22,13 @@ from semcityloc.cli import (
     report,
     run,
     sweep,
+    tiles,
     train,
     warmup,
 )
 from semcityloc.errors import SemCityLocError
 
-COMMANDS = (city, render, localize, run, benchmark, sweep, report, dataset, label, train, demo, warmup)
+COMMANDS = (city, tiles, render, localize, run, benchmark, sweep, report, dataset, label, train, demo, warmup)
 # Commands that run numba kernels, and which (``benchmark.warmup.KERNEL_GROUPS``): each says so once when it
 # is about to compile them. Those that time the localizer (TIMED) go through the run loop, which says so and
 # compiles before the first query (``benchmark.warmup.ensure_compiled``), after their arguments are checked.

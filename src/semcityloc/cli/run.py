@@ -14,9 +14,9 @@ from pathlib import Path
 
 from semcityloc.benchmark.photo_source import PhotoSpec
 from semcityloc.benchmark.report import summary_markdown
-from semcityloc.benchmark.run import run_benchmark
 from semcityloc.cli.city import add_model_arguments
 from semcityloc.cli.dataset import parse_floats
+from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF
@@ -80,6 +80,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default="default", choices=tuple(PRESETS), help="localizer preset")
     p.add_argument("--out", default="semcityloc_run", help="output folder (default semcityloc_run)")
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
+    add_executor_arguments(p)
     p.add_argument("--keep-details", type=int, default=3, help="save details of the first N photos")
     p.add_argument("--no-overlays", action="store_true", help="do not draw overlays/<stem>.png")
     p.add_argument("--overwrite", action="store_true", help="discard results made with other arguments")
@@ -130,7 +131,7 @@ def _names(names: list[str]) -> str:
 def run(args: argparse.Namespace) -> int:
     spec = spec_from_args(args)
     out = Path(args.out)
-    outcome = run_benchmark(spec, out, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after)
+    outcome = run_from_args(spec, out, args)
     config = outcome.config
     skipped = config["skipped_photos"]
     if not outcome.complete:

@@ -349,14 +349,7 @@ class Localizer:
         s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
         pts = centre[:2, None] + rays[:2] * s
         pts = np.concatenate([pts, centre[:2, None]], axis=1)
-        if cfg.search == "grid":
-            pre = cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0
-            half = (cfg.coarse.range_xy_m + pre) / 2
-        else:
-            s = cfg.cascade.sweep
-            half = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade).half_xy_m
-            half *= 1 + s.max_extensions * s.extension
-        margin = half + 1.0
+        margin = search_half_xy(prior_local, cfg, unc) + 1.0
         lo, hi = pts.min(1) - margin, pts.max(1) + margin
         inside = np.all((self._building_xy >= lo) & (self._building_xy <= hi), axis=1)
         return bool(inside.any())
@@ -370,6 +363,17 @@ class Localizer:
         q = np.isin(query_flat, BUILDING_CLASSES)[valid]
         union = np.count_nonzero(r | q)
         return float(np.count_nonzero(r & q) / union) if union else 0.0
+
+
+def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
+    """How far (m, in x and in y) the search may move the camera from the prior: the grid's range, or the
+    cascade's volume grown by its largest extension."""
+    if cfg.search == "grid":
+        pre = cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0
+        return (cfg.coarse.range_xy_m + pre) / 2
+    s = cfg.cascade.sweep
+    half = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade).half_xy_m
+    return half * (1 + s.max_extensions * s.extension)
 
 
 def check_camera_and_prior(camera: Camera, prior: Pose) -> None:

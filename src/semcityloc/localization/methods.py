@@ -25,6 +25,7 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import ABLATION_FLAGS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.result import LocalizationResult
+from semcityloc.render.scene import RenderScene
 
 
 class QueryRecord(Protocol):
@@ -54,10 +55,12 @@ MethodFactory = Callable[[str, CityModel, LocalizerConfig], Method]
 class LocalizerMethod:
     """SemCityLoc (``semcityloc``) or one of its ablations on a ``Localizer`` built once."""
 
-    def __init__(self, name: str, map_model: CityModel, config: LocalizerConfig):
+    def __init__(
+        self, name: str, map_model: CityModel, config: LocalizerConfig, scene: RenderScene | None = None
+    ):
         self.name = name
         self.config = config.with_ablation(name)
-        self.localizer = Localizer(map_model, self.config)
+        self.localizer = Localizer(map_model, self.config, scene=scene)
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
         return self.localizer.localize(
@@ -92,6 +95,11 @@ def check_method(name: str) -> str:
     if name not in _REGISTRY:
         raise unknown_choice("method", name, _REGISTRY, BenchmarkError)
     return name
+
+
+def method_factory(name: str) -> MethodFactory:
+    """The factory registered as ``name``."""
+    return _REGISTRY[check_method(name)]
 
 
 def get_method(name: str, map_model: CityModel, config: LocalizerConfig | None = None) -> Method:

@@ -2,8 +2,8 @@
 
 Built once per ``CityModel`` (``build_scene``):
 
-- building bottoms (GroundSurface triangles, see ``terrain.building_bottom_mask``) are dropped: they are
-  never visible from the air and cost 15-20% of the raster time;
+- building bottoms (GroundSurface triangles, see ``citymodel.ground.building_bottom_mask``) are dropped:
+  they are never visible from the air and cost 15-20% of the raster time;
 - a terrain TIN of class GROUND is added (``terrain.build_terrain``) unless ``ground=False``, without
   the triangles hidden under building footprints;
 - triangles are grouped into square ground tiles of ``tile_size_m`` (by their centroid) and the tiles
@@ -86,11 +86,16 @@ class RenderScene:
 
 
 def build_scene(
-    model: CityModel, ground: bool = True, tile_size_m: float = 25.0, drop_hidden_terrain: bool = True
+    model: CityModel,
+    ground: bool = True,
+    tile_size_m: float = 25.0,
+    drop_hidden_terrain: bool = True,
+    terrain_ring: np.ndarray | None = None,
 ) -> RenderScene:
     """Render scene of ``model`` (module docstring). Raises ``EmptyModelError`` if nothing is drawable.
 
-    ``drop_hidden_terrain``: leave out terrain under building footprints (``terrain.build_terrain``).
+    ``drop_hidden_terrain``: leave out terrain under building footprints (``terrain.build_terrain``);
+    ``terrain_ring``: the terrain's border points (a tile store's: ``TileStore.terrain_ring``).
     """
     if not isinstance(model, CityModel):
         raise TypeError(f"build_scene needs a CityModel, got {type(model).__name__}")
@@ -105,7 +110,7 @@ def build_scene(
     classes = model.classes[keep]
     source = np.flatnonzero(keep).astype(np.int32)
     if ground:
-        tv, tt = build_terrain(model, drop_hidden=drop_hidden_terrain)
+        tv, tt = build_terrain(model, drop_hidden=drop_hidden_terrain, ring=terrain_ring)
         if len(tt):
             corners = np.concatenate([corners, tv[tt]])
             classes = np.concatenate([classes, np.full(len(tt), SemanticClass.GROUND, dtype=np.uint8)])

@@ -1,0 +1,148 @@
+"""The run loop's queries on Ray: a local Ray runtime or an existing cluster (``--executor ray``).
+
+Why Ray: a survey flight is hundreds to thousands of photos; Ray runs the same workers on a laptop's
+cores or on a cluster's machines with one call, keeps what every worker needs in its object store, and
+tells the driver when a worker process died. ``run_ray`` is a drop-in for the run loop's process pool
+(``benchmark.run``): the driver alone appends the rows it yields (one fsync'd line per query, so a killed
+driver resumes as today).
+
+- Start-up: ``ray.init(num_cpus=workers)`` starts a local runtime (no dashboard, no log forwarding, a
+  small object store) and shuts it down at the end; ``address`` joins an existing cluster instead (its
+  CPUs decide how many workers run at once: ``workers`` actors are started). A runtime that is already
+  up in this process (a test, a notebook) is used and left up.
+- Shipping: the worker arguments (the typed spec, the source with its city model or tile store) are put
+  in the object store once (``ray.put``); each of ``workers`` actors builds its ``_Worker`` (method,
+  render scene) from them once and then localizes one query at a time.
+- Failures: a query whose worker process dies (killed, out of memory) is given to a new worker once more;
+  if that worker dies too, the query gets a row with status ``failed`` and the reason (and is not tried
+  again on resume). An exception raised by the query itself is raised here, as with the process pool.
+
+Numbers do not depend on the executor or the worker count (``benchmark.run``: queries and the localizer
+are seeded per query).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numba
+
+from semcityloc.benchmark.queries import query_id
+from semcityloc.benchmark.results import COLUMNS
+from semcityloc.errors import OptionalDependencyError
+
+# Status of a query whose worker died on every try (beside ``localized``, ``not_localized``, ``skipped``).
+FAILED = "failed"
+RETRIES = 1  # a query whose worker died is tried this many more times
+# Object store of a local runtime (bytes): the shipped models are tens of MB; Ray's default takes 30% of RAM.
+OBJECT_STORE_BYTES = 512 * 1024 * 1024
+
+
+def import_ray():
+    """The ``ray`` module, or the one-line install hint."""
+    try:
+        import ray  # optional extra [ray]: imported only when the Ray executor runs
+    except ImportError as exc:
+        raise OptionalDependencyError("ray", "ray", "--executor ray") from exc
+    return ray
+
+
+def failed_row(index: int, reason: str) -> dict[str, str]:
+    """The ``results.csv`` row of a query that could not be run (every other column empty)."""
+    row = dict.fromkeys(COLUMNS, "")
+    row.update(query_id=query_id(index), index=str(index), status=FAILED, reason=reason.replace("\n", " "))
+    return row
+
+
+class _RayWorker:
+    """One Ray actor: a run-loop worker built once from the shipped arguments."""
+
+    def __init__(self, make_worker: Callable[..., Any], threads: int, worker_args: tuple):
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        self.worker = make_worker(*worker_args)
+
+    def pid(self) -> int:
+        return os.getpid()
+
+    def run(self, index: int) -> dict[str, str]:
+        return self.worker.run(index)
+
+
+def run_ray(
+    todo: list[int],
+    workers: int,
+    make_worker: Callable[..., Any],
+    worker_args: tuple,
+    address: str | None = None,
+) -> Iterator[dict[str, str]]:
+    """Rows of ``todo`` from ``workers`` Ray actors, in the order they finish (module docstring).
+
+    ``make_worker(*worker_args)`` builds the object whose ``run(index)`` gives a row (``run._Worker``).
+    """
+    ray = import_ray()
+    started = not ray.is_initialized()
+    if started:
+        if address:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(
+                num_cpus=workers,
+                include_dashboard=False,
+                log_to_driver=False,
+                object_store_memory=OBJECT_STORE_BYTES,
+            )
+    try:
+        yield from _schedule(ray, todo, workers, make_worker, worker_args)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _schedule(ray, todo, workers, make_worker, worker_args) -> Iterator[dict[str, str]]:
+    threads = max(1, (os.cpu_count() or 1) // workers)  # numba threads per actor, as the process pool
+    args_ref = ray.put(worker_args)  # shipped once; every actor reads the same copy
+    actor_class = ray.remote(num_cpus=1, max_restarts=0)(_RayWorker)
+
+    def new_actor():
+        return actor_class.remote(make_worker, threads, args_ref)
+
+    actors = [new_actor() for _ in range(min(workers, len(todo)))]
+    queue = list(reversed(todo))
+    deaths: dict[int, int] = {}
+    pending: dict[Any, tuple[int, int]] = {}  # result ref -> (actor slot, query index)
+
+    def submit(slot: int, index: int) -> None:
+        pending[actors[slot].run.remote(index)] = (slot, index)
+
+    for slot in range(len(actors)):
+        submit(slot, queue.pop())
+    try:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            ref = ready[0]
+            slot, index = pending.pop(ref)
+            try:
+                row = ray.get(ref)
+            except ray.exceptions.RayActorError as exc:  # the worker process died, not the query's error
+                ray.kill(actors[slot], no_restart=True)
+                actors[slot] = new_actor()
+                deaths[index] = deaths.get(index, 0) + 1
+                if deaths[index] <= RETRIES:
+                    submit(slot, index)
+                    continue
+                row = failed_row(index, f"worker died {deaths[index]} times: {_first_line(exc)}")
+            except ray.exceptions.RayTaskError as exc:
+                raise exc.as_instanceof_cause() from None
+            if queue:
+                submit(slot, queue.pop())
+            yield row
+    finally:
+        for actor in actors:
+            ray.kill(actor, no_restart=True)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:200] if text else type(exc).__name__

@@ -1,0 +1,50 @@
+"""``semcityloc tiles build|info``: index a folder of CityGML / CityJSON tiles into a store
+(``citymodel.tiles``; docs/scale.md), which every ``--city`` then accepts."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from semcityloc.citymodel.tiles import TileStore, build_store
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    tiles = sub.add_parser("tiles", help="index a folder of city-model tiles into a store for --city")
+    tiles_sub = tiles.add_subparsers(dest="tiles_command", required=True, metavar="ACTION")
+    build = tiles_sub.add_parser("build", help="index a folder of CityGML / CityJSON tiles into a store")
+    build.add_argument("folder", help="folder of tiles (searched recursively; formats may be mixed)")
+    build.add_argument("--out", required=True, help="the store's folder")
+    build.add_argument(
+        "--lod", type=int, default=None, help="LoD to read (default: the highest per building)"
+    )
+    build.add_argument("--crs", default=None, help="override the tiles' CRS, e.g. EPSG:25832")
+    build.set_defaults(func=run_build)
+    info = tiles_sub.add_parser("info", help="tiles, buildings, CRS, origin and extent of a store")
+    info.add_argument("store", help="a store made by 'semcityloc tiles build'")
+    info.add_argument("--json", action="store_true", help="print exactly one JSON object")
+    info.set_defaults(func=run_info)
+
+
+def run_build(args: argparse.Namespace) -> int:
+    def progress(message: str) -> None:
+        print(f"\r{message[:100]:<100}", end="", file=sys.stderr, flush=True)
+
+    report = build_store(args.folder, args.out, lod=args.lod, crs=args.crs, progress=progress)
+    print(file=sys.stderr)
+    print(
+        f"{report.tiles} tiles, {report.buildings} buildings, {report.input_bytes / 1e6:.1f} MB in "
+        f"{report.seconds:.1f} s ({report.mb_per_s:.2f} MB/s): wrote {report.store.root}"
+    )
+    return 0
+
+
+def run_info(args: argparse.Namespace) -> int:
+    summary = TileStore.open(args.store).summary()
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    for key, value in summary.items():
+        print(f"{key + ':':<12}{value}")
+    return 0

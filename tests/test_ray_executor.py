@@ -1,0 +1,102 @@
+"""``--executor ray`` (``benchmark.ray_executor``): rows identical to the serial run, a killed worker's
+query retried once, then recorded as failed. Skipped when the ``[ray]`` extra is absent (``make test``
+installs it)."""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+from semcityloc.benchmark.ray_executor import FAILED
+from semcityloc.benchmark.results import TIMING_COLUMNS, read_results
+from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.cli.main import main
+from semcityloc.errors import BenchmarkError
+
+ray = pytest.importorskip("ray", reason="the [ray] extra is not installed: pip install 'semcityloc[ray]'")
+
+QUERIES = QueryConfig(queries=6, seed=0, width=256, height=192)
+
+
+class CrashingSimulator:
+    """The query simulator, except that making query 1 kills its worker process the first time and query
+    2 kills it every time (``os._exit``: the process dies as under the OOM killer, no exception)."""
+
+    def __init__(self, marker_dir: str, map_model, config, reality_model=None):
+        self.marker = Path(marker_dir) / "q1_died"
+        self.inner = QuerySimulator(map_model, config, reality_model)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def query(self, index: int):
+        if index == 2 or (index == 1 and not self.marker.exists()):
+            self.marker.touch()
+            os._exit(1)
+        return self.inner.query(index)
+
+
+# Ray's workers cannot import this test module: ship its code with the task.
+ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+@pytest.fixture(scope="module")
+def ray_runtime():
+    """One small local runtime for the module (start-up takes seconds); shut down at the end."""
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, object_store_memory=200 * 1024 * 1024)
+    yield
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def serial_rows(tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    outcome = run_benchmark(BenchmarkSpec("generated", QUERIES, preset="fast"), out, progress=False)
+    return {r["query_id"]: _untimed(r) for r in outcome.rows}
+
+
+def _untimed(row: dict[str, str]) -> dict[str, str]:
+    return {k: v for k, v in row.items() if k not in TIMING_COLUMNS}
+
+
+@pytest.mark.slow
+def test_ray_rows_are_the_serial_rows(ray_runtime, serial_rows, tmp_path):
+    spec = BenchmarkSpec("generated", QUERIES, preset="fast")
+    outcome = run_benchmark(spec, tmp_path / "ray", workers=2, progress=False, executor="ray")
+    assert outcome.complete and outcome.new_rows == 6
+    assert {r["query_id"]: _untimed(r) for r in outcome.rows} == serial_rows
+    assert any(r["status"] == "localized" for r in outcome.rows)
+
+
+@pytest.mark.slow
+def test_a_killed_worker_is_retried_once_then_the_query_is_failed(ray_runtime, serial_rows, tmp_path):
+    factory = functools.partial(CrashingSimulator, str(tmp_path))
+    spec = BenchmarkSpec("generated", QUERIES, preset="fast", simulator_factory=factory)
+    out = tmp_path / "ray"
+    outcome = run_benchmark(spec, out, workers=2, progress=False, executor="ray")
+    rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
+    assert outcome.complete and len(rows) == 6
+    assert (tmp_path / "q1_died").exists()  # query 1 did kill its first worker
+    assert _untimed(rows["q0001"]) == serial_rows["q0001"]  # ... and was done by the next
+    assert rows["q0002"]["status"] == FAILED
+    assert rows["q0002"]["reason"].startswith("worker died 2 times")
+    for qid in ("q0000", "q0003", "q0004", "q0005"):
+        assert _untimed(rows[qid]) == serial_rows[qid]
+    assert outcome.summary["not_localized_reasons"].get(rows["q0002"]["reason"]) == 1
+    again = run_benchmark(spec, out, workers=2, progress=False, executor="ray")
+    assert again.new_rows == 0  # a failed query has its row: a resumed run does not try it again
+
+
+def test_executor_options_are_checked(tmp_path, capsys):
+    spec = BenchmarkSpec("generated", QUERIES, preset="fast")
+    with pytest.raises(BenchmarkError, match="unknown executor 'dask'"):
+        run_benchmark(spec, tmp_path / "x", executor="dask")
+    args = ["benchmark", "--city", "generated", "--queries", "1", "--out", str(tmp_path / "y")]
+    assert main([*args, "--ray-address", "auto"]) == 2
+    assert "--ray-address needs --executor ray" in capsys.readouterr().err
