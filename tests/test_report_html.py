@@ -21,6 +21,7 @@ from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.errors import BenchmarkError
 from semcityloc.geometry.pose import Pose
+from test_run_photos import box_flight, private_cache  # noqa: F401  (a small photo run's inputs)
 
 CHROMIUM = Path("/usr/bin/chromium")
 ARTIFACTS = Path(__file__).resolve().parents[1] / "build" / "test-artifacts" / "report_html"
@@ -115,6 +116,23 @@ def test_views_helpers():
     rgba[1, 2] = (255, 0, 255, 255)
     back = np.asarray(Image.open(io.BytesIO(base64.b64decode(data_uri(rgba).split(",")[1]))).convert("RGBA"))
     assert (back == rgba).all()  # the palette PNG keeps label colours and transparency exactly
+
+
+def test_page_of_a_photo_run(box_flight, tmp_path):  # noqa: F811
+    """``semcityloc run`` folders: the photo as background with the model drawn where the run kept the
+    camera, the run's own overlay elsewhere, and the flight path in the 3D view."""
+    from semcityloc.cli.main import main
+
+    out = tmp_path / "out"
+    assert main([str(a) for a in (*box_flight["argv"], "--out", out, "--keep-details", "1")]) == 0
+    html = make_html_report([out], tmp_path / "report")
+    entries = _data(html.path)["entries"]
+    assert [e["name"] for e in entries] == ["P0.JPG", "P1.JPG"] and html.rendered == 1
+    assert entries[0]["background_kind"] == "photo" and entries[0]["background"].startswith("data:image/jpeg")
+    assert set(entries[0]["layers"]) == {"prior", "estimate", "truth"}
+    assert entries[1]["background_kind"].startswith("photo with the model") and not entries[1]["layers"]
+    names = [t.get("name", "") for t in _data(html.path)["figures"]["city"]["figure"]["data"]]
+    assert any(n.startswith("flight path") for n in names)
 
 
 def test_markdown_tables_and_bad_input(tmp_path):

@@ -113,12 +113,12 @@ def _entries(runs, maps, max_queries: int | None) -> list[dict[str, Any]]:
             meta = meta or json.loads(row.get("meta_json") or "{}")
             view = query_view(run.path, run.config, row, details, renderer, photo_of(run.config, meta))
             camera = query_camera(run.config, details)
-            fallback = fallback or camera
+            fallback = camera if fallback is None else fallback
             view.update(key=f"{n}:{row['query_id']}", run=n, camera=camera)
             entries.append(view)
         for e in entries:
             if e["run"] == n and e["camera"] is None:
-                e["camera"] = fallback or NOMINAL_CAMERA
+                e["camera"] = NOMINAL_CAMERA if fallback is None else fallback
     return entries
 
 
@@ -166,7 +166,8 @@ def _city(runs, maps, entries, notes) -> tuple[Any, dict] | None:
                     )
                 )
         if run.config.get("mode") == "photos":
-            path = [poses[e["key"]]["estimate"] or poses[e["key"]]["prior"] for e in mine]
+            est_or_prior = [(poses[e["key"]]["estimate"], poses[e["key"]]["prior"]) for e in mine]
+            path = [est if est is not None else prior for est, prior in est_or_prior]
             pts = np.array([p.center for p in path if p is not None])
             if len(pts) > 1:
                 xyz = [np.round(pts[:, a], 1).tolist() for a in range(3)]

@@ -127,10 +127,28 @@ def _query_meta(row: dict[str, str], details: dict | None) -> dict:
         return {}
 
 
+def _run_overlay(run_path: Path, config: dict, row: dict) -> Path | None:
+    """The run's own ``overlays/<stem>.png`` of a photo (``semcityloc run``), when it exists."""
+    names = config.get("query_names") or []
+    index = int(row["index"])
+    if index < len(names):
+        overlay = run_path / OVERLAYS_DIR / f"{Path(names[index]).stem}.png"
+        if overlay.is_file():
+            return overlay
+    return None
+
+
 def _background(
     run_path: Path, config: dict, row: dict, details: dict | None, photo: Path | None, width: int
 ) -> tuple[np.ndarray | None, str]:
-    """(RGB, what it is): the photo, the query mask, the run's own overlay, or (None, why not)."""
+    """(RGB, what it is): without details (no camera to draw the model with) the run's own overlay of
+    the photo first; else the photo, the query mask, or (None, why not)."""
+    overlay = _run_overlay(run_path, config, row) if details is None else None
+    if overlay is not None:
+        try:
+            return load_image(overlay, max_width=width), "photo with the model at the estimate (run overlay)"
+        except SemCityLocError:
+            pass  # unreadable: the photo below
     if photo is not None:
         try:
             return load_image(photo, max_width=width), "photo"
@@ -140,12 +158,6 @@ def _background(
         labels = details["labels"]
         size = scaled_size(labels.shape[1], labels.shape[0], width)
         return label_colors(resize_nearest(labels, *size)), QUERY_MASK
-    names = config.get("query_names") or []
-    index = int(row["index"])
-    if index < len(names):
-        overlay = run_path / OVERLAYS_DIR / f"{Path(names[index]).stem}.png"
-        if overlay.is_file():
-            return load_image(overlay, max_width=width), "photo with the model at the estimate (run overlay)"
     return None, "no image stored (the run kept no details of this query; see --keep-details)"
 
 
