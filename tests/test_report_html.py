@@ -7,6 +7,7 @@ import base64
 import io
 import json
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +20,9 @@ from semcityloc.benchmark.report_html import make_html_report, markdown_tables
 from semcityloc.benchmark.report_views import data_uri, error_bin, row_pose
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.spec import BenchmarkSpec
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, OptionalDependencyError
 from semcityloc.geometry.pose import Pose
+from test_report import fake_run
 from test_run_photos import box_flight, private_cache  # noqa: F401  (a small photo run's inputs)
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -143,6 +145,21 @@ def test_markdown_tables_and_bad_input(tmp_path):
         make_html_report([], tmp_path / "r")
     with pytest.raises(BenchmarkError, match="not a benchmark run folder"):
         make_html_report([tmp_path], tmp_path / "r")
+
+
+def test_a_run_without_rows_or_map_still_gets_a_page(tmp_path):
+    """A run folder whose map is gone and which finished no query (crashed at once): a page, with notes."""
+    run = fake_run(tmp_path, "empty", [])
+    html = make_html_report([run], tmp_path / "r")
+    data = _data(html.path)
+    assert html.queries == 0 and data["entries"] == [] and "city" not in data["figures"]
+    assert any("map cannot be loaded" in n for n in html.notes)
+
+
+def test_missing_plotly_is_a_one_line_install_hint(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "plotly.graph_objects", None)  # import fails as if not installed
+    with pytest.raises(OptionalDependencyError, match=r"pip install 'semcityloc\[plots\]'"):
+        make_html_report([fake_run(tmp_path, "one", [(1.0, 1.0)])], tmp_path / "r")
 
 
 def test_cli_report_writes_the_page(page, tmp_path, capsys):

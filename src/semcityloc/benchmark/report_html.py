@@ -21,6 +21,7 @@ from __future__ import annotations
 import html
 import json
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -239,8 +240,8 @@ def _script_json(value: Any) -> str:
 def make_html_report(
     run_dirs: list[str | Path],
     out_dir: str | Path,
-    tables: list[Path] = (),
-    notes: list[str] = (),
+    tables: Sequence[Path] = (),
+    notes: Sequence[str] = (),
     max_queries: int | None = None,
 ) -> HtmlReport:
     """Write ``out_dir/report.html`` of ``run_dirs`` (module docstring). ``tables``: the Markdown table
