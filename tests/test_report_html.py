@@ -264,3 +264,18 @@ def test_browser_test_says_why_it_skips(monkeypatch):
     monkeypatch.setattr(f"{__name__}.CHROMIUM", Path("/nonexistent/chromium"))
     with pytest.raises(pytest.skip.Exception, match="apt-get install chromium"):
         _browser_or_skip()
+
+
+def test_a_big_model_is_drawn_near_the_cameras_and_by_its_largest_triangles(generated_lod2):
+    from semcityloc.benchmark.report_plotly import mesh_selection
+
+    model = generated_lod2
+    n = model.num_triangles
+    assert (mesh_selection(model, []) == np.arange(n)).all()  # small enough: everything
+    areas = model.triangle_areas()
+    keep = mesh_selection(model, [], limit=n // 4)
+    assert len(keep) == n // 4 and areas[keep].min() >= np.delete(areas, keep).max()
+    corner = model.vertices[:, :2].min(axis=0)
+    near = mesh_selection(model, [np.array([*corner, model.vertices[:, 2].min() + 10.0])], limit=n - 1)
+    mid = model.triangle_corners().mean(axis=1)[near, :2]
+    assert 0 < len(near) < n - 1 and (mid <= corner + 50.0 + 1e-6).all()

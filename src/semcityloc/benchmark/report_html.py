@@ -175,11 +175,12 @@ def _city(runs, maps, entries, notes) -> tuple[Any, dict] | None:
                 keys = [e["key"] for e, p in zip(mine, path, strict=True) if p is not None]
                 texts = [e["qid"] for e, p in zip(mine, path, strict=True) if p is not None]
                 traces.append(lines_trace(xyz, f"flight path: {run.label}", "rgb(20,20,20)", keys, texts, 3))
-    keep = mesh_selection(model)
+    keep = mesh_selection(model, centers)
     title = f"city model: {len(keep)} of {model.num_triangles} triangles"
     if len(keep) < model.num_triangles:
         notes.append(
-            f"the 3D view draws the {len(keep)} largest of the map's {model.num_triangles} triangles"
+            f"the 3D view draws {len(keep)} of the map's {model.num_triangles} triangles (near the cameras, "
+            "the largest first)"
         )
     return city_figure(model, keep, traces, title), frusta
 

@@ -156,11 +156,24 @@ def frustum_lines(pose: Pose, camera: Camera, depth: float) -> list[list[float |
     return [[None if p is None else round(float(p[axis]), 1) for p in points] for axis in range(3)]
 
 
-def mesh_selection(model: CityModel, limit: int = MAX_MESH_TRIANGLES) -> np.ndarray:
-    """Indices of the triangles the 3D view draws: all, or the ``limit`` largest."""
+def mesh_selection(
+    model: CityModel, centers: list[np.ndarray], limit: int = MAX_MESH_TRIANGLES
+) -> np.ndarray:
+    """Indices of the triangles the 3D view draws: all of a small model; of a bigger one, those near the
+    cameras (within their height of the box around their centres), and of those the ``limit`` largest."""
     if model.num_triangles <= limit:
         return np.arange(model.num_triangles)
-    return np.sort(np.argsort(model.triangle_areas)[::-1][:limit])
+    candidates = np.arange(model.num_triangles)
+    if centers:
+        c = np.asarray(centers, dtype=np.float64)
+        ground = float(model.vertices[:, 2].min())
+        margin = max(50.0, float(np.max(c[:, 2]) - ground))
+        lo, hi = c[:, :2].min(axis=0) - margin, c[:, :2].max(axis=0) + margin
+        mid = model.triangle_corners().mean(axis=1)[:, :2]
+        candidates = np.flatnonzero(np.all((mid >= lo) & (mid <= hi), axis=1))
+    if len(candidates) > limit:
+        candidates = candidates[np.argsort(model.triangle_areas()[candidates])[::-1][:limit]]
+    return np.sort(candidates)
 
 
 def city_mesh_trace(model: CityModel, keep: np.ndarray):

@@ -181,7 +181,7 @@
       ctx.globalAlpha = 1;
       ctx.drawImage(edges, 0, 0, w, h);
     }
-    let cap = stand ? "the map at the true pose (" + e.background_kind + ")" : e.background_kind;
+    let cap = stand ? "the map at the true pose (this query's image was not kept: --keep-details)" : e.background_kind;
     if (state.overlay && layer) cap += "; model at the " + pose + " (mask and edges)";
     else if (!layer) cap += "; no model drawn at the " + pose + (e.layers && Object.keys(e.layers).length ? " (no such pose)" : " (no camera stored)");
     $("q-canvas-cap").textContent = cap;
