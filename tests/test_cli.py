@@ -214,6 +214,7 @@ def test_demo_runs_end_to_end_small(tmp_path, capsys):
     summary = json.loads((tmp_path / "demo" / "run_semcityloc" / "summary.json").read_text())
     assert summary["queries"] == 2 and "recall_2m2deg" in summary
     assert (tmp_path / "demo" / "report" / "report.md").exists()
+    assert f"interactive report: {(tmp_path / 'demo' / 'report' / 'report.html').resolve()}" in out
     assert list((tmp_path / "demo" / "report" / "plots").glob("*.png"))
 
 

@@ -170,7 +170,7 @@ def _order_value(key: str, value: Any):
     if key == "lod":
         return (int(value[3:]), "") if str(value).startswith("LoD") else (9, str(value))
     if key == "sweep_value":
-        return _sweep_x(value)
+        return sweep_x(value)
     if key == "perception":
         order = ("oracle", "oracle-degraded", "masks")
         head = str(value).split(" ")[0]
@@ -178,7 +178,7 @@ def _order_value(key: str, value: Any):
     return (0, str(value))
 
 
-def _sweep_x(value: Any) -> tuple[float, str]:
+def sweep_x(value: Any) -> tuple[float, str]:
     """A sweep value's place on the x axis: the number, the mean of a pair, or 0 for anything else."""
     try:
         v = json.loads(value) if isinstance(value, str) else value
@@ -392,7 +392,7 @@ def _save_figure(plt, fig, ax, path: Path, legend_loc: str = "best") -> Path:
     return path
 
 
-def _noise_x(run: RunData) -> float:
+def noise_x(run: RunData) -> float:
     extra = run.config.get("prior_extra_m")
     return 0.0 if not extra else 0.5 * (float(extra[0]) + float(extra[1]))
 
@@ -401,13 +401,19 @@ def plot_recall_vs_prior(runs: list[RunData], path: Path) -> Path:
     """Recall (≤) at each threshold against the extra prior noise (bin centre, 0 = base noise only);
     one colour per group of runs that agree on everything but the prior noise (only the runs of such
     comparisons when there are any, else every run)."""
+    groups = prior_noise_groups(runs)
+    return plot_recall_lines(groups, noise_x, "extra prior noise per axis (m, bin centre)", path)
+
+
+def prior_noise_groups(runs: list[RunData]) -> dict[str, list[RunData]]:
+    """The runs of the recall-vs-prior-noise lines by group (everything but the prior noise)."""
     runs = comparable_runs(runs, "prior_extra") or runs
     context = [k for k in differing_keys(runs) if k != "prior_extra"]
     groups: dict[str, list[RunData]] = {}
     for run in runs:
         name = ", ".join(f"{run.settings.get(k)}" for k in context) or str(run.settings["method"])
         groups.setdefault(name, []).append(run)
-    return plot_recall_lines(groups, _noise_x, "extra prior noise per axis (m, bin centre)", path)
+    return groups
 
 
 def plot_recall_lines(groups: dict[str, list[RunData]], x_of, xlabel: str, path: Path) -> Path:
@@ -433,7 +439,7 @@ def plot_recall_vs_sweep(runs: list[RunData], knob: str, path: Path) -> Path:
     groups: dict[str, list[RunData]] = {}
     for run in runs:
         groups.setdefault(str(run.settings["method"]), []).append(run)
-    return plot_recall_lines(groups, lambda r: _sweep_x(r.settings["sweep_value"])[0], knob, path)
+    return plot_recall_lines(groups, lambda r: sweep_x(r.settings["sweep_value"])[0], knob, path)
 
 
 TRUE_COLOR, EST_COLOR = (0, 200, 255), (255, 0, 255)
@@ -555,7 +561,7 @@ ACCEPT_THRESHOLDS = (0.3, 0.5, 0.7, 0.9)
 RIGHT_M, RIGHT_DEG = 5.0, 5.0  # "right" for the acceptance: the calibrated probability's own event
 
 
-def _acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
+def acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
     """(probability, right) of the queries with a found pose and a calibrated probability, or None."""
     p, right = [], []
     for row in run.rows:
@@ -583,7 +589,7 @@ def risk_coverage_table(runs: list[RunData]) -> tuple[str, str]:
         [["run", "poses", "right", "ece"] + [f"{k}_{t}" for t in ACCEPT_THRESHOLDS for k in ("cov", "prec")]],
     )
     for run in runs:
-        p, y = _acceptance_data(run)
+        p, y = acceptance_data(run)
         cells, values = [], []
         for t in ACCEPT_THRESHOLDS:
             acc = p >= t
@@ -603,7 +609,7 @@ def plot_risk_coverage(runs: list[RunData], path: Path) -> Path:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for run in runs:
-        p, y = _acceptance_data(run)
+        p, y = acceptance_data(run)
         curve = risk_coverage(p, y)
         ax.plot([c for _, c, _ in curve], [100 * pr for _, _, pr in curve], label=run.label)
     ax.set_xlabel("coverage (share of queries accepted)")
@@ -677,7 +683,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
         plot_recall_vs_prior(runs, out / "plots" / "recall_vs_prior_noise.png"),
     ]
     plots += sweep_plots
-    acceptance = [r for r in runs if _acceptance_data(r) is not None]
+    acceptance = [r for r in runs if acceptance_data(r) is not None]
     if acceptance:
         md, csv_text = risk_coverage_table(acceptance)
         md_path, csv_path = out / "tables" / "acceptance.md", out / "tables" / "acceptance.csv"
@@ -724,6 +730,21 @@ def photo_of(config: dict, query_meta: dict) -> Path | None:
     return next((c for c in candidates if c.is_file()), None)
 
 
+def map_renderer(run: RunData, cache: dict, notes: list[str], consequence: str):
+    """(map model, numba renderer) of a run, shared through ``cache`` by runs of one map; None (and a
+    note: its map cannot be loaded, ``consequence``) when the map is gone."""
+    keys = ("mode", "city_path", "lod", "map_source", "crs", "frame", "ecef_origin_llh")
+    key = json.dumps([run.config.get(k) for k in keys])
+    if key not in cache:
+        try:
+            model = run_map(run.config)
+            cache[key] = (model, Renderer(model, engine="numba"))
+        except SemCityLocError as exc:
+            cache[key] = None
+            notes.append(f"{run.path}: {consequence}, its map cannot be loaded ({exc})")
+    return cache[key]
+
+
 def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: list[str]) -> list[Path]:
     figures: list[Path] = []
     maps: dict[str, Any] = {}
@@ -731,18 +752,10 @@ def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: l
         files = sorted((run.path / DETAILS_DIR).glob("q*.npz"))[: max(0, overlays)]
         if not files:
             continue
-        keys = ("mode", "city_path", "lod", "map_source", "crs", "frame", "ecef_origin_llh")
-        key = json.dumps([run.config.get(k) for k in keys])
-        if key not in maps:
-            try:
-                model = run_map(run.config)
-                maps[key] = (model, Renderer(model, engine="numba"))
-            except SemCityLocError as exc:
-                maps[key] = None
-                notes.append(f"{run.path}: no query figures, its map cannot be loaded ({exc})")
-        if maps[key] is None:
+        pair = map_renderer(run, maps, notes, "no query figures")
+        if pair is None:
             continue
-        model, renderer = maps[key]
+        model, renderer = pair
         for f in files:
             details = load_details(f)
             photo = photo_of(run.config, details["meta"].get("query_meta") or {})

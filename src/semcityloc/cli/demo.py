@@ -6,7 +6,9 @@
    non-affine relative depth, GNSS/IMU priors with height errors up to ±30 m) localized against the LoD2
    map by the full method and, for contrast, its coarse-only ablation and the LoD-Loc-style wireframe
    baseline. Resumable. ``--scenario clean`` runs the first, easy benchmark instead.
-3. Report: the Markdown/CSV tables and the figures (error curves, overlays, cost-volume slices).
+3. Report: the Markdown/CSV tables and the figures (error curves, overlays, cost-volume slices), and the
+   interactive page ``report/report.html`` (``benchmark.report_html``; every query's details are kept
+   so its query browser shows each query's mask and cost volume).
 
 ``--city PATH`` runs the same on any CityGML/CityJSON file instead of the generated district.
 """
@@ -17,6 +19,7 @@ import argparse
 from pathlib import Path
 
 from semcityloc.benchmark.report import make_report, summary_markdown
+from semcityloc.benchmark.report_html import make_html_report
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
@@ -50,7 +53,10 @@ def run(args: argparse.Namespace) -> int:
     run_dirs, summaries, labels = [], [], []
     for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
         spec = BenchmarkSpec(
-            city=city, query=query_config(args.scenario, queries=args.queries, seed=args.seed), method=method
+            city=city,
+            query=query_config(args.scenario, queries=args.queries, seed=args.seed),
+            method=method,
+            keep_details=args.queries,
         )
         outcome = run_benchmark(spec, out / f"run_{method}", progress=True)
         run_dirs.append(outcome.out_dir)
@@ -60,4 +66,7 @@ def run(args: argparse.Namespace) -> int:
     print(summary_markdown(summaries, labels))
     report = make_report(run_dirs, out / "report", overlays=2)
     print(f"\nreport: {report.markdown} ({len(report.plots)} figures in {report.out_dir / 'plots'})")
+    page = make_html_report(run_dirs, report.out_dir, [md for md, _ in report.tables.values()], report.notes)
+    size_mb = page.path.stat().st_size / 1e6
+    print(f"interactive report: {page.path.resolve()} ({size_mb:.1f} MB; open it in a browser)")
     return 0

@@ -1,10 +1,12 @@
-"""``semcityloc report DIR...``: the paper's tables (Markdown + CSV) and plots from benchmark runs."""
+"""``semcityloc report DIR...``: the paper's tables (Markdown + CSV) and plots from benchmark runs, and the
+interactive page ``report.html`` (``benchmark.report_html``)."""
 
 from __future__ import annotations
 
 import argparse
 
 from semcityloc.benchmark.report import make_report
+from semcityloc.benchmark.report_html import make_html_report
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,6 +19,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=2,
         help="query figures (overlays and cost-volume slices) per run (default 2)",
     )
+    p.add_argument("--no-html", action="store_true", help="do not write the interactive report.html")
+    p.add_argument(
+        "--html-queries",
+        type=int,
+        default=None,
+        metavar="N",
+        help="queries per run in report.html's query browser (default: all)",
+    )
     p.set_defaults(func=run)
 
 
@@ -28,4 +38,8 @@ def run(args: argparse.Namespace) -> int:
     for note in report.notes:
         print(f"note: {note}")
     print(f"wrote {report.markdown}")
+    if not args.no_html:
+        tables = [md for md, _ in report.tables.values()]
+        page = make_html_report(args.runs, args.out, tables, report.notes, max_queries=args.html_queries)
+        print(f"wrote {page.path} ({page.queries} queries, {page.path.stat().st_size / 1e6:.1f} MB)")
     return 0

@@ -1,0 +1,272 @@
+"""The HTML report's query views: per query, small images (data URIs) and the cost-volume slices.
+
+Why its own module: the report's query browser shows, for every query of a run, the photo or simulated
+view with the model projected at the prior, the estimate and the truth, the query mask beside the
+rendered mask, and the coarse cost volume. A run stores the query mask, the camera and the cost volume
+only for its first ``keep_details`` queries (``details/qNNNN.npz``); the poses of every query are in
+``results.csv``. So the model is rendered here, at report time, from the run's map and the rows' poses,
+at ``VIEW_WIDTH`` pixels wide (a few milliseconds a view):
+
+- the camera: the details' camera; for a simulated query without details, the camera its run's query
+  config names (``queries.zenmuse_l2_camera``); a real-data query without details has none stored and
+  shows its photo (or the run's ``overlays/<stem>.png``) without the model;
+- the background: the photo of a real-data query when it is still where the run found it, else the
+  query mask (the simulated view the localizer saw);
+- per pose (prior, estimate, truth): the rendered mask (``fill``, background transparent) and the
+  model's visible edges (``edges``, one colour per pose), drawn over the background in the browser.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from semcityloc.benchmark.queries import zenmuse_l2_camera
+from semcityloc.benchmark.results import SKIPPED
+from semcityloc.benchmark.runfiles import OVERLAYS_DIR
+from semcityloc.classes import IGNORE
+from semcityloc.errors import SemCityLocError
+from semcityloc.evaluation.metrics import THRESHOLDS
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import wrap_deg
+from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import load_image, scaled_size
+from semcityloc.localization.result import LOCALIZED
+from semcityloc.render import Renderer
+from semcityloc.render.overlay import label_colors, resize_nearest, visible_edges
+
+VIEW_WIDTH = 320  # query images are drawn this wide (height in proportion)
+JPEG_QUALITY = 80
+# Pose name in the page -> (results.csv column prefix, edge colour RGB).
+POSES: dict[str, tuple[str, tuple[int, int, int]]] = {
+    "prior": ("prior", (60, 120, 255)),
+    "estimate": ("est", (255, 0, 255)),
+    "truth": ("true", (0, 220, 255)),
+}
+NO_TRUTH, NOT_LOCALIZED, WORSE = "no truth", "not localized", "worse"
+QUERY_MASK = "query mask"
+
+
+def data_uri(image: np.ndarray, fmt: str = "PNG") -> str:
+    """``data:image/...;base64,...`` of an (H, W, 3|4) uint8 image: JPEG for photos, else a palette PNG
+    (about 40 % smaller than RGB(A) for label images)."""
+    buf = io.BytesIO()
+    if fmt == "JPEG":
+        Image.fromarray(np.asarray(image)[..., :3]).save(buf, "JPEG", quality=JPEG_QUALITY)
+    else:  # label colours and edges: a handful of colours, kept exactly by a 256-colour palette
+        img = Image.fromarray(np.asarray(image))
+        img.quantize(256, method=Image.Quantize.FASTOCTREE).save(buf, "PNG", optimize=True)
+    return f"data:image/{fmt.lower()};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _float(text: str | None) -> float | None:
+    try:
+        value = float(text) if text not in (None, "") else None
+    except ValueError:
+        return None
+    return value if value is not None and math.isfinite(value) else None
+
+
+def row_pose(row: dict[str, str], prefix: str) -> Pose | None:
+    """The local pose of ``results.csv`` columns ``<prefix>_x ... <prefix>_yaw``, or None when empty."""
+    values = [_float(row.get(f"{prefix}_{k}")) for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+    if any(v is None for v in values):
+        return None
+    x, y, z, roll, pitch, yaw = values
+    return Pose.from_xyz_rpy(np.array([x, y, z]), roll, pitch, yaw)
+
+
+def error_bin(row: dict[str, str]) -> str:
+    """The row's place among the recall thresholds: ``≤2 m, 2°`` ... ``worse``, or why it has none."""
+    if row["status"] == SKIPPED:
+        return SKIPPED
+    if row["status"] != LOCALIZED:
+        return NOT_LOCALIZED
+    e_m, e_deg = _float(row.get("err_xyz_m")), _float(row.get("err_rot_deg"))
+    if e_m is None or e_deg is None:
+        return NO_TRUTH
+    for m, d in THRESHOLDS:
+        if e_m <= m and e_deg <= d:
+            return threshold_label(m, d)
+    return WORSE
+
+
+def threshold_label(max_m: float, max_deg: float) -> str:
+    return f"≤{max_m:g} m, {max_deg:g}°"
+
+
+def error_bins() -> list[str]:
+    """Every bin ``error_bin`` gives, best first (the page's filter lists them in this order)."""
+    return [threshold_label(m, d) for m, d in THRESHOLDS] + [WORSE, NOT_LOCALIZED, NO_TRUTH, SKIPPED]
+
+
+def query_camera(config: dict, details: dict | None) -> Camera | None:
+    """The query's camera at full size: the details' or, for a simulated run, its query config's."""
+    if details is not None:
+        fx, fy, cx, cy, w, h = details["camera"]
+        return Camera(float(fx), float(fy), float(cx), float(cy), int(w), int(h))
+    qc = config.get("query_config")
+    if config.get("mode") is None and qc:
+        return zenmuse_l2_camera(**{k: qc[k] for k in ("width", "height", "focal_mm") if k in qc})
+    return None
+
+
+def _query_meta(row: dict[str, str], details: dict | None) -> dict:
+    if details is not None and details["meta"].get("query_meta"):
+        return details["meta"]["query_meta"]
+    try:
+        return json.loads(row.get("meta_json") or "{}")
+    except ValueError:
+        return {}
+
+
+def _run_overlay(run_path: Path, config: dict, row: dict) -> Path | None:
+    """The run's own ``overlays/<stem>.png`` of a photo (``semcityloc run``), when it exists."""
+    names = config.get("query_names") or []
+    index = int(row["index"])
+    if index < len(names):
+        overlay = run_path / OVERLAYS_DIR / f"{Path(names[index]).stem}.png"
+        if overlay.is_file():
+            return overlay
+    return None
+
+
+def _background(
+    run_path: Path, config: dict, row: dict, details: dict | None, photo: Path | None, width: int
+) -> tuple[np.ndarray | None, str]:
+    """(RGB, what it is): without details (no camera to draw the model with) the run's own overlay of
+    the photo first; else the photo, the query mask, or (None, why not)."""
+    overlay = _run_overlay(run_path, config, row) if details is None else None
+    if overlay is not None:
+        try:
+            return load_image(overlay, max_width=width), "photo with the model at the estimate (run overlay)"
+        except SemCityLocError:
+            pass  # unreadable: the photo below
+    if photo is not None:
+        try:
+            return load_image(photo, max_width=width), "photo"
+        except SemCityLocError:
+            pass  # moved or unreadable since the run: fall through to what the run stored
+    if details is not None:
+        labels = details["labels"]
+        size = scaled_size(labels.shape[1], labels.shape[0], width)
+        return label_colors(resize_nearest(labels, *size)), QUERY_MASK
+    return None, "no image stored (the run kept no details of this query; see --keep-details)"
+
+
+def _pose_layers(renderer: Renderer, camera: Camera, pose: Pose, color) -> dict[str, str]:
+    """The rendered mask (background transparent) and the visible model edges of one pose."""
+    view = renderer.render(camera, pose, depth=True, face_ids=True)
+    labels = view.labels[0]
+    fill = np.zeros(labels.shape + (4,), np.uint8)
+    fill[..., :3] = label_colors(labels)
+    fill[..., 3] = np.where((labels > 0) & (labels != IGNORE), 255, 0)
+    edges = np.zeros(labels.shape + (4,), np.uint8)
+    mask = visible_edges(view.face_ids[0], view.depth[0], renderer.scene)
+    edges[mask] = (*color, 255)
+    return {"fill": data_uri(fill), "edges": data_uri(edges)}
+
+
+def cost_slices(details: dict, poses: dict[str, Pose | None]) -> dict | None:
+    """The coarse cost volume's xy slice at its best (z, yaw) and yaw slice at its best (x, y, z), with
+    where each pose falls (x, y, yaw); None when the run kept no volume."""
+    scores = details["cost_scores"]
+    axes = details["meta"].get("cost_volume")
+    if scores.size == 0 or axes is None:
+        return None
+    xs, ys, zs, yaws = (np.asarray(axes[k], dtype=np.float64) for k in ("x", "y", "z", "yaw"))
+    bi, bj, bk, bl = np.unravel_index(int(np.argmax(scores)), scores.shape)
+    mid = float(yaws[len(yaws) // 2])
+    marks = {}
+    for name, pose in poses.items():
+        if pose is not None:
+            x, y, _, _, _, yaw = pose.to_xyz_rpy()
+            marks[name] = [round(float(x), 2), round(float(y), 2), round(mid + wrap_deg(float(yaw) - mid), 2)]
+    return {
+        "x": np.round(xs, 2).tolist(),
+        "y": np.round(ys, 2).tolist(),
+        "xy": np.round(scores[:, :, bk, bl].T.astype(np.float64), 4).tolist(),  # rows = y
+        "z": round(float(zs[bk]), 1),
+        "yaw_at": round(float(yaws[bl]), 1),
+        "yaw": np.round(yaws, 2).tolist(),
+        "yaw_scores": np.round(scores[bi, bj, bk, :].astype(np.float64), 4).tolist(),
+        "at": [round(float(xs[bi]), 1), round(float(ys[bj]), 1), round(float(zs[bk]), 1)],
+        "marks": marks,
+    }
+
+
+NUMBERS = (
+    "err_xyz_m",
+    "err_rot_deg",
+    "err_yaw_deg",
+    "prior_err_m",
+    "prior_yaw_err_deg",
+    "score",
+    "semantic",
+    "depth_cost",
+    "score_margin",
+    "spread_m",
+    "spread_deg",
+    "building_iou",
+    "probability",
+    "query_miou",
+    "height_m",
+    "t_total_s",
+)
+
+
+def query_view(
+    run_path: Path,
+    config: dict,
+    row: dict[str, str],
+    details: dict | None,
+    renderer: Renderer | None,
+    photo: Path | None,
+    width: int = VIEW_WIDTH,
+) -> dict[str, Any]:
+    """Everything the page shows of one query (JSON-ready): status, numbers, images, cost slices."""
+    poses = {name: row_pose(row, prefix) for name, (prefix, _) in POSES.items()}
+    background, background_kind = _background(run_path, config, row, details, photo, width)
+    camera = query_camera(config, details)
+    layers: dict[str, dict[str, str]] = {}
+    if camera is not None and renderer is not None:
+        if background is not None:
+            camera = camera.scaled(background.shape[1], background.shape[0])
+        else:
+            camera = camera.scaled(*scaled_size(camera.width, camera.height, width))
+        for name, pose in poses.items():
+            if pose is not None:
+                layers[name] = _pose_layers(renderer, camera, pose, POSES[name][1])
+    mask = data_uri(background) if background_kind == QUERY_MASK else None
+    if mask is None and details is not None:
+        labels = details["labels"]
+        mask = data_uri(
+            label_colors(resize_nearest(labels, *scaled_size(labels.shape[1], labels.shape[0], width)))
+        )
+    meta = _query_meta(row, details)
+    return {
+        "qid": row["query_id"],
+        "index": int(row["index"]),
+        "name": meta.get("name") or row["query_id"],
+        "status": row["status"],
+        "reason": row.get("reason", ""),
+        "view": row.get("view") or "unknown",
+        "bin": error_bin(row),
+        "numbers": {k: _float(row.get(k)) for k in NUMBERS},
+        # the query mask is sent once, as ``mask``; the page draws it as the background too
+        "background": data_uri(background, "JPEG" if background_kind != QUERY_MASK else "PNG")
+        if background is not None and background_kind != QUERY_MASK
+        else None,
+        "background_kind": background_kind,
+        "size": [camera.width, camera.height] if camera is not None and layers else None,
+        "layers": layers,
+        "mask": mask,
+        "cost": cost_slices(details, poses) if details is not None else None,
+    }
