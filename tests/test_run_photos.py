@@ -386,3 +386,6 @@ def test_berlin_run_on_a_tile_store_gives_the_same_poses(berlin_run, tmp_path):
     assert sorted(p.name for p in (out / "overlays").glob("*.png")) == sorted(
         p.name for p in (berlin_run["out"] / "overlays").glob("*.png")
     )
+    # The report of a store's run reads the store (the query figures draw its map).
+    assert main(["report", str(out), "--out", str(tmp_path / "report"), "--no-html"]) == 0
+    assert (tmp_path / "report" / "report.md").is_file()

@@ -33,8 +33,8 @@ import numpy as np
 from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
 from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE
 from semcityloc.benchmark.spec import load_map
-from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel
+from semcityloc.citymodel.tiles import load_city
 from semcityloc.datasets.lodloc import FRAME_ECEF, IMAGE_DIR, enu_from_ecef, rotate_model
 from semcityloc.errors import BenchmarkError, OptionalDependencyError, SemCityLocError
 from semcityloc.evaluation.metrics import CAP_XYZ_M, THRESHOLDS, cumulative_curve, threshold_key
@@ -707,10 +707,10 @@ def run_map(config: dict) -> CityModel:
     a data set's model (rotated into ENU for Swiss-EPFL's ECEF frame, as ``read_lodloc`` does) or a photo
     run's city model."""
     mode = config.get("mode")
-    if mode == "photos":
-        return load_city_model(config["city_path"], lod=config.get("lod"), crs=config.get("crs"))
+    if mode == "photos":  # a model file or a tile store (merged whole)
+        return load_city(config["city_path"], lod=config.get("lod"), crs=config.get("crs"))
     if mode == "dataset":
-        model = load_city_model(config["city_path"])
+        model = load_city(config["city_path"])
         if config.get("frame") == FRAME_ECEF:
             model = rotate_model(model, enu_from_ecef(*config["ecef_origin_llh"]))
         return model
