@@ -423,6 +423,7 @@ class CityGMLReader:
         self.crs: pyproj.CRS | None = None
         self.source_crs: pyproj.CRS | None = None
         self._started = False
+        self._external_dtd: str | None = None  # the DOCTYPE's external DTD (never loaded)
 
         self._kinds: dict[str, tuple[int, int]] = {}
         self._gml_id = _GML_ID_31  # the gml:id attribute: GML 3.1 in CityGML 1.0/2.0, GML 3.2 in 3.0
@@ -492,6 +493,7 @@ class CityGMLReader:
 
     def _raise_empty(self) -> None:
         r = self.report
+        self.refuse_external_entities()
         if r.buildings == 0:
             found = ", ".join(f"{k} x{v}" for k, v in sorted(r.skipped_objects.items())) or "nothing"
             raise EmptyModelError(f"{self.path}: no Building city objects (found: {found})")
@@ -529,7 +531,8 @@ class CityGMLReader:
                 "refused (entity expansion is a known attack)"
             )
         if docinfo.system_url or docinfo.public_id:
-            self.stats.warnings.append(f"external DTD {docinfo.system_url or docinfo.public_id!r} not loaded")
+            self._external_dtd = docinfo.system_url or docinfo.public_id
+            self.stats.warnings.append(f"external DTD {self._external_dtd!r} not loaded")
         tag = root.tag if isinstance(root.tag, str) else ""
         ns, local = _namespace(tag), _local(tag)
         m = _CITYGML_NS.match(ns)
@@ -551,6 +554,35 @@ class CityGMLReader:
         raise UnsupportedFormatError(
             f"{self.path}: root element <{local}> (namespace {ns or '(none)'!r}) is not a CityGML CityModel"
         )
+
+    def refuse_external_entities(self) -> None:
+        """When nothing could be read from a document with an external DTD whose entities it uses: the
+        ``MalformedXMLError`` naming the DTD and the entity (the DTD is never loaded, module docstring)."""
+        if self._external_dtd is None:
+            return
+        entity = self._first_entity_reference()
+        if entity is not None:
+            raise MalformedXMLError(
+                f"{self.path}: no building surfaces could be read: the document uses the entity "
+                f"&{entity}; declared in the external DTD {self._external_dtd!r}, which is never loaded "
+                "(external DTDs and entities are refused: they are how XXE attacks read files and the "
+                "network)"
+            )
+
+    def _first_entity_reference(self) -> str | None:
+        """The name of the first (unexpanded) entity reference in the document, or None."""
+        fh = _open(self.path)
+        try:
+            for _, el in etree.iterparse(fh, events=("end",), **PARSER_OPTIONS):
+                for child in el:
+                    if isinstance(child, etree._Entity):
+                        return child.name
+                el.clear()
+        except (etree.XMLSyntaxError, EOFError, zlib.error, gzip.BadGzipFile, OSError):
+            return None
+        finally:
+            fh.close()
+        return None
 
     # ------------------------------------------------------------------ one city object
     def _city_object(self, obj) -> list[CityGMLPolygon]:
@@ -861,4 +893,8 @@ def read_citygml(
     add = builder.add_polygon
     for p in reader.polygons():
         add(p.exterior, p.interiors, p.semantic, p.building_id, p.lod)
-    return builder.build(crs=reader.crs, source_crs=reader.source_crs, source=str(reader.path))
+    try:
+        return builder.build(crs=reader.crs, source_crs=reader.source_crs, source=str(reader.path))
+    except EmptyModelError:
+        reader.refuse_external_entities()
+        raise

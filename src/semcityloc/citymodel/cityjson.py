@@ -168,10 +168,21 @@ def _vertex_array(values: Any, what: str, path: Path) -> np.ndarray:
     return arr
 
 
+# A transform's scale per axis must lie in (0, MAX_SCALE]: integer vertices times a scale beyond a metre per
+# unit, or a zero / negative one (a flat or mirrored model), are a broken file, not a city.
+MAX_SCALE = 1.0
+
+
 def _transform(doc: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
-    t = doc.get("transform")
-    if t is None:
+    """(scale, translate) of the vertices: CityJSON 1.0+ has a ``transform``, older files may omit it (plain
+    coordinates); a ``transform`` present but null or broken is refused, naming what is wrong with it."""
+    if "transform" not in doc:
         return np.ones(3), np.zeros(3)
+    t = doc["transform"]
+    if not isinstance(t, dict):
+        raise MalformedCityJSONError(
+            f"{path}: 'transform' is {json.dumps(t)[:40]}, expected an object with 'scale' and 'translate'"
+        )
     try:
         scale = np.asarray(t["scale"], dtype=np.float64).reshape(3)
         translate = np.asarray(t["translate"], dtype=np.float64).reshape(3)
@@ -179,8 +190,16 @@ def _transform(doc: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise MalformedCityJSONError(
             f"{path}: 'transform' needs 'scale' and 'translate' of 3 numbers"
         ) from exc
-    if not (np.isfinite(scale).all() and np.isfinite(translate).all()):
-        raise MalformedCityJSONError(f"{path}: 'transform' holds non-finite numbers")
+    if not (np.isfinite(scale).all() and (scale > 0).all() and (scale <= MAX_SCALE).all()):
+        raise MalformedCityJSONError(
+            f"{path}: 'transform' 'scale' {scale.tolist()} must be 3 numbers in (0, {MAX_SCALE:g}] "
+            "(a zero or negative scale flattens or mirrors the model; a larger one is not a city's)"
+        )
+    if not (np.abs(translate) <= MAX_ABS_COORDINATE_M).all():
+        raise MalformedCityJSONError(
+            f"{path}: 'transform' 'translate' {translate.tolist()} must be finite and within "
+            f"{MAX_ABS_COORDINATE_M:g} m"
+        )
     return scale, translate
 
 

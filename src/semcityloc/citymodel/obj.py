@@ -207,7 +207,7 @@ def _parse(text: str, path: Path) -> _ObjMesh:
                     i = int(token.split("/", 1)[0])
                 except ValueError:
                     raise fail(lineno, line, f"face vertex {token!r} is not an index") from None
-                if i > 0:
+                if 0 < i <= 2**62:
                     face_index.append(i - 1)  # range checked once the whole file is read
                 elif i < 0 and n_verts + i >= 0:
                     face_index.append(n_verts + i)

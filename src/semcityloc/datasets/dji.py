@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 import pyproj
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 from pyproj.transformer import TransformerGroup
 
 from semcityloc.citymodel.crs import parse_crs_name
@@ -60,6 +60,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import dji_gimbal_angles, pose_from_dji, wrap_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.io.images import IMAGE_DECODE_ERRORS
 
 HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, HEIGHT_BAROMETRIC = (
     "auto",
@@ -210,7 +211,7 @@ def _exif(path: Path) -> dict:
             out = {"width": im.size[0], "height": im.size[1], "make": exif.get(271), "model": exif.get(272)}
             gps = exif.get_ifd(0x8825)
             sub = exif.get_ifd(0x8769)
-    except (OSError, UnidentifiedImageError) as exc:
+    except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: not a readable image ({exc})") from exc
     try:
         if 2 in gps and 4 in gps:
