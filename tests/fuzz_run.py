@@ -12,9 +12,11 @@ peak RSS of the process) and, with ``--table``, replaces the fuzz table in that 
 from __future__ import annotations
 
 import argparse
+import json
 import random
 import resource
 import signal
+import subprocess
 import sys
 import tempfile
 import time
@@ -71,6 +73,38 @@ def fuzz_target(name: str, inputs: int, seed: int, work: Path, crashes: Path) ->
     }
 
 
+def atheris_target(name: str, inputs: int, work: Path, crashes: Path) -> dict:
+    """The same target under atheris (coverage-guided, ``fuzz_atheris.py``) in its own process."""
+    counts_file = work / f"{name}-atheris.json"
+    t0 = time.perf_counter()
+    script = Path(__file__).with_name("fuzz_atheris.py")
+    crashes.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.run(
+        [sys.executable, "-W", "ignore", str(script), name, str(inputs), str(counts_file)],
+        capture_output=True,
+        text=True,
+        cwd=crashes,  # libFuzzer writes crash-* files into the working folder
+    )
+    counts = json.loads(counts_file.read_text()) if counts_file.is_file() else {TYPED: 0, VALID: 0, CRASH: 0}
+    hang = int("timeout" in proc.stderr[-2000:].lower())
+    if proc.returncode and not counts[CRASH] and not hang:
+        counts[CRASH] = 1  # libFuzzer stopped on something else (an out-of-memory, a signal)
+    if proc.returncode:
+        (crashes / f"{name}-atheris.log").write_text(proc.stderr[-20000:])
+        print(f"{name} (atheris): stopped, exit {proc.returncode}; log in {crashes}", flush=True)
+    run = sum(counts.values())
+    return {
+        "target": f"{name} (atheris)",
+        "inputs": run,
+        "seeds": "",
+        **counts,
+        "hang": hang,
+        "slowest_s": float("nan"),
+        "total_s": time.perf_counter() - t0,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
+    }
+
+
 def markdown(rows: list[dict], command: str) -> str:
     head = ["target", "seeds", "inputs run", "typed error", "valid result", "crash", "hang > 10 s"]
     head += ["slowest input (s)", "time (s)"]
@@ -78,7 +112,7 @@ def markdown(rows: list[dict], command: str) -> str:
     for r in rows:
         lines.append(
             f"| {r['target']} | {r['seeds']} | {r['inputs']} | {r[TYPED]} | {r[VALID]} | {r[CRASH]} | "
-            f"{r['hang']} | {r['slowest_s']:.2f} | {r['total_s']:.0f} |"
+            f"{r['hang']} | {r['slowest_s']:.2f} | {r['total_s']:.0f} |".replace("| nan |", "| |")
         )
     peak = max(r["peak_rss_mb"] for r in rows)
     lines.append("")
@@ -93,6 +127,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--crashes", default="fuzz_crashes", help="folder for crashing inputs")
     parser.add_argument("--table", default=None, help="Markdown file whose fuzz table to replace")
+    parser.add_argument(
+        "--atheris",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also N coverage-guided inputs per target with atheris (the optional extra semcityloc[fuzz])",
+    )
     args = parser.parse_args(argv)
     signal.signal(signal.SIGALRM, _alarm)
     rows = []
@@ -106,6 +147,13 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
             rows.append(row)
+            if args.atheris:
+                row = atheris_target(name, args.atheris, Path(tmp), Path(args.crashes))
+                print(
+                    f"{row['target']}: {row['inputs']} inputs, {row[CRASH]} crash, {row['hang']} hang",
+                    flush=True,
+                )
+                rows.append(row)
     command = "python tests/fuzz_run.py " + " ".join(argv if argv is not None else sys.argv[1:])
     table = markdown(rows, command.strip())
     print(table)

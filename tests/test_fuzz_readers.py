@@ -11,7 +11,10 @@ import io
 import json
 import random
 import struct
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,11 +23,13 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from fuzzing import CRASH, SHARED_DATA, TARGETS, Fuzzer, real_seeds
+from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.datasets.colmap import read_images_text, read_points3D_text
-from semcityloc.errors import CameraError, InputFileError, PoseError
+from semcityloc.errors import CameraError, InputFileError, MalformedCityJSONError, PoseError
 from semcityloc.geometry.io import read_intrinsics, read_pose
 from semcityloc.io.images import load_image, read_depth_file, read_mask_file
+from test_cityjson import box_doc, write
 
 SLICE = settings(
     max_examples=25,
@@ -145,3 +150,31 @@ def test_png_with_a_broken_chunk_or_a_bomb_header_is_typed(tmp_path):
         for read in (read_mask_file, read_depth_file, load_image):
             with pytest.raises(InputFileError):
                 read(path)
+
+
+def test_cityjson_integers_beyond_float64_are_typed(tmp_path):
+    doc = box_doc()
+    doc["vertices"][0][0] = 10**400
+    with pytest.raises(MalformedCityJSONError, match="'vertices'"):
+        read_cityjson(write(tmp_path, doc))
+    doc = box_doc()
+    doc["transform"]["translate"][0] = 10**400
+    with pytest.raises(MalformedCityJSONError, match="'transform'"):
+        read_cityjson(write(tmp_path, doc))
+
+
+def test_atheris_coverage_guided_smoke(tmp_path):
+    """The coverage-guided engine (optional extra ``fuzz``) runs a target to its end without a crash."""
+    pytest.importorskip("atheris", reason="atheris (the optional extra 'fuzz') is not installed here")
+    counts = tmp_path / "counts.json"
+    script = Path(__file__).with_name("fuzz_atheris.py")
+    proc = subprocess.run(
+        [sys.executable, "-W", "ignore", str(script), "intrinsics", "300", str(counts)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    outcome = json.loads(counts.read_text())
+    assert sum(outcome.values()) == 300 and outcome["crash"] == 0 and outcome["typed"] > 0

@@ -54,6 +54,7 @@ from lxml import etree
 
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
+from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS, SemanticClass
 from semcityloc.errors import (
@@ -391,6 +392,7 @@ def _open(path: Path) -> IO[bytes]:
         raise InputFileError(f"{path}: is a directory, not a CityGML file") from exc
     except OSError as exc:
         raise InputFileError(f"{path}: cannot open ({exc.strerror or exc})") from exc
+    check_file_size(path, "CityGML")
     if fh.read(2) == b"\x1f\x8b":
         fh.seek(0)
         return gzip.GzipFile(fileobj=fh, mode="rb")

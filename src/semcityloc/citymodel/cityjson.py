@@ -30,9 +30,9 @@ by ``MetricFrame``, axis order as the EPSG definition says (like the CityGML rea
 
 from __future__ import annotations
 
-import gzip
 import json
 import re
+import zlib
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -44,6 +44,7 @@ import pyproj
 
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
+from semcityloc.citymodel.limits import check_file_size, gunzip_bounded
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS
 from semcityloc.errors import (
@@ -96,14 +97,15 @@ def read_cityjson(
 
 
 def _load_json(path: Path) -> dict:
+    check_file_size(path, "CityJSON")
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     if raw[:2] == b"\x1f\x8b":
         try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError) as exc:
+            raw = gunzip_bounded(path, raw, "CityJSON")
+        except (OSError, EOFError, zlib.error) as exc:
             raise MalformedCityJSONError(f"{path}: broken gzip stream ({exc})") from exc
     try:
         doc = json.loads(raw)
@@ -159,7 +161,7 @@ def _vertex_array(values: Any, what: str, path: Path) -> np.ndarray:
     """(n, 3) float64 from a JSON list of [x, y, z]."""
     try:
         arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise MalformedCityJSONError(f"{path}: '{what}' is not a list of [x, y, z] numbers") from exc
     if arr.size == 0:
         return np.zeros((0, 3))
@@ -186,7 +188,7 @@ def _transform(doc: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         scale = np.asarray(t["scale"], dtype=np.float64).reshape(3)
         translate = np.asarray(t["translate"], dtype=np.float64).reshape(3)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise MalformedCityJSONError(
             f"{path}: 'transform' needs 'scale' and 'translate' of 3 numbers"
         ) from exc
@@ -389,7 +391,7 @@ class _CityJSONReader:
             matrix = np.asarray(
                 geom.get("transformationMatrix", np.eye(4).ravel()), dtype=np.float64
             ).reshape(4, 4)
-        except (KeyError, IndexError, TypeError, ValueError):
+        except (KeyError, IndexError, TypeError, ValueError, OverflowError):
             self.counts.broken_instances += 1
             return None
         if not isinstance(template, dict) or _type_of(template) not in SURFACE_DEPTH:

@@ -111,9 +111,25 @@ DEPTH_MIN_RELIEF = 1e-3  # (p95 - p5) / median below which the depth is constant
 DEPTH_MAX_ROUGHNESS = 0.4
 
 
+def depth_roughness(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> float:
+    """Median absolute step between neighbouring valid pixels over the interquartile range of the depth,
+    at ``width`` pixels wide (NaN when there are too few valid neighbours or no spread)."""
+    d = np.asarray(depth, dtype=np.float64)
+    h, w = d.shape
+    d = downsample_depth(d, width, max(1, round(h * width / w))) if w > width else d
+    d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    steps = np.concatenate([np.abs(np.diff(d, axis=1)).ravel(), np.abs(np.diff(d, axis=0)).ravel()])
+    steps = steps[np.isfinite(steps)]
+    v = d[np.isfinite(d)]
+    if steps.size < 16 or v.size < 16:
+        return float("nan")
+    p25, p75 = np.percentile(v, [25, 75])
+    return float(np.median(steps) / (p75 - p25)) if p75 > p25 else float("nan")
+
+
 def depth_problem(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> str | None:
     """Why a relative depth map (NaN = invalid) is unusable for the search, or None when it is usable:
-    no valid pixels, too few, constant, or noise (no spatial structure)."""
+    no valid pixels, too few, constant, or noise (no spatial structure: ``depth_roughness``)."""
     d = np.asarray(depth, dtype=np.float64)
     valid = np.isfinite(d) & (d > 0)
     share = float(valid.mean()) if d.size else 0.0
@@ -121,21 +137,10 @@ def depth_problem(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> str | No
         return "no valid pixels (all NaN, zero or negative)"
     if share < DEPTH_MIN_VALID:
         return f"only {100 * share:.1f}% of its pixels are valid (needs {100 * DEPTH_MIN_VALID:.0f}%)"
-    v = d[valid]
-    p5, p25, p50, p75, p95 = np.percentile(v, [5, 25, 50, 75, 95])
+    p5, p50, p95 = np.percentile(d[valid], [5, 50, 95])
     if (p95 - p5) <= DEPTH_MIN_RELIEF * p50:
         return "it is constant (no relative depth to compare)"
-    h, w = d.shape
-    if w > width:
-        d = downsample_depth(d, width, max(1, round(h * width / w)))
-        v = d[np.isfinite(d)]
-        p25, p75 = np.percentile(v, [25, 75]) if v.size else (0.0, 0.0)
-    steps = np.concatenate([np.abs(np.diff(d, axis=1)).ravel(), np.abs(np.diff(d, axis=0)).ravel()])
-    steps = steps[np.isfinite(steps)]
-    spread = p75 - p25
-    if steps.size < 16 or spread <= 0:
-        return None
-    roughness = float(np.median(steps) / spread)
+    roughness = depth_roughness(d, width)
     if roughness > DEPTH_MAX_ROUGHNESS:
         return (
             f"it looks like noise (neighbouring pixels differ by {roughness:.2f} of the depth spread; "
