@@ -26,6 +26,7 @@ from fuzzing import CRASH, SHARED_DATA, TARGETS, Fuzzer, real_seeds
 from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.datasets.colmap import read_images_text, read_points3D_text
+from semcityloc.datasets.dji import read_dji_metadata
 from semcityloc.errors import CameraError, InputFileError, MalformedCityJSONError, PoseError
 from semcityloc.geometry.io import read_intrinsics, read_pose
 from semcityloc.io.images import load_image, read_depth_file, read_mask_file
@@ -178,3 +179,18 @@ def test_atheris_coverage_guided_smoke(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     outcome = json.loads(counts.read_text())
     assert sum(outcome.values()) == 300 and outcome["crash"] == 0 and outcome["typed"] > 0
+
+
+def test_exif_focal_length_of_the_wrong_type_is_typed(tmp_path):
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[37386] = (1.0, 2.0)  # a tuple where a rational belongs (TypeError before)
+    path = tmp_path / "photo.jpg"
+    Image.fromarray(np.zeros((48, 64, 3), np.uint8)).save(path, exif=exif.tobytes())
+    with pytest.raises(InputFileError, match="unreadable EXIF focal length"):
+        read_dji_metadata(path)
+
+
+def test_a_pose_line_of_separators_alone_is_typed():
+    with pytest.raises(PoseError):
+        read_pose(",\n")  # IndexError before
+    assert read_pose(",\n1,2,100,0,5,30\n").center.tolist() == pytest.approx([1, 2, 100])

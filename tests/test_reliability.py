@@ -5,8 +5,10 @@ One test (or parametrized group) per row of the matrix in ``docs/reliability.md`
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
+import resource
 import shutil
 import signal
 import subprocess
@@ -22,11 +24,13 @@ from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.runfiles import LOCK_FILE, RUN_FILE, prepare_output, run_lock
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
+from semcityloc.citymodel.obj import read_obj
 from semcityloc.cli.main import build_parser, main
 from semcityloc.errors import (
     InputFileError,
     MalformedCityJSONError,
     MalformedXMLError,
+    ParameterError,
     ResumeMismatchError,
     RunLockedError,
 )
@@ -334,3 +338,40 @@ def test_report_on_a_crashed_run_reports_what_is_there_and_names_what_is_missing
     assert "2 of 5 queries have a row; missing q0002, q0003, q0004 and summary.json" in note
     assert "(incomplete 2/5)" in report.tables["main"][0].read_text()
     assert note in report.markdown.read_text()
+
+
+# -------------------------------------------------------------------------------------------- limits
+def test_model_files_over_the_size_limit_are_refused_naming_the_variable(tmp_path, monkeypatch):
+    gml = tmp_path / "c.gml"
+    gml.write_text(_doc(""))
+    cj = write(tmp_path, box_doc())
+    obj = tmp_path / "m.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 1\nf 1 2 3\n" * 2000)
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYGML_MB", "0.0005")
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYJSON_MB", "0.0001")
+    monkeypatch.setenv("SEMCITYLOC_MAX_OBJ_MB", "0.01")
+    for path, read, var in (
+        (gml, read_citygml, "SEMCITYLOC_MAX_CITYGML_MB"),
+        (cj, read_cityjson, "SEMCITYLOC_MAX_CITYJSON_MB"),
+        (obj, read_obj, "SEMCITYLOC_MAX_OBJ_MB"),
+    ):
+        with pytest.raises(InputFileError, match=f"over the size limit .*raise the limit: {var}="):
+            read(path)
+    monkeypatch.setenv("SEMCITYLOC_MAX_OBJ_MB", "lots")
+    with pytest.raises(ParameterError, match="SEMCITYLOC_MAX_OBJ_MB='lots'"):
+        read_obj(obj)
+
+
+def test_a_gzip_bomb_cityjson_is_refused_without_inflating_it(tmp_path, monkeypatch):
+    doc = box_doc()
+    doc["padding"] = " " * (40 * 1024 * 1024)  # 40 MB of spaces: 40 kB gzipped
+    path = tmp_path / "bomb.json"
+    path.write_bytes(gzip.compress(json.dumps(doc).encode()))
+    assert path.stat().st_size < 100_000
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYJSON_MB", "8")
+    peak0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(InputFileError, match="over the size limit of 8 MB"):
+        read_cityjson(path)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak0 < 30 * 1024  # kB: never 40 MB
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYJSON_MB", "64")
+    assert read_cityjson(path).num_buildings == 1  # under a raised limit it reads

@@ -8,7 +8,7 @@ the file (a gzip CityJSON: decompressed, stopped at the limit; a gzip CityGML is
 counts) and set by an environment variable (docs/reliability.md has the measured peak memory per size):
 
 - ``SEMCITYLOC_MAX_CITYGML_MB`` (default 4096)
-- ``SEMCITYLOC_MAX_CITYJSON_MB`` (default 256)
+- ``SEMCITYLOC_MAX_CITYJSON_MB`` (default 128)
 - ``SEMCITYLOC_MAX_OBJ_MB`` (default 1024)
 """
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from semcityloc.errors import InputFileError, ParameterError
 
-DEFAULT_LIMITS_MB = {"CityGML": 4096, "CityJSON": 256, "OBJ": 1024}
+DEFAULT_LIMITS_MB = {"CityGML": 4096, "CityJSON": 128, "OBJ": 1024}
 MB = 1024 * 1024
 
 

@@ -223,10 +223,13 @@ def _exif(path: Path) -> dict:
             out["altitude"] = -float(gps[6]) if below else float(gps[6])
     except (TypeError, ValueError, ZeroDivisionError) as exc:
         raise InputFileError(f"{path}: unreadable EXIF GPS block ({exc})") from exc
-    if 37386 in sub:
-        out["focal_mm"] = float(sub[37386])
-    if 41989 in sub and float(sub[41989]) > 0:
-        out["focal_35mm"] = float(sub[41989])
+    try:
+        if 37386 in sub:
+            out["focal_mm"] = float(sub[37386])
+        if 41989 in sub and float(sub[41989]) > 0:
+            out["focal_35mm"] = float(sub[41989])
+    except (TypeError, ValueError, ZeroDivisionError) as exc:  # a tuple or text where a number belongs
+        raise InputFileError(f"{path}: unreadable EXIF focal length ({exc})") from exc
     return out
 
 

@@ -112,8 +112,9 @@ def _lines(text: str) -> list[list[str]]:
     out = []
     for line in text.splitlines():
         line = line.strip()
-        if line and not line.startswith("#"):
-            out.append([t for t in _SPLIT.split(line) if t])
+        tokens = [t for t in _SPLIT.split(line) if t] if not line.startswith("#") else []
+        if tokens:  # a line of separators alone (",") holds nothing
+            out.append(tokens)
     return out
 
 
