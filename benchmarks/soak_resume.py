@@ -4,16 +4,20 @@ uninterrupted run — no duplicates, no torn rows, same numbers (timing columns 
 1. ``semcityloc benchmark`` runs ``--queries N`` without interruption into ``REF`` (timed: start-up until
    its first row, then seconds per query).
 2. The same command into ``SOAK`` is started ``--kills`` times and each time SIGKILLed (by its own pid) at a
-   random moment: a third during start-up (before the reference run's first row: loading, the lock,
-   compiling), the others within the next 4 queries' time (a query, a row's write, the summary). After
+   random moment: a third during start-up (within the reference run's time to its first row: loading,
+   the lock, compiling), the others once that start has written a row, within the next 4 queries' time
+   (a query, a row's write, the summary). After
    each kill the script counts the rows, the torn last line (if any) and the lock file left behind; the
    next start must take the stale lock over and resume.
 3. The command then runs to its end; ``SOAK/results.csv`` must hold exactly ``REF``'s rows: the same
    query ids once each, every line whole, every non-timing value equal; ``summary.json`` likewise.
 
+``--command run`` does the same with ``semcityloc run`` over a folder of ``--queries`` photos made here (a
+box city, LoD-Loc pose and intrinsics files, oracle masks): its rows, and its ``poses/<stem>.json``.
+
 Prints one line per kill and a final JSON line of counts; exit code 1 when anything differs.
 
-    python benchmarks/soak_resume.py [--queries 40] [--kills 10] [--preset fast] [--seed 0]
+    python benchmarks/soak_resume.py [--queries 40] [--kills 10] [--preset fast] [--seed 0] [--command run]
 """
 
 from __future__ import annotations
@@ -31,13 +35,65 @@ import tempfile
 import time
 from pathlib import Path
 
-from semcityloc.benchmark.results import COLUMNS, TIMING_COLUMNS
-from semcityloc.benchmark.runfiles import LOCK_FILE, RESULTS_FILE, SUMMARY_FILE
+import numpy as np
+from PIL import Image
 
-SUMMARY_TIMING = ("sec_per_image", "sec_per_image_median")  # summary keys that are timings
+from semcityloc.benchmark.dataset_source import oracle_labels
+from semcityloc.benchmark.results import COLUMNS, TIMING_COLUMNS
+from semcityloc.benchmark.runfiles import LOCK_FILE, POSES_DIR, RESULTS_FILE, SUMMARY_FILE
+from semcityloc.benchmark.warmup import box_city_obj
+from semcityloc.citymodel.io import load_city_model
+from semcityloc.datasets.lodloc import LodLocQuery, write_lodloc_scene
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import save_labels_png
+
+# Summary keys not compared: timings, and a photo run's output paths (the two runs' folders differ).
+SUMMARY_TIMING = ("sec_per_image", "sec_per_image_median", "outputs")
+
+
+def box_flight(root: Path, photos: int, seed: int) -> list[str]:
+    """``photos`` photos over the box city (``benchmark.warmup.box_city_obj``): truths, priors 2-4 m off,
+    intrinsics in LoD-Loc's layout, oracle masks; the ``semcityloc run`` arguments that read them."""
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    city = root / "city.obj"
+    city.write_text(box_city_obj())
+    model = load_city_model(city, cache=False)
+    camera = Camera.from_fov(160, 120, 60.0)
+    rng = np.random.default_rng(seed)
+    queries = []
+    for i in range(photos):
+        truth = Pose.from_xyz_rpy(
+            [rng.uniform(-12, 12), rng.uniform(-10, 10), rng.uniform(85, 95)],
+            rng.uniform(-1, 1),
+            rng.uniform(5, 20),
+            rng.uniform(-180, 180),
+        )
+        prior = Pose.from_rotation_center(truth.R_world_from_cam, truth.center + rng.uniform(-3, 3, 3))
+        name = f"P{i:03d}.JPG"
+        queries.append(LodLocQuery(name, "flight", camera, gt_pose_world=truth, prior_pose_world=prior))
+        Image.new("RGB", (camera.width, camera.height), (120, 120, 120)).save(root / "images" / name)
+        save_labels_png(oracle_labels(model, camera, truth), root / "masks" / f"P{i:03d}.png")
+    write_lodloc_scene(root, queries)
+    return [
+        *("run", str(root / "images"), "--city", str(city), "--priors", str(root / "GPS_pose")),
+        *("--intrinsics", str(root / "intrinsic"), "--masks", str(root / "masks")),
+        *("--truth", str(root / "GT_pose"), "--no-overlays"),
+    ]
 
 
 def command(out: Path, args) -> list[str]:
+    if args.command == "run":
+        return [
+            sys.executable,
+            "-m",
+            "semcityloc.cli.main",
+            *args.run_argv,
+            "--preset",
+            args.preset,
+            "--out",
+            str(out),
+        ]
     return [
         *(sys.executable, "-m", "semcityloc.cli.main", "benchmark", "--city", args.city),
         *("--queries", str(args.queries), "--preset", args.preset, "--seed", str(args.seed)),
@@ -82,11 +138,19 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--work", default=None, help="folder for REF and SOAK (default: a temporary one)")
+    parser.add_argument(
+        "--command",
+        choices=("benchmark", "run"),
+        default="benchmark",
+        help="benchmark (simulated queries) or run (a folder of --queries photos over a box city)",
+    )
     args = parser.parse_args()
     rng = random.Random(args.seed)
     with tempfile.TemporaryDirectory(prefix="semcityloc-soak-") as tmp:
         work = Path(args.work or tmp)
         ref, soak = work / "ref", work / "soak"
+        if args.command == "run":
+            args.run_argv = box_flight(work / "flight", args.queries, args.seed)
         t0, t_first = time.perf_counter(), None
         proc = subprocess.Popen(command(ref, args), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         while proc.poll() is None:
@@ -106,11 +170,15 @@ def main() -> int:
 
         kills = []
         for k in range(args.kills):
-            # A third of the kills during start-up (loading, compiling, the lock), the rest among the queries.
-            at = (
-                rng.uniform(0.5, startup) if rng.random() < 1 / 3 else startup + rng.uniform(0, 4 * per_query)
-            )
+            # A third of the kills during start-up (loading, compiling, the lock); the rest among the
+            # queries: once this start has written a row, within the next 4 queries' time.
+            in_startup = rng.random() < 1 / 3
+            at = rng.uniform(0.5, startup) if in_startup else rng.uniform(0, 4 * per_query)
+            before = len(rows_of(soak / RESULTS_FILE)[0])
+            t_start = time.perf_counter()
             proc = subprocess.Popen(command(soak, args), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            while not in_startup and proc.poll() is None and len(rows_of(soak / RESULTS_FILE)[0]) <= before:
+                time.sleep(0.02)
             try:
                 proc.wait(timeout=at)
                 finished = True
@@ -121,11 +189,12 @@ def main() -> int:
             err = proc.stderr.read().decode(errors="replace")
             rows, torn = rows_of(soak / RESULTS_FILE)
             stale = "stale lock" in err
+            at = time.perf_counter() - t_start
             kills.append({"at_s": round(at, 2), "rows": len(rows), "torn": torn, "finished": finished})
             print(
-                f"kill {k + 1}: at {at:.1f} s, {len(rows)} rows, torn last line: {bool(torn)}, "
-                f"lock left: {(soak / LOCK_FILE).exists()}, took over a stale lock: {stale}, "
-                f"finished before the kill: {finished}",
+                f"kill {k + 1}: at {at:.1f} s ({'start-up' if in_startup else 'queries'}), {len(rows)} rows, "
+                f"torn last line: {bool(torn)}, lock left: {(soak / LOCK_FILE).exists()}, "
+                f"took over a stale lock: {stale}, finished before the kill: {finished}",
                 flush=True,
             )
         final = subprocess.run(command(soak, args), capture_output=True, text=True)
@@ -152,6 +221,15 @@ def main() -> int:
             "header_ok": header_ok,
             "lock_left_at_end": (soak / LOCK_FILE).exists(),
         }
+        if args.command == "run":  # one pose file per photo, the same as the uninterrupted run's
+            ref_poses = {
+                p.name: json.loads(p.read_text()).get("position") for p in (ref / POSES_DIR).glob("*.json")
+            }
+            soak_poses = {
+                p.name: json.loads(p.read_text()).get("position") for p in (soak / POSES_DIR).glob("*.json")
+            }
+            counts["pose_files"] = len(soak_poses)
+            counts["pose_files_equal"] = ref_poses == soak_poses
         print(json.dumps(counts))
         ok = (
             final.returncode == 0
@@ -162,6 +240,7 @@ def main() -> int:
             and same_summary
             and header_ok
             and not counts["lock_left_at_end"]
+            and counts.get("pose_files_equal", True)
         )
         return 0 if ok else 1
 
