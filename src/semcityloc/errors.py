@@ -95,6 +95,15 @@ class ResumeMismatchError(BenchmarkError):
     """The output folder holds a run made with other arguments."""
 
 
+class RunLockedError(BenchmarkError):
+    """The output folder is in use by another run that is still going (its lock file names the pid)."""
+
+
+class OutputPathError(SemCityLocError):
+    """An output path that cannot be written (its parent is a file, it is a file where a folder is needed,
+    or its folder is read-only or immutable); checked before any work."""
+
+
 _E = TypeVar("_E", bound=Exception)
 
 

@@ -30,8 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
-from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE
+from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE, SUMMARY_FILE
 from semcityloc.benchmark.spec import load_map
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
@@ -95,6 +96,18 @@ def load_run(path: str | Path) -> RunData:
     complete = len(rows) == int(config.get("queries", -1))
     summary = summarize_rows(rows, config)  # from the rows: the same numbers as summary.json
     return RunData(path, config, rows, summary, complete, describe(config))
+
+
+def incomplete_note(run: RunData) -> str:
+    """What is missing from an unfinished (stopped or crashed) run: its rows reported, the rest named."""
+    total = int(run.config.get("queries", 0))
+    missing = [query_id(i) for i in range(total) if query_id(i) not in {r["query_id"] for r in run.rows}]
+    shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
+    return (
+        f"{run.path}: incomplete run, {len(run.rows)} of {total} queries have a row; missing {shown}"
+        f"{'' if (run.path / SUMMARY_FILE).is_file() else f' and {SUMMARY_FILE}'} (run the same command "
+        "again to finish it); the tables use the rows there are"
+    )
 
 
 def _prior_label(extra) -> str:
@@ -632,7 +645,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     (out / "tables").mkdir(parents=True, exist_ok=True)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     differ = differing_keys(runs)
-    notes: list[str] = []
+    notes: list[str] = [incomplete_note(r) for r in runs if not r.complete]
     doc = ["# SemCityLoc benchmark report", "", f"Runs: {len(runs)}", ""]
     doc += [f"- `{r.path}`: {r.label}" for r in runs]
     doc += [

@@ -46,6 +46,7 @@ from semcityloc.benchmark.runfiles import (
     SUMMARY_FILE,
     Progress,
     prepare_output,
+    run_lock,
     write_json_atomic,
 )
 from semcityloc.benchmark.sources import QuerySource
@@ -163,6 +164,16 @@ def run_queries(
         raise BenchmarkError(f"limit must be >= 0, got {limit}")
     out = Path(out_dir)
     config = config if config is not None else spec.run_config()
+    with run_lock(out):  # one run at a time writes a folder
+        return _run_locked(
+            source, spec, out, config, workers, overwrite, limit, progress, executor, ray_address
+        )
+
+
+def _run_locked(
+    source, spec, out: Path, config: dict, workers, overwrite, limit, progress, executor, ray_address
+) -> BenchmarkOutcome:
+    """``run_queries`` once it holds the folder's lock."""
     prepare_output(out, config, overwrite)
     results_path = out / RESULTS_FILE
     total = int(config["queries"])

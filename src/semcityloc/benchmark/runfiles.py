@@ -19,23 +19,33 @@ Folder ``DIR`` of a run:
   ``cameras.geojson``.
 
 A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) before it starts.
+
+- ``run.lock``: held while a run writes the folder (``run_lock``): an exclusive ``flock`` on it, and the
+  pid, host and start time of its holder inside. A second run on the same folder is refused
+  (``RunLockedError`` naming that pid); the kernel drops the lock when its holder dies, so the file a
+  killed run leaves behind is stale and the next run takes it over.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import math
 import os
 import shutil
+import socket
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from semcityloc.errors import ResumeMismatchError
+from semcityloc.errors import ResumeMismatchError, RunLockedError
 from semcityloc.geometry.io import json_default
 
 RUN_FILE = "run.json"
+LOCK_FILE = "run.lock"
 RESULTS_FILE = "results.csv"
 SUMMARY_FILE = "summary.json"
 DETAILS_DIR = "details"
@@ -102,6 +112,78 @@ def write_json_atomic(path: Path, value: Any) -> None:
     write_atomic(path, json.dumps(json_safe(value), indent=2) + "\n")
 
 
+@contextlib.contextmanager
+def run_lock(out_dir: Path) -> Iterator[None]:
+    """Hold ``out_dir/run.lock`` while the block runs; ``RunLockedError`` when another live run holds it.
+
+    A lock file left by a run that was killed is not held (the kernel released its ``flock``): it is taken
+    over, with a note on stderr naming the old pid.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = _lock_holder(fd)
+            os.close(fd)
+            raise RunLockedError(
+                f"{out_dir} is in use by another run ({holder}); wait for it to finish or choose another "
+                "--out"
+            ) from None
+        try:  # the file may have been removed by its last holder between our open and flock: retry
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    stale = _lock_holder(fd, default="")
+    if stale:
+        print(f"{out_dir}: taking over the stale lock of a run that ended ({stale})", file=sys.stderr)
+    info = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()
+        os.close(fd)  # releases the flock
+
+
+def _lock_holder(fd: int, default: str = "pid unknown") -> str:
+    """ "pid N on HOST since T" from an open lock file (``default`` when it is empty or unreadable)."""
+    try:
+        info = json.loads(os.pread(fd, 4096, 0) or b"null")
+        return f"pid {int(info['pid'])} on {info['host']} since {info['started']}"
+    except (OSError, ValueError, TypeError, KeyError):
+        return default
+
+
+_SHORT_VALUE = 40  # a differing value longer than this (as repr) is named, not shown
+
+
+def differing_settings(old: dict, new: dict, prefix: str = "") -> list[str]:
+    """The keys (dotted into nested objects) whose values differ, each with ``old -> new`` when both are
+    short: what a refused resume names (never whole configurations)."""
+    out = []
+    for k in sorted(set(old) | set(new), key=str):
+        if not prefix and k in NOT_IDENTITY:
+            continue
+        a, b = old.get(k), new.get(k)
+        if a == b:
+            continue
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += differing_settings(a, b, f"{prefix}{k}.")
+            continue
+        shown = f"{a!r} -> {b!r}"
+        out.append(f"{prefix}{k}" + (f": {shown}" if len(shown) <= 2 * _SHORT_VALUE else ""))
+    return out
+
+
 def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> None:
     """Create ``out_dir`` and its ``run.json``; refuse a folder holding a run with other arguments."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -113,16 +195,12 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> None
         except (OSError, ValueError) as exc:
             old = None
             mismatch = f"its {RUN_FILE} is unreadable ({exc})"
-        if old is not None:
-            differ = [
-                f"{k}: {old.get(k)!r} -> {config.get(k)!r}"
-                for k in sorted(set(old) | set(config))
-                if k not in NOT_IDENTITY and old.get(k) != config.get(k)
-            ]
+        if isinstance(old, dict):
+            differ = differing_settings(old, config)
             if differ:
-                mismatch = (
-                    "arguments differ (" + "; ".join(differ[:4]) + ("; ..." if len(differ) > 4 else "") + ")"
-                )
+                mismatch = "arguments differ: " + "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
+        elif old is not None:
+            mismatch = f"its {RUN_FILE} is not a JSON object"
     elif results.exists():
         mismatch = f"it has a {RESULTS_FILE} but no {RUN_FILE}"
     if mismatch and not overwrite:

@@ -54,6 +54,7 @@ from lxml import etree
 
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
+from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS, SemanticClass
 from semcityloc.errors import (
@@ -391,6 +392,7 @@ def _open(path: Path) -> IO[bytes]:
         raise InputFileError(f"{path}: is a directory, not a CityGML file") from exc
     except OSError as exc:
         raise InputFileError(f"{path}: cannot open ({exc.strerror or exc})") from exc
+    check_file_size(path, "CityGML")
     if fh.read(2) == b"\x1f\x8b":
         fh.seek(0)
         return gzip.GzipFile(fileobj=fh, mode="rb")
@@ -423,6 +425,7 @@ class CityGMLReader:
         self.crs: pyproj.CRS | None = None
         self.source_crs: pyproj.CRS | None = None
         self._started = False
+        self._external_dtd: str | None = None  # the DOCTYPE's external DTD (never loaded)
 
         self._kinds: dict[str, tuple[int, int]] = {}
         self._gml_id = _GML_ID_31  # the gml:id attribute: GML 3.1 in CityGML 1.0/2.0, GML 3.2 in 3.0
@@ -492,6 +495,7 @@ class CityGMLReader:
 
     def _raise_empty(self) -> None:
         r = self.report
+        self.refuse_external_entities()
         if r.buildings == 0:
             found = ", ".join(f"{k} x{v}" for k, v in sorted(r.skipped_objects.items())) or "nothing"
             raise EmptyModelError(f"{self.path}: no Building city objects (found: {found})")
@@ -529,7 +533,8 @@ class CityGMLReader:
                 "refused (entity expansion is a known attack)"
             )
         if docinfo.system_url or docinfo.public_id:
-            self.stats.warnings.append(f"external DTD {docinfo.system_url or docinfo.public_id!r} not loaded")
+            self._external_dtd = docinfo.system_url or docinfo.public_id
+            self.stats.warnings.append(f"external DTD {self._external_dtd!r} not loaded")
         tag = root.tag if isinstance(root.tag, str) else ""
         ns, local = _namespace(tag), _local(tag)
         m = _CITYGML_NS.match(ns)
@@ -551,6 +556,35 @@ class CityGMLReader:
         raise UnsupportedFormatError(
             f"{self.path}: root element <{local}> (namespace {ns or '(none)'!r}) is not a CityGML CityModel"
         )
+
+    def refuse_external_entities(self) -> None:
+        """When nothing could be read from a document with an external DTD whose entities it uses: the
+        ``MalformedXMLError`` naming the DTD and the entity (the DTD is never loaded, module docstring)."""
+        if self._external_dtd is None:
+            return
+        entity = self._first_entity_reference()
+        if entity is not None:
+            raise MalformedXMLError(
+                f"{self.path}: no building surfaces could be read: the document uses the entity "
+                f"&{entity}; declared in the external DTD {self._external_dtd!r}, which is never loaded "
+                "(external DTDs and entities are refused: they are how XXE attacks read files and the "
+                "network)"
+            )
+
+    def _first_entity_reference(self) -> str | None:
+        """The name of the first (unexpanded) entity reference in the document, or None."""
+        fh = _open(self.path)
+        try:
+            for _, el in etree.iterparse(fh, events=("end",), **PARSER_OPTIONS):
+                for child in el:
+                    if isinstance(child, etree._Entity):
+                        return child.name
+                el.clear()
+        except (etree.XMLSyntaxError, EOFError, zlib.error, gzip.BadGzipFile, OSError):
+            return None
+        finally:
+            fh.close()
+        return None
 
     # ------------------------------------------------------------------ one city object
     def _city_object(self, obj) -> list[CityGMLPolygon]:
@@ -863,4 +897,10 @@ def read_citygml(
     add = builder.add_polygon
     for p in reader.polygons():
         add(p.exterior, p.interiors, p.semantic, p.building_id, p.lod)
-    return builder.build(crs=reader.crs, source_crs=reader.source_crs, source=str(reader.path), origin=origin)
+    try:
+        return builder.build(
+            crs=reader.crs, source_crs=reader.source_crs, source=str(reader.path), origin=origin
+        )
+    except EmptyModelError:
+        reader.refuse_external_entities()
+        raise

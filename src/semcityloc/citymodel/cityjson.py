@@ -30,9 +30,9 @@ by ``MetricFrame``, axis order as the EPSG definition says (like the CityGML rea
 
 from __future__ import annotations
 
-import gzip
 import json
 import re
+import zlib
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -44,6 +44,7 @@ import pyproj
 
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
+from semcityloc.citymodel.limits import check_file_size, gunzip_bounded
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS
 from semcityloc.errors import (
@@ -98,14 +99,15 @@ def read_cityjson(
 
 
 def _load_json(path: Path) -> dict:
+    check_file_size(path, "CityJSON")
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     if raw[:2] == b"\x1f\x8b":
         try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError) as exc:
+            raw = gunzip_bounded(path, raw, "CityJSON")
+        except (OSError, EOFError, zlib.error) as exc:
             raise MalformedCityJSONError(f"{path}: broken gzip stream ({exc})") from exc
     try:
         doc = json.loads(raw)
@@ -161,7 +163,7 @@ def _vertex_array(values: Any, what: str, path: Path) -> np.ndarray:
     """(n, 3) float64 from a JSON list of [x, y, z]."""
     try:
         arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise MalformedCityJSONError(f"{path}: '{what}' is not a list of [x, y, z] numbers") from exc
     if arr.size == 0:
         return np.zeros((0, 3))
@@ -170,19 +172,38 @@ def _vertex_array(values: Any, what: str, path: Path) -> np.ndarray:
     return arr
 
 
+# A transform's scale per axis must lie in (0, MAX_SCALE]: integer vertices times a scale beyond a metre per
+# unit, or a zero / negative one (a flat or mirrored model), are a broken file, not a city.
+MAX_SCALE = 1.0
+
+
 def _transform(doc: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
-    t = doc.get("transform")
-    if t is None:
+    """(scale, translate) of the vertices: CityJSON 1.0+ has a ``transform``, older files may omit it (plain
+    coordinates); a ``transform`` present but null or broken is refused, naming what is wrong with it."""
+    if "transform" not in doc:
         return np.ones(3), np.zeros(3)
+    t = doc["transform"]
+    if not isinstance(t, dict):
+        raise MalformedCityJSONError(
+            f"{path}: 'transform' is {json.dumps(t)[:40]}, expected an object with 'scale' and 'translate'"
+        )
     try:
         scale = np.asarray(t["scale"], dtype=np.float64).reshape(3)
         translate = np.asarray(t["translate"], dtype=np.float64).reshape(3)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise MalformedCityJSONError(
             f"{path}: 'transform' needs 'scale' and 'translate' of 3 numbers"
         ) from exc
-    if not (np.isfinite(scale).all() and np.isfinite(translate).all()):
-        raise MalformedCityJSONError(f"{path}: 'transform' holds non-finite numbers")
+    if not (np.isfinite(scale).all() and (scale > 0).all() and (scale <= MAX_SCALE).all()):
+        raise MalformedCityJSONError(
+            f"{path}: 'transform' 'scale' {scale.tolist()} must be 3 numbers in (0, {MAX_SCALE:g}] "
+            "(a zero or negative scale flattens or mirrors the model; a larger one is not a city's)"
+        )
+    if not (np.abs(translate) <= MAX_ABS_COORDINATE_M).all():
+        raise MalformedCityJSONError(
+            f"{path}: 'transform' 'translate' {translate.tolist()} must be finite and within "
+            f"{MAX_ABS_COORDINATE_M:g} m"
+        )
     return scale, translate
 
 
@@ -372,7 +393,7 @@ class _CityJSONReader:
             matrix = np.asarray(
                 geom.get("transformationMatrix", np.eye(4).ravel()), dtype=np.float64
             ).reshape(4, 4)
-        except (KeyError, IndexError, TypeError, ValueError):
+        except (KeyError, IndexError, TypeError, ValueError, OverflowError):
             self.counts.broken_instances += 1
             return None
         if not isinstance(template, dict) or _type_of(template) not in SURFACE_DEPTH:

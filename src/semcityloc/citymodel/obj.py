@@ -41,6 +41,7 @@ from scipy.spatial import cKDTree
 
 from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
 from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
+from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import DUPLICATE_TOLERANCE_M, NONPLANAR_TOLERANCE_M, triangulate_polygon
 from semcityloc.errors import CRSError, EmptyModelError, InputFileError
@@ -141,6 +142,7 @@ def _metric_crs(crs: str | None) -> pyproj.CRS | None:
 
 
 def _read_text(path: Path) -> str:
+    check_file_size(path, "OBJ")
     try:
         raw = path.read_bytes()
     except OSError as exc:
@@ -207,7 +209,7 @@ def _parse(text: str, path: Path) -> _ObjMesh:
                     i = int(token.split("/", 1)[0])
                 except ValueError:
                     raise fail(lineno, line, f"face vertex {token!r} is not an index") from None
-                if i > 0:
+                if 0 < i <= 2**62:
                     face_index.append(i - 1)  # range checked once the whole file is read
                 elif i < 0 and n_verts + i >= 0:
                     face_index.append(n_verts + i)

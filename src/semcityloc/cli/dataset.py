@@ -245,6 +245,7 @@ def run_dji_prior(args: argparse.Namespace) -> int:
     data = pose_to_dict(prior.pose, crs=prior.crs, extra=prior.as_dict())
     text = json.dumps(data, indent=2)
     if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text + "\n", encoding="utf-8")
         print(f"wrote {args.out}")
     else:

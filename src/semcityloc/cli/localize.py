@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from semcityloc.datasets.photos import EXIF, IntrinsicsFiles
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.io import read_intrinsics, read_pose, write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.io.images import check_aspect, image_size, load_depth, load_image, load_labels_png, save_rgb
+from semcityloc.io.images import check_aspect, image_size, load_depth, load_image, read_mask_file, save_rgb
 from semcityloc.localization.config import PRESETS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.methods import ABLATIONS
@@ -50,6 +51,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--prior", required=True, help="prior pose in the model's CRS (same forms as render --pose)"
     )
     p.add_argument("--semantic", default=None, help="query label mask (palette/grey PNG of class ids)")
+    p.add_argument(
+        "--allow-lossy-mask",
+        action="store_true",
+        help="accept a --semantic mask in a lossy format (JPEG): its edges carry wrong class ids",
+    )
     p.add_argument("--depth", default=None, help="query relative depth (.npy or 16-bit PNG); optional")
     p.add_argument("--image", default=None, help="the photo: overlay background, or input to --seg-backend")
     p.add_argument(
@@ -120,7 +126,7 @@ def _query_inputs(args, camera):
         image = load_image(args.image, max_width=PHOTO_MAX_WIDTH)
     name = Path(args.image).name if args.image else None
     if args.semantic:
-        labels = load_labels_png(args.semantic)
+        labels = read_mask_file(args.semantic, allow_lossy=args.allow_lossy_mask)
     else:
         labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
     check_aspect(labels.shape, camera.width, camera.height, "mask", args.semantic)
@@ -146,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
     result = localizer.localize(
         camera, model.pose_to_local(prior_world), labels, depth, prior_uncertainty=uncertainty
     )
+    for warning in result.warnings:
+        print(f"semcityloc: warning: {warning}", file=sys.stderr)
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,8 @@
 """The ``semcityloc`` command: one sub-command module per job, typed errors become one-line messages.
 
 Every ``SemCityLocError`` (bad input) is printed as ``semcityloc: error: <message>`` with exit code 2;
-anything else is a bug and keeps its traceback.
+anything else is a bug and keeps its traceback. An unwritable ``--out`` is refused so before any work
+(``cli.outputs``).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from semcityloc.cli import (
     train,
     warmup,
 )
+from semcityloc.cli.outputs import check_output_args
 from semcityloc.errors import SemCityLocError
 
 COMMANDS = (city, tiles, render, localize, run, benchmark, sweep, report, dataset, label, train, demo, warmup)
@@ -87,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        check_output_args(args)  # before any work: an unwritable --out would lose it
         compile_notice(args)
         return int(args.func(args) or 0)
     except SemCityLocError as exc:

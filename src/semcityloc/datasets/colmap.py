@@ -263,6 +263,8 @@ def read_points3D_text(path: str | os.PathLike) -> dict[int, ColmapPoint3D]:
         pid = parse_tokens(path, lineno, "point id", int, tok[:1])[0]
         xyz = parse_tokens(path, lineno, "coordinates", float, tok[1:4])
         rgb = parse_tokens(path, lineno, "colour", int, tok[4:7])
+        if not all(0 <= c <= 255 for c in rgb):
+            raise InputFileError(f"{path}: line {lineno}: colour values must be 0..255, got {rgb}")
         error = parse_tokens(path, lineno, "error", float, tok[7:8])[0]
         track = parse_tokens(path, lineno, "track", int, tok[8:])
         points[pid] = ColmapPoint3D(pid, xyz, rgb, error, track[0::2], track[1::2])

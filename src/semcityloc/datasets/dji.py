@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 import pyproj
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 from pyproj.transformer import TransformerGroup
 
 from semcityloc.citymodel.crs import parse_crs_name
@@ -60,6 +60,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import dji_gimbal_angles, pose_from_dji, wrap_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.io.images import IMAGE_DECODE_ERRORS
 
 HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, HEIGHT_BAROMETRIC = (
     "auto",
@@ -210,7 +211,7 @@ def _exif(path: Path) -> dict:
             out = {"width": im.size[0], "height": im.size[1], "make": exif.get(271), "model": exif.get(272)}
             gps = exif.get_ifd(0x8825)
             sub = exif.get_ifd(0x8769)
-    except (OSError, UnidentifiedImageError) as exc:
+    except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: not a readable image ({exc})") from exc
     try:
         if 2 in gps and 4 in gps:
@@ -222,10 +223,13 @@ def _exif(path: Path) -> dict:
             out["altitude"] = -float(gps[6]) if below else float(gps[6])
     except (TypeError, ValueError, ZeroDivisionError) as exc:
         raise InputFileError(f"{path}: unreadable EXIF GPS block ({exc})") from exc
-    if 37386 in sub:
-        out["focal_mm"] = float(sub[37386])
-    if 41989 in sub and float(sub[41989]) > 0:
-        out["focal_35mm"] = float(sub[41989])
+    try:
+        if 37386 in sub:
+            out["focal_mm"] = float(sub[37386])
+        if 41989 in sub and float(sub[41989]) > 0:
+            out["focal_35mm"] = float(sub[41989])
+    except (TypeError, ValueError, ZeroDivisionError) as exc:  # a tuple or text where a number belongs
+        raise InputFileError(f"{path}: unreadable EXIF focal length ({exc})") from exc
     return out
 
 

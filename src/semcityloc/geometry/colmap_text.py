@@ -113,13 +113,17 @@ def text_rows(path: Path) -> list[tuple[int, str]]:
 
 
 def parse_tokens(path: Path, lineno: int, what: str, convert, tokens: list[str]) -> list:
-    """``[convert(t) for t in tokens]``; ``InputFileError`` naming the file and line when one fails."""
+    """``[convert(t) for t in tokens]``; ``InputFileError`` naming the file and line when one fails (for
+    ``int``: also a value beyond int64, which ids are stored as)."""
     try:
-        return [convert(t) for t in tokens]
+        values = [convert(t) for t in tokens]
     except ValueError:
         raise InputFileError(
             f"{path}: line {lineno}: {what} are not numbers: {' '.join(tokens)[:80]!r}"
         ) from None
+    if convert is int and any(not -(2**63) <= v < 2**63 for v in values):
+        raise InputFileError(f"{path}: line {lineno}: {what} out of range: {' '.join(tokens)[:80]!r}")
+    return values
 
 
 def read_camera_lines(path: str | os.PathLike) -> Iterator[tuple[int, int, str, int, int, list[float]]]:

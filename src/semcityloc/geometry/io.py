@@ -112,8 +112,9 @@ def _lines(text: str) -> list[list[str]]:
     out = []
     for line in text.splitlines():
         line = line.strip()
-        if line and not line.startswith("#"):
-            out.append([t for t in _SPLIT.split(line) if t])
+        tokens = [t for t in _SPLIT.split(line) if t] if not line.startswith("#") else []
+        if tokens:  # a line of separators alone (",") holds nothing
+            out.append(tokens)
     return out
 
 
@@ -154,7 +155,10 @@ def _number(obj: dict, key: str, error: type[SemCityLocError]) -> float:
     value = obj[key]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise error(f"{key!r} must be a number, got {value!r}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # an integer beyond float64 (JSON integers are unbounded)
+        raise error(f"{key!r} is too large: {str(value)[:40]}...") from None
 
 
 def _vector(obj: dict, key: str, n: int, error: type[SemCityLocError]) -> list[float]:
@@ -165,7 +169,10 @@ def _vector(obj: dict, key: str, n: int, error: type[SemCityLocError]) -> list[f
         or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)
     ):
         raise error(f"{key!r} must be a list of {n} numbers, got {value!r}")
-    return [float(v) for v in value]
+    try:
+        return [float(v) for v in value]
+    except OverflowError:  # an integer beyond float64
+        raise error(f"{key!r} holds a number too large for float64") from None
 
 
 def _labelled(label: str, fn, *args):

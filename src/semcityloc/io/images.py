@@ -9,13 +9,20 @@ chunk (``load_depth`` reads it); the exact float32 metres always go to a ``.npy`
 
 from __future__ import annotations
 
+import math
+import struct
+import tokenize
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, PngImagePlugin, UnidentifiedImageError
+from PIL import Image, PngImagePlugin
 
 from semcityloc.classes import IGNORE, NUM_CLASSES, PALETTE
 from semcityloc.errors import InputFileError, ShapeError
+
+# What Pillow raises on a corrupt or hostile image file (a broken chunk is a SyntaxError, a header naming
+# billions of pixels a DecompressionBombError): each becomes an ``InputFileError`` naming the file.
+IMAGE_DECODE_ERRORS = (OSError, ValueError, SyntaxError, EOFError, struct.error, Image.DecompressionBombError)
 
 
 def _palette_bytes() -> list[int]:
@@ -37,16 +44,28 @@ def save_labels_png(labels: np.ndarray, path: str | Path) -> Path:
     return path
 
 
-def load_labels_png(path: str | Path) -> np.ndarray:
-    """(H, W) uint8 class ids from a palette PNG (or a grey PNG whose values are class ids)."""
+# Image formats whose compression changes pixel values: a label mask saved so has wrong class ids along every
+# edge (and a palette image turned RGB), so such masks are refused unless the caller allows them.
+LOSSY_FORMATS = ("JPEG", "MPO", "JPEG2000", "WEBP")
+
+
+def load_labels_png(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
+    """(H, W) uint8 class ids from a palette PNG (or a grey PNG whose values are class ids); a mask in a
+    lossy format (``LOSSY_FORMATS``) is refused unless ``allow_lossy``."""
     try:
         with Image.open(path) as img:
+            if img.format in LOSSY_FORMATS and not allow_lossy:
+                raise InputFileError(
+                    f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
+                    "class ids along every edge; save masks as PNG (semcityloc localize --allow-lossy-mask "
+                    "forces it)"
+                )
             if img.mode not in ("P", "L"):
                 raise InputFileError(
                     f"{path}: label PNG must be a palette or grey image of class ids, got {img.mode}"
                 )
             return np.array(img, dtype=np.uint8)
-    except (FileNotFoundError, UnidentifiedImageError, OSError) as exc:
+    except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read label image ({exc})") from exc
 
 
@@ -67,18 +86,40 @@ def save_depth(depth: np.ndarray, path_png: str | Path) -> tuple[Path, Path]:
     return path_png, npy
 
 
+def load_npy(path: str | Path, what: str) -> np.ndarray:
+    """A numeric array from a ``.npy`` file, its header checked first: no pickled objects, and no shape
+    larger than the file holds (a forged header would otherwise allocate terabytes)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            fmt = np.lib.format
+            read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+            shape, _, dtype = read_header(fh)
+            payload = path.stat().st_size - fh.tell()
+        if dtype.hasobject or dtype.kind not in "biuf":
+            raise InputFileError(f"{path}: {what} must hold numbers, got dtype {dtype}")
+        if math.prod(shape) * dtype.itemsize > payload:
+            raise InputFileError(f"{path}: truncated .npy ({what} of shape {shape} needs more bytes)")
+        return np.load(path, allow_pickle=False)
+    except InputFileError:
+        raise
+    except (OSError, ValueError, EOFError, SyntaxError, TypeError, tokenize.TokenError) as exc:
+        raise InputFileError(f"{path}: not a readable .npy {what} ({type(exc).__name__}: {exc})") from exc
+
+
 def load_depth(path: str | Path) -> np.ndarray:
     """Depth (H, W) float64 from ``.npy`` (as stored) or a 16-bit PNG in millimetres (0 -> NaN)."""
     path = Path(path)
     try:
         if path.suffix.lower() == ".npy":
-            d = np.load(path, allow_pickle=False).astype(np.float64)
+            d = load_npy(path, "depth map").astype(np.float64)
         else:
             with Image.open(path) as img:
                 unit = float(img.info.get("depth_unit_m", 0.001))
                 d = np.array(img, dtype=np.float64) * unit
             d[d == 0] = np.nan
-    except (OSError, ValueError, UnidentifiedImageError) as exc:
+    except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read depth map ({exc})") from exc
     if d.ndim != 2:
         raise ShapeError(f"{path}: depth must be a 2-D array, got shape {d.shape}")
@@ -94,7 +135,7 @@ def load_image(path: str | Path, max_width: int | None = None) -> np.ndarray:
             if max_width is not None and rgb.width > max_width:
                 rgb = rgb.resize(scaled_size(rgb.width, rgb.height, max_width), Image.Resampling.BOX)
             return np.array(rgb)
-    except (FileNotFoundError, UnidentifiedImageError, OSError) as exc:
+    except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read image ({exc})") from exc
 
 
@@ -128,7 +169,7 @@ def image_size(path: str | Path, what: str = "image") -> tuple[int, int]:
     try:
         with Image.open(path) as img:
             return img.size
-    except (OSError, UnidentifiedImageError) as exc:
+    except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read {what} ({exc})") from exc
 
 
@@ -140,17 +181,15 @@ def save_rgb(image: np.ndarray, path: str | Path, optimize: bool = False) -> Pat
     return path
 
 
-def read_mask_file(path: str | Path) -> np.ndarray:
+def read_mask_file(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
     """(H, W) uint8 class ids (0..5, 255 = ignore) from a ``.npy`` or a label PNG (palette or grey image
-    whose values are class ids, ``load_labels_png``); ids outside the classes are refused."""
+    whose values are class ids, ``load_labels_png``; lossy formats only with ``allow_lossy``); ids
+    outside the classes are refused, naming them."""
     path = Path(path)
     if path.suffix.lower() == ".npy":
-        try:
-            labels = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputFileError(f"{path}: not a readable .npy mask ({exc})") from exc
+        labels = load_npy(path, "mask")
     else:
-        labels = load_labels_png(path)
+        labels = load_labels_png(path, allow_lossy)
     labels = np.asarray(labels)
     if labels.ndim != 2 or not np.issubdtype(labels.dtype, np.integer):
         raise ShapeError(
@@ -158,8 +197,11 @@ def read_mask_file(path: str | Path) -> np.ndarray:
         )
     bad = (labels != IGNORE) & ((labels < 0) | (labels >= NUM_CLASSES))
     if bad.any():
+        ids = np.unique(labels[bad])
+        shown = ", ".join(str(int(i)) for i in ids[:12]) + (", ..." if len(ids) > 12 else "")
         raise InputFileError(
-            f"{path}: class ids must be 0..{NUM_CLASSES - 1} or {IGNORE}, found {int(labels[bad][0])}"
+            f"{path}: invalid class ids {shown} in {int(bad.sum())} pixels; class ids must be "
+            f"0..{NUM_CLASSES - 1} or {IGNORE} (semcityloc.classes)"
         )
     return labels.astype(np.uint8)
 

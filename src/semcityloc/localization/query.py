@@ -97,3 +97,53 @@ class Query:
         labels[labels >= NUM_CLASSES] = IGNORE
         depth = None if self.depth is None else downsample_depth(self.depth, width, height)
         return labels.reshape(-1), None if depth is None else depth.reshape(-1)
+
+
+# Depth quality (``depth_problem``): a depth map that cannot inform the search is dropped, with the reason,
+# and the query is localized on semantics alone (a bad depth term can pull the pose metres off).
+DEPTH_CHECK_WIDTH = 64  # checked at about the search's resolution: pixel noise there is what the cost sees
+DEPTH_MIN_VALID = 0.05  # share of valid pixels below which the depth says too little
+DEPTH_MIN_RELIEF = 1e-3  # (p95 - p5) / median below which the depth is constant
+# Median absolute difference of neighbouring valid pixels over the interquartile range. Depth of a scene is
+# piecewise smooth: jumps sit at a few edges, so the median neighbour step is small next to the spread;
+# for pixel noise the two are of one size (independent noise: 0.7). Measured: clean and realistic
+# simulated depth <= 0.2 at this resolution (docs/reliability.md).
+DEPTH_MAX_ROUGHNESS = 0.4
+
+
+def depth_roughness(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> float:
+    """Median absolute step between neighbouring valid pixels over the interquartile range of the depth,
+    at ``width`` pixels wide (NaN when there are too few valid neighbours or no spread)."""
+    d = np.asarray(depth, dtype=np.float64)
+    h, w = d.shape
+    d = downsample_depth(d, width, max(1, round(h * width / w))) if w > width else d
+    d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    steps = np.concatenate([np.abs(np.diff(d, axis=1)).ravel(), np.abs(np.diff(d, axis=0)).ravel()])
+    steps = steps[np.isfinite(steps)]
+    v = d[np.isfinite(d)]
+    if steps.size < 16 or v.size < 16:
+        return float("nan")
+    p25, p75 = np.percentile(v, [25, 75])
+    return float(np.median(steps) / (p75 - p25)) if p75 > p25 else float("nan")
+
+
+def depth_problem(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> str | None:
+    """Why a relative depth map (NaN = invalid) is unusable for the search, or None when it is usable:
+    no valid pixels, too few, constant, or noise (no spatial structure: ``depth_roughness``)."""
+    d = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    share = float(valid.mean()) if d.size else 0.0
+    if share == 0.0:
+        return "no valid pixels (all NaN, zero or negative)"
+    if share < DEPTH_MIN_VALID:
+        return f"only {100 * share:.1f}% of its pixels are valid (needs {100 * DEPTH_MIN_VALID:.0f}%)"
+    p5, p50, p95 = np.percentile(d[valid], [5, 50, 95])
+    if (p95 - p5) <= DEPTH_MIN_RELIEF * p50:
+        return "it is constant (no relative depth to compare)"
+    roughness = depth_roughness(d, width)
+    if roughness > DEPTH_MAX_ROUGHNESS:
+        return (
+            f"it looks like noise (neighbouring pixels differ by {roughness:.2f} of the depth spread; "
+            f"a scene's depth is smooth, <= {DEPTH_MAX_ROUGHNESS})"
+        )
+    return None

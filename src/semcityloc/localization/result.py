@@ -37,6 +37,7 @@ class LocalizationResult:
     probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume searched, its
     extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores, best first.
     ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never a result).
+    ``warnings``: what the localizer ignored and why (a depth map dropped as unusable).
     """
 
     status: str
@@ -53,6 +54,7 @@ class LocalizationResult:
     search: dict = field(default_factory=dict)
     hypotheses: list = field(default_factory=list)
     rejected_pose_local: Pose | None = None
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def localized(self) -> bool:
@@ -79,6 +81,7 @@ class LocalizationResult:
             "timings_s": self.timings,
             "counts": self.counts,
             "search": self.search,
+            "warnings": self.warnings,
         }
         if self.pose_local is not None:
             out.update(pose_to_dict(self.pose_local, origin=origin, crs=crs))

@@ -1,0 +1,378 @@
+"""Reliability (docs/reliability.md): every bad input of the matrix gets a clear answer, runs never collide.
+
+One test (or parametrized group) per row of the matrix in ``docs/reliability.md``.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from helpers import CAMERA, perturbed, view
+from semcityloc.benchmark.report import make_report
+from semcityloc.benchmark.runfiles import LOCK_FILE, RUN_FILE, prepare_output, run_lock
+from semcityloc.citymodel.citygml import read_citygml
+from semcityloc.citymodel.cityjson import read_cityjson
+from semcityloc.citymodel.obj import read_obj
+from semcityloc.cli.main import build_parser, main
+from semcityloc.errors import (
+    InputFileError,
+    MalformedCityJSONError,
+    MalformedXMLError,
+    ParameterError,
+    ResumeMismatchError,
+    RunLockedError,
+)
+from semcityloc.geometry.errors import center_error_m
+from semcityloc.io.images import read_mask_file, save_labels_png
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.query import depth_problem
+from semcityloc.localization.result import LOCALIZED
+from semcityloc.render import Renderer
+from test_cityjson import box_doc, write
+from test_hostile_xml import _doc
+from test_report import fake_run
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+# ------------------------------------------------------------------------ unwritable --out, every command
+# Every command with an output, its other arguments pointing at files that do not exist: the --out check
+# must come first (an error about the missing input would mean work started before it).
+OUT = "{OUT}"
+COMMANDS_WITH_OUT = {
+    ("render",): ["render", "--city", "nope.gml", "--intrinsics", "x", "--pose", "y", "--out", OUT],
+    ("localize",): [
+        *("localize", "--city", "nope.gml", "--intrinsics", "x", "--prior", "y"),
+        *("--semantic", "nope.png", "--out", OUT),
+    ],
+    ("run",): ["run", "nope_photos", "--city", "nope.gml", "--out", OUT],
+    ("benchmark",): ["benchmark", "--city", "nope.gml", "--out", OUT],
+    ("sweep",): ["sweep", "--knob", "k", "--values", "1", "--city", "nope.gml", "--out", OUT],
+    ("report",): ["report", "nope_run", "--out", OUT],
+    ("dataset", "overlay"): ["dataset", "overlay", "nope_ds", "--out", OUT],
+    ("dataset", "colmap"): ["dataset", "colmap", "nope_ds", "--out", OUT],
+    ("dataset", "dji-prior"): ["dataset", "dji-prior", "nope.jpg", "--crs", "EPSG:25832", "--out", OUT],
+    ("dataset", "benchmark"): ["dataset", "benchmark", "nope_ds", "--out", OUT],
+    ("label",): ["label", "--city", "nope.gml", "--images", "x", "--poses", "y", "--out", OUT],
+    ("train-segmenter",): ["train-segmenter", "--images", "x", "--labels", "y", "--out", OUT],
+    ("demo",): ["demo", "--out", OUT],
+    ("city", "convert"): ["city", "convert", "nope.gml", OUT],
+    ("tiles", "build"): ["tiles", "build", "nope_tiles", "--out", OUT],
+}
+
+
+def _commands_with_an_out(parser) -> set[tuple[str, ...]]:
+    found = set()
+
+    def walk(p, prefix):
+        for action in p._actions:
+            if action.dest == "out":
+                found.add(prefix)
+            choices = getattr(action, "choices", None)
+            for name, child in choices.items() if isinstance(choices, dict) else ():
+                if hasattr(child, "_actions"):
+                    walk(child, (*prefix, name))
+
+    walk(parser, ())
+    return found
+
+
+def test_every_command_with_an_out_is_covered():
+    assert _commands_with_an_out(build_parser()) == set(COMMANDS_WITH_OUT)
+
+
+def _bad_outs(tmp_path: Path) -> dict[str, Path]:
+    a_file = tmp_path / "a_file.txt"
+    a_file.write_text("not a folder")
+    return {"parent is a file": a_file / "sub", "existing file": a_file}
+
+
+@pytest.mark.parametrize("command", list(COMMANDS_WITH_OUT), ids=" ".join)
+def test_unwritable_out_is_one_line_exit_2_before_any_work(command, tmp_path, capsys):
+    for case, out in _bad_outs(tmp_path).items():
+        argv = [str(out) if a == OUT else a for a in COMMANDS_WITH_OUT[command]]
+        if case == "existing file" and command in (("dataset", "dji-prior"), ("city", "convert")):
+            out = tmp_path  # these write a file: a folder is what they cannot write
+            argv = [str(out) if a == OUT else a for a in COMMANDS_WITH_OUT[command]]
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 2, (case, err)
+        assert err.startswith(f"semcityloc: error: --out {out}") and err.count("\n") == 1, (case, err)
+    assert (tmp_path / "a_file.txt").read_text() == "not a folder"
+
+
+def test_read_only_and_immutable_out_folders_are_refused(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        if os.access(ro, os.W_OK):  # root writes through permission bits: only immutability stops it
+            if shutil.which("chattr") is None or subprocess.run(["chattr", "+i", str(ro)]).returncode:
+                pytest.skip("running as root and chattr +i is not available here: no unwritable folder")
+        code, _, err = run_cli(capsys, "benchmark", "--city", "nope.gml", "--out", ro / "run")
+        assert code == 2 and "cannot write to" in err and err.count("\n") == 1, err
+    finally:
+        subprocess.run(["chattr", "-i", str(ro)], capture_output=True)
+        ro.chmod(0o755)
+
+
+# ------------------------------------------------------------------------------------ CityJSON transform
+@pytest.mark.parametrize(
+    "transform, needle",
+    [
+        (None, "'transform' is null"),
+        ({"scale": [0.0, 0.001, 0.001], "translate": [0, 0, 0]}, "'scale' [0.0, 0.001, 0.001]"),
+        ({"scale": [-0.001, 0.001, 0.001], "translate": [0, 0, 0]}, "'scale' [-0.001, 0.001, 0.001]"),
+        ({"scale": [1e300, 1e300, 1e300], "translate": [0, 0, 0]}, "'scale' [1e+300"),
+        ({"scale": [0.001] * 3, "translate": [1e300, 0, 0]}, "'translate' [1e+300"),
+        ("1 mm", "'transform' is \"1 mm\""),
+    ],
+)
+def test_cityjson_broken_transform_is_refused_naming_it(tmp_path, transform, needle):
+    doc = box_doc()
+    doc["transform"] = transform
+    with pytest.raises(MalformedCityJSONError) as info:
+        read_cityjson(write(tmp_path, doc))
+    assert needle in str(info.value)
+
+
+# --------------------------------------------------------------------------------------------- depth
+@pytest.fixture(scope="module")
+def city(generated_lod2):
+    return generated_lod2
+
+
+@pytest.fixture(scope="module")
+def nadir(city):
+    """A nadir query (labels, depth) and a prior 10 m / 5 deg off, and the semantics-only result."""
+    true = view(city, 10.0, -20.0, 80.0, 1.0, 2.0, 30.0)
+    out = Renderer(city, engine="numba").render(CAMERA, true, depth=True)
+    prior = perturbed(true, np.array([6.0, -7.0, 3.873]), 0.5, -0.5, 5.0)
+    localizer = Localizer(city)
+    semantic_only = localizer.localize(CAMERA, prior, out.labels[0])
+    return localizer, true, prior, out.labels[0], out.depth[0], semantic_only
+
+
+@pytest.mark.parametrize(
+    "name, needle",
+    [("all NaN", "no valid pixels"), ("all zero", "no valid pixels"), ("constant", "constant")],
+)
+def test_unusable_depth_is_dropped_with_a_warning_and_semantics_decide(nadir, name, needle):
+    localizer, true, prior, labels, depth, semantic_only = nadir
+    bad = {"all NaN": np.full_like(depth, np.nan), "all zero": np.zeros_like(depth)}.get(
+        name, np.full_like(depth, 42.0)
+    )
+    result = localizer.localize(CAMERA, prior, labels, bad)
+    assert (
+        len(result.warnings) == 1
+        and "depth map dropped" in result.warnings[0]
+        and needle in result.warnings[0]
+    )
+    assert result.status == LOCALIZED == semantic_only.status, result.reason
+    np.testing.assert_array_equal(result.pose_local.t, semantic_only.pose_local.t)  # the semantics-only pose
+    assert center_error_m(result.pose_local, true) < 0.5
+    assert result.to_dict(np.zeros(3))["warnings"] == result.warnings
+
+
+def test_noise_depth_with_nan_rows_never_gives_a_confident_wrong_pose(nadir):
+    localizer, true, prior, labels, depth, _ = nadir
+    rng = np.random.default_rng(0)
+    noise = rng.uniform(1.0, 100.0, depth.shape)
+    noise[rng.random(depth.shape[0]) < 0.3] = np.nan  # whole rows missing
+    result = localizer.localize(CAMERA, prior, labels, noise)
+    assert "noise" in " ".join(result.warnings)
+    assert result.status != LOCALIZED or center_error_m(result.pose_local, true) < 1.0
+
+
+def test_real_looking_depth_is_kept(nadir):
+    """The clean depth (any scale and shift), the realistic simulated one and a tilted plane pass."""
+    from semcityloc.benchmark.depth_sim import simulate_depth_realistic
+
+    _, _, _, _, depth, _ = nadir
+    assert depth_problem(0.37 * depth + 12.0) is None
+    for seed in range(5):
+        assert depth_problem(simulate_depth_realistic(depth, np.random.default_rng(seed))) is None
+    plane = np.add.outer(np.linspace(50, 80, 300), np.zeros(400))
+    assert depth_problem(plane) is None
+    assert "valid" in depth_problem(np.where(np.random.default_rng(1).random(depth.shape) < 0.01, depth, 0))
+
+
+# ---------------------------------------------------------------------------------------------- masks
+def test_mask_with_class_ids_outside_the_classes_names_them(tmp_path, capsys):
+    mask = np.zeros((48, 64), np.uint8)
+    mask[:10], mask[10:20], mask[20:30] = 11, 12, 13
+    path = tmp_path / "mask.png"
+    Image.fromarray(mask, mode="L").save(path)
+    with pytest.raises(InputFileError, match="invalid class ids 11, 12, 13 in 1920 pixels"):
+        read_mask_file(path)
+    code, _, err = run_cli(
+        capsys,
+        *("localize", "--city", "generated", "--intrinsics", "100,100,32,24,64,48"),
+        *("--prior", "0,0,100,0,0,0", "--semantic", path, "--out", tmp_path / "o"),
+    )
+    assert code == 2 and "invalid class ids 11, 12, 13" in err and err.count("\n") == 1
+
+
+def test_jpeg_mask_is_refused_unless_forced(tmp_path, capsys):
+    mask = np.zeros((48, 64), np.uint8)
+    mask[10:30, 10:40] = 1
+    jpeg = tmp_path / "mask.jpg"
+    Image.fromarray(mask, mode="L").save(jpeg, quality=90)
+    with pytest.raises(InputFileError, match="JPEG, a lossy format"):
+        read_mask_file(jpeg)
+    png_named_jpeg = tmp_path / "mask_as.png"  # the format, not the name, decides
+    shutil.copy(jpeg, png_named_jpeg)
+    with pytest.raises(InputFileError, match="lossy"):
+        read_mask_file(png_named_jpeg)
+    assert read_mask_file(jpeg, allow_lossy=True).shape == (48, 64)
+    save_labels_png(mask, tmp_path / "ok.png")
+    assert (read_mask_file(tmp_path / "ok.png") == mask).all()
+    argv = (
+        *("localize", "--city", "generated", "--intrinsics", "100,100,32,24,64,48"),
+        *("--prior", "0,0,100,0,0,0", "--semantic", jpeg, "--out", tmp_path / "o"),
+    )
+    code, _, err = run_cli(capsys, *argv)
+    assert code == 2 and "lossy" in err and "--allow-lossy-mask" in err
+    code, _, err = run_cli(capsys, *argv, "--allow-lossy-mask")
+    assert "lossy" not in err  # forced: read (whatever the localizer then says about it)
+
+
+# --------------------------------------------------------------------------------------------- XXE
+def test_external_dtd_xxe_refusal_names_the_dtd_and_the_entity(tmp_path):
+    dtd = tmp_path / "evil.dtd"
+    dtd.write_text('<!ENTITY coords SYSTEM "file:///etc/hostname">')
+    doc = _doc(f'<!DOCTYPE CityModel SYSTEM "file://{dtd}">').replace(
+        "391000 5817000 10 391010 5817000 10 391010 5817010 10 391000 5817010 10 391000 5817000 10",
+        "&coords;",
+    )
+    path = tmp_path / "xxe.gml"
+    path.write_text(doc)
+    with pytest.raises(MalformedXMLError) as info:
+        read_citygml(path)
+    assert "&coords;" in str(info.value) and str(dtd) in str(info.value) and "XXE" in str(info.value)
+
+
+# ------------------------------------------------------------------------------------------ run lock
+def test_a_second_run_on_a_folder_in_use_is_refused_naming_the_pid(tmp_path, capsys):
+    out = tmp_path / "run"
+    with run_lock(out):
+        info = json.loads((out / LOCK_FILE).read_text())
+        assert info["pid"] == os.getpid()
+        with pytest.raises(RunLockedError, match=f"pid {os.getpid()}"):
+            with run_lock(out):
+                pass
+        code, _, err = run_cli(
+            capsys, "benchmark", "--city", "generated", "--queries", "1", "--preset", "fast", "--out", out
+        )
+        assert code == 2 and f"in use by another run (pid {os.getpid()}" in err and err.count("\n") == 1
+        assert not (out / "results.csv").exists()  # nothing written
+    assert not (out / LOCK_FILE).exists()  # released
+    with run_lock(out):  # and free again
+        pass
+
+
+def test_a_stale_lock_of_a_killed_run_is_taken_over(tmp_path, capsys):
+    out = tmp_path / "run"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nfrom semcityloc.benchmark.runfiles import run_lock\n"
+            "with run_lock(sys.argv[1]):\n    print('locked', flush=True)\n    time.sleep(60)\n",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(RunLockedError, match=f"pid {holder.pid}"):
+            with run_lock(out):
+                pass
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert (out / LOCK_FILE).exists()  # left behind by the killed run
+    with run_lock(out):
+        assert json.loads((out / LOCK_FILE).read_text())["pid"] == os.getpid()
+    assert f"stale lock of a run that ended (pid {holder.pid}" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------- resume refusal
+def test_resume_refusal_names_only_the_differing_keys(tmp_path):
+    big = {f"knob_{i}": list(range(50)) for i in range(40)}  # a long configuration
+    config = {"city": "generated", "method": "semcityloc", "queries": 200, "query": {"seed": 1, **big}}
+    prepare_output(tmp_path, config)
+    other = {**config, "method": "no-depth", "query": {**config["query"], "seed": 2, "knob_3": [1]}}
+    with pytest.raises(ResumeMismatchError) as info:
+        prepare_output(tmp_path, other)
+    message = str(info.value)
+    assert "method: 'semcityloc' -> 'no-depth'" in message and "query.seed: 1 -> 2" in message
+    assert "query.knob_3" in message and "knob_4" not in message and "[0, 1, 2" not in message
+    assert len(message) < 300, message
+    assert json.loads((tmp_path / RUN_FILE).read_text()) == config  # untouched
+
+
+# ---------------------------------------------------------------------------------------- crashed run
+def test_report_on_a_crashed_run_reports_what_is_there_and_names_what_is_missing(tmp_path):
+    run = fake_run(tmp_path, "crashed", [(1.0, 1.0), (3.0, 2.0)], queries=5)
+    results = run / "results.csv"
+    results.write_bytes(results.read_bytes() + b"q0002,local")  # a torn last line: killed mid-write
+    (run / "summary.json").unlink(missing_ok=True)
+    report = make_report([run], tmp_path / "report")
+    note = next(n for n in report.notes if "incomplete" in n)
+    assert "2 of 5 queries have a row; missing q0002, q0003, q0004 and summary.json" in note
+    assert "(incomplete 2/5)" in report.tables["main"][0].read_text()
+    assert note in report.markdown.read_text()
+
+
+# -------------------------------------------------------------------------------------------- limits
+def test_model_files_over_the_size_limit_are_refused_naming_the_variable(tmp_path, monkeypatch):
+    gml = tmp_path / "c.gml"
+    gml.write_text(_doc(""))
+    cj = write(tmp_path, box_doc())
+    obj = tmp_path / "m.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 1\nf 1 2 3\n" * 2000)
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYGML_MB", "0.0005")
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYJSON_MB", "0.0001")
+    monkeypatch.setenv("SEMCITYLOC_MAX_OBJ_MB", "0.01")
+    for path, read, var in (
+        (gml, read_citygml, "SEMCITYLOC_MAX_CITYGML_MB"),
+        (cj, read_cityjson, "SEMCITYLOC_MAX_CITYJSON_MB"),
+        (obj, read_obj, "SEMCITYLOC_MAX_OBJ_MB"),
+    ):
+        with pytest.raises(InputFileError, match=f"over the size limit .*raise the limit: {var}="):
+            read(path)
+    monkeypatch.setenv("SEMCITYLOC_MAX_OBJ_MB", "lots")
+    with pytest.raises(ParameterError, match="SEMCITYLOC_MAX_OBJ_MB='lots'"):
+        read_obj(obj)
+
+
+def test_a_gzip_bomb_cityjson_is_refused_without_inflating_it(tmp_path, monkeypatch):
+    doc = box_doc()
+    doc["padding"] = " " * (40 * 1024 * 1024)  # 40 MB of spaces: 40 kB gzipped
+    path = tmp_path / "bomb.json"
+    path.write_bytes(gzip.compress(json.dumps(doc).encode()))
+    assert path.stat().st_size < 100_000
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYJSON_MB", "8")
+    peak0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(InputFileError, match="over the size limit of 8 MB"):
+        read_cityjson(path)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak0 < 30 * 1024  # kB: never 40 MB
+    monkeypatch.setenv("SEMCITYLOC_MAX_CITYJSON_MB", "64")
+    assert read_cityjson(path).num_buildings == 1  # under a raised limit it reads
