@@ -123,6 +123,25 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     assert code == 2 and "other benchmark run" in err and err.count("\n") == 1
 
 
+def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
+    for mask in (box_flight["root"] / "masks").glob("P[01].png"):  # JPEG content, the .png name kept
+        ids = np.array(Image.open(mask))  # the palette PNG's class ids
+        Image.fromarray(ids, mode="L").save(mask, format="JPEG", quality=95)
+    argv = [*box_flight["argv"], "--no-overlays"]
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "refused")
+    last = err.strip().splitlines()[-1]  # after the progress line: the error, one line
+    assert (
+        code == 2
+        and last.startswith("semcityloc: error:")
+        and "a lossy format" in last
+        and "--allow-lossy-mask" in last
+    )
+    # Forced, the masks are read; the ids the compression made along the edges are then named.
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "forced", "--allow-lossy-mask")
+    assert code == 2 and "a lossy format" not in err and "invalid class ids" in err
+    assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
+
+
 def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_path, capsys):
     base = [a for a in box_flight["argv"] if a not in ("--masks", box_flight["root"] / "masks")]
     code, _, err = run(capsys, *base, "--out", tmp_path / "o")

@@ -110,6 +110,7 @@ class PhotoSpec:
     intrinsics: str = EXIF
     truth: str | None = None
     masks: str | None = None
+    allow_lossy_mask: bool = False  # accept --masks in a lossy format (JPEG): their edges carry wrong ids
     depth: str | None = None
     seg_backend: str | None = None
     depth_backend: str | None = None
@@ -207,6 +208,8 @@ class PhotoSpec:
                 "skipped_photos": skipped,
                 "keep_details": int(self.keep_details),
                 "semcityloc_version": __version__,
+                # only when set, so that runs made before the flag existed still resume
+                **({"allow_lossy_mask": True} if self.allow_lossy_mask else {}),
             }
         )
 
@@ -336,7 +339,7 @@ class PhotoSource:
         seg, dep = self.backends()
         photo = load_image(inp.path, max_width=PHOTO_MAX_WIDTH) if (seg or dep) else None
         if inp.mask is not None:
-            labels = read_mask_file(inp.mask)
+            labels = read_mask_file(inp.mask, allow_lossy=self.spec.allow_lossy_mask)
         else:
             labels = seg.predict(photo, name=inp.name).labels
         check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask or inp.name)

@@ -57,6 +57,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "else xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg); the search covers 3 sigma",
     )
     p.add_argument("--masks", default=None, help="folder of precomputed label masks <stem>.png / .npy")
+    p.add_argument(
+        "--allow-lossy-mask",
+        action="store_true",
+        help="accept --masks in a lossy format (JPEG): their edges carry wrong class ids",
+    )
     p.add_argument("--depth", default=None, help="folder of precomputed relative depth <stem>.npy / .png")
     p.add_argument("--seg-backend", default=None, choices=available_backends("segmentation"))
     p.add_argument("--depth-backend", default=None, choices=available_backends("depth"))
@@ -107,6 +112,7 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
         intrinsics=args.intrinsics,
         truth=args.truth,
         masks=args.masks,
+        allow_lossy_mask=args.allow_lossy_mask,
         depth=args.depth,
         seg_backend=args.seg_backend,
         depth_backend=args.depth_backend,

@@ -57,8 +57,8 @@ def load_labels_png(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
             if img.format in LOSSY_FORMATS and not allow_lossy:
                 raise InputFileError(
                     f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
-                    "class ids along every edge; save masks as PNG (semcityloc localize --allow-lossy-mask "
-                    "forces it)"
+                    "class ids along every edge; save masks as PNG (--allow-lossy-mask of semcityloc "
+                    "localize and run forces it)"
                 )
             if img.mode not in ("P", "L"):
                 raise InputFileError(
