@@ -105,6 +105,7 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     assert set(skipped) == {"P2.JPG", "P9.JPG"}
     assert "aspect" in skipped["P2.JPG"] and "intrinsic" in skipped["P9.JPG"]
     assert "4 photos: 2 localized, 0 not localized, 2 skipped" in stdout
+    assert f"semcityloc report {out} --out {out / 'report'}" in stdout
     assert summary["with_ground_truth"] == 2 and summary["recall_2m2deg"] == 100.0
     # No CRS: poses, COLMAP and GeoJSON in the model's frame, no WGS 84 geotags, and it says why.
     assert not (out / "geotags.csv").exists() and "--crs" in err

@@ -167,4 +167,7 @@ def run(args: argparse.Namespace) -> int:
     if spec.overlays:
         written.append(str(out / "overlays"))
     print("wrote " + ", ".join(written))
+    print(
+        f"look at it: semcityloc report {out} --out {out / 'report'}  (tables and an interactive report.html)"
+    )
     return 0
