@@ -15,7 +15,15 @@ from semcityloc.benchmark.queries import QueryConfig, QuerySimulator, zenmuse_l2
 from semcityloc.benchmark.results import TIMING_COLUMNS, make_row, read_results
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.citymodel.io import load_city_model
-from semcityloc.citymodel.tiles import TileCache, TileStore, build_store, load_city, model_nbytes
+from semcityloc.citymodel.tiles import (
+    BUDGET_ENV,
+    DEFAULT_BUDGET_MB,
+    TileCache,
+    TileStore,
+    build_store,
+    load_city,
+    model_nbytes,
+)
 from semcityloc.cli.main import main
 from semcityloc.errors import CRSError
 from semcityloc.geometry.pose import Pose
@@ -179,7 +187,7 @@ def _cityjson_box(path: Path, crs_epsg: int, x0: float, y0: float) -> Path:
     return path
 
 
-def test_mixed_formats_one_origin_and_the_cli(tmp_path, capsys):
+def test_mixed_formats_one_origin_and_the_cli(tmp_path, capsys, monkeypatch):
     tiles = tmp_path / "tiles"
     gml = generate_city(tmp_path / "gen", seed=2, lods=(2,))[2]
     tiles.mkdir()
@@ -200,6 +208,13 @@ def test_mixed_formats_one_origin_and_the_cli(tmp_path, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["buildings"] == len(single.building_ids) + 1
     assert load_city(tmp_path / "store").num_triangles == single.num_triangles + 12
+    # the tile cache's budget: SEMCITYLOC_TILE_BUDGET_MB, for every command and worker alike
+    assert TileStore.open(tmp_path / "store").cache.budget_bytes == int(DEFAULT_BUDGET_MB * 1e6)
+    monkeypatch.setenv(BUDGET_ENV, "64")
+    assert TileStore.open(tmp_path / "store").cache.budget_bytes == 64_000_000
+    monkeypatch.setenv(BUDGET_ENV, "lots")
+    assert main(["city", "info", str(tmp_path / "store")]) == 2
+    assert BUDGET_ENV in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -14,6 +14,7 @@ counts) and set by an environment variable (docs/reliability.md has the measured
 
 from __future__ import annotations
 
+import math
 import os
 import zlib
 from pathlib import Path
@@ -28,18 +29,24 @@ def env_name(kind: str) -> str:
     return f"SEMCITYLOC_MAX_{kind.upper()}_MB"
 
 
-def limit_bytes(kind: str) -> int:
-    """The size limit of ``kind`` files in bytes (its environment variable, else the default)."""
-    text = os.environ.get(env_name(kind))
-    if text is None or not text.strip():
-        return DEFAULT_LIMITS_MB[kind] * MB
+def env_mb(name: str, default: float) -> float:
+    """A size in MB from the environment variable ``name`` (unset or empty: ``default``);
+    ``ParameterError`` naming the variable when it is not a positive number."""
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return float(default)
     try:
         value = float(text)
     except ValueError:
         value = -1.0
-    if not value > 0:
-        raise ParameterError(f"{env_name(kind)}={text!r}: must be a positive number of MB")
-    return int(value * MB)
+    if not (math.isfinite(value) and value > 0):
+        raise ParameterError(f"{name}={text!r}: must be a positive number of MB")
+    return value
+
+
+def limit_bytes(kind: str) -> int:
+    """The size limit of ``kind`` files in bytes (its environment variable, else the default)."""
+    return int(env_mb(env_name(kind), DEFAULT_LIMITS_MB[kind]) * MB)
 
 
 def too_large(path: Path, kind: str, size: int) -> InputFileError:

@@ -37,6 +37,7 @@ import shapely
 from semcityloc.citymodel.builder import choose_origin
 from semcityloc.citymodel.ground import base_points, store_ring
 from semcityloc.citymodel.io import file_sha256, load_city_model, sniff_format
+from semcityloc.citymodel.limits import env_mb
 from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
 from semcityloc.errors import CRSError, EmptyModelError, InputFileError
 
@@ -46,6 +47,7 @@ BUILDINGS_FILE = "buildings.npz"
 TILES_DIR = "tiles"
 TILE_FORMATS = ("citygml", "cityjson")
 DEFAULT_BUDGET_MB = 1024.0
+BUDGET_ENV = "SEMCITYLOC_TILE_BUDGET_MB"
 
 
 @dataclass(frozen=True)
@@ -247,6 +249,12 @@ class TileCache:
         return len(self._models)
 
 
+def tile_budget_mb() -> float:
+    """The tile cache's budget in MB: ``SEMCITYLOC_TILE_BUDGET_MB`` when set, else ``DEFAULT_BUDGET_MB``
+    (an environment variable, so that it reaches every command and every worker process alike)."""
+    return env_mb(BUDGET_ENV, DEFAULT_BUDGET_MB)
+
+
 class TileStore:
     """An opened store (module docstring): its index, the STRtree of building boxes, the tile cache."""
 
@@ -273,7 +281,9 @@ class TileStore:
         self._tree: shapely.STRtree | None = None
 
     @classmethod
-    def open(cls, path: str | Path, budget_mb: float = DEFAULT_BUDGET_MB) -> TileStore:
+    def open(cls, path: str | Path, budget_mb: float | None = None) -> TileStore:
+        """The store at ``path``; ``budget_mb``: the tile cache's budget (None: ``tile_budget_mb()``)."""
+        budget_mb = tile_budget_mb() if budget_mb is None else budget_mb
         root = _root(path)
         if not is_store(root):
             raise InputFileError(
