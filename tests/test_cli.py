@@ -107,24 +107,14 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
     )
     assert code == 0
     assert set(json.loads(out)["pixels_per_class"]) >= {"1", "2", "3"}
+
+    def localize(prior: str, out: str, *extra) -> tuple[int, str, str]:
+        argv = ["localize", "--city", city_paths[2], "--intrinsics", intr, "--prior", prior]
+        argv += ["--semantic", tmp_path / "r" / "labels.png", *extra, "--out", tmp_path / out, "--no-cache"]
+        return run(capsys, *argv)
+
     prior = f"{x + 6.0},{y - 5.0},{z + 2.0},1.5,34.5,124.0"
-    code, out, _ = run(
-        capsys,
-        "localize",
-        "--city",
-        city_paths[2],
-        "--intrinsics",
-        intr,
-        "--prior",
-        prior,
-        "--semantic",
-        tmp_path / "r" / "labels.png",
-        "--depth",
-        tmp_path / "r" / "depth.npy",
-        "--out",
-        tmp_path / "loc",
-        "--no-cache",
-    )
+    code, out, _ = localize(prior, "loc", "--depth", tmp_path / "r" / "depth.npy")
     assert code == 0, out
     pose = json.loads((tmp_path / "loc" / "pose.json").read_text())
     assert pose["frame"] == "crs" and pose["extra"]["status"] == "localized"
@@ -138,23 +128,7 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
     assert pose["extra"]["search"]["prior_uncertainty"]["z_m"] == 10.0  # the default
     # The stated uncertainty reaches the search: a prior 25 m too high with z sigma 2 m is refused at
     # the edge of its volume, not returned 13 m off.
-    code, out, _ = run(
-        capsys,
-        "localize",
-        "--city",
-        city_paths[2],
-        "--intrinsics",
-        intr,
-        "--prior",
-        f"{x},{y},{z + 25.0},1.0,35.0,120.0",
-        "--semantic",
-        tmp_path / "r" / "labels.png",
-        "--prior-sigma",
-        "z=2",
-        "--out",
-        tmp_path / "edge",
-        "--no-cache",
-    )
+    code, out, _ = localize(f"{x},{y},{z + 25.0},1.0,35.0,120.0", "edge", "--prior-sigma", "z=2")
     refused = json.loads((tmp_path / "edge" / "pose.json").read_text())
     assert code == 1 and refused["status"] == "not_localized", out
     assert "edge of the search volume" in refused["reason"]

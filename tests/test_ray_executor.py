@@ -12,8 +12,7 @@ from pathlib import Path
 import pytest
 
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
-from semcityloc.benchmark.ray_executor import FAILED
-from semcityloc.benchmark.results import TIMING_COLUMNS, read_results
+from semcityloc.benchmark.results import FAILED, TIMING_COLUMNS, read_results
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.cli.main import main

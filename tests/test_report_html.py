@@ -17,7 +17,8 @@ from PIL import Image
 from semcityloc.benchmark.queries import QueryConfig
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.report_html import make_html_report, markdown_tables
-from semcityloc.benchmark.report_views import data_uri, error_bin, row_pose
+from semcityloc.benchmark.report_views import data_uri, error_bin
+from semcityloc.benchmark.results import row_pose
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.errors import BenchmarkError, OptionalDependencyError

@@ -29,12 +29,9 @@ from typing import Any
 
 import numba
 
-from semcityloc.benchmark.queries import query_id
-from semcityloc.benchmark.results import COLUMNS
+from semcityloc.benchmark.results import failed_row
 from semcityloc.errors import OptionalDependencyError
 
-# Status of a query whose worker died on every try (beside ``localized``, ``not_localized``, ``skipped``).
-FAILED = "failed"
 RETRIES = 1  # a query whose worker died is tried this many more times
 # Object store of a local runtime (bytes): the shipped models are tens of MB; Ray's default takes 30% of RAM.
 OBJECT_STORE_BYTES = 512 * 1024 * 1024
@@ -47,13 +44,6 @@ def import_ray():
     except ImportError as exc:
         raise OptionalDependencyError("ray", "ray", "--executor ray") from exc
     return ray
-
-
-def failed_row(index: int, reason: str) -> dict[str, str]:
-    """The ``results.csv`` row of a query that could not be run (every other column empty)."""
-    row = dict.fromkeys(COLUMNS, "")
-    row.update(query_id=query_id(index), index=str(index), status=FAILED, reason=reason.replace("\n", " "))
-    return row
 
 
 class _RayWorker:

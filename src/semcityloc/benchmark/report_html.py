@@ -52,8 +52,8 @@ from semcityloc.benchmark.report_plotly import (
     recall_lines_figure,
     risk_coverage_figure,
 )
-from semcityloc.benchmark.report_views import POSES, error_bins, query_camera, query_view, row_pose
-from semcityloc.benchmark.results import load_details
+from semcityloc.benchmark.report_views import POSES, error_bins, query_camera, query_view
+from semcityloc.benchmark.results import load_details, row_pose
 from semcityloc.benchmark.runfiles import DETAILS_DIR, json_safe, write_atomic
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import BenchmarkError

@@ -29,7 +29,7 @@ import numpy as np
 from PIL import Image
 
 from semcityloc.benchmark.queries import zenmuse_l2_camera
-from semcityloc.benchmark.results import SKIPPED
+from semcityloc.benchmark.results import SKIPPED, row_pose
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR
 from semcityloc.classes import IGNORE
 from semcityloc.errors import SemCityLocError
@@ -72,15 +72,6 @@ def _float(text: str | None) -> float | None:
     except ValueError:
         return None
     return value if value is not None and math.isfinite(value) else None
-
-
-def row_pose(row: dict[str, str], prefix: str) -> Pose | None:
-    """The local pose of ``results.csv`` columns ``<prefix>_x ... <prefix>_yaw``, or None when empty."""
-    values = [_float(row.get(f"{prefix}_{k}")) for k in ("x", "y", "z", "roll", "pitch", "yaw")]
-    if any(v is None for v in values):
-        return None
-    x, y, z, roll, pitch, yaw = values
-    return Pose.from_xyz_rpy(np.array([x, y, z]), roll, pitch, yaw)
 
 
 def error_bin(row: dict[str, str]) -> str:

@@ -64,6 +64,18 @@ def skipped_result() -> LocalizationResult:
     return LocalizationResult(status=SKIPPED, reason=REASON_SKIPPED)
 
 
+# A query whose worker process died on every try (``benchmark.ray_executor``): recorded with the reason,
+# not tried again on resume.
+FAILED = "failed"
+
+
+def failed_row(index: int, reason: str) -> dict[str, str]:
+    """The ``results.csv`` row of a query that could not be run (every other column empty)."""
+    row = dict.fromkeys(COLUMNS, "")
+    row.update(query_id=query_id(index), index=str(index), status=FAILED, reason=reason.replace("\n", " "))
+    return row
+
+
 # ------------------------------------------------------------------------------------------------ rows
 def _fmt(value: Any) -> str:
     if value is None:
@@ -87,6 +99,19 @@ def _pose_values(prefix: str, pose: Pose | None, origin: np.ndarray, world: bool
     if world:
         values += list(pose.center + origin)
     return dict(zip(keys, values, strict=True))
+
+
+def row_pose(row: dict[str, str], prefix: str) -> Pose | None:
+    """The local pose in a row's columns ``<prefix>_x ... <prefix>_yaw`` (what ``_pose_values`` wrote), or
+    None when any is empty or not a finite number."""
+    try:
+        values = [float(row.get(f"{prefix}_{k}") or "nan") for k in _POSE_FIELDS]
+    except ValueError:
+        return None
+    if not np.all(np.isfinite(values)):
+        return None
+    x, y, z, roll, pitch, yaw = values
+    return Pose.from_xyz_rpy(np.array([x, y, z]), roll, pitch, yaw)
 
 
 def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) -> dict[str, str]:
