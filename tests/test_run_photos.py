@@ -22,9 +22,11 @@ from conftest import shared_file
 from dji_photo import dji_jpeg, xmp_packet
 from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
 from semcityloc.benchmark.perception_sim import simulate_segmentation
+from semcityloc.benchmark.photo_source import PhotoSpec
 from semcityloc.benchmark.queries import STREAM_SEG
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
+from semcityloc.citymodel.tiles import TileStore, build_store
 from semcityloc.classes import IGNORE
 from semcityloc.cli.main import main
 from semcityloc.datasets.colmap import read_model
@@ -37,7 +39,7 @@ from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import save_labels_png
 from test_benchmark_reference import same
-from test_tiles import split_citygml
+from test_tiles import _cityjson_box, split_citygml
 
 BERLIN = "berlin_lod2_citygml2/3910_5817.gml"
 REAL = ("real_uav_lodloc", "real_uav_lodloc_oblique")
@@ -153,6 +155,67 @@ def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_
     code, _, err = run(capsys, "run", tmp_path / "absent", "--city", "generated", "--masks", tmp_path)
     assert code == 2 and "no such images folder" in err
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------ a tile store of one box
+@pytest.fixture
+def store_flight(tmp_path) -> dict:
+    """Two nadir photos over a store of one CityJSON box (EPSG:25832, built without --lod / --crs):
+    LoD-Loc priors and intrinsics in the store's CRS, empty masks (the runs here localize nothing)."""
+    (tmp_path / "tiles").mkdir()
+    _cityjson_box(tmp_path / "tiles" / "a.json", 25832, 390000.0, 5810000.0)
+    build_store(tmp_path / "tiles", tmp_path / "store")
+    root = tmp_path / "flight"
+    (root / "images").mkdir(parents=True)
+    queries = []
+    for i in range(2):
+        name = f"P{i}.JPG"
+        prior = Pose.from_xyz_rpy([390005.0 + i, 5810004.0, 120.0], 0.0, 0.0, 0.0)
+        queries.append(LodLocQuery(name, "flight", CAM, prior_pose_world=prior))
+        Image.new("RGB", (CAM.width, CAM.height)).save(root / "images" / name)
+        save_labels_png(np.zeros((CAM.height, CAM.width), np.uint8), root / "masks" / f"P{i}.png")
+    write_lodloc_scene(root, queries)
+    argv = ["run", root / "images", "--city", tmp_path / "store", "--priors", root / "GPS_pose"]
+    argv += ["--intrinsics", root / "intrinsic", "--masks", root / "masks"]
+    return {"root": root, "store": tmp_path / "store", "argv": argv}
+
+
+def test_a_photo_run_opens_its_store_once(store_flight, monkeypatch):
+    """The store is opened once per run: its frame, the flight's tiles, its identity in run.json and the
+    localizer's parts per photo all come from the same opened store."""
+    opened = []
+    real_open = TileStore.open.__func__
+
+    def counting_open(cls, path, budget_mb=None):
+        opened.append(path)
+        return real_open(cls, path, budget_mb)
+
+    monkeypatch.setattr(TileStore, "open", classmethod(counting_open))
+    root = store_flight["root"]
+    spec = PhotoSpec(
+        images=str(root / "images"),
+        city=str(store_flight["store"]),
+        priors=str(root / "GPS_pose"),
+        intrinsics=str(root / "intrinsic"),
+        masks=str(root / "masks"),
+    )
+    config = spec.run_config()
+    source = spec.open_source(config)
+    assert len(opened) == 1
+    assert source.tile_store is spec.resolved().store and source.map_model.num_triangles == 12
+    assert config["city_sha256"] == source.tile_store.sha256 and len(source) == 2
+
+
+@pytest.mark.parametrize(
+    ("option", "built"), [(("--lod", "1"), "lod=None"), (("--crs", "EPSG:25833"), "crs=None")]
+)
+def test_a_photo_run_refuses_a_store_built_with_another_lod_or_crs(
+    store_flight, tmp_path, capsys, option, built
+):
+    code, _, err = run(capsys, *store_flight["argv"], *option, "--out", tmp_path / "o", "--no-overlays")
+    assert code == 2 and err.count("\n") == 1 and err.startswith("semcityloc: error:")
+    assert f"the store was built with {built}" in err and f"tiles build ... {' '.join(option)}" in err
+    assert not (tmp_path / "o" / "results.csv").exists()
 
 
 # ------------------------------------------------------------------------------ Berlin, DJI EXIF priors
@@ -367,8 +430,6 @@ def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight
     """Workers get the source pickled once: models and inputs travel, the renderer and backends are
     rebuilt in each process; a query made there is the same."""
     import pickle
-
-    from semcityloc.benchmark.photo_source import PhotoSpec
 
     root = box_flight["root"]
     spec = PhotoSpec(
