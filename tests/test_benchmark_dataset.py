@@ -159,6 +159,23 @@ def test_precomputed_masks_give_the_oracle_result(dataset_dir, tmp_path):
         )
 
 
+def test_dropped_depth_is_named_in_the_rows(dataset_dir, tmp_path):
+    """A depth map of noise is dropped, and the row of its query says so in ``warnings``."""
+    ds = read_lodloc(dataset_dir)
+    model = ds.load_model()
+    masks, depth = tmp_path / "masks", tmp_path / "depth"
+    depth.mkdir()
+    rng = np.random.default_rng(0)
+    for q in ds.queries[:2]:
+        save_labels_png(oracle_labels(model, q.camera, q.gt_pose_world), masks / f"{q.stem}.png")
+        np.save(depth / f"{q.stem}.npy", rng.uniform(1.0, 100.0, (CAM.height, CAM.width)))
+    run = spec(dataset_dir, perception="masks", masks=str(masks), depth=str(depth))
+    rows = run_benchmark(run, tmp_path / "run", progress=False).rows
+    assert len(rows) == 2
+    assert all(r["warnings"].startswith("depth map dropped: it looks like noise") for r in rows)
+    assert rows == read_results(tmp_path / "run" / "results.csv")
+
+
 @pytest.mark.parametrize("command", [("dataset", "benchmark", "{ds}"), ("benchmark", "--dataset", "{ds}")])
 def test_lossy_masks_are_refused_unless_forced(dataset_dir, tmp_path, capsys, command):
     """Masks of JPEG content (the ``.png`` name kept) are refused in one line naming the flag; with

@@ -24,6 +24,8 @@ from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
 from semcityloc.benchmark.perception_sim import simulate_segmentation
 from semcityloc.benchmark.photo_source import PhotoSpec
 from semcityloc.benchmark.queries import STREAM_SEG
+from semcityloc.benchmark.report import make_report
+from semcityloc.benchmark.results import COLUMNS, read_results
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.tiles import TileStore, build_store
@@ -38,6 +40,7 @@ from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import save_labels_png
+from semcityloc.render import Renderer
 from test_benchmark_reference import same
 from test_tiles import _cityjson_box, split_citygml
 
@@ -143,6 +146,47 @@ def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
     code, _, err = run(capsys, *argv, "--out", tmp_path / "forced", "--allow-lossy-mask")
     assert code == 2 and "a lossy format" not in err and "invalid class ids" in err
     assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
+
+
+def _drop_column(path: Path, column: str) -> None:
+    """Rewrite a results.csv without ``column``: the layout of a version before it was added."""
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+        header = [c for c in rows[0] if c != column]
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, header, extrasaction="ignore", lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def test_dropped_depth_is_in_the_rows_and_an_old_results_file_resumes(box_flight, tmp_path, capsys):
+    """A photo's depth dropped as noise is named in its row's ``warnings`` (empty for the photo whose
+    depth was used); a results.csv of the version before that column resumes and is reported on."""
+    root = box_flight["root"]
+    model = load_city_model(root / "city.obj", cache=False)
+    truth = read_pose(root / "GT_pose" / "P0_pose.txt")
+    clean = Renderer(model, engine="numba").render(CAM, model.pose_to_local(truth), depth=True).depth[0]
+    (root / "depth").mkdir()
+    np.save(root / "depth" / "P0.npy", clean.astype(np.float32))
+    noise = np.random.default_rng(0).uniform(1.0, 100.0, (CAM.height, CAM.width)).astype(np.float32)
+    np.save(root / "depth" / "P1.npy", noise)
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--depth", root / "depth", "--out", out, "--no-overlays"]
+    assert run(capsys, *argv, "--stop-after", "1")[0] == 0
+    _drop_column(out / "results.csv", "warnings")  # the first photo's row, as an earlier version wrote it
+    assert "warnings" not in (out / "results.csv").read_text().split("\n", 1)[0]
+    assert make_report([out], tmp_path / "report_old").markdown.is_file()  # reported on as it is
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    text = (out / "results.csv").read_text()
+    assert text.split("\n", 1)[0] == ",".join(COLUMNS)  # brought up to this version's columns
+    rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
+    assert len(rows) == 2 and rows["q0000"]["warnings"] == "" and rows["q0000"]["status"] == "localized"
+    assert rows["q0001"]["warnings"].startswith("depth map dropped: it looks like noise")
+    assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["warnings"] == [
+        rows["q0001"]["warnings"]
+    ]
+    assert main(["report", str(out), "--out", str(tmp_path / "report"), "--no-html"]) == 0
 
 
 def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_path, capsys):
