@@ -14,8 +14,10 @@ from semcityloc.benchmark.dataset_source import (
     oracle_labels,
     working_camera,
 )
+from semcityloc.benchmark.results import read_results
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import ESTIMATES_DIR
+from semcityloc.cli.main import main
 from semcityloc.datasets.colmap import read_model
 from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
 from semcityloc.errors import (
@@ -155,6 +157,49 @@ def test_precomputed_masks_give_the_oracle_result(dataset_dir, tmp_path):
         run_benchmark(
             spec(dataset_dir, perception="masks", masks=str(masks)), tmp_path / "m2", progress=False
         )
+
+
+def test_dropped_depth_is_named_in_the_rows(dataset_dir, tmp_path):
+    """A depth map of noise is dropped, and the row of its query says so in ``warnings``."""
+    ds = read_lodloc(dataset_dir)
+    model = ds.load_model()
+    masks, depth = tmp_path / "masks", tmp_path / "depth"
+    depth.mkdir()
+    rng = np.random.default_rng(0)
+    for q in ds.queries[:2]:
+        save_labels_png(oracle_labels(model, q.camera, q.gt_pose_world), masks / f"{q.stem}.png")
+        np.save(depth / f"{q.stem}.npy", rng.uniform(1.0, 100.0, (CAM.height, CAM.width)))
+    run = spec(dataset_dir, perception="masks", masks=str(masks), depth=str(depth))
+    rows = run_benchmark(run, tmp_path / "run", progress=False).rows
+    assert len(rows) == 2
+    assert all(r["warnings"].startswith("depth map dropped: it looks like noise") for r in rows)
+    assert rows == read_results(tmp_path / "run" / "results.csv")
+
+
+@pytest.mark.parametrize("command", [("dataset", "benchmark", "{ds}"), ("benchmark", "--dataset", "{ds}")])
+def test_lossy_masks_are_refused_unless_forced(dataset_dir, tmp_path, capsys, command):
+    """Masks of JPEG content (the ``.png`` name kept) are refused in one line naming the flag; with
+    ``--allow-lossy-mask`` they are read and the run completes, the flag kept in run.json."""
+    ds = read_lodloc(dataset_dir)
+    model = ds.load_model()
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for q in ds.queries[:2]:
+        labels = oracle_labels(model, q.camera, q.gt_pose_world)
+        labels[labels == 255] = 0  # no ignore: the compression's ids along the edges stay class ids
+        Image.fromarray(labels, mode="L").save(masks / f"{q.stem}.png", format="JPEG", quality=100)
+    argv = [a.format(ds=dataset_dir) for a in command]
+    argv += ["--perception", "masks", "--masks", str(masks), "--preset", "fast"]
+    code = main([*argv, "--out", str(tmp_path / "refused")])
+    err = capsys.readouterr().err.strip().splitlines()[-1]  # after the progress line: the error
+    assert code == 2 and err.startswith("semcityloc: error:") and "a lossy format" in err
+    assert "--allow-lossy-mask" in err and not (tmp_path / "refused" / "summary.json").exists()
+    assert main([*argv, "--out", str(tmp_path / "forced"), "--allow-lossy-mask"]) == 0
+    rows = read_results(tmp_path / "forced" / "results.csv")
+    assert len(rows) == 2 and all(json.loads(r["meta_json"])["labels_source"] == "masks" for r in rows)
+    assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
+    # Unset, the flag is not in run.json: runs made before it existed resume.
+    assert "allow_lossy_mask" not in spec(dataset_dir, perception="masks", masks=str(masks)).run_config()
 
 
 def test_options_are_checked_before_anything_runs(dataset_dir, tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import gzip
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -612,6 +613,54 @@ def test_bad_coordinates_are_counted_not_fatal(tmp_path):
     model, reader = _model_and_report(_write(tmp_path, _city([_building("B", body)])))
     assert reader.report.malformed_polygons == 1
     assert model.class_areas()["ground"] == 0.0 and model.class_areas()["roof"] == pytest.approx(80.0)
+
+
+@pytest.mark.parametrize("bad", ["nan", "NaN", "inf", "-INF", "1e300", "1e12", "-2e9"])
+def test_nan_infinite_and_absurd_coordinates_are_dropped_at_parse_time(tmp_path, bad):
+    """A polygon with a NaN / infinite / absurd coordinate (exterior or hole) is dropped with a counted
+    warning, before the origin and the triangulation: no numpy warning escapes; nothing left is an error."""
+    ground = f"{X0:.3f} {Y0:.3f} 0.000"
+    in_exterior = _bounded_box("b", X0, Y0).replace(ground, f"{bad} {Y0:.3f} 0.000", 1)
+    roof = _box_faces(X0 + 50, Y0, 10.0, 8.0, 6.0)[1][1]
+    hole = [(X0 + 52, Y0 + 2, 6.0), (X0 + 54, Y0 + 2, 6.0), (X0 + 54, Y0 + 4, float(bad))]
+    in_hole = _bounded_box("c", X0 + 50, Y0).replace(
+        _polygon(roof, "c_1"), _polygon(roof, "c_1", holes=[hole])
+    )
+    path = _write(tmp_path, _city([_building("B", in_exterior), _building("C", in_hole)]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = read_citygml(path)
+    assert model.stats.invalid_coordinate_polygons == 2
+    assert "skipped 2 polygons with coordinates that are NaN, infinite or beyond" in model.stats.warnings[-1]
+    assert model.class_areas()["ground"] == pytest.approx(80.0)  # B's ground and C's roof are gone
+    assert model.class_areas()["roof"] == pytest.approx(80.0)
+    assert abs(model.origin[0] - (X0 + 30)) < 1.0 and np.abs(model.vertices).max() < 100
+    only_bad = _city([_building("B", _polygon_member(f"{bad} {Y0} 5 {X0 + 9} {Y0} 5 {X0 + 9} {Y0 + 9} 5"))])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(EmptyModelError, match="1 polygons with coordinates that are NaN, infinite"):
+            read_citygml(_write(tmp_path, only_bad, "bad.gml"))
+
+
+def _polygon_member(poslist: str) -> str:
+    """One lod2MultiSurface polygon of the closed ring ``poslist`` (its first point repeated at the end)."""
+    first = " ".join(poslist.split()[:3])
+    ring = f"<gml:LinearRing><gml:posList>{poslist} {first}</gml:posList></gml:LinearRing>"
+    return (
+        "<bldg:lod2MultiSurface><gml:MultiSurface><gml:surfaceMember><gml:Polygon><gml:exterior>"
+        f"{ring}</gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface></bldg:lod2MultiSurface>"
+    )
+
+
+def test_a_point_a_geographic_crs_cannot_project_is_dropped_without_a_warning(tmp_path):
+    """Latitude 95 in EPSG:4326 projects to infinity: the polygon is dropped and counted (builder)."""
+    good = _polygon_member("52.5 13.4 10 52.5001 13.4 10 52.5001 13.4001 10")
+    bad = _polygon_member("95 13.4 10 52.5001 13.4 10 52.5001 13.4001 10")
+    path = _write(tmp_path, _city([_building("B", bad + good)], srs="EPSG:4326"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = read_citygml(path)
+    assert model.stats.invalid_coordinate_polygons == 1 and model.num_triangles == 1
 
 
 def test_a_reader_streams_once(tmp_path):

@@ -7,6 +7,7 @@ import functools
 import gzip
 import importlib.util
 import json
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -206,6 +207,36 @@ def test_only_bad_polygons_is_an_empty_model(tmp_path):
     doc["CityObjects"]["B1"]["geometry"][0]["boundaries"] = [[[[100, 101, 102]]]]
     with pytest.raises(EmptyModelError, match="invalid vertex indices"):
         read_cityjson(write(tmp_path, doc))
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf"), 1e300, 2e12])
+def test_nan_infinite_and_absurd_vertices_drop_their_polygons_with_a_counted_warning(tmp_path, bad):
+    """A NaN / infinite / absurd vertex (beyond 1e9 m) drops the 3 polygons that use it, counted apart
+    from bad indices; a GeometryInstance whose matrix is corrupt likewise: no numpy warning escapes."""
+    doc = box_doc()
+    doc["vertices"][0] = [bad, 0, 0]
+    template = copy.deepcopy(box_doc()["CityObjects"]["B1"]["geometry"][0])
+    doc["geometry-templates"] = {"templates": [template], "vertices-templates": BOX_MM}
+    matrix = [1, 0, 0, bad, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # moves x by ``bad``
+    instance = {"type": "GeometryInstance", "template": 0, "boundaries": [1], "transformationMatrix": matrix}
+    doc["CityObjects"]["B2"] = {"type": "Building", "geometry": [instance]}
+    overflow = {**instance, "transformationMatrix": [1e308, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]}
+    doc["CityObjects"]["B3"] = {"type": "Building", "geometry": [overflow]}  # x * 1e308: only x = 0 is left
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = read_cityjson(write(tmp_path, doc))
+    assert model.stats.invalid_coordinate_polygons == 3 + 6 + 5
+    assert any(
+        "skipped 14 polygons with coordinates that are NaN, infinite" in w for w in model.stats.warnings
+    )
+    assert not any("invalid vertex indices" in w for w in model.stats.warnings)
+    assert model.num_triangles == 6 + 2 and abs(model.origin[0] - 85002) <= 1
+    doc = box_doc()
+    doc["vertices"] = [[bad, bad, bad]] * len(BOX_MM)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(EmptyModelError, match="6 polygons with coordinates that are NaN, infinite"):
+            read_cityjson(write(tmp_path, doc))
 
 
 def test_lod_selection_synthetic(tmp_path):

@@ -34,10 +34,10 @@ from semcityloc.errors import (
     ResumeMismatchError,
     RunLockedError,
 )
-from semcityloc.geometry.errors import center_error_m
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.io.images import read_mask_file, save_labels_png
 from semcityloc.localization.localize import Localizer
-from semcityloc.localization.query import depth_problem
+from semcityloc.localization.query import depth_problem, usable_depth
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
 from test_cityjson import box_doc, write
@@ -200,16 +200,60 @@ def test_noise_depth_with_nan_rows_never_gives_a_confident_wrong_pose(nadir):
 
 
 def test_real_looking_depth_is_kept(nadir):
-    """The clean depth (any scale and shift), the realistic simulated one and a tilted plane pass."""
+    """The clean depth (any scale and shift), the realistic simulated one and a tilted plane pass, whole
+    and block by block."""
     from semcityloc.benchmark.depth_sim import simulate_depth_realistic
 
     _, _, _, _, depth, _ = nadir
-    assert depth_problem(0.37 * depth + 12.0) is None
-    for seed in range(5):
-        assert depth_problem(simulate_depth_realistic(depth, np.random.default_rng(seed))) is None
     plane = np.add.outer(np.linspace(50, 80, 300), np.zeros(400))
-    assert depth_problem(plane) is None
+    realistic = [simulate_depth_realistic(depth, np.random.default_rng(seed)) for seed in range(5)]
+    for good in (0.37 * depth + 12.0, plane, *realistic):
+        assert depth_problem(good) is None
+        kept, warning = usable_depth(good)
+        assert warning is None and kept is good
     assert "valid" in depth_problem(np.where(np.random.default_rng(1).random(depth.shape) < 0.01, depth, 0))
+
+
+NOISE_PARTS = {
+    "left half": (np.s_[:, :256], 50),
+    "top-left quarter": (np.s_[:192, :256], 25),
+    "dead band of columns": (np.s_[:, 128:256], 25),
+}
+
+
+@pytest.mark.parametrize("part", NOISE_PARTS)
+def test_noise_over_part_of_the_depth_is_dropped_there_and_the_rest_kept(nadir, part):
+    """Noise over part of the map (not enough for the whole-map check): its blocks are blanked, the rest is
+    kept unchanged, the warning names the share; the pose is the clean depth's within 0.2 m / 0.2 deg."""
+    localizer, true, prior, labels, depth, _ = nadir
+    where, percent = NOISE_PARTS[part]
+    noisy = depth.copy()
+    noisy[where] = np.random.default_rng(0).uniform(1.0, 100.0, noisy[where].shape)
+    assert depth_problem(noisy) is None  # the whole map's roughness does not see it
+    kept, warning = usable_depth(noisy)
+    assert np.isnan(kept[where]).all()
+    outside = np.ones(depth.shape, bool)
+    outside[where] = False
+    np.testing.assert_array_equal(kept[outside], depth[outside])
+    assert warning.startswith(f"depth dropped over {percent}% of its valid pixels") and "noise" in warning
+    clean = localizer.localize(CAMERA, prior, labels, depth)
+    result = localizer.localize(CAMERA, prior, labels, noisy)
+    assert result.warnings == [warning] and result.status == LOCALIZED == clean.status
+    assert center_error_m(result.pose_local, clean.pose_local) < 0.2
+    assert rotation_error_deg(result.pose_local, clean.pose_local) < 0.2
+
+
+def test_noise_over_most_of_the_depth_drops_the_map(nadir):
+    """Noise over 80 % of the map: the whole-map check drops it (today's behaviour kept), or the blocks
+    left are too few; either way the warning says the map was dropped and semantics decide."""
+    localizer, _, prior, labels, depth, semantic_only = nadir
+    noisy = depth.copy()
+    noisy[:, :410] = np.random.default_rng(1).uniform(1.0, 100.0, (depth.shape[0], 410))
+    kept, warning = usable_depth(noisy)
+    assert kept is None and warning.startswith("depth map dropped:") and "noise" in warning
+    result = localizer.localize(CAMERA, prior, labels, noisy)
+    assert result.warnings == [warning]
+    np.testing.assert_array_equal(result.pose_local.t, semantic_only.pose_local.t)
 
 
 # ---------------------------------------------------------------------------------------------- masks

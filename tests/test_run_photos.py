@@ -22,9 +22,13 @@ from conftest import shared_file
 from dji_photo import dji_jpeg, xmp_packet
 from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
 from semcityloc.benchmark.perception_sim import simulate_segmentation
+from semcityloc.benchmark.photo_source import PhotoSpec
 from semcityloc.benchmark.queries import STREAM_SEG
+from semcityloc.benchmark.report import make_report
+from semcityloc.benchmark.results import COLUMNS, read_results
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
+from semcityloc.citymodel.tiles import TileStore, build_store
 from semcityloc.classes import IGNORE
 from semcityloc.cli.main import main
 from semcityloc.datasets.colmap import read_model
@@ -36,8 +40,9 @@ from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import save_labels_png
+from semcityloc.render import Renderer
 from test_benchmark_reference import same
-from test_tiles import split_citygml
+from test_tiles import _cityjson_box, split_citygml
 
 BERLIN = "berlin_lod2_citygml2/3910_5817.gml"
 REAL = ("real_uav_lodloc", "real_uav_lodloc_oblique")
@@ -143,6 +148,47 @@ def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
     assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
 
 
+def _drop_column(path: Path, column: str) -> None:
+    """Rewrite a results.csv without ``column``: the layout of a version before it was added."""
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+        header = [c for c in rows[0] if c != column]
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, header, extrasaction="ignore", lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def test_dropped_depth_is_in_the_rows_and_an_old_results_file_resumes(box_flight, tmp_path, capsys):
+    """A photo's depth dropped as noise is named in its row's ``warnings`` (empty for the photo whose
+    depth was used); a results.csv of the version before that column resumes and is reported on."""
+    root = box_flight["root"]
+    model = load_city_model(root / "city.obj", cache=False)
+    truth = read_pose(root / "GT_pose" / "P0_pose.txt")
+    clean = Renderer(model, engine="numba").render(CAM, model.pose_to_local(truth), depth=True).depth[0]
+    (root / "depth").mkdir()
+    np.save(root / "depth" / "P0.npy", clean.astype(np.float32))
+    noise = np.random.default_rng(0).uniform(1.0, 100.0, (CAM.height, CAM.width)).astype(np.float32)
+    np.save(root / "depth" / "P1.npy", noise)
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--depth", root / "depth", "--out", out, "--no-overlays"]
+    assert run(capsys, *argv, "--stop-after", "1")[0] == 0
+    _drop_column(out / "results.csv", "warnings")  # the first photo's row, as an earlier version wrote it
+    assert "warnings" not in (out / "results.csv").read_text().split("\n", 1)[0]
+    assert make_report([out], tmp_path / "report_old").markdown.is_file()  # reported on as it is
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    text = (out / "results.csv").read_text()
+    assert text.split("\n", 1)[0] == ",".join(COLUMNS)  # brought up to this version's columns
+    rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
+    assert len(rows) == 2 and rows["q0000"]["warnings"] == "" and rows["q0000"]["status"] == "localized"
+    assert rows["q0001"]["warnings"].startswith("depth map dropped: it looks like noise")
+    assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["warnings"] == [
+        rows["q0001"]["warnings"]
+    ]
+    assert main(["report", str(out), "--out", str(tmp_path / "report"), "--no-html"]) == 0
+
+
 def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_path, capsys):
     base = [a for a in box_flight["argv"] if a not in ("--masks", box_flight["root"] / "masks")]
     code, _, err = run(capsys, *base, "--out", tmp_path / "o")
@@ -153,6 +199,67 @@ def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_
     code, _, err = run(capsys, "run", tmp_path / "absent", "--city", "generated", "--masks", tmp_path)
     assert code == 2 and "no such images folder" in err
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------ a tile store of one box
+@pytest.fixture
+def store_flight(tmp_path) -> dict:
+    """Two nadir photos over a store of one CityJSON box (EPSG:25832, built without --lod / --crs):
+    LoD-Loc priors and intrinsics in the store's CRS, empty masks (the runs here localize nothing)."""
+    (tmp_path / "tiles").mkdir()
+    _cityjson_box(tmp_path / "tiles" / "a.json", 25832, 390000.0, 5810000.0)
+    build_store(tmp_path / "tiles", tmp_path / "store")
+    root = tmp_path / "flight"
+    (root / "images").mkdir(parents=True)
+    queries = []
+    for i in range(2):
+        name = f"P{i}.JPG"
+        prior = Pose.from_xyz_rpy([390005.0 + i, 5810004.0, 120.0], 0.0, 0.0, 0.0)
+        queries.append(LodLocQuery(name, "flight", CAM, prior_pose_world=prior))
+        Image.new("RGB", (CAM.width, CAM.height)).save(root / "images" / name)
+        save_labels_png(np.zeros((CAM.height, CAM.width), np.uint8), root / "masks" / f"P{i}.png")
+    write_lodloc_scene(root, queries)
+    argv = ["run", root / "images", "--city", tmp_path / "store", "--priors", root / "GPS_pose"]
+    argv += ["--intrinsics", root / "intrinsic", "--masks", root / "masks"]
+    return {"root": root, "store": tmp_path / "store", "argv": argv}
+
+
+def test_a_photo_run_opens_its_store_once(store_flight, monkeypatch):
+    """The store is opened once per run: its frame, the flight's tiles, its identity in run.json and the
+    localizer's parts per photo all come from the same opened store."""
+    opened = []
+    real_open = TileStore.open.__func__
+
+    def counting_open(cls, path, budget_mb=None):
+        opened.append(path)
+        return real_open(cls, path, budget_mb)
+
+    monkeypatch.setattr(TileStore, "open", classmethod(counting_open))
+    root = store_flight["root"]
+    spec = PhotoSpec(
+        images=str(root / "images"),
+        city=str(store_flight["store"]),
+        priors=str(root / "GPS_pose"),
+        intrinsics=str(root / "intrinsic"),
+        masks=str(root / "masks"),
+    )
+    config = spec.run_config()
+    source = spec.open_source(config)
+    assert len(opened) == 1
+    assert source.tile_store is spec.resolved().store and source.map_model.num_triangles == 12
+    assert config["city_sha256"] == source.tile_store.sha256 and len(source) == 2
+
+
+@pytest.mark.parametrize(
+    ("option", "built"), [(("--lod", "1"), "lod=None"), (("--crs", "EPSG:25833"), "crs=None")]
+)
+def test_a_photo_run_refuses_a_store_built_with_another_lod_or_crs(
+    store_flight, tmp_path, capsys, option, built
+):
+    code, _, err = run(capsys, *store_flight["argv"], *option, "--out", tmp_path / "o", "--no-overlays")
+    assert code == 2 and err.count("\n") == 1 and err.startswith("semcityloc: error:")
+    assert f"the store was built with {built}" in err and f"tiles build ... {' '.join(option)}" in err
+    assert not (tmp_path / "o" / "results.csv").exists()
 
 
 # ------------------------------------------------------------------------------ Berlin, DJI EXIF priors
@@ -367,8 +474,6 @@ def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight
     """Workers get the source pickled once: models and inputs travel, the renderer and backends are
     rebuilt in each process; a query made there is the same."""
     import pickle
-
-    from semcityloc.benchmark.photo_source import PhotoSpec
 
     root = box_flight["root"]
     spec = PhotoSpec(

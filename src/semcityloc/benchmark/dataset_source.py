@@ -14,7 +14,9 @@ Perception (the query mask each method localizes with), ``--perception``:
   (default ``trained``, the ≈ 88 % mIoU head; ``benchmark.perception_sim``), seeded per query by
   ``(seed, index)``.
 - ``masks``: precomputed or model-predicted masks ``<masks>/<stem>.png`` (class ids 0..5, 255 = ignore,
-  as palette indices or grey values: what ``io.images.save_labels_png`` writes) or ``<stem>.npy``;
+  as palette indices or grey values: what ``io.images.save_labels_png`` writes) or ``<stem>.npy``; a mask
+  in a lossy format (JPEG) only with ``allow_lossy_mask`` (``--allow-lossy-mask``, kept in ``run.json``
+  only when set, so that older runs resume);
   optional depth ``<depth>/<stem>.npy`` or a 16-bit depth PNG (any positive scale; NaN / <= 0 invalid).
 
 Frames: the data set's poses are world-frame (``LodLocQuery.gt_pose_world``); queries are moved into the
@@ -111,6 +113,7 @@ class DatasetSpec:
     city: str | None = None
     perception: str = PERCEPTION_ORACLE
     masks: str | None = None
+    allow_lossy_mask: bool = False  # accept masks in a lossy format (JPEG): their edges carry wrong ids
     depth: str | None = None
     seg_quality: str = "trained"
     method: str = "semcityloc"
@@ -134,8 +137,10 @@ class DatasetSpec:
             raise unknown_choice("perception", self.perception, PERCEPTIONS, BenchmarkError)
         if self.perception == PERCEPTION_MASKS and not self.masks:
             raise BenchmarkError("--perception masks needs --masks DIR (one <stem>.png / .npy per image)")
-        if self.perception != PERCEPTION_MASKS and (self.masks or self.depth):
-            raise BenchmarkError("--masks / --depth are only used with --perception masks")
+        if self.perception != PERCEPTION_MASKS and (self.masks or self.depth or self.allow_lossy_mask):
+            raise BenchmarkError(
+                "--masks / --depth / --allow-lossy-mask are only used with --perception masks"
+            )
         if self.perception == PERCEPTION_DEGRADED:
             get_preset(self.seg_quality)
         check_run_options(self.method, self.preset, self.keep_details)
@@ -190,6 +195,8 @@ class DatasetSpec:
                 "localizer": self.localizer_config().as_dict(),
                 "keep_details": int(self.keep_details),
                 "semcityloc_version": __version__,
+                # only when set, so that runs made before the flag existed still resume
+                **({"allow_lossy_mask": True} if self.allow_lossy_mask else {}),
             }
         )
 
@@ -250,7 +257,8 @@ class DatasetSource:
         miou = float("nan")
         if spec.perception == PERCEPTION_MASKS:
             camera = q.camera
-            labels = read_mask_file(_find(Path(spec.masks), q.stem, (".png", ".npy")))
+            mask = _find(Path(spec.masks), q.stem, (".png", ".npy"))
+            labels = read_mask_file(mask, allow_lossy=spec.allow_lossy_mask)
             if spec.depth:
                 depth = read_depth_file(_find(Path(spec.depth), q.stem, (".npy", ".png")))
             meta["labels_source"] = "masks"

@@ -33,7 +33,7 @@ import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,9 +41,9 @@ from semcityloc import __version__
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, plain, write_json_atomic
-from semcityloc.benchmark.spec import check_run_options, open_tile_store, resolve_city
+from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
-from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city
+from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.datasets.photos import (
@@ -157,20 +157,25 @@ class PhotoSpec:
     def localizer_config(self) -> LocalizerConfig:
         return LocalizerConfig.preset(self.preset)
 
-    def load_model(self) -> CityModel:
+    def load_model(self) -> tuple[CityModel, TileStore | None]:
+        """(the city model, None) for a file; for a tile store (its frame, the store): the flight's tiles
+        are loaded once the priors are known (``_resolve``). The store is opened here only, and refused
+        when ``lod`` / ``crs`` are not the ones it was built with (``tiles.open_store``)."""
         lod = int(self.lod) if self.lod is not None and str(self.lod).isdigit() else self.lod
         city = resolve_city(self.city)
-        if is_store(city):  # the frame now; the flight's tiles once the priors are known (``_resolve``)
-            return TileStore.open(city).frame()
-        return load_city(city, lod=lod, crs=self.crs, cache=self.cache)
+        if is_store(city):
+            store = open_store(city, lod=lod, crs=self.crs)
+            return store.frame(), store
+        return load_city(city, lod=lod, crs=self.crs, cache=self.cache), None
 
-    def resolved(self) -> tuple[CityModel, list[PhotoInput], dict[str, str]]:
-        """(model, the photos that can run, ``{name: why not}`` of the others), computed once."""
+    def resolved(self) -> Resolved:
+        """The model, the photos that can run, ``{name: why not}`` of the others and the tile store (None
+        for a file), computed once."""
         return _resolve(self)
 
     def run_config(self) -> dict:
         """The ``run.json`` of a photo run (what decides the numbers; compared on resume)."""
-        model, inputs, skipped = self.resolved()
+        model, inputs, skipped, store = self.resolved()
         if not inputs:
             reasons = "; ".join(f"{k}: {v}" for k, v in list(skipped.items())[:3])
             raise InputFileError(f"{self.images}: no photo can be localized ({reasons})")
@@ -182,7 +187,7 @@ class PhotoSpec:
                 "images": str(Path(self.images).resolve()),
                 "city": str(self.city),
                 "city_path": str(city),
-                "city_sha256": city_sha256(city),
+                "city_sha256": store.sha256 if store is not None else city_sha256(city),
                 "lod": self.lod,
                 "crs": self.crs,
                 "model_crs": crs_label(model.crs),
@@ -214,15 +219,15 @@ class PhotoSpec:
         )
 
     def open_source(self, config: dict) -> PhotoSource:
-        model, inputs, _ = self.resolved()
+        model, inputs, _, store = self.resolved()
         source = PhotoSource(self, model, inputs)
-        source.tile_store = open_tile_store(resolve_city(self.city), None)
+        source.tile_store = store
         source.backends()  # weights missing or wrong: said now, before the first photo
         return source
 
     def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
         """The photo counts and reasons in the summary; the exports (``photo_exports``)."""
-        model, inputs, skipped = self.resolved()
+        model, inputs, skipped, _ = self.resolved()
         summary["mode"] = "photos"
         summary["perception"] = self.perception()
         summary["photos"] = len(inputs) + len(skipped)
@@ -231,9 +236,18 @@ class PhotoSpec:
         summary["outputs"] = write_exports(out_dir, model, inputs, offset, self.target_height)
 
 
+class Resolved(NamedTuple):
+    """What a ``PhotoSpec`` resolves to (``PhotoSpec.resolved``)."""
+
+    model: CityModel  # the city file, or the tiles of a store within a camera's range of the flight
+    inputs: list[PhotoInput]  # the photos that can run
+    skipped: dict[str, str]  # {name: why not} of the others
+    store: TileStore | None  # the ``--city`` tile store, opened once: the localizer's parts per photo
+
+
 @functools.lru_cache(maxsize=2)
-def _resolve(spec: PhotoSpec) -> tuple[CityModel, list[PhotoInput], dict[str, str]]:
-    model = spec.load_model()
+def _resolve(spec: PhotoSpec) -> Resolved:
+    model, store = spec.load_model()
     offset = None if spec.offset is None else np.asarray(spec.offset, dtype=np.float64)
     priors = PriorFiles(spec.priors, model.crs, offset, spec.target_height, spec.geoid_separation_m)
     truth = None
@@ -261,9 +275,9 @@ def _resolve(spec: PhotoSpec) -> tuple[CityModel, list[PhotoInput], dict[str, st
                 true_pose = None  # ground truth is optional per photo
         sigma = fixed or prior.uncertainty or PriorUncertainty()
         inputs.append(PhotoInput(path.name, path, camera, prior, sigma, true_pose, mask, depth))
-    if not model.num_triangles and inputs and is_store(resolve_city(spec.city)):
-        model = flight_area(TileStore.open(resolve_city(spec.city)), model, inputs)
-    return model, inputs, skipped
+    if store is not None and inputs:
+        model = flight_area(store, model, inputs)
+    return Resolved(model, inputs, skipped, store)
 
 
 def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) -> CityModel:

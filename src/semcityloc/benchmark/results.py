@@ -8,7 +8,10 @@ followed by ``fsync``, by the parent process only. On start the file is read, a 
 newline: the process died mid-write) is cut off, and the ids already there are skipped. Rows may be in any
 order (``--workers``); each id appears once. Poses: the map model's local frame (x y z m, roll pitch yaw
 deg) + world x y z (``origin + local``); errors: camera-centre distance (m), full rotation angle and yaw
-(deg), "inf" when not localized; timings in s.
+(deg), "inf" when not localized; timings in s; ``warnings``: what the localizer ignored and why (a depth map
+dropped, ``LocalizationResult.warnings``), joined by `` | ``, empty when none. A ``results.csv`` written
+before a column of ``ADDED_COLUMNS`` existed still resumes: it is rewritten with that column (empty) before
+rows are appended, so every line matches the header.
 
 ``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
 coarse poses, the coarse cost volume and its axes, for the report's figures; written atomically BEFORE the
@@ -46,13 +49,17 @@ _TRUE = " ".join(f"true_{k}" for k in _POSE_FIELDS) + " true_world_x true_world_
 _EST = " ".join(f"est_{k}" for k in _POSE_FIELDS) + " est_world_x est_world_y est_world_z"
 _PRIOR = " ".join(f"prior_{k}" for k in _POSE_FIELDS)
 COLUMNS: tuple[str, ...] = tuple(
-    f"""query_id index status reason view height_m query_miou {_TRUE} {_EST} {_PRIOR}
+    f"""query_id index status reason warnings view height_m query_miou {_TRUE} {_EST} {_PRIOR}
     prior_err_m prior_rot_deg prior_yaw_err_deg err_xyz_m err_rot_deg err_yaw_deg
     coarse_err_xyz_m coarse_err_yaw_deg score semantic depth_cost score_margin spread_m spread_deg
     building_iou probability found_err_xyz_m found_err_rot_deg coarse_hypotheses refine_evaluations
     t_coarse_s t_refine_s t_total_s meta_json""".split()
 )
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
+# Columns added after runs had been written with the others (module docstring): such a run still resumes.
+ADDED_COLUMNS = ("warnings",)
+_RESUMABLE_HEADERS = (COLUMNS, tuple(c for c in COLUMNS if c not in ADDED_COLUMNS))
+WARNING_SEPARATOR = " | "
 
 # A query whose simulated view the simulator did not accept (``meta["accepted"] is False``): recorded so a
 # resumed run does not redo it, not localized, and left out of every metric (counted as ``skipped``).
@@ -133,6 +140,7 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "index": q.index,
         "status": result.status,
         "reason": result.reason,
+        "warnings": WARNING_SEPARATOR.join(result.warnings),
         "view": meta.get("view"),
         "height_m": meta.get("height_m"),
         "query_miou": q.query_miou,
@@ -197,13 +205,16 @@ def read_results(path: Path) -> list[dict[str, str]]:
     if not data:
         write_atomic(path, ",".join(COLUMNS) + "\n")
         return []
-    return parse_results(data, path)
+    rows = parse_results(data, path)
+    if not data.startswith((",".join(COLUMNS) + "\n").encode()):  # an earlier layout: brought up to date
+        write_atomic(path, (",".join(COLUMNS) + "\n").encode() + b"".join(_csv_line(r) for r in rows))
+    return rows
 
 
 def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = True) -> list[dict[str, str]]:
     """Rows of the bytes of a ``results.csv`` (read-only; a torn last line is ignored). ``strict``: the
-    columns must be this version's (a run to resume); else a file of an earlier version is read by its
-    own header, with this version's columns it lacks left empty (a run to report on)."""
+    columns must be this version's, or this version's but ``ADDED_COLUMNS`` (a run to resume); else a file
+    of an earlier version is read by its own header. Columns of this version that a file lacks are empty."""
     data = data[: data.rfind(b"\n") + 1]
     if not data:
         return []
@@ -213,7 +224,7 @@ def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = T
         raise BenchmarkError(f"{path}: not a results file of this runner ({exc}); use --overwrite") from exc
     reader = csv.reader(io.StringIO(text))
     header = tuple(next(reader))
-    if header != COLUMNS and (strict or "query_id" not in header):
+    if header not in _RESUMABLE_HEADERS and (strict or "query_id" not in header):
         raise BenchmarkError(
             f"{path}: its columns differ from this version's; use --overwrite or another --out"
         )

@@ -4,6 +4,12 @@ Readers call ``MeshBuilder.add_polygon`` with rings in world coordinates (float6
 class id, or ``None`` when the source has no semantics; ``build()`` triangulates, classifies the
 unlabelled triangles from their normals (``classify_by_normals``), picks the float64 origin, subtracts it
 in float64 and only then casts the vertices to float32.
+
+Coordinates that are NaN, infinite or farther than ``MAX_ABS_COORDINATE_M`` from the CRS origin
+(``usable_points``) are corrupt: readers drop such polygons where they parse them, and ``add_polygon`` drops
+any that still arrive (a projection that failed), so none reaches the triangulation or the origin. Each is
+counted in ``stats.invalid_coordinate_polygons``; ``build()`` says so in one warning
+(``invalid_coordinates_note``).
 """
 
 from __future__ import annotations
@@ -27,6 +33,27 @@ WALL_MAX_ABS_NZ = 0.17
 GROUND_HEIGHT_TOLERANCE_M = 0.5
 # Local-frame z stays absolute (origin z = 0) while the model's heights lie within this range.
 ABSOLUTE_Z_LIMIT_M = 10_000.0
+# A coordinate farther than this from the CRS origin (metres) is corrupt: ECEF radii are ~6.4e6 m, and it
+# would not survive the float32 local frame.
+MAX_ABS_COORDINATE_M = 1e9
+
+
+def usable_points(points: np.ndarray) -> np.ndarray:
+    """Bool per point of an (n, k) array: every coordinate finite and within ``MAX_ABS_COORDINATE_M``."""
+    return (np.abs(np.asarray(points, dtype=np.float64)) <= MAX_ABS_COORDINATE_M).all(axis=-1)
+
+
+def usable_polygon(exterior: np.ndarray, interiors: list[np.ndarray] | tuple = ()) -> bool:
+    """Whether every point of a polygon's rings is usable (``usable_points``)."""
+    return all(usable_points(ring).all() for ring in (exterior, *interiors))
+
+
+def invalid_coordinates_note(count: int) -> str:
+    """The warning of ``count`` polygons dropped for their coordinates (the same for every reader)."""
+    return (
+        f"skipped {count} polygons with coordinates that are NaN, infinite or beyond "
+        f"{MAX_ABS_COORDINATE_M:g} m"
+    )
 
 
 def classify_by_normals(normals: np.ndarray, min_z: np.ndarray, building_min_z: np.ndarray) -> np.ndarray:
@@ -80,6 +107,9 @@ class MeshBuilder:
     ) -> bool:
         """Triangulate and keep one polygon (world coordinates). Returns False if it was skipped."""
         self.stats.polygons += 1
+        if not usable_polygon(exterior, interiors):
+            self.stats.invalid_coordinate_polygons += 1
+            return False
         tri = triangulate_polygon(exterior, interiors)
         if tri is None:
             self.stats.degenerate_polygons += 1
@@ -130,8 +160,12 @@ class MeshBuilder:
         source: str = "",
         origin: np.ndarray | None = None,
     ) -> CityModel:
+        invalid = self.stats.invalid_coordinate_polygons
+        if invalid:
+            self.stats.warnings.append(invalid_coordinates_note(invalid))
         if not self._tris:
-            raise EmptyModelError(f"{source or 'city model'}: no building surfaces could be read")
+            why = f" ({invalid_coordinates_note(invalid)})" if invalid else ""
+            raise EmptyModelError(f"{source or 'city model'}: no building surfaces could be read{why}")
         points = np.concatenate(self._points)
         tris = np.concatenate(self._tris)
         self._flush()

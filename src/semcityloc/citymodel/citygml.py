@@ -30,6 +30,10 @@ What it reads:
 
 2D coordinates (``srsDimension="2"`` or two numbers per point): such polygons are skipped and counted; a file
 with nothing but 2D polygons raises ``InputFileError`` (there is no height to build a 3D model from).
+Coordinates that are NaN, infinite or absurd (``builder.usable_points``: beyond 1e9 m): such polygons are
+dropped where they are parsed (before LoD selection, the CRS's sample point and the triangulation) and
+counted in ``stats.invalid_coordinate_polygons`` (one warning); a file with nothing else raises
+``EmptyModelError`` saying so.
 
 Safety: the parser never resolves entities, never loads a DTD and never touches the network; a DOCTYPE that
 declares entities is refused (``MalformedXMLError``): CityGML never uses them, and leaving them unexpanded
@@ -52,7 +56,7 @@ import numpy as np
 import pyproj
 from lxml import etree
 
-from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.citymodel.builder import MeshBuilder, invalid_coordinates_note, usable_points, usable_polygon
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
@@ -510,7 +514,9 @@ class CityGMLReader:
                 f"{self.path}: all {r.polygons_2d} building polygons have 2D coordinates (no heights): "
                 "cannot build a 3D model"
             )
-        raise EmptyModelError(f"{self.path}: {r.buildings} buildings but no readable building surfaces")
+        invalid = self.stats.invalid_coordinate_polygons
+        why = f" ({invalid_coordinates_note(invalid)})" if invalid else ""
+        raise EmptyModelError(f"{self.path}: {r.buildings} buildings but no readable building surfaces{why}")
 
     def _check_root(self) -> None:
         """Reject unknown roots and entity-declaring DTDs before streaming the whole file."""
@@ -677,6 +683,9 @@ class CityGMLReader:
             else:
                 self.report.malformed_polygons += 1
             return
+        if not usable_polygon(ext, holes):
+            self.stats.invalid_coordinate_polygons += 1
+            return
         if flip:
             ext, holes = ext[::-1], [h[::-1] for h in holes]
         self.report.lod_polygons[lod] += 1
@@ -820,7 +829,7 @@ class CityGMLReader:
                     pts = [np.array(t.split(), dtype=np.float64)[:2] for t in corners if t]
                 except ValueError:
                     continue
-                if len(pts) == 2 and all(len(p) == 2 for p in pts):
+                if len(pts) == 2 and all(len(p) == 2 for p in pts) and usable_points(np.stack(pts)).all():
                     self._envelope_sample = np.stack(pts)
 
     def _note_srs(self, name: str) -> None:

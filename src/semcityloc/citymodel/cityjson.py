@@ -20,7 +20,8 @@ What is read and what is skipped (counted in ``model.stats.warnings``):
   has several geometries of the chosen LoD, the one with semantics (then the one with more surfaces)
   is kept, so redundant encodings are not meshed twice. The integer part goes to ``CityModel.lods``.
 - A polygon whose ring indexes a vertex that does not exist (or is not an integer) is skipped and
-  counted, never an ``IndexError``.
+  counted, never an ``IndexError``; one whose vertices are NaN, infinite or absurd (``MeshBuilder``:
+  ``builder.usable_points``) likewise, under its own count, before any arithmetic on them.
 
 CRS: ``metadata.referenceSystem`` (``https://www.opengis.net/def/crs/EPSG/0/7415``, 0.8/1.0
 ``urn:ogc:def:crs:EPSG::7415``) or the 0.x ``metadata.crs.epsg``; ``crs_override`` wins. A file naming no
@@ -42,7 +43,7 @@ from typing import Any
 import numpy as np
 import pyproj
 
-from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, MeshBuilder, usable_points
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size, gunzip_bounded
 from semcityloc.citymodel.model import CityModel, ParseStats
@@ -61,8 +62,6 @@ BUILDING_TYPES = frozenset({"Building", "BuildingPart", "BuildingInstallation"})
 # shells (lists of surfaces), a MultiSolid a list of solids (lists of shells).
 SURFACE_DEPTH = {"MultiSurface": 0, "CompositeSurface": 0, "Solid": 1, "MultiSolid": 2, "CompositeSolid": 2}
 GEOMETRY_INSTANCE = "GeometryInstance"
-# A vertex farther than this from the CRS origin (metres) is corrupt (ECEF radii are ~6.4e6 m).
-MAX_ABS_COORDINATE_M = 1e9
 
 
 def read_cityjson(
@@ -154,11 +153,6 @@ def _type_of(node: dict) -> str | None:
     return kind if isinstance(kind, str) else None
 
 
-def _usable(verts: np.ndarray) -> np.ndarray:
-    """Bool per vertex: finite and within ``MAX_ABS_COORDINATE_M`` (polygons using others are skipped)."""
-    return (np.abs(verts) <= MAX_ABS_COORDINATE_M).all(axis=1)
-
-
 def _vertex_array(values: Any, what: str, path: Path) -> np.ndarray:
     """(n, 3) float64 from a JSON list of [x, y, z]."""
     try:
@@ -199,7 +193,7 @@ def _transform(doc: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
             f"{path}: 'transform' 'scale' {scale.tolist()} must be 3 numbers in (0, {MAX_SCALE:g}] "
             "(a zero or negative scale flattens or mirrors the model; a larger one is not a city's)"
         )
-    if not (np.abs(translate) <= MAX_ABS_COORDINATE_M).all():
+    if not usable_points(translate).all():
         raise MalformedCityJSONError(
             f"{path}: 'transform' 'translate' {translate.tolist()} must be finite and within "
             f"{MAX_ABS_COORDINATE_M:g} m"
@@ -262,7 +256,6 @@ class _Candidate:
     lod: str
     geometry: dict
     vertices: np.ndarray  # the world-coordinate vertex array its boundaries index
-    valid: np.ndarray  # bool per vertex: finite and within MAX_ABS_COORDINATE_M
     has_semantics: bool
     n_surfaces: int
 
@@ -306,7 +299,7 @@ class _CityJSONReader:
                 raise CRSError(
                     f"{self.path}: target_crs given but the file names no CRS to convert from; {CRS_HINT}"
                 )
-        finite = _usable(raw)
+        finite = usable_points(raw)
         return MetricFrame.for_source(source, raw[finite, :2] if finite.any() else None, target)
 
     def _templates(self) -> tuple[list, np.ndarray]:
@@ -347,7 +340,7 @@ class _CityJSONReader:
             seen.add(parent)
             current = parent
 
-    def _candidates(self, obj: dict, verts, valid, templates, tverts, frame, raw) -> list[_Candidate]:
+    def _candidates(self, obj: dict, verts, templates, tverts, frame, raw) -> list[_Candidate]:
         geoms = obj.get("geometry", [])
         if not isinstance(geoms, list):
             self.counts.malformed_geometries += 1
@@ -370,15 +363,15 @@ class _CityJSONReader:
             if key is None:
                 self.counts.missing_lod += 1
                 key = "0"
-            out.append(self._candidate(key, geom, verts, valid))
+            out.append(self._candidate(key, geom, verts))
         return out
 
-    def _candidate(self, key: str, geom: dict, verts: np.ndarray, valid: np.ndarray) -> _Candidate:
+    def _candidate(self, key: str, geom: dict, verts: np.ndarray) -> _Candidate:
         sem = geom.get("semantics")
         has_sem = isinstance(sem, dict) and isinstance(sem.get("surfaces"), list) and bool(sem.get("values"))
         boundaries = geom.get("boundaries")
         n = len(boundaries) if isinstance(boundaries, list) else 0
-        return _Candidate(key, geom, verts, valid, has_sem, n)
+        return _Candidate(key, geom, verts, has_sem, n)
 
     def _instance(
         self, geom: dict, templates: list, tverts: np.ndarray, frame: MetricFrame, raw
@@ -403,9 +396,10 @@ class _CityJSONReader:
         if key is None:
             self.counts.missing_lod += 1
             key = "0"
-        moved = tverts @ matrix[:3, :3].T + matrix[:3, 3] + ref
+        with np.errstate(over="ignore", invalid="ignore"):  # a corrupt matrix: its polygons are dropped
+            moved = tverts @ matrix[:3, :3].T + matrix[:3, 3] + ref
         world = frame.to_metric(moved) if len(moved) else moved
-        return self._candidate(key, template, world, _usable(world))
+        return self._candidate(key, template, world)
 
     def _select(self, cands: list[_Candidate]) -> list[_Candidate]:
         """The geometry to mesh for one object under the LoD request (empty if none matches)."""
@@ -439,8 +433,9 @@ class _CityJSONReader:
             else:
                 yield from self._surfaces(child, value, depth - 1)
 
-    def _rings(self, surface: Any, verts: np.ndarray, valid: np.ndarray) -> list[np.ndarray] | None:
-        """World-coordinate rings of one surface, or None when an index is invalid."""
+    def _rings(self, surface: Any, verts: np.ndarray) -> list[np.ndarray] | None:
+        """World-coordinate rings of one surface, or None when an index is invalid (unusable coordinates
+        are the builder's to drop and count)."""
         if not isinstance(surface, list) or not surface:
             return None
         rings = []
@@ -454,7 +449,7 @@ class _CityJSONReader:
                 return None
             if idx.ndim != 1 or idx.dtype.kind not in "iu":
                 return None
-            if idx.min() < 0 or idx.max() >= n or not valid[idx].all():
+            if idx.min() < 0 or idx.max() >= n:
                 return None
             rings.append(verts[idx])
         return rings
@@ -480,7 +475,7 @@ class _CityJSONReader:
         values = sem.get("values") if sem else None
         lod = _lod_int(cand.lod)
         for surface, value in self._surfaces(geom.get("boundaries"), values, SURFACE_DEPTH[geom["type"]]):
-            rings = self._rings(surface, cand.vertices, cand.valid)
+            rings = self._rings(surface, cand.vertices)
             if rings is None:
                 self.counts.invalid_polygons += 1
                 self.stats.polygons += 1
@@ -493,7 +488,6 @@ class _CityJSONReader:
         raw = _vertex_array(self.doc["vertices"], "vertices", self.path) * scale + translate
         frame = self._frame(raw, target_crs, crs_override)
         verts = frame.to_metric(raw) if len(raw) else raw
-        valid = _usable(verts)
         templates, tverts = self._templates()
 
         builder = MeshBuilder(self.stats)
@@ -509,7 +503,7 @@ class _CityJSONReader:
                 else:
                     self.counts.skipped_types[str(otype)] += 1
                 continue
-            cands = self._candidates(obj, verts, valid, templates, tverts, frame, raw)
+            cands = self._candidates(obj, verts, templates, tverts, frame, raw)
             lods_present.update(c.lod for c in cands)
             chosen = self._select(cands)
             if cands and not chosen:

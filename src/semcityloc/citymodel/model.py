@@ -27,6 +27,7 @@ class ParseStats:
     degenerate_polygons: int = 0  # fewer than 3 distinct points, zero area: skipped
     nonplanar_polygons: int = 0  # off their best-fit plane by more than the tolerance: still meshed
     failed_triangulations: int = 0  # earcut gave nothing for a non-degenerate polygon: skipped
+    invalid_coordinate_polygons: int = 0  # NaN, infinite or absurd coordinates (``builder.usable_points``)
     unresolved_xlinks: int = 0
     classified_by_normal: int = 0  # polygons that had no semantics and were classified from normals
     warnings: list[str] = field(default_factory=list)

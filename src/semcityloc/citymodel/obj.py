@@ -39,7 +39,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
+from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, UNLABELLED, MeshBuilder, usable_points
 from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
@@ -48,8 +48,6 @@ from semcityloc.errors import CRSError, EmptyModelError, InputFileError
 
 # Vertices closer than this are the same vertex when finding connected buildings (metres).
 WELD_TOLERANCE_M = 1e-3
-# A coordinate beyond this (metres) is corrupt: it would not even survive the float32 local frame.
-MAX_ABS_COORDINATE_M = 1e9
 # The LoD stored for OBJ triangles (the format names none; LoD-Loc's block models are LoD1).
 OBJ_LOD = 1
 # Keywords that carry nothing we use: ignored without a warning.
@@ -229,7 +227,7 @@ def _parse(text: str, path: Path) -> _ObjMesh:
             unknown[kw] += 1
 
     vertices = np.array(verts, dtype=np.float64).reshape(-1, 3)
-    bad_vertex = ~(np.abs(vertices) <= MAX_ABS_COORDINATE_M).all(axis=1)
+    bad_vertex = ~usable_points(vertices)
     if bad_vertex.any():
         lineno = vert_lines[int(np.argmax(bad_vertex))]
         raise InputFileError(

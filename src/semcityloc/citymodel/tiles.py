@@ -18,7 +18,8 @@ Every tile must state the same CRS (tiles in different CRSs are refused, naming 
 first); mixed formats are fine. ``TileStore.tiles_within`` answers "which tiles hold buildings within this
 radius" from an STRtree of the buildings' boxes; ``TileStore.load`` merges tiles (store order) through an
 LRU of parsed tiles under a byte budget (``TileCache``), reused across the photos of a flight.
-``load_city`` opens a model file or a whole store, for every command that takes ``--city``.
+``load_city`` opens a model file or a whole store, for every command that takes ``--city``; ``open_store``
+opens a store and refuses a ``--lod`` / ``--crs`` other than the ones it was built with.
 """
 
 from __future__ import annotations
@@ -432,13 +433,10 @@ def city_sha256(path: str | Path) -> str:
     return TileStore.open(path).sha256 if is_store(path) else file_sha256(path)
 
 
-def load_city(
-    path: str | Path, lod: int | str | None = None, crs: str | None = None, cache: bool = True
-) -> CityModel:
-    """A city model file (``citymodel.io.load_city_model``) or a whole store, merged (``lod`` / ``crs``
-    must then be the store's own or unset: they were fixed when it was built)."""
-    if not is_store(path):
-        return load_city_model(path, lod=lod, crs=crs, cache=cache)
+def open_store(path: str | Path, lod: int | str | None = None, crs: str | None = None) -> TileStore:
+    """The store at ``path``, refused in one line (``InputFileError``) when ``lod`` / ``crs`` are given and
+    are not the ones it was built with: they were fixed when its tiles were parsed, so another value would
+    silently be ignored."""
     store = TileStore.open(path)
     for name, given, built in (("lod", lod, store.lod), ("crs", crs, store.index.get("crs_override"))):
         if given is not None and str(given) != str(built):
@@ -446,4 +444,14 @@ def load_city(
                 f"{path}: the store was built with {name}={built}; build it again with "
                 f"'semcityloc tiles build ... --{name} {given}'"
             )
-    return store.load_all()
+    return store
+
+
+def load_city(
+    path: str | Path, lod: int | str | None = None, crs: str | None = None, cache: bool = True
+) -> CityModel:
+    """A city model file (``citymodel.io.load_city_model``) or a whole store, merged (``lod`` / ``crs``
+    must then be the store's own or unset: ``open_store``)."""
+    if not is_store(path):
+        return load_city_model(path, lod=lod, crs=crs, cache=cache)
+    return open_store(path, lod=lod, crs=crs).load_all()

@@ -22,7 +22,7 @@ from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpe
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
 from semcityloc.cli.executor import run_from_args
-from semcityloc.cli.localize import add_prior_sigma_argument
+from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
 from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
@@ -108,6 +108,7 @@ def add_perception_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--masks", default=None, help="folder of <stem>.png / .npy label masks (--perception masks)"
     )
+    add_lossy_mask_argument(p)
     p.add_argument("--depth", default=None, help="folder of <stem>.npy / .png relative depth (optional)")
 
 
@@ -264,6 +265,7 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
         city=args.city,
         perception=args.perception,
         masks=args.masks,
+        allow_lossy_mask=args.allow_lossy_mask,
         depth=args.depth,
         seg_quality=args.seg_quality,
         method=args.method,

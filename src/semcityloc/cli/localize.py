@@ -39,6 +39,16 @@ def add_prior_sigma_argument(p: argparse.ArgumentParser, default_text: str | Non
     )
 
 
+def add_lossy_mask_argument(p: argparse.ArgumentParser, masks: str = "--masks") -> None:
+    """``--allow-lossy-mask``: accept masks (``masks``, the option naming them) in a lossy format, which
+    ``io.images.load_labels_png`` refuses otherwise."""
+    p.add_argument(
+        "--allow-lossy-mask",
+        action="store_true",
+        help=f"accept {masks} in a lossy format (JPEG): their edges carry wrong class ids",
+    )
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("localize", help="estimate the 6DoF pose of one image against a city model")
     add_model_arguments(p, positional=False)
@@ -51,11 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--prior", required=True, help="prior pose in the model's CRS (same forms as render --pose)"
     )
     p.add_argument("--semantic", default=None, help="query label mask (palette/grey PNG of class ids)")
-    p.add_argument(
-        "--allow-lossy-mask",
-        action="store_true",
-        help="accept a --semantic mask in a lossy format (JPEG): its edges carry wrong class ids",
-    )
+    add_lossy_mask_argument(p, "a --semantic mask")
     p.add_argument("--depth", default=None, help="query relative depth (.npy or 16-bit PNG); optional")
     p.add_argument("--image", default=None, help="the photo: overlay background, or input to --seg-backend")
     p.add_argument(

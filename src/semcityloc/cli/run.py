@@ -17,7 +17,7 @@ from semcityloc.benchmark.report import summary_markdown
 from semcityloc.cli.city import add_model_arguments
 from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
-from semcityloc.cli.localize import add_prior_sigma_argument
+from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF
 from semcityloc.errors import InputFileError
@@ -57,11 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "else xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg); the search covers 3 sigma",
     )
     p.add_argument("--masks", default=None, help="folder of precomputed label masks <stem>.png / .npy")
-    p.add_argument(
-        "--allow-lossy-mask",
-        action="store_true",
-        help="accept --masks in a lossy format (JPEG): their edges carry wrong class ids",
-    )
+    add_lossy_mask_argument(p)
     p.add_argument("--depth", default=None, help="folder of precomputed relative depth <stem>.npy / .png")
     p.add_argument("--seg-backend", default=None, choices=available_backends("segmentation"))
     p.add_argument("--depth-backend", default=None, choices=available_backends("depth"))

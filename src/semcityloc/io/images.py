@@ -58,7 +58,7 @@ def load_labels_png(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
                 raise InputFileError(
                     f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
                     "class ids along every edge; save masks as PNG (--allow-lossy-mask of semcityloc "
-                    "localize and run forces it)"
+                    "localize, run and the data-set benchmark forces it)"
                 )
             if img.mode not in ("P", "L"):
                 raise InputFileError(

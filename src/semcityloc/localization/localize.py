@@ -30,7 +30,7 @@ from semcityloc.localization.cascade import local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
 from semcityloc.localization.confidence import confidence_model
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.query import Query, depth_problem
+from semcityloc.localization.query import Query, usable_depth
 from semcityloc.localization.refine import (
     PriorTerm,
     ScoringLevel,
@@ -111,10 +111,10 @@ class Localizer:
         prior_state = prior_local.to_xyz_rpy()
 
         result = LocalizationResult(status=NOT_LOCALIZED)
-        problem = None if query.depth is None else depth_problem(query.depth)
-        if problem is not None:  # unusable depth: semantics alone, and say why
-            query = Query(query.labels, None)
-            result.warnings.append(f"depth map dropped: {problem}; localized on the semantic mask alone")
+        depth, warning = usable_depth(query.depth)  # noise blocks dropped; unusable depth: semantics alone
+        if warning is not None:
+            query = Query(query.labels, depth)
+            result.warnings.append(warning)
         result.counts = {"coarse_hypotheses": 0, "refine_evaluations": 0}
         result.search = {"search": cfg.search, "prior_uncertainty": unc.as_dict()}
         building_fraction = query.building_fraction()

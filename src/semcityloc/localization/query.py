@@ -1,8 +1,10 @@
 """The query side as the search sees it: a label mask and an optional relative depth map, resampled.
 
 Labels are downsampled by majority vote over the source pixels that fall in each target pixel (robust to
-boundary noise, unlike sampling one pixel); depth by the median of its valid source pixels. Labels
+boundary noise, unlike sampling one pixel); depth by the mean of its valid source pixels. Labels
 outside the model's classes become IGNORE; window/door merge into wall when the map has no openings.
+A depth map too poor to use is dropped, and noise over part of one is blanked block by block, each with a
+warning (``usable_depth``).
 """
 
 from __future__ import annotations
@@ -111,20 +113,31 @@ DEPTH_MIN_RELIEF = 1e-3  # (p95 - p5) / median below which the depth is constant
 DEPTH_MAX_ROUGHNESS = 0.4
 
 
-def depth_roughness(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> float:
-    """Median absolute step between neighbouring valid pixels over the interquartile range of the depth,
-    at ``width`` pixels wide (NaN when there are too few valid neighbours or no spread)."""
+def _at_width(depth: np.ndarray, width: int) -> np.ndarray:
+    """``depth`` brought down to at most ``width`` pixels wide (``downsample_depth``), NaN = invalid."""
     d = np.asarray(depth, dtype=np.float64)
     h, w = d.shape
     d = downsample_depth(d, width, max(1, round(h * width / w))) if w > width else d
-    d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    return np.where(np.isfinite(d) & (d > 0), d, np.nan)
+
+
+def _step_stats(d: np.ndarray) -> tuple[float, float, float] | None:
+    """(median absolute step between neighbouring valid pixels, interquartile range, median) of the valid
+    pixels of ``d``; None when there are too few valid neighbours or no spread."""
     steps = np.concatenate([np.abs(np.diff(d, axis=1)).ravel(), np.abs(np.diff(d, axis=0)).ravel()])
     steps = steps[np.isfinite(steps)]
     v = d[np.isfinite(d)]
     if steps.size < 16 or v.size < 16:
-        return float("nan")
-    p25, p75 = np.percentile(v, [25, 75])
-    return float(np.median(steps) / (p75 - p25)) if p75 > p25 else float("nan")
+        return None
+    p25, p50, p75 = np.percentile(v, [25, 50, 75])
+    return (float(np.median(steps)), float(p75 - p25), float(p50)) if p75 > p25 else None
+
+
+def depth_roughness(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> float:
+    """Median absolute step between neighbouring valid pixels over the interquartile range of the depth,
+    at ``width`` pixels wide (NaN when there are too few valid neighbours or no spread)."""
+    stats = _step_stats(_at_width(depth, width))
+    return float("nan") if stats is None else stats[0] / stats[1]
 
 
 def depth_problem(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> str | None:
@@ -147,3 +160,97 @@ def depth_problem(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> str | No
             f"a scene's depth is smooth, <= {DEPTH_MAX_ROUGHNESS})"
         )
     return None
+
+
+# Noise over PART of the image (a region replaced by noise, a sensor's dead band): the whole map's roughness
+# stays low, so the check is repeated per block. At the search's 64 px the noise is averaged into a flat,
+# wrong surface that looks like a smooth one; at ``DEPTH_BLOCK_WIDTH`` its pixels are still independent.
+# A block is noise when BOTH hold (``block_measures``):
+# - its roughness (``depth_roughness``'s measure, inside the block) exceeds ``DEPTH_MAX_ROUGHNESS``: no
+#   structure. Alone this is not enough: a flat roof or street of good depth is a block of its own pixel
+#   noise around a constant, as rough as noise;
+# - its relative step (median neighbour step over the block's median depth) is ``DEPTH_MAX_BLOCK_STEP``
+#   times that of the image's smooth blocks (the ``DEPTH_BLOCK_REFERENCE`` percentile over the blocks, so
+#   that up to 90 % of the blocks may be noise): the pixel noise of good depth is about the same share of
+#   the depth everywhere, noise differs by a share of the depth's whole range.
+# Measured (``benchmarks/depth_quality.py``, docs/reliability.md): good simulated depth's worst rough block
+# 1.32 times the reference, blocks of uniform noise at least 9 times.
+DEPTH_BLOCK_WIDTH = 256  # the block check's width (square blocks of DEPTH_BLOCK_WIDTH / DEPTH_BLOCK_COLUMNS)
+DEPTH_BLOCK_COLUMNS = 8
+DEPTH_BLOCK_MIN_VALID = 0.25  # share of valid pixels a block needs to be judged (others are kept as they are)
+DEPTH_BLOCK_REFERENCE = 10.0  # percentile of the blocks' relative steps taken as the smooth surfaces' step
+DEPTH_MAX_BLOCK_STEP = 3.0
+SEMANTICS_ALONE = "; localized on the semantic mask alone"  # the end of a warning that dropped the whole map
+
+
+@dataclass(frozen=True)
+class BlockMeasures:
+    """Per block of a depth map (``block_measures``): (rows, cols) roughness and relative step over the
+    reference (NaN where a block is not judged), and each source pixel's block row and column."""
+
+    roughness: np.ndarray
+    step_ratio: np.ndarray
+    pixel_row: np.ndarray  # (H,) block row of each source row
+    pixel_col: np.ndarray  # (W,) block column of each source column
+
+    @property
+    def noisy(self) -> np.ndarray:
+        """(rows, cols) bool: the blocks that look like noise (the comment above ``DEPTH_BLOCK_WIDTH``)."""
+        return (self.roughness > DEPTH_MAX_ROUGHNESS) & (self.step_ratio > DEPTH_MAX_BLOCK_STEP)
+
+
+def block_measures(depth: np.ndarray, width: int = DEPTH_BLOCK_WIDTH) -> BlockMeasures:
+    """The per-block measures of a relative depth map (NaN = invalid) at ``width`` pixels wide."""
+    full = np.asarray(depth, dtype=np.float64)
+    d = _at_width(full, width)
+    h, w = d.shape
+    size = max(2, -(-w // DEPTH_BLOCK_COLUMNS))
+    rows, cols = -(-h // size), -(-w // size)
+    roughness = np.full((rows, cols), np.nan)
+    step = np.full((rows, cols), np.nan)
+    for r in range(rows):
+        for c in range(cols):
+            block = d[r * size : (r + 1) * size, c * size : (c + 1) * size]
+            stats = _step_stats(block)
+            if stats is None or np.isfinite(block).mean() < DEPTH_BLOCK_MIN_VALID:
+                continue
+            median_step, iqr, median = stats
+            roughness[r, c], step[r, c] = median_step / iqr, median_step / median
+    judged = step[np.isfinite(step)]
+    reference = float(np.percentile(judged, DEPTH_BLOCK_REFERENCE)) if judged.size else 0.0
+    ratio = step / reference if reference > 0 else np.full_like(step, np.nan)
+    H, W = full.shape
+    pixel_row = (np.arange(H) * h // H) // size  # the check pixel of each source pixel, then its block
+    pixel_col = (np.arange(W) * w // W) // size
+    return BlockMeasures(roughness, ratio, pixel_row, pixel_col)
+
+
+def usable_depth(depth: np.ndarray | None) -> tuple[np.ndarray | None, str | None]:
+    """(the depth the search may use, a warning or None) of a relative depth map (NaN = invalid).
+
+    A map unusable as a whole (``depth_problem``) is dropped: (None, why). Else the blocks that look like
+    noise (``block_measures``) are set to NaN and the rest is kept, the warning naming the share dropped;
+    if what is left is unusable, the map is dropped. Good depth comes back unchanged, without a warning.
+    """
+    if depth is None:
+        return None, None
+    problem = depth_problem(depth)
+    if problem is not None:
+        return None, f"depth map dropped: {problem}{SEMANTICS_ALONE}"
+    measures = block_measures(depth)
+    noisy = measures.noisy
+    if not noisy.any():
+        return depth, None
+    d = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    drop = noisy[measures.pixel_row[:, None], measures.pixel_col[None, :]] & valid
+    kept = np.where(drop, np.nan, d)
+    share = 100.0 * drop.sum() / max(int(valid.sum()), 1)
+    why = (
+        f"{int(noisy.sum())} of {noisy.size} blocks look like noise (no structure, pixel steps over "
+        f"{DEPTH_MAX_BLOCK_STEP:g} times those of the smooth surfaces)"
+    )
+    problem = depth_problem(kept)
+    if problem is not None:
+        return None, f"depth map dropped: {why}, and the rest: {problem}{SEMANTICS_ALONE}"
+    return kept, f"depth dropped over {share:.0f}% of its valid pixels: {why}; the rest is used"
