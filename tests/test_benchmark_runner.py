@@ -381,3 +381,22 @@ def test_prior_extra_parsing():
     for bad in ("20-10", "5", "a-b", "1-2-3"):
         with pytest.raises(BenchmarkError):
             parse_prior_extra(bad)
+
+
+@pytest.mark.parametrize(
+    "extra, named",
+    [
+        (["--masks", "some/dir"], "--masks"),
+        (["--depth", "d"], "--depth"),
+        (["--perception", "masks"], "--perception"),
+        (["--allow-lossy-mask"], "--allow-lossy-mask"),
+        (["--split", "s.json", "--stage", "test"], "--split, --stage"),
+    ],
+)
+def test_real_data_options_on_simulated_queries_are_refused(cli, capsys, tmp_path, extra, named):
+    """A simulated run makes its own masks and depth: --masks & co. would be silently ignored."""
+    out = tmp_path / "sim"
+    assert cli(["benchmark", "--city", "generated", "--queries", "1", "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("semcityloc: error:") and named in err and "--dataset" in err
+    assert err.count("\n") == 1 and not (out / RESULTS_FILE).exists()

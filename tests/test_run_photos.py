@@ -251,7 +251,8 @@ def test_a_photo_run_opens_its_store_once(store_flight, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    ("option", "built"), [(("--lod", "1"), "lod=None"), (("--crs", "EPSG:25833"), "crs=None")]
+    ("option", "built"),
+    [(("--lod", "1"), "lod=None"), (("--crs", "EPSG:25833"), "crs=ETRS89 / UTM zone 32N")],
 )
 def test_a_photo_run_refuses_a_store_built_with_another_lod_or_crs(
     store_flight, tmp_path, capsys, option, built
@@ -260,6 +261,14 @@ def test_a_photo_run_refuses_a_store_built_with_another_lod_or_crs(
     assert code == 2 and err.count("\n") == 1 and err.startswith("semcityloc: error:")
     assert f"the store was built with {built}" in err and f"tiles build ... {' '.join(option)}" in err
     assert not (tmp_path / "o" / "results.csv").exists()
+
+
+@pytest.mark.parametrize("crs", ["EPSG:25832", "urn:ogc:def:crs:EPSG::25832"])
+def test_a_photo_run_takes_a_crs_that_names_the_stores_own(store_flight, tmp_path, capsys, crs):
+    """--crs naming the CRS the store's tiles are in changes nothing: it is not refused."""
+    code, _, err = run(capsys, *store_flight["argv"], "--crs", crs, "--out", tmp_path / "o", "--no-overlays")
+    assert code == 0, err
+    assert (tmp_path / "o" / "results.csv").exists()
 
 
 # ------------------------------------------------------------------------------ Berlin, DJI EXIF priors

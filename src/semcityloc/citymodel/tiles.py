@@ -36,6 +36,7 @@ import pyproj
 import shapely
 
 from semcityloc.citymodel.builder import choose_origin
+from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
 from semcityloc.citymodel.ground import base_points, store_ring
 from semcityloc.citymodel.io import file_sha256, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
@@ -438,13 +439,26 @@ def open_store(path: str | Path, lod: int | str | None = None, crs: str | None =
     are not the ones it was built with: they were fixed when its tiles were parsed, so another value would
     silently be ignored."""
     store = TileStore.open(path)
-    for name, given, built in (("lod", lod, store.lod), ("crs", crs, store.index.get("crs_override"))):
-        if given is not None and str(given) != str(built):
-            raise InputFileError(
-                f"{path}: the store was built with {name}={built}; build it again with "
-                f"'semcityloc tiles build ... --{name} {given}'"
-            )
+    refused = []
+    if lod is not None and str(lod) != str(store.lod):
+        refused.append(("lod", store.lod, lod))
+    if crs is not None and not _same_crs(crs, store.crs):
+        built = store.index.get("crs_override") or (store.crs.name if store.crs is not None else None)
+        refused.append(("crs", built, crs))
+    for name, built, given in refused:
+        raise InputFileError(
+            f"{path}: the store was built with {name}={built}; build it again with "
+            f"'semcityloc tiles build ... --{name} {given}'"
+        )
     return store
+
+
+def _same_crs(given: str, store_crs: pyproj.CRS | None) -> bool:
+    """Does the user's ``--crs`` name the store's CRS (or its horizontal part)? Then it changes nothing."""
+    if store_crs is None:
+        return False
+    wanted = parse_crs_name(given)
+    return any(wanted.equals(c, ignore_axis_order=True) for c in (store_crs, horizontal_crs(store_crs)))
 
 
 def load_city(

@@ -127,12 +127,41 @@ def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
     return a, b
 
 
+# Options of the real-data benchmark (``--dataset``) and the value that means "not given".
+_DATASET_ONLY = {
+    "perception": "oracle",
+    "masks": None,
+    "depth": None,
+    "allow_lossy_mask": False,
+    "format": "lodloc",
+    "split": None,
+    "stage": None,
+    "frame": "auto",
+    "ecef_origin": None,
+}
+
+
+def dataset_only_options(args: argparse.Namespace) -> list[str]:
+    """The real-data options given to a simulated run (``--masks``, ...): they would be silently ignored."""
+    return [
+        "--" + name.replace("_", "-")
+        for name, unset in _DATASET_ONLY.items()
+        if getattr(args, name, unset) != unset
+    ]
+
+
 def spec_from_args(
     args: argparse.Namespace, settings: dict | None = None, sweep: tuple | None = None
 ) -> BenchmarkSpec:
     """The simulated run of the parsed arguments (``settings``: knobs set on top of ``--set``)."""
     if not args.city:
         raise BenchmarkError("give --city MODEL (or 'generated') for simulated queries, or --dataset PATH")
+    ignored = dataset_only_options(args)
+    if ignored:
+        raise BenchmarkError(
+            f"{', '.join(ignored)}: only with --dataset (a real data set); simulated queries make their own "
+            "masks and depth"
+        )
     query = query_config(
         args.scenario,
         {**parse_settings(args.settings), **(settings or {})},
