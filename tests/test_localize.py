@@ -250,3 +250,54 @@ def test_result_to_dict_writes_the_world_pose_in_the_pose_json_layout():
     refused = LocalizationResult(status=NOT_LOCALIZED, reason=REASON_NO_GEOMETRY).to_dict(origin)
     assert refused["status"] == NOT_LOCALIZED and refused["reason"] == REASON_NO_GEOMETRY
     assert not {"position", "world_from_cam", "frame"} & set(refused)
+
+
+def test_polish_estimate_is_the_mean_of_the_best_evaluations_with_angles_wrapped():
+    from semcityloc.localization.refine import top_mean
+
+    states = np.array(
+        [
+            [1.0, 2.0, 3.0, 0.0, 0.0, 179.8],
+            [3.0, 2.0, 3.0, 0.2, 0.0, -179.8],  # 0.4 deg from the first across +-180
+            [100.0, 0.0, 0.0, 0.0, 0.0, 0.0],  # the worst: left out
+        ]
+    )
+    est = top_mean(states, np.array([0.9, 0.8, 0.1]), 2)
+    assert est[:3] == pytest.approx([2.0, 2.0, 3.0])
+    assert est[3] == pytest.approx(0.1) and est[5] == pytest.approx(180.0)  # not 0, the naive mean
+    assert top_mean(states, np.array([0.9, 0.8, 0.1]), 1) == pytest.approx(states[0])
+
+
+def test_polish_estimate_is_switchable_and_accurate(city, localizer, renderer):
+    """``polish_estimate_top`` (default) returns the mean of the polish's best evaluations, 0 the single
+    best one: different poses, both on the true one."""
+    truth = view(city, *CASES["nadir"][0])
+    out = renderer.render(CAMERA, truth, depth=True)
+    labels, depth = out.labels[0], 0.37 * out.depth[0] + 12.0
+    prior = perturbed(truth, np.array(CASES["nadir"][1]), 0.5, -0.5, 5.0)
+    best_one = replace(localizer.config, refine=replace(localizer.config.refine, polish_estimate_top=0))
+    a = localizer.localize(CAMERA, prior, labels, depth, config=best_one)
+    b = localizer.localize(CAMERA, prior, labels, depth)
+    assert b.pose_local is not None and a.pose_local is not None
+    assert center_error_m(b.pose_local, truth) < 0.5 and rotation_error_deg(b.pose_local, truth) < 0.5
+    assert center_error_m(a.pose_local, truth) < 0.5
+    assert not np.allclose(a.pose_local.to_xyz_rpy(), b.pose_local.to_xyz_rpy())
+
+
+def test_score_poses_ranks_the_true_pose_first_and_includes_the_prior_term(city, localizer, renderer):
+    """The refinement's own score of given poses: the true pose of a clean view scores highest; the prior's
+    roll/pitch term lowers a pose tilted away from the prior."""
+    truth = view(city, *CASES["oblique"][0])
+    out = renderer.render(CAMERA, truth, depth=True)
+    labels, depth = out.labels[0], 2.0 * out.depth[0] + 5.0
+    off = [perturbed(truth, np.array([d, 0.0, 0.0])) for d in (0.0, 1.0, 3.0)]
+    s = localizer.score_poses(CAMERA, labels, depth, off)
+    assert s["semantic"][0] > 0.97 and s["depth_cost"][0] < 0.01
+    assert s["score"][0] > s["score"][1] > s["score"][2]
+    tilted = perturbed(truth, np.zeros(3), 2.0, 0.0)
+    with_prior = localizer.score_poses(CAMERA, labels, depth, [truth, tilted], prior_local=truth)
+    without = localizer.score_poses(CAMERA, labels, depth, [truth, tilted])
+    assert with_prior["score"][0] == pytest.approx(without["score"][0])
+    assert with_prior["score"][1] < without["score"][1]
+    with pytest.raises(ParameterError):
+        localizer.score_poses(CAMERA, labels, depth, [])

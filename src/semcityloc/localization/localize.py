@@ -192,11 +192,7 @@ class Localizer:
         q_fine, d_fine = query.at(fine_cam.width, fine_cam.height)
         levels = [ScoringLevel(local_cam, q_local, d_local), ScoringLevel(fine_cam, q_fine, d_fine)]
         sigma = initial_sigma(cfg.refine, unc.roll_pitch_deg)
-        prior = None
-        if cfg.refine.prior_roll_pitch_weight > 0 and unc.roll_pitch_deg > 0:
-            rp = unc.roll_pitch_deg
-            prior_sigma = np.array([np.inf, np.inf, np.inf, rp, rp, np.inf])
-            prior = PriorTerm(prior_state, prior_sigma, cfg.refine.prior_roll_pitch_weight)
+        prior = prior_term(prior_state, cfg, unc)
         t_prep = time.perf_counter()
         if cfg.no_coarse:
             result.timings["coarse_s"] = 0.0
@@ -280,16 +276,60 @@ class Localizer:
                     iterations=cfg.refine.polish_iterations,
                     low_res_iterations=0,
                     prior=prior,
+                    estimate_top=cfg.refine.polish_estimate_top,
                 )
                 polished.evaluations += best.evaluations
                 polished.spread_m, polished.spread_deg = best.spread_m, best.spread_deg  # the search's
-                best = polished  # its first particle is the filter's best: never worse
+                best = polished
             final = best.xyz_rpy
             result.counts["refine_evaluations"] += best.evaluations
             result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
             result.confidence.update(spread_m=best.spread_m, spread_deg=best.spread_deg)
         result.pose_local = _pose(final)
         result.timings["refine_s"] = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ diagnostics
+    def score_poses(
+        self,
+        camera: Camera,
+        semantic: np.ndarray,
+        depth: np.ndarray | None,
+        poses_local: list[Pose],
+        prior_local: Pose | None = None,
+        config: LocalizerConfig | None = None,
+        prior_uncertainty: PriorUncertainty | None = None,
+    ) -> dict[str, np.ndarray]:
+        """The refinement's own scores of given poses (local frame), at its final resolution: ``semantic``
+        (C_s), ``depth_cost`` (C_d) and ``score`` (what the particle filter maximises; with ``prior_local``
+        including the prior's roll/pitch term). Tells a failure of the search (the true pose scores higher
+        than the estimate) from one of the score (it scores lower): ``benchmarks/score_at_truth.py``."""
+        cfg = config or self.config
+        unc = prior_uncertainty if prior_uncertainty is not None else cfg.prior_uncertainty
+        if not poses_local:
+            raise ParameterError("score_poses needs at least one pose")
+        self._check_inputs(camera, poses_local[0] if prior_local is None else prior_local, semantic, depth)
+        query = Query.from_arrays(semantic, None if cfg.no_depth else depth, self.has_openings)
+        query = Query(query.labels, usable_depth(query.depth)[0])
+        width = cfg.cascade.local.width if cfg.search == "cascade" else cfg.coarse.width
+        fine_cam = _scaled(camera, width).scale(cfg.refine.scale)
+        labels, fine_depth = query.at(fine_cam.width, fine_cam.height)
+        states = np.stack([p.to_xyz_rpy() for p in poses_local])
+        r = cfg.refine
+        sem, dep = evaluate(
+            self.scene,
+            fine_cam,
+            states,
+            labels,
+            fine_depth,
+            self.class_on,
+            r.depth_cost == "robust",
+            r.depth_cap,
+        )
+        score = r.lambda_semantic * sem - (r.lambda_depth * dep if fine_depth is not None else 0.0)
+        prior = prior_term(prior_local.to_xyz_rpy(), cfg, unc) if prior_local is not None else None
+        if prior is not None and cfg.search == "cascade":
+            score = score - prior.penalty(states)
+        return {"semantic": sem, "depth_cost": dep, "score": score}
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -396,6 +436,15 @@ def prior_distance(pose_local: Pose, prior_state: np.ndarray, unc: PriorUncertai
     sig = np.array([unc.xy_m, unc.xy_m, unc.z_m, unc.yaw_deg])
     v = d[[0, 1, 2, 5]] / np.maximum(sig, 1e-6)
     return float(np.sqrt(np.sum(v * v)))
+
+
+def prior_term(prior_state: np.ndarray, cfg: LocalizerConfig, unc: PriorUncertainty) -> PriorTerm | None:
+    """The prior's roll/pitch penalty of the cascade's refinement (None when switched off)."""
+    if cfg.refine.prior_roll_pitch_weight <= 0 or unc.roll_pitch_deg <= 0:
+        return None
+    rp = unc.roll_pitch_deg
+    sigma = np.array([np.inf, np.inf, np.inf, rp, rp, np.inf])
+    return PriorTerm(prior_state, sigma, cfg.refine.prior_roll_pitch_weight)
 
 
 def _pose(state: np.ndarray) -> Pose:

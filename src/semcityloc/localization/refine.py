@@ -5,7 +5,8 @@ State: (x, y, z, roll, pitch, yaw) in the model's local frame. Each iteration sc
 affine-invariant depth cost, lower is better; so higher ``score`` is better), turns scores into weights
 by a softmax with a temperature, resamples (systematic) and perturbs with Gaussian noise whose scale
 shrinks geometrically. Roll and pitch move less than yaw (gravity is known). The estimate is the best
-particle seen in any iteration; the weighted spread of the last population is reported as confidence.
+particle seen in any iteration, or (``estimate_top``, the polish) the mean of the best evaluations; the
+weighted spread of the last population is reported as confidence.
 Deterministic for a given seed (numpy Generator; the kernel is a pure function of its inputs).
 """
 
@@ -148,13 +149,16 @@ def particle_filter(
     iterations: int | None = None,
     low_res_iterations: int | None = None,
     prior: PriorTerm | None = None,
+    estimate_top: int = 0,
 ) -> RefineResult:
     """Refine from ``seeds`` ((k, 6) states, best first). ``levels[-1]`` is the fine resolution; with
     ``config.low_res_iterations`` > 0 the first iterations score at ``levels[0]``. The best particle is
     chosen among fine-resolution scores only (scores of different resolutions are not comparable).
     ``sigma``: (6,) initial perturbation scales (default ``initial_sigma(config, 0.3)``);
     ``particles`` / ``iterations`` / ``low_res_iterations`` override the config's; ``prior``: the
-    prior's penalty subtracted from every score (``PriorTerm``)."""
+    prior's penalty subtracted from every score (``PriorTerm``); ``estimate_top`` > 0: the estimate is
+    the mean of the best ``estimate_top`` fine-resolution evaluations (``top_mean``), scored once more,
+    instead of the single best one (use it where the population stays in one basin: the polish)."""
     sigma = initial_sigma(config, 0.3) if sigma is None else np.asarray(sigma, dtype=np.float64)
     n = config.particles if particles is None else int(particles)
     n_iter = config.iterations if iterations is None else int(iterations)
@@ -169,6 +173,7 @@ def particle_filter(
     best = (-np.inf, seeds[0].copy(), 0.0, 0.0)
     evaluations = 0
     weights = np.full(n, 1.0 / n)
+    seen_states, seen_scores = [], []  # every fine evaluation, for estimate_top
     for it in range(n_iter):
         # The last iteration always scores at the fine resolution, whatever low_res_iterations says.
         fine = it >= min(low_res, n_iter - 1) or len(levels) == 1
@@ -188,6 +193,9 @@ def particle_filter(
         if prior is not None:
             score = score - prior.penalty(states)
         i = int(np.argmax(score))
+        if fine and estimate_top > 0:
+            seen_states.append(states.copy())
+            seen_scores.append(score)
         if fine and score[i] > best[0]:
             best = (float(score[i]), states[i].copy(), float(sem[i]), float(dep[i]))
         weights = softmax_weights(score, config.temperature)
@@ -208,9 +216,37 @@ def particle_filter(
         if best[0] > -np.inf:
             states[0] = best[1]  # elitism: the best so far stays in the population
 
+    if estimate_top > 0 and seen_scores:
+        est = top_mean(np.concatenate(seen_states), np.concatenate(seen_scores), estimate_top)
+        level = levels[-1]
+        sem, dep = evaluate(
+            scene,
+            level.camera,
+            est[None],
+            level.labels,
+            level.depth,
+            class_on,
+            config.depth_cost == "robust",
+            config.depth_cap,
+        )
+        evaluations += 1
+        score = lam_s * sem - lam_d * dep
+        if prior is not None:
+            score = score - prior.penalty(est[None])
+        best = (float(score[0]), est, float(sem[0]), float(dep[0]))
+
     mean = np.average(states, axis=0, weights=weights)
     spread_m = float(np.sqrt(np.average(np.sum((states[:, :3] - mean[:3]) ** 2, axis=1), weights=weights)))
     spread_deg = float(np.sqrt(np.average((states[:, 5] - mean[5]) ** 2, weights=weights)))
     return RefineResult(
         best[1], best[0], best[2], best[3], spread_m, spread_deg, evaluations, states, weights
     )
+
+
+def top_mean(states: np.ndarray, scores: np.ndarray, k: int) -> np.ndarray:
+    """(6,) mean of the ``k`` best-scoring states (N, 6); angles averaged as offsets from the best one's,
+    wrapped to +-180 deg, so a yaw near +-180 does not average to 0."""
+    top = states[np.argsort(-scores, kind="stable")[:k]]
+    offsets = top - top[0]
+    offsets[:, 3:] = (offsets[:, 3:] + 180.0) % 360.0 - 180.0
+    return top[0] + offsets.mean(axis=0)
