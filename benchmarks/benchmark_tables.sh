@@ -1,0 +1,36 @@
+#!/bin/bash
+# The runs behind the tables of docs/benchmark.md ("Results: realistic scenario", held-out seed and city,
+# the two real images): one `semcityloc benchmark` per row, resumable, then the report with the acceptance
+# table and the risk-coverage plot. About 35 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
+# Needs ../shared/data beside the repository (the Berlin, Den Haag and real-image data).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+S=${SEMCITYLOC:-.venv/bin/semcityloc}
+DATA=../shared/data
+CITY=$DATA/berlin_lod2_citygml2/3910_5817.gml
+R=${1:-runs/tables}
+mkdir -p "$R"
+for M in semcityloc no-depth silhouette no-refine no-coarse lodloc-wireframe; do
+  $S benchmark --city $CITY --queries 100 --method $M --workers 2 --out "$R/berlin_$M"
+done
+$S benchmark --city $CITY --queries 100 --preset legacy --workers 2 --out "$R/berlin_legacy"
+for Q in medium zero-shot; do
+  $S benchmark --city $CITY --queries 100 --seg-quality $Q --workers 2 --out "$R/berlin_seg_$Q"
+done
+[ -f "$R/DenHaag/DenHaag_01.xml" ] || unzip -o -q $DATA/denhaag_lod2/DenHaag_01.zip -d "$R"
+for M in semcityloc no-depth; do
+  $S benchmark --city $CITY --queries 100 --seed 1 --method $M --workers 2 --out "$R/berlin_s1_$M"
+  $S benchmark --city "$R/DenHaag/DenHaag_01.xml" --queries 50 --method $M --workers 2 --out "$R/denhaag_$M"
+done
+for S_ in 0 1 2 3 4 5; do
+  $S benchmark --dataset $DATA --perception oracle-degraded --seed $S_ --out "$R/real_degraded_s$S_"
+done
+$S benchmark --dataset $DATA --perception oracle --out "$R/real_oracle"
+for BS in "10-20 xy=12,z=17" "20-30 xy=15,z=20" "30-40 xy=18,z=24" "40-50 xy=22,z=27"; do
+  set -- $BS
+  $S benchmark --city $CITY --queries 50 --prior-extra "$1" --prior-sigma "$2" --workers 2 --out "$R/berlin_prior_$1"
+done
+for L in 1 2 3; do
+  $S benchmark --city generated --lod $L --queries 50 --workers 2 --out "$R/generated_lod$L"
+done
+$S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
