@@ -40,8 +40,19 @@ SLICE = settings(
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 SLOW_INPUT_S = 10.0
-# Corrupt inputs make numpy (NaN coordinates) and Pillow (broken EXIF) warn: a warning is an answer too.
-pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning", "ignore::UserWarning")
+# Corrupt inputs make Pillow warn (broken EXIF): a warning is an answer too. A numpy RuntimeWarning is not:
+# it means a corrupt value reached arithmetic (NaN coordinates, a signalling NaN cast), so it fails the test.
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning", "ignore::UserWarning")
+
+
+def test_a_signalling_nan_in_a_depth_npy_is_an_invalid_pixel_without_a_warning(tmp_path):
+    from semcityloc.io.images import read_depth_file
+
+    d = np.full((4, 5), 7.0, dtype=np.float32)
+    d.view(np.uint32)[1, 2] = 0x7F800001  # a signalling NaN: casting it raises the invalid-value flag
+    np.save(tmp_path / "d.npy", d)
+    out = read_depth_file(tmp_path / "d.npy")
+    assert out.dtype == np.float64 and np.isnan(out[1, 2]) and np.isfinite(out).sum() == 19
 
 
 @pytest.fixture(scope="module")

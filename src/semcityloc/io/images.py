@@ -113,7 +113,8 @@ def load_depth(path: str | Path) -> np.ndarray:
     path = Path(path)
     try:
         if path.suffix.lower() == ".npy":
-            d = load_npy(path, "depth map").astype(np.float64)
+            with np.errstate(invalid="ignore"):  # a signalling NaN is an invalid pixel like any NaN
+                d = load_npy(path, "depth map").astype(np.float64)
         else:
             with Image.open(path) as img:
                 unit = float(img.info.get("depth_unit_m", 0.001))
