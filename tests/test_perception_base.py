@@ -167,3 +167,24 @@ def test_files_depth_reads_npy_and_png(tmp_path):
     assert np.isnan(out.masked()[0]).all()
     out2 = get_depth_backend("files", depth=str(png_dir)).predict(np.zeros((3, 4, 3), np.uint8))
     assert out2.depth.shape == (3, 4) and np.allclose(out2.depth, 250.0, atol=0.01)
+
+
+def test_files_segmentation_refuses_lossy_masks_unless_allowed_and_forged_npy_headers(tmp_path):
+    from PIL import Image
+
+    mask = np.zeros((6, 8), np.uint8)
+    mask[2:5, 1:6] = 3
+    Image.fromarray(mask, mode="L").save(tmp_path / "P1.png", format="JPEG", quality=90)  # JPEG named .png
+    seg = get_segmentation_backend("files", masks=str(tmp_path))
+    with pytest.raises(InputFileError, match="lossy"):
+        seg.predict(np.zeros((6, 8, 3), np.uint8), name="P1")
+    forced = get_segmentation_backend("files", masks=str(tmp_path), allow_lossy="true")  # CLI text
+    assert forced.predict(np.zeros((6, 8, 3), np.uint8), name="P1").labels.shape == (6, 8)
+    with pytest.raises(ParameterError, match="allow_lossy must be true or false"):
+        get_segmentation_backend("files", masks=str(tmp_path), allow_lossy="maybe")
+    forged = tmp_path / "P2.npy"  # a header that promises far more data than the file holds
+    np.save(forged, np.zeros((6, 8), np.uint8))
+    data = forged.read_bytes().replace(b"(6, 8)", b"(60000, 80000)")
+    forged.write_bytes(data)
+    with pytest.raises(InputFileError, match="truncated"):
+        seg.predict(np.zeros((6, 8, 3), np.uint8), name="P2")

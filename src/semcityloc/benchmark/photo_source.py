@@ -336,6 +336,8 @@ class PhotoSource:
         """(segmentation backend or None, depth backend or None), built once per process."""
         if self._backends is None:
             options, spec = dict(self.spec.backend_options), self.spec
+            if spec.allow_lossy_mask and spec.seg_backend == "files":
+                options.setdefault("allow_lossy", True)
             seg = get_segmentation_backend(spec.seg_backend, **options) if spec.seg_backend else None
             dep = get_depth_backend(spec.depth_backend, **options) if spec.depth_backend else None
             self._backends = (seg, dep)

@@ -61,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--prior", required=True, help="prior pose in the model's CRS (same forms as render --pose)"
     )
     p.add_argument("--semantic", default=None, help="query label mask (palette/grey PNG of class ids)")
-    add_lossy_mask_argument(p, "a --semantic mask")
+    add_lossy_mask_argument(p, "a --semantic mask (or the files backend's masks)")
     p.add_argument("--depth", default=None, help="query relative depth (.npy or 16-bit PNG); optional")
     p.add_argument("--image", default=None, help="the photo: overlay background, or input to --seg-backend")
     p.add_argument(
@@ -127,6 +127,8 @@ def _query_inputs(args, camera):
     """The mask and the depth, each from its file or its backend (run on the photo, shrunk to
     ``PHOTO_MAX_WIDTH``), checked to show the camera's field of view (any resolution)."""
     options = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
+    if args.allow_lossy_mask and args.seg_backend == "files":
+        options.setdefault("allow_lossy", True)
     image = None
     if args.seg_backend or args.depth_backend:
         image = load_image(args.image, max_width=PHOTO_MAX_WIDTH)

@@ -19,7 +19,7 @@ import numpy as np
 
 from semcityloc.classes import IGNORE, NUM_CLASSES
 from semcityloc.errors import InputFileError, ParameterError, ShapeError
-from semcityloc.io.images import load_depth, load_labels_png
+from semcityloc.io.images import load_depth, load_labels_png, load_npy
 from semcityloc.perception.base import DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
@@ -62,21 +62,19 @@ class FilesSegmentation:
     name = "files"
     classes = ("background", "ground", "wall", "roof", "window", "door")
 
-    def __init__(self, masks: str | Path | None = None):
+    def __init__(self, masks: str | Path | None = None, allow_lossy: bool | str = False):
         if masks in (None, ""):
             raise ParameterError("the 'files' segmentation backend needs masks=DIR (or masks=FILE)")
         self.where = Path(masks).expanduser()
+        self.allow_lossy = _flag(allow_lossy, "allow_lossy")
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
         img = check_image(image)
         H, W = img.shape[:2]
         path = find_file(self.where, name, MASK_SUFFIXES, "mask")
         if path.suffix.lower() == ".png":
-            return _from_labels(_resize_nearest(load_labels_png(path), W, H))
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputFileError(f"{path}: cannot read mask array ({exc})") from exc
+            return _from_labels(_resize_nearest(load_labels_png(path, self.allow_lossy), W, H))
+        arr = load_npy(path, "mask array")
         if arr.ndim == 3 and arr.shape[0] == NUM_CLASSES and np.issubdtype(arr.dtype, np.floating):
             probs = _resize_nearest(np.nan_to_num(arr.astype(np.float32)), W, H)
             return SegmentationOutput(probs, np.argmax(probs, axis=0).astype(np.uint8))
@@ -121,8 +119,20 @@ class FilesDepth:
         return DepthOutput(np.where(valid, d, np.inf).astype(np.float32), valid, None)
 
 
-def files_segmentation_backend(masks=None) -> FilesSegmentation:
-    return FilesSegmentation(masks)
+def files_segmentation_backend(masks=None, allow_lossy=False) -> FilesSegmentation:
+    return FilesSegmentation(masks, allow_lossy)
+
+
+def _flag(value: bool | str, name: str) -> bool:
+    """A boolean backend option, given as a bool or as the text of ``--backend-option name=VALUE``."""
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("1", "true", "yes", "on"):
+        return True
+    if text in ("0", "false", "no", "off", ""):
+        return False
+    raise ParameterError(f"backend option {name} must be true or false, got {value!r}")
 
 
 def files_depth_backend(depth=None) -> FilesDepth:

@@ -113,7 +113,9 @@ register_backend(
 register_backend(
     "segmentation", "mobilenetv2", _mobilenetv2, SEG_OPTIONS, "frozen ImageNet MobileNetV2 + FPN head"
 )
-register_backend("segmentation", "files", _files_seg, ("masks",), "precomputed masks read by image stem")
+register_backend(
+    "segmentation", "files", _files_seg, ("masks", "allow_lossy"), "precomputed masks read by image stem"
+)
 register_backend(
     "depth",
     "moge2",
