@@ -1,7 +1,7 @@
 #!/bin/bash
 # The runs behind the tables of docs/benchmark.md ("Results: realistic scenario", held-out seed and city,
-# the two real images): one `semcityloc benchmark` per row, resumable, then the report with the acceptance
-# table and the risk-coverage plot. About 35 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
+# the two real images, the knob sweeps): one `semcityloc benchmark` per row, resumable, then the report with the acceptance
+# table and the risk-coverage plot. About 45 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
 # Needs ../shared/data beside the repository (the Berlin, Den Haag and real-image data).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -32,5 +32,9 @@ for BS in "10-20 xy=12,z=17" "20-30 xy=15,z=20" "30-40 xy=18,z=24" "40-50 xy=22,
 done
 for L in 1 2 3; do
   $S benchmark --city generated --lod $L --queries 50 --workers 2 --out "$R/generated_lod$L"
+done
+for KV in "prior_roll_pitch_sigma_deg 0,1,2 rp" "height_change_max_m 0,2,4 height" "depth_model.distortion 0,0.1,0.2 depth"; do
+  set -- $KV
+  $S sweep --knob "$1" --values "$2" --city $CITY --queries 50 --workers 2 --out "$R/sweep_$3"
 done
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
