@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -48,7 +49,7 @@ from semcityloc.localization.result import (
     REASON_NO_GEOMETRY,
     LocalizationResult,
 )
-from semcityloc.localization.scoring import map_classes
+from semcityloc.localization.scoring import map_classes, merge_openings_lut
 from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene, build_scene
 
@@ -70,7 +71,11 @@ class Localizer:
         self.model = model
         self.config = config or LocalizerConfig()
         self.scene = scene if scene is not None else build_scene(model)
-        self.has_openings = bool(np.isin(model.classes, [SemanticClass.WINDOW, SemanticClass.DOOR]).any())
+        map_openings = bool(np.isin(model.classes, [SemanticClass.WINDOW, SemanticClass.DOOR]).any())
+        # Openings not scored (``LocalizerConfig.score_openings``): the map's become wall, like the query's.
+        self.has_openings = map_openings and self.config.score_openings
+        if map_openings and not self.has_openings:
+            self.scene = replace(self.scene, classes=merge_openings_lut(False)[self.scene.classes])
         class_ids = map_classes(self.has_openings)
         self.class_on = np.zeros(NUM_CLASSES, dtype=bool)
         self.class_on[list(class_ids)] = True
