@@ -65,7 +65,7 @@ from semcityloc.localization.localize import MAX_VIEW_RANGE_M
 from semcityloc.localization.methods import ABLATIONS, Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
-from semcityloc.perception.files import DEPTH_SUFFIXES, MASK_SUFFIXES, find_file
+from semcityloc.perception.files import DEPTH_SUFFIXES, MASK_SUFFIXES, find_file, with_lossy_masks
 from semcityloc.perception.registry import backend_entry, get_depth_backend, get_segmentation_backend
 from semcityloc.render import Renderer
 
@@ -335,9 +335,8 @@ class PhotoSource:
     def backends(self) -> tuple[Any, Any]:
         """(segmentation backend or None, depth backend or None), built once per process."""
         if self._backends is None:
-            options, spec = dict(self.spec.backend_options), self.spec
-            if spec.allow_lossy_mask and spec.seg_backend == "files":
-                options.setdefault("allow_lossy", True)
+            spec = self.spec
+            options = with_lossy_masks(dict(spec.backend_options), spec.seg_backend, spec.allow_lossy_mask)
             seg = get_segmentation_backend(spec.seg_backend, **options) if spec.seg_backend else None
             dep = get_depth_backend(spec.depth_backend, **options) if spec.depth_backend else None
             self._backends = (seg, dep)

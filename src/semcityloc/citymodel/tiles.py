@@ -439,18 +439,19 @@ def open_store(path: str | Path, lod: int | str | None = None, crs: str | None =
     are not the ones it was built with: they were fixed when its tiles were parsed, so another value would
     silently be ignored."""
     store = TileStore.open(path)
-    refused = []
     if lod is not None and str(lod) != str(store.lod):
-        refused.append(("lod", store.lod, lod))
+        raise _built_with(path, "lod", store.lod, lod)
     if crs is not None and not _same_crs(crs, store.crs):
         built = store.index.get("crs_override") or (store.crs.name if store.crs is not None else None)
-        refused.append(("crs", built, crs))
-    for name, built, given in refused:
-        raise InputFileError(
-            f"{path}: the store was built with {name}={built}; build it again with "
-            f"'semcityloc tiles build ... --{name} {given}'"
-        )
+        raise _built_with(path, "crs", built, crs)
     return store
+
+
+def _built_with(path: str | Path, name: str, built: object, given: object) -> InputFileError:
+    return InputFileError(
+        f"{path}: the store was built with {name}={built}; build it again with "
+        f"'semcityloc tiles build ... --{name} {given}'"
+    )
 
 
 def _same_crs(given: str, store_crs: pyproj.CRS | None) -> bool:

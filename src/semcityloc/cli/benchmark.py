@@ -18,7 +18,12 @@ from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO, SCENARIOS, parse_settings, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
-from semcityloc.cli.dataset import add_dataset_arguments, add_perception_arguments, run_dataset_benchmark
+from semcityloc.cli.dataset import (
+    add_dataset_arguments,
+    add_perception_arguments,
+    real_data_defaults,
+    run_dataset_benchmark,
+)
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.errors import BenchmarkError
@@ -127,25 +132,11 @@ def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
     return a, b
 
 
-# Options of the real-data benchmark (``--dataset``) and the value that means "not given".
-_DATASET_ONLY = {
-    "perception": "oracle",
-    "masks": None,
-    "depth": None,
-    "allow_lossy_mask": False,
-    "format": "lodloc",
-    "split": None,
-    "stage": None,
-    "frame": "auto",
-    "ecef_origin": None,
-}
-
-
 def dataset_only_options(args: argparse.Namespace) -> list[str]:
     """The real-data options given to a simulated run (``--masks``, ...): they would be silently ignored."""
     return [
         "--" + name.replace("_", "-")
-        for name, unset in _DATASET_ONLY.items()
+        for name, unset in real_data_defaults().items()
         if getattr(args, name, unset) != unset
     ]
 

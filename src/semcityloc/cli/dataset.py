@@ -112,6 +112,16 @@ def add_perception_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth", default=None, help="folder of <stem>.npy / .png relative depth (optional)")
 
 
+def real_data_defaults() -> dict[str, object]:
+    """``{dest: default}`` of the options ``semcityloc benchmark`` takes for a real data set only
+    (``add_dataset_arguments`` without the positional path, ``add_perception_arguments``), read off the
+    parser that defines them, so that a simulated run can tell which of them were given."""
+    p = argparse.ArgumentParser(add_help=False)
+    add_dataset_arguments(p, positional=False)
+    add_perception_arguments(p)
+    return {a.dest: a.default for a in p._actions if a.dest != "dataset"}
+
+
 def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
     """All options of ``semcityloc dataset benchmark`` after the data set ones."""
     add_perception_arguments(p)

@@ -21,6 +21,7 @@ from semcityloc.localization.config import PRESETS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
+from semcityloc.perception.files import with_lossy_masks
 from semcityloc.perception.registry import available_backends, get_depth_backend, get_segmentation_backend
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
 from semcityloc.render.raster_numba import NumbaEngine
@@ -126,9 +127,8 @@ def _camera(args):
 def _query_inputs(args, camera):
     """The mask and the depth, each from its file or its backend (run on the photo, shrunk to
     ``PHOTO_MAX_WIDTH``), checked to show the camera's field of view (any resolution)."""
-    options = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
-    if args.allow_lossy_mask and args.seg_backend == "files":
-        options.setdefault("allow_lossy", True)
+    given = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
+    options = with_lossy_masks(given, args.seg_backend, args.allow_lossy_mask)
     image = None
     if args.seg_backend or args.depth_backend:
         image = load_image(args.image, max_width=PHOTO_MAX_WIDTH)

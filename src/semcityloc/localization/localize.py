@@ -35,9 +35,9 @@ from semcityloc.localization.query import Query, usable_depth
 from semcityloc.localization.refine import (
     PriorTerm,
     ScoringLevel,
-    evaluate,
     initial_sigma,
     particle_filter,
+    score_states,
 )
 from semcityloc.localization.result import (
     LOCALIZED,
@@ -246,21 +246,7 @@ class Localizer:
         fine = levels[-1]
         if cfg.no_refine:
             final = seeds[0]
-            r = cfg.refine
-            sem, dep = evaluate(
-                self.scene,
-                fine.camera,
-                final[None],
-                fine.labels,
-                fine.depth,
-                self.class_on,
-                r.depth_cost == "robust",
-                r.depth_cap,
-            )
-            lam_d = cfg.refine.lambda_depth if fine.depth is not None else 0.0
-            score = cfg.refine.lambda_semantic * sem - lam_d * dep
-            if prior is not None:
-                score = score - prior.penalty(final[None])
+            score, sem, dep = score_states(self.scene, fine, final[None], self.class_on, cfg.refine, prior)
             result.score, result.semantic, result.depth_cost = float(score[0]), float(sem[0]), float(dep[0])
         else:
             rng = np.random.default_rng(cfg.seed)
@@ -317,23 +303,11 @@ class Localizer:
         query = Query(query.labels, usable_depth(query.depth)[0])
         width = cfg.cascade.local.width if cfg.search == "cascade" else cfg.coarse.width
         fine_cam = _scaled(camera, width).scale(cfg.refine.scale)
-        labels, fine_depth = query.at(fine_cam.width, fine_cam.height)
+        level = ScoringLevel(fine_cam, *query.at(fine_cam.width, fine_cam.height))
         states = np.stack([p.to_xyz_rpy() for p in poses_local])
-        r = cfg.refine
-        sem, dep = evaluate(
-            self.scene,
-            fine_cam,
-            states,
-            labels,
-            fine_depth,
-            self.class_on,
-            r.depth_cost == "robust",
-            r.depth_cap,
-        )
-        score = r.lambda_semantic * sem - (r.lambda_depth * dep if fine_depth is not None else 0.0)
-        prior = prior_term(prior_local.to_xyz_rpy(), cfg, unc) if prior_local is not None else None
-        if prior is not None and cfg.search == "cascade":
-            score = score - prior.penalty(states)
+        with_prior = prior_local is not None and cfg.search == "cascade"  # the grid search has no prior term
+        prior = prior_term(prior_local.to_xyz_rpy(), cfg, unc) if with_prior else None
+        score, sem, dep = score_states(self.scene, level, states, self.class_on, cfg.refine, prior)
         return {"semantic": sem, "depth_cost": dep, "score": score}
 
     # ------------------------------------------------------------------ helpers

@@ -206,16 +206,29 @@ def block_measures(depth: np.ndarray, width: int = DEPTH_BLOCK_WIDTH) -> BlockMe
     h, w = d.shape
     size = max(2, -(-w // DEPTH_BLOCK_COLUMNS))
     rows, cols = -(-h // size), -(-w // size)
-    roughness = np.full((rows, cols), np.nan)
-    step = np.full((rows, cols), np.nan)
-    for r in range(rows):
-        for c in range(cols):
-            block = d[r * size : (r + 1) * size, c * size : (c + 1) * size]
-            stats = _step_stats(block)
-            if stats is None or np.isfinite(block).mean() < DEPTH_BLOCK_MIN_VALID:
-                continue
-            median_step, iqr, median = stats
-            roughness[r, c], step[r, c] = median_step / iqr, median_step / median
+    # Every block at once (it runs on every query): (rows, cols, size, size), NaN beyond the map's edge.
+    padded = np.full((rows * size, cols * size), np.nan)
+    padded[:h, :w] = d
+    blocks = padded.reshape(rows, size, cols, size).swapaxes(1, 2)
+    steps = np.concatenate(
+        [
+            np.abs(np.diff(blocks, axis=3)).reshape(rows, cols, -1),
+            np.abs(np.diff(blocks, axis=2)).reshape(rows, cols, -1),
+        ],
+        axis=2,
+    )
+    values = blocks.reshape(rows, cols, -1)
+    median_step, n_steps = _finite_quantiles(steps, (0.5,))
+    (p25, p50, p75), n_values = _finite_quantiles(values, (0.25, 0.5, 0.75))
+    pixels = np.minimum(size, h - size * np.arange(rows))[:, None] * np.minimum(
+        size, w - size * np.arange(cols)
+    )
+    judged_blocks = (
+        (n_steps >= 16) & (n_values >= 16) & (p75 > p25) & (n_values / pixels >= DEPTH_BLOCK_MIN_VALID)
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        roughness = np.where(judged_blocks, median_step[0] / (p75 - p25), np.nan)
+        step = np.where(judged_blocks, median_step[0] / p50, np.nan)
     judged = step[np.isfinite(step)]
     reference = float(np.percentile(judged, DEPTH_BLOCK_REFERENCE)) if judged.size else 0.0
     ratio = step / reference if reference > 0 else np.full_like(step, np.nan)
@@ -223,6 +236,24 @@ def block_measures(depth: np.ndarray, width: int = DEPTH_BLOCK_WIDTH) -> BlockMe
     pixel_row = (np.arange(H) * h // H) // size  # the check pixel of each source pixel, then its block
     pixel_col = (np.arange(W) * w // W) // size
     return BlockMeasures(roughness, ratio, pixel_row, pixel_col)
+
+
+def _finite_quantiles(x: np.ndarray, qs: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """((len(qs), ...) quantiles of the finite values along the last axis, numpy's linear method; the
+    count of finite values), NaN where there are none: ``np.nanpercentile`` without its per-row loop."""
+    finite = np.isfinite(x)
+    n = finite.sum(axis=-1)
+    ordered = np.sort(np.where(finite, x, np.inf), axis=-1)  # the finite values first, in order
+    out = []
+    for q in qs:
+        pos = q * np.maximum(n - 1, 0)
+        lo = np.floor(pos).astype(np.intp)
+        hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+        a = np.take_along_axis(ordered, lo[..., None], axis=-1)[..., 0]
+        b = np.take_along_axis(ordered, hi[..., None], axis=-1)[..., 0]
+        with np.errstate(invalid="ignore"):
+            out.append(np.where(n > 0, a + (b - a) * (pos - lo), np.nan))
+    return np.stack(out), n
 
 
 def usable_depth(depth: np.ndarray | None) -> tuple[np.ndarray | None, str | None]:

@@ -130,6 +130,34 @@ class ScoringLevel:
     depth: np.ndarray | None
 
 
+def score_states(
+    scene: RenderScene,
+    level: ScoringLevel,
+    states: np.ndarray,
+    class_on: np.ndarray,
+    config: RefineConfig,
+    prior: PriorTerm | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(score, C_s, C_d) of states (N, 6) at a scoring level: ``score = lambda_1 * C_s - lambda_2 * C_d``
+    (no depth term when the level has no depth) minus the prior's penalty. What the refinement maximises,
+    in one place for the filter, its polish, the ``no-refine`` ablation and ``Localizer.score_poses``."""
+    sem, dep = evaluate(
+        scene,
+        level.camera,
+        states,
+        level.labels,
+        level.depth,
+        class_on,
+        config.depth_cost == "robust",
+        config.depth_cap,
+    )
+    lam_d = config.lambda_depth if level.depth is not None else 0.0
+    score = config.lambda_semantic * sem - lam_d * dep
+    if prior is not None:
+        score = score - prior.penalty(states)
+    return score, sem, dep
+
+
 def initial_sigma(config: RefineConfig, roll_pitch_deg: float) -> np.ndarray:
     """(6,) initial perturbation scales in state order; half of ``roll_pitch_deg`` (the prior's sigma) is
     used when the config leaves roll/pitch to the prior (``sigma_roll_pitch_deg=None``)."""
@@ -168,8 +196,6 @@ def particle_filter(
     states = seeds[owner] + rng.normal(size=(n, 6)) * sigma
     states[0] = seeds[0]  # the coarse pose itself is always evaluated
 
-    lam_s = config.lambda_semantic
-    lam_d = config.lambda_depth if levels[-1].depth is not None else 0.0
     best = (-np.inf, seeds[0].copy(), 0.0, 0.0)
     evaluations = 0
     weights = np.full(n, 1.0 / n)
@@ -178,20 +204,8 @@ def particle_filter(
         # The last iteration always scores at the fine resolution, whatever low_res_iterations says.
         fine = it >= min(low_res, n_iter - 1) or len(levels) == 1
         level = levels[-1] if fine else levels[0]
-        sem, dep = evaluate(
-            scene,
-            level.camera,
-            states,
-            level.labels,
-            level.depth,
-            class_on,
-            config.depth_cost == "robust",
-            config.depth_cap,
-        )
+        score, sem, dep = score_states(scene, level, states, class_on, config, prior)
         evaluations += n
-        score = lam_s * sem - lam_d * dep
-        if prior is not None:
-            score = score - prior.penalty(states)
         i = int(np.argmax(score))
         if fine and estimate_top > 0:
             seen_states.append(states.copy())
@@ -218,21 +232,8 @@ def particle_filter(
 
     if estimate_top > 0 and seen_scores:
         est = top_mean(np.concatenate(seen_states), np.concatenate(seen_scores), estimate_top)
-        level = levels[-1]
-        sem, dep = evaluate(
-            scene,
-            level.camera,
-            est[None],
-            level.labels,
-            level.depth,
-            class_on,
-            config.depth_cost == "robust",
-            config.depth_cap,
-        )
+        score, sem, dep = score_states(scene, levels[-1], est[None], class_on, config, prior)
         evaluations += 1
-        score = lam_s * sem - lam_d * dep
-        if prior is not None:
-            score = score - prior.penalty(est[None])
         best = (float(score[0]), est, float(sem[0]), float(dep[0]))
 
     mean = np.average(states, axis=0, weights=weights)

@@ -119,9 +119,12 @@ def weights_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "semcityloc" / "weights"
 
 
+TRUE_WORDS = ("1", "true", "yes", "on")  # what a yes/no setting given as text accepts as yes
+
+
 def hub_offline() -> bool:
     """True when ``HF_HUB_OFFLINE`` is set to a true value (read at call time, not at import)."""
-    return os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in ("1", "true", "yes", "on")
+    return os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in TRUE_WORDS
 
 
 def looks_like_hub_id(spec: str) -> bool:

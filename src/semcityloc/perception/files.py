@@ -20,7 +20,7 @@ import numpy as np
 from semcityloc.classes import IGNORE, NUM_CLASSES
 from semcityloc.errors import InputFileError, ParameterError, ShapeError
 from semcityloc.io.images import load_depth, load_labels_png, load_npy
-from semcityloc.perception.base import DepthOutput, SegmentationOutput, check_image
+from semcityloc.perception.base import TRUE_WORDS, DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
 DEPTH_SUFFIXES = (".npy", ".png")
@@ -128,11 +128,19 @@ def _flag(value: bool | str, name: str) -> bool:
     if isinstance(value, bool):
         return value
     text = str(value).strip().lower()
-    if text in ("1", "true", "yes", "on"):
+    if text in TRUE_WORDS:
         return True
     if text in ("0", "false", "no", "off", ""):
         return False
     raise ParameterError(f"backend option {name} must be true or false, got {value!r}")
+
+
+def with_lossy_masks(options: dict, seg_backend: str | None, allow_lossy_mask: bool) -> dict:
+    """The backend options, with the ``files`` segmentation backend told to accept lossy masks when the
+    command was given ``--allow-lossy-mask`` (an explicit ``allow_lossy`` option wins)."""
+    if allow_lossy_mask and seg_backend == "files":
+        return {"allow_lossy": True, **options}
+    return dict(options)
 
 
 def files_depth_backend(depth=None) -> FilesDepth:
