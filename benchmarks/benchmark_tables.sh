@@ -33,6 +33,7 @@ done
 for L in 1 2 3; do
   $S benchmark --city generated --lod $L --queries 50 --workers 2 --out "$R/generated_lod$L"
 done
+$S benchmark --city generated --lod 3 --preset openings --queries 50 --workers 2 --out "$R/generated_lod3_openings"
 for KV in "prior_roll_pitch_sigma_deg 0,1,2 rp" "height_change_max_m 0,2,4 height" "depth_model.distortion 0,0.1,0.2 depth"; do
   set -- $KV
   $S sweep --knob "$1" --values "$2" --city $CITY --queries 50 --workers 2 --out "$R/sweep_$3"

@@ -321,7 +321,8 @@ def test_openings_of_an_lod3_map_are_scored_as_wall_unless_asked(city_lod3):
     merged = Localizer(city_lod3)
     assert not merged.has_openings and not np.isin(merged.scene.classes, [K.WINDOW, K.DOOR]).any()
     assert np.flatnonzero(merged.class_on).tolist() == [K.GROUND, K.WALL, K.ROOF]
-    scored = Localizer(city_lod3, replace(LocalizerConfig(), score_openings=True))
+    scored = Localizer(city_lod3, LocalizerConfig.preset("openings"))
+    assert LocalizerConfig.preset("openings") == replace(LocalizerConfig(), score_openings=True)
     assert scored.has_openings and np.isin(scored.scene.classes, [K.WINDOW, K.DOOR]).any()
     assert np.flatnonzero(scored.class_on).tolist() == [K.GROUND, K.WALL, K.ROOF, K.WINDOW, K.DOOR]
     assert LocalizerConfig.preset("legacy").score_openings  # the first design, unchanged

@@ -244,6 +244,9 @@ PRESETS: dict[str, LocalizerConfig] = {
     "legacy": LEGACY,
     # The first design's variants for large prior errors (kept for the runs documented with them).
     "legacy-wide-z": replace(LEGACY, coarse=CoarseConfig(range_z_m=60.0, n_z=13)),
+    # The default scoring an LoD3 map's windows and doors as classes of their own (the default before
+    # stop 22): the LoD table's "openings scored" row is this preset.
+    "openings": replace(LocalizerConfig(), score_openings=True),
     # Small and quick, for tests and the demo's smoke runs.
     "fast": LocalizerConfig(
         cascade=CascadeConfig(sweep=SweepConfig(max_centres=600, keep=4), local=LocalConfig(keep=2)),
