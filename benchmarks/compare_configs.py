@@ -1,0 +1,217 @@
+"""Compare localizer configurations on the same simulated queries, paired: what a change gains and loses.
+
+How the localizer's knobs were chosen (``docs/localization.md``, "Measured alternatives"): every variant
+localizes the SAME queries of the realistic scenario, so a difference of a few queries is the change's,
+not the draw's. Each query is simulated once and cached (``--cache DIR``), so trying another variant
+costs only its localizations (delete the cache after changing the simulation: it is keyed by city, seed
+and ``--set`` only).
+
+Usage::
+
+    python benchmarks/compare_configs.py --variant base \\
+        --variant top1:refine.polish_estimate_top=1 --variant nodepth:no_depth=true \\
+        [--city generated --city FUERTH] [--seeds 0,1] [--queries 100] [--preset default]
+        [--set seg_quality=medium] [--workers 2] [--cache DIR]
+
+A variant is ``NAME`` (the preset unchanged) or ``NAME:key=value,key=value`` with keys the preset's
+``LocalizerConfig`` fields, dotted into its nested configs (
+``refine.polish_estimate_top=1``, ``cascade.local.keep=4``); values are parsed like ``semcityloc
+benchmark --set`` (JSON where they can be). ``--set`` changes the simulated queries (scenario knobs).
+
+Tuning discipline: choose on the calibration cities only (the generated city and Fürth, the defaults);
+another city (Berlin, Den Haag) is refused unless ``--check-only`` says the run is a check of a choice
+already made, never a way to make one.
+
+Prints one JSON line per variant: found-pose recall (accepted or not) and accepted recall at 2 m / 2 deg,
+3 m / 3 deg, 5 m / 5 deg, localized count, mean seconds per query, and, for every variant after the first,
+the queries gained and lost at 2 m / 2 deg (found poses) against the first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import pickle
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+from semcityloc.benchmark.scenario import parse_settings, parse_value, query_config
+from semcityloc.benchmark.spec import GENERATED, BenchmarkSpec, load_map, resolve_city
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.localize import Localizer
+
+REPO = Path(__file__).resolve().parents[1]
+FUERTH = REPO.parent / "shared" / "data" / "fuerth_lod2_citygml1" / "LOD2_4424_5482_solid.gml"
+THRESHOLDS = ((2.0, 2.0), (3.0, 3.0), (5.0, 5.0))
+
+_WORKER: dict[str, Any] = {}
+
+
+def with_overrides(config: Any, items: dict[str, Any]) -> Any:
+    """``config`` (a frozen dataclass) with dotted ``items`` replaced in it or its nested dataclasses."""
+    direct: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {}
+    fields = {f.name for f in dataclasses.fields(config)}
+    for key, value in items.items():
+        head, _, rest = key.partition(".")
+        if head not in fields:
+            raise SystemExit(
+                f"{type(config).__name__} has no field {head!r} (fields: {', '.join(sorted(fields))})"
+            )
+        if rest:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            direct[head] = value
+    for head, sub in nested.items():
+        direct[head] = with_overrides(getattr(config, head), sub)
+    return dataclasses.replace(config, **direct)
+
+
+def parse_variant(text: str, preset: str) -> tuple[str, LocalizerConfig]:
+    name, _, rest = text.partition(":")
+    items = {}
+    for part in filter(None, rest.split(",")):
+        key, eq, value = part.partition("=")
+        if not eq:
+            raise SystemExit(f"variant {name!r}: expected key=value, got {part!r}")
+        items[key.strip()] = parse_value(value.strip())
+    return name, with_overrides(LocalizerConfig.preset(preset), items)
+
+
+def _spec(city: str, seed: int, queries: int, settings: dict[str, Any]) -> BenchmarkSpec:
+    return BenchmarkSpec(city=city, query=query_config("realistic", queries=queries, seed=seed, **settings))
+
+
+def _cache_dir(root: Path, city: str, seed: int, settings: dict[str, Any]) -> Path:
+    tag = "_".join(f"{k}={v}" for k, v in sorted(settings.items())).replace("/", "-") or "realistic"
+    return root / f"{Path(city).stem}_s{seed}_{tag}"
+
+
+def _init_simulate(city: str, seed: int, queries: int, settings: dict[str, Any]) -> None:
+    spec = _spec(city, seed, queries, settings)
+    _WORKER["source"] = spec.open_source(spec.run_config())
+
+
+def _simulate(args: tuple[int, Path]) -> None:
+    index, path = args
+    q = _WORKER["source"].query(index)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(pickle.dumps(q))
+    tmp.replace(path)
+
+
+def _init_localize(city: str, seed: int, queries: int, settings: dict, variants: list) -> None:
+    spec = _spec(city, seed, queries, settings)
+    model = load_map(spec.run_config())
+    _WORKER["localizers"] = [(name, Localizer(model, cfg)) for name, cfg in variants]
+
+
+def _localize(path: Path) -> list[dict] | None:
+    q = pickle.loads(path.read_bytes())
+    if not q.meta.get("accepted", True):
+        return None
+    rows = []
+    for name, loc in _WORKER["localizers"]:
+        t0 = time.perf_counter()
+        r = loc.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
+        seconds = time.perf_counter() - t0
+        pose = r.pose_local if r.pose_local is not None else r.rejected_pose_local
+        row = {"variant": name, "query": f"{path.parent.name}/{q.query_id}", "status": r.status, "s": seconds}
+        if pose is not None:
+            row["err_m"] = float(center_error_m(pose, q.true_pose_local))
+            row["err_deg"] = float(rotation_error_deg(pose, q.true_pose_local))
+        rows.append(row)
+    return rows
+
+
+def _within(row: dict, m: float, deg: float) -> bool:
+    return "err_m" in row and row["err_m"] <= m and row["err_deg"] <= deg
+
+
+def summarise(rows: list[dict], names: list[str]) -> list[dict]:
+    """One summary per variant (module docstring), paired against the first."""
+    by = {n: {r["query"]: r for r in rows if r["variant"] == n} for n in names}
+    base = by[names[0]]
+    out = []
+    for name in names:
+        rs = list(by[name].values())
+        n = max(len(rs), 1)
+        found = [round(100.0 * sum(_within(r, m, d) for r in rs) / n, 1) for m, d in THRESHOLDS]
+        accepted = [
+            round(100.0 * sum(_within(r, m, d) and r["status"] == "localized" for r in rs) / n, 1)
+            for m, d in THRESHOLDS
+        ]
+        s = {
+            "variant": name,
+            "queries": len(rs),
+            "found_R@2/3/5": found,
+            "accepted_R@2/3/5": accepted,
+            "localized": sum(r["status"] == "localized" for r in rs),
+            "mean_s": round(sum(r["s"] for r in rs) / n, 3),
+        }
+        if name != names[0]:
+            hit = {q for q, r in by[name].items() if _within(r, 2.0, 2.0)}
+            hit0 = {q for q, r in base.items() if _within(r, 2.0, 2.0)}
+            s["gained_2m"] = sorted(hit - hit0)
+            s["lost_2m"] = sorted(hit0 - hit)
+        out.append(s)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--variant", action="append", required=True, help="NAME or NAME:key=value,...")
+    ap.add_argument("--city", action="append", help="default: generated and Fürth")
+    ap.add_argument("--seeds", default="0", help="comma-separated (default 0)")
+    ap.add_argument("--queries", type=int, default=100)
+    ap.add_argument("--preset", default="default")
+    ap.add_argument("--set", action="append", default=[], help="scenario knob=value (benchmark --set)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=Path(".compare_cache"))
+    ap.add_argument("--rows", type=Path, help="write every (variant, query) row here as JSON lines")
+    ap.add_argument("--check-only", action="store_true", help="allow a reporting city: a check, not a choice")
+    args = ap.parse_args(argv)
+
+    cities = args.city or [GENERATED, str(FUERTH)]
+    calibration = {str(resolve_city(GENERATED)), str(FUERTH.resolve())}
+    for city in cities:
+        if str(resolve_city(city)) not in calibration and not args.check_only:
+            raise SystemExit(
+                f"{city} is not a calibration city (generated, Fürth): tune there, report elsewhere "
+                "(--check-only to check a choice already made)"
+            )
+    variants = [parse_variant(v, args.preset) for v in args.variant]
+    names = [n for n, _ in variants]
+    if len(set(names)) != len(names):
+        raise SystemExit("variant names must differ")
+    settings = parse_settings(args.set)
+    rows: list[dict] = []
+    for city in cities:
+        for seed in (int(s) for s in args.seeds.split(",")):
+            folder = _cache_dir(args.cache, city, seed, settings)
+            folder.mkdir(parents=True, exist_ok=True)
+            paths = [folder / f"q{i:04d}.pkl" for i in range(args.queries)]
+            missing = [(i, p) for i, p in enumerate(paths) if not p.is_file()]
+            if missing:
+                print(f"simulating {len(missing)} queries of {folder.name} ...", file=sys.stderr, flush=True)
+                init = (city, seed, args.queries, settings)
+                with ProcessPoolExecutor(args.workers, initializer=_init_simulate, initargs=init) as ex:
+                    list(ex.map(_simulate, missing))
+            init = (city, seed, args.queries, settings, variants)
+            with ProcessPoolExecutor(args.workers, initializer=_init_localize, initargs=init) as ex:
+                for got in ex.map(_localize, paths):
+                    rows.extend(got or [])
+    if args.rows:
+        args.rows.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    for s in summarise(rows, names):
+        print(json.dumps(s))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

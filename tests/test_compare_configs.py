@@ -1,0 +1,59 @@
+"""``benchmarks/compare_configs.py``: the paired comparison the localizer's knobs were chosen with."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from semcityloc.localization.config import LocalizerConfig
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_configs.py"
+
+
+@pytest.fixture(scope="module")
+def compare():
+    spec = importlib.util.spec_from_file_location("compare_configs", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_variant_overrides_reach_nested_configs(compare):
+    name, cfg = compare.parse_variant(
+        "v:refine.polish_estimate_top=1,no_depth=true,cascade.local.keep=4", "default"
+    )
+    base = LocalizerConfig.preset("default")
+    assert name == "v"
+    assert cfg.refine.polish_estimate_top == 1 and cfg.no_depth is True and cfg.cascade.local.keep == 4
+    assert cfg.refine.particles == base.refine.particles  # the rest untouched
+    assert compare.parse_variant("plain", "legacy")[1] == LocalizerConfig.preset("legacy")
+    with pytest.raises(SystemExit, match="no field 'refin'"):
+        compare.parse_variant("bad:refin.particles=3", "default")
+
+
+def test_summary_pairs_every_variant_with_the_first(compare):
+    rows = [
+        {"variant": "a", "query": "q0", "status": "localized", "s": 0.2, "err_m": 1.0, "err_deg": 0.5},
+        {"variant": "a", "query": "q1", "status": "not_localized", "s": 0.2, "err_m": 4.0, "err_deg": 0.5},
+        {"variant": "b", "query": "q0", "status": "localized", "s": 0.4, "err_m": 2.5, "err_deg": 0.5},
+        {"variant": "b", "query": "q1", "status": "localized", "s": 0.4, "err_m": 1.5, "err_deg": 1.0},
+    ]
+    a, b = compare.summarise(rows, ["a", "b"])
+    assert a["found_R@2/3/5"] == [50.0, 50.0, 100.0] and a["accepted_R@2/3/5"] == [50.0, 50.0, 50.0]
+    assert b["found_R@2/3/5"] == [50.0, 100.0, 100.0] and b["localized"] == 2
+    assert (b["gained_2m"], b["lost_2m"]) == (["q1"], ["q0"]) and "gained_2m" not in a
+
+
+def test_a_reporting_city_is_refused_unless_checking(tmp_path):
+    berlin = tmp_path / "berlin.gml"
+    berlin.write_text("<x/>")
+    out = subprocess.run(
+        [sys.executable, str(SCRIPT), "--variant", "base", "--city", str(berlin), "--cache", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode != 0 and "not a calibration city" in out.stderr
