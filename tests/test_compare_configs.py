@@ -45,7 +45,7 @@ def test_summary_pairs_every_variant_with_the_first(compare):
     a, b = compare.summarise(rows, ["a", "b"])
     assert a["found_R@2/3/5"] == [50.0, 50.0, 100.0] and a["accepted_R@2/3/5"] == [50.0, 50.0, 50.0]
     assert b["found_R@2/3/5"] == [50.0, 100.0, 100.0] and b["localized"] == 2
-    assert (b["gained_2m"], b["lost_2m"]) == (["q1"], ["q0"]) and "gained_2m" not in a
+    assert (b["gained_2m"], b["lost_2m"]) == (1, 1) and "gained_2m" not in a
 
 
 def test_a_reporting_city_is_refused_unless_checking(tmp_path):
