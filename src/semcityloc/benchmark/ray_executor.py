@@ -6,10 +6,13 @@ tells the driver when a worker process died. ``run_ray`` is a drop-in for the ru
 (``benchmark.run``): the driver alone appends the rows it yields (one fsync'd line per query, so a killed
 driver resumes as today).
 
-- Start-up: ``ray.init(num_cpus=workers)`` starts a local runtime (no dashboard, no log forwarding, a
-  small object store) and shuts it down at the end; ``address`` joins an existing cluster instead (its
-  CPUs decide how many workers run at once: ``workers`` actors are started). A runtime that is already
-  up in this process (a test, a notebook) is used and left up.
+- Start-up: ``ray.init(address="local", num_cpus=workers)`` starts a runtime of its own (no dashboard, no
+  log forwarding, a small object store; even when a ``ray start`` cluster runs on this machine, which
+  plain ``ray.init`` would join) and shuts it down at the end; ``address`` joins an existing cluster
+  instead (its CPUs decide how many workers run at once: ``workers`` actors are started). A runtime already
+  up in this process (a test, a notebook) is used and left up. An address where nothing answers is
+  refused in one line (``BenchmarkError``) within ``CONNECT_TIMEOUT_S``: Ray itself retries for
+  minutes, then raises from deep inside; ``auto`` with no cluster on this machine likewise.
 - Shipping: the worker arguments (the typed spec, the source with its city model or tile store) are put
   in the object store once (``ray.put``); each of ``workers`` actors builds its ``_Worker`` (method,
   render scene) from them once and then localizes one query at a time.
@@ -24,17 +27,20 @@ are seeded per query).
 from __future__ import annotations
 
 import os
+import socket
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import numba
 
 from semcityloc.benchmark.results import failed_row
-from semcityloc.errors import OptionalDependencyError
+from semcityloc.errors import BenchmarkError, OptionalDependencyError
 
 RETRIES = 1  # a query whose worker died is tried this many more times
 # Object store of a local runtime (bytes): the shipped models are tens of MB; Ray's default takes 30% of RAM.
 OBJECT_STORE_BYTES = 512 * 1024 * 1024
+CONNECT_TIMEOUT_S = 5.0  # how long a cluster's address may take to answer before it is refused
+_START_HINT = "start one with `ray start --head`, or leave out --ray-address for a local runtime"
 
 
 def import_ray():
@@ -75,9 +81,10 @@ def run_ray(
     started = not ray.is_initialized()
     if started:
         if address:
-            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+            join_cluster(ray, address)
         else:
             ray.init(
+                address="local",  # a new runtime even when a `ray start` cluster runs on this machine
                 num_cpus=workers,
                 include_dashboard=False,
                 log_to_driver=False,
@@ -88,6 +95,37 @@ def run_ray(
     finally:
         if started:
             ray.shutdown()
+
+
+def host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of a cluster address ``host:port`` or ``ray://host:port``; None for ``auto`` / ``local``
+    (Ray looks those up itself). ``BenchmarkError`` on a port that is not a number."""
+    rest = address.split("://", 1)[1] if "://" in address else address
+    if address in ("auto", "local") or ":" not in rest:
+        return None
+    host, _, port = rest.rpartition(":")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise BenchmarkError(f"--ray-address {address!r}: expected host:port (e.g. 10.0.0.5:6379) or auto")
+    return host.strip("[]"), int(port)
+
+
+def join_cluster(ray, address: str) -> None:
+    """``ray.init(address)``, after checking within ``CONNECT_TIMEOUT_S`` that something answers there."""
+    target = host_port(address)
+    if target is not None:
+        try:
+            socket.create_connection(target, timeout=CONNECT_TIMEOUT_S).close()
+        except OSError as exc:
+            raise BenchmarkError(
+                f"--ray-address {address}: no Ray cluster answers at {target[0]}:{target[1]} "
+                f"({exc.strerror or exc}); {_START_HINT}"
+            ) from None
+    try:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    except ConnectionError as exc:
+        raise BenchmarkError(
+            f"--ray-address {address}: {_first_line(exc).rstrip('.')}; {_START_HINT}"
+        ) from None
 
 
 def _schedule(ray, todo, workers, make_worker, worker_args) -> Iterator[dict[str, str]]:

@@ -1,0 +1,123 @@
+"""``--ray-address``: a running Ray cluster is joined (rows identical to the local run's), an address where
+nothing answers is refused in one line at once, not after Ray's minutes of retries, and without an
+address a runtime of its own is started even when a cluster runs on the machine. Skipped when
+the ``[ray]`` extra is absent (``make test`` installs it)."""
+
+from __future__ import annotations
+
+import csv
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from semcityloc.benchmark.ray_executor import host_port
+from semcityloc.benchmark.results import TIMING_COLUMNS
+from semcityloc.cli.main import main
+from semcityloc.errors import BenchmarkError
+
+pytest.importorskip("ray", reason="the [ray] extra is not installed: pip install 'semcityloc[ray]'")
+
+BIN = Path(sys.executable).parent
+RUN = ["benchmark", "--city", "generated", "--queries", "3", "--preset", "fast"]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _rows(out: Path) -> list[dict[str, str]]:
+    """The rows of a run without their timings, by query (a pool writes them in the order they finish)."""
+    with open(out / "results.csv", newline="") as f:
+        rows = [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in csv.DictReader(f)]
+    return sorted(rows, key=lambda r: r["query_id"])
+
+
+def test_cluster_addresses_are_parsed():
+    assert host_port("10.0.0.5:6379") == ("10.0.0.5", 6379)
+    assert host_port("ray://head.example:10001") == ("head.example", 10001)
+    assert host_port("[::1]:6379") == ("::1", 6379)
+    assert host_port("auto") is None and host_port("local") is None
+    with pytest.raises(BenchmarkError, match="expected host:port"):
+        host_port("10.0.0.5:http")
+
+
+def test_an_address_where_nothing_answers_is_refused_in_one_line(tmp_path, capsys):
+    port = _free_port()
+    t0 = time.perf_counter()
+    code = main([*RUN, "--executor", "ray", "--ray-address", f"127.0.0.1:{port}", "--out", str(tmp_path)])
+    assert code == 2 and time.perf_counter() - t0 < 30.0
+    err = capsys.readouterr().err
+    assert f"no Ray cluster answers at 127.0.0.1:{port}" in err and "ray start --head" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_a_running_cluster_is_joined_by_its_address(tmp_path):
+    port = _free_port()
+    head = subprocess.Popen(
+        [
+            str(BIN / "ray"),
+            "start",
+            "--head",
+            "--block",
+            f"--port={port}",
+            "--num-cpus=2",
+            "--include-dashboard=false",
+            "--disable-usage-stats",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"},
+    )
+    try:
+        deadline = time.monotonic() + 90.0
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+                break
+            except OSError:
+                assert head.poll() is None, "ray start --head exited"
+                assert time.monotonic() < deadline, "the Ray head did not come up within 90 s"
+                time.sleep(0.5)
+        time.sleep(2.0)  # the GCS answers before the node has registered
+        joined = subprocess.run(
+            [str(BIN / "semcityloc"), *RUN, "--executor", "ray", "--ray-address", f"127.0.0.1:{port}"]
+            + ["--workers", "2", "--out", str(tmp_path / "ray")],
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert joined.returncode == 0, joined.stderr[-2000:]
+        # Without an address a runtime of its own is started, the machine's cluster notwithstanding.
+        own = subprocess.run(
+            [
+                str(BIN / "semcityloc"),
+                *RUN,
+                "--executor",
+                "ray",
+                "--workers",
+                "2",
+                "--out",
+                str(tmp_path / "own"),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert own.returncode == 0, own.stderr[-2000:]
+    finally:
+        head.terminate()
+        try:
+            head.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            head.kill()
+    assert main([*RUN, "--out", str(tmp_path / "local")]) == 0
+    local = _rows(tmp_path / "local")
+    assert _rows(tmp_path / "ray") == local and _rows(tmp_path / "own") == local and len(local) == 3
