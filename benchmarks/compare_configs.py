@@ -34,6 +34,7 @@ import argparse
 import dataclasses
 import json
 import pickle
+import re
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -76,7 +77,7 @@ def with_overrides(config: Any, items: dict[str, Any]) -> Any:
 def parse_variant(text: str, preset: str) -> tuple[str, LocalizerConfig]:
     name, _, rest = text.partition(":")
     items = {}
-    for part in filter(None, rest.split(",")):
+    for part in filter(None, re.split(r",(?=[\w.]+=)", rest)):  # a comma starts a pair only before key=
         key, eq, value = part.partition("=")
         if not eq:
             raise SystemExit(f"variant {name!r}: expected key=value, got {part!r}")

@@ -31,6 +31,10 @@ def test_variant_overrides_reach_nested_configs(compare):
     assert cfg.refine.polish_estimate_top == 1 and cfg.no_depth is True and cfg.cascade.local.keep == 4
     assert cfg.refine.particles == base.refine.particles  # the rest untouched
     assert compare.parse_variant("plain", "legacy")[1] == LocalizerConfig.preset("legacy")
+    _, listed = compare.parse_variant(
+        "s:refine.polish_sigma=[0.5,0.5,0.3,0.15],refine.particles=64", "default"
+    )
+    assert listed.refine.polish_sigma == [0.5, 0.5, 0.3, 0.15] and listed.refine.particles == 64
     with pytest.raises(SystemExit, match="no field 'refin'"):
         compare.parse_variant("bad:refin.particles=3", "default")
 

@@ -68,6 +68,7 @@ def test_a_running_cluster_is_joined_by_its_address(tmp_path):
             "--head",
             "--block",
             f"--port={port}",
+            "--node-ip-address=127.0.0.1",
             "--num-cpus=2",
             "--include-dashboard=false",
             "--disable-usage-stats",
@@ -77,16 +78,16 @@ def test_a_running_cluster_is_joined_by_its_address(tmp_path):
         env={k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"},
     )
     try:
-        deadline = time.monotonic() + 90.0
-        while True:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+        deadline = time.monotonic() + 120.0
+        while True:  # up when `ray status` sees the node (the GCS port answers before the node registers)
+            status = subprocess.run(
+                [str(BIN / "ray"), "status", f"--address=127.0.0.1:{port}"], capture_output=True, timeout=60
+            )
+            if status.returncode == 0:
                 break
-            except OSError:
-                assert head.poll() is None, "ray start --head exited"
-                assert time.monotonic() < deadline, "the Ray head did not come up within 90 s"
-                time.sleep(0.5)
-        time.sleep(2.0)  # the GCS answers before the node has registered
+            assert head.poll() is None, "ray start --head exited"
+            assert time.monotonic() < deadline, "the Ray head did not come up within 120 s"
+            time.sleep(1.0)
         joined = subprocess.run(
             [str(BIN / "semcityloc"), *RUN, "--executor", "ray", "--ray-address", f"127.0.0.1:{port}"]
             + ["--workers", "2", "--out", str(tmp_path / "ray")],
