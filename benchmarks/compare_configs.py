@@ -14,9 +14,11 @@ Usage::
         [--set seg_quality=medium] [--workers 2] [--cache DIR]
 
 A variant is ``NAME`` (the preset unchanged) or ``NAME:key=value,key=value`` with keys the preset's
-``LocalizerConfig`` fields, dotted into its nested configs (
-``refine.polish_estimate_top=1``, ``cascade.local.keep=4``); values are parsed like ``semcityloc
-benchmark --set`` (JSON where they can be). ``--set`` changes the simulated queries (scenario knobs).
+``LocalizerConfig`` fields, dotted into its nested configs (``refine.polish_estimate_top=1``,
+``cascade.local.keep=4``); values are parsed like ``semcityloc benchmark --set`` (JSON where they can be,
+so ``refine.polish_sigma=[0.5,0.5,0.3,0.15]``). ``--set`` changes the simulated queries (scenario knobs).
+``mean_s`` is measured with ``--workers`` processes sharing the cores: compare speed with
+``bench_localize.py``, not here.
 
 Tuning discipline: choose on the calibration cities only (the generated city and Fürth, the defaults);
 another city (Berlin, Den Haag) is refused unless ``--check-only`` says the run is a check of a choice
