@@ -105,3 +105,6 @@ def test_executor_options_are_checked(tmp_path, capsys):
     args = ["benchmark", "--city", "generated", "--queries", "1", "--out", str(tmp_path / "y")]
     assert main([*args, "--ray-address", "auto"]) == 2
     assert "--ray-address needs --executor ray" in capsys.readouterr().err
+    assert main([*args, "--executor", "ray", "--ray-address", "head:http"]) == 2
+    assert "expected host:port" in capsys.readouterr().err
+    assert not (tmp_path / "y").exists()  # refused before the run began

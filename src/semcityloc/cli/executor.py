@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from semcityloc.benchmark.ray_executor import host_port
 from semcityloc.benchmark.run import EXECUTORS, BenchmarkOutcome, RunSpec, run_benchmark
 from semcityloc.errors import BenchmarkError
 
@@ -19,7 +20,10 @@ def add_executor_arguments(p: argparse.ArgumentParser) -> None:
         "CPUs, or the cluster at --ray-address; pip install 'semcityloc[ray]')",
     )
     p.add_argument(
-        "--ray-address", default=None, metavar="ADDRESS", help="join this Ray cluster (with --executor ray)"
+        "--ray-address",
+        default=None,
+        metavar="ADDRESS",
+        help="join this Ray cluster: HOST:PORT, ray://HOST:PORT or auto (with --executor ray)",
     )
 
 
@@ -29,6 +33,8 @@ def executor_options(args: argparse.Namespace) -> dict:
     address = getattr(args, "ray_address", None)
     if address and executor != "ray":
         raise BenchmarkError("--ray-address needs --executor ray")
+    if address:
+        host_port(address)  # a malformed address fails here, before anything loads
     return {"executor": executor, "ray_address": address}
 
 
