@@ -1,7 +1,9 @@
-"""``--ray-address``: a running Ray cluster is joined (rows identical to the local run's), an address where
-nothing answers is refused in one line at once, not after Ray's minutes of retries, and without an
-address a runtime of its own is started even when a cluster runs on the machine. Skipped when
-the ``[ray]`` extra is absent (``make test`` installs it)."""
+"""``--ray-address``: a running Ray cluster is joined (rows identical to the local run's); an address where
+nothing answers is refused in one line at once (not after Ray's minutes of retries), a cluster that asks
+for Ray's token in one line that names ``RAY_AUTH_MODE=token`` (not Ray's traceback); without an address
+a runtime of its own is started even when a cluster runs on the machine. The cluster runs under a HOME
+of its own (Ray keeps its token there). Skipped when the ``[ray]`` extra is absent (``make test``
+installs it)."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import pytest
 
 from semcityloc.benchmark.ray_executor import host_port
 from semcityloc.benchmark.results import TIMING_COLUMNS
+from semcityloc.citymodel.generator import default_city_path
 from semcityloc.cli.main import main
 from semcityloc.errors import BenchmarkError
 
@@ -58,8 +61,28 @@ def test_an_address_where_nothing_answers_is_refused_in_one_line(tmp_path, capsy
     assert "Traceback" not in err
 
 
+def _ray_env(home: Path, **extra: str) -> dict[str, str]:
+    """This environment without Ray's variables, with ``home`` as HOME (where Ray keeps its token)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
+    return {**env, "HOME": str(home), **extra}
+
+
 @pytest.mark.slow
 def test_a_running_cluster_is_joined_by_its_address(tmp_path):
+    """A head with Ray's token authentication (what ``ray start --head`` does wherever a local Ray runtime
+    has run before: it wrote ``~/.ray/auth_token``): joined without the token mode, a one-line hint;
+    with ``RAY_AUTH_MODE=token``, the local run's rows."""
+    home = tmp_path / "home"
+    home.mkdir()
+    subprocess.run(
+        [str(BIN / "ray"), "get-auth-token", "--generate"],
+        env=_ray_env(home),
+        check=True,
+        capture_output=True,
+    )
+    assert (home / ".ray" / "auth_token").is_file()
+    city = str(default_city_path(lod=2))  # not regenerated under the new HOME
+    run = ["benchmark", "--city", city, *RUN[3:]]
     port = _free_port()
     head = subprocess.Popen(
         [
@@ -75,43 +98,44 @@ def test_a_running_cluster_is_joined_by_its_address(tmp_path):
         ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
-        env={k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"},
+        env=_ray_env(home),
     )
+    token = _ray_env(home, RAY_AUTH_MODE="token")
+
+    def semcityloc(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [str(BIN / "semcityloc"), *run, "--workers", "2", *args],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=600,
+        )
+
     try:
         deadline = time.monotonic() + 120.0
         while True:  # up when `ray status` sees the node (the GCS port answers before the node registers)
             status = subprocess.run(
-                [str(BIN / "ray"), "status", f"--address=127.0.0.1:{port}"], capture_output=True, timeout=60
+                [str(BIN / "ray"), "status", f"--address=127.0.0.1:{port}"],
+                capture_output=True,
+                text=True,
+                env=token,
+                timeout=60,
             )
             if status.returncode == 0:
                 break
             assert head.poll() is None, "ray start --head exited"
-            assert time.monotonic() < deadline, "the Ray head did not come up within 120 s"
+            assert time.monotonic() < deadline, (
+                f"the Ray head did not come up within 120 s: {status.stderr[-800:]}"
+            )
             time.sleep(1.0)
-        joined = subprocess.run(
-            [str(BIN / "semcityloc"), *RUN, "--executor", "ray", "--ray-address", f"127.0.0.1:{port}"]
-            + ["--workers", "2", "--out", str(tmp_path / "ray")],
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
+        address = ["--executor", "ray", "--ray-address", f"127.0.0.1:{port}"]
+        refused = semcityloc(*address, "--out", str(tmp_path / "refused"), env=_ray_env(home))
+        assert refused.returncode == 2 and "set RAY_AUTH_MODE=token" in refused.stderr, refused.stderr[-2000:]
+        assert "Traceback" not in refused.stderr
+        joined = semcityloc(*address, "--out", str(tmp_path / "ray"), env=token)
         assert joined.returncode == 0, joined.stderr[-2000:]
         # Without an address a runtime of its own is started, the machine's cluster notwithstanding.
-        own = subprocess.run(
-            [
-                str(BIN / "semcityloc"),
-                *RUN,
-                "--executor",
-                "ray",
-                "--workers",
-                "2",
-                "--out",
-                str(tmp_path / "own"),
-            ],
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
+        own = semcityloc("--executor", "ray", "--out", str(tmp_path / "own"), env=_ray_env(home))
         assert own.returncode == 0, own.stderr[-2000:]
     finally:
         head.terminate()
@@ -119,6 +143,6 @@ def test_a_running_cluster_is_joined_by_its_address(tmp_path):
             head.wait(timeout=60)
         except subprocess.TimeoutExpired:
             head.kill()
-    assert main([*RUN, "--out", str(tmp_path / "local")]) == 0
+    assert main([*run, "--out", str(tmp_path / "local")]) == 0
     local = _rows(tmp_path / "local")
     assert _rows(tmp_path / "ray") == local and _rows(tmp_path / "own") == local and len(local) == 3

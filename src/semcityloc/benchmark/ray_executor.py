@@ -12,7 +12,9 @@ driver resumes as today).
   instead (its CPUs decide how many workers run at once: ``workers`` actors are started). A runtime already
   up in this process (a test, a notebook) is used and left up. An address where nothing answers is
   refused in one line (``BenchmarkError``) within ``CONNECT_TIMEOUT_S``: Ray itself retries for
-  minutes, then raises from deep inside; ``auto`` with no cluster on this machine likewise.
+  minutes, then raises from deep inside; ``auto`` with no cluster on this machine likewise. A failed
+  join names ``RAY_AUTH_MODE=token`` when this machine holds a Ray token: a head started where
+  ``~/.ray/auth_token`` exists asks for it, and Ray's clients send it only in token mode.
 - Shipping: the worker arguments (the typed spec, the source with its city model or tile store) are put
   in the object store once (``ray.put``); each of ``workers`` actors builds its ``_Worker`` (method,
   render scene) from them once and then localizes one query at a time.
@@ -29,6 +31,7 @@ from __future__ import annotations
 import os
 import socket
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import numba
@@ -120,12 +123,25 @@ def join_cluster(ray, address: str) -> None:
                 f"--ray-address {address}: no Ray cluster answers at {target[0]}:{target[1]} "
                 f"({exc.strerror or exc}); {_START_HINT}"
             ) from None
+    auth_error = getattr(ray.exceptions, "AuthenticationError", ())  # Ray's token authentication
     try:
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
-    except ConnectionError as exc:
-        raise BenchmarkError(
-            f"--ray-address {address}: {_first_line(exc).rstrip('.')}; {_START_HINT}"
-        ) from None
+    except (ConnectionError, auth_error) as exc:
+        hint = _START_HINT
+        if os.environ.get("RAY_AUTH_MODE") != "token" and _token_available():
+            # A head started where ~/.ray/auth_token exists (any local Ray runtime writes one) asks for
+            # it, but Ray's clients send it only in token mode; Ray then reports a failed connection.
+            hint = (
+                "if the cluster uses Ray's token authentication (a head started where ~/.ray/auth_token "
+                f"exists does), set RAY_AUTH_MODE=token; else {_START_HINT}"
+            )
+        raise BenchmarkError(f"--ray-address {address}: {_first_line(exc).rstrip('.')}; {hint}") from None
+
+
+def _token_available() -> bool:
+    """Does this machine hold a Ray authentication token (Ray's own places for it)?"""
+    path = os.environ.get("RAY_AUTH_TOKEN_PATH") or Path.home() / ".ray" / "auth_token"
+    return bool(os.environ.get("RAY_AUTH_TOKEN")) or Path(path).is_file()
 
 
 def _schedule(ray, todo, workers, make_worker, worker_args) -> Iterator[dict[str, str]]:
