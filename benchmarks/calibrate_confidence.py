@@ -113,7 +113,7 @@ def _one(index: int) -> list[dict]:
         else:
             c = replace(cfg, no_depth=variant == "no-depth")
             r = _WORKER["semcityloc"].localize(q.camera, q.prior_pose_local, q.labels, q.depth, config=c)
-        pose = r.pose_local if r.pose_local is not None else r.rejected_pose_local
+        pose = r.found_pose_local
         row = {"query": q.query_id, "variant": variant, "status": r.status, "reason": r.reason}
         if pose is not None:
             e_m = float(center_error_m(pose, q.true_pose_local))

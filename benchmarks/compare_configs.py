@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import pickle
 import re
 import sys
@@ -45,13 +46,14 @@ from typing import Any
 
 from semcityloc.benchmark.scenario import parse_settings, parse_value, query_config
 from semcityloc.benchmark.spec import GENERATED, BenchmarkSpec, load_map, resolve_city
-from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
+from semcityloc.localization.result import LOCALIZED
+from semcityloc.render.scene import build_scene
 
 REPO = Path(__file__).resolve().parents[1]
 FUERTH = REPO.parent / "shared" / "data" / "fuerth_lod2_citygml1" / "LOD2_4424_5482_solid.gml"
-THRESHOLDS = ((2.0, 2.0), (3.0, 3.0), (5.0, 5.0))
 
 _WORKER: dict[str, Any] = {}
 
@@ -112,7 +114,8 @@ def _simulate(args: tuple[int, Path]) -> None:
 def _init_localize(city: str, seed: int, queries: int, settings: dict, variants: list) -> None:
     spec = _spec(city, seed, queries, settings)
     model = load_map(spec.run_config())
-    _WORKER["localizers"] = [(name, Localizer(model, cfg)) for name, cfg in variants]
+    scene = build_scene(model)  # one render scene for every variant (each Localizer adapts its classes)
+    _WORKER["localizers"] = [(name, Localizer(model, cfg, scene=scene)) for name, cfg in variants]
 
 
 def _localize(path: Path) -> list[dict] | None:
@@ -124,43 +127,45 @@ def _localize(path: Path) -> list[dict] | None:
         t0 = time.perf_counter()
         r = loc.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
         seconds = time.perf_counter() - t0
-        pose = r.pose_local if r.pose_local is not None else r.rejected_pose_local
-        row = {"variant": name, "query": f"{path.parent.name}/{q.query_id}", "status": r.status, "s": seconds}
-        if pose is not None:
-            row["err_m"] = float(center_error_m(pose, q.true_pose_local))
-            row["err_deg"] = float(rotation_error_deg(pose, q.true_pose_local))
-        rows.append(row)
+        err_m, err_deg, _ = pose_errors(r.found_pose_local, q.true_pose_local)
+        query = f"{path.parent.name}/{q.query_id}"
+        rows.append(
+            {
+                "variant": name,
+                "query": query,
+                "status": r.status,
+                "s": seconds,
+                "err_m": err_m,
+                "err_deg": err_deg,
+            }
+        )
     return rows
 
 
-def _within(row: dict, m: float, deg: float) -> bool:
-    return "err_m" in row and row["err_m"] <= m and row["err_deg"] <= deg
+def _hits(rows: list[dict], m: float, deg: float) -> set[str]:
+    return {r["query"] for r in rows if r["err_m"] <= m and r["err_deg"] <= deg}
 
 
 def summarise(rows: list[dict], names: list[str]) -> list[dict]:
-    """One summary per variant (module docstring), paired against the first."""
-    by = {n: {r["query"]: r for r in rows if r["variant"] == n} for n in names}
-    base = by[names[0]]
+    """One summary per variant (module docstring), paired against the first. Errors are the found pose's
+    (``inf`` when none); "accepted" counts a refused pose as a failure."""
+    by = {n: [r for r in rows if r["variant"] == n] for n in names}
     out = []
     for name in names:
-        rs = list(by[name].values())
-        n = max(len(rs), 1)
-        found = [round(100.0 * sum(_within(r, m, d) for r in rs) / n, 1) for m, d in THRESHOLDS]
-        accepted = [
-            round(100.0 * sum(_within(r, m, d) and r["status"] == "localized" for r in rs) / n, 1)
-            for m, d in THRESHOLDS
-        ]
+        rs = by[name]
+        err_m = [r["err_m"] for r in rs]
+        err_deg = [r["err_deg"] for r in rs]
+        acc_m = [e if r["status"] == LOCALIZED else math.inf for e, r in zip(err_m, rs, strict=True)]
         s = {
             "variant": name,
             "queries": len(rs),
-            "found_R@2/3/5": found,
-            "accepted_R@2/3/5": accepted,
-            "localized": sum(r["status"] == "localized" for r in rs),
-            "mean_s": round(sum(r["s"] for r in rs) / n, 3),
+            "found_R@2/3/5": [round(recall(err_m, err_deg, m, d), 1) for m, d in THRESHOLDS],
+            "accepted_R@2/3/5": [round(recall(acc_m, err_deg, m, d), 1) for m, d in THRESHOLDS],
+            "localized": sum(r["status"] == LOCALIZED for r in rs),
+            "mean_s": round(sum(r["s"] for r in rs) / max(len(rs), 1), 3),
         }
         if name != names[0]:
-            hit = {q for q, r in by[name].items() if _within(r, 2.0, 2.0)}
-            hit0 = {q for q, r in base.items() if _within(r, 2.0, 2.0)}
+            hit, hit0 = _hits(rs, 2.0, 2.0), _hits(by[names[0]], 2.0, 2.0)
             s["gained_2m"] = len(hit - hit0)
             s["lost_2m"] = len(hit0 - hit)
         out.append(s)

@@ -42,7 +42,7 @@ def _one(index: int) -> dict | None:
     if not q.meta.get("accepted", True):
         return None
     r = loc.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
-    found = r.pose_local if r.pose_local is not None else r.rejected_pose_local
+    found = r.found_pose_local
     row = {"id": q.query_id, "view": q.meta.get("view"), "status": r.status}
     if found is None:
         return {**row, "miss": True}

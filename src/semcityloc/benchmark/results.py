@@ -131,7 +131,7 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
     coarse = result.coarse_pose_local
     coarse_err = pose_errors(coarse, true) if coarse is not None and true is not None else none
     # The pose the search found, accepted or refused: what the acceptance's risk-coverage curve needs.
-    found = result.pose_local if result.pose_local is not None else result.rejected_pose_local
+    found = result.found_pose_local
     found_err = pose_errors(found, true) if found is not None and true is not None else none
     meta = dict(q.meta or {})
     conf, counts, timings = result.confidence or {}, result.counts or {}, result.timings or {}

@@ -57,6 +57,11 @@ class LocalizationResult:
     warnings: list[str] = field(default_factory=list)
 
     @property
+    def found_pose_local(self) -> Pose | None:
+        """The pose the search found, accepted or refused (diagnostics and risk-coverage; never a result)."""
+        return self.pose_local if self.pose_local is not None else self.rejected_pose_local
+
+    @property
     def localized(self) -> bool:
         return self.status == LOCALIZED
 
