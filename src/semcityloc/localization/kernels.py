@@ -6,7 +6,8 @@ to rays, so the table depends only on the yaw offsets and the intrinsics — it 
 The per-class IoU against the query mask is accumulated on the fly.
 
 ``refine_scores``: one render per particle at the fine resolution; semantic IoU and the affine-invariant
-depth cost (least-squares scale/shift, then mean relative L1) in the same pass over the buffers.
+depth cost (scale/shift fit, then mean relative residual) read only the query's labelled pixels, compacted
+once per batch: one pass gives the class histogram and the fit's sums, a second the residuals.
 
 Both call ``render.raster_numba.render_view`` (the renderer's per-view rasteriser) inside ``prange``
 over views, so their output matches what ``Renderer.render`` would draw.
@@ -164,34 +165,35 @@ def coarse_scores(
                 scores[c, y] = _iou_from_pairs(pairs, count_q, class_on)
 
 
-@njit(cache=True, inline="always")
-def _depth_at(query, query_depth, tri_id, p):
-    """The query depth of pixel p where the depth cost uses it (a labelled, non-background query pixel
-    with a rendered surface and a positive query depth), else 0."""
-    q = query[p]
-    if q == IGNORE or q == 0 or tri_id[p] < 0:
-        return 0.0
-    dq = query_depth[p]
-    return dq if dq > 0.0 else 0.0
+@njit(cache=True)
+def _scored_pixels(query, query_depth, use_depth):
+    """The query pixels the scores read, compacted once per batch of views: indices of labelled,
+    non-background pixels, their labels, and their depth where the depth cost uses it (finite and
+    positive, else 0)."""
+    n = 0
+    for p in range(query.shape[0]):
+        if query[p] != IGNORE and query[p] != 0:
+            n += 1
+    idx = np.empty(n, dtype=np.int64)
+    lab = np.empty(n, dtype=np.int64)
+    dep = np.zeros(n)
+    k = 0
+    for p in range(query.shape[0]):
+        q = query[p]
+        if q != IGNORE and q != 0:
+            idx[k] = p
+            lab[k] = q
+            if use_depth:
+                dq = query_depth[p]
+                dep[k] = dq if dq > 0.0 else 0.0  # NaN compares False: 0
+            k += 1
+    return idx, lab, dep
 
 
 @njit(cache=True, inline="always")
-def _depth_cost_affine(query, query_depth, tri_id, inv_z, npx, min_depth_pixels, invalid_cost):
-    """Global least-squares scale/shift, then mean relative residual (the paper's C_d)."""
-    n = 0.0
-    sq = 0.0
-    sr = 0.0
-    sqq = 0.0
-    sqr = 0.0
-    for p in range(npx):
-        dq = _depth_at(query, query_depth, tri_id, p)
-        if dq > 0.0:
-            dr = 1.0 / inv_z[p]
-            n += 1.0
-            sq += dq
-            sr += dr
-            sqq += dq * dq
-            sqr += dq * dr
+def _depth_cost_affine(idx, dep, tri_id, inv_z, n, sq, sr, sqq, sqr, min_depth_pixels, invalid_cost):
+    """Global least-squares scale/shift, then mean relative residual (the paper's C_d). The sums over
+    the depth pixels (``n``, sum dq, sum dr, sum dq^2, sum dq dr) come from the semantic pass."""
     det = n * sqq - sq * sq
     if n < min_depth_pixels or det <= 1e-12 * n * sqq:
         return invalid_cost
@@ -200,37 +202,23 @@ def _depth_cost_affine(query, query_depth, tri_id, inv_z, npx, min_depth_pixels,
     if s <= 0.0:
         return invalid_cost
     acc = 0.0
-    for p in range(npx):
-        dq = _depth_at(query, query_depth, tri_id, p)
-        if dq > 0.0:
+    for k in range(idx.shape[0]):
+        dq = dep[k]
+        p = idx[k]
+        if dq > 0.0 and tri_id[p] >= 0:
             dr = 1.0 / inv_z[p]
             acc += abs(s * dq + t - dr) / dr
     return acc / n
 
 
 @njit(cache=True, inline="always")
-def _depth_cost_robust(query, query_depth, tri_id, inv_z, npx, cap, min_depth_pixels, invalid_cost):
+def _depth_cost_robust(
+    idx, dep, tri_id, inv_z, n, saa, sab, sbb, sa, sb, cap, min_depth_pixels, invalid_cost
+):
     """Scale/shift by relative least squares (minimise sum(((s dq + t) - dr) / dr)^2: every pixel's error
     relative to its depth, the cost's own measure, so near and far pixels count alike), then the mean
     relative residual with each pixel's capped at ``cap`` (a tree, a bled edge or a wrong label costs at
-    most that)."""
-    n = 0.0
-    saa = 0.0
-    sab = 0.0
-    sbb = 0.0
-    sa = 0.0
-    sb = 0.0
-    for p in range(npx):
-        dq = _depth_at(query, query_depth, tri_id, p)
-        if dq > 0.0:
-            b = inv_z[p]  # 1 / dr
-            a = dq * b
-            n += 1.0
-            saa += a * a
-            sab += a * b
-            sbb += b * b
-            sa += a
-            sb += b
+    most that). The sums (a = dq / dr, b = 1 / dr) come from the semantic pass."""
     det = saa * sbb - sab * sab
     if n < min_depth_pixels or det <= 1e-12 * saa * sbb:
         return invalid_cost
@@ -239,9 +227,10 @@ def _depth_cost_robust(query, query_depth, tri_id, inv_z, npx, cap, min_depth_pi
     if s <= 0.0:
         return invalid_cost
     acc = 0.0
-    for p in range(npx):
-        dq = _depth_at(query, query_depth, tri_id, p)
-        if dq > 0.0:
+    for k in range(idx.shape[0]):
+        dq = dep[k]
+        p = idx[k]
+        if dq > 0.0 and tri_id[p] >= 0:
             e = abs((s * dq + t) * inv_z[p] - 1.0)
             acc += e if e < cap else cap
     return acc / n
@@ -285,6 +274,7 @@ def refine_scores(
     n_views = Rs.shape[0]
     npx = width * height
     count_q = _query_counts(query)
+    idx, lab, dep = _scored_pixels(query, query_depth, use_depth)
     for chunk in prange(n_chunks):
         inv_z = np.empty(npx)
         tri_id = np.empty(npx, dtype=np.int32)
@@ -311,23 +301,48 @@ def refine_scores(
             )
             inter[:] = 0.0
             count_r[:] = 0.0
-            for p in range(npx):
-                q = query[p]
-                if q == IGNORE or q == 0:
-                    continue
+            # One pass: the class histogram and the depth fit's sums (affine: n, dq, dr, dq^2, dq dr;
+            # robust: a = dq / dr, b = 1 / dr with n, a^2, a b, b^2, a, b). Pixel order as before, so the
+            # sums are the same numbers.
+            n = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            s3 = 0.0
+            s4 = 0.0
+            s5 = 0.0
+            for k in range(idx.shape[0]):
+                p = idx[k]
+                q = lab[k]
                 f = tri_id[p]
                 r = classes[f] if f >= 0 else 0
                 count_r[r] += 1.0
                 if r == q:
                     inter[r] += 1.0
+                dq = dep[k]
+                if dq > 0.0 and f >= 0:
+                    n += 1.0
+                    if depth_robust:
+                        b = inv_z[p]
+                        a = dq * b
+                        s1 += a * a
+                        s2 += a * b
+                        s3 += b * b
+                        s4 += a
+                        s5 += b
+                    else:
+                        dr = 1.0 / inv_z[p]
+                        s1 += dq
+                        s2 += dr
+                        s3 += dq * dq
+                        s4 += dq * dr
             sem_out[v] = _mean_iou(inter, count_r, count_q, class_on)
             if not use_depth:
                 depth_out[v] = 0.0
             elif depth_robust:
                 depth_out[v] = _depth_cost_robust(
-                    query, query_depth, tri_id, inv_z, npx, depth_cap, min_depth_pixels, invalid_cost
+                    idx, dep, tri_id, inv_z, n, s1, s2, s3, s4, s5, depth_cap, min_depth_pixels, invalid_cost
                 )
             else:
                 depth_out[v] = _depth_cost_affine(
-                    query, query_depth, tri_id, inv_z, npx, min_depth_pixels, invalid_cost
+                    idx, dep, tri_id, inv_z, n, s1, s2, s3, s4, min_depth_pixels, invalid_cost
                 )
