@@ -34,8 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.baselines.silhouette import SilhouetteLocalizer
+from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.errors import ParameterError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.confidence import (
     FEATURES_DEPTH,
@@ -51,7 +53,6 @@ from semcityloc.localization.localize import Localizer
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
-FUERTH = SHARED / "fuerth_lod2_citygml1" / "LOD2_4424_5482_solid.gml"
 BERLIN = SHARED / "berlin_lod2_citygml2" / "3910_5817.gml"
 # condition -> (seg_quality, prior_extra_m)
 CONDITIONS = {
@@ -175,7 +176,12 @@ def main() -> int:
     ap.add_argument("--write", action="store_true", help="save the fitted models into the package")
     args = ap.parse_args()
 
-    fit_cities = args.fit_city or ["generated", str(FUERTH)]
+    fit_cities = args.fit_city or calibration_cities(SHARED)
+    try:
+        require_calibration_cities(fit_cities, SHARED, "fit the confidence model")
+    except ParameterError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     check_cities = (
         args.check_city if args.check_city is not None else ([str(BERLIN)] if BERLIN.exists() else [])
     )

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
 from semcityloc.benchmark.occluders import REALISTIC_REALITY, RealityParams
 from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
@@ -43,10 +44,11 @@ from semcityloc.benchmark.seg_calibration import CalibrationView, calibration_vi
 from semcityloc.benchmark.seg_errors import REALISTIC_SEG_PRESETS, SEG_TARGETS, ViewTruth
 from semcityloc.benchmark.spec import BenchmarkSpec, load_models
 from semcityloc.classes import NUM_CLASSES
+from semcityloc.errors import ParameterError
 from semcityloc.perception.metrics import iou_per_class, mean_iou
 
 REPO = Path(__file__).resolve().parents[1]
-FUERTH = REPO.parent / "shared" / "data" / "fuerth_lod2_citygml1" / "LOD2_4424_5482_solid.gml"
+SHARED_DATA = REPO.parent / "shared" / "data"
 TRUTH_FIELDS = [f.name for f in dataclasses.fields(ViewTruth)]
 
 
@@ -148,9 +150,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--direct", action="store_true", help="the benchmark's own path (no cache, slower)")
     args = ap.parse_args(argv)
 
-    cities = args.city or ["generated", str(FUERTH)]
-    if any("berlin" in c.lower() for c in cities):
-        print("refusing to calibrate on Berlin: it is a reporting city", file=sys.stderr)
+    cities = args.city or calibration_cities(SHARED_DATA)
+    try:
+        require_calibration_cities(cities, SHARED_DATA, "calibrate the segmentation presets")
+    except ParameterError as exc:
+        print(exc, file=sys.stderr)
         return 2
     if args.direct:
         for city in cities:

@@ -44,8 +44,10 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
 from semcityloc.benchmark.scenario import parse_settings, parse_value, query_config
-from semcityloc.benchmark.spec import GENERATED, BenchmarkSpec, load_map, resolve_city
+from semcityloc.benchmark.spec import BenchmarkSpec, load_map
+from semcityloc.errors import ParameterError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
@@ -53,7 +55,7 @@ from semcityloc.localization.result import LOCALIZED
 from semcityloc.render.scene import build_scene
 
 REPO = Path(__file__).resolve().parents[1]
-FUERTH = REPO.parent / "shared" / "data" / "fuerth_lod2_citygml1" / "LOD2_4424_5482_solid.gml"
+SHARED_DATA = REPO.parent / "shared" / "data"
 
 _WORKER: dict[str, Any] = {}
 
@@ -186,14 +188,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--check-only", action="store_true", help="allow a reporting city: a check, not a choice")
     args = ap.parse_args(argv)
 
-    cities = args.city or [GENERATED, str(FUERTH)]
-    calibration = {str(resolve_city(GENERATED)), str(FUERTH.resolve())}
-    for city in cities:
-        if str(resolve_city(city)) not in calibration and not args.check_only:
-            raise SystemExit(
-                f"{city} is not a calibration city (generated, Fürth): tune there, report elsewhere "
-                "(--check-only to check a choice already made)"
-            )
+    cities = args.city or calibration_cities(SHARED_DATA)
+    if not args.check_only:
+        try:
+            require_calibration_cities(cities, SHARED_DATA, "tune a knob")
+        except ParameterError as exc:
+            raise SystemExit(f"{exc} (--check-only to check a choice already made)") from None
     variants = [parse_variant(v, args.preset) for v in args.variant]
     names = [n for n, _ in variants]
     if len(set(names)) != len(names):
