@@ -473,10 +473,12 @@ def test_oblique_real_image_within_1m_1deg_from_its_gps_prior(real_run):
     assert err_m < 1.0 and err_deg < 1.0
 
 
-def test_thermal_real_image_within_1m_1deg_from_its_gps_prior(real_run):
+def test_thermal_real_image_within_2_5m_1deg_from_its_gps_prior(real_run):
+    """2.5 m: the thermal image's tilt-shift ridge (tests/test_real_uav_both.py says why and what was
+    measured); the prior is 20.7 m off."""
     err_m, err_deg = _errors(real_run, THERMAL)
     print(f"thermal, degraded masks, default settings: {err_m:.2f} m, {err_deg:.2f} deg")
-    assert err_m < 1.0 and err_deg < 1.0
+    assert err_m < 2.5 and err_deg < 1.0
 
 
 def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight):
