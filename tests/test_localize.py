@@ -284,6 +284,23 @@ def test_polish_estimate_is_switchable_and_accurate(city, localizer, renderer):
     assert not np.allclose(a.pose_local.to_xyz_rpy(), b.pose_local.to_xyz_rpy())
 
 
+def test_restarts_keep_the_best_scoring_run(city, localizer, renderer):
+    """``refine.restarts``: its first run is the single run of the default, so the kept result scores at
+    least as high, and every run's evaluations are counted; fewer than one run is refused."""
+    truth = view(city, *CASES["nadir"][0])
+    labels = renderer.render(CAMERA, truth).labels[0]
+    prior = perturbed(truth, np.array(CASES["nadir"][1]), 1.0, -1.0, 5.0)
+    one = localizer.localize(CAMERA, prior, labels)
+    config = replace(localizer.config, refine=replace(localizer.config.refine, restarts=3))
+    three = localizer.localize(CAMERA, prior, labels, config=config)
+    assert three.score >= one.score
+    assert three.counts["refine_evaluations"] == 3 * one.counts["refine_evaluations"]
+    assert three.counts["coarse_hypotheses"] == one.counts["coarse_hypotheses"]
+    assert center_error_m(three.pose_local, truth) < 0.5
+    with pytest.raises(ParameterError, match="restarts"):
+        replace(localizer.config.refine, restarts=0)
+
+
 def test_score_poses_ranks_the_true_pose_first_and_includes_the_prior_term(city, localizer, renderer):
     """The refinement's own score of given poses: the true pose of a clean view scores highest; the prior's
     roll/pitch term lowers a pose tilted away from the prior."""

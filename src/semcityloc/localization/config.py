@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
 
-from semcityloc.errors import unknown_choice
+from semcityloc.errors import ParameterError, unknown_choice
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
 SEARCHES = ("cascade", "grid")
@@ -147,10 +147,15 @@ class RefineConfig:
     # partly the luckiest noise. Calibration cities, realistic, 800 queries (seeds 0-3), R@2m,2deg:
     # best one 91.2 %, mean of the best 8 / 24 / 48 / 96: 92.0 / 92.5 / 92.6 / 92.6 % (48: 11 gained, 0 lost).
     polish_estimate_top: int = 48
+    # Independent runs of the filter and its polish (other random draws); the one with the best final
+    # score is kept.
+    restarts: int = 1
 
     def __post_init__(self) -> None:
         if self.depth_cost not in DEPTH_COSTS:
             raise unknown_choice("depth cost", self.depth_cost, DEPTH_COSTS)
+        if int(self.restarts) < 1:
+            raise ParameterError(f"refine.restarts must be >= 1, got {self.restarts}")
 
 
 @dataclass(frozen=True)

@@ -249,35 +249,43 @@ class Localizer:
             score, sem, dep = score_states(self.scene, fine, final[None], self.class_on, cfg.refine, prior)
             result.score, result.semantic, result.depth_cost = float(score[0]), float(sem[0]), float(dep[0])
         else:
-            rng = np.random.default_rng(cfg.seed)
-            best = particle_filter(
-                self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior
-            )
-            if cfg.refine.polish_iterations > 0:
-                xy, z, rp, yaw = cfg.refine.polish_sigma
-                polished = particle_filter(
-                    self.scene,
-                    levels[-1:],
-                    best.xyz_rpy[None],
-                    self.class_on,
-                    cfg.refine,
-                    np.random.default_rng([cfg.seed, 1]),
-                    np.array([xy, xy, z, rp, rp, yaw]),
-                    particles=cfg.refine.polish_particles,
-                    iterations=cfg.refine.polish_iterations,
-                    low_res_iterations=0,
-                    prior=prior,
-                    estimate_top=cfg.refine.polish_estimate_top,
-                )
-                polished.evaluations += best.evaluations
-                polished.spread_m, polished.spread_deg = best.spread_m, best.spread_deg  # the search's
-                best = polished
+            restarts = range(cfg.refine.restarts)
+            runs = [self._filter_and_polish(levels, seeds, cfg, sigma, prior, r) for r in restarts]
+            best = max(runs, key=lambda run: run.score)
+            best.evaluations = sum(run.evaluations for run in runs)
             final = best.xyz_rpy
             result.counts["refine_evaluations"] += best.evaluations
             result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
             result.confidence.update(spread_m=best.spread_m, spread_deg=best.spread_deg)
         result.pose_local = _pose(final)
         result.timings["refine_s"] = time.perf_counter() - t0
+
+    def _filter_and_polish(self, levels, seeds, cfg: LocalizerConfig, sigma, prior, restart: int):
+        """One particle filter over ``seeds`` and its polish; ``restart`` > 0 draws other random numbers
+        (restart 0 is the single run of ``restarts=1``)."""
+        extra = [] if restart == 0 else [restart]
+        rng = np.random.default_rng(cfg.seed if restart == 0 else [cfg.seed, 2, restart])
+        best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
+        if cfg.refine.polish_iterations == 0:
+            return best
+        xy, z, rp, yaw = cfg.refine.polish_sigma
+        polished = particle_filter(
+            self.scene,
+            levels[-1:],
+            best.xyz_rpy[None],
+            self.class_on,
+            cfg.refine,
+            np.random.default_rng([cfg.seed, 1, *extra]),
+            np.array([xy, xy, z, rp, rp, yaw]),
+            particles=cfg.refine.polish_particles,
+            iterations=cfg.refine.polish_iterations,
+            low_res_iterations=0,
+            prior=prior,
+            estimate_top=cfg.refine.polish_estimate_top,
+        )
+        polished.evaluations += best.evaluations
+        polished.spread_m, polished.spread_deg = best.spread_m, best.spread_deg  # the search's
+        return polished
 
     # ------------------------------------------------------------------ diagnostics
     def score_poses(
