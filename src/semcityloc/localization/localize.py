@@ -262,8 +262,8 @@ class Localizer:
 
     def _filter_and_polish(self, levels, seeds, cfg: LocalizerConfig, sigma, prior, restart: int):
         """One particle filter over ``seeds`` and its polish; ``restart`` > 0 draws other random numbers
-        (restart 0 is the single run of ``restarts=1``)."""
-        extra = [] if restart == 0 else [restart]
+        (restart 0 is the single run of ``restarts=1``: a seed sequence ignores trailing zeros, so
+        ``[seed, 1, 0]`` is ``[seed, 1]``)."""
         rng = np.random.default_rng(cfg.seed if restart == 0 else [cfg.seed, 2, restart])
         best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
         if cfg.refine.polish_iterations == 0:
@@ -275,7 +275,7 @@ class Localizer:
             best.xyz_rpy[None],
             self.class_on,
             cfg.refine,
-            np.random.default_rng([cfg.seed, 1, *extra]),
+            np.random.default_rng([cfg.seed, 1, restart]),
             np.array([xy, xy, z, rp, rp, yaw]),
             particles=cfg.refine.polish_particles,
             iterations=cfg.refine.polish_iterations,
