@@ -353,3 +353,42 @@ def test_openings_of_an_lod3_map_are_scored_as_wall_unless_asked(city_lod3):
     assert s_merged[0] > s_merged[1] and s_scored[0] > s_scored[1]  # the true pose first, either way
     # Even the map's own labels do not match at the refinement's resolution once openings are classes.
     assert s_merged[0] > 0.9 > s_scored[0]
+
+
+@pytest.mark.parametrize("state", [[10.0, -5.0, 80.0, 1.0, 0.5, 30.0], [0.0, 0.0, 120.0, 0.0, 45.0, -100.0]])
+def test_pivot_perturbation_keeps_the_pivot_point_on_the_optical_axis(state):
+    """A roll / pitch / yaw step mapped by ``pivot_jacobian`` moves the camera so that the point
+    ``depth`` ahead on the optical axis stays at the principal point (to first order: a step along the
+    tilt-versus-shift ridge), while the same step without it moves that point across the image."""
+    from semcityloc.localization.refine import pivot_jacobian
+
+    state = np.array(state)
+    depth = 75.0
+    pose = Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
+    pivot = pose.center + depth * np.asarray(pose.R)[2]
+    jac = pivot_jacobian(state, depth)
+    assert jac[:3, :3] == pytest.approx(np.eye(3)) and jac[3:, 3:] == pytest.approx(np.eye(3))
+    for k, step_deg in ((3, 0.5), (4, -0.5), (5, 0.5)):
+        step = np.zeros(6)
+        step[k] = step_deg
+        for moved, stays in ((state + jac @ step, True), (state + step, False)):
+            p = Pose.from_xyz_rpy(moved[:3], moved[3], moved[4], moved[5])
+            uv, _ = CAMERA.project(p.transform(pivot[None]))
+            off = float(np.hypot(*(uv[0] - [CAMERA.cx, CAMERA.cy])))
+            if stays:
+                assert off < 0.01
+            elif k != 5 or abs(state[4]) > 10.0:  # a yaw step of a nadir view turns about its axis
+                assert off > 1.0
+    assert pivot_jacobian(state, 0.0) == pytest.approx(np.eye(6))  # nothing seen: plain steps
+
+
+def test_pivot_refinement_localizes_and_unknown_pivot_is_refused(city, localizer, renderer):
+    truth = view(city, *CASES["nadir"][0])
+    labels = renderer.render(CAMERA, truth).labels[0]
+    prior = perturbed(truth, np.array(CASES["nadir"][1]), 1.0, -1.0, 5.0)
+    for pivot in ("none", "polish", "both"):
+        config = replace(localizer.config, refine=replace(localizer.config.refine, pivot=pivot))
+        r = localizer.localize(CAMERA, prior, labels, config=config)
+        assert center_error_m(r.pose_local, truth) < 0.5 and rotation_error_deg(r.pose_local, truth) < 0.5
+    with pytest.raises(ParameterError, match="pivot"):
+        replace(localizer.config.refine, pivot="orbit")

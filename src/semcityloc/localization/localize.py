@@ -37,6 +37,7 @@ from semcityloc.localization.refine import (
     ScoringLevel,
     initial_sigma,
     particle_filter,
+    pivot_jacobian,
     score_states,
 )
 from semcityloc.localization.result import (
@@ -265,10 +266,15 @@ class Localizer:
         (restart 0 is the single run of ``restarts=1``: a seed sequence ignores trailing zeros, so
         ``[seed, 1, 0]`` is ``[seed, 1]``)."""
         rng = np.random.default_rng(cfg.seed if restart == 0 else [cfg.seed, 2, restart])
+        if cfg.refine.pivot == "both":
+            sigma = self._about_pivot(levels[0].camera, seeds[0], sigma)
         best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
         if cfg.refine.polish_iterations == 0:
             return best
         xy, z, rp, yaw = cfg.refine.polish_sigma
+        polish_sigma = np.array([xy, xy, z, rp, rp, yaw])
+        if cfg.refine.pivot != "none":
+            polish_sigma = self._about_pivot(levels[0].camera, best.xyz_rpy, polish_sigma)
         polished = particle_filter(
             self.scene,
             levels[-1:],
@@ -276,7 +282,7 @@ class Localizer:
             self.class_on,
             cfg.refine,
             np.random.default_rng([cfg.seed, 1, restart]),
-            np.array([xy, xy, z, rp, rp, yaw]),
+            polish_sigma,
             particles=cfg.refine.polish_particles,
             iterations=cfg.refine.polish_iterations,
             low_res_iterations=0,
@@ -286,6 +292,16 @@ class Localizer:
         polished.evaluations += best.evaluations
         polished.spread_m, polished.spread_deg = best.spread_m, best.spread_deg  # the search's
         return polished
+
+    def _about_pivot(self, camera: Camera, state: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+        """(6, 6) perturbation matrix: ``sigma``'s rotations about the point of the optical axis at the
+        median depth of the model seen from ``state`` (``refine.pivot_jacobian``); the plain scales when
+        nothing is seen."""
+        pose = _pose(state)
+        out = NumbaEngine(self.scene).render(camera, pose.R[None], pose.t[None], depth=True)
+        seen = out.depth[np.isfinite(out.depth)]
+        pivot = float(np.median(seen)) if seen.size else 0.0
+        return pivot_jacobian(state, pivot) @ np.diag(sigma)
 
     # ------------------------------------------------------------------ diagnostics
     def score_poses(

@@ -165,6 +165,30 @@ def initial_sigma(config: RefineConfig, roll_pitch_deg: float) -> np.ndarray:
     return np.array([config.sigma_xy_m, config.sigma_xy_m, config.sigma_z_m, rp, rp, config.sigma_yaw_deg])
 
 
+def pivot_jacobian(state: np.ndarray, pivot_depth_m: float) -> np.ndarray:
+    """(6, 6) map from perturbations about a pivot to state perturbations: a roll / pitch / yaw offset
+    also moves the camera centre so that the point ``pivot_depth_m`` ahead on the optical axis stays put.
+
+    Why: from the air a small tilt and a sideways shift of ``depth * tilt`` move the image alike (the
+    tilt-versus-shift ridge); sampled independently, the filter explores that ridge only by chance. About
+    the pivot, a rotation offset *is* a step along the ridge. Translation columns are the identity."""
+    jac = np.eye(6)
+    if not pivot_depth_m > 0.0:
+        return jac
+    eps = 1e-3  # degrees
+
+    def axis(s: np.ndarray) -> np.ndarray:
+        pose = Pose.from_xyz_rpy(s[:3], s[3], s[4], s[5])
+        return np.asarray(pose.R)[2]  # the optical axis in the local frame
+
+    for k in range(3, 6):
+        step = np.zeros(6)
+        step[k] = eps
+        d_axis = (axis(state + step) - axis(state - step)) / (2.0 * eps)
+        jac[:3, k] = -pivot_depth_m * d_axis
+    return jac
+
+
 def particle_filter(
     scene: RenderScene,
     levels: list[ScoringLevel],
@@ -182,18 +206,22 @@ def particle_filter(
     """Refine from ``seeds`` ((k, 6) states, best first). ``levels[-1]`` is the fine resolution; with
     ``config.low_res_iterations`` > 0 the first iterations score at ``levels[0]``. The best particle is
     chosen among fine-resolution scores only (scores of different resolutions are not comparable).
-    ``sigma``: (6,) initial perturbation scales (default ``initial_sigma(config, 0.3)``);
+    ``sigma``: (6,) initial perturbation scales (default ``initial_sigma(config, 0.3)``), or a (6, 6)
+    matrix ``L`` whose perturbations are ``L @ n`` for standard normal ``n`` (``pivot_jacobian`` times
+    the scales); the floors shrink it alike;
     ``particles`` / ``iterations`` / ``low_res_iterations`` override the config's; ``prior``: the
     prior's penalty subtracted from every score (``PriorTerm``); ``estimate_top`` > 0: the estimate is
     the mean of the best ``estimate_top`` fine-resolution evaluations (``top_mean``), scored once more,
     instead of the single best one (use it where the population stays in one basin: the polish)."""
     sigma = initial_sigma(config, 0.3) if sigma is None else np.asarray(sigma, dtype=np.float64)
+    full = sigma.ndim == 2
     n = config.particles if particles is None else int(particles)
     n_iter = config.iterations if iterations is None else int(iterations)
     low_res = config.low_res_iterations if low_res_iterations is None else int(low_res_iterations)
     # Initial population: half around the best seed, the rest spread over the other seeds.
     owner = np.where(np.arange(n) < n // 2, 0, np.arange(n) % len(seeds))
-    states = seeds[owner] + rng.normal(size=(n, 6)) * sigma
+    noise = rng.normal(size=(n, 6))
+    states = seeds[owner] + (noise @ sigma.T if full else noise * sigma)
     states[0] = seeds[0]  # the coarse pose itself is always evaluated
 
     best = (-np.inf, seeds[0].copy(), 0.0, 0.0)
@@ -216,17 +244,19 @@ def particle_filter(
         if it == n_iter - 1:
             break
         floor = sigma * config.shrink ** (it + 1)
+        floor_cov = floor @ floor.T if full else np.diag(floor**2)
         if config.update == "gaussian":
             # Gaussian particle filter: draw the next population from the weighted mean and covariance,
             # so directions where the score is flat or coupled (roll ~ x, pitch ~ y) are explored along
             # their correlation; a floor that shrinks per iteration keeps it from collapsing early.
             mean = weights @ states
             centred = states - mean
-            cov = (centred * weights[:, None]).T @ centred + np.diag(floor**2)
+            cov = (centred * weights[:, None]).T @ centred + floor_cov
             states = rng.multivariate_normal(mean, cov, size=n, method="cholesky")
         else:
             keep = _systematic_resample(weights, rng)
-            states = states[keep] + rng.normal(size=(n, 6)) * floor
+            noise = rng.normal(size=(n, 6))
+            states = states[keep] + (noise @ floor.T if full else noise * floor)
         if best[0] > -np.inf:
             states[0] = best[1]  # elitism: the best so far stays in the population
 
