@@ -252,7 +252,11 @@ ABLATION_FLAGS: dict[str, dict[str, bool]] = {
 LEGACY = LocalizerConfig(
     search="grid",
     refine=RefineConfig(
-        sigma_roll_pitch_deg=0.3, prior_roll_pitch_weight=0.0, depth_cost="affine", polish_iterations=0
+        sigma_roll_pitch_deg=0.3,
+        prior_roll_pitch_weight=0.0,
+        depth_cost="affine",
+        polish_iterations=0,
+        pivot="none",
     ),
     acceptance="thresholds",
     score_openings=True,
