@@ -250,6 +250,8 @@ class Localizer:
             score, sem, dep = score_states(self.scene, fine, final[None], self.class_on, cfg.refine, prior)
             result.score, result.semantic, result.depth_cost = float(score[0]), float(sem[0]), float(dep[0])
         else:
+            if cfg.refine.pivot == "both":  # the same first seed for every restart: one pivot render
+                sigma = self._about_pivot(levels[0].camera, seeds[0], sigma)
             restarts = range(cfg.refine.restarts)
             runs = [self._filter_and_polish(levels, seeds, cfg, sigma, prior, r) for r in restarts]
             best = max(runs, key=lambda run: run.score)
@@ -266,8 +268,6 @@ class Localizer:
         (restart 0 is the single run of ``restarts=1``: a seed sequence ignores trailing zeros, so
         ``[seed, 1, 0]`` is ``[seed, 1]``)."""
         rng = np.random.default_rng(cfg.seed if restart == 0 else [cfg.seed, 2, restart])
-        if cfg.refine.pivot == "both":
-            sigma = self._about_pivot(levels[0].camera, seeds[0], sigma)
         best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
         if cfg.refine.polish_iterations == 0:
             return best
@@ -297,8 +297,7 @@ class Localizer:
         """(6, 6) perturbation matrix: ``sigma``'s rotations about the point of the optical axis at the
         median depth of the model seen from ``state`` (``refine.pivot_jacobian``); the plain scales when
         nothing is seen."""
-        pose = _pose(state)
-        out = NumbaEngine(self.scene).render(camera, pose.R[None], pose.t[None], depth=True)
+        out = self._render_one(camera, _pose(state), depth=True)
         seen = out.depth[np.isfinite(out.depth)]
         pivot = float(np.median(seen)) if seen.size else 0.0
         return pivot_jacobian(state, pivot) @ np.diag(sigma)
@@ -401,10 +400,13 @@ class Localizer:
         inside = np.all((self._building_xy >= lo) & (self._building_xy <= hi), axis=1)
         return bool(inside.any())
 
+    def _render_one(self, camera: Camera, pose_local: Pose, depth: bool = False):
+        """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
+        return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)
+
     def _building_iou(self, camera: Camera, pose_local: Pose, query_flat: np.ndarray) -> float:
         """Building (wall/roof/window/door) vs rest IoU at one pose, ignoring query background/ignore."""
-        out = NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None])
-        labels = out.labels.reshape(1, -1)
+        labels = self._render_one(camera, pose_local).labels.reshape(1, -1)
         valid = (query_flat != 0) & (query_flat != IGNORE)
         r = np.isin(labels[0], BUILDING_CLASSES)[valid]
         q = np.isin(query_flat, BUILDING_CLASSES)[valid]
