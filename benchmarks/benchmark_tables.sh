@@ -39,3 +39,4 @@ for KV in "prior_roll_pitch_sigma_deg 0,1,2 rp" "height_change_max_m 0,2,4 heigh
   $S sweep --knob "$1" --values "$2" --city $CITY --queries 50 --workers 2 --out "$R/sweep_$3"
 done
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
+$S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html
