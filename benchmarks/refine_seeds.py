@@ -25,9 +25,7 @@ import numpy as np
 
 from semcityloc.benchmark.dataset_source import DatasetSpec
 from semcityloc.geometry.errors import rotation_error_deg
-from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
-from semcityloc.render.scene import build_scene
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -46,29 +44,29 @@ def main() -> int:
 
     spec = DatasetSpec(dataset=str(args.dataset), perception=args.perception, seed=args.label_seed)
     source = spec.open_source(spec.run_config())
-    model = source.map_model
-    scene = build_scene(model)
+    loc = Localizer(source.map_model)
     q = source.query(args.query)
     truth = q.true_pose_local
-    vectors = []
+    vectors, errors = [], []
     for seed in range(args.seeds):
-        loc = Localizer(model, replace(LocalizerConfig(), seed=seed), scene=scene)
-        r = loc.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
+        cfg = replace(loc.config, seed=seed)
+        r = loc.localize(q.camera, q.prior_pose_local, q.labels, q.depth, config=cfg)
         found = r.found_pose_local
-        v = found.center - truth.center
-        vectors.append(v)
-        s = loc.score_poses(q.camera, q.labels, q.depth, [found, truth], prior_local=q.prior_pose_local)
+        vectors.append(found.center - truth.center)
+        errors.append(float(np.linalg.norm(vectors[-1])))
+        s = loc.score_poses(
+            q.camera, q.labels, q.depth, [found, truth], prior_local=q.prior_pose_local, config=cfg
+        )
         row = {
             "seed": seed,
             "status": r.status,
-            "error_vector_m": np.round(v, 3).tolist(),
-            "error_m": round(float(np.linalg.norm(v)), 3),
+            "error_vector_m": np.round(vectors[-1], 3).tolist(),
+            "error_m": round(errors[-1], 3),
             "error_deg": round(float(rotation_error_deg(found, truth)), 3),
             "score_found": round(float(s["score"][0]), 4),
             "score_truth": round(float(s["score"][1]), 4),
         }
         print(json.dumps(row), flush=True)
-    errors = [float(np.linalg.norm(v)) for v in vectors]
     summary = {
         "query": q.query_id,
         "perception": args.perception,

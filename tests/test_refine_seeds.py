@@ -10,7 +10,7 @@ from pathlib import Path
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "refine_seeds.py"
 
 
-def test_oblique_real_image_with_two_refinement_seeds(shared, tmp_path):
+def test_oblique_real_image_with_two_refinement_seeds(shared):
     data = shared("real_uav_lodloc_oblique/GT_pose").parents[1]
     out = subprocess.run(
         [sys.executable, str(SCRIPT), "--dataset", str(data), "--query", "1", "--seeds", "2"],
