@@ -17,7 +17,7 @@ $S benchmark --city $CITY --queries 100 --preset legacy --workers 2 --out "$R/be
 for Q in medium zero-shot; do
   $S benchmark --city $CITY --queries 100 --seg-quality $Q --workers 2 --out "$R/berlin_seg_$Q"
 done
-[ -f "$R/DenHaag/DenHaag_01.xml" ] || unzip -o -q $DATA/denhaag_lod2/DenHaag_01.zip -d "$R"
+[ -f "$R/DenHaag/DenHaag_01.xml" ] || unzip -o -q $DATA/denhaag_lod2/DenHaag_01.zip -x '__MACOSX/*' -d "$R"
 for M in semcityloc no-depth; do
   $S benchmark --city $CITY --queries 100 --seed 1 --method $M --workers 2 --out "$R/berlin_s1_$M"
   $S benchmark --city "$R/DenHaag/DenHaag_01.xml" --queries 50 --method $M --workers 2 --out "$R/denhaag_$M"

@@ -17,8 +17,9 @@ Check (``--check-city``, default Berlin, seed 1 so that no benchmark query is re
 conditions; prints the expected calibration error (10 bins), the Brier score, and the risk-coverage
 curve (coverage and precision at the acceptance probabilities 0.3 ... 0.9) of each model.
 
-``--cache DIR`` keeps every condition's features (``DIR/<city>_<condition>_<seed>.json``), so a refit
-does not localize again.
+``--cache DIR`` keeps every condition's features (``DIR/<city>_<condition>_<seed>_<queries>_<code>.json``,
+``<code>`` the package's ``code_fingerprint``), so a refit does not localize again, and features made by
+other code (another localizer or simulation) are never reused.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import numpy as np
 
 from semcityloc.baselines.silhouette import SilhouetteLocalizer
 from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
+from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.errors import ParameterError
@@ -127,7 +129,7 @@ def _one(index: int) -> list[dict]:
 
 
 def condition_rows(city: str, seed: int, queries: int, condition: str, workers: int, cache: Path | None):
-    name = f"{Path(city).stem}_{condition}_{seed}_{queries}.json"
+    name = f"{Path(city).stem}_{condition}_{seed}_{queries}_{code_fingerprint()}.json"
     path = cache / name if cache is not None else None
     if path is not None and path.exists():
         return json.loads(path.read_text())

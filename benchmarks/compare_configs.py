@@ -3,8 +3,9 @@
 How the localizer's knobs were chosen (``docs/localization.md``, "Measured alternatives"): every variant
 localizes the SAME queries of the realistic scenario, so a difference of a few queries is the change's,
 not the draw's. Each query is simulated once and cached (``--cache DIR``), so trying another variant
-costs only its localizations (delete the cache after changing the simulation: it is keyed by city, seed
-and ``--set`` only).
+costs only its localizations. The cache is keyed by city, seed and ``--set``, and stamped with the code
+that simulated it (``code_fingerprint`` of everything but ``localization/``): after any change outside the
+localizer, the queries are simulated again.
 
 Usage::
 
@@ -45,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
+from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.scenario import parse_settings, parse_value, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec, load_map
 from semcityloc.errors import ParameterError
@@ -98,6 +100,23 @@ def _spec(city: str, seed: int, queries: int, settings: dict[str, Any]) -> Bench
 def _cache_dir(root: Path, city: str, seed: int, settings: dict[str, Any]) -> Path:
     tag = "_".join(f"{k}={v}" for k, v in sorted(settings.items())).replace("/", "-") or "realistic"
     return root / f"{Path(city).stem}_s{seed}_{tag}"
+
+
+def reset_if_stale(folder: Path, fingerprint: str) -> None:
+    """Drop the queries cached in ``folder`` unless its stamp names ``fingerprint`` (the simulation's code);
+    a folder without a stamp is stale. Stamps the folder for what is simulated next."""
+    stamp = folder / "simulation_code.txt"
+    if stamp.is_file() and stamp.read_text(encoding="utf-8").strip() == fingerprint:
+        return
+    stale = sorted(folder.glob("q*.pkl"))
+    if stale:
+        print(
+            f"{folder.name}: {len(stale)} cached queries come from other code; simulating them again",
+            file=sys.stderr,
+        )
+        for path in stale:
+            path.unlink()
+    stamp.write_text(fingerprint + "\n", encoding="utf-8")
 
 
 def _init_simulate(city: str, seed: int, queries: int, settings: dict[str, Any]) -> None:
@@ -200,10 +219,12 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("variant names must differ")
     settings = parse_settings(args.set)
     rows: list[dict] = []
+    fingerprint = code_fingerprint(exclude=("localization",))
     for city in cities:
         for seed in (int(s) for s in args.seeds.split(",")):
             folder = _cache_dir(args.cache, city, seed, settings)
             folder.mkdir(parents=True, exist_ok=True)
+            reset_if_stale(folder, fingerprint)
             paths = [folder / f"q{i:04d}.pkl" for i in range(args.queries)]
             missing = [(i, p) for i, p in enumerate(paths) if not p.is_file()]
             if missing:

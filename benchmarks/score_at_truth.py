@@ -11,7 +11,13 @@ prior's roll/pitch term, at the refinement's final resolution) of the true pose 
 Prints one JSON line per missed query (``id``, ``view``, errors, ``score_truth``, ``score_found``) and, last,
 a summary line: queries, misses, and how many of them are the score's (``truth_lower``).
 
+``--scales 2,4,8`` also scores both poses at other refinement resolutions (``refine.scale`` times the
+search's width: 128, 256, 512 pixels across by default): ``score_truth_x4`` etc. per miss and
+``truth_lower_x4`` in the summary. Does a finer score tell the truth from the found pose where the
+refinement's cannot (a resolution limit), or does it prefer the found pose too (the input's bias)?
+
     python benchmarks/score_at_truth.py [--city generated] [--seed 0] [--queries 100] [--workers 2]
+        [--scales 4,8]
 
 Calibration cities only for decisions (the generated city, Fürth); ``docs/localization.md`` has the figures.
 """
@@ -19,6 +25,7 @@ Calibration cities only for decisions (the generated city, Fürth); ``docs/local
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from concurrent.futures import ProcessPoolExecutor
 
@@ -30,10 +37,10 @@ from semcityloc.localization.localize import Localizer
 _WORKER: dict = {}
 
 
-def _init(city: str, seed: int, queries: int) -> None:
+def _init(city: str, seed: int, queries: int, scales: tuple[int, ...]) -> None:
     spec = BenchmarkSpec(city=city, query=query_config("realistic", queries=queries, seed=seed))
     source = spec.open_source(spec.run_config())
-    _WORKER.update(source=source, localizer=Localizer(source.map_model))
+    _WORKER.update(source=source, localizer=Localizer(source.map_model), scales=scales)
 
 
 def _one(index: int) -> dict | None:
@@ -56,7 +63,24 @@ def _one(index: int) -> dict | None:
             q.camera, q.labels, q.depth, [q.true_pose_local, found], prior_local=q.prior_pose_local
         )["score"]
         row.update(score_truth=round(float(s[0]), 4), score_found=round(float(s[1]), 4))
+        for scale in _WORKER["scales"]:
+            cfg = dataclasses.replace(loc.config, refine=dataclasses.replace(loc.config.refine, scale=scale))
+            s = loc.score_poses(
+                q.camera, q.labels, q.depth, [q.true_pose_local, found], q.prior_pose_local, config=cfg
+            )["score"]
+            row[f"score_truth_x{scale}"] = round(float(s[0]), 4)
+            row[f"score_found_x{scale}"] = round(float(s[1]), 4)
     return row
+
+
+def _scales(text: str) -> tuple[int, ...]:
+    try:
+        scales = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--scales: comma-separated integers, got {text!r}") from None
+    if any(v < 1 for v in scales):
+        raise argparse.ArgumentTypeError(f"--scales: each scale must be >= 1, got {text!r}")
+    return scales
 
 
 def main() -> None:
@@ -65,9 +89,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--queries", type=int, default=100)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--scales", type=_scales, default=(), help="also score at these refine.scale values")
     args = ap.parse_args()
     with ProcessPoolExecutor(
-        args.workers, initializer=_init, initargs=(args.city, args.seed, args.queries)
+        args.workers, initializer=_init, initargs=(args.city, args.seed, args.queries, args.scales)
     ) as pool:
         rows = [r for r in pool.map(_one, range(args.queries)) if r is not None]
     misses = [r for r in rows if r["miss"]]
@@ -77,6 +102,10 @@ def main() -> None:
     lower = sum(r["score_truth"] < r["score_found"] for r in scored)
     summary = {"city": args.city, "seed": args.seed, "queries": len(rows), "misses": len(misses)}
     summary.update(scored_misses=len(scored), truth_lower=lower, truth_higher=len(scored) - lower)
+    for scale in args.scales:
+        summary[f"truth_lower_x{scale}"] = sum(
+            r[f"score_truth_x{scale}"] < r[f"score_found_x{scale}"] for r in scored
+        )
     print(json.dumps(summary))
 
 

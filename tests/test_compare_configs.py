@@ -61,3 +61,17 @@ def test_a_reporting_city_is_refused_unless_checking(tmp_path):
         text=True,
     )
     assert out.returncode != 0 and "not a calibration city" in out.stderr
+
+
+def test_cached_queries_of_other_code_are_simulated_again(compare, tmp_path, capsys):
+    folder = tmp_path / "generated_s0_realistic"
+    folder.mkdir()
+    (folder / "q0000.pkl").write_bytes(b"old")
+    compare.reset_if_stale(folder, "aaaa")  # no stamp: made by unknown code
+    assert not (folder / "q0000.pkl").exists()
+    assert "simulating them again" in capsys.readouterr().err
+    (folder / "q0000.pkl").write_bytes(b"new")
+    compare.reset_if_stale(folder, "aaaa")  # same code: kept
+    assert (folder / "q0000.pkl").read_bytes() == b"new"
+    compare.reset_if_stale(folder, "bbbb")  # the simulation changed: dropped
+    assert not (folder / "q0000.pkl").exists()

@@ -430,8 +430,9 @@ def merge_models(models: Sequence[CityModel], source: str = "") -> CityModel:
 
 
 def city_sha256(path: str | Path) -> str:
-    """The identity of a city model file or of a store (its index), for run provenance."""
-    return TileStore.open(path).sha256 if is_store(path) else file_sha256(path)
+    """The identity of a city model file or of a store (its index: ``TileStore.sha256``, read without
+    opening the store), for run provenance."""
+    return file_sha256(_root(path) / INDEX_FILE) if is_store(path) else file_sha256(path)
 
 
 def open_store(path: str | Path, lod: int | str | None = None, crs: str | None = None) -> TileStore:
