@@ -49,7 +49,7 @@ from semcityloc.benchmark.calibration import calibration_cities, require_calibra
 from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.scenario import parse_settings, parse_value, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec, load_map
-from semcityloc.errors import ParameterError
+from semcityloc.errors import BenchmarkConfigError, ParameterError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
@@ -94,7 +94,7 @@ def parse_variant(text: str, preset: str) -> tuple[str, LocalizerConfig]:
 
 
 def _spec(city: str, seed: int, queries: int, settings: dict[str, Any]) -> BenchmarkSpec:
-    return BenchmarkSpec(city=city, query=query_config("realistic", queries=queries, seed=seed, **settings))
+    return BenchmarkSpec(city=city, query=query_config("realistic", settings, queries=queries, seed=seed))
 
 
 def _cache_dir(root: Path, city: str, seed: int, settings: dict[str, Any]) -> Path:
@@ -217,7 +217,11 @@ def main(argv: list[str] | None = None) -> int:
     names = [n for n, _ in variants]
     if len(set(names)) != len(names):
         raise SystemExit("variant names must differ")
-    settings = parse_settings(args.set)
+    try:
+        settings = parse_settings(args.set)
+        query_config("realistic", settings)  # a bad knob value fails here, in one line, not in a worker
+    except BenchmarkConfigError as exc:
+        raise SystemExit(f"--set: {exc}") from None
     rows: list[dict] = []
     fingerprint = code_fingerprint(exclude=("localization",))
     for city in cities:

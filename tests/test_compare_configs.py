@@ -75,3 +75,15 @@ def test_cached_queries_of_other_code_are_simulated_again(compare, tmp_path, cap
     assert (folder / "q0000.pkl").read_bytes() == b"new"
     compare.reset_if_stale(folder, "bbbb")  # the simulation changed: dropped
     assert not (folder / "q0000.pkl").exists()
+
+
+def test_set_reaches_nested_and_top_level_knobs(compare):
+    spec = compare._spec("generated", 3, 5, {"depth_model.distortion": 0, "prior_translation_m": [1, 2]})
+    assert spec.query.depth_model.distortion == 0 and spec.query.prior_translation_m == (1.0, 2.0)
+    assert spec.query.seed == 3 and spec.query.queries == 5 and spec.query.reality.overhang_m  # realistic
+
+
+def test_a_bad_set_value_is_refused_in_one_line(compare, tmp_path, capsys):
+    with pytest.raises(SystemExit, match="--set: ") as exc:
+        compare.main(["--variant", "base", "--set", "depth_model.distortion=abc", "--cache", str(tmp_path)])
+    assert "Traceback" not in str(exc.value)

@@ -106,6 +106,22 @@ def test_settings_reach_every_knob_and_are_checked():
         query_config("hard", queries=1)
 
 
+@pytest.mark.parametrize(
+    "knob",
+    [
+        "depth_model.distortion=abc",
+        "depth_model.distortion=-0.1",
+        "depth_model.noise=0.3-0.1",
+        "depth_model.warp_gamma=[0,1]",
+        "depth_model.bleed_px=[1.5,2]",
+        "depth_model.jump=true",
+    ],
+)
+def test_depth_knobs_are_checked_where_they_are_set(knob):
+    with pytest.raises(BenchmarkConfigError, match="DepthParams"):
+        query_config("realistic", parse_settings([knob]), queries=1)
+
+
 def depth_scene() -> tuple[np.ndarray, np.ndarray]:
     """A nadir-like depth: ground at 80 m, a block at 50 m, sky in one corner."""
     d = np.full((96, 128), 80.0)

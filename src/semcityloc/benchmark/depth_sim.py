@@ -36,6 +36,7 @@ from semcityloc.benchmark.perception_sim import (
     clean_depth_input,
     smooth_field,
 )
+from semcityloc.errors import BenchmarkConfigError
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,31 @@ class DepthParams:
     noise: tuple[float, float] = (0.03, 0.06)
     bleed_px: tuple[int, int] = (1, 3)
     jump: float = 0.05
+
+    def __post_init__(self) -> None:
+        def bad(name: str, rule: str) -> BenchmarkConfigError:
+            return BenchmarkConfigError(f"DepthParams.{name} must be {rule}, got {getattr(self, name)!r}")
+
+        for name, low in (("warp_gamma", 0.0), ("noise", 0.0), ("bleed_px", 0.0)):
+            value = getattr(self, name)
+            try:
+                pair = tuple(float(v) for v in value)
+            except (TypeError, ValueError):
+                raise bad(name, "a (low, high) pair of numbers") from None
+            if len(pair) != 2 or not (low <= pair[0] <= pair[1] < math.inf):
+                raise bad(name, f"a pair {low:g} <= low <= high")
+            if name == "warp_gamma" and pair[0] <= 0.0:
+                raise bad(name, "positive")
+            if name == "bleed_px":
+                if any(v != int(v) for v in pair):
+                    raise bad(name, "whole pixels")
+                pair = (int(pair[0]), int(pair[1]))
+            object.__setattr__(self, name, pair)
+        for name in ("distortion", "jump"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
+                raise bad(name, "a number >= 0")
+            object.__setattr__(self, name, float(value))
 
 
 def simulate_depth_realistic(
