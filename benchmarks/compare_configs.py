@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import math
 import pickle
@@ -99,6 +100,8 @@ def _spec(city: str, seed: int, queries: int, settings: dict[str, Any]) -> Bench
 
 def _cache_dir(root: Path, city: str, seed: int, settings: dict[str, Any]) -> Path:
     tag = "_".join(f"{k}={v}" for k, v in sorted(settings.items())).replace("/", "-") or "realistic"
+    if len(tag) > 80:  # many knobs: a file name has at most 255 bytes
+        tag = "set-" + hashlib.sha256(tag.encode()).hexdigest()[:16]
     return root / f"{Path(city).stem}_s{seed}_{tag}"
 
 

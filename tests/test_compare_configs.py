@@ -87,3 +87,11 @@ def test_a_bad_set_value_is_refused_in_one_line(compare, tmp_path, capsys):
     with pytest.raises(SystemExit, match="--set: ") as exc:
         compare.main(["--variant", "base", "--set", "depth_model.distortion=abc", "--cache", str(tmp_path)])
     assert "Traceback" not in str(exc.value)
+
+
+def test_many_knobs_make_a_short_cache_folder_name(compare, tmp_path):
+    many = {f"reality.knob_{i}": 0 for i in range(20)}
+    folder = compare._cache_dir(tmp_path, "generated", 0, many)
+    assert len(folder.name) < 100 and folder.name.startswith("generated_s0_set-")
+    assert folder != compare._cache_dir(tmp_path, "generated", 0, {**many, "reality.knob_0": 1})
+    assert compare._cache_dir(tmp_path, "generated", 1, {}).name == "generated_s1_realistic"
