@@ -116,7 +116,7 @@ def main() -> int:
     }
     for name in presets:
         config = LocalizerConfig.preset(name)
-        localizer = Localizer(model, config, scene=renderer.scene)
+        localizer = Localizer(model, config)  # its own scene: presets may differ in eaves
         q0 = queries[0]
         localizer.localize(q0.camera, q0.prior_pose_local, q0.labels, q0.depth)  # warm-up, not timed
         rows = []
@@ -149,7 +149,7 @@ def main() -> int:
 
     if args.naive_queries > 0:
         config = LocalizerConfig.preset("legacy")
-        localizer = Localizer(model, config, scene=renderer.scene)
+        localizer = Localizer(model, config)  # its own scene: presets may differ in eaves
         class_ids = tuple(int(c) for c in np.flatnonzero(localizer.class_on))
         fused, slow = [], []
         for q in queries[: args.naive_queries]:

@@ -53,9 +53,8 @@ from semcityloc.benchmark.spec import BenchmarkSpec, load_map
 from semcityloc.errors import BenchmarkConfigError, ParameterError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer
+from semcityloc.localization.localize import Localizer, localizer_scene
 from semcityloc.localization.result import LOCALIZED
-from semcityloc.render.scene import build_scene
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
@@ -138,8 +137,13 @@ def _simulate(args: tuple[int, Path]) -> None:
 def _init_localize(city: str, seed: int, queries: int, settings: dict, variants: list) -> None:
     spec = _spec(city, seed, queries, settings)
     model = load_map(spec.run_config())
-    scene = build_scene(model)  # one render scene for every variant (each Localizer adapts its classes)
-    _WORKER["localizers"] = [(name, Localizer(model, cfg, scene=scene)) for name, cfg in variants]
+    scenes: dict[float, object] = {}  # one render scene per map (eaves); each Localizer adapts its classes
+    localizers = []
+    for name, cfg in variants:
+        if cfg.map_eaves_m not in scenes:
+            scenes[cfg.map_eaves_m] = localizer_scene(model, cfg)
+        localizers.append((name, Localizer(model, cfg, scene=scenes[cfg.map_eaves_m])))
+    _WORKER["localizers"] = localizers
 
 
 def _localize(path: Path) -> list[dict] | None:

@@ -301,9 +301,11 @@ def test_restarts_keep_the_best_scoring_run(city, localizer, renderer):
         replace(localizer.config.refine, restarts=0)
 
 
-def test_score_poses_ranks_the_true_pose_first_and_includes_the_prior_term(city, localizer, renderer):
+def test_score_poses_ranks_the_true_pose_first_and_includes_the_prior_term(city, renderer):
     """The refinement's own score of given poses: the true pose of a clean view scores highest; the prior's
-    roll/pitch term lowers a pose tilted away from the prior."""
+    roll/pitch term lowers a pose tilted away from the prior. The query is the map's own render, so the
+    localizer searches the map as it is (no eaves: ``map_eaves_m=0``)."""
+    localizer = Localizer(city, LocalizerConfig(map_eaves_m=0.0))
     truth = view(city, *CASES["oblique"][0])
     out = renderer.render(CAMERA, truth, depth=True)
     labels, depth = out.labels[0], 2.0 * out.depth[0] + 5.0

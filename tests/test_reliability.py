@@ -36,6 +36,7 @@ from semcityloc.errors import (
 )
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.io.images import read_mask_file, save_labels_png
+from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.query import depth_problem, usable_depth
 from semcityloc.localization.result import LOCALIZED
@@ -163,7 +164,7 @@ def nadir(city):
     true = view(city, 10.0, -20.0, 80.0, 1.0, 2.0, 30.0)
     out = Renderer(city, engine="numba").render(CAMERA, true, depth=True)
     prior = perturbed(true, np.array([6.0, -7.0, 3.873]), 0.5, -0.5, 5.0)
-    localizer = Localizer(city)
+    localizer = Localizer(city, LocalizerConfig(map_eaves_m=0.0))  # the query is the map's own render
     semantic_only = localizer.localize(CAMERA, prior, out.labels[0])
     return localizer, true, prior, out.labels[0], out.depth[0], semantic_only
 

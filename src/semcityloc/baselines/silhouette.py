@@ -26,9 +26,9 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer
+from semcityloc.localization.localize import Localizer, localizer_scene
 from semcityloc.localization.result import LocalizationResult
-from semcityloc.render.scene import RenderScene, build_scene
+from semcityloc.render.scene import RenderScene
 
 BUILDING = int(SemanticClass.WALL)  # the one building class, stored under the wall id
 
@@ -65,8 +65,8 @@ class SilhouetteLocalizer(Localizer):
     def __init__(
         self, model: CityModel, config: LocalizerConfig | None = None, scene: RenderScene | None = None
     ):
-        base = scene if scene is not None else build_scene(model)
         cfg = replace(config or LocalizerConfig(), no_depth=True)
+        base = scene if scene is not None else localizer_scene(model, cfg)
         super().__init__(model, cfg, scene=silhouette_scene(base))
         self.class_on = np.zeros(NUM_CLASSES, dtype=bool)
         self.class_on[BUILDING] = True

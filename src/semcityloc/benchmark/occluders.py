@@ -78,6 +78,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
+from semcityloc.citymodel.eaves import FLAT_NZ, overhang_roofs
+from semcityloc.citymodel.eaves import area_normal as _area_normal
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, SemanticClass
 from semcityloc.errors import BenchmarkConfigError, CRSError, EmptyModelError
@@ -605,7 +607,6 @@ def cars(
 
 
 # ------------------------------------------------------------------------------------------ reality != map
-FLAT_NZ = 0.97  # a roof triangle with |n_z| above this is flat
 RIDGE_RISE_M = (2.0, 5.0)  # ridge height above the eaves of a roof changed to gable / hip
 GABLE_SHARE = 0.6  # of the flat roofs changed to a pitched one, the share made gable (the rest hip)
 FLATTEN_SHARE = 0.5  # of the sloped roofs changed, the share flattened (the rest get dormers)
@@ -617,15 +618,6 @@ NEW_HEIGHT_M = (4.0, 15.0)  # ground to top of a new building
 NEW_CLEARANCE_M = 3.0  # a new building stands this far at least from any other building
 RELIEF_WAVES = 8  # plane waves summed into the relief field
 RELIEF_BORDER_M = 50.0  # the relief also fades to 0 over this much at the terrain's outer border
-_KEY_M = 0.01  # roof vertices closer than this are one vertex (overhang)
-FLAT_NZ = np.cos(np.radians(10.0))  # a roof triangle within 10 deg of horizontal is flat (overhang)
-
-
-def _area_normal(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(area (T,), unit normal (T, 3)) of triangles (T, 3, 3)."""
-    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    norm = np.linalg.norm(n, axis=1)
-    return 0.5 * norm, n / np.maximum(norm, 1e-12)[:, None]
 
 
 def _oriented_box(xy: np.ndarray) -> tuple[np.ndarray, float, float, np.ndarray] | None:
@@ -822,102 +814,6 @@ def extra_dormers(
     half = np.stack([rng.uniform(2.0, 4.0, n), rng.uniform(2.0, 3.0, n)], 1) / 2
     angle = np.arctan2(nrm[:, 1], nrm[:, 0]) - np.pi / 2
     return _roof_boxes(pt, half, angle, nrm, c[pick, 0], np.full(n, 0.2), b[pick], grid)
-
-
-def overhang_roofs(
-    corners: np.ndarray,
-    classes: np.ndarray,
-    building: np.ndarray,
-    n_buildings: int,
-    overhang_m: tuple[float, float],
-    rng: np.random.Generator,
-    flat_roofs: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Roof overhangs (module docstring, item 4): (corners, overhang (B,) m, 0 where nothing moved).
-
-    Roof vertices closer than 1 cm are one vertex; a roof edge used by one roof triangle only whose two
-    ends lie on the building's walls (within 3 cm in x, y) is an outline edge, its outward normal the one
-    pointing away from its triangle. Each outline vertex moves horizontally by d solving d . n = o for
-    the normals n of its outline edges (least squares: the miter at a corner, capped at 2 o), where o is
-    the building's overhang, or 0 on an edge shared with another building (a party wall: the roof
-    slides along it, it does not grow into the neighbour); its height follows the adjacent roof planes
-    (an eave drops by o x the slope), so the roof keeps its planes and meets the walls where it did."""
-    over = rng.uniform(overhang_m[0], overhang_m[1], n_buildings)
-    roof = np.flatnonzero(classes == SemanticClass.ROOF)
-    if len(roof) == 0 or overhang_m[1] <= 0:
-        return corners, np.zeros(n_buildings)
-    c = corners[roof]
-    rb = building[roof]
-    if not flat_roofs:
-        area, unit = _area_normal(c)
-        flat = np.bincount(rb, area * (np.abs(unit[:, 2]) > FLAT_NZ), n_buildings)
-        total = np.bincount(rb, area, n_buildings)
-        over = np.where(flat > 0.5 * np.maximum(total, 1e-12), 0.0, over)
-    pts = c.reshape(-1, 3)
-    pb = np.repeat(rb, 3)
-    key = np.column_stack([pb, np.round(pts / _KEY_M).astype(np.int64)])
-    _, first, vid = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    vid = vid.reshape(-1, 3)
-    vpos, vb = pts[first], pb[first]
-    nv = len(first)
-    ea, eb, et = vid.reshape(-1), vid[:, [1, 2, 0]].reshape(-1), vid[:, [2, 0, 1]].reshape(-1)
-    ekey = np.minimum(ea, eb) * nv + np.maximum(ea, eb)
-    _, einv, ecount = np.unique(ekey, return_inverse=True, return_counts=True)
-    outline = (ecount[einv] == 1) & (ea != eb)
-
-    # Which roof vertices lie on the building's walls / on another building (x, y within 3 cm).
-    walls = np.isin(classes, (SemanticClass.WALL, SemanticClass.WINDOW, SemanticClass.DOOR))
-    wxy = corners[walls][:, :, :2].reshape(-1, 2)
-    wb = np.repeat(building[walls], 3)
-    sep = 1e6  # buildings apart in the tree's third coordinate
-    on_wall = np.zeros(nv, dtype=bool)
-    if len(wxy):
-        d, _ = cKDTree(np.column_stack([wxy, wb * sep])).query(np.column_stack([vpos[:, :2], vb * sep]))
-        on_wall = d <= 0.03
-    bmask = np.isin(classes, BUILDING_CLASSES)
-    axy = corners[bmask][:, :, :2].reshape(-1, 2)
-    ab = np.repeat(building[bmask], 3)
-    akey = np.unique(np.column_stack([ab, np.round(axy / _KEY_M).astype(np.int64)]), axis=0)
-    tree = cKDTree(akey[:, 1:] * _KEY_M)
-    near = tree.query_ball_point(vpos[:, :2], 0.03)
-    shared = np.array([bool(np.any(akey[q, 0] != vb[i])) for i, q in enumerate(near)], dtype=bool)
-
-    e = outline & on_wall[ea] & on_wall[eb]
-    a, b, t = ea[e], eb[e], et[e]
-    dxy = vpos[b, :2] - vpos[a, :2]
-    n = np.stack([dxy[:, 1], -dxy[:, 0]], 1) / np.linalg.norm(dxy, axis=1)[:, None]
-    n *= np.where(((vpos[t, :2] - vpos[a, :2]) * n).sum(1) > 0, -1.0, 1.0)[:, None]
-    target = np.where(shared[a] & shared[b], 0.0, over[vb[a]])
-    axx, axy_, ayy, bx, by = (np.zeros(nv) for _ in range(5))
-    for end in (a, b):
-        np.add.at(axx, end, n[:, 0] ** 2)
-        np.add.at(axy_, end, n[:, 0] * n[:, 1])
-        np.add.at(ayy, end, n[:, 1] ** 2)
-        np.add.at(bx, end, target * n[:, 0])
-        np.add.at(by, end, target * n[:, 1])
-    eps = 1e-9
-    det = (axx + eps) * (ayy + eps) - axy_**2
-    move = np.stack([((ayy + eps) * bx - axy_ * by) / det, ((axx + eps) * by - axy_ * bx) / det], 1)
-    length = np.linalg.norm(move, axis=1)
-    cap = 2.0 * over[vb]
-    move *= np.where(length > cap, cap / np.maximum(length, 1e-12), 1.0)[:, None]
-    # Height: the mean over the vertex's roof triangles of their planes' rise along the move.
-    _, unit = _area_normal(c)
-    nz = unit[:, 2:3]
-    slope = np.where(np.abs(nz) > 0.2, -unit[:, :2] / np.where(np.abs(nz) > 0.2, nz, 1.0), 0.0)
-    slope = np.clip(slope, -np.tan(np.radians(60)), np.tan(np.radians(60)))
-    gsum = np.zeros((nv, 2))
-    gcnt = np.zeros(nv)
-    for k in range(3):
-        np.add.at(gsum, vid[:, k], slope)
-        np.add.at(gcnt, vid[:, k], 1.0)
-    dz = (move * gsum).sum(1) / np.maximum(gcnt, 1.0)
-    out = corners.copy()
-    out[roof, :, :2] += move[vid]
-    out[roof, :, 2] += dz[vid]
-    moved = np.zeros(n_buildings, dtype=bool)
-    moved[vb[length > 1e-9]] = True
-    return out, np.where(moved, over, 0.0)
 
 
 def relief_points(

@@ -21,6 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from semcityloc.citymodel.eaves import with_eaves
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES, SemanticClass
 from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
@@ -71,7 +72,7 @@ class Localizer:
     ):
         self.model = model
         self.config = config or LocalizerConfig()
-        self.scene = scene if scene is not None else build_scene(model)
+        self.scene = scene if scene is not None else localizer_scene(model, self.config)
         map_openings = bool(np.isin(model.classes, [SemanticClass.WINDOW, SemanticClass.DOOR]).any())
         # Openings not scored (``LocalizerConfig.score_openings``): the map's become wall, like the query's.
         self.has_openings = map_openings and self.config.score_openings
@@ -412,6 +413,15 @@ class Localizer:
         q = np.isin(query_flat, BUILDING_CLASSES)[valid]
         union = np.count_nonzero(r | q)
         return float(np.count_nonzero(r & q) / union) if union else 0.0
+
+
+def localizer_scene(
+    model: CityModel, config: LocalizerConfig, terrain_ring: np.ndarray | None = None
+) -> RenderScene:
+    """The render scene a ``Localizer`` with ``config`` searches: the map with ``config.map_eaves_m`` of
+    eaves on its pitched roofs (``citymodel.eaves``); build it once to share among Localizers of the
+    same eaves. ``terrain_ring``: a tile store's terrain border (``render.scene.build_scene``)."""
+    return build_scene(with_eaves(model, config.map_eaves_m), terrain_ring=terrain_ring)
 
 
 def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:

@@ -33,10 +33,9 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import MAX_VIEW_RANGE_M, search_half_xy
+from semcityloc.localization.localize import MAX_VIEW_RANGE_M, localizer_scene, search_half_xy
 from semcityloc.localization.methods import LocalizerMethod, Method, QueryRecord, get_method, method_factory
 from semcityloc.localization.result import LocalizationResult
-from semcityloc.render.scene import build_scene
 
 # Beyond the view: the terrain TIN near the edge of the loaded buildings differs from the whole city's.
 TERRAIN_MARGIN_M = 100.0
@@ -117,7 +116,7 @@ class TiledMethod:
             self._methods.popitem(last=False)
         model = self.store.load(tiles)
         if method_factory(self.name) is LocalizerMethod:  # the whole city's terrain border (docstring)
-            scene = build_scene(model, terrain_ring=self.store.terrain_ring)
+            scene = localizer_scene(model, self.config, terrain_ring=self.store.terrain_ring)
             method = LocalizerMethod(self.name, model, self.config, scene=scene)
         else:
             method = get_method(self.name, model, self.config)

@@ -1,0 +1,70 @@
+"""``citymodel.eaves.with_eaves``: the localizer's map with a stated eave on its pitched roofs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semcityloc.citymodel.eaves import FLAT_NZ, area_normal, with_eaves
+from semcityloc.citymodel.generator import default_city_path
+from semcityloc.citymodel.io import load_city_model
+from semcityloc.classes import SemanticClass
+from semcityloc.errors import ParameterError
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.localize import Localizer, localizer_scene
+
+
+@pytest.fixture(scope="module")
+def city():
+    return load_city_model(default_city_path(lod=2))
+
+
+def _flat_share(model) -> np.ndarray:
+    """Per building: the share of its roof area within 10 deg of horizontal."""
+    roof = model.classes == SemanticClass.ROOF
+    area, unit = area_normal(model.vertices[model.triangles[roof]].astype(np.float64))
+    b = model.building_index[roof]
+    n = len(model.building_ids)
+    flat = np.bincount(b, area * (np.abs(unit[:, 2]) > FLAT_NZ), n)
+    return flat / np.maximum(np.bincount(b, area, n), 1e-12)
+
+
+def test_pitched_roofs_grow_by_the_eave_flat_roofs_and_walls_stay(city):
+    out = with_eaves(city, 0.5)
+    before = city.vertices[city.triangles].astype(np.float64)
+    after = out.vertices[out.triangles].astype(np.float64)
+    roof = city.classes == SemanticClass.ROOF
+    np.testing.assert_allclose(after[~roof], before[~roof], atol=1e-4)  # walls and ground stay
+    assert np.array_equal(out.classes, city.classes) and np.array_equal(out.origin, city.origin)
+    assert np.array_equal(out.building_index, city.building_index) and out.crs == city.crs
+    move = np.linalg.norm((after - before)[:, :, :2], axis=2).max(1)  # per triangle, horizontal
+    pitched = _flat_share(city) <= 0.5
+    on_pitched = roof & pitched[city.building_index]
+    assert pitched.sum() >= 10 and (~pitched).sum() >= 10  # the generated city has both kinds
+    assert np.all(move[roof & ~pitched[city.building_index]] < 1e-4)  # flat roofs: parapets, no eave
+    grown = np.bincount(city.building_index[on_pitched], move[on_pitched] > 0.4, len(city.building_ids))
+    assert (grown[pitched] > 0).mean() >= 0.8  # pitched roofs reach out (not walled in all round)
+    assert move.max() <= 2 * 0.5 + 1e-4  # the miter cap
+    # A pitched roof's outline now lies beyond its walls: its footprint area grew.
+    for b in np.flatnonzero(pitched)[:5]:
+        sel = roof & (city.building_index == b)
+        span = np.ptp(after[sel][:, :, :2].reshape(-1, 2) @ [1.0, 0.3], axis=0)
+        assert span > np.ptp(before[sel][:, :, :2].reshape(-1, 2) @ [1.0, 0.3], axis=0)
+
+
+def test_no_eave_is_the_map_itself_and_the_config_checks_it(city):
+    assert with_eaves(city, 0.0) is city
+    assert LocalizerConfig.preset("legacy").map_eaves_m == 0.0  # the first design searched the map as is
+    assert LocalizerConfig.preset("no-eaves").map_eaves_m == 0.0 and LocalizerConfig().map_eaves_m == 0.5
+    for bad in (-0.1, 5.0, "0.5", True):
+        with pytest.raises(ParameterError, match="map_eaves_m"):
+            LocalizerConfig(map_eaves_m=bad)
+
+
+def test_the_localizer_searches_the_map_with_its_eaves(city):
+    cfg = LocalizerConfig(map_eaves_m=0.5)
+    loc = Localizer(city, cfg)
+    plain = localizer_scene(city, LocalizerConfig(map_eaves_m=0.0))
+    assert loc.scene.num_triangles == plain.num_triangles
+    assert not np.allclose(loc.scene.tri_xyz, plain.tri_xyz)  # the roofs moved
+    assert np.allclose(localizer_scene(city, cfg).tri_xyz, loc.scene.tri_xyz)  # deterministic
