@@ -300,6 +300,7 @@ def test_localize_intrinsics_from_exif_and_a_depth_backend_beside_a_mask_file(ex
         (("--depth", "cropped"), "does not have the photo's aspect"),
         (("--depth", "full", "--depth-backend", "files"), "not both"),
         (("--intrinsics", "exif"), "--intrinsics exif reads the photo's EXIF: give --image"),
+        (("--map-eaves", "-1"), "map_eaves_m must be a number of metres in [0, 3]"),
     ],
 )
 def test_localize_input_errors_are_one_line_before_localizing(exif_view, tmp_path, capsys, extra, needle):

@@ -90,6 +90,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_prior_sigma_argument(p)
     p.add_argument(
+        "--map-eaves",
+        type=float,
+        default=None,
+        metavar="M",
+        help="eaves (m) added to the map's pitched roofs before the search (default: the preset's, 0.5 m; "
+        "0 for a model whose roofs already overhang their walls)",
+    )
+    p.add_argument(
         "--method", default="semcityloc", choices=tuple(ABLATIONS), help="the method or one of its ablations"
     )
     p.add_argument("--seed", type=int, default=0)
@@ -150,12 +158,14 @@ def _query_inputs(args, camera):
 
 def run(args: argparse.Namespace) -> int:
     uncertainty = PriorUncertainty.parse(args.prior_sigma) if args.prior_sigma else None
+    config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
+    if args.map_eaves is not None:
+        config = replace(config, map_eaves_m=args.map_eaves)  # checked here, before anything loads
     _check_files(args)
     model = load_model_from_args(args)
     camera = _camera(args)
     prior_world = read_pose(args.prior)  # the model's CRS
     labels, depth = _query_inputs(args, camera)
-    config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
     localizer = Localizer(model, config)
     result = localizer.localize(
         camera, model.pose_to_local(prior_world), labels, depth, prior_uncertainty=uncertainty
