@@ -55,6 +55,7 @@ from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer, localizer_scene
 from semcityloc.localization.result import LOCALIZED
+from semcityloc.render.scene import RenderScene
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
@@ -137,7 +138,7 @@ def _simulate(args: tuple[int, Path]) -> None:
 def _init_localize(city: str, seed: int, queries: int, settings: dict, variants: list) -> None:
     spec = _spec(city, seed, queries, settings)
     model = load_map(spec.run_config())
-    scenes: dict[float, object] = {}  # one render scene per map (eaves); each Localizer adapts its classes
+    scenes: dict[float, RenderScene] = {}  # one per map (eaves); each Localizer adapts its classes
     localizers = []
     for name, cfg in variants:
         if cfg.map_eaves_m not in scenes:

@@ -961,9 +961,8 @@ def build_reality(
         )
     overhang = np.zeros(n_b)
     if params.overhang_m is not None:
-        corners, overhang = overhang_roofs(
-            corners, classes, building, n_b, params.overhang_m, knob_rng(4), params.overhang_flat_roofs
-        )
+        amount = knob_rng(4).uniform(params.overhang_m[0], params.overhang_m[1], n_b)
+        corners, overhang = overhang_roofs(corners, classes, building, amount, params.overhang_flat_roofs)
     if n_missing > 0 or params.roof_change_fraction > 0:
         is_building = np.isin(classes, BUILDING_CLASSES)
 

@@ -30,12 +30,12 @@ def overhang_roofs(
     corners: np.ndarray,
     classes: np.ndarray,
     building: np.ndarray,
-    n_buildings: int,
-    overhang_m: tuple[float, float],
-    rng: np.random.Generator,
+    overhang_m: np.ndarray,
     flat_roofs: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Roof overhangs (module docstring, item 4): (corners, overhang (B,) m, 0 where nothing moved).
+    """Roof overhangs of ``overhang_m`` (B,) metres per building (``building`` indexes it): (corners,
+    overhang (B,) m, 0 where nothing moved). ``flat_roofs=False``: a building whose roof is more than
+    half flat (within 10 deg of horizontal) gets none.
 
     Roof vertices closer than 1 cm are one vertex; a roof edge used by one roof triangle only whose two
     ends lie on the building's walls (within 3 cm in x, y) is an outline edge, its outward normal the one
@@ -44,9 +44,10 @@ def overhang_roofs(
     the building's overhang, or 0 on an edge shared with another building (a party wall: the roof
     slides along it, it does not grow into the neighbour); its height follows the adjacent roof planes
     (an eave drops by o x the slope), so the roof keeps its planes and meets the walls where it did."""
-    over = rng.uniform(overhang_m[0], overhang_m[1], n_buildings)
+    over = np.asarray(overhang_m, dtype=np.float64)
+    n_buildings = len(over)
     roof = np.flatnonzero(classes == SemanticClass.ROOF)
-    if len(roof) == 0 or overhang_m[1] <= 0:
+    if len(roof) == 0 or not np.any(over > 0):
         return corners, np.zeros(n_buildings)
     c = corners[roof]
     rb = building[roof]
@@ -130,14 +131,9 @@ def with_eaves(model: CityModel, overhang_m: float) -> CityModel:
     if not overhang_m > 0.0 or model.num_triangles == 0:
         return model
     corners = model.vertices[model.triangles].astype(np.float64)
+    amount = np.full(len(model.building_ids), float(overhang_m))
     moved, _ = overhang_roofs(
-        corners,
-        model.classes,
-        model.building_index.astype(np.int64),
-        len(model.building_ids),
-        (float(overhang_m), float(overhang_m)),
-        np.random.default_rng(0),  # a fixed amount: the draw returns it
-        flat_roofs=False,
+        corners, model.classes, model.building_index.astype(np.int64), amount, flat_roofs=False
     )
     return CityModel(
         origin=model.origin.copy(),
