@@ -40,7 +40,7 @@ from semcityloc.render import Renderer
 
 KERNEL_GROUPS = {
     "render": ("semcityloc.render.raster_numba", "semcityloc.render.terrain"),
-    "localize": ("semcityloc.localization.kernels",),
+    "localize": ("semcityloc.localization.kernels", "semcityloc.localization.resample"),
     "wireframe": ("semcityloc.baselines.edge_score",),
 }
 # Warmed, but used by no command (a worked example of a fused render-and-score kernel, and its tests).

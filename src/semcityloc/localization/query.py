@@ -15,14 +15,8 @@ import numpy as np
 
 from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
 from semcityloc.errors import ShapeError
+from semcityloc.localization.resample import majority_labels, mean_depth
 from semcityloc.localization.scoring import merge_openings_lut
-
-
-def _block_index(src_h: int, src_w: int, dst_h: int, dst_w: int) -> np.ndarray:
-    """(src_h, src_w) index of the target pixel each source pixel falls in."""
-    rows = (np.arange(src_h) * dst_h) // src_h
-    cols = (np.arange(src_w) * dst_w) // src_w
-    return rows[:, None] * dst_w + cols[None, :]
 
 
 def downsample_labels(labels: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -36,9 +30,7 @@ def downsample_labels(labels: np.ndarray, width: int, height: int) -> np.ndarray
         rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
         cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
         return labels[rows[:, None], cols[None, :]].astype(np.uint8)
-    idx = _block_index(h, w, height, width)
-    hist = np.bincount((idx * 256 + labels.astype(np.int64)).reshape(-1), minlength=height * width * 256)
-    return hist.reshape(height * width, 256).argmax(1).astype(np.uint8).reshape(height, width)
+    return majority_labels(np.ascontiguousarray(labels, dtype=np.uint8), height, width)
 
 
 def downsample_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -52,14 +44,7 @@ def downsample_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
         cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
         d = depth[rows[:, None], cols[None, :]]
         return np.where(np.isfinite(d) & (d > 0), d, np.nan)
-    idx = _block_index(h, w, height, width).reshape(-1)
-    d = depth.reshape(-1)
-    ok = np.isfinite(d) & (d > 0)
-    sums = np.bincount(idx[ok], weights=d[ok], minlength=height * width)
-    counts = np.bincount(idx[ok], minlength=height * width)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
-    return out.reshape(height, width)
+    return mean_depth(np.ascontiguousarray(depth), height, width)
 
 
 @dataclass

@@ -1,0 +1,66 @@
+"""The query's block downsampling (``localization/resample.py`` kernels behind ``query.py``): the majority
+label and the mean valid depth of each block, equal to the plain numpy form bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semcityloc.localization.query import Query, downsample_depth, downsample_labels
+
+
+def _blocks(h, w, dst_h, dst_w):
+    rows = (np.arange(h) * dst_h) // h
+    cols = (np.arange(w) * dst_w) // w
+    return rows[:, None] * dst_w + cols[None, :]
+
+
+def numpy_labels(labels, width, height):
+    idx = _blocks(*labels.shape, height, width)
+    hist = np.bincount((idx * 256 + labels.astype(np.int64)).ravel(), minlength=height * width * 256)
+    return hist.reshape(height * width, 256).argmax(1).astype(np.uint8).reshape(height, width)
+
+
+def numpy_depth(depth, width, height):
+    idx = _blocks(*depth.shape, height, width).ravel()
+    d = depth.ravel()
+    ok = np.isfinite(d) & (d > 0)
+    sums = np.bincount(idx[ok], weights=d[ok], minlength=height * width)
+    counts = np.bincount(idx[ok], minlength=height * width)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan).reshape(height, width)
+
+
+@pytest.mark.parametrize(("src", "dst"), [((384, 512), (48, 64)), ((97, 131), (24, 32)), ((50, 70), (49, 3))])
+def test_block_downsampling_equals_the_numpy_form_bit_for_bit(src, dst):
+    rng = np.random.default_rng(sum(src))
+    values = np.array([0, 1, 2, 3, 5, 255], np.uint8)
+    labels = rng.choice(values, size=src, p=[0.3, 0.3, 0.2, 0.1, 0.05, 0.05])
+    labels[: src[0] // 3, : src[1] // 2] = 2  # a uniform region, and ties at its edge
+    depth = rng.uniform(20.0, 200.0, size=src)
+    depth[rng.random(src) < 0.2] = np.nan
+    depth[rng.random(src) < 0.05] = -1.0
+    depth[: src[0] // 4, src[1] // 2 :] = np.nan  # blocks with no valid pixel at all
+    (dh, dw) = dst
+    assert np.array_equal(downsample_labels(labels, dw, dh), numpy_labels(labels, dw, dh))
+    got, want = downsample_depth(depth, dw, dh), numpy_depth(depth, dw, dh)
+    assert np.array_equal(np.isnan(got), np.isnan(want)) and np.isnan(got).any()
+    assert np.array_equal(got[~np.isnan(got)], want[~np.isnan(want)])  # bitwise, not approximately
+
+
+def test_majority_ties_go_to_the_smaller_label_and_each_block_votes_alone():
+    labels = np.array([[4, 1, 3, 3], [1, 4, 3, 0]], np.uint8)  # block 0: 4 and 1 tie; block 1: 3 wins
+    assert downsample_labels(labels, 2, 1).tolist() == [[1, 3]]
+    depth = np.array([[1.0, np.nan, 2.0, 0.0], [3.0, -5.0, np.inf, 4.0]])
+    assert downsample_depth(depth, 2, 1).tolist() == [[2.0, 3.0]]
+
+
+def test_a_query_at_the_search_resolution_keeps_the_class_shares():
+    rng = np.random.default_rng(3)
+    labels = np.zeros((96, 128), np.uint8)
+    labels[:, 64:] = 1
+    labels[rng.random(labels.shape) < 0.1] = 3  # sparse noise loses every vote
+    query = Query.from_arrays(labels, np.full(labels.shape, 50.0), has_openings=False)
+    small, depth = query.at(32, 24)
+    assert small.shape == (32 * 24,) and set(np.unique(small)) == {0, 1}
+    assert (small.reshape(24, 32)[:, 16:] == 1).all() and np.allclose(depth, 50.0)
