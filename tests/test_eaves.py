@@ -68,3 +68,14 @@ def test_the_localizer_searches_the_map_with_its_eaves(city):
     assert loc.scene.num_triangles == plain.num_triangles
     assert not np.allclose(loc.scene.tri_xyz, plain.tri_xyz)  # the roofs moved
     assert np.allclose(localizer_scene(city, cfg).tri_xyz, loc.scene.tri_xyz)  # deterministic
+
+
+def test_distinct_vertex_keys_match_numpys_unique_rows():
+    from semcityloc.citymodel.eaves import _unique_rows
+
+    rng = np.random.default_rng(5)
+    key = rng.integers(-3, 3, size=(500, 4))  # many repeats, negative values
+    first, inverse = _unique_rows(key)
+    _, want_first, want_inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    assert np.array_equal(first, want_first) and np.array_equal(inverse, want_inverse.reshape(-1))
+    assert len(_unique_rows(key[:0])[0]) == 0

@@ -26,6 +26,21 @@ def area_normal(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * norm, n / np.maximum(norm, 1e-12)[:, None]
 
 
+def _unique_rows(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(index of each distinct row's first occurrence, in the rows' lexicographic order; the distinct
+    row's number for every row) of an int (N, K) array: ``np.unique(key, axis=0, return_index=True,
+    return_inverse=True)[1:]`` by a stable lexsort, several times faster on large models."""
+    if not len(key):
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    order = np.lexsort(key.T[::-1])
+    ordered = key[order]
+    starts = np.ones(len(key), dtype=bool)
+    starts[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
+    inverse = np.empty(len(key), dtype=np.intp)
+    inverse[order] = np.cumsum(starts) - 1
+    return order[starts], inverse
+
+
 def overhang_roofs(
     corners: np.ndarray,
     classes: np.ndarray,
@@ -59,7 +74,7 @@ def overhang_roofs(
     pts = c.reshape(-1, 3)
     pb = np.repeat(rb, 3)
     key = np.column_stack([pb, np.round(pts / KEY_M).astype(np.int64)])
-    _, first, vid = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    first, vid = _unique_rows(key)
     vid = vid.reshape(-1, 3)
     vpos, vb = pts[first], pb[first]
     nv = len(first)
@@ -80,10 +95,13 @@ def overhang_roofs(
     bmask = np.isin(classes, BUILDING_CLASSES)
     axy = corners[bmask][:, :, :2].reshape(-1, 2)
     ab = np.repeat(building[bmask], 3)
-    akey = np.unique(np.column_stack([ab, np.round(axy / KEY_M).astype(np.int64)]), axis=0)
-    tree = cKDTree(akey[:, 1:] * KEY_M)
-    near = tree.query_ball_point(vpos[:, :2], 0.03)
-    shared = np.array([bool(np.any(akey[q, 0] != vb[i])) for i, q in enumerate(near)], dtype=bool)
+    akey = np.column_stack([ab, np.round(axy / KEY_M).astype(np.int64)])
+    akey = akey[_unique_rows(akey)[0]]
+    pairs = cKDTree(vpos[:, :2]).sparse_distance_matrix(
+        cKDTree(akey[:, 1:] * KEY_M), 0.03, output_type="ndarray"
+    )
+    shared = np.zeros(nv, dtype=bool)
+    shared[pairs["i"][akey[pairs["j"], 0] != vb[pairs["i"]]]] = True
 
     e = outline & on_wall[ea] & on_wall[eb]
     a, b, t = ea[e], eb[e], et[e]
