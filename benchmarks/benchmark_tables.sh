@@ -1,7 +1,7 @@
 #!/bin/bash
 # The runs behind the tables of docs/benchmark.md ("Results: realistic scenario", held-out seed and city,
 # the two real images, the knob sweeps): one `semcityloc benchmark` per row, resumable, then the report with the acceptance
-# table and the risk-coverage plot. About 45 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
+# table and the risk-coverage plot, and each main run's miss_causes.md. About 45 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
 # Needs ../shared/data beside the repository (the Berlin, Den Haag and real-image data).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -40,3 +40,7 @@ for KV in "prior_roll_pitch_sigma_deg 0,1,2 rp" "height_change_max_m 0,2,4 heigh
 done
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
 $S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html
+PY=${PYTHON:-.venv/bin/python}
+for RUN in berlin_semcityloc berlin_no-depth berlin_silhouette berlin_s1_semcityloc denhaag_semcityloc; do
+  $PY benchmarks/miss_causes.py "$R/$RUN" > "$R/$RUN/miss_causes.md"  # why each miss (docs/benchmark.md)
+done
