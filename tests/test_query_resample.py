@@ -48,6 +48,16 @@ def test_block_downsampling_equals_the_numpy_form_bit_for_bit(src, dst):
     assert np.array_equal(got[~np.isnan(got)], want[~np.isnan(want)])  # bitwise, not approximately
 
 
+def test_the_kernels_refuse_to_upsample():
+    from semcityloc.localization.resample import majority_labels, mean_depth
+
+    with pytest.raises(ValueError, match="only downsamples"):
+        majority_labels(np.zeros((4, 4), np.uint8), 8, 2)
+    with pytest.raises(ValueError, match="only downsamples"):
+        mean_depth(np.ones((4, 4)), 2, 0)
+    assert downsample_labels(np.eye(2, dtype=np.uint8), 4, 4).shape == (4, 4)  # the caller upsamples
+
+
 def test_majority_ties_go_to_the_smaller_label_and_each_block_votes_alone():
     labels = np.array([[4, 1, 3, 3], [1, 4, 3, 0]], np.uint8)  # block 0: 4 and 1 tie; block 1: 3 wins
     assert downsample_labels(labels, 2, 1).tolist() == [[1, 3]]

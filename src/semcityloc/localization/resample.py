@@ -6,9 +6,10 @@ fine sizes, depth there and at the depth checks' widths). The numpy form (a ``bi
 localization; these single passes over the source take about a millisecond.
 
 Target pixel of a source pixel: row ``(i * dst_h) // h``, column ``(j * dst_w) // w`` (contiguous blocks,
-every target pixel gets at least one source pixel when ``h >= dst_h`` and ``w >= dst_w``, which the callers
-check). Results equal the numpy form bit for bit: the majority takes the smallest label on ties, and a
-block's depth sum adds its pixels in row-major order, the order ``bincount`` adds them.
+every target pixel gets at least one source pixel when ``h >= dst_h`` and ``w >= dst_w``: the kernels
+refuse anything else, ``query.py`` upsamples by nearest neighbour instead). Results equal the numpy form
+bit for bit: the majority takes the smallest label on ties, and a block's depth sum adds its pixels in
+row-major order, the order ``bincount`` adds them.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from numba import njit
 def majority_labels(labels, dst_h, dst_w):
     """(dst_h, dst_w) uint8: the most frequent label of each block of ``labels`` (h, w) uint8."""
     h, w = labels.shape
+    if not (1 <= dst_h <= h and 1 <= dst_w <= w):
+        raise ValueError("majority_labels only downsamples: 1 <= target size <= source size")
     out = np.empty((dst_h, dst_w), np.uint8)
     cols = (np.arange(w) * dst_w) // w
     hist = np.zeros((dst_w, 256), np.int64)
@@ -55,6 +58,8 @@ def mean_depth(depth, dst_h, dst_w):
     """(dst_h, dst_w) float64: the mean of each block's finite positive values of ``depth`` (h, w) float64,
     NaN where a block has none."""
     h, w = depth.shape
+    if not (1 <= dst_h <= h and 1 <= dst_w <= w):
+        raise ValueError("mean_depth only downsamples: 1 <= target size <= source size")
     cols = (np.arange(w) * dst_w) // w
     sums = np.zeros((dst_h, dst_w))
     counts = np.zeros((dst_h, dst_w), np.int64)
