@@ -60,7 +60,8 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     assert summary["count"] == {"hit": 1, "near": 1, "refused-near": 1, "refused-wrong": 1, "wrong": 1}
     assert abs(summary["median_map_building_iou"]["hit"] - 900 / 1000) < 1e-9
     assert abs(summary["median_map_building_iou"]["refused-near"] - 300 / 1000) < 1e-9
-    assert summary["hits_by_map_building_iou"] == {"0-0.6": "0/2", "0.6-0.8": "0/1", "0.8-1.01": "1/2"}
+    assert summary["hits_by_map_building_iou"] == {"0-0.6": [0, 2], "0.6-0.8": [0, 1], "0.8-1.01": [1, 2]}
+    assert abs(summary["median_map_building_iou"]["misses"] - (0.3 + 0.6) / 2) < 1e-9  # of 0.9, 0.3, 0.3, 0.6
     table = [line for line in lines if line.startswith("| q") and not line.startswith("| query")]
     assert [line.split(" | ")[2] for line in table] == ["near", "refused-near", "refused-wrong", "wrong"]
     assert "1.5° / nan°" in table[0]  # the prior's roll error, unsigned; a missing pitch error says nan

@@ -80,7 +80,12 @@ def test_tables_group_runs_by_what_differs(tmp_path):
         ),
     ]
     report = make_report(runs, tmp_path / "report")
-    assert set(report.tables) == {"main", "lod", "seg_quality"}  # all runs share the prior noise
+    assert set(report.tables) == {"main", "lod", "seg_quality", "misses"}  # all runs share the prior noise
+    misses = {r["run"]: r for r in read_csv(report.tables["misses"][1])}
+    assert len(misses) == 3
+    m = next(r for label, r in misses.items() if "LoD2" in label and "zero" not in label)
+    # 2 m / 2 deg is a hit (<=), 4 m accepted is near, the refusal found nothing near; no map confusion here
+    assert (m["hit"], m["near"], m["refused-wrong"], m["wrong"], m["hits_agree"]) == ("2", "1", "1", "0", "–")
     assert any("prior_noise" in n for n in report.notes)
 
     # LoD table: only the runs that differ in nothing but the LoD (the zero-shot run has no LoD1 partner).
@@ -153,7 +158,10 @@ def two_runs(tmp_path_factory):
 def test_report_from_two_real_runs(two_runs, tmp_path):
     report = make_report([o.out_dir for o in two_runs], tmp_path / "report", overlays=2)
     # the runs differ only in the method; both have calibrated probabilities: an acceptance table
-    assert set(report.tables) == {"main", "acceptance"} and len(report.notes) == 3
+    assert set(report.tables) == {"main", "acceptance", "misses"} and len(report.notes) == 3
+    for row, outcome in zip(read_csv(report.tables["misses"][1]), two_runs, strict=True):
+        kinds = ("hit", "near", "refused-near", "refused-wrong", "wrong")
+        assert sum(int(row[k]) for k in kinds) == len(outcome.rows) == 2
     main = read_csv(report.tables["main"][1])
     assert [r["method"] for r in main] == ["semcityloc", "no-refine"]
     for row, outcome in zip(main, two_runs, strict=True):

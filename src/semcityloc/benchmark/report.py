@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from semcityloc.benchmark.miss_kinds import MISS_KINDS, summarize_misses
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
 from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE, SUMMARY_FILE
@@ -572,6 +573,12 @@ class ReportOutput:
 
 ACCEPT_THRESHOLDS = (0.3, 0.5, 0.7, 0.9)
 RIGHT_M, RIGHT_DEG = 5.0, 5.0  # "right" for the acceptance: the calibrated probability's own event
+MISSES_NOTE = (
+    "near: accepted within 5 m / 5° but beyond 2 m / 2°; refused-near: refused though the pose found was "
+    "within 5 m / 5°; refused-wrong: refused, rightly; wrong: accepted beyond 5 m / 5°. Map agreement: the "
+    "query mask's building IoU against the map's labels at the true pose (simulated runs): low where the "
+    "map differs from the world in view (`python benchmarks/miss_causes.py RUN` lists every miss)."
+)
 
 
 def acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
@@ -612,6 +619,30 @@ def risk_coverage_table(runs: list[RunData]) -> tuple[str, str]:
         ece = calibration_error(p, y)
         rows.append([run.label, str(len(p)), f"{100 * y.mean():.0f}", f"{ece:.3f}"] + cells)
         csv_rows.append([run.label, len(p), float(y.mean()), ece] + values)
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(csv_rows)
+    return markdown_table(headers, rows), buf.getvalue()
+
+
+def misses_table(runs: list[RunData]) -> tuple[str, str]:
+    """Per run: the hits and each kind of miss at 2 m / 2 deg (``miss_kinds``), the map's median building
+    agreement at the truth of the hits and of the misses, and the hits where the map agrees (>= 0.6)."""
+    headers = ["run", "queries", "hits", *MISS_KINDS, "map agreement at truth: hits / misses",
+               "hits where the map agrees ≥ 0.6"]  # fmt: skip
+    rows, csv_rows = [], [["run", "queries", "hit", *MISS_KINDS, "agree_hit", "agree_miss", "hits_agree"]]
+    for run in runs:
+        m = summarize_misses([r for r in run.rows if r["status"] != SKIPPED])
+        med = {k: float("nan") if v is None else v for k, v in m["median_map_building_iou"].items()}
+        agreeing = [v for k, v in m["hits_by_map_building_iou"].items() if float(k.split("-")[0]) >= 0.6]
+        hits_agree = f"{sum(h for h, _ in agreeing)} / {sum(n for _, n in agreeing)}" if agreeing else "–"
+        counts = [m["count"][k] for k in MISS_KINDS]
+        rows.append(
+            [run.label, str(m["queries"]), str(m["count"]["hit"]), *map(str, counts),
+             f"{_num(med['hit'], 2)} / {_num(med['misses'], 2)}", hits_agree]
+        )  # fmt: skip
+        csv_rows.append(
+            [run.label, m["queries"], m["count"]["hit"], *counts, med["hit"], med["misses"], hits_agree]
+        )
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(csv_rows)
     return markdown_table(headers, rows), buf.getvalue()
@@ -706,6 +737,15 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
         tables["acceptance"] = (md_path, csv_path)
         doc += [f"## {title}", "", md]
         plots.append(plot_risk_coverage(acceptance, out / "plots" / "risk_coverage.png"))
+    with_truth = [r for r in runs if any(row.get("err_xyz_m", "") != "" for row in r.rows)]
+    if with_truth:
+        md, csv_text = misses_table(with_truth)
+        md_path, csv_path = out / "tables" / "misses.md", out / "tables" / "misses.csv"
+        title = "Misses at 2 m / 2°, by kind, and the map's agreement with the world at the truth"
+        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
+        csv_path.write_text(csv_text, encoding="utf-8")
+        tables["misses"] = (md_path, csv_path)
+        doc += [f"## {title}", "", MISSES_NOTE, "", md]
     plots += _detail_figures(runs, out / "plots", overlays, notes)
     doc += ["## Figures", ""] + [f"![{p.stem}](plots/{p.name})" for p in plots]
     if notes:

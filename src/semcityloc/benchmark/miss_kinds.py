@@ -1,0 +1,96 @@
+"""What kind of miss each query of a run is, and how far the map agreed with the world where it looked.
+
+Why: a recall figure says how many queries were missed, not why. A miss at 2 m / 2 deg is one of
+
+- ``near``: accepted within 5 m / 5 deg but beyond the threshold (nadir views: the tilt-versus-shift ridge);
+- ``refused-near``: refused, though the pose found was within 5 m / 5 deg (the evidence judged too weak);
+- ``refused-wrong``: refused, and rightly (the pose found was farther);
+- ``wrong``: accepted and more than 5 m / 5 deg off (a confident wrong pose).
+
+The simulated scenarios record the query mask's confusion against the MAP's own labels at the true pose
+(``meta["map_confusion"]``). Its building-vs-rest IoU (``map_building_iou``) holds the segmentation's errors
+and the map's differences from the world; with a fair mask mIoU against the world (``query_miou``), a low
+value says the map is wrong where the camera looked: buildings missing, new, re-roofed or heightened since
+it was made. Misses gathered there are the map's, not the localizer's (``docs/benchmark.md``).
+Used by ``semcityloc report`` (the misses table) and ``benchmarks/miss_causes.py`` (one line per miss).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
+from semcityloc.localization.result import LOCALIZED
+
+NEAR_M, NEAR_DEG = 5.0, 5.0  # "near": the calibrated probability's own event
+MISS_KINDS = ("near", "refused-near", "refused-wrong", "wrong")
+# Bins of the map's building IoU at the truth for the hits-per-bin figure.
+MAP_AGREEMENT_BINS = ((0.0, 0.6), (0.6, 0.8), (0.8, 1.01))
+
+
+def _num(text) -> float:
+    return float(text) if text not in (None, "") else math.nan
+
+
+def map_building_iou(meta: dict) -> float:
+    """Building-vs-rest IoU of the query mask against the map's labels at the true pose (NaN without
+    ``map_confusion``). Symmetric, so the confusion's axis order does not matter."""
+    counts = meta.get("map_confusion")
+    if counts is None:
+        return math.nan
+    c = np.asarray(counts, dtype=np.int64).reshape(NUM_CLASSES, NUM_CLASSES)
+    b = list(BUILDING_CLASSES)
+    inter = c[np.ix_(b, b)].sum()
+    union = c[b, :].sum() + c[:, b].sum() - inter
+    return float(inter / union) if union else math.nan
+
+
+def row_agreement(row: dict[str, str]) -> float:
+    """``map_building_iou`` of a ``results.csv`` row (NaN when its meta has no confusion)."""
+    return map_building_iou(json.loads(row.get("meta_json") or "{}"))
+
+
+def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> str | None:
+    """A ``results.csv`` row's kind of miss at ``max_m`` / ``max_deg`` (module docstring); None: a hit."""
+    localized = row["status"] == LOCALIZED
+    if localized and _num(row["err_xyz_m"]) <= max_m and _num(row["err_rot_deg"]) <= max_deg:
+        return None
+    found_m, found_deg = _num(row.get("found_err_xyz_m")), _num(row.get("found_err_rot_deg"))
+    if localized and math.isnan(found_m):  # a results file without the found-pose columns
+        found_m, found_deg = _num(row["err_xyz_m"]), _num(row["err_rot_deg"])
+    near = found_m <= NEAR_M and found_deg <= NEAR_DEG
+    if not localized:
+        return "refused-near" if near else "refused-wrong"
+    return "near" if near else "wrong"
+
+
+def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: float = 2.0) -> dict:
+    """Over the rows with a true pose: the count of hits and of each kind of miss, the median map
+    agreement at the truth of the hits, of each kind and of all misses (None where no row has it), and
+    [hits, queries] per bin of that agreement (``MAP_AGREEMENT_BINS``; empty when no row has it)."""
+    rows = [r for r in rows if r.get("err_xyz_m", "") != ""]
+    kinds = [kind_of(r, max_m, max_deg) or "hit" for r in rows]
+    agree = np.array([row_agreement(r) for r in rows], dtype=np.float64)
+    count, median = {}, {}
+    for k in ("hit", *MISS_KINDS):
+        sel = np.array([x == k for x in kinds], dtype=bool)
+        count[k] = int(sel.sum())
+        known = agree[sel][np.isfinite(agree[sel])]
+        median[k] = float(np.median(known)) if known.size else None
+    hit = np.array([k == "hit" for k in kinds], dtype=bool)
+    missed = agree[~hit][np.isfinite(agree[~hit])]
+    median["misses"] = float(np.median(missed)) if missed.size else None
+    bins = {}
+    for lo, hi in MAP_AGREEMENT_BINS:
+        sel = (agree >= lo) & (agree < hi)
+        bins[f"{lo:g}-{hi:g}"] = [int(hit[sel].sum()), int(sel.sum())]
+    return {
+        "queries": len(rows),
+        "threshold": [max_m, max_deg],
+        "count": count,
+        "median_map_building_iou": median,
+        "hits_by_map_building_iou": bins if np.isfinite(agree).any() else {},
+    }
