@@ -666,6 +666,17 @@ def _slug(text: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in text).strip("_")[:60] or "run"
 
 
+def _write_table(
+    out: Path, tables: dict, name: str, title: str, md: str, csv_text: str, preface: str = ""
+) -> list[str]:
+    """Write ``tables/<name>.md`` and ``.csv``, record them in ``tables``; the report's lines for it."""
+    md_path, csv_path = out / "tables" / f"{name}.md", out / "tables" / f"{name}.csv"
+    md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
+    csv_path.write_text(csv_text, encoding="utf-8")
+    tables[name] = (md_path, csv_path)
+    return [f"## {title}", "", *([preface, ""] if preface else []), md]
+
+
 def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int = 2) -> ReportOutput:
     """Tables, plots and ``report.md`` from benchmark run folders (module docstring)."""
     if not run_dirs:
@@ -696,23 +707,12 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
             why = "all runs share" if factor not in differ else "no two runs differ only in"
             notes.append(f"table {name}: skipped, {why} {factor}")
             continue
-        md, csv_text = build_table(members, factor)
-        md_path, csv_path = out / "tables" / f"{name}.md", out / "tables" / f"{name}.csv"
-        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
-        csv_path.write_text(csv_text, encoding="utf-8")
-        tables[name] = (md_path, csv_path)
-        doc += [f"## {title}", "", md]
+        doc += _write_table(out, tables, name, title, *build_table(members, factor))
 
     for knob in sorted({r.config.get("sweep_knob") for r in runs} - {None}):
         members = [r for r in runs if r.config.get("sweep_knob") == knob]
-        md, csv_text = build_table(members, "sweep_value", hide=("q.",))
-        name = f"sweep_{_slug(knob)}"
-        md_path, csv_path = out / "tables" / f"{name}.md", out / "tables" / f"{name}.csv"
-        title = f"Sweep of `{knob}`"
-        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
-        csv_path.write_text(csv_text, encoding="utf-8")
-        tables[name] = (md_path, csv_path)
-        doc += [f"## {title}", "", md]
+        table = build_table(members, "sweep_value", hide=("q.",))
+        doc += _write_table(out, tables, f"sweep_{_slug(knob)}", f"Sweep of `{knob}`", *table)
         sweep_plots.append(
             plot_recall_vs_sweep(members, knob, out / "plots" / f"recall_vs_{_slug(knob)}.png")
         )
@@ -729,23 +729,13 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     plots += sweep_plots
     acceptance = [r for r in runs if acceptance_data(r) is not None]
     if acceptance:
-        md, csv_text = risk_coverage_table(acceptance)
-        md_path, csv_path = out / "tables" / "acceptance.md", out / "tables" / "acceptance.csv"
         title = "Acceptance: coverage and precision by probability threshold"
-        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
-        csv_path.write_text(csv_text, encoding="utf-8")
-        tables["acceptance"] = (md_path, csv_path)
-        doc += [f"## {title}", "", md]
+        doc += _write_table(out, tables, "acceptance", title, *risk_coverage_table(acceptance))
         plots.append(plot_risk_coverage(acceptance, out / "plots" / "risk_coverage.png"))
     with_truth = [r for r in runs if any(row.get("err_xyz_m", "") != "" for row in r.rows)]
     if with_truth:
-        md, csv_text = misses_table(with_truth)
-        md_path, csv_path = out / "tables" / "misses.md", out / "tables" / "misses.csv"
         title = "Misses at 2 m / 2°, by kind, and the map's agreement with the world at the truth"
-        md_path.write_text(f"## {title}\n\n{md}", encoding="utf-8")
-        csv_path.write_text(csv_text, encoding="utf-8")
-        tables["misses"] = (md_path, csv_path)
-        doc += [f"## {title}", "", MISSES_NOTE, "", md]
+        doc += _write_table(out, tables, "misses", title, *misses_table(with_truth), preface=MISSES_NOTE)
     plots += _detail_figures(runs, out / "plots", overlays, notes)
     doc += ["## Figures", ""] + [f"![{p.stem}](plots/{p.name})" for p in plots]
     if notes:
