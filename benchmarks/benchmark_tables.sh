@@ -20,6 +20,7 @@ done
 [ -f "$R/DenHaag/DenHaag_01.xml" ] || unzip -o -q $DATA/denhaag_lod2/DenHaag_01.zip -x '__MACOSX/*' -d "$R"
 for M in semcityloc no-depth; do
   $S benchmark --city $CITY --queries 100 --seed 1 --method $M --workers 2 --out "$R/berlin_s1_$M"
+  $S benchmark --city $CITY --queries 100 --seed 2 --method $M --workers 2 --out "$R/berlin_s2_$M"
   $S benchmark --city "$R/DenHaag/DenHaag_01.xml" --queries 50 --method $M --workers 2 --out "$R/denhaag_$M"
 done
 for S_ in 0 1 2 3 4 5; do
@@ -41,6 +42,6 @@ done
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
 $S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html
 PY=${PYTHON:-.venv/bin/python}
-for RUN in berlin_semcityloc berlin_no-depth berlin_silhouette berlin_s1_semcityloc denhaag_semcityloc; do
+for RUN in berlin_semcityloc berlin_no-depth berlin_silhouette berlin_s1_semcityloc berlin_s2_semcityloc denhaag_semcityloc; do
   $PY benchmarks/miss_causes.py "$R/$RUN" > "$R/$RUN/miss_causes.md"  # why each miss (docs/benchmark.md)
 done
