@@ -21,11 +21,8 @@ import math
 import sys
 from pathlib import Path
 
-from semcityloc.benchmark.miss_kinds import kind_of, row_agreement, summarize_misses
-
-
-def _num(text: str | None) -> float:
-    return float(text) if text not in (None, "") else math.nan
+from semcityloc.benchmark.miss_kinds import kind_of, map_building_iou, summarize_misses
+from semcityloc.benchmark.results import cell_float
 
 
 def main() -> int:
@@ -52,9 +49,10 @@ def main() -> int:
         meta = json.loads(r["meta_json"] or "{}")
         rp = (abs(meta.get("prior_roll_err_deg", math.nan)), abs(meta.get("prior_pitch_err_deg", math.nan)))
         print(
-            f"| {r['query_id']} | {r['view']} | {kind} | {_num(r['found_err_xyz_m']):.2f} m / "
-            f"{_num(r['found_err_rot_deg']):.2f}° | {_num(r['query_miou']):.0f} | {row_agreement(r):.2f} | "
-            f"{rp[0]:.1f}° / {rp[1]:.1f}° | {_num(r['probability']):.2f} |"
+            f"| {r['query_id']} | {r['view']} | {kind} | {cell_float(r['found_err_xyz_m']):.2f} m / "
+            f"{cell_float(r['found_err_rot_deg']):.2f}° | {cell_float(r['query_miou']):.0f} | "
+            f"{map_building_iou(meta):.2f} | "
+            f"{rp[0]:.1f}° / {rp[1]:.1f}° | {cell_float(r['probability']):.2f} |"
         )
     print(json.dumps({"run": str(args.run), **summarize_misses(rows, args.m, args.deg)}))
     return 0

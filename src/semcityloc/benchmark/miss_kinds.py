@@ -22,17 +22,16 @@ import math
 
 import numpy as np
 
+from semcityloc.benchmark.results import cell_float
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
 from semcityloc.localization.result import LOCALIZED
 
 NEAR_M, NEAR_DEG = 5.0, 5.0  # "near": the calibrated probability's own event
 MISS_KINDS = ("near", "refused-near", "refused-wrong", "wrong")
-# Bins of the map's building IoU at the truth for the hits-per-bin figure.
-MAP_AGREEMENT_BINS = ((0.0, 0.6), (0.6, 0.8), (0.8, 1.01))
-
-
-def _num(text) -> float:
-    return float(text) if text not in (None, "") else math.nan
+# Bins of the map's building IoU at the truth for the hits-per-bin figure; from MAP_AGREES up the map
+# agrees with the world in view.
+MAP_AGREES = 0.6
+MAP_AGREEMENT_BINS = ((0.0, MAP_AGREES), (MAP_AGREES, 0.8), (0.8, 1.01))
 
 
 def map_building_iou(meta: dict) -> float:
@@ -56,11 +55,11 @@ def row_agreement(row: dict[str, str]) -> float:
 def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> str | None:
     """A ``results.csv`` row's kind of miss at ``max_m`` / ``max_deg`` (module docstring); None: a hit."""
     localized = row["status"] == LOCALIZED
-    if localized and _num(row["err_xyz_m"]) <= max_m and _num(row["err_rot_deg"]) <= max_deg:
+    if localized and cell_float(row["err_xyz_m"]) <= max_m and cell_float(row["err_rot_deg"]) <= max_deg:
         return None
-    found_m, found_deg = _num(row.get("found_err_xyz_m")), _num(row.get("found_err_rot_deg"))
+    found_m, found_deg = cell_float(row.get("found_err_xyz_m")), cell_float(row.get("found_err_rot_deg"))
     if localized and math.isnan(found_m):  # a results file without the found-pose columns
-        found_m, found_deg = _num(row["err_xyz_m"]), _num(row["err_rot_deg"])
+        found_m, found_deg = cell_float(row["err_xyz_m"]), cell_float(row["err_rot_deg"])
     near = found_m <= NEAR_M and found_deg <= NEAR_DEG
     if not localized:
         return "refused-near" if near else "refused-wrong"
@@ -69,8 +68,9 @@ def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> st
 
 def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: float = 2.0) -> dict:
     """Over the rows with a true pose: the count of hits and of each kind of miss, the median map
-    agreement at the truth of the hits, of each kind and of all misses (None where no row has it), and
-    [hits, queries] per bin of that agreement (``MAP_AGREEMENT_BINS``; empty when no row has it)."""
+    agreement at the truth of the hits, of each kind and of all misses (None where no row has it),
+    [hits, queries] per bin of that agreement (``MAP_AGREEMENT_BINS``) and where it is at least
+    ``MAP_AGREES`` (empty / None when no row has it)."""
     rows = [r for r in rows if r.get("err_xyz_m", "") != ""]
     kinds = [kind_of(r, max_m, max_deg) or "hit" for r in rows]
     agree = np.array([row_agreement(r) for r in rows], dtype=np.float64)
@@ -87,10 +87,13 @@ def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: fl
     for lo, hi in MAP_AGREEMENT_BINS:
         sel = (agree >= lo) & (agree < hi)
         bins[f"{lo:g}-{hi:g}"] = [int(hit[sel].sum()), int(sel.sum())]
+    agrees = agree >= MAP_AGREES
+    known_any = bool(np.isfinite(agree).any())
     return {
         "queries": len(rows),
         "threshold": [max_m, max_deg],
         "count": count,
         "median_map_building_iou": median,
-        "hits_by_map_building_iou": bins if np.isfinite(agree).any() else {},
+        "hits_by_map_building_iou": bins if known_any else {},
+        "hits_where_map_agrees": [int(hit[agrees].sum()), int(agrees.sum())] if known_any else None,
     }

@@ -633,8 +633,8 @@ def misses_table(runs: list[RunData]) -> tuple[str, str]:
     for run in runs:
         m = summarize_misses([r for r in run.rows if r["status"] != SKIPPED])
         med = {k: float("nan") if v is None else v for k, v in m["median_map_building_iou"].items()}
-        agreeing = [v for k, v in m["hits_by_map_building_iou"].items() if float(k.split("-")[0]) >= 0.6]
-        hits_agree = f"{sum(h for h, _ in agreeing)} / {sum(n for _, n in agreeing)}" if agreeing else "–"
+        agrees = m["hits_where_map_agrees"]
+        hits_agree = f"{agrees[0]} / {agrees[1]}" if agrees else "–"
         counts = [m["count"][k] for k in MISS_KINDS]
         rows.append(
             [run.label, str(m["queries"]), str(m["count"]["hit"]), *map(str, counts),

@@ -310,7 +310,8 @@ def map_miou(rows: list[dict[str, str]]) -> dict[str, float]:
     }
 
 
-def _float(text: str) -> float:
+def cell_float(text: str | None) -> float:
+    """A numeric ``results.csv`` cell as a float, NaN where it is empty."""
     return float(text) if text not in ("", None) else float("nan")
 
 
@@ -323,7 +324,9 @@ def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
     skipped = sum(r["status"] == SKIPPED for r in rows)
     every = sorted((r for r in rows if r["status"] != SKIPPED), key=lambda r: int(r["index"]))
     ordered = [r for r in every if r["err_xyz_m"] != ""]  # rows with a true pose have an error
-    err = {c: np.array([_float(r[c]) for r in ordered]) for c in ("err_xyz_m", "err_rot_deg", "err_yaw_deg")}
+    err = {
+        c: np.array([cell_float(r[c]) for r in ordered]) for c in ("err_xyz_m", "err_rot_deg", "err_yaw_deg")
+    }
     localized = np.array([r["status"] == LOCALIZED for r in ordered], dtype=bool)
 
     def errors_of(sel: np.ndarray) -> dict:
@@ -338,8 +341,8 @@ def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
         n_loc = sum(r["status"] == LOCALIZED for r in every)
         s.update(queries=len(every), localized=n_loc, not_localized=len(every) - n_loc)
     s["skipped"] = skipped
-    miou = np.array([_float(r["query_miou"]) for r in every])
-    total = np.array([_float(r["t_total_s"]) for r in every])
+    miou = np.array([cell_float(r["query_miou"]) for r in every])
+    total = np.array([cell_float(r["t_total_s"]) for r in every])
     s["mean_query_miou"] = float(np.nanmean(miou)) if np.isfinite(miou).any() else float("nan")
     s["sec_per_image"] = float(np.nanmean(total)) if np.isfinite(total).any() else float("nan")
     s["sec_per_image_median"] = float(np.nanmedian(total)) if np.isfinite(total).any() else float("nan")
