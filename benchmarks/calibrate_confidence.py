@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/calibrate_confidence.py [--queries 60] [--workers 2] [--cache DIR] [--write]
         [--fit-city generated --fit-city FUERTH ...] [--check-city BERLIN ...] [--seed 0]
+        [--cross-city [--without FEATURE] [--reached]]
 
 Fit data (never a reporting city): the realistic scenario on the generated city and Fürth, with every
 segmentation quality (trained, medium, zero-shot) and with the paper's extra prior errors (20-30 and
@@ -16,6 +17,12 @@ answer (within 5 m and 5 deg of the truth or not). One sign-constrained logistic
 Check (``--check-city``, default Berlin, seed 1 so that no benchmark query is reused): the same
 conditions; prints the expected calibration error (10 bins), the Brier score, and the risk-coverage
 curve (coverage and precision at the acceptance probabilities 0.3 ... 0.9) of each model.
+
+``--cross-city`` (judging a feature on the calibration cities alone): each model is fitted on one
+calibration city and checked on the other, both ways; with ``--without NAME`` the same is done without
+that feature too, side by side (ECE, log-loss, right and wrong poses accepted at p >= 0.5). With
+``--reached`` the check counts only the results that reached the acceptance (the population the model
+is applied to), and each model is fitted both on every row and on those.
 
 ``--cache DIR`` keeps every condition's features (``DIR/<city>_<condition>_<seed>_<queries>_<code>.json``,
 ``<code>`` the package's ``code_fingerprint``), so a refit does not localize again, and features made by
@@ -166,6 +173,48 @@ def report(model, X: np.ndarray, y: np.ndarray, label: str) -> dict:
     return {"n": len(y), "ece": ece, "brier": brier, "at": at, "curve": curve}
 
 
+def _decisions(model, X: np.ndarray, y: np.ndarray) -> str:
+    p = np.clip(model.probability_of(X), 1e-9, 1 - 1e-9)
+    log_loss = float(-np.mean(y * np.log(p) + (1 - y) * np.log(1 - p)))
+    acc = p >= 0.5
+    return (
+        f"ECE {calibration_error(p, y):.3f} log-loss {log_loss:.3f} "
+        f"right accepted {int((acc & (y == 1)).sum())}/{int(y.sum())} "
+        f"wrong accepted {int((acc & (y == 0)).sum())}/{int((y == 0).sum())}"
+    )
+
+
+def reached_acceptance(rows: list[dict]) -> list[dict]:
+    """The rows whose localization reached the acceptance (not stopped on the volume's edge or earlier:
+    those keep a pose but no scores, and are refused whatever the probability)."""
+    return [row for row in rows if row.get("reason") is None and "features" in row]
+
+
+def cross_city(rows_by_city: dict[str, list[dict]], without: str | None, reached: bool = False) -> None:
+    """Fit on each calibration city, check on the other; with ``without`` also without that feature; with
+    ``reached`` checked on the rows that reached the acceptance only, fitted on every row and on those."""
+    for (kind, with_depth), variant in VARIANTS.items():
+        names = FEATURES_DEPTH if with_depth else FEATURES_NO_DEPTH
+        sets = {"all": names}
+        if without is not None:
+            sets[f"without {without}"] = tuple(n for n in names if n != without)
+        for fit_city, fit_rows in rows_by_city.items():
+            fits = {"": fit_rows}
+            if reached:
+                fits = {", fit on every row": fit_rows, ", fit on the reached": reached_acceptance(fit_rows)}
+            for check_city, check_rows in rows_by_city.items():
+                if check_city == fit_city:
+                    continue
+                checked = reached_acceptance(check_rows) if reached else check_rows
+                for label, feats in sets.items():
+                    for fit_label, rows in fits.items():
+                        model = fit_logistic(*matrix(rows, variant, feats), feats, kind, with_depth)
+                        print(
+                            f"{variant} {fit_city} -> {check_city}, {label}{fit_label}: "
+                            + _decisions(model, *matrix(checked, variant, feats))
+                        )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--fit-city", action="append", default=None)
@@ -176,7 +225,20 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--write", action="store_true", help="save the fitted models into the package")
+    ap.add_argument("--cross-city", action="store_true", help="fit on one calibration city, check on another")
+    ap.add_argument("--without", default=None, help="with --cross-city: also without this feature")
+    ap.add_argument(
+        "--reached",
+        action="store_true",
+        help="with --cross-city: check on the results that reached the acceptance",
+    )
     args = ap.parse_args()
+    if args.without is not None and args.without not in FEATURES_DEPTH:
+        print(
+            f"--without: unknown feature {args.without!r}; one of {', '.join(FEATURES_DEPTH)}",
+            file=sys.stderr,
+        )
+        return 2
 
     fit_cities = args.fit_city or calibration_cities(SHARED)
     try:
@@ -187,10 +249,19 @@ def main() -> int:
     check_cities = (
         args.check_city if args.check_city is not None else ([str(BERLIN)] if BERLIN.exists() else [])
     )
-    fit_rows, check_rows = [], []
-    for city in fit_cities:
-        for cond in CONDITIONS:
-            fit_rows += condition_rows(city, args.seed, args.queries, cond, args.workers, args.cache)
+    by_city = {
+        Path(city).stem: [
+            row
+            for cond in CONDITIONS
+            for row in condition_rows(city, args.seed, args.queries, cond, args.workers, args.cache)
+        ]
+        for city in fit_cities
+    }
+    if args.cross_city:
+        cross_city(by_city, args.without, args.reached)
+        return 0
+    fit_rows = [row for rows in by_city.values() for row in rows]
+    check_rows = []
     for city in check_cities:
         for cond in CONDITIONS:
             check_rows += condition_rows(city, args.check_seed, args.queries, cond, args.workers, args.cache)

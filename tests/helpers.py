@@ -1,7 +1,11 @@
-"""Small shared helpers of the localizer tests (not a test module): the test camera and views of the
-generated city (``conftest.generated_lod2``)."""
+"""Small shared helpers of the tests (not a test module): the test camera and views of the generated city
+(``conftest.generated_lod2``), and the scripts of ``benchmarks/`` loaded as modules."""
 
 from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -22,3 +26,12 @@ def perturbed(pose: Pose, dxyz, droll=0.0, dpitch=0.0, dyaw=0.0) -> Pose:
     """``pose`` moved by ``dxyz`` (m) and turned by the angle offsets (deg)."""
     x, y, z, roll, pitch, yaw = pose.to_xyz_rpy()
     return Pose.from_xyz_rpy(np.array([x, y, z]) + dxyz, roll + droll, pitch + dpitch, yaw + dyaw)
+
+
+def benchmark_script(name: str) -> ModuleType:
+    """``benchmarks/<name>.py`` loaded as a module (the scripts are not a package)."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from helpers import benchmark_script
 from semcityloc.localization.config import LocalizerConfig
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_configs.py"
@@ -16,10 +16,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_configs.p
 
 @pytest.fixture(scope="module")
 def compare():
-    spec = importlib.util.spec_from_file_location("compare_configs", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_script("compare_configs")
 
 
 def test_variant_overrides_reach_nested_configs(compare):

@@ -1,0 +1,40 @@
+"""``benchmarks/calibrate_confidence.py --cross-city``: judging a confidence feature on the calibration
+cities alone (fit on one, check on the other, with and without it)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers import benchmark_script
+from semcityloc.localization.confidence import FEATURES_DEPTH, FEATURES_NO_DEPTH
+
+
+@pytest.fixture(scope="module")
+def calibrate():
+    return benchmark_script("calibrate_confidence")
+
+
+def _rows(seed: int, n: int = 300) -> list[dict]:
+    """Rows of every variant where only ``building_iou`` tells right from wrong."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for variant in ("semcityloc", "no-depth", "silhouette"):
+        names = FEATURES_DEPTH if variant == "semcityloc" else FEATURES_NO_DEPTH
+        for _ in range(n):
+            right = bool(rng.random() < 0.6)
+            feats = {name: float(rng.normal()) for name in names}
+            feats["building_iou"] = float(rng.normal(1.5 if right else -1.5))
+            out.append({"variant": variant, "right": right, "features": feats})
+    return out
+
+
+def test_cross_city_shows_what_a_feature_is_worth(calibrate, capsys):
+    calibrate.cross_city({"a": _rows(0), "b": _rows(1)}, "building_iou")
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 * 2 * 2  # three models, two directions, with and without
+    for with_it, without in zip(lines[::2], lines[1::2], strict=True):
+        assert ", all:" in with_it and ", without building_iou:" in without
+        loss_with = float(with_it.split("log-loss ")[1].split()[0])
+        loss_without = float(without.split("log-loss ")[1].split()[0])
+        assert loss_with < 0.3 < 0.6 < loss_without  # informative vs. chance (log 2 = 0.69)
