@@ -6,8 +6,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from helpers import CAMERA, perturbed, view
+from semcityloc.classes import BUILDING_CLASSES
 from semcityloc.errors import ParameterError, PoseError, ShapeError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
@@ -394,3 +396,44 @@ def test_pivot_refinement_localizes_and_unknown_pivot_is_refused(city, localizer
         assert center_error_m(r.pose_local, truth) < 0.5 and rotation_error_deg(r.pose_local, truth) < 0.5
     with pytest.raises(ParameterError, match="pivot"):
         replace(localizer.config.refine, pivot="orbit")
+
+
+def _largest_detached_building_in_view(city, renderer, pose) -> int:
+    """Index of the building that covers most pixels of the view from ``pose`` among those whose image
+    region touches no other building (an attached one merges with its neighbours' region: not a whole
+    building on one side only)."""
+    ids = renderer.render(CAMERA, pose, face_ids=True).face_ids[0]
+    tri = np.where(ids >= 0, renderer.scene.source_triangle[np.maximum(ids, 0)], -1)
+    building = np.where(tri >= 0, city.building_index[np.maximum(tri, 0)], -1)
+    building[(tri < 0) | ~np.isin(city.classes[np.maximum(tri, 0)], list(BUILDING_CLASSES))] = -1
+    regions, _ = ndimage.label(building >= 0, np.ones((3, 3), dtype=bool))
+    counts = np.bincount(building[building >= 0])
+    for b in np.argsort(counts)[::-1]:
+        touched = np.unique(building[np.isin(regions, np.unique(regions[building == b]))])
+        if set(touched) == {b}:
+            return int(b)
+    raise AssertionError("no detached building in view")
+
+
+def test_buildings_on_one_side_only_are_reported_with_the_pose(city, localizer, renderer):
+    true = view(city, *CASES["nadir"][0])
+    prior = perturbed(true, np.array([4.0, 3.0, 1.0]), 0.3, -0.3, 3.0)
+    gone = _largest_detached_building_in_view(city, renderer, true)
+    without = city.select(city.building_index != gone)
+    # The image shows a building the map lacks (built after the survey) ...
+    result = Localizer(without).localize(CAMERA, prior, renderer.render(CAMERA, true).labels[0])
+    assert center_error_m(result.found_pose_local, true) < 1.0
+    assert result.confidence["unmapped_building_share"] >= 0.02
+    assert result.confidence["unseen_building_share"] == 0.0
+    assert any("the image shows buildings the map lacks" in w for w in result.warnings)
+    # ... and the map has one the image does not show (torn down).
+    labels = Renderer(without, engine="numba").render(CAMERA, true).labels[0]
+    result = localizer.localize(CAMERA, prior, labels)
+    assert center_error_m(result.found_pose_local, true) < 1.0
+    assert result.confidence["unseen_building_share"] >= 0.02
+    assert result.confidence["unmapped_building_share"] == 0.0
+    assert any("the map has buildings the image does not show" in w for w in result.warnings)
+    # The same view of an unchanged map says nothing of the kind.
+    result = localizer.localize(CAMERA, prior, renderer.render(CAMERA, true).labels[0])
+    assert result.confidence["unmapped_building_share"] == result.confidence["unseen_building_share"] == 0.0
+    assert not any("buildings" in w for w in result.warnings)

@@ -9,9 +9,9 @@ newline: the process died mid-write) is cut off, and the ids already there are s
 order (``--workers``); each id appears once. Poses: the map model's local frame (x y z m, roll pitch yaw
 deg) + world x y z (``origin + local``); errors: camera-centre distance (m), full rotation angle and yaw
 (deg), "inf" when not localized; timings in s; ``warnings``: what the localizer ignored and why (a depth map
-dropped, ``LocalizationResult.warnings``), joined by `` | ``, empty when none. A ``results.csv`` written
-before a column of ``ADDED_COLUMNS`` existed still resumes: it is rewritten with that column (empty) before
-rows are appended, so every line matches the header.
+dropped) or noticed (buildings the map lacks; ``LocalizationResult.warnings``), joined by `` | ``, empty
+when none. A ``results.csv`` written before a column of ``ADDED_COLUMNS`` existed still resumes: it is
+rewritten with that column (empty) before rows are appended, so every line matches the header.
 
 ``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
 coarse poses, the coarse cost volume and its axes, for the report's figures; written atomically BEFORE the

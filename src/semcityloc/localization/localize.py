@@ -23,11 +23,12 @@ import numpy as np
 
 from semcityloc.citymodel.eaves import with_eaves
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES, SemanticClass
+from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass
 from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.localization.agreement import BuildingAgreement, building_agreement
 from semcityloc.localization.cascade import local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
 from semcityloc.localization.confidence import confidence_model
@@ -136,7 +137,11 @@ class Localizer:
         if result.reason is not None:
             return self._finish(result, result.reason, t0)
 
-        result.confidence["building_iou"] = self._building_iou(fine.camera, result.pose_local, fine.labels)
+        agreement = self._agreement(fine.camera, result.pose_local, fine.labels)
+        result.confidence["building_iou"] = agreement.building_iou
+        result.confidence["unmapped_building_share"] = agreement.unmapped_share
+        result.confidence["unseen_building_share"] = agreement.unseen_share
+        result.warnings.extend(agreement.warnings())
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         with_depth = query.depth is not None
@@ -405,14 +410,10 @@ class Localizer:
         """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
         return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)
 
-    def _building_iou(self, camera: Camera, pose_local: Pose, query_flat: np.ndarray) -> float:
-        """Building (wall/roof/window/door) vs rest IoU at one pose, ignoring query background/ignore."""
-        labels = self._render_one(camera, pose_local).labels.reshape(1, -1)
-        valid = (query_flat != 0) & (query_flat != IGNORE)
-        r = np.isin(labels[0], BUILDING_CLASSES)[valid]
-        q = np.isin(query_flat, BUILDING_CLASSES)[valid]
-        union = np.count_nonzero(r | q)
-        return float(np.count_nonzero(r & q) / union) if union else 0.0
+    def _agreement(self, camera: Camera, pose_local: Pose, query_flat: np.ndarray) -> BuildingAgreement:
+        """How the buildings rendered at one pose agree with the query's (``agreement.py``)."""
+        labels = self._render_one(camera, pose_local).labels.reshape(camera.height, camera.width)
+        return building_agreement(query_flat.reshape(camera.height, camera.width), labels)
 
 
 def localizer_scene(

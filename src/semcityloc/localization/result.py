@@ -37,7 +37,9 @@ class LocalizationResult:
     probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume searched, its
     extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores, best first.
     ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never a result).
-    ``warnings``: what the localizer ignored and why (a depth map dropped as unusable).
+    ``warnings``: what the localizer ignored and why (a depth map dropped as unusable), and what it
+    noticed about the map at the found pose (buildings on one side only: ``agreement.py``; the shares are
+    ``confidence["unmapped_building_share"]`` and ``confidence["unseen_building_share"]``).
     """
 
     status: str

@@ -1,0 +1,97 @@
+"""Whole buildings on one side only (localization/agreement.py): the hint that the map is outdated."""
+
+import numpy as np
+import pytest
+
+from helpers import benchmark_script
+from semcityloc.classes import IGNORE, SemanticClass
+from semcityloc.localization.agreement import MIN_REGION_SHARE, WARN_SHARE, building_agreement
+
+G, R, W = int(SemanticClass.GROUND), int(SemanticClass.ROOF), int(SemanticClass.WALL)
+
+
+def _scene(*boxes: tuple[int, int, int, int]) -> np.ndarray:
+    """40 x 60 ground with roof boxes (row0, row1, col0, col1)."""
+    out = np.full((40, 60), G, dtype=np.uint8)
+    for r0, r1, c0, c1 in boxes:
+        out[r0:r1, c0:c1] = R
+    return out
+
+
+A, B = (5, 15, 5, 20), (20, 35, 30, 50)  # 150 and 300 pixels of 2,400
+
+
+def test_the_same_buildings_agree():
+    a = building_agreement(_scene(A, B), _scene(A, B))
+    assert a.building_iou == 1.0 and a.unmapped_share == 0.0 and a.unseen_share == 0.0
+    assert a.warnings() == []
+
+
+def test_a_building_the_map_lacks_and_one_the_image_lacks():
+    lacks = building_agreement(_scene(A, B), _scene(A))  # B built after the survey
+    assert lacks.building_iou == pytest.approx(150 / 450)
+    assert lacks.unmapped_share == pytest.approx(300 / 2400) and lacks.unseen_share == 0.0
+    (warning,) = lacks.warnings()
+    assert "the image shows buildings the map lacks (12 %" in warning and "or the pose wrong" in warning
+    gone = building_agreement(_scene(A), _scene(A, B))  # B torn down
+    assert gone.unseen_share == pytest.approx(300 / 2400) and gone.unmapped_share == 0.0
+    (warning,) = gone.warnings()
+    assert "the map has buildings the image does not show (12 %" in warning
+
+
+def test_shifted_buildings_are_not_a_change():
+    a = building_agreement(_scene(A, B), _scene((7, 17, 8, 23), (22, 37, 33, 53)))  # a pose a little off
+    assert a.building_iou < 0.7 and a.unmapped_share == 0.0 and a.unseen_share == 0.0
+
+
+def test_a_barely_touched_region_counts_and_a_half_covered_one_does_not():
+    barely = building_agreement(_scene(A, B), _scene(A, (20, 35, 48, 60)))  # 10 % of B, 17 % of the box
+    assert barely.unmapped_share == pytest.approx(300 / 2400)
+    assert barely.unseen_share == pytest.approx(180 / 2400)
+    half = building_agreement(_scene(A, B), _scene(A, (20, 35, 40, 60)))
+    assert half.unmapped_share == 0.0 and half.unseen_share == 0.0
+
+
+def test_noise_blobs_are_not_buildings_the_map_lacks():
+    query = _scene(A)
+    query[30, 40] = R  # one stray pixel: below MIN_REGION_SHARE
+    assert 1 / 2400 < MIN_REGION_SHARE
+    a = building_agreement(query, _scene(A))
+    assert a.unmapped_share == 0.0 and a.warnings() == []
+    small = _scene(A, (30, 33, 40, 44))  # 12 pixels: counted, but under WARN_SHARE
+    a = building_agreement(small, _scene(A))
+    assert 0.0 < a.unmapped_share < WARN_SHARE and a.warnings() == []
+
+
+def test_ignored_and_background_pixels_are_left_out():
+    query, render = _scene(A), _scene(A)
+    query[0:3, :] = IGNORE
+    render[0:3, :] = W  # buildings rendered where the query does not know: not counted
+    query[38:40, :] = int(SemanticClass.BACKGROUND)
+    render[38:40, :] = R  # nor where the query sees sky or trees
+    a = building_agreement(query, render)
+    assert a.building_iou == 1.0 and a.unseen_share == 0.0
+
+
+def test_nothing_labelled_gives_zeros():
+    empty = np.zeros((40, 60), dtype=np.uint8)
+    nothing = building_agreement(empty, empty)
+    assert nothing.building_iou == nothing.unmapped_share == nothing.unseen_share == 0.0
+    assert building_agreement(empty, _scene(A)) == nothing  # buildings rendered where the query sees none
+    assert building_agreement(_scene(), _scene()) == nothing  # ground only
+
+
+def test_shapes_must_match():
+    with pytest.raises(ValueError, match="same 2D shape"):
+        building_agreement(_scene(A), _scene(A)[:, :30])
+
+
+def test_the_warning_study_counts_warnings_against_real_changes():
+    study = benchmark_script("map_change_warnings")
+    rows = [
+        {"right": True, "warned": [True, False], "real": [True, False]},  # a new building, seen
+        {"right": True, "warned": [True, False], "real": [False, False]},  # warned, nothing changed
+        {"right": True, "warned": [False, False], "real": [True, True]},  # both missed
+        {"right": False, "warned": [True, True], "real": [False, False]},  # a wrong pose
+    ]
+    assert study.row("x", rows) == "| x | 3 | 2 / 1 / 1 | 0 / 0 / 1 | 1 of 1 |"
