@@ -4,7 +4,9 @@ Every query missed at ``--m`` metres / ``--deg`` degrees is one kind (``benchmar
 refused-near, refused-wrong, wrong). Printed with each miss: the view, the query mask's mIoU against the
 simulated world (``query_miou``: the segmentation's errors), the mask's **building IoU against the map at
 the true pose** (``miss_kinds.map_building_iou``: low with a fair ``query_miou`` = the map is wrong where
-the camera looked), the prior's roll and pitch errors, and the acceptance's probability.
+the camera looked), the prior's roll and pitch errors, the acceptance's probability, and the outdated-map
+warnings the result carried (``localization.agreement``: "map lacks" buildings the image shows, "image
+lacks" buildings the map has; what a run on real photos has instead of the map's agreement).
 
     python benchmarks/miss_causes.py RUN_DIR [--m 2 --deg 2]
 
@@ -23,6 +25,16 @@ from pathlib import Path
 
 from semcityloc.benchmark.miss_kinds import kind_of, map_building_iou, summarize_misses
 from semcityloc.benchmark.results import cell_float
+from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
+
+
+def map_warnings(row: dict[str, str]) -> str:
+    """The outdated-map warnings of a ``results.csv`` row, short ("map lacks", "image lacks"), or "-"."""
+    text = row.get("warnings") or ""
+    said = [
+        name for name, w in (("map lacks", UNMAPPED_WARNING), ("image lacks", UNSEEN_WARNING)) if w in text
+    ]
+    return ", ".join(said) or "-"
 
 
 def main() -> int:
@@ -39,9 +51,9 @@ def main() -> int:
         rows = [r for r in csv.DictReader(fh) if r["status"] != "skipped" and r["err_xyz_m"] != ""]
     print(
         "| query | view | kind | found error | query mIoU | map building IoU at truth "
-        "| prior roll / pitch error | p |"
+        "| prior roll / pitch error | p | map warning |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         kind = kind_of(r, args.m, args.deg)
         if kind is None:
@@ -52,7 +64,7 @@ def main() -> int:
             f"| {r['query_id']} | {r['view']} | {kind} | {cell_float(r['found_err_xyz_m']):.2f} m / "
             f"{cell_float(r['found_err_rot_deg']):.2f}° | {cell_float(r['query_miou']):.0f} | "
             f"{map_building_iou(meta):.2f} | "
-            f"{rp[0]:.1f}° / {rp[1]:.1f}° | {cell_float(r['probability']):.2f} |"
+            f"{rp[0]:.1f}° / {rp[1]:.1f}° | {cell_float(r['probability']):.2f} | {map_warnings(r)} |"
         )
     print(json.dumps({"run": str(args.run), **summarize_misses(rows, args.m, args.deg)}))
     return 0

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.classes import NUM_CLASSES, SemanticClass
+from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "miss_causes.py"
 FIELDS = "query_id status view query_miou err_xyz_m err_rot_deg found_err_xyz_m found_err_rot_deg probability"
@@ -27,6 +28,12 @@ def _confusion(agree: int, disagree: int) -> list[int]:
     return c.reshape(-1).tolist()
 
 
+WARNED = {  # what the localizer said about the map (localization.agreement), as results.csv keeps it
+    "q2": f"{UNMAPPED_WARNING} (12 % ...) | {UNSEEN_WARNING} (3 % ...)",
+    "q4": f"depth map dropped: ... | {UNSEEN_WARNING} (5 % ...)",
+}
+
+
 def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     rows = [  # (status, error, found error, map agreement in pixels)
         ("q0", "localized", 0.5, 0.5, 900, 50),  # hit
@@ -37,7 +44,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
         ("q5", "skipped", "", "", 0, 0),  # not a query: left out
     ]
     with (tmp_path / "results.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, [*FIELDS.split(), "meta_json"])
+        w = csv.DictWriter(fh, [*FIELDS.split(), "warnings", "meta_json"])
         w.writeheader()
         for qid, status, err, found, agree, disagree in rows:
             w.writerow(
@@ -46,6 +53,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
                     err_xyz_m=err if err != "" else (found if status != "skipped" else ""),
                     err_rot_deg=0.5 if status != "skipped" else "", found_err_xyz_m=found,
                     found_err_rot_deg=0.5 if found != "" else "",
+                    warnings=WARNED.get(qid, ""),
                     meta_json=json.dumps(
                         {"map_confusion": _confusion(agree, disagree), "prior_roll_err_deg": -1.5}
                     ),
@@ -65,6 +73,12 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     table = [line for line in lines if line.startswith("| q") and not line.startswith("| query")]
     assert [line.split(" | ")[2] for line in table] == ["near", "refused-near", "refused-wrong", "wrong"]
     assert "1.5° / nan°" in table[0]  # the prior's roll error, unsigned; a missing pitch error says nan
+    assert [line.split(" | ")[-1] for line in table] == [
+        "- |",
+        "map lacks, image lacks |",
+        "- |",
+        "image lacks |",
+    ]
     # At 5 m the accepted 3 m pose is a hit.
     out5 = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path), "--m", "5", "--deg", "5"],
                           capture_output=True, text=True, check=True)  # fmt: skip

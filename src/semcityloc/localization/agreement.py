@@ -23,6 +23,9 @@ from semcityloc.classes import BUILDING_CLASSES, IGNORE
 MATCH_MIN_OVERLAP = 0.2
 MIN_REGION_SHARE = 0.005
 WARN_SHARE = 0.02
+# How the two warnings begin (``LocalizationResult.warnings``; scripts reading a results.csv match on them).
+UNMAPPED_WARNING = "the image shows buildings the map lacks"
+UNSEEN_WARNING = "the map has buildings the image does not show"
 _EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 
 
@@ -40,13 +43,13 @@ class BuildingAgreement:
         out = []
         if self.unmapped_share >= WARN_SHARE:
             out.append(
-                f"the image shows buildings the map lacks ({100 * self.unmapped_share:.0f} % of the labelled "
-                "pixels at the found pose): the map may be outdated there, or the pose wrong"
+                f"{UNMAPPED_WARNING} ({100 * self.unmapped_share:.0f} % of the labelled pixels at the found "
+                "pose): the map may be outdated there, or the pose wrong"
             )
         if self.unseen_share >= WARN_SHARE:
             out.append(
-                f"the map has buildings the image does not show ({100 * self.unseen_share:.0f} % of the "
-                "labelled pixels at the found pose): demolished or hidden, or the pose wrong"
+                f"{UNSEEN_WARNING} ({100 * self.unseen_share:.0f} % of the labelled pixels at the found "
+                "pose): demolished or hidden, or the pose wrong"
             )
         return out
 
