@@ -38,3 +38,29 @@ def test_cross_city_shows_what_a_feature_is_worth(calibrate, capsys):
         loss_with = float(with_it.split("log-loss ")[1].split()[0])
         loss_without = float(without.split("log-loss ")[1].split()[0])
         assert loss_with < 0.3 < 0.6 < loss_without  # informative vs. chance (log 2 = 0.69)
+
+
+def test_reached_checks_only_the_results_that_reached_the_acceptance(calibrate, capsys):
+    edge = [  # stopped on the volume's edge: a pose, every feature missing, refused whatever p says
+        {
+            "variant": v,
+            "right": False,
+            "reason": "edge",
+            "features": dict.fromkeys(FEATURES_DEPTH, float("nan")),
+        }
+        for v in ("semcityloc", "no-depth", "silhouette")
+        for _ in range(50)
+    ]
+    assert calibrate.reached_acceptance(edge) == []
+    calibrate.cross_city({"a": _rows(0) + edge, "b": _rows(1) + edge}, None, reached=True)
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 * 2 * 2  # three models, two directions, fitted on every row and on the reached
+    pairs = zip(lines[::2], lines[1::2], strict=True)
+    assert all(", fit on every row:" in a and ", fit on the reached:" in b for a, b in pairs)
+    checked = {int(line.split("wrong accepted ")[1].split("/")[1]) for line in lines}
+    wrong = {
+        sum(not r["right"] for r in _rows(s) if r["variant"] == v)
+        for s in (0, 1)
+        for v in ("semcityloc", "no-depth", "silhouette")
+    }
+    assert checked <= wrong  # the 50 edge stops of each variant are not checked
