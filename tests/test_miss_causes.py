@@ -69,6 +69,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     assert abs(summary["median_map_building_iou"]["hit"] - 900 / 1000) < 1e-9
     assert abs(summary["median_map_building_iou"]["refused-near"] - 300 / 1000) < 1e-9
     assert summary["hits_by_map_building_iou"] == {"0-0.6": [0, 2], "0.6-0.8": [0, 1], "0.8-1.01": [1, 2]}
+    assert summary["map_warned"] == [0, 2]  # q2 and q4 carried an outdated-map warning, no hit did
     assert abs(summary["median_map_building_iou"]["misses"] - (0.3 + 0.6) / 2) < 1e-9  # of 0.9, 0.3, 0.3, 0.6
     table = [line for line in lines if line.startswith("| q") and not line.startswith("| query")]
     assert [line.split(" | ")[2] for line in table] == ["near", "refused-near", "refused-wrong", "wrong"]

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from semcityloc.benchmark.report import load_run, make_report, markdown_table
+from semcityloc.benchmark.report import _order_value, load_run, make_report, markdown_table
 from semcityloc.benchmark.results import COLUMNS
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import RESULTS_FILE, RUN_FILE
@@ -299,3 +299,15 @@ def test_report_reads_results_of_an_earlier_version(tmp_path):
         parse_results(data, tmp_path / "results.csv")
     with pytest.raises(BenchmarkError, match="columns differ"):
         parse_results(b"a,b\n1,2\n", tmp_path / "results.csv", strict=False)  # not a results file at all
+
+
+@pytest.mark.parametrize(
+    "key", ["method", "seg_quality", "prior_extra", "lod", "sweep_value", "perception", "seed"]
+)
+def test_a_setting_one_run_lacks_sorts_last_instead_of_failing(key):
+    """A real-data run reported beside simulated ones has no ``prior_extra``, ``lod``, ...: it sorts last
+    (``semcityloc report SIM_RUN REAL_RUN`` used to end in a ValueError from ``float('None')``)."""
+    present = {"method": "semcityloc", "seg_quality": "trained", "prior_extra": "10-20", "lod": "LoD2",
+               "sweep_value": "2", "perception": "oracle", "seed": 0}[key]  # fmt: skip
+    values = sorted([None, present], key=lambda v: _order_value(key, v))
+    assert values == [present, None]

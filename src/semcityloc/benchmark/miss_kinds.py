@@ -11,7 +11,9 @@ The simulated scenarios record the query mask's confusion against the MAP's own 
 (``meta["map_confusion"]``). Its building-vs-rest IoU (``map_building_iou``) holds the segmentation's errors
 and the map's differences from the world; with a fair mask mIoU against the world (``query_miou``), a low
 value says the map is wrong where the camera looked: buildings missing, new, re-roofed or heightened since
-it was made. Misses gathered there are the map's, not the localizer's (``docs/benchmark.md``).
+it was made. Misses gathered there are the map's, not the localizer's (``docs/benchmark.md``). Runs on
+real photos have no such record; there the results' outdated-map warnings (``localization.agreement``,
+the ``warnings`` column) are the evidence, counted for the hits and the misses alike.
 Used by ``semcityloc report`` (the misses table) and ``benchmarks/miss_causes.py`` (one line per miss).
 """
 
@@ -24,6 +26,7 @@ import numpy as np
 
 from semcityloc.benchmark.results import cell_float
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
+from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
 from semcityloc.localization.result import LOCALIZED
 
 NEAR_M, NEAR_DEG = 5.0, 5.0  # "near": the calibrated probability's own event
@@ -52,6 +55,12 @@ def row_agreement(row: dict[str, str]) -> float:
     return map_building_iou(json.loads(row.get("meta_json") or "{}"))
 
 
+def map_warned(row: dict[str, str]) -> bool:
+    """Did the localizer warn of an outdated map at the pose it found (``results.csv`` ``warnings``)?"""
+    text = row.get("warnings") or ""
+    return UNMAPPED_WARNING in text or UNSEEN_WARNING in text
+
+
 def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> str | None:
     """A ``results.csv`` row's kind of miss at ``max_m`` / ``max_deg`` (module docstring); None: a hit."""
     localized = row["status"] == LOCALIZED
@@ -70,7 +79,8 @@ def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: fl
     """Over the rows with a true pose: the count of hits and of each kind of miss, the median map
     agreement at the truth of the hits, of each kind and of all misses (None where no row has it),
     [hits, queries] per bin of that agreement (``MAP_AGREEMENT_BINS``) and where it is at least
-    ``MAP_AGREES`` (empty / None when no row has it)."""
+    ``MAP_AGREES`` (empty / None when no row has it), and the hits and misses that carried an
+    outdated-map warning (``map_warned``)."""
     rows = [r for r in rows if r.get("err_xyz_m", "") != ""]
     kinds = [kind_of(r, max_m, max_deg) or "hit" for r in rows]
     agree = np.array([row_agreement(r) for r in rows], dtype=np.float64)
@@ -96,4 +106,8 @@ def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: fl
         "median_map_building_iou": median,
         "hits_by_map_building_iou": bins if known_any else {},
         "hits_where_map_agrees": [int(hit[agrees].sum()), int(agrees.sum())] if known_any else None,
+        "map_warned": [
+            sum(map_warned(r) for r, h in zip(rows, hit, strict=True) if h),
+            sum(map_warned(r) for r, h in zip(rows, hit, strict=True) if not h),
+        ],
     }

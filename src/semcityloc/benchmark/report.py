@@ -175,6 +175,8 @@ def differing_keys(runs: list[RunData]) -> list[str]:
 
 
 def _order_value(key: str, value: Any):
+    if value is None:  # a setting this run does not have (a real-data run beside simulated ones): last
+        return (math.inf, "")
     if key == "method":
         return (ABLATIONS.index(value), "") if value in ABLATIONS else (len(ABLATIONS), str(value))
     if key == "seg_quality":
@@ -577,7 +579,9 @@ MISSES_NOTE = (
     "near: accepted within 5 m / 5° but beyond 2 m / 2°; refused-near: refused though the pose found was "
     "within 5 m / 5°; refused-wrong: refused, rightly; wrong: accepted beyond 5 m / 5°. Map agreement: the "
     "query mask's building IoU against the map's labels at the true pose (simulated runs): low where the "
-    "map differs from the world in view (`python benchmarks/miss_causes.py RUN` lists every miss)."
+    "map differs from the world in view (`python benchmarks/miss_causes.py RUN` lists every miss). "
+    "Outdated-map warning: results that said the image and the map disagree about buildings at the pose "
+    "found (the evidence a run on real photos has)."
 )
 
 
@@ -626,22 +630,34 @@ def risk_coverage_table(runs: list[RunData]) -> tuple[str, str]:
 
 def misses_table(runs: list[RunData]) -> tuple[str, str]:
     """Per run: the hits and each kind of miss at 2 m / 2 deg (``miss_kinds``), the map's median building
-    agreement at the truth of the hits and of the misses, and the hits where the map agrees (>= 0.6)."""
+    agreement at the truth of the hits and of the misses, the hits where the map agrees (>= 0.6), and the
+    hits and misses that carried an outdated-map warning."""
     headers = ["run", "queries", "hits", *MISS_KINDS, "map agreement at truth: hits / misses",
-               "hits where the map agrees ≥ 0.6"]  # fmt: skip
-    rows, csv_rows = [], [["run", "queries", "hit", *MISS_KINDS, "agree_hit", "agree_miss", "hits_agree"]]
+               "hits where the map agrees ≥ 0.6", "outdated-map warning: hits / misses"]  # fmt: skip
+    rows, csv_rows = [], [["run", "queries", "hit", *MISS_KINDS, "agree_hit", "agree_miss", "hits_agree",
+                           "warned_hit", "warned_miss"]]  # fmt: skip
     for run in runs:
         m = summarize_misses([r for r in run.rows if r["status"] != SKIPPED])
         med = {k: float("nan") if v is None else v for k, v in m["median_map_building_iou"].items()}
         agrees = m["hits_where_map_agrees"]
         hits_agree = f"{agrees[0]} / {agrees[1]}" if agrees else "–"
         counts = [m["count"][k] for k in MISS_KINDS]
+        warned = m["map_warned"]
         rows.append(
             [run.label, str(m["queries"]), str(m["count"]["hit"]), *map(str, counts),
-             f"{_num(med['hit'], 2)} / {_num(med['misses'], 2)}", hits_agree]
+             f"{_num(med['hit'], 2)} / {_num(med['misses'], 2)}", hits_agree, f"{warned[0]} / {warned[1]}"]
         )  # fmt: skip
         csv_rows.append(
-            [run.label, m["queries"], m["count"]["hit"], *counts, med["hit"], med["misses"], hits_agree]
+            [
+                run.label,
+                m["queries"],
+                m["count"]["hit"],
+                *counts,
+                med["hit"],
+                med["misses"],
+                hits_agree,
+                *warned,
+            ]
         )
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(csv_rows)
