@@ -5,7 +5,7 @@ refused-near, refused-wrong, wrong). Printed with each miss: the view, the query
 simulated world (``query_miou``: the segmentation's errors), the mask's **building IoU against the map at
 the true pose** (``miss_kinds.map_building_iou``: low with a fair ``query_miou`` = the map is wrong where
 the camera looked), the prior's roll and pitch errors, the acceptance's probability, and the outdated-map
-warnings the result carried (``localization.agreement``: "map lacks" buildings the image shows, "image
+warnings the result carried (``miss_kinds.map_warnings``: "map lacks" buildings the image shows, "image
 lacks" buildings the map has; what a run on real photos has instead of the map's agreement).
 
     python benchmarks/miss_causes.py RUN_DIR [--m 2 --deg 2]
@@ -23,18 +23,8 @@ import math
 import sys
 from pathlib import Path
 
-from semcityloc.benchmark.miss_kinds import kind_of, map_building_iou, summarize_misses
+from semcityloc.benchmark.miss_kinds import kind_of, map_building_iou, map_warnings, summarize_misses
 from semcityloc.benchmark.results import cell_float
-from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
-
-
-def map_warnings(row: dict[str, str]) -> str:
-    """The outdated-map warnings of a ``results.csv`` row, short ("map lacks", "image lacks"), or "-"."""
-    text = row.get("warnings") or ""
-    said = [
-        name for name, w in (("map lacks", UNMAPPED_WARNING), ("image lacks", UNSEEN_WARNING)) if w in text
-    ]
-    return ", ".join(said) or "-"
 
 
 def main() -> int:
@@ -60,11 +50,12 @@ def main() -> int:
             continue
         meta = json.loads(r["meta_json"] or "{}")
         rp = (abs(meta.get("prior_roll_err_deg", math.nan)), abs(meta.get("prior_pitch_err_deg", math.nan)))
+        warned = ", ".join(map_warnings(r)) or "-"
         print(
             f"| {r['query_id']} | {r['view']} | {kind} | {cell_float(r['found_err_xyz_m']):.2f} m / "
             f"{cell_float(r['found_err_rot_deg']):.2f}° | {cell_float(r['query_miou']):.0f} | "
             f"{map_building_iou(meta):.2f} | "
-            f"{rp[0]:.1f}° / {rp[1]:.1f}° | {cell_float(r['probability']):.2f} | {map_warnings(r)} |"
+            f"{rp[0]:.1f}° / {rp[1]:.1f}° | {cell_float(r['probability']):.2f} | {warned} |"
         )
     print(json.dumps({"run": str(args.run), **summarize_misses(rows, args.m, args.deg)}))
     return 0

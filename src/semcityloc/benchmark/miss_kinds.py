@@ -55,10 +55,13 @@ def row_agreement(row: dict[str, str]) -> float:
     return map_building_iou(json.loads(row.get("meta_json") or "{}"))
 
 
-def map_warned(row: dict[str, str]) -> bool:
-    """Did the localizer warn of an outdated map at the pose it found (``results.csv`` ``warnings``)?"""
+def map_warnings(row: dict[str, str]) -> list[str]:
+    """The outdated-map warnings a ``results.csv`` row carried, short: "map lacks" (buildings the image
+    shows), "image lacks" (buildings the map has); empty when none."""
     text = row.get("warnings") or ""
-    return UNMAPPED_WARNING in text or UNSEEN_WARNING in text
+    return [
+        name for name, w in (("map lacks", UNMAPPED_WARNING), ("image lacks", UNSEEN_WARNING)) if w in text
+    ]
 
 
 def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> str | None:
@@ -80,7 +83,7 @@ def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: fl
     agreement at the truth of the hits, of each kind and of all misses (None where no row has it),
     [hits, queries] per bin of that agreement (``MAP_AGREEMENT_BINS``) and where it is at least
     ``MAP_AGREES`` (empty / None when no row has it), and the hits and misses that carried an
-    outdated-map warning (``map_warned``)."""
+    outdated-map warning (``map_warnings``)."""
     rows = [r for r in rows if r.get("err_xyz_m", "") != ""]
     kinds = [kind_of(r, max_m, max_deg) or "hit" for r in rows]
     agree = np.array([row_agreement(r) for r in rows], dtype=np.float64)
@@ -98,6 +101,7 @@ def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: fl
         sel = (agree >= lo) & (agree < hi)
         bins[f"{lo:g}-{hi:g}"] = [int(hit[sel].sum()), int(sel.sum())]
     agrees = agree >= MAP_AGREES
+    warned = np.array([bool(map_warnings(r)) for r in rows], dtype=bool)
     known_any = bool(np.isfinite(agree).any())
     return {
         "queries": len(rows),
@@ -106,8 +110,5 @@ def summarize_misses(rows: list[dict[str, str]], max_m: float = 2.0, max_deg: fl
         "median_map_building_iou": median,
         "hits_by_map_building_iou": bins if known_any else {},
         "hits_where_map_agrees": [int(hit[agrees].sum()), int(agrees.sum())] if known_any else None,
-        "map_warned": [
-            sum(map_warned(r) for r, h in zip(rows, hit, strict=True) if h),
-            sum(map_warned(r) for r, h in zip(rows, hit, strict=True) if not h),
-        ],
+        "map_warned": [int((warned & hit).sum()), int((warned & ~hit).sum())],
     }
