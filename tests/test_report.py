@@ -311,3 +311,24 @@ def test_a_setting_one_run_lacks_sorts_last_instead_of_failing(key):
                "sweep_value": "2", "perception": "oracle", "seed": 0}[key]  # fmt: skip
     values = sorted([None, present], key=lambda v: _order_value(key, v))
     assert values == [present, None]
+
+
+def test_mixed_simulated_and_real_runs_are_labelled_by_what_tells_them_apart(tmp_path):
+    """A real-data run has none of the simulation's settings (``q.*``, ``lod``, ...): those are compared
+    among the simulated runs only, not listed as ``None`` in the real run's label and as every value in
+    the others' (stop 29: a page-long label per run)."""
+    sim_a = fake_run(tmp_path, "sim_a", [(0.5, 0.2), (1.0, 0.3)])
+    sim_b = fake_run(tmp_path, "sim_b", [(0.5, 0.2), (9.0, 0.3)], seg_quality="medium")
+    real = fake_run(
+        tmp_path, "real", [(0.4, 0.1)], mode="dataset", dataset="/d/real_uav", perception="oracle",
+        city_path="/d/UAVD4L-LoD1.obj", query_config=None,
+    )  # fmt: skip
+    report = make_report([sim_a, sim_b, real], tmp_path / "report")
+    labels = {
+        line.split("`")[1]: line.split("`: ")[1]
+        for line in report.markdown.read_text(encoding="utf-8").splitlines()
+        if line.startswith("- `")
+    }
+    assert labels[str(sim_a)] == "semcityloc, city=generated, seg_quality=trained, queries=2"
+    assert labels[str(sim_b)] == "semcityloc, city=generated, seg_quality=medium, queries=2"
+    assert labels[str(real)] == "semcityloc [oracle], city=UAVD4L-LoD1.obj, queries=1"

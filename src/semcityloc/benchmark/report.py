@@ -167,11 +167,25 @@ def describe(config: dict) -> dict[str, Any]:
     return out
 
 
+def is_real(run: RunData) -> bool:
+    """Is this a run over real images (a data set, a user's photos) rather than a simulated one?"""
+    return run.config.get("mode") in REAL_MODES
+
+
 def differing_keys(runs: list[RunData]) -> list[str]:
+    """The settings whose values differ between ``runs``. When simulated and real-data runs are mixed,
+    a setting only one kind has (the simulation's ``q.*``, a data set's ``data``) is compared among the
+    runs that have it: that the other kind lacks it says nothing the method, city and perception do not."""
     keys: list[str] = []
     for run in runs:
         keys += [k for k in run.settings if k not in keys]
-    return [k for k in keys if len({json.dumps(r.settings.get(k), default=str) for r in runs}) > 1]
+    mixed = len({is_real(r) for r in runs}) > 1
+    out = []
+    for k in keys:
+        having = [r for r in runs if k in r.settings] if mixed else runs
+        if len({json.dumps(r.settings.get(k), default=str) for r in having}) > 1:
+            out.append(k)
+    return out
 
 
 def _order_value(key: str, value: Any):
@@ -209,13 +223,15 @@ def sweep_x(value: Any) -> tuple[float, str]:
 
 def label_runs(runs: list[RunData]) -> None:
     """Short labels: the method (with ``[perception]`` on real data), plus ``key=value`` of every other
-    setting that differs."""
+    setting that differs (``differing_keys``) and that the run has."""
     keys = differing_keys(runs)
     for run in runs:
         method = str(run.settings["method"])
         perception = run.settings.get("perception")
         parts = [f"{method} [{perception}]" if perception is not None else method]
-        parts += [f"{k}={run.settings.get(k)}" for k in keys if k not in ("method", "perception")]
+        parts += [
+            f"{k}={run.settings[k]}" for k in keys if k not in ("method", "perception") and k in run.settings
+        ]
         run.label = ", ".join(parts) + (
             "" if run.complete else f" (incomplete {len(run.rows)}/{run.config['queries']})"
         )
@@ -336,8 +352,11 @@ def comparable_runs(runs: list[RunData], factor: str) -> list[RunData]:
 
 def build_table(runs: list[RunData], factor: str, hide: tuple[str, ...] = ()) -> tuple[str, str]:
     """(Markdown, CSV) of one table: a row per run, ``factor`` first, then the other settings that differ
-    between these runs (rows sorted by those, then by ``factor``) except those starting with ``hide``."""
-    context = [k for k in differing_keys(runs) if k != factor and not (hide and k.startswith(hide))]
+    between these runs (rows sorted by those, then by ``factor``) except those starting with ``hide`` and
+    ``queries`` (a metric column of its own)."""
+    context = [
+        k for k in differing_keys(runs) if k not in (factor, "queries") and not (hide and k.startswith(hide))
+    ]
     ordered = sorted(
         runs,
         key=lambda r: (
