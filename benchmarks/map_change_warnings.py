@@ -27,7 +27,7 @@ from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.agreement import WARN_SHARE, building_agreement
-from semcityloc.localization.localize import Localizer, _scaled
+from semcityloc.localization.localize import Localizer
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 REAL_SHARE = 0.01
@@ -53,8 +53,8 @@ def _one(index: int) -> dict | None:
     pose = result.found_pose_local
     if pose is None or "unmapped_building_share" not in result.confidence:
         return None
-    fine = _scaled(q.camera, loc.config.cascade.local.width).scale(loc.config.refine.scale)
-    map_labels = loc._render_one(fine, q.true_pose_local).labels.reshape(fine.height, fine.width)
+    fine = loc.fine_camera(q.camera)
+    map_labels = loc.render_labels(fine, q.true_pose_local)
     reality = source.simulator.reality.renderer.render(fine, q.true_pose_local).labels[0]
     truth = building_agreement(reality, map_labels)
     return {

@@ -9,14 +9,16 @@ import pytest
 from scipy import ndimage
 
 from helpers import CAMERA, perturbed, view
-from semcityloc.classes import BUILDING_CLASSES
+from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
 from semcityloc.errors import ParameterError, PoseError, ShapeError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.localization.agreement import building_agreement
 from semcityloc.localization.coarse import yaw_lookup
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
+from semcityloc.localization.query import downsample_labels
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
@@ -434,3 +436,21 @@ def test_buildings_on_one_side_only_are_reported_with_the_pose(city, localizer, 
     result = localizer.localize(CAMERA, prior, renderer.render(CAMERA, true).labels[0])
     assert result.confidence["unmapped_building_share"] == result.confidence["unseen_building_share"] == 0.0
     assert not any("buildings" in w for w in result.warnings)
+
+
+def test_fine_camera_and_render_labels_reproduce_the_results_map_agreement(city, localizer, renderer):
+    """The public way to what a result's building IoU and warnings compare: the query at
+    ``fine_camera`` against ``render_labels`` at the found pose (``benchmarks/map_change_warnings.py``
+    uses it to apply the same rule at the true pose)."""
+    true = view(city, *CASES["oblique"][0])
+    prior = perturbed(true, np.array([3.0, -2.0, 1.0]), 0.3, 0.3, 2.0)
+    labels = renderer.render(CAMERA, true).labels[0]
+    result = localizer.localize(CAMERA, prior, labels)
+    fine = localizer.fine_camera(CAMERA)
+    assert (fine.width, fine.height) == (128, 96)
+    rendered = localizer.render_labels(fine, result.pose_local)
+    assert rendered.shape == (96, 128) and np.isin(rendered, list(range(NUM_CLASSES))).all()
+    agreement = building_agreement(downsample_labels(labels, fine.width, fine.height), rendered)
+    assert agreement.building_iou == pytest.approx(result.confidence["building_iou"])
+    assert agreement.unseen_share == pytest.approx(result.confidence["unseen_building_share"])
+    assert agreement.unmapped_share == pytest.approx(result.confidence["unmapped_building_share"])

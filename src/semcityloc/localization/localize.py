@@ -330,14 +330,25 @@ class Localizer:
         self._check_inputs(camera, poses_local[0] if prior_local is None else prior_local, semantic, depth)
         query = Query.from_arrays(semantic, None if cfg.no_depth else depth, self.has_openings)
         query = Query(query.labels, usable_depth(query.depth)[0])
-        width = cfg.cascade.local.width if cfg.search == "cascade" else cfg.coarse.width
-        fine_cam = _scaled(camera, width).scale(cfg.refine.scale)
+        fine_cam = self.fine_camera(camera, cfg)
         level = ScoringLevel(fine_cam, *query.at(fine_cam.width, fine_cam.height))
         states = np.stack([p.to_xyz_rpy() for p in poses_local])
         with_prior = prior_local is not None and cfg.search == "cascade"  # the grid search has no prior term
         prior = prior_term(prior_local.to_xyz_rpy(), cfg, unc) if with_prior else None
         score, sem, dep = score_states(self.scene, level, states, self.class_on, cfg.refine, prior)
         return {"semantic": sem, "depth_cost": dep, "score": score}
+
+    def fine_camera(self, camera: Camera, config: LocalizerConfig | None = None) -> Camera:
+        """``camera`` at the refinement's final resolution: where the final scores, the building IoU and
+        the outdated-map warnings of a result are computed."""
+        cfg = config or self.config
+        width = cfg.cascade.local.width if cfg.search == "cascade" else cfg.coarse.width
+        return _scaled(camera, width).scale(cfg.refine.scale)
+
+    def render_labels(self, camera: Camera, pose_local: Pose) -> np.ndarray:
+        """(H, W) class ids of the map as this localizer searches it (``localizer_scene``: with its eaves)
+        seen by ``camera`` at ``pose_local`` (model's local frame)."""
+        return self._render_one(camera, pose_local).labels.reshape(camera.height, camera.width)
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -412,7 +423,7 @@ class Localizer:
 
     def _agreement(self, camera: Camera, pose_local: Pose, query_flat: np.ndarray) -> BuildingAgreement:
         """How the buildings rendered at one pose agree with the query's (``agreement.py``)."""
-        labels = self._render_one(camera, pose_local).labels.reshape(camera.height, camera.width)
+        labels = self.render_labels(camera, pose_local)
         return building_agreement(query_flat.reshape(camera.height, camera.width), labels)
 
 
