@@ -132,11 +132,16 @@ def _data_name(value: Any) -> str:
     return " + ".join(Path(str(v)).name for v in values)
 
 
+def is_real(config: dict) -> bool:
+    """Is this run (its ``run.json``) over real images (a data set, a user's photos), not simulated?"""
+    return config.get("mode") in REAL_MODES
+
+
 def describe(config: dict) -> dict[str, Any]:
     """The settings of a run that a reader tells runs apart by (display values). Real-data runs (a data
     set, a user's photos) are told apart by method, data, perception, preset and their number of queries;
     simulated runs by the simulation's settings."""
-    if config.get("mode") in REAL_MODES:
+    if is_real(config):
         return {
             "method": config.get("method"),
             "data": _data_name(config.get("dataset") or config.get("images")),
@@ -167,11 +172,6 @@ def describe(config: dict) -> dict[str, Any]:
     return out
 
 
-def is_real(run: RunData) -> bool:
-    """Is this a run over real images (a data set, a user's photos) rather than a simulated one?"""
-    return run.config.get("mode") in REAL_MODES
-
-
 def differing_keys(runs: list[RunData]) -> list[str]:
     """The settings whose values differ between ``runs``. When simulated and real-data runs are mixed,
     a setting only one kind has (the simulation's ``q.*``, a data set's ``data``) is compared among the
@@ -179,7 +179,7 @@ def differing_keys(runs: list[RunData]) -> list[str]:
     keys: list[str] = []
     for run in runs:
         keys += [k for k in run.settings if k not in keys]
-    mixed = len({is_real(r) for r in runs}) > 1
+    mixed = len({is_real(r.config) for r in runs}) > 1
     out = []
     for k in keys:
         having = [r for r in runs if k in r.settings] if mixed else runs
