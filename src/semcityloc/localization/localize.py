@@ -165,7 +165,7 @@ class Localizer:
         """The first design: one 4D grid (optionally re-centred by a pre-stage), one particle filter."""
         c = cfg.coarse
         coarse_cam = _scaled(camera, c.width)
-        fine_cam = coarse_cam.scale(cfg.refine.scale)
+        fine_cam = self.fine_camera(camera, cfg)
         q_coarse, d_coarse = query.at(coarse_cam.width, coarse_cam.height)
         q_fine, d_fine = query.at(fine_cam.width, fine_cam.height)
         t_prep = time.perf_counter()
@@ -199,7 +199,7 @@ class Localizer:
         hypotheses, a polish."""
         cc = cfg.cascade
         local_cam = _scaled(camera, cc.local.width)
-        fine_cam = local_cam.scale(cfg.refine.scale)
+        fine_cam = self.fine_camera(camera, cfg)
         q_local, d_local = query.at(local_cam.width, local_cam.height)
         q_fine, d_fine = query.at(fine_cam.width, fine_cam.height)
         levels = [ScoringLevel(local_cam, q_local, d_local), ScoringLevel(fine_cam, q_fine, d_fine)]
