@@ -32,10 +32,7 @@ other code (another localizer or simulation) are never reused.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -43,7 +40,7 @@ import numpy as np
 
 from semcityloc.baselines.silhouette import SilhouetteLocalizer
 from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
-from semcityloc.benchmark.code_version import code_fingerprint
+from semcityloc.benchmark.calibration import condition_rows as calibration_rows
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.errors import ParameterError
@@ -136,18 +133,7 @@ def _one(index: int) -> list[dict]:
 
 
 def condition_rows(city: str, seed: int, queries: int, condition: str, workers: int, cache: Path | None):
-    name = f"{Path(city).stem}_{condition}_{seed}_{queries}_{code_fingerprint()}.json"
-    path = cache / name if cache is not None else None
-    if path is not None and path.exists():
-        return json.loads(path.read_text())
-    t0 = time.perf_counter()
-    with ProcessPoolExecutor(workers, initializer=_init, initargs=(city, seed, queries, condition)) as pool:
-        rows = [row for chunk in pool.map(_one, range(queries)) for row in chunk]
-    print(f"# {Path(city).stem} {condition} seed {seed}: {time.perf_counter() - t0:.0f} s", file=sys.stderr)
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(rows))
-    return rows
+    return calibration_rows("", city, seed, queries, condition, workers, cache, _init, _one)
 
 
 def matrix(rows: list[dict], variant: str, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

@@ -1,8 +1,9 @@
 """The tuning discipline's cities (``benchmark.calibration``): generated and Fürth may be tuned on,
-nothing else; the three tuning scripts share it."""
+nothing else; the tuning scripts share it, and its cached measuring of a condition."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -14,6 +15,7 @@ from conftest import REPO
 from semcityloc.benchmark.calibration import (
     FUERTH_FILE,
     calibration_cities,
+    condition_rows,
     is_calibration_city,
     require_calibration_cities,
 )
@@ -60,6 +62,7 @@ def test_require_names_the_city_and_the_purpose(shared_data, tmp_path):
     [
         ("calibrate_segmentation.py", ["--city"]),
         ("calibrate_confidence.py", ["--fit-city"]),
+        ("calibrate_covariance.py", ["--fit-city"]),
     ],
 )
 def test_the_calibration_scripts_refuse_a_reporting_city(script, args, tmp_path):
@@ -73,3 +76,27 @@ def test_the_calibration_scripts_refuse_a_reporting_city(script, args, tmp_path)
     )
     assert out.returncode == 2, out.stderr
     assert "not a calibration city" in out.stderr
+
+
+_SETUP: dict = {}
+
+
+def _toy_init(city: str, seed: int, queries: int, condition: str) -> None:
+    _SETUP.update(city=city, seed=seed, condition=condition)
+
+
+def _toy_one(index: int) -> list[dict]:
+    return [{"index": index, "condition": _SETUP["condition"], "seed": _SETUP["seed"]}] * (index % 2)
+
+
+def _must_not_run(index: int) -> list[dict]:
+    raise AssertionError("cached rows were measured again")
+
+
+def test_condition_rows_are_measured_in_workers_and_reused_from_the_cache(tmp_path):
+    args = ("x_", "generated", 3, 4, "trained", 2, tmp_path)
+    rows = condition_rows(*args, _toy_init, _toy_one)
+    assert rows == [{"index": i, "condition": "trained", "seed": 3} for i in (1, 3)]
+    (cached,) = tmp_path.glob("x_generated_trained_3_4_*.json")
+    assert json.loads(cached.read_text()) == rows
+    assert condition_rows(*args, _toy_init, _must_not_run) == rows

@@ -125,6 +125,10 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
         assert pose["extra"][key] == pose[key], key
     assert (tmp_path / "loc" / "overlay.png").exists()
     assert pose["extra"]["confidence"]["probability"] >= 0.5
+    # The covariance: printed as 1-sigma per component, the whole matrix in pose.json.
+    sigma = json.loads(out)["sigma"]
+    assert list(sigma) == ["x", "y", "z", "roll", "pitch", "yaw"] and all(v > 0 for v in sigma.values())
+    assert np.array(pose["extra"]["covariance"]["matrix"]).shape == (6, 6)
     assert pose["extra"]["search"]["prior_uncertainty"]["z_m"] == 10.0  # the default
     # The stated uncertainty reaches the search: a prior 25 m too high with z sigma 2 m is refused at
     # the edge of its volume, not returned 13 m off.

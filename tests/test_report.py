@@ -301,6 +301,20 @@ def test_report_reads_results_of_an_earlier_version(tmp_path):
         parse_results(b"a,b\n1,2\n", tmp_path / "results.csv", strict=False)  # not a results file at all
 
 
+@pytest.mark.parametrize("dropped", [("sigma_xy_m", "sigma_z_m", "sigma_yaw_deg"), ("warnings", "sigma_z_m")])
+def test_results_without_columns_added_since_resume(tmp_path, dropped):
+    """The versions before the warnings and the covariance's sigma columns: read strictly (to resume),
+    the missing columns empty."""
+    from semcityloc.benchmark.results import ADDED_COLUMNS, COLUMNS, parse_results
+
+    assert set(dropped) <= set(ADDED_COLUMNS)
+    old = [c for c in COLUMNS if c not in dropped]
+    values = {c: "" for c in old} | {"query_id": "q0000", "index": "0", "status": "localized"}
+    data = (",".join(old) + "\n" + ",".join(values[c] for c in old) + "\n").encode()
+    (row,) = parse_results(data, tmp_path / "results.csv")
+    assert row["status"] == "localized" and all(row[c] == "" for c in dropped) and set(row) == set(COLUMNS)
+
+
 @pytest.mark.parametrize(
     "key", ["method", "seg_quality", "prior_extra", "lod", "sweep_value", "perception", "seed"]
 )

@@ -1,19 +1,24 @@
 """The tuning discipline in one place: which cities a knob, a preset or a fitted model may be chosen on.
 
 Why: a method tuned on the city it is reported on is measured on its own training data. Every knob of
-the localizer and every fitted model (the confidence model, the simulated segmentation's presets) is
-chosen on the *calibration cities* only, the generated district and Fürth (``../shared/data``), and
-reported on the others (Berlin, Den Haag, the real images). The tuning scripts in ``benchmarks/``
-(``compare_configs``, ``calibrate_confidence``, ``calibrate_segmentation``) take their default cities
-from ``calibration_cities`` and refuse any other city as a place to choose with
-``require_calibration_cities``.
+the localizer and every fitted model (the confidence model, the pose covariance's temperature, the
+simulated segmentation's presets) is chosen on the *calibration cities* only, the generated district and
+Fürth (``../shared/data``), and reported on the others (Berlin, Den Haag, the real images). The tuning
+scripts in ``benchmarks/`` (``compare_configs``, ``calibrate_confidence``, ``calibrate_covariance``,
+``calibrate_segmentation``) take their default cities from ``calibration_cities`` and refuse any other
+city as a place to choose with ``require_calibration_cities``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import json
+import sys
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.spec import GENERATED, resolve_city
 from semcityloc.errors import InputFileError, ParameterError
 
@@ -49,3 +54,33 @@ def require_calibration_cities(cities: Iterable[str | Path], shared_data: Path, 
                 f"{city} is not a calibration city (the generated district, Fürth): do not {purpose} on a "
                 "city that results are reported on"
             )
+
+
+def condition_rows(
+    tag: str,
+    city: str,
+    seed: int,
+    queries: int,
+    condition: str,
+    workers: int,
+    cache: Path | None,
+    init: Callable[[str, int, int, str], None],
+    one: Callable[[int], list[dict]],
+) -> list[dict]:
+    """The rows a calibration script measures under one condition: ``one(index)`` (a query's rows) over
+    ``queries`` indices in ``workers`` processes, each set up by ``init(city, seed, queries, condition)``
+    (module-level functions of the script). With ``cache`` they are kept in
+    ``cache/<tag><city stem>_<condition>_<seed>_<queries>_<code>.json``, ``<code>`` the package's
+    ``code_fingerprint``: rows made by other code are never reused."""
+    name = f"{tag}{Path(city).stem}_{condition}_{seed}_{queries}_{code_fingerprint()}.json"
+    path = cache / name if cache is not None else None
+    if path is not None and path.exists():
+        return json.loads(path.read_text())
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(workers, initializer=init, initargs=(city, seed, queries, condition)) as pool:
+        rows = [row for chunk in pool.map(one, range(queries)) for row in chunk]
+    print(f"# {Path(city).stem} {condition} seed {seed}: {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(rows))
+    return rows

@@ -8,8 +8,10 @@ followed by ``fsync``, by the parent process only. On start the file is read, a 
 newline: the process died mid-write) is cut off, and the ids already there are skipped. Rows may be in any
 order (``--workers``); each id appears once. Poses: the map model's local frame (x y z m, roll pitch yaw
 deg) + world x y z (``origin + local``); errors: camera-centre distance (m), full rotation angle and yaw
-(deg), "inf" when not localized; timings in s; ``warnings``: what the localizer ignored and why (a depth map
-dropped) or noticed (buildings the map lacks; ``LocalizationResult.warnings``), joined by `` | ``, empty
+(deg), "inf" when not localized; timings in s; ``sigma_xy_m`` / ``sigma_z_m`` / ``sigma_yaw_deg``: the
+accepted pose's 1-sigma from its covariance (``localization/covariance.py``; empty without one);
+``warnings``: what the localizer ignored and why (a depth map dropped) or noticed (buildings the map
+lacks; ``LocalizationResult.warnings``), joined by `` | ``, empty
 when none. A ``results.csv`` written before a column of ``ADDED_COLUMNS`` existed still resumes: it is
 rewritten with that column (empty) before rows are appended, so every line matches the header.
 
@@ -29,6 +31,7 @@ import io
 import json
 import os
 from collections import Counter
+from itertools import combinations
 from pathlib import Path
 from typing import Any
 
@@ -53,12 +56,16 @@ COLUMNS: tuple[str, ...] = tuple(
     prior_err_m prior_rot_deg prior_yaw_err_deg err_xyz_m err_rot_deg err_yaw_deg
     coarse_err_xyz_m coarse_err_yaw_deg score semantic depth_cost score_margin spread_m spread_deg
     building_iou probability found_err_xyz_m found_err_rot_deg coarse_hypotheses refine_evaluations
-    t_coarse_s t_refine_s t_total_s meta_json""".split()
+    t_coarse_s t_refine_s t_total_s meta_json sigma_xy_m sigma_z_m sigma_yaw_deg""".split()
 )
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
 # Columns added after runs had been written with the others (module docstring): such a run still resumes.
-ADDED_COLUMNS = ("warnings",)
-_RESUMABLE_HEADERS = (COLUMNS, tuple(c for c in COLUMNS if c not in ADDED_COLUMNS))
+ADDED_COLUMNS = ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg")
+_RESUMABLE_HEADERS = frozenset(
+    tuple(c for c in COLUMNS if c not in dropped)
+    for n in range(len(ADDED_COLUMNS) + 1)
+    for dropped in combinations(ADDED_COLUMNS, n)
+)
 WARNING_SEPARATOR = " | "
 
 # A query whose simulated view the simulator did not accept (``meta["accepted"] is False``): recorded so a
@@ -171,8 +178,22 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "t_refine_s": timings.get("refine_s"),
         "t_total_s": timings.get("total_s"),
         "meta_json": json.dumps(plain(meta), sort_keys=True),
+        **_sigmas(result.covariance if est is not None else None),
     }
     return {c: _fmt(row.get(c)) for c in COLUMNS}
+
+
+def _sigmas(covariance: np.ndarray | None) -> dict[str, float | None]:
+    """1-sigma of the accepted pose from its covariance: horizontal (the root of the xy block's trace),
+    height and yaw; None without a covariance."""
+    if covariance is None:
+        return {"sigma_xy_m": None, "sigma_z_m": None, "sigma_yaw_deg": None}
+    var = np.diag(covariance)
+    return {
+        "sigma_xy_m": float(np.sqrt(var[0] + var[1])),
+        "sigma_z_m": float(np.sqrt(var[2])),
+        "sigma_yaw_deg": float(np.sqrt(var[5])),
+    }
 
 
 def _csv_line(row: dict[str, str]) -> bytes:

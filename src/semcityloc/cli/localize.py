@@ -193,19 +193,19 @@ def run(args: argparse.Namespace) -> int:
         )
         edges = visible_edges(view.face_ids[0], view.depth[0], localizer.scene)
         save_rgb(draw_edges(background, edges), out / "overlay.png")
-        print(
-            json.dumps(
-                {
-                    "status": result.status,
-                    "position": data["position"],
-                    "roll": data["roll"],
-                    "pitch": data["pitch"],
-                    "yaw": data["yaw"],
-                    "crs": data.get("crs"),
-                    "timings_s": result.timings,
-                }
-            )
-        )
+        summary = {
+            "status": result.status,
+            "position": data["position"],
+            "roll": data["roll"],
+            "pitch": data["pitch"],
+            "yaw": data["yaw"],
+            "crs": data.get("crs"),
+            "timings_s": result.timings,
+        }
+        if "covariance" in record:  # 1-sigma per component (m, deg); the whole matrix is in pose.json
+            cov = record["covariance"]
+            summary["sigma"] = dict(zip(cov["order"], cov["sigma"], strict=True))
+        print(json.dumps(summary))
         return 0
     (out / "pose.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     print(json.dumps({"status": result.status, "reason": result.reason}))

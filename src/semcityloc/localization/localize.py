@@ -33,6 +33,13 @@ from semcityloc.localization.cascade import local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
 from semcityloc.localization.confidence import confidence_model
 from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.covariance import (
+    PROBES,
+    covariance_model,
+    probe_states,
+    probe_steps,
+    score_curvature,
+)
 from semcityloc.localization.query import Query, usable_depth
 from semcityloc.localization.refine import (
     PriorTerm,
@@ -145,6 +152,9 @@ class Localizer:
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         with_depth = query.depth is not None
+        cov_model = covariance_model(self.confidence_kind, with_depth)
+        if result.score_curvature is not None and cov_model is not None:
+            result.covariance = cov_model.covariance(result.score_curvature)
         if cfg.acceptance == "calibrated":
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
@@ -266,6 +276,11 @@ class Localizer:
             result.counts["refine_evaluations"] += best.evaluations
             result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
             result.confidence.update(spread_m=best.spread_m, spread_deg=best.spread_deg)
+            # The covariance's probe, where a fitted model will turn its curvature into one.
+            fitted = covariance_model(self.confidence_kind, fine.depth is not None) is not None
+            if cfg.refine.covariance_probe_px > 0 and fitted:
+                result.score_curvature = self._probe_curvature(levels, final, cfg, prior)
+                result.counts["refine_evaluations"] += PROBES
         result.pose_local = _pose(final)
         result.timings["refine_s"] = time.perf_counter() - t0
 
@@ -303,10 +318,25 @@ class Localizer:
         """(6, 6) perturbation matrix: ``sigma``'s rotations about the point of the optical axis at the
         median depth of the model seen from ``state`` (``refine.pivot_jacobian``); the plain scales when
         nothing is seen."""
+        return pivot_jacobian(state, self._median_depth(camera, state)) @ np.diag(sigma)
+
+    def _median_depth(self, camera: Camera, state: np.ndarray) -> float:
+        """Median z-depth (m) of the model seen from ``state`` (0 when nothing is seen)."""
         out = self._render_one(camera, _pose(state), depth=True)
         seen = out.depth[np.isfinite(out.depth)]
-        pivot = float(np.median(seen)) if seen.size else 0.0
-        return pivot_jacobian(state, pivot) @ np.diag(sigma)
+        return float(np.median(seen)) if seen.size else 0.0
+
+    def _probe_curvature(self, levels, state: np.ndarray, cfg: LocalizerConfig, prior) -> np.ndarray | None:
+        """The score's curvature at ``state`` (``covariance.py``), probed at the fine level with steps that
+        move the image by ``refine.covariance_probe_px`` pixels; None when nothing is seen."""
+        fine = levels[-1]
+        depth = self._median_depth(levels[0].camera, state)
+        if not depth > 0.0:
+            return None
+        steps = probe_steps(fine.camera.fx, depth, cfg.refine.covariance_probe_px)
+        states = probe_states(state, steps)
+        score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior)
+        return score_curvature(states, score, state)
 
     # ------------------------------------------------------------------ diagnostics
     def score_poses(

@@ -9,6 +9,7 @@ import numpy as np
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.coarse import CostVolume
+from semcityloc.localization.covariance import covariance_dict
 
 LOCALIZED = "localized"
 NOT_LOCALIZED = "not_localized"
@@ -37,6 +38,10 @@ class LocalizationResult:
     probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume searched, its
     extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores, best first.
     ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never a result).
+    ``covariance``: (6, 6) covariance of the found pose's (x, y, z, roll, pitch, yaw) in m and deg
+    (``covariance.py``: the score's curvature at the pose, probed after the refinement, with a fitted
+    temperature and floor; None without refinement, without a model fitted for the localizer's kind, or
+    with ``refine.covariance_probe_px = 0``); ``score_curvature`` the curvature it came from.
     ``warnings``: what the localizer ignored and why (a depth map dropped as unusable), and what it
     noticed about the map at the found pose (buildings on one side only: ``agreement.py``; the shares are
     ``confidence["unmapped_building_share"]`` and ``confidence["unseen_building_share"]``).
@@ -57,6 +62,8 @@ class LocalizationResult:
     hypotheses: list = field(default_factory=list)
     rejected_pose_local: Pose | None = None
     warnings: list[str] = field(default_factory=list)
+    covariance: np.ndarray | None = None
+    score_curvature: np.ndarray | None = None
 
     @property
     def found_pose_local(self) -> Pose | None:
@@ -93,4 +100,6 @@ class LocalizationResult:
         if self.pose_local is not None:
             out.update(pose_to_dict(self.pose_local, origin=origin, crs=crs))
             out.setdefault("crs", None)  # always present for a pose, as in earlier versions
+            if self.covariance is not None:
+                out["covariance"] = covariance_dict(self.covariance)
         return out
