@@ -119,8 +119,11 @@ def test_oracle_run_writes_the_benchmark_files_and_says_oracle(dataset_dir, tmp_
         len(model.poses()) == len(localized) == len(list((tmp_path / "run" / ESTIMATES_DIR).glob("*.json")))
     )
     for row in localized:
-        est = read_pose(tmp_path / "run" / ESTIMATES_DIR / f"{row['query_id']}.json")
+        path = tmp_path / "run" / ESTIMATES_DIR / f"{row['query_id']}.json"
+        est = read_pose(path)
         np.testing.assert_allclose(est.center, [float(row[f"est_world_{k}"]) for k in "xyz"], atol=1e-9)
+        sigma = json.loads(path.read_text())["extra"]["covariance"]["sigma"]  # the pose's, beside it
+        assert np.hypot(sigma[0], sigma[1]) == pytest.approx(float(row["sigma_xy_m"]), rel=1e-5)
 
 
 def test_rerun_resumes_and_other_arguments_are_refused(dataset_dir, tmp_path):

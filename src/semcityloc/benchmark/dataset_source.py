@@ -54,6 +54,7 @@ from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import read_depth_file, read_mask_file, scaled_size
 from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.covariance import covariance_dict
 from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
@@ -292,12 +293,15 @@ class DatasetSource:
         return None
 
     def save_estimate(self, out_dir: Path, q: BenchmarkQuery, result: LocalizationResult) -> None:
-        """``estimates/<query_id>.json``: the localized pose in the data set's world frame."""
+        """``estimates/<query_id>.json``: the localized pose in the data set's world frame, with its
+        covariance when it has one (``extra.covariance``, ``docs/data-formats.md``)."""
         if result.localized and result.pose_local is not None:
             folder = out_dir / ESTIMATES_DIR
             folder.mkdir(exist_ok=True)
             path = folder / f"{q.query_id}.json"
             tmp = folder / f".{q.query_id}.tmp.json"
-            name = self.queries[q.index].name
-            write_pose_json(result.pose_local, tmp, origin=self.map_model.origin, extra={"image": name})
+            extra = {"image": self.queries[q.index].name}
+            if result.covariance is not None:
+                extra["covariance"] = covariance_dict(result.covariance)
+            write_pose_json(result.pose_local, tmp, origin=self.map_model.origin, extra=extra)
             tmp.replace(path)

@@ -12,6 +12,7 @@
     prior_err_m: "prior error: camera centre (m)", prior_yaw_err_deg: "prior error: yaw (°)",
     score: "score", semantic: "semantic score", depth_cost: "depth cost", score_margin: "score margin",
     spread_m: "spread of good poses (m)", spread_deg: "spread of good poses (°)",
+    sigma_xy_m: "1-sigma: horizontal (m)", sigma_z_m: "1-sigma: height (m)", sigma_yaw_deg: "1-sigma: yaw (°)",
     building_iou: "building IoU", probability: "acceptance probability (confidence)",
     query_miou: "query mask mIoU (%)", height_m: "height above ground (m)", t_total_s: "time (s)",
   };
