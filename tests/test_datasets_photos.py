@@ -86,6 +86,10 @@ def test_odm_geo_txt_is_in_the_horizontal_crs():
     assert (float(yaw), float(pitch), float(roll)) == (30.0, -60.0, 0.0)
     with pytest.raises(InputFileError, match="spaces"):
         odm_geo_text("EPSG:25833", [("a b.JPG", (0.0, 0.0, 0.0), tag())])
+    # With accuracies (one sigma, m): ODM's 8th and 9th columns, on the rows that have them.
+    rows = [("a.JPG", (1.0, 2.0, 3.0), tag()), ("b.JPG", (4.0, 5.0, 6.0), tag())]
+    lines = odm_geo_text("EPSG:25833", rows, [(0.41234, 0.9), None]).splitlines()
+    assert lines[1].split()[7:] == ["0.412", "0.900"] and len(lines[2].split()) == 7
 
 
 # ------------------------------------------------------------------------------------------ photos

@@ -374,6 +374,10 @@ def test_berlin_geotags_go_back_to_the_model_crs_within_a_centimetre(berlin_run)
                 np.array(record["position"]),
                 read_pose(out / "poses" / f"{Path(name).stem}.json"),
             )
+            # The accuracy is the pose's own: its covariance's per-axis horizontal and vertical sigma.
+            sx, sy, sz = record["extra"]["covariance"]["sigma"][:3]
+            assert float(r["accuracy_xy_m"]) == pytest.approx(np.hypot(sx, sy) / np.sqrt(2), abs=1e-3)
+            assert float(r["accuracy_z_m"]) == pytest.approx(sz, abs=1e-3)
         else:  # not localized: the photo keeps its prior, with its uncertainty as accuracy
             assert r["source"].startswith("prior (not localized") and float(r["accuracy_xy_m"]) == 5.0
             expected, pose = np.array(record["prior"]["position"]), read_pose(json.dumps(record["prior"]))
@@ -389,6 +393,9 @@ def test_berlin_geotags_go_back_to_the_model_crs_within_a_centimetre(berlin_run)
         name, x, y, z = line.split()[:4]
         position = read_pose(out / "poses" / f"{Path(name).stem}.json").center
         np.testing.assert_allclose([float(x), float(y), float(z)], position, atol=1e-3)
+        horizontal, vertical = (float(v) for v in line.split()[7:9])  # ODM's accuracy columns
+        assert horizontal == pytest.approx(float(rows[name]["accuracy_xy_m"]), abs=1e-3)
+        assert vertical == pytest.approx(float(rows[name]["accuracy_z_m"]), abs=1e-3)
 
 
 def test_berlin_geojson_and_colmap_parse_and_agree(berlin_run):

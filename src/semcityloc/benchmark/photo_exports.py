@@ -6,11 +6,12 @@ the same), in the formats users import elsewhere:
 - ``colmap/``: ``cameras.txt``, ``images.txt``, ``points3D.txt`` (empty): the localized photos' poses in
   the model's frame, named by image (``datasets.colmap.write_model``, the one COLMAP writer);
 - ``geotags.csv`` (model CRS known): every photo's WGS 84 position and DJI angles
-  (``datasets.geotags``; ``source`` = ``semcityloc`` for a corrected pose, ``prior (not localized: ...)``
-  for a photo that keeps its prior, with the prior's uncertainty as accuracy), what Metashape and Pix4D
-  import as reference positions;
+  (``datasets.geotags``; ``source`` = ``semcityloc`` for a corrected pose, with its covariance's sigmas
+  as accuracy, ``prior (not localized: ...)`` for a photo that keeps its prior, with the prior's
+  uncertainty as accuracy), what Metashape and Pix4D import as reference positions;
 - ``geo.txt`` (model CRS known): OpenDroneMap's image geolocation file of the localized photos, in the
-  model's horizontal CRS (its own coordinates: no height conversion);
+  model's horizontal CRS (its own coordinates: no height conversion), with the covariance's horizontal and
+  vertical accuracy;
 - ``cameras.geojson``: camera centres and ground footprints for a GIS (``datasets.geojson``), every
   photo (at its estimate, or at its prior when not localized).
 
@@ -50,6 +51,16 @@ NO_CRS = (
     "the city model names no CRS, so no geotags.csv / geo.txt (WGS 84 needs one); pass --crs (and "
     "--offset when the model's frame is its CRS minus an offset)"
 )
+
+
+def position_accuracy(covariance: dict | None) -> tuple[float, float] | None:
+    """(horizontal, vertical) one-sigma accuracy (m) of a pose from its covariance record
+    (``covariance.covariance_dict``): the root mean square of the x and y sigmas (per axis, as the
+    prior's ``xy`` and the photogrammetry tools' camera accuracy are), and the z sigma; None without one."""
+    if not covariance:
+        return None
+    sx, sy, sz = covariance["sigma"][:3]
+    return float(np.sqrt((sx * sx + sy * sy) / 2.0)), float(sz)
 
 
 def ground_z(model: CityModel) -> float:
@@ -117,13 +128,15 @@ def write_exports(
         outputs["geotags"] = outputs["geo_txt"] = None
         outputs["notes"].append(NO_CRS)
         return outputs
-    rows, odm = [], []
+    rows, odm, odm_accuracy = [], [], []
     for inp in inputs:
         est = estimates.get(inp.name)
         if est is not None:
             tag = dji_geotag(est, model.crs, shift, target_height)
-            rows.append(GeotagRow(inp.name, tag, source="semcityloc"))
+            accuracy = position_accuracy(records[inp.name].get("extra", {}).get("covariance"))
+            rows.append(GeotagRow(inp.name, tag, *(accuracy or (None, None)), source="semcityloc"))
             odm.append((inp.name, tuple((est.center + shift).tolist()), tag))
+            odm_accuracy.append(accuracy)
         else:
             tag = dji_geotag(inp.prior.pose_world, model.crs, shift, target_height)
             reason = records[inp.name].get("reason") or "no result"
@@ -133,6 +146,6 @@ def write_exports(
             outputs["notes"].append(tag.vertical_flag)
     write_atomic(out_dir / GEOTAGS_FILE, geotags_csv_text(rows))
     outputs["geotags"] = str(out_dir / GEOTAGS_FILE)
-    write_atomic(out_dir / ODM_GEO_FILE, odm_geo_text(model.crs, odm))
+    write_atomic(out_dir / ODM_GEO_FILE, odm_geo_text(model.crs, odm, odm_accuracy))
     outputs["geo_txt"] = str(out_dir / ODM_GEO_FILE)
     return outputs

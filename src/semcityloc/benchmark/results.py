@@ -8,8 +8,9 @@ followed by ``fsync``, by the parent process only. On start the file is read, a 
 newline: the process died mid-write) is cut off, and the ids already there are skipped. Rows may be in any
 order (``--workers``); each id appears once. Poses: the map model's local frame (x y z m, roll pitch yaw
 deg) + world x y z (``origin + local``); errors: camera-centre distance (m), full rotation angle and yaw
-(deg), "inf" when not localized; timings in s; ``sigma_xy_m`` / ``sigma_z_m`` / ``sigma_yaw_deg``: the
-accepted pose's 1-sigma from its covariance (``localization/covariance.py``; empty without one);
+(deg), "inf" when not localized; timings in s; ``sigma_xy_m`` (per axis) / ``sigma_z_m`` /
+``sigma_yaw_deg``: the accepted pose's 1-sigma from its covariance (``localization/covariance.py``; empty
+without one);
 ``warnings``: what the localizer ignored and why (a depth map dropped) or noticed (buildings the map
 lacks; ``LocalizationResult.warnings``), joined by `` | ``, empty
 when none. A ``results.csv`` written before a column of ``ADDED_COLUMNS`` existed still resumes: it is
@@ -184,13 +185,13 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
 
 
 def _sigmas(covariance: np.ndarray | None) -> dict[str, float | None]:
-    """1-sigma of the accepted pose from its covariance: horizontal (the root of the xy block's trace),
-    height and yaw; None without a covariance."""
+    """1-sigma of the accepted pose from its covariance: horizontal per axis (the root mean square of the
+    x and y sigmas, as the prior's ``xy`` is), height and yaw; None without a covariance."""
     if covariance is None:
         return {"sigma_xy_m": None, "sigma_z_m": None, "sigma_yaw_deg": None}
     var = np.diag(covariance)
     return {
-        "sigma_xy_m": float(np.sqrt(var[0] + var[1])),
+        "sigma_xy_m": float(np.sqrt((var[0] + var[1]) / 2.0)),
         "sigma_z_m": float(np.sqrt(var[2])),
         "sigma_yaw_deg": float(np.sqrt(var[5])),
     }

@@ -194,16 +194,26 @@ def geotags_csv_text(rows: list[GeotagRow]) -> str:
     return buf.getvalue()
 
 
-def odm_geo_text(crs: pyproj.CRS | str, rows: list[tuple[str, tuple[float, float, float], DjiGeotag]]) -> str:
+def odm_geo_text(
+    crs: pyproj.CRS | str,
+    rows: list[tuple[str, tuple[float, float, float], DjiGeotag]],
+    accuracies: list[tuple[float, float] | None] | None = None,
+) -> str:
     """OpenDroneMap's ``geo.txt``: the projection of the model's horizontal CRS, then per image
-    ``name x y z yaw pitch roll`` (``rows``: (name, position in that CRS, geotag for the angles))."""
+    ``name x y z yaw pitch roll`` (``rows``: (name, position in that CRS, geotag for the angles)),
+    followed by ``horizontal_accuracy vertical_accuracy`` (m, one sigma; ODM weights the positions by
+    them) where ``accuracies`` gives them for that row."""
     horizontal = horizontal_crs(crs)
     code = horizontal.to_epsg()
     if code is None:
         raise CRSError(f"{horizontal.name}: no EPSG code for OpenDroneMap's geo.txt projection line")
     lines = [f"EPSG:{code}"]
-    for name, (x, y, z), g in rows:
+    accuracies = accuracies if accuracies is not None else [None] * len(rows)
+    for (name, (x, y, z), g), accuracy in zip(rows, accuracies, strict=True):
         if any(c.isspace() for c in name):
             raise InputFileError(f"{name!r}: geo.txt cannot hold image names with spaces")
-        lines.append(f"{name} {x:.4f} {y:.4f} {z:.4f} {g.yaw_deg:.6f} {g.pitch_deg:.6f} {g.roll_deg:.6f}")
+        line = f"{name} {x:.4f} {y:.4f} {z:.4f} {g.yaw_deg:.6f} {g.pitch_deg:.6f} {g.roll_deg:.6f}"
+        if accuracy is not None:
+            line += f" {accuracy[0]:.3f} {accuracy[1]:.3f}"
+        lines.append(line)
     return "\n".join(lines) + "\n"
