@@ -7,18 +7,21 @@ and a sideways shift look alike: the tilt-versus-shift ridge). The particles' sp
 the filter was run than about the evidence (its softmax temperature is relative to the population's own
 score spread); the score's curvature is the evidence.
 
-How: the polish samples the score around the estimate (about 190 fine evaluations at no extra cost); a
-quadratic ``score(s) ~ c + g.d + 1/2 d' H d`` (``d = s - estimate``, angles wrapped) is fitted to them by
-least squares, in coordinates standardised by the samples' own spread. ``A = -H`` is the score's
-curvature, made symmetric positive definite (eigenvalues floored at the largest over ``MAX_SIGMA_RATIO``
-squared, so a flat or upward direction reads as "barely constrained": its sigma at most ``MAX_SIGMA_RATIO``
-times the best-constrained direction's, in standardised units). The Laplace approximation of a posterior
-``exp(score / T)`` gives ``T * A^-1``. The score is the map's, so that describes how well the image fits
-*this map*; where the map is not the world (eaves, a changed building, a warped depth) the estimate sits
-off the truth by an error the curvature cannot see, so a constant floor is added:
-``covariance = T * A^-1 + diag(floor^2)``. The temperature ``T`` (score units) and the six floor sigmas
-are fitted by maximum likelihood on the calibration cities' right poses
-(``benchmarks/calibrate_covariance.py``) and checked on Berlin (``docs/localization.md``, "Pose
+How: after the refinement the score (the prior's roll/pitch term included) is probed at ``PROBES`` = 73
+states around the estimate (``probe_states``: a central composite design, steps that move the image by
+``RefineConfig.covariance_probe_px`` pixels, ``probe_steps``); a quadratic
+``score(s) ~ c + g.d + 1/2 d' H d`` (``d = s - estimate``, angles wrapped) is fitted to them by least
+squares, in coordinates standardised by the samples' own spread (``score_curvature``, which takes any
+samples). ``A = -H`` is the score's curvature, made symmetric positive definite (eigenvalues floored at the
+largest over ``MAX_SIGMA_RATIO`` squared, so a flat or upward direction reads as "barely constrained": its
+sigma at most ``MAX_SIGMA_RATIO`` times the best-constrained direction's, in standardised units). The
+Laplace approximation of a posterior ``exp(score / T)`` gives ``T * A^-1``. The score is the map's, so that
+describes how well the image fits *this map*; where the map is not the world (eaves, a changed building, a
+warped depth) the estimate sits off the truth by an error the curvature cannot see, so a constant floor
+is added: ``covariance = T * A^-1 + diag(floor^2)``. The temperature ``T`` (score units) and the six floor
+sigmas are fitted by maximum likelihood on the calibration cities' right poses, then widened together
+until the 95 % ellipsoid holds 95 % of them (the errors are heavier-tailed than a Gaussian;
+``benchmarks/calibrate_covariance.py``), and checked on Berlin (``docs/localization.md``, "Pose
 covariance"); they live in ``covariance_model.json`` beside this module.
 """
 
