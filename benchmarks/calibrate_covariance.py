@@ -1,4 +1,4 @@
-"""Fit the pose covariance's score temperature (``localization/covariance.py``) and check it on held-out data.
+"""Fit the pose covariance (``localization/covariance.py``: temperature, floor); check it on held-out data.
 
 Usage::
 
