@@ -346,3 +346,15 @@ def test_mixed_simulated_and_real_runs_are_labelled_by_what_tells_them_apart(tmp
     assert labels[str(sim_a)] == "semcityloc, city=generated, seg_quality=trained, queries=2"
     assert labels[str(sim_b)] == "semcityloc, city=generated, seg_quality=medium, queries=2"
     assert labels[str(real)] == "semcityloc [oracle], city=UAVD4L-LoD1.obj, queries=1"
+
+
+def test_every_number_the_query_browser_gets_has_a_label():
+    """``report_views.NUMBERS`` reach the page; ``report.js`` shows only those it has a label for."""
+    import re
+
+    from semcityloc.benchmark import report_views
+
+    script = (Path(report_views.__file__).parent / "report_assets" / "report.js").read_text()
+    block = script.split("const NUMBER_LABELS = {", 1)[1].split("};", 1)[0]
+    labelled = set(re.findall(r"(\w+):\s*\"", block))
+    assert set(report_views.NUMBERS) <= labelled, set(report_views.NUMBERS) - labelled
