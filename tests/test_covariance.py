@@ -21,6 +21,7 @@ from semcityloc.localization.covariance import (
     probe_states,
     probe_steps,
     score_curvature,
+    tangent_covariance,
 )
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.result import LOCALIZED
@@ -169,3 +170,29 @@ def test_a_localized_pose_carries_a_covariance_that_holds_its_error(city):
     assert np.abs(corr[:2, 3:5]).max() > 0.5
     record = result.to_dict(city.origin)
     assert record["covariance"]["sigma"] == pytest.approx(np.sqrt(np.diag(cov)).tolist())
+
+
+@pytest.mark.parametrize("frame", ["world", "camera"])
+def test_tangent_covariance_matches_sampled_rotation_vectors(frame):
+    """Euler-angle errors drawn from a covariance, turned into rotation vectors about world or camera
+    axes, have the covariance ``tangent_covariance`` predicts (first order: small errors)."""
+    from scipy.spatial.transform import Rotation
+
+    from semcityloc.geometry.pose import Pose
+
+    state = np.array([5.0, -3.0, 90.0, 2.0, 35.0, 130.0])  # an oblique view
+    cov = pose_covariance(_spd(9), 1e-3)
+    predicted = tangent_covariance(state, cov, frame)
+    draws = np.random.default_rng(10).multivariate_normal(state, cov, size=4000)
+    r0 = Pose.from_xyz_rpy(state[:3], *state[3:]).R_world_from_cam
+    rs = Pose.from_xyz_rpy(draws[:, :3], draws[:, 3], draws[:, 4], draws[:, 5]).R_world_from_cam
+    delta = rs @ r0.T if frame == "world" else r0.T @ rs
+    vectors = np.concatenate([Rotation.from_matrix(delta).as_rotvec(), draws[:, :3]], axis=1)
+    sampled = np.cov(vectors.T)
+    scale = np.sqrt(np.outer(np.diag(predicted), np.diag(predicted)))
+    assert np.all(np.abs(sampled - predicted) < 0.08 * scale)  # each entry against its own sigmas
+    np.testing.assert_allclose(predicted[3:, 3:], cov[:3, :3])
+    other = tangent_covariance(state, cov, "camera" if frame == "world" else "world")
+    assert np.abs(other[:3, :3] - predicted[:3, :3]).max() > 0.2 * scale[:3, :3].max()  # frames differ
+    with pytest.raises(ParameterError, match="frame"):
+        tangent_covariance(state, cov, "body")

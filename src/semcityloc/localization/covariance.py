@@ -33,8 +33,10 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from semcityloc.errors import ParameterError
+from semcityloc.geometry.pose import Pose
 
 MODEL_PATH = Path(__file__).with_name("covariance_model.json")
 STATE_NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -126,6 +128,43 @@ def mahalanobis_sq(error: np.ndarray, covariance: np.ndarray) -> float:
     """``e' C^-1 e`` of a (6,) state error (angles wrapped) under a (6, 6) covariance."""
     e = _offsets(np.atleast_2d(error), np.zeros(6))[0]
     return float(e @ np.linalg.solve(covariance, e))
+
+
+def tangent_covariance(state: np.ndarray, covariance: np.ndarray, frame: str = "world") -> np.ndarray:
+    """The (x, y, z, roll, pitch, yaw) covariance of a pose at ``state`` as that of a rotation vector
+    (radians) and the camera centre (m): the form a navigation filter or a factor graph takes.
+
+    ``frame="world"``: ``R_world_from_cam = Exp(dtheta) R0`` (a turn about world axes), ``frame="camera"``:
+    ``R_world_from_cam = R0 Exp(dtheta)`` (about the camera's own OpenCV axes, GTSAM's ``Pose3``
+    convention for the rotation); rows ``(dtheta (3), dcentre (3))``, the centre in world axes either
+    way. First order: the Euler angles' Jacobian at ``state`` by central differences (a few thousandths
+    of a degree; good while the errors are small against the distance to gimbal lock at roll +-90)."""
+    if frame not in ("world", "camera"):
+        raise ParameterError(f"frame must be 'world' or 'camera', got {frame!r}")
+    state = np.asarray(state, dtype=np.float64)
+    covariance = np.asarray(covariance, dtype=np.float64)
+    if state.shape != (6,) or covariance.shape != (6, 6):
+        shapes = f"{state.shape} and {covariance.shape}"
+        raise ParameterError(f"need a (6,) state and a (6, 6) covariance, got {shapes}")
+
+    def rotation(s: np.ndarray) -> np.ndarray:
+        return Pose.from_xyz_rpy(s[:3], s[3], s[4], s[5]).R_world_from_cam
+
+    r0 = rotation(state)
+    jac = np.zeros((6, 6))
+    jac[3:, :3] = np.eye(3)  # the centre is the state's x, y, z
+    eps = 1e-3  # degrees
+    for k in range(3, 6):
+        step = np.zeros(6)
+        step[k] = eps
+        turns = []
+        for sign in (1.0, -1.0):
+            r = rotation(state + sign * step)
+            delta = r @ r0.T if frame == "world" else r0.T @ r
+            turns.append(Rotation.from_matrix(delta).as_rotvec())
+        jac[:3, k] = (turns[0] - turns[1]) / (2.0 * eps)
+    out = jac @ covariance @ jac.T
+    return 0.5 * (out + out.T)
 
 
 def covariance_dict(covariance: np.ndarray) -> dict:
