@@ -666,18 +666,8 @@ def misses_table(runs: list[RunData]) -> tuple[str, str]:
             [run.label, str(m["queries"]), str(m["count"]["hit"]), *map(str, counts),
              f"{_num(med['hit'], 2)} / {_num(med['misses'], 2)}", hits_agree, f"{warned[0]} / {warned[1]}"]
         )  # fmt: skip
-        csv_rows.append(
-            [
-                run.label,
-                m["queries"],
-                m["count"]["hit"],
-                *counts,
-                med["hit"],
-                med["misses"],
-                hits_agree,
-                *warned,
-            ]
-        )
+        csv_rows.append([run.label, m["queries"], m["count"]["hit"], *counts, med["hit"], med["misses"],
+                         hits_agree, *warned])  # fmt: skip
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(csv_rows)
     return markdown_table(headers, rows), buf.getvalue()
