@@ -124,6 +124,8 @@ def test_oracle_run_writes_the_benchmark_files_and_says_oracle(dataset_dir, tmp_
         np.testing.assert_allclose(est.center, [float(row[f"est_world_{k}"]) for k in "xyz"], atol=1e-9)
         sigma = json.loads(path.read_text())["extra"]["covariance"]["sigma"]  # the pose's, beside it
         assert np.hypot(sigma[0], sigma[1]) / np.sqrt(2) == pytest.approx(float(row["sigma_xy_m"]), rel=1e-5)
+    stated = np.median([float(r["sigma_xy_m"]) for r in localized])
+    assert summary["median_sigma_xy_m"] == pytest.approx(stated) and stated > 0
 
 
 def test_rerun_resumes_and_other_arguments_are_refused(dataset_dir, tmp_path):

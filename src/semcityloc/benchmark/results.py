@@ -339,7 +339,8 @@ def cell_float(text: str | None) -> float:
 
 def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
     """``summary.json``: the metrics of ``evaluation.metrics`` over the rows (``skipped`` rows left out
-    and counted), timings, query mIoU, a per-view breakdown and the run's config.
+    and counted), timings, query mIoU, the accepted poses' median stated sigma (``median_sigma_xy_m``,
+    ``median_sigma_z_m``), a per-view breakdown and the run's config.
 
     Errors need a true pose: rows without one (a user's photos) count in ``queries`` / ``localized`` /
     ``not_localized`` but not in the error metrics, which cover the ``with_ground_truth`` rows only."""
@@ -369,6 +370,10 @@ def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
     s["sec_per_image"] = float(np.nanmean(total)) if np.isfinite(total).any() else float("nan")
     s["sec_per_image_median"] = float(np.nanmedian(total)) if np.isfinite(total).any() else float("nan")
     s.update(map_miou(ordered))
+    for column in ("sigma_xy_m", "sigma_z_m"):  # the accepted poses' stated 1-sigma (covariance)
+        values = np.array([cell_float(r.get(column, "")) for r in every if r["status"] == LOCALIZED])
+        finite = values[np.isfinite(values)]
+        s[f"median_{column}"] = float(np.median(finite)) if finite.size else float("nan")
     s["not_localized_reasons"] = dict(Counter(r["reason"] for r in every if r["status"] != LOCALIZED))
     views = np.array([r["view"] or "unknown" for r in ordered])
     s["by_view"] = {
