@@ -42,7 +42,7 @@ from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.covariance import STATE_NAMES, CovarianceModel, save_models
+from semcityloc.localization.covariance import STATE_NAMES, CovarianceModel, save_models, state_error
 from semcityloc.localization.localize import Localizer
 
 REPO = Path(__file__).resolve().parents[1]
@@ -77,8 +77,7 @@ def _one(index: int) -> list[dict]:
         pose = r.found_pose_local
         if pose is None or r.score_curvature is None:
             continue
-        e = pose.to_xyz_rpy() - q.true_pose_local.to_xyz_rpy()
-        e[3:] = (e[3:] + 180.0) % 360.0 - 180.0
+        e = state_error(pose, q.true_pose_local)
         e_m, e_deg = (
             float(center_error_m(pose, q.true_pose_local)),
             float(rotation_error_deg(pose, q.true_pose_local)),
@@ -108,6 +107,11 @@ def arrays(rows: list[dict], key: str) -> tuple[np.ndarray, np.ndarray]:
     return err, curv
 
 
+def covariances(model: CovarianceModel, curv: np.ndarray) -> np.ndarray:
+    """(n, 6, 6) covariances of a model at curvatures (n, 6, 6)."""
+    return np.array([model.covariance(a) for a in curv]).reshape(len(curv), 6, 6)
+
+
 def median_temperature(err: np.ndarray, curv: np.ndarray) -> float:
     """The temperature of the curvature alone that puts the median Mahalanobis distance at chi2_6's."""
     m = np.einsum("ni,nij,nj->n", err, curv, err)
@@ -122,8 +126,7 @@ def fit_model(err: np.ndarray, curv: np.ndarray, tail: float | None = TAIL) -> C
     model = _max_likelihood(err, curv)
     if tail is None:
         return model
-    covs = np.array([model.covariance(a) for a in curv]).reshape(len(err), 6, 6)
-    m = np.einsum("ni,nij,nj->n", err, np.linalg.inv(covs), err)
+    m = np.einsum("ni,nij,nj->n", err, np.linalg.inv(covariances(model, curv)), err)
     k = max(1.0, float(np.quantile(m, tail) / chi2.ppf(tail, 6)))
     return CovarianceModel(model.temperature * k, tuple(float(v) * np.sqrt(k) for v in model.floor_sigma))
 
@@ -147,7 +150,7 @@ def _max_likelihood(err: np.ndarray, curv: np.ndarray) -> CovarianceModel:
 
 def gaussian_nll(err: np.ndarray, covs: np.ndarray) -> float:
     """Mean negative log-likelihood of the errors (n, 6) under covariances (n, 6, 6)."""
-    sign, logdet = np.linalg.slogdet(covs)
+    _, logdet = np.linalg.slogdet(covs)
     m = np.einsum("ni,nij,nj->n", err, np.linalg.inv(covs), err)
     return float(np.mean(0.5 * (m + logdet + 6 * np.log(2 * np.pi))))
 
@@ -161,9 +164,9 @@ def describe(
     constant: np.ndarray,
     label: str,
 ) -> dict:
-    covs = np.array([model.covariance(a) for a in curv]).reshape(len(err), 6, 6)
+    covs = covariances(model, curv)
     m = np.einsum("ni,nij,nj->n", err, np.linalg.inv(covs), err)
-    inside = " ".join(f"{int(100 * q)}%:{np.mean(m <= chi2.ppf(q, 6)):.2f}" for q in LEVELS)
+    inside = {q: float(np.mean(m <= chi2.ppf(q, 6))) for q in LEVELS}
     sig = np.sqrt(np.einsum("nii->ni", covs))
     z = np.abs(err) / sig
     per = " ".join(
@@ -171,10 +174,11 @@ def describe(
     )
     med_sig = " ".join(f"{n} {np.median(sig[:, i]):.2f}" for i, n in enumerate(STATE_NAMES))
     nll = gaussian_nll(err, covs)
-    nll_ml = gaussian_nll(err, np.array([ml.covariance(a) for a in curv]).reshape(covs.shape))
+    nll_ml = gaussian_nll(err, covariances(ml, curv))
     nll_a = gaussian_nll(err, alone * np.linalg.inv(curv))
     nll_c = gaussian_nll(err, np.broadcast_to(constant, covs.shape))
-    print(f"  {label}: n={len(err)} inside ellipsoid {inside}")
+    shares = " ".join(f"{int(100 * q)}%:{share:.2f}" for q, share in inside.items())
+    print(f"  {label}: n={len(err)} inside ellipsoid {shares}")
     print(f"    within 1/2 sigma: {per}")
     print(f"    median sigma: {med_sig}")
     print(
@@ -183,7 +187,7 @@ def describe(
     )
     return {
         "n": len(err),
-        "inside": {str(q): float(np.mean(m <= chi2.ppf(q, 6))) for q in LEVELS},
+        "inside": {str(q): share for q, share in inside.items()},
         "nll": {"fitted": nll, "before_widening": nll_ml, "curvature_alone": nll_a, "constant": nll_c},
     }
 
@@ -197,7 +201,7 @@ def main() -> int:
     ap.add_argument("--check-seed", type=int, default=1)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=None)
-    ap.add_argument("--write", action="store_true", help="save the fitted temperatures into the package")
+    ap.add_argument("--write", action="store_true", help="save the fitted model into the package")
     args = ap.parse_args()
     fit_cities = args.fit_city or calibration_cities(SHARED)
     try:

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from semcityloc.benchmark.dataset_source import DatasetSpec
-from semcityloc.localization.covariance import mahalanobis_sq
+from semcityloc.localization.covariance import mahalanobis_sq, state_error
 from semcityloc.localization.localize import Localizer
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -51,8 +51,7 @@ def main(argv: list[str] | None = None) -> int:
             if found is None or r.covariance is None:
                 print(f"{label}, no pose or no covariance ({r.reason})")
                 continue
-            error = found.to_xyz_rpy() - q.true_pose_local.to_xyz_rpy()
-            error[3:] = (error[3:] + 180.0) % 360.0 - 180.0
+            error = state_error(found, q.true_pose_local)
             d2 = mahalanobis_sq(error, r.covariance)
             sigma = np.sqrt(np.diag(r.covariance))
             print(

@@ -1,4 +1,4 @@
-"""The pose covariance: the score's curvature from the polish's samples, scaled by a fitted model."""
+"""The pose covariance: the score's curvature probed around the estimate, scaled by a fitted model."""
 
 from __future__ import annotations
 

@@ -45,6 +45,7 @@ from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_tex
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
+from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED
 
 NO_CRS = (
@@ -54,13 +55,12 @@ NO_CRS = (
 
 
 def position_accuracy(covariance: dict | None) -> tuple[float, float] | None:
-    """(horizontal, vertical) one-sigma accuracy (m) of a pose from its covariance record
-    (``covariance.covariance_dict``): the root mean square of the x and y sigmas (per axis, as the
-    prior's ``xy`` and the photogrammetry tools' camera accuracy are), and the z sigma; None without one."""
+    """(horizontal per axis, vertical) one-sigma accuracy (m) of a pose from its covariance record
+    (``covariance.covariance_dict``; ``covariance.horizontal_sigma``); None without one."""
     if not covariance:
         return None
     sx, sy, sz = covariance["sigma"][:3]
-    return float(np.sqrt((sx * sx + sy * sy) / 2.0)), float(sz)
+    return horizontal_sigma(sx, sy), float(sz)
 
 
 def ground_z(model: CityModel) -> float:

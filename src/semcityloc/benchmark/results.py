@@ -45,6 +45,7 @@ from semcityloc.classes import NUM_CLASSES
 from semcityloc.errors import BenchmarkError
 from semcityloc.evaluation.metrics import pose_errors, summarize_errors
 from semcityloc.geometry.pose import Pose
+from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, LocalizationResult
 from semcityloc.perception.metrics import mean_iou
 
@@ -185,15 +186,15 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
 
 
 def _sigmas(covariance: np.ndarray | None) -> dict[str, float | None]:
-    """1-sigma of the accepted pose from its covariance: horizontal per axis (the root mean square of the
-    x and y sigmas, as the prior's ``xy`` is), height and yaw; None without a covariance."""
+    """1-sigma of the accepted pose from its covariance: horizontal per axis (``horizontal_sigma``), height
+    and yaw; None without a covariance."""
     if covariance is None:
         return {"sigma_xy_m": None, "sigma_z_m": None, "sigma_yaw_deg": None}
-    var = np.diag(covariance)
+    sigma = np.sqrt(np.diag(covariance))
     return {
-        "sigma_xy_m": float(np.sqrt((var[0] + var[1]) / 2.0)),
-        "sigma_z_m": float(np.sqrt(var[2])),
-        "sigma_yaw_deg": float(np.sqrt(var[5])),
+        "sigma_xy_m": horizontal_sigma(sigma[0], sigma[1]),
+        "sigma_z_m": float(sigma[2]),
+        "sigma_yaw_deg": float(sigma[5]),
     }
 
 

@@ -124,6 +124,17 @@ def pose_covariance(
     return 0.5 * (cov + cov.T)
 
 
+def state_error(pose: Pose, truth: Pose) -> np.ndarray:
+    """(6,) ``pose - truth`` in state units (m, deg; angles wrapped to +-180): what a covariance describes."""
+    return _offsets(pose.to_xyz_rpy()[None], truth.to_xyz_rpy())[0]
+
+
+def horizontal_sigma(sigma_x: float, sigma_y: float) -> float:
+    """The horizontal 1-sigma per axis (the root mean square of x's and y's), as a prior's ``xy`` and the
+    photogrammetry tools' camera accuracy are stated."""
+    return float(np.sqrt((sigma_x * sigma_x + sigma_y * sigma_y) / 2.0))
+
+
 def mahalanobis_sq(error: np.ndarray, covariance: np.ndarray) -> float:
     """``e' C^-1 e`` of a (6,) state error (angles wrapped) under a (6, 6) covariance."""
     e = _offsets(np.atleast_2d(error), np.zeros(6))[0]

@@ -152,9 +152,6 @@ class Localizer:
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         with_depth = query.depth is not None
-        cov_model = covariance_model(self.confidence_kind, with_depth)
-        if result.score_curvature is not None and cov_model is not None:
-            result.covariance = cov_model.covariance(result.score_curvature)
         if cfg.acceptance == "calibrated":
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
@@ -277,10 +274,12 @@ class Localizer:
             result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
             result.confidence.update(spread_m=best.spread_m, spread_deg=best.spread_deg)
             # The covariance's probe, where a fitted model will turn its curvature into one.
-            fitted = covariance_model(self.confidence_kind, fine.depth is not None) is not None
-            if cfg.refine.covariance_probe_px > 0 and fitted:
+            cov_model = covariance_model(self.confidence_kind, fine.depth is not None)
+            if cfg.refine.covariance_probe_px > 0 and cov_model is not None:
                 result.score_curvature = self._probe_curvature(levels, final, cfg, prior)
                 result.counts["refine_evaluations"] += PROBES
+                if result.score_curvature is not None:
+                    result.covariance = cov_model.covariance(result.score_curvature)
         result.pose_local = _pose(final)
         result.timings["refine_s"] = time.perf_counter() - t0
 
