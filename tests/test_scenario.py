@@ -106,6 +106,15 @@ def test_settings_reach_every_knob_and_are_checked():
         query_config("hard", queries=1)
 
 
+def test_knobs_valid_only_together_are_set_together():
+    # One at a time, the first would fail its own check (nominal 75 m outside 150-250 m).
+    settings = parse_settings(["height_range_m=[150,250]", "nominal_height_m=200"])
+    cfg = query_config("realistic", settings, queries=1)
+    assert cfg.height_range_m == (150.0, 250.0) and cfg.nominal_height_m == 200.0
+    with pytest.raises(BenchmarkConfigError, match="height_range_m"):
+        query_config("realistic", parse_settings(["height_range_m=[150,250]"]), queries=1)
+
+
 @pytest.mark.parametrize(
     "knob",
     [

@@ -53,9 +53,7 @@ def query_config(
     if scenario not in SCENARIOS:
         raise unknown_choice("scenario", scenario, SCENARIOS, BenchmarkConfigError)
     cfg = QueryConfig(**{**SCENARIOS[scenario], **fields, "scenario": scenario})
-    for name, value in (settings or {}).items():
-        cfg = set_knob(cfg, name, value)
-    return cfg
+    return set_knobs(cfg, settings or {})
 
 
 def knob_names() -> tuple[str, ...]:
@@ -122,16 +120,31 @@ def _coerce(value: Any, current: Any) -> Any:
 
 def set_knob(cfg: QueryConfig, name: str, value: Any) -> QueryConfig:
     """``cfg`` with knob ``name`` set to ``value`` (checked by the dataclasses' own range checks)."""
-    outer, inner = _resolve(name)
-    try:
+    return set_knobs(cfg, {name: value})
+
+
+def set_knobs(cfg: QueryConfig, settings: dict[str, Any]) -> QueryConfig:
+    """``cfg`` with every knob of ``settings`` set at once, then checked: knobs that are only valid
+    together (``height_range_m`` and ``nominal_height_m``) can move together."""
+    top: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {}
+    for name, value in settings.items():
+        outer, inner = _resolve(name)
         if outer is None:
-            return dataclasses.replace(cfg, **{inner: _coerce(value, getattr(cfg, inner))})
-        nested = getattr(cfg, outer)
-        if nested is None:  # e.g. depth_model in the clean scenario: start from the realistic defaults
-            nested = _NESTED[outer]()
-        nested = dataclasses.replace(nested, **{inner: _coerce(value, getattr(nested, inner))})
-        return dataclasses.replace(cfg, **{outer: nested})
+            top[inner] = value
+        else:
+            nested.setdefault(outer, {})[inner] = value
+    try:
+        changes = {name: _coerce(value, getattr(cfg, name)) for name, value in top.items()}
+        for outer, fields in nested.items():
+            # e.g. depth_model in the clean scenario is None: start from the realistic defaults
+            base = getattr(cfg, outer) or _NESTED[outer]()
+            changes[outer] = dataclasses.replace(
+                base, **{name: _coerce(value, getattr(base, name)) for name, value in fields.items()}
+            )
+        return dataclasses.replace(cfg, **changes)
     except (TypeError, ValueError) as exc:
         if isinstance(exc, BenchmarkConfigError):
             raise
-        raise BenchmarkConfigError(f"--set {name}={value!r}: {exc}") from exc
+        given = " ".join(f"{name}={value!r}" for name, value in settings.items())
+        raise BenchmarkConfigError(f"--set {given}: {exc}") from exc
