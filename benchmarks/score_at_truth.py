@@ -17,7 +17,7 @@ search's width: 128, 256, 512 pixels across by default): ``score_truth_x4`` etc.
 refinement's cannot (a resolution limit), or does it prefer the found pose too (the input's bias)?
 
     python benchmarks/score_at_truth.py [--city generated] [--seed 0] [--queries 100] [--workers 2]
-        [--scales 4,8]
+        [--scales 4,8] [--set focal_mm=28 ...]
 
 Calibration cities only for decisions (the generated city, Fürth); ``docs/localization.md`` has the figures.
 """
@@ -29,16 +29,17 @@ import dataclasses
 import json
 from concurrent.futures import ProcessPoolExecutor
 
-from semcityloc.benchmark.scenario import query_config
+from semcityloc.benchmark.scenario import parse_settings, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.errors import BenchmarkConfigError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.localize import Localizer
 
 _WORKER: dict = {}
 
 
-def _init(city: str, seed: int, queries: int, scales: tuple[int, ...]) -> None:
-    spec = BenchmarkSpec(city=city, query=query_config("realistic", queries=queries, seed=seed))
+def _init(city: str, seed: int, queries: int, scales: tuple[int, ...], settings: dict) -> None:
+    spec = BenchmarkSpec(city=city, query=query_config("realistic", settings, queries=queries, seed=seed))
     source = spec.open_source(spec.run_config())
     _WORKER.update(source=source, localizer=Localizer(source.map_model), scales=scales)
 
@@ -51,6 +52,8 @@ def _one(index: int) -> dict | None:
     r = loc.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
     found = r.found_pose_local
     row = {"id": q.query_id, "view": q.meta.get("view"), "status": r.status}
+    if r.confidence:
+        row["probability"] = round(float(r.confidence["probability"]), 3)
     if found is None:
         return {**row, "miss": True}
     e_m, e_deg = (
@@ -90,17 +93,23 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=100)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--scales", type=_scales, default=(), help="also score at these refine.scale values")
+    ap.add_argument("--set", action="append", default=[], metavar="KNOB=VALUE", help="a scenario knob")
     args = ap.parse_args()
-    with ProcessPoolExecutor(
-        args.workers, initializer=_init, initargs=(args.city, args.seed, args.queries, args.scales)
-    ) as pool:
+    try:
+        settings = parse_settings(args.set)
+        query_config("realistic", settings, queries=args.queries, seed=args.seed)
+    except BenchmarkConfigError as exc:
+        raise SystemExit(f"score_at_truth: {exc}") from None
+    init_args = (args.city, args.seed, args.queries, args.scales, settings)
+    with ProcessPoolExecutor(args.workers, initializer=_init, initargs=init_args) as pool:
         rows = [r for r in pool.map(_one, range(args.queries)) if r is not None]
     misses = [r for r in rows if r["miss"]]
     for r in misses:
         print(json.dumps(r))
     scored = [r for r in misses if "score_truth" in r]
     lower = sum(r["score_truth"] < r["score_found"] for r in scored)
-    summary = {"city": args.city, "seed": args.seed, "queries": len(rows), "misses": len(misses)}
+    summary = {"city": args.city, "seed": args.seed, "settings": settings, "queries": len(rows)}
+    summary["misses"] = len(misses)
     summary.update(scored_misses=len(scored), truth_lower=lower, truth_higher=len(scored) - lower)
     for scale in args.scales:
         summary[f"truth_lower_x{scale}"] = sum(
