@@ -1,7 +1,7 @@
 #!/bin/bash
 # The runs behind the tables of docs/benchmark.md ("Results: realistic scenario", held-out seed and city,
 # the two real images, the knob sweeps): one `semcityloc benchmark` per row, resumable, then the report with the acceptance
-# table and the risk-coverage plot, and each main run's miss_causes.md. About 45 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
+# table and the risk-coverage plot, and each main run's miss_causes.md, and the "Other cameras and cities" checks. About 55 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
 # Needs ../shared/data beside the repository (the Berlin, Den Haag and real-image data).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -38,6 +38,24 @@ $S benchmark --city generated --lod 3 --preset openings --queries 50 --workers 2
 for KV in "prior_roll_pitch_sigma_deg 0,1,2 rp" "height_change_max_m 0,2,4 height" "depth_model.distortion 0,0.1,0.2 depth"; do
   set -- $KV
   $S sweep --knob "$1" --values "$2" --city $CITY --queries 50 --workers 2 --out "$R/sweep_$3"
+done
+# "Other cameras and cities": cities no stop tuned on, Berlin seed 3 with one knob pushed, a narrow camera
+for C in delft rotterdam_subset; do
+  $S benchmark --city $DATA/cityjson_nl/$C.json --queries 100 --workers 2 --out "$R/other_$C"
+done
+set -f  # the knob values hold [ ]: no file-name globbing of them
+for KV in "as_is" "imu2 prior_roll_pitch_sigma_deg=2 prior_roll_pitch_deg=5" \
+    "depth2 depth_model.distortion=0.2 depth_model.noise=[0.05,0.1]" \
+    "outdated reality.missing_fraction=0.2 reality.new_fraction=0.2" \
+    "higher height_range_m=[150,250] nominal_height_m=200" "narrow focal_mm=28"; do
+  set -- $KV
+  NAME=$1; shift
+  SETS=(); for KNOB in "$@"; do SETS+=(--set "$KNOB"); done
+  $S benchmark --city $CITY --queries 100 --seed 3 --workers 2 ${SETS[@]+"${SETS[@]}"} --out "$R/berlin_s3_$NAME"
+done
+set +f
+for C in generated $DATA/fuerth_lod2_citygml1/LOD2_4424_5482_solid.gml; do
+  $S benchmark --city $C --queries 100 --workers 2 --set focal_mm=28 --out "$R/narrow_$(basename $C .gml)"
 done
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
 $S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html
