@@ -11,13 +11,17 @@ import pytest
 
 from helpers import CAMERA, perturbed, view
 from semcityloc.errors import ParameterError
+from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.confidence import (
+    CALIBRATED_MIN_HFOV_DEG,
     FEATURES_DEPTH,
+    NARROW_VIEW_WARNING,
     calibration_error,
     confidence_model,
+    field_of_view_warning,
     fit_logistic,
     risk_coverage,
 )
@@ -187,6 +191,21 @@ def test_confidence_is_monotone_in_every_piece_of_evidence(kind, with_depth):
         assert sign * (more - base) >= 0 and sign * (base - less) >= 0, name
     # A missing feature (one hypothesis only) sits at its mean: no NaN comes out.
     assert np.isfinite(model.probability(_result(**{**BASE, "hypothesis_margin": float("nan")})))
+
+
+def test_a_camera_narrower_than_the_calibration_views_is_warned_about(city, localizer, renderer):
+    true = view(city, 10.0, -20.0, 160.0, 0.5, 1.0, 30.0)
+    prior = perturbed(true, [3.0, -2.0, 4.0], dyaw=2.0)
+    narrow = Camera.from_fov(CAMERA.width, CAMERA.height, 34.0)  # a thermal camera's field of view
+    out = renderer.render(narrow, true, depth=True)
+    result = localizer.localize(narrow, prior, out.labels[0], out.depth[0])
+    assert result.pose_local is not None or result.rejected_pose_local is not None
+    (warning,) = [w for w in result.warnings if w.startswith(NARROW_VIEW_WARNING)]
+    assert "34 deg across" in warning
+    wide = localizer.localize(CAMERA, prior, *query(renderer, true))
+    assert not any(w.startswith(NARROW_VIEW_WARNING) for w in wide.warnings)
+    assert field_of_view_warning(CALIBRATED_MIN_HFOV_DEG) is None
+    assert field_of_view_warning(CALIBRATED_MIN_HFOV_DEG - 1) is not None
 
 
 def test_fit_logistic_is_calibrated_on_held_out_data():

@@ -31,7 +31,7 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.agreement import BuildingAgreement, building_agreement
 from semcityloc.localization.cascade import local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
-from semcityloc.localization.confidence import confidence_model
+from semcityloc.localization.confidence import confidence_model, field_of_view_warning
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import (
     PROBES,
@@ -156,6 +156,9 @@ class Localizer:
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
             accepted, reason = p >= cfg.min_confidence, REASON_LOW_CONFIDENCE
+            narrow = field_of_view_warning(camera.hfov_deg)
+            if narrow is not None:
+                result.warnings.append(narrow)
         else:
             accepted, reason = self._accept(result, cfg, with_depth), REASON_LOW_SCORE
         if not accepted:
