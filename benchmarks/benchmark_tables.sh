@@ -54,8 +54,10 @@ for KV in "as_is" "imu2 prior_roll_pitch_sigma_deg=2 prior_roll_pitch_deg=5" \
   $S benchmark --city $CITY --queries 100 --seed 3 --workers 2 ${SETS[@]+"${SETS[@]}"} --out "$R/berlin_s3_$NAME"
 done
 set +f
-for C in generated $DATA/fuerth_lod2_citygml1/LOD2_4424_5482_solid.gml; do
-  $S benchmark --city $C --queries 100 --workers 2 --set focal_mm=28 --out "$R/narrow_$(basename $C .gml)"
+for F in 18.55 23.77 28; do  # 50, 40 and 34 deg across (the default camera: 70)
+  for C in generated $DATA/fuerth_lod2_citygml1/LOD2_4424_5482_solid.gml; do
+    $S benchmark --city $C --queries 100 --workers 2 --set focal_mm=$F --out "$R/narrow${F}_$(basename $C .gml)"
+  done
 done
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
 $S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html

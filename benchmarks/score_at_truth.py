@@ -52,7 +52,7 @@ def _one(index: int) -> dict | None:
     r = loc.localize(q.camera, q.prior_pose_local, q.labels, q.depth)
     found = r.found_pose_local
     row = {"id": q.query_id, "view": q.meta.get("view"), "status": r.status}
-    if r.confidence:
+    if "probability" in r.confidence:
         row["probability"] = round(float(r.confidence["probability"]), 3)
     if found is None:
         return {**row, "miss": True}
