@@ -59,6 +59,10 @@ for F in 18.55 23.77 28; do  # 50, 40 and 34 deg across (the default camera: 70)
     $S benchmark --city $C --queries 100 --workers 2 --set focal_mm=$F --out "$R/narrow${F}_$(basename $C .gml)"
   done
 done
+# the narrow camera with a height prior good to +-5 m, its sigma left at the default and stated
+$S benchmark --city generated --queries 100 --workers 2 --set focal_mm=28 --set prior_height_m=5 --out "$R/narrow_z5"
+$S benchmark --city generated --queries 100 --workers 2 --set focal_mm=28 --set prior_height_m=5 \
+  --prior-sigma z=2 --out "$R/narrow_z5_stated"
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
 $S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html
 PY=${PYTHON:-.venv/bin/python}
