@@ -47,7 +47,8 @@ set -f  # the knob values hold [ ]: no file-name globbing of them
 for KV in "as_is" "imu2 prior_roll_pitch_sigma_deg=2 prior_roll_pitch_deg=5" \
     "depth2 depth_model.distortion=0.2 depth_model.noise=[0.05,0.1]" \
     "outdated reality.missing_fraction=0.2 reality.new_fraction=0.2" \
-    "higher height_range_m=[150,250] nominal_height_m=200" "narrow focal_mm=28"; do
+    "higher height_range_m=[150,250] nominal_height_m=200" "narrow focal_mm=28" \
+    "focal_short focal_error=-0.024" "focal_long focal_error=0.01"; do
   set -- $KV
   NAME=$1; shift
   SETS=(); for KNOB in "$@"; do SETS+=(--set "$KNOB"); done
@@ -58,6 +59,9 @@ for F in 18.55 23.77 28; do  # 50, 40 and 34 deg across (the default camera: 70)
   for C in generated $DATA/fuerth_lod2_citygml1/LOD2_4424_5482_solid.gml; do
     $S benchmark --city $C --queries 100 --workers 2 --set focal_mm=$F --out "$R/narrow${F}_$(basename $C .gml)"
   done
+done
+for E in -0.024 0.01; do
+  $S benchmark --city generated --queries 100 --workers 2 --set focal_error=$E --out "$R/generated_focal$E"
 done
 # the narrow camera with a height prior good to +-5 m, its sigma left at the default and stated
 $S benchmark --city generated --queries 100 --workers 2 --set focal_mm=28 --set prior_height_m=5 --out "$R/narrow_z5"

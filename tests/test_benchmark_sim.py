@@ -120,6 +120,19 @@ def test_changing_only_the_segmentation_quality_keeps_pose_prior_and_depth(city,
     assert q.query_miou < ref.query_miou
 
 
+def test_a_focal_error_changes_only_the_camera_the_localizer_is_told_of(city, views):
+    sim = QuerySimulator(city, QueryConfig(queries=N_QUERIES, seed=0, focal_error=-0.024))
+    q, ref = sim.query(2), views[2].query
+    _same_query(q, ref)  # rendered with the true camera: the same image, truth and prior
+    assert q.camera.fx == pytest.approx(0.976 * ref.camera.fx) and q.camera.fy == pytest.approx(
+        0.976 * ref.camera.fy
+    )
+    assert (q.camera.cx, q.camera.cy, q.camera.width) == (ref.camera.cx, ref.camera.cy, ref.camera.width)
+    for bad in (0.5, -0.7, float("nan")):
+        with pytest.raises(BenchmarkConfigError, match="focal_error"):
+            QueryConfig(focal_error=bad)
+
+
 # ------------------------------------------------------------------------------------------ poses, views
 def test_queries_cover_buildings_and_follow_the_pose_distribution(sim, views):
     cfg = sim.config

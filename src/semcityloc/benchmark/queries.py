@@ -116,6 +116,9 @@ class QueryConfig:
     prior_extra_m: tuple[float, float] | None = None  # extra per-axis (x, y, z) perturbation magnitude bin
     depth: bool = True
     focal_mm: float = 12.29  # DJI Zenmuse L2 (4/3", 17.3 x 13.0 mm sensor, 5280 x 3956): fx = f/17.3*W
+    # The localizer is told a focal length (1 + this) x the true one (the query is rendered with the true
+    # one): EXIF intrinsics instead of a calibration (-0.024 on the real thermal image, docs/your-data.md).
+    focal_error: float = 0.0
     # --- knobs of the realistic scenario (``benchmark.scenario``); these defaults are the clean one ---
     scenario: str = "clean"  # the name of the bundle these values came from (recorded, not used)
     prior_height_m: float | None = None  # None: z error a part of the 3D base error; else uniform +-this
@@ -148,6 +151,7 @@ class QueryConfig:
             "prior_yaw_deg",
             "prior_roll_pitch_deg",
             "focal_mm",
+            "focal_error",
         ):
             value = getattr(self, name)
             if (
@@ -176,6 +180,8 @@ class QueryConfig:
             raise BenchmarkConfigError("max_roll_deg must be in [0, 45] and prior_yaw_deg in [0, 180]")
         if not 0 <= self.prior_roll_pitch_deg <= 45 or self.focal_mm <= 0:
             raise BenchmarkConfigError("prior_roll_pitch_deg must be in [0, 45] and focal_mm positive")
+        if not -0.5 < self.focal_error < 0.5:
+            raise BenchmarkConfigError(f"focal_error must be in (-0.5, 0.5), got {self.focal_error}")
         tr = _pair(self.prior_translation_m, "prior_translation_m")
         if tr[0] < 0:
             raise BenchmarkConfigError(f"prior_translation_m must be >= 0, got {tr}")
@@ -242,6 +248,14 @@ def zenmuse_l2_camera(width: int = 512, height: int = 384, focal_mm: float = 12.
     """The DJI Zenmuse L2 camera at ``width`` x ``height`` (module docstring): fx = fy = f / 17.3 mm x W."""
     f = float(focal_mm) / SENSOR_WIDTH_MM * int(width)
     return Camera(f, f, width / 2.0, height / 2.0, width, height)
+
+
+def stated_camera(
+    width: int = 512, height: int = 384, focal_mm: float = 12.29, focal_error: float = 0.0
+) -> Camera:
+    """The camera the localizer is told of (``QueryConfig.focal_error``): the true one's focal length
+    times ``1 + focal_error``."""
+    return zenmuse_l2_camera(width, height, focal_mm * (1.0 + focal_error))
 
 
 def query_id(index: int) -> str:
@@ -334,7 +348,8 @@ class QuerySimulator:
             raise TypeError(f"map_model must be a CityModel, got {type(map_model).__name__}")
         self.map_model = map_model
         self.config = config
-        self.camera = zenmuse_l2_camera(config.width, config.height, config.focal_mm)
+        self.camera = zenmuse_l2_camera(config.width, config.height, config.focal_mm)  # renders the query
+        self.stated_camera = stated_camera(config.width, config.height, config.focal_mm, config.focal_error)
         self.reality: RealityScene = build_reality(
             map_model, reality_model, seed=config.seed, params=config.reality
         )
@@ -483,7 +498,7 @@ class QuerySimulator:
         query = BenchmarkQuery(
             query_id=query_id(index),
             index=index,
-            camera=self.camera,
+            camera=self.stated_camera,
             true_pose_local=pose,
             prior_pose_local=prior,
             labels=labels,

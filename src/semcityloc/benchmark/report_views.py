@@ -8,7 +8,7 @@ only for its first ``keep_details`` queries (``details/qNNNN.npz``); the poses o
 at ``VIEW_WIDTH`` pixels wide (a few milliseconds a view):
 
 - the camera: the details' camera; for a simulated query without details, the camera its run's query
-  config names (``queries.zenmuse_l2_camera``); a real-data query without details has none stored and
+  config names (``queries.stated_camera``); a real-data query without details has none stored and
   shows its photo (or the run's ``overlays/<stem>.png``) without the model;
 - the background: the photo of a real-data query when it is still where the run found it, else the
   query mask (the simulated view the localizer saw);
@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from semcityloc.benchmark.queries import zenmuse_l2_camera
+from semcityloc.benchmark.queries import stated_camera
 from semcityloc.benchmark.results import SKIPPED, row_pose
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR
 from semcityloc.classes import IGNORE
@@ -105,7 +105,7 @@ def query_camera(config: dict, details: dict | None) -> Camera | None:
         return Camera(float(fx), float(fy), float(cx), float(cy), int(w), int(h))
     qc = config.get("query_config")
     if config.get("mode") is None and qc:
-        return zenmuse_l2_camera(**{k: qc[k] for k in ("width", "height", "focal_mm") if k in qc})
+        return stated_camera(**{k: qc[k] for k in ("width", "height", "focal_mm", "focal_error") if k in qc})
     return None
 
 
