@@ -16,6 +16,7 @@ from semcityloc.datasets.dji import (
     HEIGHT_BAROMETRIC,
     HEIGHT_ELLIPSOIDAL,
     RTK_FLOAT_FLOOR_M,
+    calibrated_intrinsics,
     camera_from_exif,
     dji_geotag,
     dji_prior,
@@ -130,6 +131,32 @@ def test_grid_convergence_is_zero_on_the_central_meridian():
     crs = pyproj.CRS("EPSG:32632")
     assert abs(grid_convergence_deg(crs, 9.0, 50.0)) < 1e-6
     assert grid_convergence_deg(crs, 7.0, 50.0) > 0 > grid_convergence_deg(crs, 11.0, 50.0)
+
+
+def test_dji_calibration_tags_give_the_camera_when_they_fit_the_photo(tmp_path):
+    calibrated = xmp_packet(
+        CalibratedFocalLength="3666.666504", CalibratedOpticalCenterX="33.5", CalibratedOpticalCenterY="23.25"
+    )
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", calibrated, size=(64, 48), focal_35mm=24))
+    cam = camera_from_exif(meta)
+    assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height) == (
+        3666.666504,
+        3666.666504,
+        33.5,
+        23.25,
+        64,
+        48,
+    )
+    # The same tags on a photo resized to half: they describe another image, the 35 mm focal length is used.
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "b.jpg", calibrated, size=(32, 24), focal_35mm=24))
+    assert calibrated_intrinsics(meta) is None
+    cam = camera_from_exif(meta)
+    assert cam.fx == pytest.approx(24 / math.hypot(36, 24) * math.hypot(32, 24)) and cam.cx == 16.0
+    # No calibration tags: the 35 mm-equivalent focal length, as before.
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "c.jpg", xmp_packet(GimbalYawDegree="1"), focal_35mm=24))
+    assert calibrated_intrinsics(meta) is None and camera_from_exif(meta).cx == 32.0
+    with pytest.raises(InputFileError, match="CalibratedFocalLength"):
+        read_dji_metadata(dji_jpeg(tmp_path / "d.jpg", xmp_packet(CalibratedFocalLength="nan")))
 
 
 # ------------------------------------------------------------------------------------------ real image

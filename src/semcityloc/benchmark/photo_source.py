@@ -6,8 +6,9 @@ with ETA, workers, details), so a run of a thousand photos can be stopped and co
 
 Per photo (``datasets.photos`` matches files to photos by name):
 
-- intrinsics: ``exif`` (the 35 mm-equivalent focal length, ``dji.camera_from_exif``) by default, or a
-  calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all);
+- intrinsics: ``exif`` (DJI's calibration tags, else the 35 mm-equivalent focal length,
+  ``dji.camera_from_exif``) by default, or a calibration (LoD-Loc ``intrinsic/`` folder, COLMAP
+  ``cameras.txt``, one file for all);
 - prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every

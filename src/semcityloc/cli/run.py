@@ -45,8 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--intrinsics",
         default=EXIF,
-        help="exif (default: 35 mm-equivalent focal length), a calibration file, COLMAP cameras.txt, or a "
-        "folder of <stem>_intrinsic.txt",
+        help="exif (default: DJI's calibration tags, else the 35 mm-equivalent focal length), a calibration "
+        "file, COLMAP cameras.txt, or a folder of <stem>_intrinsic.txt",
     )
     p.add_argument(
         "--truth", default=None, help="ground-truth poses (same forms as --priors): errors in the summary"

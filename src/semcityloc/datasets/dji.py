@@ -9,8 +9,9 @@ What is read (``read_dji_metadata``): the XMP packet (``drone-dji:GpsLatitude``,
 ``GimbalRollDegree``, ``Flight*Degree``, ``AltitudeType``, ``RtkFlag``, ``RtkStdHgt``, ...), found as
 attributes or elements anywhere in the file by a regular expression (no XML parser, no entities), and the
 EXIF GPS block as a fallback for position (``GPSLatitude`` etc., via Pillow). The camera model and image
-size come from EXIF; ``camera_from_exif`` turns the 35 mm-equivalent focal length into an approximate
-pinhole camera when no calibration exists.
+size come from EXIF; ``camera_from_exif`` makes the pinhole camera from DJI's calibration tags when the
+photo has them (``CalibratedFocalLength``, ``CalibratedOpticalCenterX`` / ``Y``), else approximately from
+the 35 mm-equivalent focal length.
 
 Angles (``geometry.conventions.pose_from_dji``): DJI gimbal angles are NED, yaw clockwise from north,
 pitch -90 = nadir. They refer to true north; a projected CRS's grid north differs by the meridian
@@ -88,6 +89,9 @@ EGM96 = "EPSG:4326+5773"  # WGS 84 + EGM96 height: DJI's "MSL", the default orth
 WGS84_3D = "EPSG:4979"
 EGM96_GRID = "us_nga_egm96_15.tif"
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)  # the "35 mm equivalent" is defined on the diagonal
+# DJI calibration tags are used only while their optical centre lies within this share of the image size
+# of the photo's centre (``calibrated_intrinsics``): farther, the photo was resized or cropped since.
+CALIBRATED_CENTRE_TOLERANCE = 0.1
 MAX_FILE_BYTES = 256 * 1024 * 1024
 AREA_MARGIN_DEG = 2.0  # tolerance around a CRS's area of use (zones are often used a little beyond)
 _ATTR = re.compile(rb'([A-Za-z][\w.-]*):([A-Za-z][\w.-]*)\s*=\s*"([^"]*)"')
@@ -122,6 +126,11 @@ class DjiMetadata:
     height: int | None = None
     focal_length_mm: float | None = None
     focal_length_35mm: float | None = None
+    # DJI's per-unit calibration (``drone-dji:CalibratedFocalLength`` / ``CalibratedOpticalCenterX`` /
+    # ``Y``, pixels of the full-size image), written by enterprise cameras (P4 RTK, Mavic 3E, Zenmuse P1 ...)
+    calibrated_focal_px: float | None = None
+    calibrated_cx_px: float | None = None
+    calibrated_cy_px: float | None = None
     sources: dict[str, str] = field(default_factory=dict)
     xmp: dict[str, str] = field(default_factory=dict)
 
@@ -291,6 +300,15 @@ def read_dji_metadata(path: str | os.PathLike) -> DjiMetadata:
     meta.model = exif.get("model") or xmp.get("tiff:Model")
     meta.focal_length_mm = exif.get("focal_mm")
     meta.focal_length_35mm = exif.get("focal_35mm")
+    meta.calibrated_focal_px = finite_number(
+        dji("CalibratedFocalLength"), "DJI metadata CalibratedFocalLength"
+    )
+    meta.calibrated_cx_px = finite_number(
+        dji("CalibratedOpticalCenterX"), "DJI metadata CalibratedOpticalCenterX"
+    )
+    meta.calibrated_cy_px = finite_number(
+        dji("CalibratedOpticalCenterY"), "DJI metadata CalibratedOpticalCenterY"
+    )
     if meta.latitude is not None and not -90 <= meta.latitude <= 90:
         raise InputFileError(f"{path}: latitude {meta.latitude} is out of range")
     if meta.longitude is not None and not -180 <= meta.longitude <= 360:
@@ -299,18 +317,38 @@ def read_dji_metadata(path: str | os.PathLike) -> DjiMetadata:
 
 
 def camera_from_exif(meta: DjiMetadata) -> Camera:
-    """An approximate pinhole camera from the 35 mm-equivalent focal length (principal point at the centre).
+    """The photo's pinhole camera from its own metadata (principal point at the centre unless calibrated).
 
-    ``f_px = f35 / 43.27 mm x image diagonal in pixels`` (the equivalent focal length is defined on the
-    diagonal of a 36 x 24 mm frame). Measured on the real DJI H20T thermal demo image: 1098.6 px against
-    LoD-Loc's calibrated 1125 px (2.4 % short). Use a calibration when there is one.
+    DJI's calibration when the photo carries one (``calibrated_intrinsics``). Otherwise the 35 mm-equivalent
+    focal length: ``f_px = f35 / 43.27 mm x image diagonal in pixels`` (the equivalent focal length is
+    defined on the diagonal of a 36 x 24 mm frame). Measured on the real DJI H20T thermal demo image (no
+    calibration tags): 1098.6 px against LoD-Loc's calibrated 1125 px (2.4 % short), which lowers the
+    camera by as much (``docs/your-data.md``, section 4). Use a calibration when there is one.
     """
+    calibrated = calibrated_intrinsics(meta)
+    if calibrated is not None:
+        return calibrated
     if meta.focal_length_35mm is None or meta.width is None or meta.height is None:
         raise CameraError(
             "the image has no 35 mm-equivalent focal length (EXIF FocalLengthIn35mmFilm) or size"
         )
     f = meta.focal_length_35mm / FULL_FRAME_DIAGONAL_MM * math.hypot(meta.width, meta.height)
     return Camera(f, f, meta.width / 2.0, meta.height / 2.0, meta.width, meta.height)
+
+
+def calibrated_intrinsics(meta: DjiMetadata) -> Camera | None:
+    """The camera of DJI's calibration tags, or None when the photo has none or they do not fit its size.
+
+    The tags are in pixels of the image the camera wrote. A photo resized or cropped since has its optical
+    centre far from where the tags put it; then the tags describe another image and are not used (more
+    than ``CALIBRATED_CENTRE_TOLERANCE`` of the image size off its centre)."""
+    f, cx, cy = meta.calibrated_focal_px, meta.calibrated_cx_px, meta.calibrated_cy_px
+    if f is None or cx is None or cy is None or meta.width is None or meta.height is None or f <= 0:
+        return None
+    w, h = meta.width, meta.height
+    if abs(cx - w / 2) > CALIBRATED_CENTRE_TOLERANCE * w or abs(cy - h / 2) > CALIBRATED_CENTRE_TOLERANCE * h:
+        return None
+    return Camera(f, f, cx, cy, w, h)
 
 
 # ---------------------------------------------------------------------------------------------- geodesy

@@ -7,9 +7,10 @@ per-photo information in whatever form they come with. This module matches each 
 
 - poses (``PoseFiles``): a COLMAP ``images.txt`` (or any file ``geometry.io.read_poses`` reads) or a
   folder of LoD-Loc ``<stem>_pose.txt`` (4x4 camera-to-world), in the model's CRS / frame;
-- intrinsics (``IntrinsicsFiles``): ``exif`` (``dji.camera_from_exif``: the 35 mm-equivalent focal length
-  of the photo's EXIF), one file for every photo (LoD-Loc ``*_intrinsic.txt``, COLMAP line, JSON,
-  ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids from the ``images.txt`` of the poses) or a
+- intrinsics (``IntrinsicsFiles``): ``exif`` (``dji.camera_from_exif``: DJI's calibration tags, else the
+  35 mm-equivalent focal length of the photo's EXIF), one file for every photo (LoD-Loc
+  ``*_intrinsic.txt``, COLMAP line, JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids
+  from the ``images.txt`` of the poses) or a
   folder of ``<stem>_intrinsic.txt``. The photo's own size always wins (intrinsics of another size are
   rescaled);
 - priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
