@@ -21,6 +21,8 @@ from semcityloc.datasets.geotags import (
 )
 from semcityloc.datasets.photos import (
     EXIF,
+    INTRINSICS_35MM,
+    INTRINSICS_DJI_CALIBRATION,
     IntrinsicsFiles,
     PhotoMissing,
     PriorFiles,
@@ -121,6 +123,23 @@ def test_priors_from_exif_csv_and_pose_files_agree(tmp_path):
     # Intrinsics from EXIF: 24 mm equivalent on 80 x 60 px.
     cam = IntrinsicsFiles(EXIF).camera(images[0], 80, 60)
     assert cam.fx == pytest.approx(24.0 / np.hypot(36, 24) * 100.0)
+
+
+def test_exif_intrinsics_say_whether_they_are_a_calibration_or_the_35mm_approximation(tmp_path):
+    tags = dict(
+        CalibratedFocalLength="90.5", CalibratedOpticalCenterX="40.5", CalibratedOpticalCenterY="29.5"
+    )
+    calibrated = dji_jpeg(tmp_path / "cal.jpg", xmp_packet(**tags), size=(80, 60), focal_35mm=24)
+    plain = dji_jpeg(tmp_path / "plain.jpg", xmp_packet(GimbalYawDegree="1"), size=(80, 60), focal_35mm=24)
+    cam, source = IntrinsicsFiles(EXIF).camera_and_source(calibrated, 80, 60)
+    assert (cam.fx, cam.cx, cam.cy) == (90.5, 40.5, 29.5) and source == INTRINSICS_DJI_CALIBRATION
+    cam, source = IntrinsicsFiles(EXIF).camera_and_source(calibrated, 40, 30)  # the mask's size: rescaled
+    assert (cam.fx, cam.cx) == (45.25, 20.25) and source == INTRINSICS_DJI_CALIBRATION
+    cam, source = IntrinsicsFiles(EXIF).camera_and_source(plain, 80, 60)
+    assert cam.fx == pytest.approx(24.0 / np.hypot(36, 24) * 100.0) and source == INTRINSICS_35MM
+    (tmp_path / "cam.txt").write_text("100 100 40 30 80 60\n")
+    cam, source = IntrinsicsFiles(tmp_path / "cam.txt").camera_and_source(plain, 80, 60)
+    assert cam.fx == 100.0 and source == str(tmp_path / "cam.txt")
 
 
 def test_a_photo_without_what_it_needs_is_missing_not_a_crash(tmp_path):

@@ -34,6 +34,7 @@ from semcityloc.cli.main import main
 from semcityloc.datasets.colmap import read_model
 from semcityloc.datasets.dji import camera_from_exif, read_dji_metadata
 from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
+from semcityloc.datasets.photos import INTRINSICS_35MM
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import pose_from_dji
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
@@ -343,6 +344,8 @@ def test_berlin_run_localizes_from_exif_priors_and_counts_what_it_did(berlin_run
     assert summary["not_localized_reasons"] == {"query mask has no building pixels": 1}
     # Single-point GNSS photos: how their heights were taken is said once for the run.
     assert [n for n in summary["outputs"]["notes"] if "barometric" in n] != []
+    # ... and that their cameras are the EXIF's approximate 35 mm focal length.
+    assert [n for n in summary["outputs"]["notes"] if n.startswith("3 of 3 photos have no calibrated")] != []
     for name in ("DJI_0001", "DJI_0002"):
         pose = read_pose(out / "poses" / f"{name}.json")
         truth = berlin_run["truths"][f"{name}.JPG"]
@@ -353,6 +356,7 @@ def test_berlin_run_localizes_from_exif_priors_and_counts_what_it_did(berlin_run
             record["extra"]["prior_source"] == "exif"
             and "no RTK" in record["extra"]["prior_uncertainty"]["source"]
         )
+        assert record["extra"]["intrinsics_source"] == INTRINSICS_35MM
         assert (out / "overlays" / f"{name}.png").is_file()
     refused = json.loads((out / "poses" / "DJI_0003.json").read_text())
     assert refused["status"] == "not_localized" and "position" not in refused

@@ -92,6 +92,7 @@ class PhotoInput:
     truth_world: Pose | None = None
     mask: Path | None = None
     depth: Path | None = None
+    intrinsics_source: str = ""  # ``IntrinsicsFiles.camera_and_source``
 
     @property
     def stem(self) -> str:
@@ -261,7 +262,7 @@ def _resolve(spec: PhotoSpec) -> Resolved:
     for path in list_images(spec.images):
         try:
             width, height = image_size(path, "photo")
-            camera = intrinsics.camera(path, width, height)
+            camera, intrinsics_source = intrinsics.camera_and_source(path, width, height)
             prior = priors.prior(path)
             mask = _input_file(spec.masks, path, MASK_SUFFIXES, "mask", camera)
             depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera)
@@ -275,7 +276,9 @@ def _resolve(spec: PhotoSpec) -> Resolved:
             except PhotoMissing:
                 true_pose = None  # ground truth is optional per photo
         sigma = fixed or prior.uncertainty or PriorUncertainty()
-        inputs.append(PhotoInput(path.name, path, camera, prior, sigma, true_pose, mask, depth))
+        inputs.append(
+            PhotoInput(path.name, path, camera, prior, sigma, true_pose, mask, depth, intrinsics_source)
+        )
     if store is not None and inputs:
         model = flight_area(store, model, inputs)
     return Resolved(model, inputs, skipped, store)
@@ -401,6 +404,7 @@ class PhotoSource:
             image=inp.name,
             perception=self.spec.perception(),
             intrinsics=inp.camera.as_dict(),
+            intrinsics_source=inp.intrinsics_source,
             prior=pose_to_dict(inp.prior.pose_world, crs=crs, extra=inp.prior.details),
             prior_source=inp.prior.source,
             prior_uncertainty=inp.uncertainty.as_dict(),  # what the localizer searched

@@ -33,6 +33,7 @@ import pyproj
 from semcityloc.datasets.dji import (
     HEIGHT_AUTO,
     HEIGHT_ELLIPSOIDAL,
+    calibrated_intrinsics,
     camera_from_exif,
     dji_prior,
     prior_uncertainty,
@@ -101,6 +102,11 @@ class PoseFiles:
         return match_name(self.entries, image)
 
 
+# Where a photo's camera came from with ``--intrinsics exif`` (``IntrinsicsFiles.camera_and_source``).
+INTRINSICS_DJI_CALIBRATION = "exif: DJI calibration (XMP CalibratedFocalLength)"
+INTRINSICS_35MM = "exif: 35 mm-equivalent focal length (approximate)"
+
+
 class IntrinsicsFiles:
     """Camera per image (module docstring); ``spec`` None: the file or folder beside ``poses``."""
 
@@ -130,12 +136,23 @@ class IntrinsicsFiles:
         )
 
     def camera(self, image: Path, width: int, height: int) -> Camera:
+        return self.camera_and_source(image, width, height)[0]
+
+    def camera_and_source(self, image: Path, width: int, height: int) -> tuple[Camera, str]:
+        """The camera of ``image`` and where it came from: ``INTRINSICS_DJI_CALIBRATION``,
+        ``INTRINSICS_35MM`` (approximate) or the calibration file."""
         if self.exif:
             try:
-                camera = camera_from_exif(read_dji_metadata(image))
+                meta = read_dji_metadata(image)
+                camera = camera_from_exif(meta)
             except CameraError as exc:
                 raise PhotoMissing(f"{exc}: pass --intrinsics (a calibration file or folder)") from None
-            return camera if camera.size == (width, height) else camera.scaled(width, height)
+            calibrated = calibrated_intrinsics(meta) is not None
+            source = INTRINSICS_DJI_CALIBRATION if calibrated else INTRINSICS_35MM
+            return (camera if camera.size == (width, height) else camera.scaled(width, height)), source
+        return self._from_files(image, width, height), str(self.path)
+
+    def _from_files(self, image: Path, width: int, height: int) -> Camera:
         if self.folder is not None:
             f = per_stem_file(self.folder, image.stem, "intrinsic")
             if f is None:
