@@ -286,9 +286,10 @@ def test_localize_intrinsics_from_exif_and_a_depth_backend_beside_a_mask_file(ex
     dropped), giving the same pose as the same depth given as a file."""
     r = exif_view["root"]
     common = ("--intrinsics", "exif", "--image", exif_view["photo"], "--semantic", r / "r" / "labels.png")
-    code, _, _ = _localize(capsys, exif_view, tmp_path / "a", *common, "--depth-backend", "files",
-                           "--backend-option", f"depth={r / 'depth'}")  # fmt: skip
+    code, _, err = _localize(capsys, exif_view, tmp_path / "a", *common, "--depth-backend", "files",
+                             "--backend-option", f"depth={r / 'depth'}")  # fmt: skip
     assert code == 0
+    assert "35 mm-equivalent focal length (no calibration tags)" in err  # the photo has no DJI calibration
     via_backend = json.loads((tmp_path / "a" / "pose.json").read_text())
     assert np.isfinite(via_backend["extra"]["depth_cost"])  # the depth was used
     assert np.linalg.norm(np.array(via_backend["position"]) - exif_view["truth"]) < 0.5
