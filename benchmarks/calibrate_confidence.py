@@ -39,11 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.baselines.silhouette import SilhouetteLocalizer
-from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
+from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.calibration import condition_rows as calibration_rows
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
-from semcityloc.errors import ParameterError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.confidence import (
     FEATURES_DEPTH,
@@ -226,12 +225,7 @@ def main() -> int:
         )
         return 2
 
-    fit_cities = args.fit_city or calibration_cities(SHARED)
-    try:
-        require_calibration_cities(fit_cities, SHARED, "fit the confidence model")
-    except ParameterError as exc:
-        print(exc, file=sys.stderr)
-        return 2
+    fit_cities = calibration_cities_or_exit(args.fit_city, SHARED, "fit the confidence model")
     check_cities = (
         args.check_city if args.check_city is not None else ([str(BERLIN)] if BERLIN.exists() else [])
     )

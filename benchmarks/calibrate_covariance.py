@@ -35,11 +35,10 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.stats import chi2
 
-from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
+from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.calibration import condition_rows as calibration_rows
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
-from semcityloc.errors import ParameterError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import STATE_NAMES, CovarianceModel, save_models, state_error
@@ -203,12 +202,7 @@ def main() -> int:
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--write", action="store_true", help="save the fitted model into the package")
     args = ap.parse_args()
-    fit_cities = args.fit_city or calibration_cities(SHARED)
-    try:
-        require_calibration_cities(fit_cities, SHARED, "fit the covariance's temperature")
-    except ParameterError as exc:
-        print(exc, file=sys.stderr)
-        return 2
+    fit_cities = calibration_cities_or_exit(args.fit_city, SHARED, "fit the covariance's temperature")
     check_cities = (
         args.check_city if args.check_city is not None else ([str(BERLIN)] if BERLIN.exists() else [])
     )

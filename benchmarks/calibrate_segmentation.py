@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semcityloc.benchmark.calibration import calibration_cities, require_calibration_cities
+from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.occluders import REALISTIC_REALITY, RealityParams
 from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
@@ -44,7 +44,6 @@ from semcityloc.benchmark.seg_calibration import CalibrationView, calibration_vi
 from semcityloc.benchmark.seg_errors import REALISTIC_SEG_PRESETS, SEG_TARGETS, ViewTruth
 from semcityloc.benchmark.spec import BenchmarkSpec, load_models
 from semcityloc.classes import NUM_CLASSES
-from semcityloc.errors import ParameterError
 from semcityloc.perception.metrics import iou_per_class, mean_iou
 
 REPO = Path(__file__).resolve().parents[1]
@@ -150,12 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--direct", action="store_true", help="the benchmark's own path (no cache, slower)")
     args = ap.parse_args(argv)
 
-    cities = args.city or calibration_cities(SHARED_DATA)
-    try:
-        require_calibration_cities(cities, SHARED_DATA, "calibrate the segmentation presets")
-    except ParameterError as exc:
-        print(exc, file=sys.stderr)
-        return 2
+    cities = calibration_cities_or_exit(args.city, SHARED_DATA, "calibrate the segmentation presets")
     if args.direct:
         for city in cities:
             print(f"== {Path(city).name}: direct, {args.views} views ({args.reality} reality)", flush=True)

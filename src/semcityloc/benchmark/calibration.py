@@ -56,6 +56,19 @@ def require_calibration_cities(cities: Iterable[str | Path], shared_data: Path, 
             )
 
 
+def calibration_cities_or_exit(requested: list[str] | None, shared_data: Path, purpose: str) -> list[str]:
+    """The cities a calibration script fits on: ``requested`` or the calibration cities. A reporting city
+    among them ends the script (its message on stderr, exit status 2), as ``require_calibration_cities``
+    says why."""
+    cities = requested or calibration_cities(shared_data)
+    try:
+        require_calibration_cities(cities, shared_data, purpose)
+    except ParameterError as exc:
+        print(exc, file=sys.stderr)
+        raise SystemExit(2) from None
+    return cities
+
+
 def condition_rows(
     tag: str,
     city: str,
