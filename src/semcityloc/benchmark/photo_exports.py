@@ -42,7 +42,7 @@ from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.dji import HEIGHT_AS_IS_NOTE, dji_geotag
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
-from semcityloc.datasets.photos import INTRINSICS_35MM
+from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
@@ -106,12 +106,8 @@ def write_exports(
 
     approximate = [inp.name for inp in inputs if inp.intrinsics_source == INTRINSICS_35MM]
     if approximate:
-        outputs["notes"].append(
-            f"{len(approximate)} of {len(inputs)} photos have no calibrated intrinsics: their camera is the "
-            "35 mm-equivalent focal length of the EXIF, which can be a few % off (2.4 % short on the real "
-            "H20T thermal image) and moves the camera up or down by as much; pass --intrinsics a "
-            "calibration (docs/your-data.md, section 4)"
-        )
+        count = f"{len(approximate)} of {len(inputs)} photos have no calibrated intrinsics"
+        outputs["notes"].append(f"{count}: {APPROXIMATE_INTRINSICS_NOTE}")
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     outputs["colmap"] = str(write_model(ColmapModel.from_poses(cameras), out_dir / COLMAP_DIR, ext=".txt"))
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from semcityloc.citymodel.model import crs_label
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.datasets.photos import EXIF, INTRINSICS_35MM, IntrinsicsFiles
+from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, EXIF, INTRINSICS_35MM, IntrinsicsFiles
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.io import read_intrinsics, read_pose, write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -130,12 +130,7 @@ def _camera(args):
     if args.intrinsics == EXIF:
         camera, source = IntrinsicsFiles(EXIF).camera_and_source(Path(args.image), *image_size(args.image))
         if source == INTRINSICS_35MM:
-            print(
-                "semcityloc: note: the camera is the EXIF's 35 mm-equivalent focal length (no calibration "
-                "tags): a few % off it moves the camera up or down by as much; give --intrinsics a "
-                "calibration",
-                file=sys.stderr,
-            )
+            print(f"semcityloc: note: {APPROXIMATE_INTRINSICS_NOTE}", file=sys.stderr)
         return camera
     return read_intrinsics(args.intrinsics, width=args.width, height=args.height)
 

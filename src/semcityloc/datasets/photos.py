@@ -10,9 +10,8 @@ per-photo information in whatever form they come with. This module matches each 
 - intrinsics (``IntrinsicsFiles``): ``exif`` (``dji.camera_from_exif``: DJI's calibration tags, else the
   35 mm-equivalent focal length of the photo's EXIF), one file for every photo (LoD-Loc
   ``*_intrinsic.txt``, COLMAP line, JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids
-  from the ``images.txt`` of the poses) or a
-  folder of ``<stem>_intrinsic.txt``. The photo's own size always wins (intrinsics of another size are
-  rescaled);
+  from the ``images.txt`` of the poses) or a folder of ``<stem>_intrinsic.txt``. The photo's own size
+  always wins (intrinsics of another size are rescaled);
 - priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
   uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
   + DJI angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above.
@@ -105,6 +104,12 @@ class PoseFiles:
 # Where a photo's camera came from with ``--intrinsics exif`` (``IntrinsicsFiles.camera_and_source``).
 INTRINSICS_DJI_CALIBRATION = "exif: DJI calibration (XMP CalibratedFocalLength)"
 INTRINSICS_35MM = "exif: 35 mm-equivalent focal length (approximate)"
+# What a user hears when a camera is ``INTRINSICS_35MM`` (``semcityloc localize``, once per photo run).
+APPROXIMATE_INTRINSICS_NOTE = (
+    "the camera is the EXIF's 35 mm-equivalent focal length (no calibration tags), which can be a few % off "
+    "(2.4 % short on the real H20T thermal image) and moves the camera up or down by as much; pass "
+    "--intrinsics a calibration (docs/your-data.md, section 4)"
+)
 
 
 class IntrinsicsFiles:
