@@ -218,8 +218,9 @@ def test_mixed_formats_one_origin_and_the_cli(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.slow
-def test_benchmark_on_a_store_loads_per_query(tmp_path, capsys):
-    """``semcityloc benchmark --city STORE``: the simulator sees the whole city, the localizer its part."""
+def test_benchmark_on_a_store_loads_per_query(tmp_path, capsys, monkeypatch):
+    """``semcityloc benchmark --city STORE``: the simulator sees the whole city, the localizer its part;
+    the run opens the store once (the simulator's merged city is made from the localizer's store)."""
     tiles = tmp_path / "tiles"
     tiles.mkdir()
     gml = generate_city(tmp_path / "gen", seed=0, lods=(2,))[2]
@@ -229,8 +230,14 @@ def test_benchmark_on_a_store_loads_per_query(tmp_path, capsys):
     store = tmp_path / "store"
     assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 0
     out = tmp_path / "run"
+    opened = []
+    real_open = TileStore.open.__func__
+    monkeypatch.setattr(
+        TileStore, "open", classmethod(lambda cls, *a, **k: opened.append(a) or real_open(cls, *a, **k))
+    )
     args = ["benchmark", "--city", str(store), "--queries", "2", "--preset", "fast", "--out", str(out)]
     assert main(args) == 0
+    assert len(opened) == 1
     rows = read_results(out / "results.csv")
     assert len(rows) == 2 and all(r["status"] in ("localized", "not_localized") for r in rows)
     assert json.loads((out / "run.json").read_text())["city_sha256"] == TileStore.open(store).sha256

@@ -26,7 +26,7 @@ from semcityloc.benchmark.sources import SimulatedSource, SimulatorFactory
 from semcityloc.citymodel.generator import default_city_path
 from semcityloc.citymodel.lod1 import derive_lod1
 from semcityloc.citymodel.model import CityModel, crs_label
-from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city
+from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.errors import BenchmarkError, InputFileError
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import check_method
@@ -47,12 +47,13 @@ def resolve_city(city: str | Path) -> Path:
     return path.resolve()
 
 
-def open_tile_store(city_path: str | Path, lod: int | None) -> TileStore | None:
+def open_tile_store(city_path: str | Path, lod: int | None, crs: str | None = None) -> TileStore | None:
     """The tile store the localizer loads its parts from (``localization.tiled``), or None: ``city_path``
-    is a file, or the map is LoD1 derived from the store's LoD2 (then the merged, derived map is used)."""
+    is a file, or the map is LoD1 derived from the store's LoD2 (then the merged, derived map is used).
+    ``lod`` / ``crs`` other than the store's are refused (``tiles.open_store``)."""
     if not is_store(city_path) or lod == 1:
         return None
-    return TileStore.open(city_path)
+    return open_store(city_path, lod=lod, crs=crs)
 
 
 def generated_sibling(path: Path, lod: int) -> Path | None:
@@ -141,22 +142,25 @@ class BenchmarkSpec:
 
     def open_source(self, config: dict) -> SimulatedSource:
         """The query source of this run (loads the map and reality models of ``config``)."""
-        map_model, reality = load_models(config)
-        store = open_tile_store(config["city_path"], config.get("lod"))
+        store = open_tile_store(config["city_path"], config.get("lod"), config.get("crs"))
+        map_model, reality = load_models(config, store)
         return SimulatedSource(map_model, reality, self.query, self.simulator_factory, tile_store=store)
 
     def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
         return None
 
 
-def _load(path: Path, config: dict, lod: int | None = None) -> CityModel:
+def _load(path: Path, config: dict, lod: int | None = None, store: TileStore | None = None) -> CityModel:
+    """The model at ``path``; merged from ``store`` when that is the store at ``path``, already opened."""
+    if store is not None and Path(path).resolve() == store.root.resolve():
+        return store.load_all()
     return load_city(path, lod=lod, crs=config.get("crs"))
 
 
-def _map_from(base: CityModel | None, config: dict) -> CityModel:
+def _map_from(base: CityModel | None, config: dict, store: TileStore | None = None) -> CityModel:
     lod = config.get("lod")
     if lod in (2, 3):
-        return _load(Path(config["map_source"]), config, lod)
+        return _load(Path(config["map_source"]), config, lod, store)
     if base is None:
         raise BenchmarkError("internal: no base model for the map")  # pragma: no cover - callers load it
     if lod == 1 and max(base.lods_present()) > 1:
@@ -170,13 +174,19 @@ def load_map(config: dict) -> CityModel:
     return _map_from(base, config)
 
 
-def load_models(config: dict) -> tuple[CityModel, CityModel]:
-    """(map model, reality model in the map's local frame) of a run configuration (``run_config``)."""
+def load_models(config: dict, store: TileStore | None = None) -> tuple[CityModel, CityModel]:
+    """(map model, reality model in the map's local frame) of a run configuration (``run_config``).
+    ``store``: the run's tile store when it already opened it (``open_tile_store``), merged rather than
+    opened a second time."""
     city = Path(config["city_path"])
     reality_source = Path(config["reality_source"])
-    base = _load(city, config) if config.get("lod") in (None, 1) or reality_source == city else None
-    map_model = _map_from(base, config)
-    reality = base if base is not None and reality_source == city else _load(reality_source, config)
+    loads_base = config.get("lod") in (None, 1) or reality_source == city
+    base = _load(city, config, store=store) if loads_base else None
+    map_model = _map_from(base, config, store)
+    if base is not None and reality_source == city:
+        reality = base
+    else:
+        reality = _load(reality_source, config, store=store)
     if map_model.crs is not None and reality.crs is not None and map_model.crs != reality.crs:
         raise BenchmarkError(
             f"map ({crs_label(map_model.crs)}) and reality ({crs_label(reality.crs)}) CRSs differ"
