@@ -15,7 +15,14 @@ import numpy as np
 import pytest
 
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
-from semcityloc.benchmark.results import COLUMNS, TIMING_COLUMNS, load_details, make_row, read_results
+from semcityloc.benchmark.results import (
+    COLUMNS,
+    TIMING_COLUMNS,
+    details_depth,
+    load_details,
+    make_row,
+    read_results,
+)
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import RESULTS_FILE, Progress
 from semcityloc.benchmark.spec import BenchmarkSpec, load_models
@@ -282,6 +289,20 @@ def test_details_hold_the_query_poses_and_cost_volume(baseline):
     true = Pose.from_cam_from_world(d["true_cam_from_world"])
     assert true.center[0] == pytest.approx(float(row["true_x"]))
     assert np.isfinite(d["prior_cam_from_world"]).all()
+    assert d["depth"].shape == d["labels"].shape and d["depth"].dtype == np.float16
+
+
+def test_details_keep_depth_as_float16_when_it_fits():
+    depth = np.array([[0.37, 12.5, np.nan], [250.0, 1234.5, np.inf]], dtype=np.float32)
+    kept = details_depth(depth)
+    assert kept.dtype == np.float16
+    finite = np.isfinite(depth)
+    assert np.array_equal(np.isnan(kept), np.isnan(depth)) and np.isinf(kept[1, 2])
+    assert np.allclose(kept[finite], depth[finite], rtol=1e-3)
+    far = depth.copy()
+    far[0, 0] = 70_000.0  # beyond float16: kept as float32, unchanged
+    assert details_depth(far).dtype == np.float32 and details_depth(far)[0, 0] == 70_000.0
+    assert details_depth(None).shape == (0, 0)
 
 
 def test_models_map_lod_choice_and_lod3_reality(sim):
