@@ -12,6 +12,7 @@ from semcityloc.classes import IGNORE, SemanticClass
 from semcityloc.errors import InputFileError, ParameterError, PoseError, RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
+from semcityloc.geometry.distortion import LensDistortion, distort_image
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_rgb
 from semcityloc.perception.autolabel import auto_label, auto_label_render, label_overlay
@@ -252,6 +253,16 @@ def test_label_cli_with_colmap_images_and_cameras(city, tmp_path):
         written = load_labels_png(tmp_path / "out" / name)
         assert np.array_equal(written, auto_label(model, cam, pose, renderer=renderer, boundary_px=0))
     assert not (tmp_path / "out" / "no_pose.png").exists()
+    # The same camera with a wide lens's distortion: the labels move onto the photo's distorted pixels.
+    lens = LensDistortion(k1=-0.27, k2=0.11, p1=0.0008, p2=-0.0003)
+    (tmp_path / "cameras.txt").write_text("7 OPENCV 320 240 300 300 160 120 -0.27 0.11 0.0008 -0.0003\n")
+    args.out = str(tmp_path / "distorted")
+    assert args.func(args) == 0
+    for name, pose in poses.items():
+        written = load_labels_png(tmp_path / "distorted" / name)
+        pinhole = auto_label(model, cam, pose, renderer=renderer, boundary_px=0)
+        assert np.array_equal(written, distort_image(pinhole, cam, lens, fill=IGNORE, nearest=True))
+        assert (written != pinhole).mean() > 0.02 and written[0, 0] == IGNORE  # barrel: corners unseen
 
 
 def test_label_cli_errors(tmp_path, city):

@@ -139,6 +139,40 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
     assert refused["search"]["prior_uncertainty"]["z_m"] == 2.0
 
 
+def test_localize_undistorts_a_mask_from_a_distorting_lens(city_paths, tmp_path, capsys):
+    """A mask in a wide lens's own (barrel-distorted) pixels: localized right when the intrinsics carry
+    the lens, off when the same mask is taken for a pinhole image."""
+    from semcityloc.citymodel.io import load_city_model
+    from semcityloc.geometry.camera import Camera
+    from semcityloc.geometry.distortion import LensDistortion, distort_image
+
+    model = load_city_model(city_paths[2], cache=False)
+    lo, hi = model.bounds_local
+    centre = model.origin + 0.5 * (lo + hi)
+    x, y, z = centre[0] - 10.0, centre[1] + 6.0, lo[2] + 80.0
+    pinhole = "364.0,364.0,256.0,192.0,512,384"
+    argv = ["render", "--city", city_paths[2], "--intrinsics", pinhole, "--pose", f"{x},{y},{z},1,35,60"]
+    assert run(capsys, *argv, "--out", tmp_path / "r", "--no-cache")[0] == 0
+    lens = LensDistortion(k1=-0.2698, k2=0.1100, p1=0.0008, p2=-0.0003, k3=-0.0301)
+    camera = Camera(364.0, 364.0, 256.0, 192.0, 512, 384)
+    photo_mask = distort_image(load_labels_png(tmp_path / "r" / "labels.png"), camera, lens, 255, True)
+    save_labels_png(photo_mask, tmp_path / "photo_mask.png")
+    (tmp_path / "lens.json").write_text(json.dumps({**camera.as_dict(), **lens.as_dict()}))
+
+    def error_m(intrinsics, out) -> float:
+        argv = ["localize", "--city", city_paths[2], "--intrinsics", intrinsics, "--semantic"]
+        argv += [tmp_path / "photo_mask.png", "--prior", f"{x + 5},{y - 4},{z + 3},1,35,63"]
+        run(capsys, *argv, "--out", tmp_path / out, "--no-cache")
+        pose = json.loads((tmp_path / out / "pose.json").read_text())
+        return float(np.linalg.norm(np.array(pose["position"]) - [x, y, z]))
+
+    with_lens = error_m(tmp_path / "lens.json", "with_lens")
+    record = json.loads((tmp_path / "with_lens" / "pose.json").read_text())["extra"]
+    assert record["lens_distortion"]["k1"] == -0.2698
+    as_pinhole = error_m(pinhole, "as_pinhole")
+    assert with_lens < 0.5 and as_pinhole > 3 * with_lens, (with_lens, as_pinhole)
+
+
 def test_bad_prior_sigma_is_one_line_exit_2(tmp_path, capsys):
     code, out, err = run(
         capsys,

@@ -30,6 +30,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import CRSError, InputFileError
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
 
@@ -121,8 +122,12 @@ def test_priors_from_exif_csv_and_pose_files_agree(tmp_path):
     from_colmap = PriorFiles(tmp_path / "images.txt", None).prior(images[0])
     assert from_colmap.uncertainty is None and center_error_m(from_colmap.pose_world, prior.pose_world) < 1e-6
     # Intrinsics from EXIF: 24 mm equivalent on 80 x 60 px.
-    cam = IntrinsicsFiles(EXIF).camera(images[0], 80, 60)
+    cam = IntrinsicsFiles(EXIF).photo_camera(images[0], 80, 60).camera
     assert cam.fx == pytest.approx(24.0 / np.hypot(36, 24) * 100.0)
+
+
+def _camera_and_source(lens):
+    return lens.camera, lens.source
 
 
 def test_exif_intrinsics_say_whether_they_are_a_calibration_or_the_35mm_approximation(tmp_path):
@@ -131,15 +136,20 @@ def test_exif_intrinsics_say_whether_they_are_a_calibration_or_the_35mm_approxim
     )
     calibrated = dji_jpeg(tmp_path / "cal.jpg", xmp_packet(**tags), size=(80, 60), focal_35mm=24)
     plain = dji_jpeg(tmp_path / "plain.jpg", xmp_packet(GimbalYawDegree="1"), size=(80, 60), focal_35mm=24)
-    cam, source = IntrinsicsFiles(EXIF).camera_and_source(calibrated, 80, 60)
+    cam, source = _camera_and_source(IntrinsicsFiles(EXIF).photo_camera(calibrated, 80, 60))
     assert (cam.fx, cam.cx, cam.cy) == (90.5, 40.5, 29.5) and source == INTRINSICS_DJI_CALIBRATION
-    cam, source = IntrinsicsFiles(EXIF).camera_and_source(calibrated, 40, 30)  # the mask's size: rescaled
+    cam, source = _camera_and_source(
+        IntrinsicsFiles(EXIF).photo_camera(calibrated, 40, 30)
+    )  # the mask's size
     assert (cam.fx, cam.cx) == (45.25, 20.25) and source == INTRINSICS_DJI_CALIBRATION
-    cam, source = IntrinsicsFiles(EXIF).camera_and_source(plain, 80, 60)
+    cam, source = _camera_and_source(IntrinsicsFiles(EXIF).photo_camera(plain, 80, 60))
     assert cam.fx == pytest.approx(24.0 / np.hypot(36, 24) * 100.0) and source == INTRINSICS_35MM
     (tmp_path / "cam.txt").write_text("100 100 40 30 80 60\n")
-    cam, source = IntrinsicsFiles(tmp_path / "cam.txt").camera_and_source(plain, 80, 60)
-    assert cam.fx == 100.0 and source == str(tmp_path / "cam.txt")
+    lens = IntrinsicsFiles(tmp_path / "cam.txt").photo_camera(plain, 80, 60)
+    assert lens.camera.fx == 100.0 and lens.source == str(tmp_path / "cam.txt") and lens.distortion.is_zero
+    (tmp_path / "cameras.txt").write_text("1 OPENCV 80 60 100 100 40 30 -0.2 0.05 0.001 0\n")
+    lens = IntrinsicsFiles(tmp_path / "cameras.txt").photo_camera(plain, 40, 30)
+    assert lens.camera.fx == 50.0 and lens.distortion == LensDistortion(-0.2, 0.05, 0.001, 0.0)
 
 
 def test_a_photo_without_what_it_needs_is_missing_not_a_crash(tmp_path):
@@ -147,7 +157,7 @@ def test_a_photo_without_what_it_needs_is_missing_not_a_crash(tmp_path):
     with pytest.raises(PhotoMissing, match="no latitude"):
         PriorFiles(EXIF, pyproj.CRS("EPSG:25832")).prior(photo)
     with pytest.raises(PhotoMissing, match="FocalLengthIn35mmFilm.*pass --intrinsics"):
-        IntrinsicsFiles(EXIF).camera(photo, 40, 30)
+        IntrinsicsFiles(EXIF).photo_camera(photo, 40, 30)
     (tmp_path / "poses").mkdir()
     with pytest.raises(PhotoMissing, match="no prior pose for plain.jpg"):
         PriorFiles(tmp_path / "poses", None).prior(photo)

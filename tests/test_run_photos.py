@@ -37,10 +37,11 @@ from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_sc
 from semcityloc.datasets.photos import INTRINSICS_35MM
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import pose_from_dji
+from semcityloc.geometry.distortion import LensDistortion, distort_image
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
-from semcityloc.io.images import save_labels_png
+from semcityloc.io.images import load_labels_png, save_labels_png
 from semcityloc.render import Renderer
 from test_benchmark_reference import same
 from test_tiles import _cityjson_box, split_citygml
@@ -128,6 +129,29 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     # The same folder with other arguments is refused, in one line.
     code, _, err = run(capsys, *argv, "--prior-sigma", "xy=2")
     assert code == 2 and "other benchmark run" in err and err.count("\n") == 1
+
+
+def test_a_run_undistorts_the_masks_of_a_distorting_lens(box_flight, tmp_path, capsys):
+    """Masks in a wide lens's distorted pixels: right with the lens in the intrinsics, off without."""
+    root = box_flight["root"]
+    lens = LensDistortion(k1=-0.27, k2=0.11, p1=0.0008, p2=-0.0003)
+    for stem in ("P0", "P1"):
+        mask = root / "masks" / f"{stem}.png"
+        save_labels_png(distort_image(load_labels_png(mask), CAM, lens, fill=IGNORE, nearest=True), mask)
+    (tmp_path / "lens.json").write_text(json.dumps({**CAM.as_dict(), **lens.as_dict()}))
+    argv = [str(a) for a in box_flight["argv"]]
+    at = argv.index("--intrinsics") + 1
+
+    def errors(intrinsics, out) -> list[float]:
+        argv[at] = str(intrinsics)
+        assert run(capsys, *argv, "--out", tmp_path / out, "--no-overlays")[0] == 0
+        return [float(r["err_xyz_m"]) for r in read_results(tmp_path / out / "results.csv")]
+
+    with_lens = errors(tmp_path / "lens.json", "with_lens")
+    record = json.loads((tmp_path / "with_lens" / "poses" / "P0.json").read_text())["extra"]
+    assert record["lens_distortion"] == lens.as_dict()
+    as_pinhole = errors(root / "intrinsic", "as_pinhole")
+    assert max(with_lens) < 0.5 and np.mean(as_pinhole) > 2 * np.mean(with_lens), (with_lens, as_pinhole)
 
 
 def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):

@@ -8,7 +8,8 @@ Per photo (``datasets.photos`` matches files to photos by name):
 
 - intrinsics: ``exif`` (DJI's calibration tags, else the 35 mm-equivalent focal length,
   ``dji.camera_from_exif``) by default, or a calibration (LoD-Loc ``intrinsic/`` folder, COLMAP
-  ``cameras.txt``, one file for all);
+  ``cameras.txt``, one file for all); with lens distortion in the calibration, the photo, its mask and
+  its depth are resampled onto the pinhole camera before anything uses them (``PhotoInput.pinhole``);
 - prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
@@ -45,6 +46,7 @@ from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, plain, write_
 from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
+from semcityloc.classes import IGNORE
 from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.datasets.photos import (
@@ -57,6 +59,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.distortion import LensDistortion, undistort_image
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -92,11 +95,17 @@ class PhotoInput:
     truth_world: Pose | None = None
     mask: Path | None = None
     depth: Path | None = None
-    intrinsics_source: str = ""  # ``IntrinsicsFiles.camera_and_source``
+    intrinsics_source: str = ""  # ``PhotoCamera.source``
+    distortion: LensDistortion = LensDistortion()  # the photo's lens; zero: pinhole already
 
     @property
     def stem(self) -> str:
         return self.path.stem
+
+    def pinhole(self, image: np.ndarray, fill: float, nearest: bool) -> np.ndarray:
+        """An array in the photo's geometry (the photo, a mask, a depth map; any resolution) resampled
+        onto the pinhole ``camera`` (``geometry.distortion.undistort_image``)."""
+        return undistort_image(image, self.camera, self.distortion, fill=fill, nearest=nearest)
 
 
 @dataclass(frozen=True)
@@ -262,7 +271,8 @@ def _resolve(spec: PhotoSpec) -> Resolved:
     for path in list_images(spec.images):
         try:
             width, height = image_size(path, "photo")
-            camera, intrinsics_source = intrinsics.camera_and_source(path, width, height)
+            lens = intrinsics.photo_camera(path, width, height)
+            camera = lens.camera
             prior = priors.prior(path)
             mask = _input_file(spec.masks, path, MASK_SUFFIXES, "mask", camera)
             depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera)
@@ -277,7 +287,9 @@ def _resolve(spec: PhotoSpec) -> Resolved:
                 true_pose = None  # ground truth is optional per photo
         sigma = fixed or prior.uncertainty or PriorUncertainty()
         inputs.append(
-            PhotoInput(path.name, path, camera, prior, sigma, true_pose, mask, depth, intrinsics_source)
+            PhotoInput(
+                path.name, path, camera, prior, sigma, true_pose, mask, depth, lens.source, lens.distortion
+            )
         )
     if store is not None and inputs:
         model = flight_area(store, model, inputs)
@@ -356,15 +368,21 @@ class PhotoSource:
         inp = self.inputs[index]
         cam = inp.camera
         seg, dep = self.backends()
-        photo = load_image(inp.path, max_width=PHOTO_MAX_WIDTH) if (seg or dep) else None
+        photo = None
+        if seg or dep:
+            photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
         if inp.mask is not None:
             labels = read_mask_file(inp.mask, allow_lossy=self.spec.allow_lossy_mask)
+            check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask)
+            labels = inp.pinhole(labels, fill=IGNORE, nearest=True)
         else:
             labels = seg.predict(photo, name=inp.name).labels
         check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask or inp.name)
         depth = None
         if inp.depth is not None:
             depth = read_depth_file(inp.depth)
+            check_aspect(depth.shape, cam.width, cam.height, "depth", inp.depth)
+            depth = inp.pinhole(depth, fill=np.nan, nearest=True)
         elif dep is not None:
             depth = dep.predict(photo, name=inp.name).masked()
         if depth is not None:
@@ -405,6 +423,7 @@ class PhotoSource:
             perception=self.spec.perception(),
             intrinsics=inp.camera.as_dict(),
             intrinsics_source=inp.intrinsics_source,
+            lens_distortion=None if inp.distortion.is_zero else inp.distortion.as_dict(),
             prior=pose_to_dict(inp.prior.pose_world, crs=crs, extra=inp.prior.details),
             prior_source=inp.prior.source,
             prior_uncertainty=inp.uncertainty.as_dict(),  # what the localizer searched
@@ -425,7 +444,7 @@ class PhotoSource:
             data = record
         write_json_atomic(folder / f"{inp.stem}.json", data)
         if self.spec.overlays:
-            photo = load_image(inp.path, max_width=PHOTO_MAX_WIDTH)
+            photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
             panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]
             if estimate is not None:

@@ -14,7 +14,10 @@ Intrinsics (``--intrinsics``): one file for every photo (a LoD-Loc ``*_intrinsic
 JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (several cameras: the camera id of each photo comes
 from the ``images.txt`` given as ``--poses``), or a folder of LoD-Loc ``<stem>_intrinsic.txt``. Without
 ``--intrinsics``: ``cameras.txt`` beside a COLMAP ``images.txt``, or the ``intrinsic/`` folder beside a
-LoD-Loc pose folder. The photo's own size always wins (intrinsics of another size are rescaled).
+LoD-Loc pose folder. The photo's own size always wins (intrinsics of another size are rescaled). With
+lens distortion in the intrinsics (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``, JSON ``k1 k2 p1 p2
+k3``) the labels, rendered through the pinhole camera, are resampled onto the photo's own distorted pixels
+(``geometry.distortion.distort_image``; IGNORE where the pinhole render does not reach).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.datasets.photos import IntrinsicsFiles, PoseFiles, list_images
 from semcityloc.errors import InputFileError
+from semcityloc.geometry.distortion import distort_image
 from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
 from semcityloc.perception.autolabel import auto_label_render, label_overlay
 from semcityloc.render import Renderer
@@ -71,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
             skipped.append(image.name)
             continue
         width, height = image_size(image)
-        camera = intrinsics.camera(image, width, height)
+        lens = intrinsics.photo_camera(image, width, height)
+        camera = lens.camera
         res = auto_label_render(
             model,
             camera,
@@ -82,10 +87,12 @@ def run(args: argparse.Namespace) -> int:
             extent_margin_m=args.extent_margin,
             boundary_px=args.boundary_px,
         )
-        save_labels_png(res.labels, out / f"{image.stem}.png")
+        # Rendered through the pinhole camera; a distorting lens moves them onto the photo's own pixels.
+        labels = distort_image(res.labels, camera, lens.distortion, fill=IGNORE, nearest=True)
+        save_labels_png(labels, out / f"{image.stem}.png")
         if args.overlay:
-            save_rgb(label_overlay(load_image(image), res.labels), out / "overlays" / f"{image.stem}.png")
-        labelled = float((res.labels != IGNORE).mean())
+            save_rgb(label_overlay(load_image(image), labels), out / "overlays" / f"{image.stem}.png")
+        labelled = float((labels != IGNORE).mean())
         print(json.dumps({"image": image.name, "labelled": round(labelled, 4), "ignored": res.reasons}))
         written += 1
     if skipped:

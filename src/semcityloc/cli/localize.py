@@ -11,10 +11,18 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.citymodel.model import crs_label
+from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, EXIF, INTRINSICS_35MM, IntrinsicsFiles
+from semcityloc.datasets.photos import (
+    APPROXIMATE_INTRINSICS_NOTE,
+    EXIF,
+    INTRINSICS_35MM,
+    IntrinsicsFiles,
+    PhotoCamera,
+)
 from semcityloc.errors import InputFileError
-from semcityloc.geometry.io import read_intrinsics, read_pose, write_pose_json
+from semcityloc.geometry.distortion import undistort_image
+from semcityloc.geometry.io import read_lens, read_pose, write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import check_aspect, image_size, load_depth, load_image, read_mask_file, save_rgb
 from semcityloc.localization.config import PRESETS, LocalizerConfig
@@ -56,7 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--intrinsics",
         required=True,
-        help="LoD-Loc *_intrinsic.txt, COLMAP line, JSON, fx,fy,cx,cy,w,h, or 'exif' (from --image's EXIF)",
+        help="LoD-Loc *_intrinsic.txt, COLMAP line, JSON, fx,fy,cx,cy,w,h, or 'exif' (from --image's EXIF); "
+        "with lens distortion (COLMAP OPENCV / RADIAL, JSON k1 k2 p1 p2 k3) the image, mask and depth are "
+        "undistorted onto the pinhole camera first",
     )
     p.add_argument(
         "--prior", required=True, help="prior pose in the model's CRS (same forms as render --pose)"
@@ -126,37 +136,49 @@ def _check_files(args) -> None:
         raise InputFileError("--intrinsics exif reads the photo's EXIF: give --image PHOTO")
 
 
-def _camera(args):
+def _camera(args) -> PhotoCamera:
     if args.intrinsics == EXIF:
-        camera, source = IntrinsicsFiles(EXIF).camera_and_source(Path(args.image), *image_size(args.image))
-        if source == INTRINSICS_35MM:
+        lens = IntrinsicsFiles(EXIF).photo_camera(Path(args.image), *image_size(args.image))
+        if lens.source == INTRINSICS_35MM:
             print(f"semcityloc: note: {APPROXIMATE_INTRINSICS_NOTE}", file=sys.stderr)
-        return camera
-    return read_intrinsics(args.intrinsics, width=args.width, height=args.height)
+        return lens
+    camera, distortion = read_lens(args.intrinsics, width=args.width, height=args.height)
+    return PhotoCamera(camera, distortion, str(args.intrinsics))
 
 
-def _query_inputs(args, camera):
+def _query_inputs(args, lens: PhotoCamera):
     """The mask and the depth, each from its file or its backend (run on the photo, shrunk to
-    ``PHOTO_MAX_WIDTH``), checked to show the camera's field of view (any resolution)."""
+    ``PHOTO_MAX_WIDTH``), checked to show the camera's field of view (any resolution), and resampled onto
+    the pinhole camera when the lens distorts."""
+    camera = lens.camera
     given = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
     options = with_lossy_masks(given, args.seg_backend, args.allow_lossy_mask)
     image = None
     if args.seg_backend or args.depth_backend:
-        image = load_image(args.image, max_width=PHOTO_MAX_WIDTH)
+        image = _pinhole_photo(args.image, lens, max_width=PHOTO_MAX_WIDTH)
     name = Path(args.image).name if args.image else None
     if args.semantic:
         labels = read_mask_file(args.semantic, allow_lossy=args.allow_lossy_mask)
+        check_aspect(labels.shape, camera.width, camera.height, "mask", args.semantic)
+        labels = undistort_image(labels, camera, lens.distortion, fill=IGNORE, nearest=True)
     else:
         labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
-    check_aspect(labels.shape, camera.width, camera.height, "mask", args.semantic)
+        check_aspect(labels.shape, camera.width, camera.height, "mask", name)
     depth = None
     if args.depth:
         depth = load_depth(args.depth)
+        check_aspect(depth.shape, camera.width, camera.height, "depth", args.depth)
+        depth = undistort_image(depth, camera, lens.distortion, fill=np.nan, nearest=True)
     elif args.depth_backend:
         depth = get_depth_backend(args.depth_backend, **options).predict(image, name=name).masked()
-    if depth is not None:
-        check_aspect(depth.shape, camera.width, camera.height, "depth", args.depth)
+        check_aspect(depth.shape, camera.width, camera.height, "depth", name)
     return labels, depth
+
+
+def _pinhole_photo(path, lens: PhotoCamera, max_width: int | None = None) -> np.ndarray:
+    """The photo, resampled onto the pinhole camera when the lens distorts."""
+    image = load_image(path, max_width=max_width)
+    return undistort_image(image, lens.camera, lens.distortion, fill=0, nearest=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -166,9 +188,10 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, map_eaves_m=args.map_eaves)  # checked here, before anything loads
     _check_files(args)
     model = load_model_from_args(args)
-    camera = _camera(args)
+    lens = _camera(args)
+    camera = lens.camera
     prior_world = read_pose(args.prior)  # the model's CRS
-    labels, depth = _query_inputs(args, camera)
+    labels, depth = _query_inputs(args, lens)
     localizer = Localizer(model, config)
     result = localizer.localize(
         camera, model.pose_to_local(prior_world), labels, depth, prior_uncertainty=uncertainty
@@ -180,6 +203,8 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     crs = crs_label(model.crs)
     record = result.to_dict(model.origin, crs)  # the pose, if any, in CRS coordinates
+    if not lens.distortion.is_zero:
+        record["lens_distortion"] = lens.distortion.as_dict()  # the inputs were undistorted with it
     if result.pose_local is not None:
         # pose.json: the pose at the top level (read_pose reads it), the whole result record in "extra".
         data = write_pose_json(
@@ -190,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
             camera, result.pose_local.R[None], result.pose_local.t[None], depth=True, face_ids=True
         )
         background = (
-            load_image(args.image)
+            _pinhole_photo(args.image, lens)
             if args.image
             else blend_labels(np.zeros(labels.shape + (3,), np.uint8) + 40, labels, alpha=0.8)
         )

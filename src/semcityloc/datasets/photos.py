@@ -11,7 +11,9 @@ per-photo information in whatever form they come with. This module matches each 
   35 mm-equivalent focal length of the photo's EXIF), one file for every photo (LoD-Loc
   ``*_intrinsic.txt``, COLMAP line, JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids
   from the ``images.txt`` of the poses) or a folder of ``<stem>_intrinsic.txt``. The photo's own size
-  always wins (intrinsics of another size are rescaled);
+  always wins (intrinsics of another size are rescaled). A calibration with lens distortion (COLMAP
+  ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``, JSON ``k1 k2 p1 p2 k3``) comes with it (``PhotoCamera``):
+  the photo and its mask and depth are then resampled onto the pinhole camera (``geometry.distortion``);
 - priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
   uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
   + DJI angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above.
@@ -41,7 +43,8 @@ from semcityloc.datasets.dji import (
 from semcityloc.datasets.geotags import read_geotags_csv
 from semcityloc.errors import CameraError, CRSError, InputFileError, SemCityLocError
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.io import read_colmap_camera_ids, read_intrinsics, read_pose, read_poses
+from semcityloc.geometry.distortion import LensDistortion
+from semcityloc.geometry.io import read_colmap_camera_ids, read_lens, read_pose, read_poses
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
@@ -101,7 +104,7 @@ class PoseFiles:
         return match_name(self.entries, image)
 
 
-# Where a photo's camera came from with ``--intrinsics exif`` (``IntrinsicsFiles.camera_and_source``).
+# Where a photo's camera came from with ``--intrinsics exif`` (``IntrinsicsFiles.photo_camera``).
 INTRINSICS_DJI_CALIBRATION = "exif: DJI calibration (XMP CalibratedFocalLength)"
 INTRINSICS_35MM = "exif: 35 mm-equivalent focal length (approximate)"
 # What a user hears when a camera is ``INTRINSICS_35MM`` (``semcityloc localize``, once per photo run).
@@ -110,6 +113,17 @@ APPROXIMATE_INTRINSICS_NOTE = (
     "(2.4 % short on the real H20T thermal image) and moves the camera up or down by as much; pass "
     "--intrinsics a calibration (docs/your-data.md, section 4)"
 )
+
+
+@dataclass(frozen=True)
+class PhotoCamera:
+    """A photo's pinhole intrinsics, its lens distortion (zero: the photo is pinhole already) and where
+    they came from (``IntrinsicsFiles.photo_camera``). Masks, depth and overlays of the photo are resampled
+    onto ``camera`` with ``geometry.distortion.undistort_image``."""
+
+    camera: Camera
+    distortion: LensDistortion
+    source: str
 
 
 class IntrinsicsFiles:
@@ -140,12 +154,9 @@ class IntrinsicsFiles:
             "or an intrinsic/ folder beside the pose folder)"
         )
 
-    def camera(self, image: Path, width: int, height: int) -> Camera:
-        return self.camera_and_source(image, width, height)[0]
-
-    def camera_and_source(self, image: Path, width: int, height: int) -> tuple[Camera, str]:
-        """The camera of ``image`` and where it came from: ``INTRINSICS_DJI_CALIBRATION``,
-        ``INTRINSICS_35MM`` (approximate) or the calibration file."""
+    def photo_camera(self, image: Path, width: int, height: int) -> PhotoCamera:
+        """The camera of ``image`` at ``width`` x ``height``, its lens distortion and where they came from:
+        ``INTRINSICS_DJI_CALIBRATION``, ``INTRINSICS_35MM`` (approximate) or the calibration file."""
         if self.exif:
             try:
                 meta = read_dji_metadata(image)
@@ -154,17 +165,19 @@ class IntrinsicsFiles:
                 raise PhotoMissing(f"{exc}: pass --intrinsics (a calibration file or folder)") from None
             calibrated = calibrated_intrinsics(meta) is not None
             source = INTRINSICS_DJI_CALIBRATION if calibrated else INTRINSICS_35MM
-            return (camera if camera.size == (width, height) else camera.scaled(width, height)), source
-        return self._from_files(image, width, height), str(self.path)
+            camera = camera if camera.size == (width, height) else camera.scaled(width, height)
+            return PhotoCamera(camera, LensDistortion(), source)
+        camera, distortion = self._from_files(image, width, height)
+        return PhotoCamera(camera, distortion, str(self.path))
 
-    def _from_files(self, image: Path, width: int, height: int) -> Camera:
+    def _from_files(self, image: Path, width: int, height: int) -> tuple[Camera, LensDistortion]:
         if self.folder is not None:
             f = per_stem_file(self.folder, image.stem, "intrinsic")
             if f is None:
                 raise PhotoMissing(f"{self.folder}: no {image.stem}_intrinsic.txt for {image.name}")
-            return read_intrinsics(f, width=width, height=height)
+            return read_lens(f, width=width, height=height)
         try:  # one camera for every photo
-            return read_intrinsics(self.path, width=width, height=height)
+            return read_lens(self.path, width=width, height=height)
         except CameraError:
             pass
         # Several cameras: COLMAP cameras.txt is keyed by camera id (from images.txt), other files by name.
@@ -172,7 +185,7 @@ class IntrinsicsFiles:
         if self.poses is not None and self.poses.camera_ids:
             camera_id = match_name(self.poses.camera_ids, image)
         try:
-            return read_intrinsics(self.path, width=width, height=height, name=camera_id or image.name)
+            return read_lens(self.path, width=width, height=height, name=camera_id or image.name)
         except CameraError as exc:
             raise PhotoMissing(f"{self.path}: no intrinsics for {image.name} ({exc})") from None
 

@@ -34,15 +34,18 @@ from semcityloc.geometry.colmap_text import (
     numbers,
 )
 from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap, pose_from_lodloc_c2w
+from semcityloc.geometry.distortion import COEFFICIENTS, LensDistortion
 from semcityloc.geometry.pose import Pose
 
 # Pose and intrinsics files are a few lines long; refuse to slurp e.g. an image passed by mistake.
 MAX_SPEC_FILE_BYTES = 10_000_000
-# COLMAP camera models we read: name -> parameter names. Distortion terms must be zero (we are pinhole).
+# COLMAP camera models we read: name -> parameter names. Their distortion is ``LensDistortion``'s model
+# (``read_lens``); FULL_OPENCV only without its rational terms k4..k6.
 COLMAP_MODELS: dict[str, tuple[str, ...]] = {
     name: CAMERA_MODELS[name][1]
-    for name in ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+    for name in ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
 }
+_RATIONAL_TERMS = ("k4", "k5", "k6")
 # A pose JSON holding both matrices must agree to this (metres / rotation-matrix entries).
 CONSISTENCY_TOL_M = 1e-4
 CONSISTENCY_TOL_R = 1e-6
@@ -367,6 +370,12 @@ def _check_K(K: np.ndarray) -> tuple[float, float, float, float]:
     return float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
 
 
+def _lens_from_json(obj: Any, width: int | None, height: int | None) -> tuple[Camera, LensDistortion]:
+    camera = _camera_from_json(obj, width, height)
+    terms = {k: _number(obj, k, CameraError) for k in COEFFICIENTS if k in obj}
+    return camera, LensDistortion(**terms)
+
+
 def _camera_from_json(obj: Any, width: int | None, height: int | None) -> Camera:
     if not isinstance(obj, dict):
         raise CameraError(f"intrinsics JSON must be an object, got {type(obj).__name__}")
@@ -391,20 +400,26 @@ def _camera_from_json(obj: Any, width: int | None, height: int | None) -> Camera
     return _camera(fx, fy, cx, cy, size[0], size[1], width, height)
 
 
-def _colmap_camera(tokens: list[str], at: int, width: int | None, height: int | None) -> Camera:
+def _colmap_lens(
+    tokens: list[str], at: int, width: int | None, height: int | None
+) -> tuple[Camera, LensDistortion]:
     model, w, h, params = camera_values(tokens, at, COLMAP_MODELS)
-    distortion = {k: v for k, v in params.items() if k not in ("f", "fx", "fy", "cx", "cy") and v != 0}
-    if distortion:
+    rational = {k: params[k] for k in _RATIONAL_TERMS if params.get(k, 0.0) != 0}
+    if rational:
+        terms = ", ".join(f"{k}={v:g}" for k, v in rational.items())
         raise CameraError(
-            f"{model} has non-zero distortion ({', '.join(f'{k}={v:g}' for k, v in distortion.items())}); "
-            "undistort the image first (we model pinhole cameras only)"
+            f"{model} has rational distortion terms ({terms}), which are not supported: calibrate with "
+            "OPENCV (k1 k2 p1 p2) or undistort the images first"
         )
     fx = params.get("fx", params.get("f"))
     fy = params.get("fy", params.get("f"))
-    return _camera(fx, fy, params["cx"], params["cy"], w, h, width, height)
+    camera = _camera(fx, fy, params["cx"], params["cy"], w, h, width, height)
+    return camera, LensDistortion.from_params(params)
 
 
-def _camera_entries(text: str, width: int | None, height: int | None) -> dict[str, Camera]:
+def _camera_entries(
+    text: str, width: int | None, height: int | None
+) -> dict[str, tuple[Camera, LensDistortion]]:
     rows = _lines(text)
     if not rows:
         raise CameraError(f"no intrinsic values; expected {INTRINSICS_FORMS}")
@@ -416,7 +431,7 @@ def _camera_entries(text: str, width: int | None, height: int | None) -> dict[st
                 raise CameraError(
                     f"line {' '.join(r)[:60]!r} names no camera model; expected {INTRINSICS_FORMS}"
                 )
-            out[r[0] if at == 1 else ""] = _colmap_camera(r, at, width, height)
+            out[r[0] if at == 1 else ""] = _colmap_lens(r, at, width, height)
         return out
     for r in rows:
         if len(r) > 2 and not is_number(r[1]) and is_number(r[2]):
@@ -424,7 +439,7 @@ def _camera_entries(text: str, width: int | None, height: int | None) -> dict[st
     values = [numbers(r, CameraError) for r in rows]
     counts = [len(v) for v in values]
     if len(rows) == 3 and (all(c == 4 for c in counts) or all(c == 3 for c in counts)):
-        return {"": _camera(*_check_K(np.array(values)), None, None, width, height)}
+        return {"": (_camera(*_check_K(np.array(values)), None, None, width, height), LensDistortion())}
     if len(rows) == 1 and counts[0] in (4, 6):
         v = values[0]
         own = (None, None)
@@ -432,7 +447,7 @@ def _camera_entries(text: str, width: int | None, height: int | None) -> dict[st
             if not (v[4].is_integer() and v[5].is_integer()):
                 raise CameraError(f"image size must be whole pixels, got {v[4]:g} x {v[5]:g}")
             own = (int(v[4]), int(v[5]))
-        return {"": _camera(v[0], v[1], v[2], v[3], *own, width, height)}
+        return {"": (_camera(v[0], v[1], v[2], v[3], *own, width, height), LensDistortion())}
     shape = " / ".join(str(c) for c in counts[:5]) + (" / ..." if len(counts) > 5 else "")
     raise CameraError(
         f"{len(rows)} line(s) with {shape} numbers are not intrinsics; expected {INTRINSICS_FORMS}"
@@ -442,21 +457,40 @@ def _camera_entries(text: str, width: int | None, height: int | None) -> dict[st
 def read_intrinsics(
     spec: str | os.PathLike, width: int | None = None, height: int | None = None, name: str | None = None
 ) -> Camera:
-    """Pinhole intrinsics from a file or inline text. Accepted forms:
+    """Pinhole intrinsics from a file or inline text (``read_lens``'s forms); ``CameraError`` when they
+    carry a non-zero lens distortion, since a caller of this function uses the image as it is."""
+    camera, distortion = read_lens(spec, width, height, name)
+    if not distortion.is_zero:
+        terms = ", ".join(f"{k}={v:g}" for k, v in distortion.as_dict().items() if k != "model" and v)
+        raise CameraError(
+            f"{_load(spec, CameraError, 'intrinsics')[1]}: non-zero lens distortion "
+            f"({terms}); this command takes pinhole images: undistort them first (colmap image_undistorter), "
+            "or pass the photos to 'semcityloc run' / 'semcityloc localize --image', which undistort them"
+        )
+    return camera
+
+
+def read_lens(
+    spec: str | os.PathLike, width: int | None = None, height: int | None = None, name: str | None = None
+) -> tuple[Camera, LensDistortion]:
+    """Intrinsics and lens distortion (``geometry.distortion``; zero for the pinhole forms) from a file or
+    inline text. Accepted forms:
 
     - LoD-Loc ``*_intrinsic.txt``: a 3x4 ``[K|0]`` (or 3x3 ``K``) matrix. It stores no image size: unless
       ``width`` / ``height`` are given they are taken as ``2 cx`` / ``2 cy`` (principal point at the image
       centre; the real file has cx = 320, cy = 256 for a 640x512 image). A principal point that is not at
       the centre of a whole-pixel image raises ``CameraError`` asking for the size;
     - a COLMAP ``cameras.txt`` / LoD-Loc ``intrinsic.txt`` line ``name MODEL w h params`` (or without the
-      name/id), MODEL one of PINHOLE ``fx fy cx cy``, SIMPLE_PINHOLE ``f cx cy``, and SIMPLE_RADIAL /
-      RADIAL / OPENCV only with all distortion terms zero; several lines need ``name``;
+      name/id), MODEL one of PINHOLE ``fx fy cx cy``, SIMPLE_PINHOLE ``f cx cy``, SIMPLE_RADIAL ``f cx cy
+      k``, RADIAL ``f cx cy k1 k2``, OPENCV ``fx fy cx cy k1 k2 p1 p2`` and FULL_OPENCV with its rational
+      terms k4..k6 zero; several lines need ``name``;
     - JSON ``{"fx", "fy", "cx", "cy", "width", "height"}`` or ``{"K": 3x3, "width", "height"}``
-      (``Camera.as_dict`` output reads back);
+      (``Camera.as_dict`` output reads back), optionally with ``"k1", "k2", "p1", "p2", "k3"``;
     - inline ``fx,fy,cx,cy,w,h`` (or ``fx,fy,cx,cy`` with the size rule above).
 
     When the intrinsics carry their own size and both ``width`` and ``height`` are given and differ, the
-    camera is resampled to that size (``Camera.scaled``: same field of view, e.g. a downscaled image).
+    camera is resampled to that size (``Camera.scaled``: same field of view, e.g. a downscaled image; the
+    distortion, in normalised coordinates, is the same at any size).
     """
     for key, value in (("width", width), ("height", height)):
         if value is not None and (
@@ -465,15 +499,18 @@ def read_intrinsics(
             raise CameraError(f"image {key} must be a positive integer, got {value!r}")
     text, label = _load(spec, CameraError, "intrinsics")
 
-    def parse() -> dict[str, Camera]:
+    def parse() -> dict[str, tuple[Camera, LensDistortion]]:
         if text.lstrip().startswith(("{", "[")):
-            return {"": _camera_from_json(_json(text), width, height)}
+            return {"": _lens_from_json(_json(text), width, height)}
         return _camera_entries(text, width, height)
 
     entries = _labelled(label, parse)
     if list(entries) == [""]:
-        return entries[""]
-    return _labelled(label, _pick, entries, name, CameraError, "camera")
+        camera, distortion = entries[""]
+    else:
+        camera, distortion = _labelled(label, _pick, entries, name, CameraError, "camera")
+    _labelled(label, distortion.check, camera)
+    return camera, distortion
 
 
 # ---------------------------------------------------------------------------------------------- output
