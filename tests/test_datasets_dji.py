@@ -18,6 +18,7 @@ from semcityloc.datasets.dji import (
     RTK_FLOAT_FLOOR_M,
     calibrated_intrinsics,
     camera_from_exif,
+    dewarp_lens,
     dji_geotag,
     dji_prior,
     grid_convergence_deg,
@@ -27,6 +28,7 @@ from semcityloc.datasets.dji import (
 )
 from semcityloc.datasets.lodloc import read_lodloc
 from semcityloc.errors import CRSError, InputFileError
+from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.errors import rotation_error_deg
 from semcityloc.geometry.uncertainty import RTK_FLOOR_M, PriorUncertainty
 
@@ -157,6 +159,43 @@ def test_dji_calibration_tags_give_the_camera_when_they_fit_the_photo(tmp_path):
     assert calibrated_intrinsics(meta) is None and camera_from_exif(meta).cx == 32.0
     with pytest.raises(InputFileError, match="CalibratedFocalLength"):
         read_dji_metadata(dji_jpeg(tmp_path / "d.jpg", xmp_packet(CalibratedFocalLength="nan")))
+
+
+DEWARP = "2022-06-08;190.5,190.2,1.5,-2.0,-0.27,0.11,0.0008,-0.0003,-0.03"
+
+
+def test_dewarp_data_gives_the_camera_and_its_lens_distortion(tmp_path):
+    """DewarpData "date;fx,fy,cx,cy,k1,k2,p1,p2,k3": cx, cy are offsets from the image centre."""
+    f35 = 33  # 33 / 43.27 x 250 px (the diagonal of 200 x 150) = 190.7 px: the same photo
+    meta = read_dji_metadata(
+        dji_jpeg(
+            tmp_path / "a.jpg", xmp_packet(DewarpData=DEWARP, DewarpFlag="0"), size=(200, 150), focal_35mm=f35
+        )
+    )
+    camera, lens = dewarp_lens(meta)
+    assert (camera.fx, camera.fy, camera.cx, camera.cy, camera.size) == (
+        190.5,
+        190.2,
+        101.5,
+        73.0,
+        (200, 150),
+    )
+    assert lens == LensDistortion(k1=-0.27, k2=0.11, p1=0.0008, p2=-0.0003, k3=-0.03)
+    # The camera undistorted the photo itself: nothing to apply.
+    flagged = xmp_packet(DewarpData=DEWARP, DewarpFlag="1")
+    assert (
+        dewarp_lens(read_dji_metadata(dji_jpeg(tmp_path / "b.jpg", flagged, size=(200, 150), focal_35mm=f35)))
+        is None
+    )
+    # A copy resized to half: the tag describes another image (its focal length twice the photo's).
+    half = read_dji_metadata(
+        dji_jpeg(tmp_path / "c.jpg", xmp_packet(DewarpData=DEWARP), size=(100, 75), focal_35mm=f35)
+    )
+    assert dewarp_lens(half) is None
+    with pytest.raises(InputFileError, match="DewarpData: expected 'date;fx,fy,cx,cy,k1,k2,p1,p2,k3'"):
+        read_dji_metadata(dji_jpeg(tmp_path / "d.jpg", xmp_packet(DewarpData="2022-06-08;190.5,190.2,1.5")))
+    with pytest.raises(InputFileError, match="DewarpData is not finite"):
+        read_dji_metadata(dji_jpeg(tmp_path / "e.jpg", xmp_packet(DewarpData=DEWARP.replace("0.11", "inf"))))
 
 
 # ------------------------------------------------------------------------------------------ real image

@@ -23,6 +23,7 @@ from semcityloc.datasets.photos import (
     EXIF,
     INTRINSICS_35MM,
     INTRINSICS_DJI_CALIBRATION,
+    INTRINSICS_DJI_DEWARP,
     IntrinsicsFiles,
     PhotoMissing,
     PriorFiles,
@@ -147,6 +148,15 @@ def test_exif_intrinsics_say_whether_they_are_a_calibration_or_the_35mm_approxim
     (tmp_path / "cam.txt").write_text("100 100 40 30 80 60\n")
     lens = IntrinsicsFiles(tmp_path / "cam.txt").photo_camera(plain, 80, 60)
     assert lens.camera.fx == 100.0 and lens.source == str(tmp_path / "cam.txt") and lens.distortion.is_zero
+    dewarp = xmp_packet(DewarpData="2022-06-08;55.5,55.5,0.5,-0.5,-0.2,0.05,0.001,0,0", DewarpFlag="0")
+    lens = IntrinsicsFiles(EXIF).photo_camera(
+        dji_jpeg(tmp_path / "dw.jpg", dewarp, size=(80, 60), focal_35mm=24), 40, 30
+    )
+    assert lens.source == INTRINSICS_DJI_DEWARP and lens.distortion == LensDistortion(-0.2, 0.05, 0.001)
+    assert (lens.camera.fx, lens.camera.cx, lens.camera.cy) == (27.75, 20.25, 14.75)  # at the mask's size
+    broken = dji_jpeg(tmp_path / "broken.jpg", xmp_packet(DewarpData="1;2;3"), size=(80, 60), focal_35mm=24)
+    with pytest.raises(PhotoMissing, match="DewarpData"):  # this photo is skipped, not the whole run
+        IntrinsicsFiles(EXIF).photo_camera(broken, 80, 60)
     (tmp_path / "cameras.txt").write_text("1 OPENCV 80 60 100 100 40 30 -0.2 0.05 0.001 0\n")
     lens = IntrinsicsFiles(tmp_path / "cameras.txt").photo_camera(plain, 40, 30)
     assert lens.camera.fx == 50.0 and lens.distortion == LensDistortion(-0.2, 0.05, 0.001, 0.0)

@@ -11,7 +11,8 @@ attributes or elements anywhere in the file by a regular expression (no XML pars
 EXIF GPS block as a fallback for position (``GPSLatitude`` etc., via Pillow). The camera model and image
 size come from EXIF; ``camera_from_exif`` makes the pinhole camera from DJI's calibration tags when the
 photo has them (``CalibratedFocalLength``, ``CalibratedOpticalCenterX`` / ``Y``), else approximately from
-the 35 mm-equivalent focal length.
+the 35 mm-equivalent focal length; ``dewarp_lens`` the camera with its lens distortion from
+``DewarpData`` when the camera did not undistort the photo itself (``DewarpFlag`` 0).
 
 Angles (``geometry.conventions.pose_from_dji``): DJI gimbal angles are NED, yaw clockwise from north,
 pitch -90 = nadir. They refer to true north; a projected CRS's grid north differs by the meridian
@@ -59,6 +60,7 @@ from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.errors import CameraError, CRSError, InputFileError, PoseError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import dji_gimbal_angles, pose_from_dji, wrap_deg
+from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import IMAGE_DECODE_ERRORS
@@ -92,6 +94,7 @@ FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)  # the "35 mm equivalent" is def
 # DJI calibration tags are used only while their optical centre lies within this share of the image size
 # of the photo's centre (``calibrated_intrinsics``): farther, the photo was resized or cropped since.
 CALIBRATED_CENTRE_TOLERANCE = 0.1
+DEWARP_VALUES = 9  # fx, fy, cx, cy, k1, k2, p1, p2, k3
 MAX_FILE_BYTES = 256 * 1024 * 1024
 AREA_MARGIN_DEG = 2.0  # tolerance around a CRS's area of use (zones are often used a little beyond)
 _ATTR = re.compile(rb'([A-Za-z][\w.-]*):([A-Za-z][\w.-]*)\s*=\s*"([^"]*)"')
@@ -131,6 +134,11 @@ class DjiMetadata:
     calibrated_focal_px: float | None = None
     calibrated_cx_px: float | None = None
     calibrated_cy_px: float | None = None
+    # ``drone-dji:DewarpData`` "date;fx,fy,cx,cy,k1,k2,p1,p2,k3": the calibration with lens distortion
+    # (cx, cy: offsets from the image centre; pixels of the full-size image), and ``DewarpFlag`` (1: the
+    # camera already undistorted the photo)
+    dewarp: tuple[float, ...] | None = None
+    dewarp_flag: int | None = None
     sources: dict[str, str] = field(default_factory=dict)
     xmp: dict[str, str] = field(default_factory=dict)
 
@@ -309,6 +317,9 @@ def read_dji_metadata(path: str | os.PathLike) -> DjiMetadata:
     meta.calibrated_cy_px = finite_number(
         dji("CalibratedOpticalCenterY"), "DJI metadata CalibratedOpticalCenterY"
     )
+    meta.dewarp = _dewarp_data(dji("DewarpData"))
+    flag = finite_number(dji("DewarpFlag"), "DJI metadata DewarpFlag")
+    meta.dewarp_flag = int(flag) if flag is not None else None
     if meta.latitude is not None and not -90 <= meta.latitude <= 90:
         raise InputFileError(f"{path}: latitude {meta.latitude} is out of range")
     if meta.longitude is not None and not -180 <= meta.longitude <= 360:
@@ -334,6 +345,47 @@ def camera_from_exif(meta: DjiMetadata) -> Camera:
         )
     f = meta.focal_length_35mm / FULL_FRAME_DIAGONAL_MM * math.hypot(meta.width, meta.height)
     return Camera(f, f, meta.width / 2.0, meta.height / 2.0, meta.width, meta.height)
+
+
+def _dewarp_data(text: str | None) -> tuple[float, ...] | None:
+    """The nine numbers of a ``DewarpData`` tag (``DjiMetadata.dewarp``), None when absent."""
+    if text is None or not text.strip():
+        return None
+    values = text.split(";", 1)[-1].split(",")
+    if len(values) != DEWARP_VALUES:
+        raise InputFileError(
+            f"DJI metadata DewarpData: expected 'date;fx,fy,cx,cy,k1,k2,p1,p2,k3', got {text[:80]!r}"
+        )
+    return tuple(finite_number(v, "DJI metadata DewarpData") for v in values)
+
+
+def dewarp_lens(meta: DjiMetadata) -> tuple[Camera, LensDistortion] | None:
+    """The camera and lens distortion of DJI's ``DewarpData``, or None: no tag, a photo the camera already
+    undistorted (``DewarpFlag`` 1), a tag that does not fit the photo's size, or coefficients that cannot be
+    inverted over it.
+
+    The tag is in pixels of the image the camera wrote; its principal point is an offset from that image's
+    centre. A resized or cropped copy is recognised as in ``calibrated_intrinsics`` when the photo also
+    has the calibration tags; without them, by a focal length more than ``CALIBRATED_CENTRE_TOLERANCE``
+    off the 35 mm-equivalent one."""
+    if meta.dewarp is None or meta.dewarp_flag == 1 or meta.width is None or meta.height is None:
+        return None
+    fx, fy, dx, dy, k1, k2, p1, p2, k3 = meta.dewarp
+    if fx <= 0 or fy <= 0:
+        return None
+    if meta.calibrated_focal_px is not None and calibrated_intrinsics(meta) is None:
+        return None  # the calibration tags say the photo is not the image the camera wrote
+    if meta.focal_length_35mm is not None:
+        approximate = meta.focal_length_35mm / FULL_FRAME_DIAGONAL_MM * math.hypot(meta.width, meta.height)
+        if abs(fx / approximate - 1.0) > CALIBRATED_CENTRE_TOLERANCE:
+            return None
+    camera = Camera(fx, fy, meta.width / 2.0 + dx, meta.height / 2.0 + dy, meta.width, meta.height)
+    distortion = LensDistortion(k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
+    try:
+        distortion.check(camera)
+    except CameraError:
+        return None
+    return camera, distortion
 
 
 def calibrated_intrinsics(meta: DjiMetadata) -> Camera | None:

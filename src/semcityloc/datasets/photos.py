@@ -7,8 +7,9 @@ per-photo information in whatever form they come with. This module matches each 
 
 - poses (``PoseFiles``): a COLMAP ``images.txt`` (or any file ``geometry.io.read_poses`` reads) or a
   folder of LoD-Loc ``<stem>_pose.txt`` (4x4 camera-to-world), in the model's CRS / frame;
-- intrinsics (``IntrinsicsFiles``): ``exif`` (``dji.camera_from_exif``: DJI's calibration tags, else the
-  35 mm-equivalent focal length of the photo's EXIF), one file for every photo (LoD-Loc
+- intrinsics (``IntrinsicsFiles``): ``exif`` (``dji.dewarp_lens``: DJI's calibration with lens distortion,
+  else ``dji.camera_from_exif``: DJI's calibration tags, else the 35 mm-equivalent focal length of the
+  photo's EXIF), one file for every photo (LoD-Loc
   ``*_intrinsic.txt``, COLMAP line, JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids
   from the ``images.txt`` of the poses) or a folder of ``<stem>_intrinsic.txt``. The photo's own size
   always wins (intrinsics of another size are rescaled). A calibration with lens distortion (COLMAP
@@ -36,6 +37,7 @@ from semcityloc.datasets.dji import (
     HEIGHT_ELLIPSOIDAL,
     calibrated_intrinsics,
     camera_from_exif,
+    dewarp_lens,
     dji_prior,
     prior_uncertainty,
     read_dji_metadata,
@@ -106,6 +108,7 @@ class PoseFiles:
 
 # Where a photo's camera came from with ``--intrinsics exif`` (``IntrinsicsFiles.photo_camera``).
 INTRINSICS_DJI_CALIBRATION = "exif: DJI calibration (XMP CalibratedFocalLength)"
+INTRINSICS_DJI_DEWARP = "exif: DJI calibration with lens distortion (XMP DewarpData)"
 INTRINSICS_35MM = "exif: 35 mm-equivalent focal length (approximate)"
 # What a user hears when a camera is ``INTRINSICS_35MM`` (``semcityloc localize``, once per photo run).
 APPROXIMATE_INTRINSICS_NOTE = (
@@ -156,17 +159,25 @@ class IntrinsicsFiles:
 
     def photo_camera(self, image: Path, width: int, height: int) -> PhotoCamera:
         """The camera of ``image`` at ``width`` x ``height``, its lens distortion and where they came from:
-        ``INTRINSICS_DJI_CALIBRATION``, ``INTRINSICS_35MM`` (approximate) or the calibration file."""
+        ``INTRINSICS_DJI_DEWARP``, ``INTRINSICS_DJI_CALIBRATION``, ``INTRINSICS_35MM`` (approximate) or the
+        calibration file."""
         if self.exif:
             try:
                 meta = read_dji_metadata(image)
-                camera = camera_from_exif(meta)
-            except CameraError as exc:
-                raise PhotoMissing(f"{exc}: pass --intrinsics (a calibration file or folder)") from None
-            calibrated = calibrated_intrinsics(meta) is not None
-            source = INTRINSICS_DJI_CALIBRATION if calibrated else INTRINSICS_35MM
+            except SemCityLocError as exc:  # e.g. a malformed tag: this photo is skipped, not the run
+                raise PhotoMissing(str(exc)) from None
+            lens = dewarp_lens(meta)
+            if lens is not None:
+                (camera, distortion), source = lens, INTRINSICS_DJI_DEWARP
+            else:
+                try:
+                    camera, distortion = camera_from_exif(meta), LensDistortion()
+                except CameraError as exc:
+                    raise PhotoMissing(f"{exc}: pass --intrinsics (a calibration file or folder)") from None
+                calibrated = calibrated_intrinsics(meta) is not None
+                source = INTRINSICS_DJI_CALIBRATION if calibrated else INTRINSICS_35MM
             camera = camera if camera.size == (width, height) else camera.scaled(width, height)
-            return PhotoCamera(camera, LensDistortion(), source)
+            return PhotoCamera(camera, distortion, source)
         camera, distortion = self._from_files(image, width, height)
         return PhotoCamera(camera, distortion, str(self.path))
 
