@@ -25,7 +25,7 @@ from semcityloc.benchmark.queries import (
 )
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.generator import generate_city
-from semcityloc.classes import SemanticClass
+from semcityloc.classes import IGNORE, SemanticClass
 from semcityloc.errors import BenchmarkConfigError, PerceptionSimError, ShapeError
 from semcityloc.geometry.pose import Pose
 
@@ -131,6 +131,26 @@ def test_a_focal_error_changes_only_the_camera_the_localizer_is_told_of(city, vi
     for bad in (0.5, -0.7, float("nan")):
         with pytest.raises(BenchmarkConfigError, match="focal_error"):
             QueryConfig(focal_error=bad)
+
+
+def test_a_lens_distorts_the_query_and_a_stated_lens_undoes_it(city, views):
+    ref = views[2].query
+    told = QuerySimulator(city, QueryConfig(queries=N_QUERIES, seed=0, lens_k1=-0.1)).query(2)
+    untold = QuerySimulator(city, QueryConfig(queries=N_QUERIES, seed=0, lens_k1=-0.1, lens_stated=False))
+    untold = untold.query(2)
+    for q in (told, untold):
+        np.testing.assert_array_equal(q.true_pose_local.t, ref.true_pose_local.t)
+        np.testing.assert_array_equal(q.prior_pose_local.t, ref.prior_pose_local.t)
+        assert q.camera == ref.camera and q.query_miou == ref.query_miou  # the masks' own quality
+    known = told.labels != IGNORE
+    assert known.mean() > 0.97 and (told.labels == ref.labels)[known].mean() > 0.97
+    assert untold.labels[0, 0] == IGNORE  # barrel: the pinhole render does not reach the photo's corners
+    assert (untold.labels == ref.labels).mean() < (told.labels == ref.labels).mean() - 0.05
+    assert np.isnan(untold.depth[0, 0]) and np.nanmax(np.abs(told.depth - ref.depth)) > 0  # resampled
+    # -0.2 alone folds over before the corners of a 70 deg camera: no ray reaches them.
+    for bad in ({"lens_k1": -0.2}, {"lens_k1": float("nan")}, {"lens_stated": "yes"}):
+        with pytest.raises(BenchmarkConfigError, match=next(iter(bad))):
+            QueryConfig(**bad)
 
 
 # ------------------------------------------------------------------------------------------ poses, views

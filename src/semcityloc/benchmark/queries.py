@@ -65,8 +65,15 @@ from semcityloc.benchmark.seg_errors import (
 )
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
-from semcityloc.errors import BenchmarkConfigError, EmptyModelError, QuerySimulationError, unknown_choice
+from semcityloc.errors import (
+    BenchmarkConfigError,
+    CameraError,
+    EmptyModelError,
+    QuerySimulationError,
+    unknown_choice,
+)
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.distortion import LensDistortion, distort_image, undistort_image
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.perception.autolabel import auto_label
@@ -119,6 +126,12 @@ class QueryConfig:
     # The localizer is told a focal length (1 + this) x the true one (the query is rendered with the true
     # one): EXIF intrinsics instead of a calibration (-0.024 on the real thermal image, docs/your-data.md).
     focal_error: float = 0.0
+    # The camera's lens: radial distortion k1 (OpenCV model, ``geometry.distortion``; < 0 barrel). The
+    # query is seen through it; ``lens_stated``: the localizer is told the lens and gets the query
+    # undistorted, as a photo run does with a calibration that has it; else it takes the distorted query
+    # for a pinhole image (a calibration without the lens, or EXIF focal length only).
+    lens_k1: float = 0.0
+    lens_stated: bool = True
     # --- knobs of the realistic scenario (``benchmark.scenario``); these defaults are the clean one ---
     scenario: str = "clean"  # the name of the bundle these values came from (recorded, not used)
     prior_height_m: float | None = None  # None: z error a part of the 3D base error; else uniform +-this
@@ -152,6 +165,7 @@ class QueryConfig:
             "prior_roll_pitch_deg",
             "focal_mm",
             "focal_error",
+            "lens_k1",
         ):
             value = getattr(self, name)
             if (
@@ -182,6 +196,15 @@ class QueryConfig:
             raise BenchmarkConfigError("prior_roll_pitch_deg must be in [0, 45] and focal_mm positive")
         if not -0.5 < self.focal_error < 0.5:
             raise BenchmarkConfigError(f"focal_error must be in (-0.5, 0.5), got {self.focal_error}")
+        try:
+            LensDistortion(k1=self.lens_k1).check(zenmuse_l2_camera(self.width, self.height, self.focal_mm))
+        except CameraError as exc:
+            raise BenchmarkConfigError(
+                f"lens_k1 = {self.lens_k1:g} does not fit this camera: {exc}"
+            ) from None
+        if not isinstance(self.lens_stated, (bool, np.bool_)):
+            raise BenchmarkConfigError(f"lens_stated must be true or false, got {self.lens_stated!r}")
+        put("lens_stated", bool(self.lens_stated))
         tr = _pair(self.prior_translation_m, "prior_translation_m")
         if tr[0] < 0:
             raise BenchmarkConfigError(f"prior_translation_m must be >= 0, got {tr}")
@@ -418,6 +441,26 @@ class QuerySimulator:
         meta["shadow_fraction"] = float(truth.shadow.mean())
         return simulate_segmentation(clean, cfg.seg_preset(), rng, truth=truth)
 
+    def _through_lens(
+        self, labels: np.ndarray, depth: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The query as the localizer gets it (``lens_k1``, ``lens_stated``): seen through the lens (where
+        the pinhole render does not reach, IGNORE / NaN), then undistorted with the stated camera when
+        the lens is stated. The segmentation's scores (``query_miou``, the map's mIoU) are the lens-free
+        masks'."""
+        cfg = self.config
+        if cfg.lens_k1 == 0.0:
+            return labels, depth
+        lens = LensDistortion(k1=cfg.lens_k1)
+
+        def seen(image: np.ndarray, fill: float) -> np.ndarray:
+            photo = distort_image(image, self.camera, lens, fill=fill, nearest=True)
+            if not cfg.lens_stated:
+                return photo
+            return undistort_image(photo, self.stated_camera, lens, fill=fill, nearest=True)
+
+        return seen(labels, IGNORE), (None if depth is None else seen(depth, np.nan))
+
     def map_confusion(self, pose: Pose, labels: np.ndarray) -> np.ndarray:
         """(C, C) int64 confusion [map label, predicted] of ``labels`` against the MAP's own labels at the
         true pose, by the automatic labelling rules (ignore pixels left out): the paper's mIoU. Windows and
@@ -495,14 +538,15 @@ class QuerySimulator:
             **prior_info,
             **extra_meta,
         }
+        seen_labels, seen_depth = self._through_lens(labels, depth)
         query = BenchmarkQuery(
             query_id=query_id(index),
             index=index,
             camera=self.stated_camera,
             true_pose_local=pose,
             prior_pose_local=prior,
-            labels=labels,
-            depth=depth,
+            labels=seen_labels,
+            depth=seen_depth,
             query_miou=miou(labels, clean),
             meta=meta,
         )
