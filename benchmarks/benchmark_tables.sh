@@ -48,7 +48,9 @@ for KV in "as_is" "imu2 prior_roll_pitch_sigma_deg=2 prior_roll_pitch_deg=5" \
     "depth2 depth_model.distortion=0.2 depth_model.noise=[0.05,0.1]" \
     "outdated reality.missing_fraction=0.2 reality.new_fraction=0.2" \
     "higher height_range_m=[150,250] nominal_height_m=200" "narrow focal_mm=28" \
-    "focal_short focal_error=-0.024" "focal_long focal_error=0.01"; do
+    "focal_short focal_error=-0.024" "focal_long focal_error=0.01" \
+    "lens05 lens_k1=-0.05" "lens05_unstated lens_k1=-0.05 lens_stated=false" \
+    "lens10 lens_k1=-0.1" "lens10_unstated lens_k1=-0.1 lens_stated=false"; do
   set -- $KV
   NAME=$1; shift
   SETS=(); for KNOB in "$@"; do SETS+=(--set "$KNOB"); done
@@ -62,6 +64,13 @@ for F in 18.55 23.77 28; do  # 50, 40 and 34 deg across (the default camera: 70)
 done
 for E in -0.024 0.01; do
   $S benchmark --city generated --queries 100 --workers 2 --set focal_error=$E --out "$R/generated_focal$E"
+done
+$S benchmark --city generated --queries 100 --workers 2 --out "$R/generated_as_is"
+for K in -0.05 -0.1; do  # a radial lens, stated (undistorted as a photo run does) or taken for pinhole
+  for ST in true false; do
+    $S benchmark --city generated --queries 100 --workers 2 --set lens_k1=$K --set lens_stated=$ST \
+      --out "$R/generated_lens${K}_$ST"
+  done
 done
 # the narrow camera with a height prior good to +-5 m, its sigma left at the default and stated
 $S benchmark --city generated --queries 100 --workers 2 --set focal_mm=28 --set prior_height_m=5 --out "$R/narrow_z5"
