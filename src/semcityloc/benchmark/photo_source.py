@@ -6,10 +6,11 @@ with ETA, workers, details), so a run of a thousand photos can be stopped and co
 
 Per photo (``datasets.photos`` matches files to photos by name):
 
-- intrinsics: ``exif`` (DJI's calibration tags, else the 35 mm-equivalent focal length,
-  ``dji.camera_from_exif``) by default, or a calibration (LoD-Loc ``intrinsic/`` folder, COLMAP
-  ``cameras.txt``, one file for all); with lens distortion in the calibration, the photo, its mask and
-  its depth are resampled onto the pinhole camera before anything uses them (``PhotoInput.pinhole``);
+- intrinsics: ``exif`` (DJI's calibration with its lens distortion, ``dji.dewarp_lens``, else DJI's
+  calibration tags, else the 35 mm-equivalent focal length, ``dji.camera_from_exif``) by default, or a
+  calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all); with lens
+  distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
+  uses them (``PhotoInput.pinhole``);
 - prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
@@ -288,7 +289,16 @@ def _resolve(spec: PhotoSpec) -> Resolved:
         sigma = fixed or prior.uncertainty or PriorUncertainty()
         inputs.append(
             PhotoInput(
-                path.name, path, camera, prior, sigma, true_pose, mask, depth, lens.source, lens.distortion
+                path.name,
+                path,
+                camera,
+                prior,
+                sigma,
+                true_pose,
+                mask,
+                depth,
+                intrinsics_source=lens.source,
+                distortion=lens.distortion,
             )
         )
     if store is not None and inputs:
@@ -377,7 +387,7 @@ class PhotoSource:
             labels = inp.pinhole(labels, fill=IGNORE, nearest=True)
         else:
             labels = seg.predict(photo, name=inp.name).labels
-        check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask or inp.name)
+            check_aspect(labels.shape, cam.width, cam.height, "mask", inp.name)
         depth = None
         if inp.depth is not None:
             depth = read_depth_file(inp.depth)
@@ -385,8 +395,7 @@ class PhotoSource:
             depth = inp.pinhole(depth, fill=np.nan, nearest=True)
         elif dep is not None:
             depth = dep.predict(photo, name=inp.name).masked()
-        if depth is not None:
-            check_aspect(depth.shape, cam.width, cam.height, "depth", inp.depth or inp.name)
+            check_aspect(depth.shape, cam.width, cam.height, "depth", inp.name)
         pitch = float(inp.prior.pose_world.to_xyz_rpy()[4])
         meta = {
             "name": inp.name,
