@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -98,6 +99,10 @@ def test_bad_coefficients_and_shapes_are_refused():
         LensDistortion(p2="0.1")
     with pytest.raises(CameraError, match="cannot be inverted"):
         LensDistortion(k1=-1.5).check(CAMERA)  # folds over inside the image
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a hostile value: refused, without numpy's overflow warnings
+        with pytest.raises(CameraError, match="cannot be inverted"):
+            LensDistortion(k1=1e308).check(CAMERA)
     with pytest.raises(ShapeError):
         undistort_image(np.zeros((2, 3, 4, 5)), CAMERA, DJI, fill=0, nearest=True)
     with pytest.raises(ShapeError):

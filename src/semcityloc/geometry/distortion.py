@@ -128,8 +128,9 @@ class LensDistortion:
     def max_inverse_error_px(self, camera: Camera) -> float:
         """How far ``undistort`` misses over ``camera``'s image (pixels): large where the model folds."""
         uv = _border_samples(camera)
-        back = self.distorted_pixels(camera, self.pinhole_pixels(camera, uv))
-        error = np.linalg.norm(back - uv, axis=-1)
+        with np.errstate(over="ignore", invalid="ignore"):  # a hostile coefficient: inf, then refused
+            back = self.distorted_pixels(camera, self.pinhole_pixels(camera, uv))
+            error = np.linalg.norm(back - uv, axis=-1)
         return float(np.max(np.where(np.isfinite(error), error, np.inf)))
 
     def check(self, camera: Camera) -> None:

@@ -465,7 +465,7 @@ def read_intrinsics(
         raise CameraError(
             f"{_load(spec, CameraError, 'intrinsics')[1]}: non-zero lens distortion "
             f"({terms}); this command takes pinhole images: undistort them first (colmap image_undistorter), "
-            "or pass the photos to 'semcityloc run' / 'semcityloc localize --image', which undistort them"
+            "or give them to 'semcityloc run' / 'semcityloc localize', which undistort photo, mask and depth"
         )
     return camera
 
