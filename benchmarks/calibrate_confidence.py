@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/calibrate_confidence.py [--queries 60] [--workers 2] [--cache DIR] [--write]
         [--fit-city generated --fit-city FUERTH ...] [--check-city BERLIN ...] [--seed 0]
-        [--cross-city [--without FEATURE] [--reached]]
+        [--without FEATURE] [--cross-city [--reached]]
 
 Fit data (never a reporting city): the realistic scenario on the generated city and Fürth, with every
 segmentation quality (trained, medium, zero-shot) and with the paper's extra prior errors (20-30 and
@@ -20,7 +20,9 @@ curve (coverage and precision at the acceptance probabilities 0.3 ... 0.9) of ea
 
 ``--cross-city`` (judging a feature on the calibration cities alone): each model is fitted on one
 calibration city and checked on the other, both ways; with ``--without NAME`` the same is done without
-that feature too, side by side (ECE, log-loss, right and wrong poses accepted at p >= 0.5). With
+that feature too, side by side (ECE, log-loss, right and wrong poses accepted at p >= 0.5). Without
+``--cross-city``, ``--without NAME`` also fits each model without that feature and reports its fit and
+check beside the full model's (never written). With
 ``--reached`` the check counts only the results that reached the acceptance (the population the model
 is applied to), and each model is fitted both on every row and on those.
 
@@ -211,7 +213,7 @@ def main() -> int:
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--write", action="store_true", help="save the fitted models into the package")
     ap.add_argument("--cross-city", action="store_true", help="fit on one calibration city, check on another")
-    ap.add_argument("--without", default=None, help="with --cross-city: also without this feature")
+    ap.add_argument("--without", default=None, help="also fit and check without this feature (not written)")
     ap.add_argument(
         "--reached",
         action="store_true",
@@ -269,6 +271,14 @@ def main() -> int:
         if check_rows:
             Xc, yc = matrix(check_rows, variant, names)
             report(model, Xc, yc, "  check")
+        if args.without is not None and args.without in names:
+            fewer = tuple(n for n in names if n != args.without)
+            X, y = matrix(fit_rows, variant, fewer)
+            other = fit_logistic(X, y, fewer, kind, with_depth, fitted_on="comparison only")
+            report(other, X, y, f"  fit without {args.without}")
+            if check_rows:
+                Xc, yc = matrix(check_rows, variant, fewer)
+                report(other, Xc, yc, f"  check without {args.without}")
     if args.write:
         save_models(models)
         print("# written", file=sys.stderr)
