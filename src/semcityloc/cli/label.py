@@ -43,7 +43,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--images", required=True, help="folder of photos")
     p.add_argument("--poses", required=True, help="COLMAP images.txt, or a folder of LoD-Loc <stem>_pose.txt")
     p.add_argument(
-        "--intrinsics", default=None, help="file, COLMAP cameras.txt, or folder of <stem>_intrinsic.txt"
+        "--intrinsics",
+        default=None,
+        help="file, COLMAP cameras.txt, or folder of <stem>_intrinsic.txt (with lens distortion, the labels "
+        "are resampled onto the photo's distorted pixels)",
     )
     p.add_argument("--out", required=True, help="output folder for <stem>.png label maps")
     p.add_argument("--max-range", type=float, default=1500.0, help="ignore surfaces farther than this (m)")

@@ -45,8 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--intrinsics",
         default=EXIF,
-        help="exif (default: DJI's calibration tags, else the 35 mm-equivalent focal length), a calibration "
-        "file, COLMAP cameras.txt, or a folder of <stem>_intrinsic.txt",
+        help="exif (default: DJI's DewarpData with its lens distortion, else DJI's calibration tags, else "
+        "the 35 mm-equivalent focal length), a calibration file, COLMAP cameras.txt, or a folder of "
+        "<stem>_intrinsic.txt; a lens distortion (COLMAP OPENCV / RADIAL, JSON k1 k2 p1 p2 k3) is undone "
+        "on photo, mask and depth",
     )
     p.add_argument(
         "--truth", default=None, help="ground-truth poses (same forms as --priors): errors in the summary"
