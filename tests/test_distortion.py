@@ -16,6 +16,7 @@ from semcityloc.geometry.distortion import (
     LensDistortion,
     distort_image,
     undistort_image,
+    unseen_by_photo,
 )
 from semcityloc.geometry.io import read_lens
 
@@ -126,3 +127,11 @@ def test_read_lens_reads_colmap_and_json_distortion(tmp_path):
     with pytest.raises(CameraError, match=r"camera.json: 'k2' must be a number"):
         path.write_text(json.dumps({**CAMERA.as_dict(), "k2": "big"}))
         read_lens(path)
+
+
+def test_unseen_by_photo_is_a_pincushion_border_only():
+    assert not unseen_by_photo((384, 512), CAMERA, DJI).any()  # barrel: the photo sees more than the pinhole
+    assert not unseen_by_photo((384, 512), CAMERA, LensDistortion()).any()
+    unseen = unseen_by_photo((96, 128), CAMERA, LensDistortion(k1=0.08))  # any resolution
+    assert unseen[0, 0] and unseen[-1, -1] and unseen[48, 0] and not unseen[48, 64]
+    assert not unseen[10:-10, 10:-10].any() and 0.01 < unseen.mean() < 0.2

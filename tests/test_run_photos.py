@@ -37,7 +37,7 @@ from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_sc
 from semcityloc.datasets.photos import INTRINSICS_35MM
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import pose_from_dji
-from semcityloc.geometry.distortion import LensDistortion, distort_image
+from semcityloc.geometry.distortion import LensDistortion, distort_image, unseen_by_photo
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
@@ -560,3 +560,26 @@ def test_berlin_run_on_a_tile_store_gives_the_same_poses(berlin_run, tmp_path):
     # The report of a store's run reads the store (the query figures draw its map).
     assert main(["report", str(out), "--out", str(tmp_path / "report"), "--no-html"]) == 0
     assert (tmp_path / "report" / "report.md").is_file()
+
+
+def test_a_network_on_an_undistorted_photo_says_nothing_where_the_photo_shows_nothing(box_flight, tmp_path):
+    """Pincushion: the pinhole view's border lies outside the photo, the undistorted photo is black there;
+    what a backend predicts there is IGNORE (labels) and NaN (depth), not a guess about black pixels."""
+    root = box_flight["root"]
+    lens = LensDistortion(k1=0.08)
+    (tmp_path / "lens.json").write_text(json.dumps({**CAM.as_dict(), **lens.as_dict()}))
+    spec = PhotoSpec(
+        images=str(root / "images"),
+        city=str(root / "city.obj"),
+        priors=str(root / "GPS_pose"),
+        intrinsics=str(tmp_path / "lens.json"),
+        seg_backend="files",
+        backend_options=(("masks", str(root / "masks")),),
+    )
+    source = spec.open_source(spec.run_config())
+    labels = source.query(0).labels
+    predicted = load_labels_png(root / "masks" / "P0.png")  # what the files backend returns for P0
+    unseen = unseen_by_photo(labels.shape, CAM, lens)
+    assert unseen[0, 0] and not unseen[60, 80] and 0.005 < unseen.mean() < 0.2
+    assert (predicted[unseen] != IGNORE).any()  # the backend did say something there
+    np.testing.assert_array_equal(labels, np.where(unseen, IGNORE, predicted))

@@ -60,7 +60,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.distortion import LensDistortion, undistort_image
+from semcityloc.geometry.distortion import LensDistortion, undistort_image, unseen_by_photo
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -388,6 +388,7 @@ class PhotoSource:
         else:
             labels = seg.predict(photo, name=inp.name).labels
             check_aspect(labels.shape, cam.width, cam.height, "mask", inp.name)
+            labels = np.where(unseen_by_photo(labels.shape, cam, inp.distortion), IGNORE, labels)
         depth = None
         if inp.depth is not None:
             depth = read_depth_file(inp.depth)
@@ -396,6 +397,7 @@ class PhotoSource:
         elif dep is not None:
             depth = dep.predict(photo, name=inp.name).masked()
             check_aspect(depth.shape, cam.width, cam.height, "depth", inp.name)
+            depth = np.where(unseen_by_photo(depth.shape, cam, inp.distortion), np.nan, depth)
         pitch = float(inp.prior.pose_world.to_xyz_rpy()[4])
         meta = {
             "name": inp.name,

@@ -21,7 +21,7 @@ from semcityloc.datasets.photos import (
     PhotoCamera,
 )
 from semcityloc.errors import InputFileError
-from semcityloc.geometry.distortion import undistort_image
+from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
 from semcityloc.geometry.io import read_lens, read_pose, write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import check_aspect, image_size, load_depth, load_image, read_mask_file, save_rgb
@@ -164,6 +164,7 @@ def _query_inputs(args, lens: PhotoCamera):
     else:
         labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
         check_aspect(labels.shape, camera.width, camera.height, "mask", name)
+        labels = np.where(unseen_by_photo(labels.shape, camera, lens.distortion), IGNORE, labels)
     depth = None
     if args.depth:
         depth = load_depth(args.depth)
@@ -172,6 +173,7 @@ def _query_inputs(args, lens: PhotoCamera):
     elif args.depth_backend:
         depth = get_depth_backend(args.depth_backend, **options).predict(image, name=name).masked()
         check_aspect(depth.shape, camera.width, camera.height, "depth", name)
+        depth = np.where(unseen_by_photo(depth.shape, camera, lens.distortion), np.nan, depth)
     return labels, depth
 
 

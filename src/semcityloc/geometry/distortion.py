@@ -172,6 +172,14 @@ def distort_image(
     return _resample(image, distortion.pinhole_pixels(cam, cam.pixel_centers()), fill, nearest)
 
 
+def unseen_by_photo(shape: tuple[int, int], camera: Camera, distortion: LensDistortion) -> np.ndarray:
+    """(H, W) bool: the pixels of the undistorted (pinhole) image of that size that the photo does not
+    show (a border, widest at the corners, under pincushion distortion: where ``undistort_image``
+    fills). A network run on the undistorted photo sees the fill there; its output there says nothing."""
+    blank = np.zeros(tuple(shape), dtype=bool)
+    return undistort_image(blank, camera, distortion, fill=True, nearest=True)
+
+
 def _resample(image: np.ndarray, uv: np.ndarray, fill: float, nearest: bool) -> np.ndarray:
     """``image`` sampled at pixel coordinates ``uv`` (H', W', 2); outside the image: ``fill``."""
     rows, cols = uv[..., 1] - 0.5, uv[..., 0] - 0.5  # pixel (i, j)'s centre is (j + 0.5, i + 0.5)
