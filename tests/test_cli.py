@@ -158,6 +158,10 @@ def test_localize_undistorts_a_mask_from_a_distorting_lens(city_paths, tmp_path,
     photo_mask = distort_image(load_labels_png(tmp_path / "r" / "labels.png"), camera, lens, 255, True)
     save_labels_png(photo_mask, tmp_path / "photo_mask.png")
     (tmp_path / "lens.json").write_text(json.dumps({**camera.as_dict(), **lens.as_dict()}))
+    # render with the lens writes the photo's own pixels: the same mask
+    argv = ["render", "--city", city_paths[2], "--intrinsics", tmp_path / "lens.json", "--pose", argv[-1]]
+    assert run(capsys, *argv, "--out", tmp_path / "r_lens", "--no-cache")[0] == 0
+    np.testing.assert_array_equal(load_labels_png(tmp_path / "r_lens" / "labels.png"), photo_mask)
 
     def error_m(intrinsics, out) -> float:
         argv = ["localize", "--city", city_paths[2], "--intrinsics", intrinsics, "--semantic"]

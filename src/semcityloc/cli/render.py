@@ -1,4 +1,10 @@
-"""``semcityloc render``: semantic mask, depth and (with a photo) a model-edge overlay at one pose."""
+"""``semcityloc render``: semantic mask, depth and (with a photo) a model-edge overlay at one pose.
+
+With lens distortion in the intrinsics (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``, JSON ``k1 k2 p1 p2
+k3``) everything is written in the photo's own distorted pixels: rendered through the pinhole camera, then
+resampled (``geometry.distortion.distort_image``; IGNORE / no depth / no edge where the pinhole render
+does not reach), so the overlays lie on the photo as it is.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +12,12 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
+from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.geometry.io import read_intrinsics, read_pose
+from semcityloc.geometry.distortion import distort_image
+from semcityloc.geometry.io import read_lens, read_pose
 from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
@@ -20,7 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--intrinsics",
         required=True,
-        help="LoD-Loc *_intrinsic.txt, COLMAP camera line, JSON, or fx,fy,cx,cy,w,h",
+        help="LoD-Loc *_intrinsic.txt, COLMAP camera line, JSON, or fx,fy,cx,cy,w,h (with lens distortion: "
+        "the outputs in the photo's distorted pixels)",
     )
     p.add_argument(
         "--pose",
@@ -38,17 +49,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     model = load_model_from_args(args)
-    camera = read_intrinsics(args.intrinsics, width=args.width, height=args.height)
+    camera, lens = read_lens(args.intrinsics, width=args.width, height=args.height)
     pose_world = read_pose(args.pose)  # the model's CRS
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(model, engine=args.engine)
     view = renderer.render(camera, model.pose_to_local(pose_world), depth=True, face_ids=True)
-    labels, depth, ids = view.labels[0], view.depth[0], view.face_ids[0]
+    edges = visible_edges(view.face_ids[0], view.depth[0], renderer.scene)
+    labels = distort_image(view.labels[0], camera, lens, fill=IGNORE, nearest=True)
+    depth = distort_image(view.depth[0], camera, lens, fill=np.nan, nearest=True)
+    edges = distort_image(edges, camera, lens, fill=False, nearest=True)
     written = [save_labels_png(labels, out / "labels.png"), *save_depth(depth, out / "depth.png")]
     if args.image:
         photo = load_image(args.image)
-        edges = visible_edges(ids, depth, renderer.scene)
         written.append(save_rgb(draw_edges(photo, edges), out / "overlay_edges.png"))
         written.append(save_rgb(blend_labels(photo, labels), out / "overlay_labels.png"))
     counts = {int(c): int((labels == c).sum()) for c in set(labels.reshape(-1).tolist())}
