@@ -154,6 +154,21 @@ def test_a_run_undistorts_the_masks_of_a_distorting_lens(box_flight, tmp_path, c
     assert max(with_lens) < 0.5 and np.mean(as_pinhole) > 2 * np.mean(with_lens), (with_lens, as_pinhole)
 
 
+def test_the_focal_length_is_estimated_only_when_asked_or_approximate(box_flight, tmp_path, capsys):
+    """--calibrate-focal on: too few oblique photos here, so no estimate, and the run says why (in the
+    notes and in each pose file); auto (the default) leaves a calibration file's camera alone."""
+    argv = [*box_flight["argv"], "--no-overlays"]
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "on", "--calibrate-focal", "on")
+    assert code == 0
+    record = json.loads((tmp_path / "on" / "poses" / "P0.json").read_text())["extra"]
+    assert record["focal_estimate"]["scale"] is None and "need 5" in record["focal_estimate"]["reason"]
+    assert "the focal length of 2 photos could not be estimated: 1 oblique images" in err
+    assert json.loads((tmp_path / "on" / "run.json").read_text())["calibrate_focal"] == "on"
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "auto")
+    record = json.loads((tmp_path / "auto" / "poses" / "P0.json").read_text())["extra"]
+    assert code == 0 and record["focal_estimate"] is None and "focal length of" not in err
+
+
 def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
     for mask in (box_flight["root"] / "masks").glob("P[01].png"):  # JPEG content, the .png name kept
         ids = np.array(Image.open(mask))  # the palette PNG's class ids

@@ -81,6 +81,25 @@ def _read_record(path: Path) -> dict | None:
         raise InputFileError(f"{path}: unreadable pose file ({exc}); run again with --overwrite") from exc
 
 
+def focal_notes(inputs: list) -> list[str]:
+    """One line per camera whose focal length the flight estimated, or tried to (``calibrate_focal``)."""
+    notes: dict[str, None] = {}
+    for inp in inputs:
+        est = inp.focal_estimate
+        if est is None:
+            continue
+        count = sum(1 for other in inputs if other.focal_estimate == est)
+        if est.get("scale") is not None:
+            line = (
+                f"the focal length of {count} photos was estimated from {est['images']} oblique ones: "
+                f"{est['scale']:.4f} x the stated one (poses/<stem>.json: focal_estimate)"
+            )
+        else:
+            line = f"the focal length of {count} photos could not be estimated: {est.get('reason')}"
+        notes[line] = None
+    return list(notes)
+
+
 def write_exports(
     out_dir: Path, model: CityModel, inputs: list, offset: np.ndarray | None, target_height: str
 ) -> dict[str, Any]:
@@ -104,7 +123,12 @@ def write_exports(
         ]
         outputs["notes"] += [n for n in said if n and n not in outputs["notes"]]
 
-    approximate = [inp.name for inp in inputs if inp.intrinsics_source == INTRINSICS_35MM]
+    outputs["notes"] += focal_notes(inputs)
+    approximate = [
+        inp.name
+        for inp in inputs
+        if inp.intrinsics_source == INTRINSICS_35MM and (inp.focal_estimate or {}).get("scale") is None
+    ]
     if approximate:
         count = f"{len(approximate)} of {len(inputs)} photos have no calibrated intrinsics"
         outputs["notes"].append(f"{count}: {APPROXIMATE_INTRINSICS_NOTE}")

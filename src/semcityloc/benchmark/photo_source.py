@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+import sys
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -52,6 +53,7 @@ from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.datasets.photos import (
     EXIF,
+    INTRINSICS_35MM,
     IntrinsicsFiles,
     PhotoMissing,
     PhotoPrior,
@@ -66,7 +68,16 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import check_aspect, image_size, load_image, read_depth_file, read_mask_file
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import MAX_VIEW_RANGE_M
+from semcityloc.localization.focal import MAX_IMAGES as FOCAL_MAX_IMAGES
+from semcityloc.localization.focal import MIN_IMAGES as FOCAL_MIN_IMAGES
+from semcityloc.localization.focal import (
+    FocalView,
+    estimate_focal_scale,
+    is_oblique,
+    too_few_obliques,
+    with_focal_scale,
+)
+from semcityloc.localization.localize import MAX_VIEW_RANGE_M, Localizer
 from semcityloc.localization.methods import ABLATIONS, Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
@@ -75,6 +86,7 @@ from semcityloc.perception.registry import backend_entry, get_depth_backend, get
 from semcityloc.render import Renderer
 
 RUN_FORMAT = 1
+CALIBRATE_FOCAL = ("auto", "on", "off")  # ``PhotoSpec.calibrate_focal``
 NO_PERCEPTION = (
     "no perception source: give --masks DIR (label PNGs by photo stem), or --seg-backend dinov3-dpt "
     "--backend-option backbone=DINOV3_DIR --backend-option head=HEAD_DIR (the paper's perception: DINOv3 "
@@ -98,6 +110,9 @@ class PhotoInput:
     depth: Path | None = None
     intrinsics_source: str = ""  # ``PhotoCamera.source``
     distortion: LensDistortion = LensDistortion()  # the photo's lens; zero: pinhole already
+    focal_estimate: dict | None = (
+        None  # the flight's focal-length estimate for this camera (``calibrate_focal``)
+    )
 
     @property
     def stem(self) -> str:
@@ -135,6 +150,9 @@ class PhotoSpec:
     preset: str = "default"
     keep_details: int = 3
     overlays: bool = True
+    # Estimate each camera's focal length from the flight's oblique photos (``localization.focal``):
+    # "auto" when the intrinsics are the approximate 35 mm-equivalent ones, "on" for every camera, "off".
+    calibrate_focal: str = "auto"
     cache: bool = True  # parse cache of the city model (not part of the run's identity)
 
     label = "photos"  # the progress bar's label
@@ -153,6 +171,8 @@ class PhotoSpec:
             raise unknown_choice("method for photos", self.method, ABLATIONS, BenchmarkError)
         if self.target_height not in TARGET_HEIGHTS:
             raise unknown_choice("target height", self.target_height, TARGET_HEIGHTS, BenchmarkError)
+        if self.calibrate_focal not in CALIBRATE_FOCAL:
+            raise unknown_choice("calibrate_focal", self.calibrate_focal, CALIBRATE_FOCAL, BenchmarkError)
         self.fixed_uncertainty()
         check_run_options(self.method, self.preset, self.keep_details)
 
@@ -181,9 +201,10 @@ class PhotoSpec:
         return load_city(city, lod=lod, crs=self.crs, cache=self.cache), None
 
     def resolved(self) -> Resolved:
-        """The model, the photos that can run, ``{name: why not}`` of the others and the tile store (None
-        for a file), computed once."""
-        return _resolve(self)
+        """The model, the photos that can run (their cameras with the flight's focal-length estimate,
+        ``calibrate_focal``), ``{name: why not}`` of the others and the tile store (None for a file),
+        computed once."""
+        return _calibrated(self)
 
     def run_config(self) -> dict:
         """The ``run.json`` of a photo run (what decides the numbers; compared on resume)."""
@@ -220,6 +241,7 @@ class PhotoSpec:
                 "localizer_preset": self.preset,
                 "localizer": self.localizer_config().as_dict(),
                 "overlays": self.overlays,
+                "calibrate_focal": self.calibrate_focal,
                 "queries": len(inputs),
                 "query_names": [i.name for i in inputs],
                 "skipped_photos": skipped,
@@ -255,6 +277,48 @@ class Resolved(NamedTuple):
     inputs: list[PhotoInput]  # the photos that can run
     skipped: dict[str, str]  # {name: why not} of the others
     store: TileStore | None  # the ``--city`` tile store, opened once: the localizer's parts per photo
+
+
+@functools.lru_cache(maxsize=2)
+def _calibrated(spec: PhotoSpec) -> Resolved:
+    """``_resolve`` with each camera's focal length times its flight estimate (``calibrate_focal``)."""
+    resolved = _resolve(spec)
+    if spec.calibrate_focal == "off" or not resolved.inputs:
+        return resolved
+    groups: dict[tuple[Camera, str], list[int]] = {}
+    for i, inp in enumerate(resolved.inputs):
+        groups.setdefault((inp.camera, inp.intrinsics_source), []).append(i)
+    inputs = list(resolved.inputs)
+    for (camera, source), members in groups.items():
+        if spec.calibrate_focal == "auto" and source != INTRINSICS_35MM:
+            continue
+        estimate = _flight_focal(spec, resolved.model, inputs, members)
+        for i in members:
+            scaled = camera if estimate.scale is None else with_focal_scale(camera, estimate.scale)
+            inputs[i] = replace(inputs[i], camera=scaled, focal_estimate=estimate.as_dict())
+    return resolved._replace(inputs=inputs)
+
+
+def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], members: list[int]):
+    """The focal-length estimate of the photos ``members`` (one camera) from their oblique ones."""
+    oblique = [i for i in members if is_oblique(model.pose_to_local(inputs[i].prior.pose_world))]
+    if len(oblique) > FOCAL_MAX_IMAGES:
+        oblique = [oblique[k] for k in np.linspace(0, len(oblique) - 1, FOCAL_MAX_IMAGES).round().astype(int)]
+    if len(oblique) < FOCAL_MIN_IMAGES:
+        return too_few_obliques(len(oblique))
+    camera = inputs[members[0]].camera
+    print(
+        f"semcityloc: estimating the focal length of {len(members)} photos' camera "
+        f"({camera.width} x {camera.height}, fx {camera.fx:.1f}) from {len(oblique)} oblique ones ...",
+        file=sys.stderr,
+        flush=True,
+    )
+    source = PhotoSource(spec, model, inputs)
+    views = []
+    for i in oblique:
+        q = source.query(i)
+        views.append(FocalView(q.camera, q.prior_pose_local, q.labels, q.depth, q.prior_uncertainty))
+    return estimate_focal_scale(Localizer(model, spec.localizer_config()), views)
 
 
 @functools.lru_cache(maxsize=2)
@@ -434,6 +498,7 @@ class PhotoSource:
             perception=self.spec.perception(),
             intrinsics=inp.camera.as_dict(),
             intrinsics_source=inp.intrinsics_source,
+            focal_estimate=inp.focal_estimate,
             lens_distortion=None if inp.distortion.is_zero else inp.distortion.as_dict(),
             prior=pose_to_dict(inp.prior.pose_world, crs=crs, extra=inp.prior.details),
             prior_source=inp.prior.source,

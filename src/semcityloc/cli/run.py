@@ -12,7 +12,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from semcityloc.benchmark.photo_source import PhotoSpec
+from semcityloc.benchmark.photo_source import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report import summary_markdown
 from semcityloc.cli.city import add_model_arguments
 from semcityloc.cli.dataset import parse_floats
@@ -85,6 +85,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
     add_executor_arguments(p)
     p.add_argument("--keep-details", type=int, default=3, help="save details of the first N photos")
+    p.add_argument(
+        "--calibrate-focal",
+        default="auto",
+        choices=CALIBRATE_FOCAL,
+        help="estimate each camera's focal length from the flight's oblique photos (at least 5): auto (the "
+        "default) when it is the approximate 35 mm-equivalent EXIF value, on for every camera, off",
+    )
     p.add_argument("--no-overlays", action="store_true", help="do not draw overlays/<stem>.png")
     p.add_argument("--overwrite", action="store_true", help="discard results made with other arguments")
     p.add_argument("--stop-after", type=int, default=None, metavar="N", help="localize at most N more photos")
@@ -123,6 +130,7 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
         preset=args.preset,
         keep_details=args.keep_details,
         overlays=not args.no_overlays,
+        calibrate_focal=args.calibrate_focal,
         cache=not args.no_cache,
     )
 
