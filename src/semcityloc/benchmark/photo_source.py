@@ -10,7 +10,9 @@ Per photo (``datasets.photos`` matches files to photos by name):
   calibration tags, else the 35 mm-equivalent focal length, ``dji.camera_from_exif``) by default, or a
   calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all); with lens
   distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
-  uses them (``PhotoInput.pinhole``);
+  uses them (``PhotoInput.pinhole``); a camera whose focal length is the approximate 35 mm one gets the
+  one its flight's oblique photos prefer (``calibrate_focal``, ``localization.focal``; computed with the
+  inputs, once per process, again on resume: deterministic);
 - prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
@@ -60,7 +62,7 @@ from semcityloc.datasets.photos import (
     PriorFiles,
     list_images,
 )
-from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, SemCityLocError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion, undistort_image, unseen_by_photo
 from semcityloc.geometry.io import pose_to_dict
@@ -316,7 +318,10 @@ def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], m
     source = PhotoSource(spec, model, inputs)
     views = []
     for i in oblique:
-        q = source.query(i)
+        try:
+            q = source.query(i)
+        except SemCityLocError:  # an unreadable mask: the run loop reports it for that photo
+            continue
         views.append(FocalView(q.camera, q.prior_pose_local, q.labels, q.depth, q.prior_uncertainty))
     return estimate_focal_scale(Localizer(model, spec.localizer_config()), views)
 
