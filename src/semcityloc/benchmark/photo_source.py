@@ -12,7 +12,7 @@ Per photo (``datasets.photos`` matches files to photos by name):
   distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
   uses them (``PhotoInput.pinhole``); a camera whose focal length is the approximate 35 mm one gets the
   one its flight's oblique photos prefer (``calibrate_focal``, ``localization.focal``; computed with the
-  inputs, once per process, again on resume: deterministic);
+  inputs, once per run and again on resume: deterministic);
 - prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
