@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -598,3 +599,48 @@ def test_a_network_on_an_undistorted_photo_says_nothing_where_the_photo_shows_no
     assert unseen[0, 0] and not unseen[60, 80] and 0.005 < unseen.mean() < 0.2
     assert (predicted[unseen] != IGNORE).any()  # the backend did say something there
     np.testing.assert_array_equal(labels, np.where(unseen, IGNORE, predicted))
+
+
+@pytest.mark.slow
+def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys):
+    """Eight oblique DJI photos whose only intrinsics are an EXIF 35 mm focal length 2.5 % short: the run
+    estimates the flight's scale (``--calibrate-focal auto``), applies it, and the poses come out right."""
+    from helpers import perturbed, view
+    from semcityloc.citymodel.generator import generate_city
+
+    root = tmp_path / "flight"
+    (root / "images").mkdir(parents=True)
+    gml = generate_city(tmp_path / "city", seed=0)[2]
+    model = load_city_model(gml, cache=False)
+    exif_f = 24.0 / math.hypot(36.0, 24.0) * math.hypot(256, 192)  # what FocalLengthIn35mmFilm=24 says
+    true_cam = Camera(exif_f / 0.975, exif_f / 0.975, 128.0, 96.0, 256, 192)
+    # (dx, dy, height, pitch from nadir, yaw) of each photo over the city
+    views = [
+        (-30, 15, 90, 40, 200),
+        (20, -25, 80, 45, 30),
+        (-10, -30, 85, 35, 120),
+        (25, 20, 95, 50, 300),
+        (0, 0, 75, 40, 80),
+        (-25, -10, 90, 45, 250),
+        (15, 30, 85, 38, 160),
+        (-20, 25, 80, 42, 10),
+    ]
+    queries = []
+    for k, (dx, dy, height, pitch, yaw) in enumerate(views):
+        truth = view(model, dx, dy, height, 0.0, pitch, yaw)
+        prior = perturbed(truth, [3.0, -2.0, 4.0], dyaw=2.0)
+        name = f"F{k}.JPG"
+        dji_jpeg(root / "images" / name, xmp_packet(GimbalYawDegree="0"), size=(256, 192), focal_35mm=24)
+        truth_w, prior_w = model.pose_to_world(truth), model.pose_to_world(prior)
+        save_labels_png(oracle_labels(model, true_cam, truth_w), root / "masks" / f"F{k}.png")
+        queries.append(LodLocQuery(name, "flight", true_cam, gt_pose_world=truth_w, prior_pose_world=prior_w))
+    write_lodloc_scene(root, queries)
+    out = tmp_path / "out"
+    argv = ["run", root / "images", "--city", gml, "--priors", root / "GPS_pose", "--truth", root / "GT_pose"]
+    code, _, err = run(capsys, *argv, "--masks", root / "masks", "--no-overlays", "--out", out)
+    assert code == 0, err
+    estimate = json.loads((out / "poses" / "F0.json").read_text())["extra"]["focal_estimate"]
+    assert estimate["images"] == len(views) and estimate["scale"] == pytest.approx(1 / 0.975, abs=0.01)
+    assert f"was estimated from {len(views)} oblique ones" in err
+    assert "have no calibrated intrinsics" not in err  # the approximate focal length was replaced
+    assert json.loads((out / "summary.json").read_text())["recall_2m2deg"] == 100.0
