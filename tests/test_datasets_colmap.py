@@ -210,3 +210,28 @@ def test_pycolmap_bridge_reads_our_files_or_names_the_install(tmp_path):
     else:
         with pytest.raises(OptionalDependencyError, match=r"pip install 'semcityloc\[colmap\]'"):
             colmap_pycolmap.read_with_pycolmap(folder)
+
+
+def test_a_camera_with_its_lens_is_written_as_opencv_or_full_opencv():
+    from semcityloc.geometry.distortion import LensDistortion
+
+    camera = Camera(1200.0, 1201.0, 640.5, 480.5, 1280, 960)
+    radial = LensDistortion(k1=-0.1, k2=0.02, p1=0.001, p2=-0.0005)
+    assert ColmapCamera.from_camera(camera).model == "PINHOLE"
+    assert ColmapCamera.from_camera(camera, 1, LensDistortion()).model == "PINHOLE"
+    opencv = ColmapCamera.from_camera(camera, 1, radial)
+    assert opencv.model == "OPENCV" and list(opencv.params) == [
+        1200.0,
+        1201.0,
+        640.5,
+        480.5,
+        -0.1,
+        0.02,
+        0.001,
+        -0.0005,
+    ]
+    full = ColmapCamera.from_camera(camera, 2, LensDistortion(k1=-0.1, k3=0.004))
+    assert full.model == "FULL_OPENCV" and list(full.params[8:]) == [0.004, 0.0, 0.0, 0.0]
+    pose = Pose.from_xyz_rpy([0.0, 0.0, 50.0], 0.0, 0.0, 0.0)
+    model = ColmapModel.from_poses({"a.jpg": (camera, pose), "b.jpg": (camera, pose)}, {"b.jpg": radial})
+    assert sorted(c.model for c in model.cameras.values()) == ["OPENCV", "PINHOLE"]  # one lens, one not

@@ -40,7 +40,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import pose_from_dji
 from semcityloc.geometry.distortion import LensDistortion, distort_image, unseen_by_photo
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.geometry.io import read_pose
+from semcityloc.geometry.io import read_lens, read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_labels_png
 from semcityloc.render import Renderer
@@ -151,6 +151,13 @@ def test_a_run_undistorts_the_masks_of_a_distorting_lens(box_flight, tmp_path, c
     with_lens = errors(tmp_path / "lens.json", "with_lens")
     record = json.loads((tmp_path / "with_lens" / "poses" / "P0.json").read_text())["extra"]
     assert record["lens_distortion"] == lens.as_dict()
+    # The COLMAP export describes the photos as they are: their camera with its lens (OPENCV).
+    (line,) = [
+        r
+        for r in (tmp_path / "with_lens" / "colmap" / "cameras.txt").read_text().splitlines()
+        if r[:1] != "#"
+    ]
+    assert line.split()[1] == "OPENCV" and read_lens(line) == (CAM, lens)
     as_pinhole = errors(root / "intrinsic", "as_pinhole")
     assert max(with_lens) < 0.5 and np.mean(as_pinhole) > 2 * np.mean(with_lens), (with_lens, as_pinhole)
 

@@ -133,7 +133,9 @@ def write_exports(
         count = f"{len(approximate)} of {len(inputs)} photos have no calibrated intrinsics"
         outputs["notes"].append(f"{count}: {APPROXIMATE_INTRINSICS_NOTE}")
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
-    outputs["colmap"] = str(write_model(ColmapModel.from_poses(cameras), out_dir / COLMAP_DIR, ext=".txt"))
+    lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
+    colmap = ColmapModel.from_poses(cameras, lenses)
+    outputs["colmap"] = str(write_model(colmap, out_dir / COLMAP_DIR, ext=".txt"))
 
     features = []
     for inp in inputs:

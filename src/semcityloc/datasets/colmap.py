@@ -54,6 +54,7 @@ from semcityloc.geometry.colmap_text import (
     text_rows,
 )
 from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap
+from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.pose import Pose
 
 # Models that are a pinhole once their distortion terms are zero: (fx, fy, cx, cy) from params.
@@ -115,11 +116,19 @@ class ColmapCamera:
         return Camera(fx, fy, cx, cy, self.width, self.height)
 
     @classmethod
-    def from_camera(cls, camera: Camera, camera_id: int = 1) -> ColmapCamera:
-        """A ``PINHOLE`` COLMAP camera of a ``Camera``."""
-        return cls(
-            camera_id, "PINHOLE", camera.width, camera.height, [camera.fx, camera.fy, camera.cx, camera.cy]
-        )
+    def from_camera(
+        cls, camera: Camera, camera_id: int = 1, distortion: LensDistortion | None = None
+    ) -> ColmapCamera:
+        """The COLMAP camera of a ``Camera`` and its lens: ``PINHOLE`` without distortion, ``OPENCV``
+        (fx fy cx cy k1 k2 p1 p2), or ``FULL_OPENCV`` when k3 is not zero (its k4..k6 zero)."""
+        pinhole = [camera.fx, camera.fy, camera.cx, camera.cy]
+        if distortion is None or distortion.is_zero:
+            return cls(camera_id, "PINHOLE", camera.width, camera.height, pinhole)
+        d = distortion
+        opencv = [*pinhole, d.k1, d.k2, d.p1, d.p2]
+        if d.k3 == 0.0:
+            return cls(camera_id, "OPENCV", camera.width, camera.height, opencv)
+        return cls(camera_id, "FULL_OPENCV", camera.width, camera.height, [*opencv, d.k3, 0.0, 0.0, 0.0])
 
 
 @dataclass
@@ -218,15 +227,22 @@ class ColmapModel:
         return out
 
     @classmethod
-    def from_poses(cls, entries: Mapping[str, tuple[Camera, Pose]]) -> ColmapModel:
-        """A model of named (camera, pose) pairs; identical cameras share one COLMAP camera id."""
+    def from_poses(
+        cls,
+        entries: Mapping[str, tuple[Camera, Pose]],
+        distortions: Mapping[str, LensDistortion] | None = None,
+    ) -> ColmapModel:
+        """A model of named (camera, pose) pairs, with each image's lens where ``distortions`` names one
+        (``ColmapCamera.from_camera``); identical cameras share one COLMAP camera id."""
         model = cls()
         camera_ids: dict[tuple, int] = {}
         for image_id, (name, (camera, pose)) in enumerate(entries.items(), start=1):
-            key = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+            lens = (distortions or {}).get(name)
+            lens_key = None if lens is None or lens.is_zero else lens
+            key = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, lens_key)
             if key not in camera_ids:
                 camera_ids[key] = len(camera_ids) + 1
-                model.cameras[camera_ids[key]] = ColmapCamera.from_camera(camera, camera_ids[key])
+                model.cameras[camera_ids[key]] = ColmapCamera.from_camera(camera, camera_ids[key], lens)
             model.images[image_id] = ColmapImage.from_pose(image_id, name, camera_ids[key], pose)
         return model
 
