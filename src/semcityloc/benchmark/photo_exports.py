@@ -22,6 +22,7 @@ summary says so and names ``--crs`` / ``--offset``.
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -83,12 +84,11 @@ def _read_record(path: Path) -> dict | None:
 
 def focal_notes(inputs: list) -> list[str]:
     """One line per camera whose focal length the flight estimated, or tried to (``calibrate_focal``)."""
+    estimates = [inp.focal_estimate for inp in inputs if inp.focal_estimate is not None]
+    counts = Counter(json.dumps(est, sort_keys=True) for est in estimates)
     notes: dict[str, None] = {}
-    for inp in inputs:
-        est = inp.focal_estimate
-        if est is None:
-            continue
-        count = sum(1 for other in inputs if other.focal_estimate == est)
+    for est in estimates:
+        count = counts[json.dumps(est, sort_keys=True)]
         if est.get("scale") is not None:
             line = (
                 f"the focal length of {count} photos was estimated from {est['images']} oblique ones: "

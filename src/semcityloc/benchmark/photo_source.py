@@ -70,12 +70,11 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import check_aspect, image_size, load_image, read_depth_file, read_mask_file
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.focal import MAX_IMAGES as FOCAL_MAX_IMAGES
 from semcityloc.localization.focal import MIN_IMAGES as FOCAL_MIN_IMAGES
 from semcityloc.localization.focal import (
     FocalView,
     estimate_focal_scale,
-    is_oblique,
+    oblique_subset,
     too_few_obliques,
     with_focal_scale,
 )
@@ -112,9 +111,8 @@ class PhotoInput:
     depth: Path | None = None
     intrinsics_source: str = ""  # ``PhotoCamera.source``
     distortion: LensDistortion = LensDistortion()  # the photo's lens; zero: pinhole already
-    focal_estimate: dict | None = (
-        None  # the flight's focal-length estimate for this camera (``calibrate_focal``)
-    )
+    # The flight's focal-length estimate for this camera (``calibrate_focal``; one dict per camera).
+    focal_estimate: dict | None = None
 
     @property
     def stem(self) -> str:
@@ -295,17 +293,18 @@ def _calibrated(spec: PhotoSpec) -> Resolved:
         if spec.calibrate_focal == "auto" and source != INTRINSICS_35MM:
             continue
         estimate = _flight_focal(spec, resolved.model, inputs, members)
+        scaled = camera if estimate.scale is None else with_focal_scale(camera, estimate.scale)
+        record = estimate.as_dict()
         for i in members:
-            scaled = camera if estimate.scale is None else with_focal_scale(camera, estimate.scale)
-            inputs[i] = replace(inputs[i], camera=scaled, focal_estimate=estimate.as_dict())
+            inputs[i] = replace(inputs[i], camera=scaled, focal_estimate=record)
     return resolved._replace(inputs=inputs)
 
 
 def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], members: list[int]):
     """The focal-length estimate of the photos ``members`` (one camera) from their oblique ones."""
-    oblique = [i for i in members if is_oblique(model.pose_to_local(inputs[i].prior.pose_world))]
-    if len(oblique) > FOCAL_MAX_IMAGES:
-        oblique = [oblique[k] for k in np.linspace(0, len(oblique) - 1, FOCAL_MAX_IMAGES).round().astype(int)]
+    # Only the photos the estimate uses go through perception.
+    priors = [model.pose_to_local(inputs[i].prior.pose_world) for i in members]
+    oblique = [members[k] for k in oblique_subset(priors)]
     if len(oblique) < FOCAL_MIN_IMAGES:
         return too_few_obliques(len(oblique))
     camera = inputs[members[0]].camera

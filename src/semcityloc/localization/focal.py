@@ -83,6 +83,15 @@ def with_focal_scale(camera: Camera, scale: float) -> Camera:
     return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
 
 
+def oblique_subset(priors: Sequence[Pose], max_images: int = MAX_IMAGES) -> list[int]:
+    """Indices of the oblique ones among ``priors`` (``is_oblique``), at most ``max_images`` of them,
+    evenly spread over the sequence."""
+    oblique = [i for i, prior in enumerate(priors) if is_oblique(prior)]
+    if len(oblique) > max_images:
+        oblique = [oblique[k] for k in np.linspace(0, len(oblique) - 1, max_images).round().astype(int)]
+    return oblique
+
+
 def too_few_obliques(count: int, scales: Sequence[float] = SCALES) -> FocalEstimate:
     """No estimate: ``count`` oblique images are fewer than ``MIN_IMAGES``."""
     reason = f"{count} oblique images ({MIN_OBLIQUE_DEG:g}+ deg from nadir); need {MIN_IMAGES}"
@@ -99,11 +108,9 @@ def estimate_focal_scale(
     scales = tuple(float(s) for s in scales)
     if len(scales) < 3 or any(b <= a for a, b in zip(scales, scales[1:], strict=False)) or scales[0] <= 0:
         raise ParameterError(f"scales must be at least 3 increasing positive values, got {scales}")
-    oblique = [v for v in views if is_oblique(v.prior_local)]
+    oblique = [views[i] for i in oblique_subset([v.prior_local for v in views], max_images)]
     if len(oblique) < MIN_IMAGES:
         return too_few_obliques(len(oblique), scales)
-    if len(oblique) > max_images:
-        oblique = [oblique[i] for i in np.linspace(0, len(oblique) - 1, max_images).round().astype(int)]
     curves = []
     for view in oblique:
         scores = []
