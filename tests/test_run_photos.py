@@ -21,6 +21,7 @@ from PIL import Image
 
 from conftest import shared_file
 from dji_photo import dji_jpeg, xmp_packet
+from semcityloc.benchmark import photo_source
 from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
 from semcityloc.benchmark.perception_sim import simulate_segmentation
 from semcityloc.benchmark.photo_source import PhotoSpec
@@ -609,7 +610,7 @@ def test_a_network_on_an_undistorted_photo_says_nothing_where_the_photo_shows_no
 
 
 @pytest.mark.slow
-def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys):
+def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys, monkeypatch):
     """Eight oblique DJI photos whose only intrinsics are an EXIF 35 mm focal length 2.5 % short: the run
     estimates the flight's scale (``--calibrate-focal auto``), applies it, and the poses come out right."""
     from helpers import perturbed, view
@@ -651,3 +652,18 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys)
     assert f"was estimated from {len(views)} oblique ones" in err
     assert "have no calibrated intrinsics" not in err  # the approximate focal length was replaced
     assert json.loads((out / "summary.json").read_text())["recall_2m2deg"] == 100.0
+
+    # Run again: the estimate is read back (localizing nothing for it), the poses are the same.
+    def no_estimate(*args, **kwargs):
+        raise AssertionError("the focal length was estimated again")
+
+    monkeypatch.setattr(photo_source, "estimate_focal_scale", no_estimate)
+    photo_source._calibrated.cache_clear()  # as a new process would: only the disk cache is left
+    again = tmp_path / "again"
+    code, _, err = run(capsys, *argv, "--masks", root / "masks", "--no-overlays", "--out", again)
+    assert code == 0, err
+    assert "from an earlier run's estimate" in err
+    for k in range(len(views)):
+        first, second = (json.loads((o / "poses" / f"F{k}.json").read_text()) for o in (out, again))
+        assert second["extra"]["focal_estimate"]["scale"] == estimate["scale"]
+        assert second["cam_from_world"] == first["cam_from_world"]

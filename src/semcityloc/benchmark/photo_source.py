@@ -12,7 +12,7 @@ Per photo (``datasets.photos`` matches files to photos by name):
   distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
   uses them (``PhotoInput.pinhole``); a camera whose focal length is the approximate 35 mm one gets the
   one its flight's oblique photos prefer (``calibrate_focal``, ``localization.focal``; computed with the
-  inputs, once per run and again on resume: deterministic);
+  inputs, once per run, and read back on resume or a repeated run: ``benchmark.focal_cache``);
 - prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
@@ -44,6 +44,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from semcityloc import __version__
+from semcityloc.benchmark import focal_cache
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, plain, write_json_atomic
@@ -308,6 +309,18 @@ def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], m
     if len(oblique) < FOCAL_MIN_IMAGES:
         return too_few_obliques(len(oblique))
     camera = inputs[members[0]].camera
+    key = None
+    if spec.cache:
+        key = focal_cache.estimate_key(_focal_settings(spec), [inputs[i] for i in oblique])
+    cached = focal_cache.read_estimate(key) if key else None
+    if cached is not None:
+        print(
+            f"semcityloc: the focal length of {len(members)} photos' camera from an earlier run's estimate "
+            f"({focal_cache.cache_file(key)})",
+            file=sys.stderr,
+            flush=True,
+        )
+        return cached
     print(
         f"semcityloc: estimating the focal length of {len(members)} photos' camera "
         f"({camera.width} x {camera.height}, fx {camera.fx:.1f}) from {len(oblique)} oblique ones ...",
@@ -322,7 +335,24 @@ def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], m
         except SemCityLocError:  # an unreadable mask: the run loop reports it for that photo
             continue
         views.append(FocalView(q.camera, q.prior_pose_local, q.labels, q.depth, q.prior_uncertainty))
-    return estimate_focal_scale(Localizer(model, spec.localizer_config()), views)
+    estimate = estimate_focal_scale(Localizer(model, spec.localizer_config()), views)
+    if key:
+        focal_cache.write_estimate(key, estimate)
+    return estimate
+
+
+def _focal_settings(spec: PhotoSpec) -> dict:
+    """What of the run decides a focal estimate besides its photos (``focal_cache.estimate_key``)."""
+    return {
+        "city_sha256": city_sha256(resolve_city(spec.city)),
+        "lod": spec.lod,
+        "crs": spec.crs,
+        "localizer": spec.localizer_config().as_dict(),
+        "seg_backend": spec.seg_backend,
+        "depth_backend": spec.depth_backend,
+        "backend_options": [list(kv) for kv in spec.backend_options],
+        "allow_lossy_mask": spec.allow_lossy_mask,
+    }
 
 
 @functools.lru_cache(maxsize=2)

@@ -48,6 +48,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
+from semcityloc.cache import cache_root
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.model import CityModel
@@ -856,9 +857,8 @@ def generate_city(
 
 
 def default_cache_root() -> Path:
-    """``$SEMCITYLOC_CACHE`` or ``$XDG_CACHE_HOME`` or ``~/.cache``, then ``semcityloc/generated``."""
-    root = os.environ.get("SEMCITYLOC_CACHE") or os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(root) / "semcityloc" / "generated"
+    """``cache.cache_root()`` / ``generated``."""
+    return cache_root() / "generated"
 
 
 def default_city_path(lod: int = 2, cache_dir: str | Path | None = None) -> Path:

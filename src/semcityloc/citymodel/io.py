@@ -10,11 +10,11 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
+from semcityloc.cache import cache_root
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.crs import parse_crs_name
@@ -26,8 +26,7 @@ CACHE_VERSION = 1
 
 
 def default_cache_dir() -> Path:
-    root = os.environ.get("SEMCITYLOC_CACHE") or os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(root) / "semcityloc" / "models"
+    return cache_root() / "models"
 
 
 def sniff_format(path: Path) -> str:

@@ -41,7 +41,11 @@ def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
         p.add_argument("--city", dest="path", required=True, help=help_text)
     p.add_argument("--lod", default=None, help="LoD to read (default: the highest per building)")
     p.add_argument("--crs", default=None, help="override the file's CRS, e.g. EPSG:25832")
-    p.add_argument("--no-cache", action="store_true", help="parse again instead of using the cache")
+    p.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="compute again instead of using the caches (parsed city models; photo runs: focal estimates)",
+    )
 
 
 def load_model_from_args(args: argparse.Namespace):

@@ -71,6 +71,21 @@ class FocalEstimate:
             "reason": self.reason,
         }
 
+    @classmethod
+    def from_dict(cls, data: dict) -> FocalEstimate:
+        """The estimate ``as_dict`` wrote (a cached one); ``ParameterError`` when it is not one."""
+        try:
+            scale = None if data["scale"] is None else float(data["scale"])
+            return cls(
+                scale,
+                int(data["images"]),
+                tuple(float(s) for s in data["scales"]),
+                tuple(float(v) for v in data["curve"]),
+                None if data["reason"] is None else str(data["reason"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ParameterError(f"not a focal-length estimate: {exc!r}") from exc
+
 
 def is_oblique(prior_local: Pose) -> bool:
     """Whether the prior's optical axis is at least ``MIN_OBLIQUE_DEG`` from straight down."""
