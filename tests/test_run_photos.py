@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -44,6 +45,7 @@ from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_lens, read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_labels_png
+from semcityloc.localization.focal import estimate_focal_scale
 from semcityloc.render import Renderer
 from test_benchmark_reference import same
 from test_tiles import _cityjson_box, split_citygml
@@ -636,7 +638,7 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
     queries = []
     for k, (dx, dy, height, pitch, yaw) in enumerate(views):
         truth = view(model, dx, dy, height, 0.0, pitch, yaw)
-        prior = perturbed(truth, [3.0, -2.0, 4.0], dyaw=2.0)
+        prior = perturbed(truth, [3.0, -2.0, 12.0], dyaw=2.0)  # the flight's heights all 12 m high
         name = f"F{k}.JPG"
         dji_jpeg(root / "images" / name, xmp_packet(GimbalYawDegree="0"), size=(256, 192), focal_35mm=24)
         truth_w, prior_w = model.pose_to_world(truth), model.pose_to_world(prior)
@@ -652,6 +654,7 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
     assert f"was estimated from {len(views)} oblique ones" in err
     assert "have no calibrated intrinsics" not in err  # the approximate focal length was replaced
     assert json.loads((out / "summary.json").read_text())["recall_2m2deg"] == 100.0
+    assert re.search(r"the 8 localized photos sit a median 1[12]\.\d m below their priors", err)  # shared
 
     # Run again: the estimate is read back (localizing nothing for it), the poses are the same.
     def no_estimate(*args, **kwargs):
@@ -667,3 +670,19 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
         first, second = (json.loads((o / "poses" / f"F{k}.json").read_text()) for o in (out, again))
         assert second["extra"]["focal_estimate"]["scale"] == estimate["scale"]
         assert second["cam_from_world"] == first["cam_from_world"]
+
+    # A segmentation backend (here the one that reads files) is loaded once for the estimate and the run.
+    built = []
+
+    def counted(name, **options):
+        built.append(name)
+        return original_backend(name, **options)
+
+    original_backend = photo_source.get_segmentation_backend
+    monkeypatch.setattr(photo_source, "get_segmentation_backend", counted)
+    monkeypatch.setattr(photo_source, "estimate_focal_scale", estimate_focal_scale)
+    photo_source._calibrated.cache_clear()
+    backend = ["--seg-backend", "files", "--backend-option", f"masks={root / 'masks'}"]
+    code, _, err = run(capsys, *argv, *backend, "--no-cache", "--no-overlays", "--out", tmp_path / "backend")
+    assert code == 0, err
+    assert f"was estimated from {len(views)} oblique ones" in err and built == ["files"]

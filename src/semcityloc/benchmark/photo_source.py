@@ -355,6 +355,16 @@ def _focal_settings(spec: PhotoSpec) -> dict:
     }
 
 
+@functools.lru_cache(maxsize=1)
+def _load_backends(spec: PhotoSpec) -> tuple[Any, Any]:
+    """``spec``'s (segmentation, depth) backends, built once per process: the focal estimate's photos and
+    the run's go through the same ones instead of loading the weights twice."""
+    options = with_lossy_masks(dict(spec.backend_options), spec.seg_backend, spec.allow_lossy_mask)
+    seg = get_segmentation_backend(spec.seg_backend, **options) if spec.seg_backend else None
+    dep = get_depth_backend(spec.depth_backend, **options) if spec.depth_backend else None
+    return seg, dep
+
+
 @functools.lru_cache(maxsize=2)
 def _resolve(spec: PhotoSpec) -> Resolved:
     model, store = spec.load_model()
@@ -459,11 +469,7 @@ class PhotoSource:
     def backends(self) -> tuple[Any, Any]:
         """(segmentation backend or None, depth backend or None), built once per process."""
         if self._backends is None:
-            spec = self.spec
-            options = with_lossy_masks(dict(spec.backend_options), spec.seg_backend, spec.allow_lossy_mask)
-            seg = get_segmentation_backend(spec.seg_backend, **options) if spec.seg_backend else None
-            dep = get_depth_backend(spec.depth_backend, **options) if spec.depth_backend else None
-            self._backends = (seg, dep)
+            self._backends = _load_backends(self.spec)
         return self._backends
 
     @property
