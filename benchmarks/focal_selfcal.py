@@ -22,31 +22,13 @@ import time
 from pathlib import Path
 
 from semcityloc.benchmark.calibration import calibration_cities_or_exit
+from semcityloc.benchmark.results import recall_summary
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
-from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.focal import FocalView, estimate_focal_scale, with_focal_scale
 from semcityloc.localization.localize import Localizer
-from semcityloc.localization.result import LOCALIZED
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
-
-def summary(results, queries) -> dict:
-    err_m, err_deg = [], []
-    accepted_right = accepted = 0
-    for r, q in zip(results, queries, strict=True):
-        m, d, _ = pose_errors(r.pose_local if r.status == LOCALIZED else None, q.true_pose_local)
-        err_m.append(m)
-        err_deg.append(d)
-        if r.status == LOCALIZED:
-            accepted += 1
-            accepted_right += m <= 5.0 and d <= 5.0
-    return {
-        "recall": [round(recall(err_m, err_deg, m, d), 1) for m, d in THRESHOLDS],
-        "localized": accepted,
-        "accepted_right_pct": round(100.0 * accepted_right / max(accepted, 1), 1),
-    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         "right_scale": round(1.0 / (1.0 + args.focal_error), 4),
         "estimate": estimate.as_dict(),
         "estimate_s": round(seconds, 1),
-        "stated": summary(stated, queries),
+        "stated": recall_summary(stated, queries),
     }
     if estimate.scale is not None:
         corrected = [
@@ -86,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             for q in queries
         ]
-        out["corrected"] = summary(corrected, queries)
+        out["corrected"] = recall_summary(corrected, queries)
     print(json.dumps(out))
     return 0
 

@@ -44,7 +44,7 @@ from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import RESULTS_FILE, plain, write_all, write_atomic
 from semcityloc.classes import NUM_CLASSES
 from semcityloc.errors import BenchmarkError
-from semcityloc.evaluation.metrics import pose_errors, summarize_errors
+from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall, summarize_errors
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, LocalizationResult
@@ -84,6 +84,26 @@ def skipped_result() -> LocalizationResult:
 # A query whose worker process died on every try (``benchmark.ray_executor``): recorded with the reason,
 # not tried again on resume.
 FAILED = "failed"
+
+
+def recall_summary(results: list[LocalizationResult], queries: list[BenchmarkQuery]) -> dict:
+    """Recall at ``THRESHOLDS`` over ``queries`` (a query not localized counts as a miss), how many were
+    localized, and the share of those within 5 m / 5 deg: the one-line figures of the experiment scripts
+    that localize cached queries themselves (``benchmarks/focal_selfcal.py``, ``flight_prior.py``)."""
+    err_m, err_deg = [], []
+    accepted_right = accepted = 0
+    for r, q in zip(results, queries, strict=True):
+        m, d, _ = pose_errors(r.pose_local if r.status == LOCALIZED else None, q.true_pose_local)
+        err_m.append(m)
+        err_deg.append(d)
+        if r.status == LOCALIZED:
+            accepted += 1
+            accepted_right += m <= 5.0 and d <= 5.0
+    return {
+        "recall": [round(recall(err_m, err_deg, m, d), 1) for m, d in THRESHOLDS],
+        "localized": accepted,
+        "accepted_right_pct": round(100.0 * accepted_right / max(accepted, 1), 1),
+    }
 
 
 def failed_row(index: int, reason: str) -> dict[str, str]:
