@@ -9,6 +9,10 @@ accepted poses, stated and corrected, with the share of accepted poses within 5 
 
     python benchmarks/focal_selfcal.py --city generated --focal-error -0.024 [--seed 0] [--queries 100]
 
+``--views nadir`` estimates from the flight's nadir queries alone (every view counted): tried for
+nadir-only mapping flights and not shipped, the summed scores prefer a longer focal length there
+(``docs/benchmark.md``, "Other cameras and cities").
+
 Reporting cities (Berlin, Den Haag) are refused unless ``--check-only``: nothing of the estimator is
 chosen on them.
 """
@@ -25,7 +29,7 @@ from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.results import recall_summary
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
-from semcityloc.localization.focal import FocalView, estimate_focal_scale, with_focal_scale
+from semcityloc.localization.focal import FocalView, estimate_focal_scale, is_oblique, with_focal_scale
 from semcityloc.localization.localize import Localizer
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -37,6 +41,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--queries", type=int, default=100)
     ap.add_argument("--focal-error", type=float, default=-0.024)
+    ap.add_argument(
+        "--views",
+        choices=("oblique", "nadir"),
+        default="oblique",
+        help="estimate from the oblique views (the shipped estimator) or from the nadir ones only",
+    )
     ap.add_argument("--check-only", action="store_true", help="allow a reporting city: a check only")
     args = ap.parse_args(argv)
     if not args.check_only:
@@ -48,7 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     localizer = Localizer(source.map_model)
     t0 = time.perf_counter()
     views = [FocalView(q.camera, q.prior_pose_local, q.labels, q.depth) for q in queries]
-    estimate = estimate_focal_scale(localizer, views)
+    if args.views == "nadir":
+        views = [v for v in views if not is_oblique(v.prior_local)]
+        estimate = estimate_focal_scale(localizer, views, min_oblique_deg=0.0)
+    else:
+        estimate = estimate_focal_scale(localizer, views)
     seconds = time.perf_counter() - t0
     stated = [localizer.localize(q.camera, q.prior_pose_local, q.labels, q.depth) for q in queries]
     out = {
@@ -56,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "queries": len(queries),
         "focal_error": args.focal_error,
+        "views": args.views,
         "right_scale": round(1.0 / (1.0 + args.focal_error), 4),
         "estimate": estimate.as_dict(),
         "estimate_s": round(seconds, 1),

@@ -35,7 +35,7 @@ from semcityloc.errors import (
     RunLockedError,
 )
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.io.images import read_mask_file, save_labels_png
+from semcityloc.io.images import exif_orientation, read_mask_file, save_labels_png
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.query import depth_problem, usable_depth
@@ -298,6 +298,23 @@ def test_jpeg_mask_is_refused_unless_forced(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------------------------- XXE
+@pytest.mark.parametrize(("value", "expected"), [(None, 1), (6, 6), (3, 3), (0, 1), (9, 1), (1, 1)])
+def test_exif_orientation_is_1_to_8_or_as_stored(tmp_path, value, expected):
+    exif = Image.Exif()
+    if value is not None:
+        exif[274] = value
+    path = tmp_path / "photo.jpg"
+    Image.new("RGB", (8, 6)).save(path, exif=exif)
+    assert exif_orientation(path) == expected
+
+
+def test_exif_orientation_of_a_broken_file_is_one_line(tmp_path):
+    path = tmp_path / "broken.jpg"
+    path.write_bytes(b"\xff\xd8\xff\xe1 not a jpeg")
+    with pytest.raises(InputFileError, match="broken.jpg: cannot read image"):
+        exif_orientation(path)
+
+
 def test_external_dtd_xxe_refusal_names_the_dtd_and_the_entity(tmp_path):
     dtd = tmp_path / "evil.dtd"
     dtd.write_text('<!ENTITY coords SYSTEM "file:///etc/hostname">')

@@ -135,6 +135,28 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     assert code == 2 and "other benchmark run" in err and err.count("\n") == 1
 
 
+def test_a_mask_of_the_photo_turned_for_display_is_refused_saying_so(box_flight, tmp_path, capsys):
+    """EXIF orientation 6 (viewers turn the photo by 90 deg) and a mask of the turned photo: that photo is
+    skipped with the reason; orientation 3 (180 deg) cannot be told from the mask, so the run says once
+    that masks were taken as of the stored pixels."""
+    root = box_flight["root"]
+    for name, orientation in (("P0", 6), ("P1", 3)):
+        exif = Image.Exif()
+        exif[274] = orientation
+        Image.new("RGB", (CAM.width, CAM.height), (120, 120, 120)).save(
+            root / "images" / f"{name}.JPG", exif=exif
+        )
+    turned = np.rot90(load_labels_png(root / "masks" / "P0.png"))
+    save_labels_png(turned, root / "masks" / "P0.png")
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
+    assert code == 0, err
+    reason = json.loads((out / "summary.json").read_text())["skipped_photos"]["P0.JPG"]
+    assert "turned for display (EXIF orientation 6)" in reason and "stored 160x120 pixels" in reason
+    assert "1 photos carry an EXIF orientation other than 1" in err
+    assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["status"] == "localized"
+
+
 def test_a_run_undistorts_the_masks_of_a_distorting_lens(box_flight, tmp_path, capsys):
     """Masks in a wide lens's distorted pixels: right with the lens in the intrinsics, off without."""
     root = box_flight["root"]

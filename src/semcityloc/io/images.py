@@ -165,6 +165,23 @@ def check_aspect(shape: tuple[int, ...], width: int, height: int, what: str, sou
         )
 
 
+# EXIF orientations (tag 274) that turn the stored pixels by 90 degrees for display (5-8; 2-4 flip or
+# turn by 180 degrees, 1 is as stored).
+TURNED_ORIENTATIONS = (5, 6, 7, 8)
+
+
+def exif_orientation(path: str | Path) -> int:
+    """The EXIF orientation (tag 274, 1-8) of an image file; 1 (as stored) when it has none or it is not
+    one of 1-8. semcityloc works on the STORED pixels, which a camera's calibration and a gimbal's angles
+    describe; viewers and many tools (OpenCV's imread, PIL's ``exif_transpose``) show them turned."""
+    try:
+        with Image.open(path) as img:
+            value = img.getexif().get(274, 1)
+    except IMAGE_DECODE_ERRORS as exc:
+        raise InputFileError(f"{path}: cannot read image ({exc})") from exc
+    return value if isinstance(value, int) and 1 <= value <= 8 else 1
+
+
 def image_size(path: str | Path, what: str = "image") -> tuple[int, int]:
     """``(width, height)`` of an image file, from its header (the pixels are not decoded)."""
     try:

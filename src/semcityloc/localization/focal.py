@@ -87,10 +87,10 @@ class FocalEstimate:
             raise ParameterError(f"not a focal-length estimate: {exc!r}") from exc
 
 
-def is_oblique(prior_local: Pose) -> bool:
-    """Whether the prior's optical axis is at least ``MIN_OBLIQUE_DEG`` from straight down."""
+def is_oblique(prior_local: Pose, min_deg: float = MIN_OBLIQUE_DEG) -> bool:
+    """Whether the prior's optical axis is at least ``min_deg`` from straight down."""
     down = -float(prior_local.viewing_direction[2])
-    return math.degrees(math.acos(max(-1.0, min(1.0, down)))) >= MIN_OBLIQUE_DEG
+    return math.degrees(math.acos(max(-1.0, min(1.0, down)))) >= min_deg
 
 
 def with_focal_scale(camera: Camera, scale: float) -> Camera:
@@ -98,10 +98,12 @@ def with_focal_scale(camera: Camera, scale: float) -> Camera:
     return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
 
 
-def oblique_subset(priors: Sequence[Pose], max_images: int = MAX_IMAGES) -> list[int]:
+def oblique_subset(
+    priors: Sequence[Pose], max_images: int = MAX_IMAGES, min_deg: float = MIN_OBLIQUE_DEG
+) -> list[int]:
     """Indices of the oblique ones among ``priors`` (``is_oblique``), at most ``max_images`` of them,
     evenly spread over the sequence."""
-    oblique = [i for i, prior in enumerate(priors) if is_oblique(prior)]
+    oblique = [i for i, prior in enumerate(priors) if is_oblique(prior, min_deg)]
     if len(oblique) > max_images:
         oblique = [oblique[k] for k in np.linspace(0, len(oblique) - 1, max_images).round().astype(int)]
     return oblique
@@ -118,12 +120,16 @@ def estimate_focal_scale(
     views: Sequence[FocalView],
     scales: Sequence[float] = SCALES,
     max_images: int = MAX_IMAGES,
+    min_oblique_deg: float = MIN_OBLIQUE_DEG,
 ) -> FocalEstimate:
-    """The flight's focal-length scale (module docstring) from ``views`` (all of one camera)."""
+    """The flight's focal-length scale (module docstring) from ``views`` (all of one camera).
+    ``min_oblique_deg`` = 0 takes nadir views too (measured biased: ``benchmarks/focal_selfcal.py
+    --views nadir``)."""
     scales = tuple(float(s) for s in scales)
     if len(scales) < 3 or any(b <= a for a, b in zip(scales, scales[1:], strict=False)) or scales[0] <= 0:
         raise ParameterError(f"scales must be at least 3 increasing positive values, got {scales}")
-    oblique = [views[i] for i in oblique_subset([v.prior_local for v in views], max_images)]
+    priors = [v.prior_local for v in views]
+    oblique = [views[i] for i in oblique_subset(priors, max_images, min_oblique_deg)]
     if len(oblique) < MIN_IMAGES:
         return too_few_obliques(len(oblique), scales)
     curves = []
