@@ -33,9 +33,10 @@ from semcityloc.errors import (
     ParameterError,
     ResumeMismatchError,
     RunLockedError,
+    ShapeError,
 )
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.io.images import exif_orientation, read_mask_file, save_labels_png
+from semcityloc.io.images import check_aspect_of_photo, exif_orientation, read_mask_file, save_labels_png
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.query import depth_problem, usable_depth
@@ -306,6 +307,25 @@ def test_exif_orientation_is_1_to_8_or_as_stored(tmp_path, value, expected):
     path = tmp_path / "photo.jpg"
     Image.new("RGB", (8, 6)).save(path, exif=exif)
     assert exif_orientation(path) == expected
+
+
+def test_a_mask_of_the_turned_photo_is_named_as_such(tmp_path):
+    photos = {}
+    for orientation in (1, 6):
+        exif = Image.Exif()
+        exif[274] = orientation
+        photos[orientation] = tmp_path / f"o{orientation}.jpg"
+        Image.new("RGB", (64, 48)).save(photos[orientation], exif=exif)
+    check_aspect_of_photo((48, 64), 64, 48, "mask", "m.png", photos[6])  # stored pixels: fine
+    with pytest.raises(
+        ShapeError, match=r"m.png: mask 48x64 is the photo turned for display \(EXIF orientation 6"
+    ):
+        check_aspect_of_photo((64, 48), 64, 48, "mask", "m.png", photos[6])
+    for photo in (photos[1], None):  # not turned, or no photo: the plain aspect error
+        with pytest.raises(ShapeError, match="does not have the photo's aspect"):
+            check_aspect_of_photo((64, 48), 64, 48, "mask", "m.png", photo)
+    with pytest.raises(ShapeError, match="does not have the photo's aspect"):  # neither way round
+        check_aspect_of_photo((50, 50), 64, 48, "mask", "m.png", photos[6])
 
 
 def test_exif_orientation_of_a_broken_file_is_one_line(tmp_path):

@@ -63,16 +63,15 @@ from semcityloc.datasets.photos import (
     PriorFiles,
     list_images,
 )
-from semcityloc.errors import BenchmarkError, InputFileError, SemCityLocError, ShapeError, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, SemCityLocError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion, undistort_image, unseen_by_photo
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import (
-    TURNED_ORIENTATIONS,
     check_aspect,
-    exif_orientation,
+    check_aspect_of_photo,
     image_size,
     load_image,
     read_depth_file,
@@ -449,33 +448,10 @@ def _input_file(folder: str | None, photo: Path, suffixes, what: str, camera: Ca
         return None
     try:
         path = find_file(Path(folder), photo.name, suffixes, what)
-        shape = _array_shape(path)
-        try:
-            check_aspect(shape, camera.width, camera.height, what, path)
-        except ShapeError:
-            _check_not_turned(shape, photo, camera, what, path)
-            raise
+        check_aspect_of_photo(_array_shape(path), camera.width, camera.height, what, path, photo)
     except (InputFileError, ValueError) as exc:
         raise PhotoMissing(str(exc)) from None
     return path
-
-
-def _check_not_turned(shape: tuple[int, ...], photo: Path, camera: Camera, what: str, path: Path) -> None:
-    """``ShapeError`` saying so when a mask / depth of another aspect is the photo as viewers show it:
-    turned by its EXIF orientation (``io.images.exif_orientation``)."""
-    orientation = exif_orientation(photo)
-    if orientation not in TURNED_ORIENTATIONS:
-        return
-    try:
-        check_aspect(shape[::-1], camera.width, camera.height, what, path)
-    except ShapeError:
-        return
-    raise ShapeError(
-        f"{path}: {what} {shape[1]}x{shape[0]} is the photo turned for display (EXIF orientation "
-        f"{orientation}); make it of the photo's stored {camera.width}x{camera.height} pixels, which its "
-        "calibration and gimbal angles describe (PIL without exif_transpose, OpenCV with "
-        "IMREAD_IGNORE_ORIENTATION), or turn it back"
-    )
 
 
 class PhotoSource:

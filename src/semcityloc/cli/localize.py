@@ -24,7 +24,15 @@ from semcityloc.errors import InputFileError
 from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
 from semcityloc.geometry.io import read_lens, read_pose, write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.io.images import check_aspect, image_size, load_depth, load_image, read_mask_file, save_rgb
+from semcityloc.io.images import (
+    check_aspect,
+    check_aspect_of_photo,
+    image_size,
+    load_depth,
+    load_image,
+    read_mask_file,
+    save_rgb,
+)
 from semcityloc.localization.config import PRESETS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.methods import ABLATIONS
@@ -159,7 +167,7 @@ def _query_inputs(args, lens: PhotoCamera):
     name = Path(args.image).name if args.image else None
     if args.semantic:
         labels = read_mask_file(args.semantic, allow_lossy=args.allow_lossy_mask)
-        check_aspect(labels.shape, camera.width, camera.height, "mask", args.semantic)
+        check_aspect_of_photo(labels.shape, camera.width, camera.height, "mask", args.semantic, args.image)
         labels = undistort_image(labels, camera, lens.distortion, fill=IGNORE, nearest=True)
     else:
         labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
@@ -168,7 +176,7 @@ def _query_inputs(args, lens: PhotoCamera):
     depth = None
     if args.depth:
         depth = load_depth(args.depth)
-        check_aspect(depth.shape, camera.width, camera.height, "depth", args.depth)
+        check_aspect_of_photo(depth.shape, camera.width, camera.height, "depth", args.depth, args.image)
         depth = undistort_image(depth, camera, lens.distortion, fill=np.nan, nearest=True)
     elif args.depth_backend:
         depth = get_depth_backend(args.depth_backend, **options).predict(image, name=name).masked()

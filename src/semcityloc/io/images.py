@@ -152,13 +152,17 @@ def scaled_size(width: int, height: int, max_width: int) -> tuple[int, int]:
 ASPECT_TOLERANCE = 0.02
 
 
+def _has_aspect(shape: tuple[int, ...], width: int, height: int) -> bool:
+    """Whether an (H, W) shape has the aspect of a ``width`` x ``height`` image (``ASPECT_TOLERANCE``)."""
+    return abs((shape[1] / shape[0]) / (width / height) - 1.0) <= ASPECT_TOLERANCE
+
+
 def check_aspect(shape: tuple[int, ...], width: int, height: int, what: str, source: object = None) -> None:
     """``ShapeError`` when an (H, W) array does not have the aspect of a ``width`` x ``height`` image
     (``ASPECT_TOLERANCE``): a mask or depth map of another photo, or cropped."""
     if len(shape) != 2 or min(shape) < 1:
         raise ShapeError(f"{source or what}: {what} must be an (H, W) array, got shape {tuple(shape)}")
-    ratio = (shape[1] / shape[0]) / (width / height)
-    if abs(ratio - 1.0) > ASPECT_TOLERANCE:
+    if not _has_aspect(shape, width, height):
         raise ShapeError(
             f"{source or what}: {what} {shape[1]}x{shape[0]} does not have the photo's aspect "
             f"({width}x{height})"
@@ -180,6 +184,27 @@ def exif_orientation(path: str | Path) -> int:
     except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read image ({exc})") from exc
     return value if isinstance(value, int) and 1 <= value <= 8 else 1
+
+
+def check_aspect_of_photo(
+    shape: tuple[int, ...], width: int, height: int, what: str, source: object, photo: str | Path | None
+) -> None:
+    """``check_aspect``, and when the array has the aspect of ``photo`` turned for display by its EXIF
+    orientation (5-8), a ``ShapeError`` that says so: a mask made from the turned photo."""
+    try:
+        check_aspect(shape, width, height, what, source)
+        return
+    except ShapeError as exc:
+        error = exc
+    orientation = exif_orientation(photo) if photo is not None else 1
+    if orientation in TURNED_ORIENTATIONS and len(shape) == 2 and _has_aspect(shape[::-1], width, height):
+        raise ShapeError(
+            f"{source or what}: {what} {shape[1]}x{shape[0]} is the photo turned for display (EXIF "
+            f"orientation {orientation}); make it of the photo's stored {width}x{height} pixels, which "
+            "its calibration and gimbal angles describe (PIL without exif_transpose, OpenCV with "
+            "IMREAD_IGNORE_ORIENTATION), or turn it back"
+        )
+    raise error
 
 
 def image_size(path: str | Path, what: str = "image") -> tuple[int, int]:
