@@ -674,6 +674,7 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
     estimate = json.loads((out / "poses" / "F0.json").read_text())["extra"]["focal_estimate"]
     assert estimate["images"] == len(views) and estimate["scale"] == pytest.approx(1 / 0.975, abs=0.01)
     assert f"was estimated from {len(views)} oblique ones" in err
+    assert f"focal estimate: {len(views)}/{len(views)} queries done" in err  # its progress
     assert "have no calibrated intrinsics" not in err  # the approximate focal length was replaced
     assert json.loads((out / "summary.json").read_text())["recall_2m2deg"] == 100.0
     assert re.search(r"the 8 localized photos sit a median 1[12]\.\d m below their priors", err)  # shared

@@ -47,7 +47,7 @@ from semcityloc import __version__
 from semcityloc.benchmark import focal_cache
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
-from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, plain, write_json_atomic
+from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, Progress, plain, write_json_atomic
 from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
@@ -342,7 +342,9 @@ def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], m
         except SemCityLocError:  # an unreadable mask: the run loop reports it for that photo
             continue
         views.append(FocalView(q.camera, q.prior_pose_local, q.labels, q.depth, q.prior_uncertainty))
-    estimate = estimate_focal_scale(Localizer(model, spec.localizer_config()), views)
+    bar = Progress(len(views), label="focal estimate")  # views: the oblique subset already
+    estimate = estimate_focal_scale(Localizer(model, spec.localizer_config()), views, progress=bar.update)
+    bar.close()
     if key:
         focal_cache.write_estimate(key, estimate)
     return estimate

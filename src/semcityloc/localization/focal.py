@@ -24,7 +24,7 @@ is further off than the grid reaches, or the images disagree).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -121,10 +121,11 @@ def estimate_focal_scale(
     scales: Sequence[float] = SCALES,
     max_images: int = MAX_IMAGES,
     min_oblique_deg: float = MIN_OBLIQUE_DEG,
+    progress: Callable[[], None] | None = None,
 ) -> FocalEstimate:
     """The flight's focal-length scale (module docstring) from ``views`` (all of one camera).
     ``min_oblique_deg`` = 0 takes nadir views too (measured biased: ``benchmarks/focal_selfcal.py
-    --views nadir``)."""
+    --views nadir``). ``progress`` is called after each image used."""
     scales = tuple(float(s) for s in scales)
     if len(scales) < 3 or any(b <= a for a, b in zip(scales, scales[1:], strict=False)) or scales[0] <= 0:
         raise ParameterError(f"scales must be at least 3 increasing positive values, got {scales}")
@@ -146,6 +147,8 @@ def estimate_focal_scale(
             scores.append(r.score if r.score is not None and math.isfinite(r.score) else math.nan)
         if np.all(np.isfinite(scores)):
             curves.append(scores)
+        if progress is not None:
+            progress()
     if len(curves) < MIN_IMAGES:
         reason = (
             f"{len(curves)} oblique images with a score at every scale (of {len(views)}); need {MIN_IMAGES}"
