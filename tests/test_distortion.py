@@ -15,6 +15,7 @@ from semcityloc.geometry.distortion import (
     UNDISTORT_TOL_PX,
     LensDistortion,
     distort_image,
+    pinhole_canvas,
     undistort_image,
     unseen_by_photo,
 )
@@ -74,6 +75,26 @@ def test_round_trip_of_labels_and_the_fill():
     back = undistort_image(photo, CAMERA, DJI, fill=IGNORE, nearest=True)
     seen = back != IGNORE
     assert seen.mean() > 0.9 and (back[seen] == labels[seen]).mean() > 0.97
+
+
+def test_a_wider_canvas_fills_the_barrel_corners_and_agrees_inside():
+    canvas = pinhole_canvas(CAMERA, DJI)
+    assert canvas.fx == CAMERA.fx and canvas.width > CAMERA.width and canvas.height > CAMERA.height
+    assert canvas.cx - CAMERA.cx == (canvas.width - CAMERA.width) / 2  # the same principal ray
+    assert pinhole_canvas(CAMERA, LensDistortion(k1=0.05)) == CAMERA  # pincushion: nothing outside
+    assert pinhole_canvas(CAMERA, LensDistortion()) == CAMERA
+    # A scene drawn on the canvas: label k in the k-th 8 px column band (so it continues beyond CAMERA).
+    u = np.arange(canvas.width) - (canvas.cx - CAMERA.cx)
+    wide = np.tile((np.floor(u / 8) % 5).astype(np.uint8), (canvas.height, 1))
+    mx, my = int(canvas.cx - CAMERA.cx), int(canvas.cy - CAMERA.cy)
+    narrow = wide[my : my + CAMERA.height, mx : mx + CAMERA.width]
+    photo = distort_image(wide, CAMERA, DJI, fill=IGNORE, nearest=True, source=canvas)
+    assert photo.shape == (CAMERA.height, CAMERA.width) and (photo != IGNORE).all()  # corners seen
+    alone = distort_image(narrow, CAMERA, DJI, fill=IGNORE, nearest=True)
+    seen = alone != IGNORE
+    assert not seen[0, 0] and (photo[seen] == alone[seen]).all()  # the same where both see
+    with pytest.raises(ShapeError, match="canvas"):
+        distort_image(narrow, CAMERA, DJI, fill=IGNORE, nearest=True, source=canvas)
 
 
 def test_a_photo_keeps_its_dtype_and_any_resolution_works():

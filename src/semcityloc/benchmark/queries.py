@@ -73,7 +73,7 @@ from semcityloc.errors import (
     unknown_choice,
 )
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.distortion import LensDistortion, distort_image, undistort_image
+from semcityloc.geometry.distortion import LensDistortion, distort_image, pinhole_canvas, undistort_image
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.perception.autolabel import auto_label
@@ -89,6 +89,7 @@ MIN_CLEARANCE_M = 10.0
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 STREAM_POSE, STREAM_PRIOR, STREAM_PRIOR_EXTRA, STREAM_SEG, STREAM_DEPTH = 0, 1, 2, 3, 4
 STREAM_PRIOR_REALISTIC, STREAM_SUN = 6, 7  # 5 is the wireframe baseline's edge map
+STREAM_LENS_MARGIN = 8  # the canvas a barrel lens needs beyond the query (``_lens_canvas``)
 SEG_MODELS = ("blobs", "structured")
 
 
@@ -373,6 +374,9 @@ class QuerySimulator:
         self.config = config
         self.camera = zenmuse_l2_camera(config.width, config.height, config.focal_mm)  # renders the query
         self.stated_camera = stated_camera(config.width, config.height, config.focal_mm, config.focal_error)
+        # A barrel lens (``lens_k1`` < 0) pulls rays from outside the query's pinhole image into the
+        # photo's corners: the query is also simulated on this wider canvas around it (``_lens_canvas``).
+        self.canvas = pinhole_canvas(self.camera, LensDistortion(k1=config.lens_k1))
         self.reality: RealityScene = build_reality(
             map_model, reality_model, seed=config.seed, params=config.reality
         )
@@ -428,33 +432,80 @@ class QuerySimulator:
         return bool(np.isfinite(d).any())
 
     def _segmentation(
-        self, index: int, pose: Pose, clean: np.ndarray, true_depth: np.ndarray, meta: dict
+        self,
+        index: int,
+        pose: Pose,
+        clean: np.ndarray,
+        meta: dict,
+        camera: Camera | None = None,
+        stream: tuple[int, ...] = (STREAM_SEG,),
     ) -> np.ndarray:
         """The simulated segmentation of a view (``seg_model``: random blobs, or structured errors from
-        the view's truth: normals, occluders and what is behind them, cast shadows)."""
+        the view's truth: normals, occluders and what is behind them, cast shadows); ``camera``: what
+        ``clean`` was rendered with (default the query's)."""
         cfg = self.config
-        rng = np.random.default_rng([cfg.seed, index, STREAM_SEG])
+        rng = np.random.default_rng([cfg.seed, index, *stream])
         if cfg.seg_model == "blobs":
             return simulate_segmentation(clean, SEG_PRESETS[cfg.seg_quality], rng)
         sun = sun_direction(np.random.default_rng([cfg.seed, index, STREAM_SUN]))
-        truth = view_truth(self.reality, self.camera, pose, sun)
+        truth = view_truth(self.reality, camera or self.camera, pose, sun)
         meta["shadow_fraction"] = float(truth.shadow.mean())
         return simulate_segmentation(clean, cfg.seg_preset(), rng, truth=truth)
+
+    def _depth(
+        self, index: int, true_depth: np.ndarray, clean: np.ndarray, stream: tuple[int, ...] = (STREAM_DEPTH,)
+    ) -> np.ndarray | None:
+        """The simulated relative depth of a view (``depth_model``; None without ``depth``)."""
+        cfg = self.config
+        if not cfg.depth:
+            return None
+        rng = np.random.default_rng([cfg.seed, index, *stream])
+        if cfg.depth_model is None:
+            return simulate_depth(true_depth, clean, rng)
+        return simulate_depth_realistic(true_depth, rng, cfg.depth_model)
+
+    def _lens_canvas(
+        self, index: int, pose: Pose, labels: np.ndarray, depth: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The query's simulated labels and depth on ``canvas`` (a barrel lens; else as they are): the
+        query's own in its pinhole window, unchanged, and around it a segmentation and depth of the wider
+        render from their own streams (the depth scaled and shifted to agree with the query's where both
+        are, as one network's output would). Why: a real wide photo shows something in its corners too;
+        left unknown there, a lens left out would be easier than on a real photo."""
+        if self.canvas == self.camera:
+            return labels, depth
+        out = self.reality.renderer.render(self.canvas, pose, depth=True)
+        clean, true_depth = out.labels[0], out.depth[0]
+        mx, my = round(self.canvas.cx - self.camera.cx), round(self.canvas.cy - self.camera.cy)
+        window = (slice(my, my + self.camera.height), slice(mx, mx + self.camera.width))
+        wide_labels = self._segmentation(
+            index, pose, clean, {}, self.canvas, (STREAM_SEG, STREAM_LENS_MARGIN)
+        )
+        wide_labels[window] = labels
+        if depth is None:
+            return wide_labels, None
+        wide = self._depth(index, true_depth, clean, (STREAM_DEPTH, STREAM_LENS_MARGIN)).astype(np.float64)
+        both = np.isfinite(wide[window]) & np.isfinite(depth)
+        if both.sum() >= 2:
+            scale, shift = np.polyfit(wide[window][both], depth[both], 1)
+            wide = scale * wide + shift
+        wide[window] = depth
+        return wide_labels, wide.astype(np.asarray(depth).dtype)
 
     def _through_lens(
         self, labels: np.ndarray, depth: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """The query as the localizer gets it (``lens_k1``, ``lens_stated``): seen through the lens (where
-        the pinhole render does not reach, IGNORE / NaN), then undistorted with the stated camera when
-        the lens is stated. The segmentation's scores (``query_miou``, the map's mIoU) are the lens-free
-        masks'."""
+        """The query as the localizer gets it (``lens_k1``, ``lens_stated``): its ``canvas`` arrays
+        (``_lens_canvas``) seen through the lens, then undistorted with the stated camera when the lens is
+        stated (where that pinhole image reaches beyond a pincushion photo: IGNORE / NaN). The
+        segmentation's scores (``query_miou``, the map's mIoU) are the lens-free masks'."""
         cfg = self.config
         if cfg.lens_k1 == 0.0:
             return labels, depth
         lens = LensDistortion(k1=cfg.lens_k1)
 
         def seen(image: np.ndarray, fill: float) -> np.ndarray:
-            photo = distort_image(image, self.camera, lens, fill=fill, nearest=True)
+            photo = distort_image(image, self.camera, lens, fill=fill, nearest=True, source=self.canvas)
             if not cfg.lens_stated:
                 return photo
             return undistort_image(photo, self.stated_camera, lens, fill=fill, nearest=True)
@@ -506,14 +557,8 @@ class QuerySimulator:
         (ok, _, _), pose, info, clean, true_depth, coverage, clearance = best
 
         extra_meta: dict = {}
-        labels = self._segmentation(index, pose, clean, true_depth, extra_meta)
-        depth = None
-        if cfg.depth:
-            rng_depth = np.random.default_rng([cfg.seed, index, STREAM_DEPTH])
-            if cfg.depth_model is None:
-                depth = simulate_depth(true_depth, clean, rng_depth)
-            else:
-                depth = simulate_depth_realistic(true_depth, rng_depth, cfg.depth_model)
+        labels = self._segmentation(index, pose, clean, extra_meta)
+        depth = self._depth(index, true_depth, clean)
         realistic_prior = cfg.prior_height_m is not None or cfg.prior_roll_pitch_sigma_deg is not None
         prior, prior_info = sample_prior(
             pose,
@@ -538,7 +583,7 @@ class QuerySimulator:
             **prior_info,
             **extra_meta,
         }
-        seen_labels, seen_depth = self._through_lens(labels, depth)
+        seen_labels, seen_depth = self._through_lens(*self._lens_canvas(index, pose, labels, depth))
         query = BenchmarkQuery(
             query_id=query_id(index),
             index=index,

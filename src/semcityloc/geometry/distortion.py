@@ -161,15 +161,51 @@ def undistort_image(
 
 
 def distort_image(
-    image: np.ndarray, camera: Camera, distortion: LensDistortion, fill: float, nearest: bool
+    image: np.ndarray,
+    camera: Camera,
+    distortion: LensDistortion,
+    fill: float,
+    nearest: bool,
+    source: Camera | None = None,
 ) -> np.ndarray:
     """``undistort_image``'s inverse: a pinhole array (e.g. labels rendered from the model) resampled
-    onto the distorted photo's pixels."""
-    cam = _camera_for(image, camera)
-    if distortion.max_shift_px(cam) < NEGLIGIBLE_SHIFT_PX:
-        return image
-    distortion.check(cam)
-    return _resample(image, distortion.pinhole_pixels(cam, cam.pixel_centers()), fill, nearest)
+    onto the distorted photo's pixels. ``source``: the array's own camera when it is a wider canvas
+    around ``camera``'s pinhole image (``pinhole_canvas``: the same focal length and principal ray), so
+    that the rays a barrel lens pulls into the photo's corners are there; the photo is then ``camera``'s
+    size. Without it, the array is ``camera``'s pinhole image at any resolution, and the photo's pixels
+    whose rays fall outside it get ``fill``."""
+    if source is None:
+        cam = _camera_for(image, camera)
+        if distortion.max_shift_px(cam) < NEGLIGIBLE_SHIFT_PX:
+            return image
+        distortion.check(cam)
+        return _resample(image, distortion.pinhole_pixels(cam, cam.pixel_centers()), fill, nearest)
+    if np.asarray(image).shape[:2] != (source.height, source.width):
+        raise ShapeError(
+            f"the array {np.asarray(image).shape} is not the {source.width} x {source.height} canvas"
+        )
+    distortion.check(camera)
+    uv = distortion.pinhole_pixels(camera, camera.pixel_centers())
+    scale = np.array([source.fx / camera.fx, source.fy / camera.fy])
+    uv = (uv - [camera.cx, camera.cy]) * scale + [source.cx, source.cy]
+    return _resample(image, uv, fill, nearest)
+
+
+def pinhole_canvas(camera: Camera, distortion: LensDistortion) -> Camera:
+    """The pinhole camera with ``camera``'s focal length and principal ray whose image holds every ray of
+    the distorted photo: ``camera`` widened by whole pixels on each side where the lens pulls rays from
+    outside its pinhole image (barrel distortion's corners); ``camera`` itself when none are."""
+    if distortion.is_zero:
+        return camera
+    border = distortion.pinhole_pixels(camera, _border_samples(camera))
+    over_x = max(0.0, float(-border[:, 0].min()), float(border[:, 0].max() - camera.width))
+    over_y = max(0.0, float(-border[:, 1].min()), float(border[:, 1].max() - camera.height))
+    mx, my = (math.ceil(v - NEGLIGIBLE_SHIFT_PX) if v > NEGLIGIBLE_SHIFT_PX else 0 for v in (over_x, over_y))
+    if mx == 0 and my == 0:
+        return camera
+    return Camera(
+        camera.fx, camera.fy, camera.cx + mx, camera.cy + my, camera.width + 2 * mx, camera.height + 2 * my
+    )
 
 
 def unseen_by_photo(shape: tuple[int, int], camera: Camera, distortion: LensDistortion) -> np.ndarray:
