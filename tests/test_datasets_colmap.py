@@ -235,3 +235,29 @@ def test_a_camera_with_its_lens_is_written_as_opencv_or_full_opencv():
     pose = Pose.from_xyz_rpy([0.0, 0.0, 50.0], 0.0, 0.0, 0.0)
     model = ColmapModel.from_poses({"a.jpg": (camera, pose), "b.jpg": (camera, pose)}, {"b.jpg": radial})
     assert sorted(c.model for c in model.cameras.values()) == ["OPENCV", "PINHOLE"]  # one lens, one not
+
+
+@pytest.mark.parametrize("ext", [".txt", ".bin"])
+def test_a_model_with_lenses_reads_back_with_them(tmp_path, ext):
+    from semcityloc.geometry.distortion import LensDistortion
+
+    camera = Camera(363.7, 363.7, 256.0, 192.0, 512, 384)
+    lenses = {"a.jpg": LensDistortion(), "b.jpg": LensDistortion(k1=-0.1, k2=0.02, p1=0.001, p2=-0.0005)}
+    lenses["c.jpg"] = LensDistortion(k1=-0.1, k3=0.004)
+    pose = Pose.from_xyz_rpy([10.0, -5.0, 80.0], 1.0, 30.0, 45.0)
+    written = ColmapModel.from_poses({name: (camera, pose) for name in lenses}, lenses)
+    read = read_model(write_model(written, tmp_path / "m", ext=ext)).lens_poses()
+    for name, lens in lenses.items():
+        cam, back, p = read[name]
+        assert cam == camera and back == lens and np.allclose(p.cam_from_world, pose.cam_from_world)
+    with pytest.raises(CameraError, match="to_lens_camera"):
+        read_model(tmp_path / "m").poses()  # the pinhole reader still refuses a lens, naming the way
+    simple = ColmapCamera(1, "SIMPLE_RADIAL", 512, 384, [363.7, 256.0, 192.0, -0.05]).to_lens_camera()
+    assert simple == (Camera(363.7, 363.7, 256.0, 192.0, 512, 384), LensDistortion(k1=-0.05))
+    rational = ColmapCamera(1, "FULL_OPENCV", 512, 384, [363.7, 363.7, 256, 192, 0, 0, 0, 0, 0, 0.1, 0, 0])
+    with pytest.raises(CameraError, match="rational distortion terms"):
+        rational.to_lens_camera()
+    with pytest.raises(CameraError, match="not a pinhole camera"):
+        ColmapCamera(1, "OPENCV_FISHEYE", 512, 384, np.zeros(8)).to_lens_camera()
+    with pytest.raises(CameraError):  # folds over inside the image
+        ColmapCamera(1, "SIMPLE_RADIAL", 512, 384, [363.7, 256.0, 192.0, -0.5]).to_lens_camera()

@@ -100,8 +100,28 @@ class ColmapCamera:
             and np.array_equal(self.params, other.params)
         )
 
+    def to_lens_camera(self) -> tuple[Camera, LensDistortion]:
+        """The ``Camera`` and its lens (``geometry.distortion``: k1 k2 p1 p2 k3; zero for the pinhole
+        models), what ``from_camera`` wrote; ``CameraError`` for fisheye models, FULL_OPENCV's rational
+        terms k4..k6, or a lens that folds over inside the image."""
+        parts = _PINHOLE_PARTS.get(self.model)
+        if parts is None:
+            raise CameraError(f"COLMAP camera {self.camera_id}: model {self.model} is not a pinhole camera")
+        params = dict(zip(CAMERA_MODELS[self.model][1], self.params.tolist(), strict=True))
+        rational = {k: v for k, v in params.items() if k in ("k4", "k5", "k6") and v != 0}
+        if rational:
+            raise CameraError(
+                f"COLMAP camera {self.camera_id}: {self.model} has rational distortion terms {rational}, "
+                "which are not supported (calibrate with OPENCV, or undistort the images first)"
+            )
+        fx, fy, cx, cy = (float(self.params[i]) for i in parts)
+        camera, lens = Camera(fx, fy, cx, cy, self.width, self.height), LensDistortion.from_params(params)
+        lens.check(camera)
+        return camera, lens
+
     def to_camera(self) -> Camera:
-        """The pinhole ``Camera``; ``CameraError`` for fisheye models or non-zero distortion terms."""
+        """The pinhole ``Camera``; ``CameraError`` for fisheye models or non-zero distortion terms
+        (``to_lens_camera`` reads those)."""
         parts = _PINHOLE_PARTS.get(self.model)
         if parts is None:
             raise CameraError(f"COLMAP camera {self.camera_id}: model {self.model} is not a pinhole camera")
@@ -110,7 +130,8 @@ class ColmapCamera:
         if np.any(distortion != 0):
             raise CameraError(
                 f"COLMAP camera {self.camera_id}: {self.model} has distortion {distortion.tolist()}; "
-                "undistort the images first (colmap image_undistorter) and use the PINHOLE model"
+                "undistort the images first (colmap image_undistorter) and use the PINHOLE model, or read "
+                "it with its lens (ColmapCamera.to_lens_camera)"
             )
         fx, fy, cx, cy = (float(self.params[i]) for i in parts)
         return Camera(fx, fy, cx, cy, self.width, self.height)
@@ -224,6 +245,16 @@ class ColmapModel:
                     f"COLMAP image {image.name!r} refers to missing camera {image.camera_id}"
                 )
             out[image.name] = (self.cameras[image.camera_id].to_camera(), image.pose)
+        return out
+
+    def lens_poses(self) -> dict[str, tuple[Camera, LensDistortion, Pose]]:
+        """``{image name: (Camera, its lens, cam_from_world Pose)}`` of every image: ``poses`` for
+        cameras with distortion (``ColmapCamera.to_lens_camera``), e.g. a photo run's export."""
+        out = {}
+        for name, image in ((im.name, im) for im in self.images.values()):
+            if image.camera_id not in self.cameras:
+                raise InputFileError(f"COLMAP image {name!r} refers to missing camera {image.camera_id}")
+            out[name] = (*self.cameras[image.camera_id].to_lens_camera(), image.pose)
         return out
 
     @classmethod
