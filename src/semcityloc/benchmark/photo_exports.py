@@ -47,7 +47,6 @@ from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_3
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
-from semcityloc.io.images import exif_orientation
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED
 
@@ -173,7 +172,7 @@ def write_exports(
         outputs["notes"] += [n for n in said if n and n not in outputs["notes"]]
 
     outputs["notes"] += focal_notes(inputs)
-    turned = [inp.name for inp in inputs if inp.mask is not None and exif_orientation(inp.path) != 1]
+    turned = [inp.name for inp in inputs if inp.mask is not None and inp.orientation != 1]
     if turned:
         outputs["notes"].append(
             f"{len(turned)} photos carry an EXIF orientation other than 1 (viewers turn or flip them): "

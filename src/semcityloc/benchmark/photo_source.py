@@ -72,6 +72,7 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import (
     check_aspect,
     check_aspect_of_photo,
+    exif_orientation,
     image_size,
     load_image,
     read_depth_file,
@@ -121,6 +122,7 @@ class PhotoInput:
     distortion: LensDistortion = LensDistortion()  # the photo's lens; zero: pinhole already
     # The flight's focal-length estimate for this camera (``calibrate_focal``; one dict per camera).
     focal_estimate: dict | None = None
+    orientation: int = 1  # the photo's EXIF orientation (``io.images.exif_orientation``; 1: as stored)
 
     @property
     def stem(self) -> str:
@@ -389,6 +391,7 @@ def _resolve(spec: PhotoSpec) -> Resolved:
     for path in list_images(spec.images):
         try:
             width, height = image_size(path, "photo")
+            orientation = exif_orientation(path)
             lens = intrinsics.photo_camera(path, width, height)
             camera = lens.camera
             prior = priors.prior(path)
@@ -416,6 +419,7 @@ def _resolve(spec: PhotoSpec) -> Resolved:
                 depth,
                 intrinsics_source=lens.source,
                 distortion=lens.distortion,
+                orientation=orientation,
             )
         )
     if store is not None and inputs:
