@@ -251,10 +251,12 @@ class ColmapModel:
         """``{image name: (Camera, its lens, cam_from_world Pose)}`` of every image: ``poses`` for
         cameras with distortion (``ColmapCamera.to_lens_camera``), e.g. a photo run's export."""
         out = {}
-        for name, image in ((im.name, im) for im in self.images.values()):
+        for image in self.images.values():
             if image.camera_id not in self.cameras:
-                raise InputFileError(f"COLMAP image {name!r} refers to missing camera {image.camera_id}")
-            out[name] = (*self.cameras[image.camera_id].to_lens_camera(), image.pose)
+                raise InputFileError(
+                    f"COLMAP image {image.name!r} refers to missing camera {image.camera_id}"
+                )
+            out[image.name] = (*self.cameras[image.camera_id].to_lens_camera(), image.pose)
         return out
 
     @classmethod
