@@ -3,6 +3,8 @@ or horizontal offset is said, independent GNSS noise is not."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from semcityloc.benchmark.photo_exports import OFFSET_MIN_PHOTOS, prior_offset_notes
@@ -16,6 +18,11 @@ def test_a_shared_height_offset_is_said_with_its_size_and_side():
     median = float(np.median(moves[:, 2]))
     assert f"a median {abs(median):.1f} m below" in notes[0] and "height reference" in notes[0]
     assert "above their priors" in prior_offset_notes(moves * [1, 1, -1])[0]
+    assert "--prior-sigma" not in notes[0]  # nothing was refused at the volume's edge
+    spread = 1.4826 * float(np.median(np.abs(moves[:, 2] - median)))
+    sigma = math.ceil((abs(median) + 2 * spread) / 3)  # 3 sigma covers the offset and twice the spread
+    (edge,) = prior_offset_notes(moves, at_edge=3)
+    assert f"(3 were; or run again with --prior-sigma z={sigma})" in edge and 7 <= sigma <= 9
 
 
 def test_a_shared_horizontal_offset_is_said_apart_from_the_height():

@@ -22,6 +22,7 @@ summary says so and names ``--crs`` / ``--offset``.
 from __future__ import annotations
 
 import json
+import math
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -48,7 +49,7 @@ from semcityloc.errors import InputFileError
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
 from semcityloc.localization.covariance import horizontal_sigma
-from semcityloc.localization.result import LOCALIZED
+from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 
 NO_CRS = (
     "the city model names no CRS, so no geotags.csv / geo.txt (WGS 84 needs one); pass --crs (and "
@@ -89,7 +90,7 @@ OFFSET_SPREAD_RATIO = 2.0  # the median offset at least this many times the phot
 OFFSET_SAME_SIDE = 0.9  # and at least this share of the photos moved to its side
 
 
-def prior_offset_notes(moves: np.ndarray) -> list[str]:
+def prior_offset_notes(moves: np.ndarray, at_edge: int = 0) -> list[str]:
     """What the localized photos' moves from their priors (``(n, 3)``: estimate minus prior centre, in the
     model's frame, z up) say about the priors as a whole: a note when they share a height or horizontal
     offset of at least ``OFFSET_NOTE_M`` that stands out of their spread (the robust spread, 1.4826 x the
@@ -99,7 +100,9 @@ def prior_offset_notes(moves: np.ndarray) -> list[str]:
     sets and none of 30 (5,000 simulated sets each); a shared 20 m height offset with 2 / 5 / 8 m of
     scatter gets it in 100 / 99 / 82 % of 10-photo sets. Why: one photo's prior 20 m off in
     height is GNSS noise; a whole flight's is a height reference (geoid, take-off altitude) the user can
-    fix, and then the photos refused at the search volume's edge localize too."""
+    fix, and then the photos refused at the search volume's edge localize too. ``at_edge``: how many
+    photos were refused there; the height note then names the ``--prior-sigma z=`` whose 3 sigma covers
+    the offset and twice the spread, for a run again as it is."""
     moves = np.asarray(moves, dtype=np.float64).reshape(-1, 3)
     if len(moves) < OFFSET_MIN_PHOTOS:
         return []
@@ -115,6 +118,12 @@ def prior_offset_notes(moves: np.ndarray) -> list[str]:
             "share a height offset, most often the height reference (geoid, take-off altitude; "
             "docs/your-data.md, sections 2 and 8); photos refused at the search volume's edge may "
             "localize once it is fixed"
+            + (
+                f" ({at_edge} were; or run again with --prior-sigma "
+                f"z={math.ceil((abs(median_z) + 2.0 * spread_z) / 3.0)})"
+                if at_edge
+                else ""
+            )
         )
     xy = moves[:, :2]
     median_xy = np.median(xy, axis=0)
@@ -190,7 +199,8 @@ def write_exports(
     moves = [
         estimates[inp.name].center - inp.prior.pose_world.center for inp in inputs if inp.name in estimates
     ]
-    outputs["notes"] += prior_offset_notes(np.array(moves))
+    at_edge = sum(records[inp.name].get("reason") == REASON_AT_EDGE for inp in inputs)
+    outputs["notes"] += prior_offset_notes(np.array(moves), at_edge)
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)
