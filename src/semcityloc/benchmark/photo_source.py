@@ -395,8 +395,8 @@ def _resolve(spec: PhotoSpec) -> Resolved:
             lens = intrinsics.photo_camera(path, width, height)
             camera = lens.camera
             prior = priors.prior(path)
-            mask = _input_file(spec.masks, path, MASK_SUFFIXES, "mask", camera)
-            depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera)
+            mask = _input_file(spec.masks, path, MASK_SUFFIXES, "mask", camera, orientation)
+            depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera, orientation)
         except PhotoMissing as exc:
             skipped[path.name] = str(exc)
             continue
@@ -447,14 +447,17 @@ def _array_shape(path: Path) -> tuple[int, int]:
     return height, width
 
 
-def _input_file(folder: str | None, photo: Path, suffixes, what: str, camera: Camera) -> Path | None:
+def _input_file(
+    folder: str | None, photo: Path, suffixes, what: str, camera: Camera, orientation: int
+) -> Path | None:
     """The photo's mask / depth file in ``folder`` (None without a folder), checked to show the photo's
-    field of view; ``PhotoMissing`` when absent or of another aspect."""
+    field of view (``orientation``: the photo's EXIF one); ``PhotoMissing`` when absent or of another
+    aspect."""
     if not folder:
         return None
     try:
         path = find_file(Path(folder), photo.name, suffixes, what)
-        check_aspect_of_photo(_array_shape(path), camera.width, camera.height, what, path, photo)
+        check_aspect_of_photo(_array_shape(path), camera.width, camera.height, what, path, orientation)
     except (InputFileError, ValueError) as exc:
         raise PhotoMissing(str(exc)) from None
     return path

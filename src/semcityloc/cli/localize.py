@@ -27,6 +27,7 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import (
     check_aspect,
     check_aspect_of_photo,
+    exif_orientation,
     image_size,
     load_depth,
     load_image,
@@ -165,9 +166,10 @@ def _query_inputs(args, lens: PhotoCamera):
     if args.seg_backend or args.depth_backend:
         image = _pinhole_photo(args.image, lens, max_width=PHOTO_MAX_WIDTH)
     name = Path(args.image).name if args.image else None
+    orientation = exif_orientation(args.image) if args.image else 1
     if args.semantic:
         labels = read_mask_file(args.semantic, allow_lossy=args.allow_lossy_mask)
-        check_aspect_of_photo(labels.shape, camera.width, camera.height, "mask", args.semantic, args.image)
+        check_aspect_of_photo(labels.shape, camera.width, camera.height, "mask", args.semantic, orientation)
         labels = undistort_image(labels, camera, lens.distortion, fill=IGNORE, nearest=True)
     else:
         labels = get_segmentation_backend(args.seg_backend, **options).predict(image, name=name).labels
@@ -176,7 +178,7 @@ def _query_inputs(args, lens: PhotoCamera):
     depth = None
     if args.depth:
         depth = load_depth(args.depth)
-        check_aspect_of_photo(depth.shape, camera.width, camera.height, "depth", args.depth, args.image)
+        check_aspect_of_photo(depth.shape, camera.width, camera.height, "depth", args.depth, orientation)
         depth = undistort_image(depth, camera, lens.distortion, fill=np.nan, nearest=True)
     elif args.depth_backend:
         depth = get_depth_backend(args.depth_backend, **options).predict(image, name=name).masked()

@@ -187,16 +187,16 @@ def exif_orientation(path: str | Path) -> int:
 
 
 def check_aspect_of_photo(
-    shape: tuple[int, ...], width: int, height: int, what: str, source: object, photo: str | Path | None
+    shape: tuple[int, ...], width: int, height: int, what: str, source: object, orientation: int
 ) -> None:
-    """``check_aspect``, and when the array has the aspect of ``photo`` turned for display by its EXIF
-    orientation (5-8), a ``ShapeError`` that says so: a mask made from the turned photo."""
+    """``check_aspect``, and when the array has the aspect of the photo turned for display by its EXIF
+    ``orientation`` (5-8; ``exif_orientation``), a ``ShapeError`` that says so: a mask made from the
+    turned photo."""
     try:
         check_aspect(shape, width, height, what, source)
         return
     except ShapeError as exc:
         error = exc
-    orientation = exif_orientation(photo) if photo is not None else 1
     if orientation in TURNED_ORIENTATIONS and len(shape) == 2 and _has_aspect(shape[::-1], width, height):
         raise ShapeError(
             f"{source or what}: {what} {shape[1]}x{shape[0]} is the photo turned for display (EXIF "
