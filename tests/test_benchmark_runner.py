@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
 from semcityloc.benchmark.results import (
     COLUMNS,
@@ -207,6 +208,25 @@ def test_a_stopped_run_resumes_without_redoing_queries(sim, baseline, tmp_path):
     )
     third = run_benchmark(make_spec(sim), out, progress=False)  # nothing left to do
     assert third.new_rows == 0 and len(csv_rows(out / RESULTS_FILE)) == QUERIES
+
+
+def test_a_run_resumed_by_changed_code_says_its_results_mix(sim, baseline, tmp_path, capsys):
+    out = tmp_path / "changed"
+    run_benchmark(make_spec(sim), out, progress=False, limit=1)
+    config = json.loads((out / "run.json").read_text())
+    assert config["code"] == code_fingerprint()
+    capsys.readouterr()
+    run_benchmark(make_spec(sim), out, progress=False, limit=1)  # the same code: nothing to say
+    assert "other semcityloc code" not in capsys.readouterr().err
+    (out / "run.json").write_text(json.dumps({**config, "code": "0123456789abcdef"}))  # started by older code
+    resumed = run_benchmark(make_spec(sim), out, progress=False)  # not refused: the code is not an argument
+    err = capsys.readouterr().err
+    assert resumed.complete and resumed.new_rows == QUERIES - 2
+    assert "started by other semcityloc code (source 0123456789abcdef" in err
+    assert "its 2 finished queries" in err and "--overwrite" in err
+    assert json.loads((out / "run.json").read_text())["code"] == "0123456789abcdef"  # it still says so
+    run_benchmark(make_spec(sim), out, progress=False)  # finished: nothing is made, nothing mixes
+    assert "other semcityloc code" not in capsys.readouterr().err
 
 
 def test_a_killed_run_with_a_torn_line_resumes_to_the_same_file(sim, baseline, tmp_path):

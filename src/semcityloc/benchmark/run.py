@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ from typing import Protocol, TextIO
 import numba
 
 import semcityloc.baselines  # noqa: F401  (registers the baselines' methods)
+from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.ray_executor import import_ray, run_ray
 from semcityloc.benchmark.results import (
@@ -41,10 +43,12 @@ from semcityloc.benchmark.results import (
     summarize_rows,
 )
 from semcityloc.benchmark.runfiles import (
+    CODE_KEY,
     DETAILS_DIR,
     RESULTS_FILE,
     SUMMARY_FILE,
     Progress,
+    code_change_note,
     prepare_output,
     run_lock,
     write_json_atomic,
@@ -164,6 +168,7 @@ def run_queries(
         raise BenchmarkError(f"limit must be >= 0, got {limit}")
     out = Path(out_dir)
     config = config if config is not None else spec.run_config()
+    config = {**config, CODE_KEY: code_fingerprint()}
     with run_lock(out):  # one run at a time writes a folder
         return _run_locked(
             source, spec, out, config, workers, overwrite, limit, progress, executor, ray_address
@@ -174,7 +179,7 @@ def _run_locked(
     source, spec, out: Path, config: dict, workers, overwrite, limit, progress, executor, ray_address
 ) -> BenchmarkOutcome:
     """``run_queries`` once it holds the folder's lock."""
-    prepare_output(out, config, overwrite)
+    resumed = prepare_output(out, config, overwrite)
     results_path = out / RESULTS_FILE
     total = int(config["queries"])
     wanted = {query_id(i) for i in range(total)}
@@ -183,6 +188,9 @@ def _run_locked(
     todo = [i for i in range(total) if query_id(i) not in done]
     if limit is not None:
         todo = todo[: int(limit)]
+    note = code_change_note(out, resumed, config, len(done), len(todo))
+    if note is not None:
+        print(note, file=sys.stderr if isinstance(progress, bool) else progress)
 
     if any(i < int(spec.keep_details) for i in todo):
         (out / DETAILS_DIR).mkdir(exist_ok=True)

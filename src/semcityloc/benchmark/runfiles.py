@@ -8,7 +8,8 @@ Folder ``DIR`` of a run:
 
 - ``run.json``: what decides the numbers (the spec's ``run_config``), written first. A later call with
   other arguments is refused with ``ResumeMismatchError`` naming the differing keys, unless ``overwrite``
-  (which deletes the old results).
+  (which deletes the old results). It also keeps ``code``, the package source that started the run: a
+  resume by changed code is not refused but told that its results mix (``code_change_note``).
 - ``results.csv``: one row per finished query (``benchmark.results``).
 - ``details/qNNNN.npz``: the report's figures for the first ``keep_details`` queries.
 - ``summary.json``: the metrics, written when every query is done.
@@ -68,8 +69,11 @@ RUN_OUTPUTS = (
     GEOJSON_FILE,
 )
 
-# Keys of run.json that do not change the numbers (not compared on resume).
-NOT_IDENTITY = ("city", "keep_details", "semcityloc_version")  # "city": as typed; city_path counts
+# The key of run.json naming the package source that started the run (``code_fingerprint``).
+CODE_KEY = "code"
+# Keys of run.json that do not change the numbers (not compared on resume). A run resumed by changed code
+# is not refused (a fix of a typo would cost every finished query) but told (``code_change_note``).
+NOT_IDENTITY = ("city", "keep_details", "semcityloc_version", CODE_KEY)  # "city": as typed; city_path counts
 
 
 def plain(value: Any) -> Any:
@@ -184,11 +188,13 @@ def differing_settings(old: dict, new: dict, prefix: str = "") -> list[str]:
     return out
 
 
-def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> None:
-    """Create ``out_dir`` and its ``run.json``; refuse a folder holding a run with other arguments."""
+def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict | None:
+    """Create ``out_dir`` and its ``run.json``; refuse a folder holding a run with other arguments.
+    Returns the ``run.json`` of the run being resumed (None when the run starts here)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     run_file, results = out_dir / RUN_FILE, out_dir / RESULTS_FILE
     mismatch = None
+    old = None
     if run_file.exists():
         try:
             old = json.loads(run_file.read_text(encoding="utf-8"))
@@ -216,6 +222,22 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> None
                 path.unlink(missing_ok=True)
     if mismatch or not run_file.exists():
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
+        return None
+    return old
+
+
+def code_change_note(out_dir: Path, old: dict | None, config: dict, done: int, todo: int) -> str | None:
+    """What a user should hear when ``done`` finished queries of a resumed run were made by other package
+    code than the ``todo`` ones about to be made (``CODE_KEY`` of the old and new ``run.json``); None when
+    nothing mixes or the old run did not record its code."""
+    before, now = (old or {}).get(CODE_KEY), config.get(CODE_KEY)
+    if not (done and todo) or before is None or now is None or before == now:
+        return None
+    return (
+        f"{out_dir}: resuming a run started by other semcityloc code (source {before}, now {now}): its "
+        f"{done} finished queries were made by that code and the {todo} left are made by this one, so its "
+        "results mix both; pass --overwrite to make them all anew"
+    )
 
 
 class Progress:
