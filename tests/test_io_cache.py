@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -58,3 +60,23 @@ def test_sniffing_errors(tmp_path):
         io.load_city_model(tmp_path / "x.bin", cache=False)
     with pytest.raises(InputFileError):
         io.load_city_model(tmp_path / "missing.gml")
+
+
+def test_a_file_is_hashed_once_until_it_changes(tmp_path, monkeypatch):
+    path = tmp_path / "city.gml"
+    path.write_bytes(b"<CityModel/>\n")
+    first = io.file_sha256(path)
+    reads = []
+    real_open = open
+
+    def counting_open(file, *args, **kwargs):
+        reads.append(file)
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr("builtins.open", counting_open)
+    assert io.file_sha256(path) == first and io.file_sha256(str(path)) == first
+    assert reads == []  # unchanged: the hash of the first read
+    path.write_bytes(b"<CityModel>edited</CityModel>\n")  # new size and modification time
+    changed = io.file_sha256(path)
+    assert reads == [path] and changed != first
+    assert changed == hashlib.sha256(path.read_bytes()).hexdigest()
