@@ -1,5 +1,6 @@
-"""A photo run's notes about its priors as a whole (``photo_exports.prior_offset_notes``): a shared height
-or horizontal offset is said, independent GNSS noise is not."""
+"""A photo run's notes about its priors as a whole (``photo_exports.prior_offset_notes``,
+``prior_yaw_notes``): a shared height, horizontal or yaw offset is said, independent GNSS and compass
+noise is not."""
 
 from __future__ import annotations
 
@@ -7,7 +8,15 @@ import math
 
 import numpy as np
 
-from semcityloc.benchmark.photo_exports import OFFSET_MIN_PHOTOS, prior_offset_notes
+from semcityloc.benchmark.photo_exports import (
+    OFFSET_MIN_PHOTOS,
+    edge_count,
+    prior_offset_notes,
+    prior_yaw_notes,
+    yaw_moves_deg,
+)
+from semcityloc.geometry.pose import Pose
+from semcityloc.localization.result import REASON_AT_EDGE
 
 
 def test_a_shared_height_offset_is_said_with_its_size_and_side():
@@ -44,3 +53,42 @@ def test_independent_priors_and_few_photos_say_nothing():
     assert prior_offset_notes(np.tile([1.0, -2.0, 4.0], (10, 1))) == []  # within the stated uncertainty
     mixed = np.r_[np.tile([0.0, 0.0, -20.0], (8, 1)), np.tile([0.0, 0.0, 20.0], (4, 1))]
     assert prior_offset_notes(mixed) == []  # two flights' offsets, or none: not one shared offset
+
+
+def test_a_shared_yaw_offset_is_said_with_its_turn_and_the_sigma_that_covers_it():
+    rng = np.random.default_rng(3)
+    moves = -12.4 + rng.normal(0, 1, 10)  # every photo found turned clockwise from its prior
+    (note,) = prior_yaw_notes(moves)
+    median = float(np.median(moves))
+    assert f"turned a median {abs(median):.1f} deg clockwise" in note and "compass" in note
+    assert "--prior-sigma" not in note
+    assert "counter-clockwise" in prior_yaw_notes(-moves)[0]
+    spread = 1.4826 * float(np.median(np.abs(moves - median)))
+    (edge,) = prior_yaw_notes(moves, at_edge=4)
+    assert "4 photos were refused at the search volume's yaw edge: run again with --prior-sigma yaw=" in edge
+    assert edge.endswith(f"yaw={math.ceil((abs(median) + 2 * spread) / 3)}")
+
+
+def test_independent_compass_noise_is_not_a_yaw_offset():
+    rng = np.random.default_rng(4)
+    for n, allowed in ((5, 0.02), (10, 0.005), (30, 0.0)):  # the default yaw sigma, 3 deg
+        said = np.mean([bool(prior_yaw_notes(rng.normal(0, 3, n))) for _ in range(2000)])
+        assert said <= allowed, (n, said)
+    assert prior_yaw_notes(np.full(OFFSET_MIN_PHOTOS - 1, 10.0)) == []
+    assert prior_yaw_notes(np.full(10, 2.0)) == []  # within the stated uncertainty
+
+
+def test_yaw_moves_wrap_and_edges_are_counted_per_axis():
+    centre = np.array([1.0, 2.0, 80.0])
+    found = [Pose.from_xyz_rpy(centre, 0.0, 30.0, 179.0), Pose.from_xyz_rpy(centre, 0.0, 0.0, 10.0)]
+    prior = [Pose.from_xyz_rpy(centre, 0.5, 29.0, -179.0), Pose.from_xyz_rpy(centre, 0.0, 0.0, 4.0)]
+    np.testing.assert_allclose(yaw_moves_deg(found, prior), [-2.0, 6.0], atol=0.05)
+    assert yaw_moves_deg([], []).shape == (0,)
+    records = [
+        {"reason": REASON_AT_EDGE, "search": {"at_edge": ["yaw+"]}},
+        {"reason": REASON_AT_EDGE, "search": {"at_edge": ["z-", "yaw-"]}},
+        {"reason": REASON_AT_EDGE, "search": {"at_edge": ["z+"]}},
+        {"reason": None, "search": {}},
+        {"status": "not_localized"},
+    ]
+    assert edge_count(records, "yaw") == 2 and edge_count(records, "z") == 2 and edge_count(records, "x") == 0

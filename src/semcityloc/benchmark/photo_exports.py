@@ -48,6 +48,7 @@ from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_3
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
+from semcityloc.geometry.pose import Pose
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 
@@ -139,6 +140,60 @@ def prior_offset_notes(moves: np.ndarray, at_edge: int = 0) -> list[str]:
     return notes
 
 
+# A shared yaw offset: at least the default yaw sigma (``PriorUncertainty``: 3 deg), same rules otherwise.
+OFFSET_NOTE_DEG = 3.0
+
+
+def yaw_moves_deg(estimates: list[Pose], priors: list[Pose]) -> np.ndarray:
+    """(n,) estimate minus prior yaw of each photo in degrees, wrapped to [-180, 180): the turn about the
+    vertical (counter-clockwise seen from above) that took each prior's heading to the found one."""
+    if not estimates:
+        return np.zeros(0)
+    found = Pose.stack(estimates).to_xyz_rpy()[:, 5]
+    prior = Pose.stack(priors).to_xyz_rpy()[:, 5]
+    return (found - prior + 180.0) % 360.0 - 180.0
+
+
+def prior_yaw_notes(moves_deg: np.ndarray, at_edge: int = 0) -> list[str]:
+    """A note when the localized photos' yaw moves from their priors (``yaw_moves_deg``) share an offset
+    of at least ``OFFSET_NOTE_DEG``, by the rules of ``prior_offset_notes`` (``OFFSET_MIN_PHOTOS`` photos,
+    ``OFFSET_SPREAD_RATIO`` times their robust spread, ``OFFSET_SAME_SIDE`` of them turned that way). Why:
+    one photo's compass 5 deg off is noise; a whole flight's is a compass bias, or a heading read from
+    the aircraft (``FlightYawDegree``) where the gimbal's was meant, and the photos it pushed beyond the
+    search volume's yaw edge (``at_edge`` of them) localize with a wider stated yaw uncertainty, which the
+    note then names."""
+    moves = np.asarray(moves_deg, dtype=np.float64).reshape(-1)
+    if len(moves) < OFFSET_MIN_PHOTOS:
+        return []
+    median = float(np.median(moves))
+    spread = 1.4826 * float(np.median(np.abs(moves - median)))
+    same_side = float(np.mean(np.sign(moves) == np.sign(median)))
+    if abs(median) < max(OFFSET_NOTE_DEG, OFFSET_SPREAD_RATIO * spread) or same_side < OFFSET_SAME_SIDE:
+        return []
+    return [
+        f"the {len(moves)} localized photos are turned a median {abs(median):.1f} deg "
+        f"{'counter-clockwise' if median > 0 else 'clockwise'} (seen from above) from their priors' yaw "
+        f"(spread {spread:.1f} deg): the priors share a yaw offset, a compass bias or the aircraft's heading "
+        "taken for the gimbal's (docs/your-data.md, section 3)"
+        + (
+            f"; {at_edge} photos were refused at the search volume's yaw edge: run again with --prior-sigma "
+            f"yaw={math.ceil((abs(median) + 2.0 * spread) / 3.0)}"
+            if at_edge
+            else ""
+        )
+    ]
+
+
+def edge_count(records: list[dict], axis: str) -> int:
+    """How many photo records were refused at the search volume's edge along ``axis`` (``"z"``,
+    ``"yaw"``; ``search.at_edge`` holds the edges, e.g. ``["z-"]``)."""
+    return sum(
+        record.get("reason") == REASON_AT_EDGE
+        and any(edge.rstrip("+-") == axis for edge in (record.get("search") or {}).get("at_edge", []))
+        for record in records
+    )
+
+
 def focal_notes(inputs: list) -> list[str]:
     """One line per camera whose focal length the flight estimated, or tried to (``calibrate_focal``)."""
     estimates = [inp.focal_estimate for inp in inputs if inp.focal_estimate is not None]
@@ -196,11 +251,11 @@ def write_exports(
     if approximate:
         count = f"{len(approximate)} of {len(inputs)} photos have no calibrated intrinsics"
         outputs["notes"].append(f"{count}: {APPROXIMATE_INTRINSICS_NOTE}")
-    moves = [
-        estimates[inp.name].center - inp.prior.pose_world.center for inp in inputs if inp.name in estimates
-    ]
-    at_edge = sum(records[inp.name].get("reason") == REASON_AT_EDGE for inp in inputs)
-    outputs["notes"] += prior_offset_notes(np.array(moves), at_edge)
+    found = [inp for inp in inputs if inp.name in estimates]
+    moves = [estimates[inp.name].center - inp.prior.pose_world.center for inp in found]
+    outputs["notes"] += prior_offset_notes(np.array(moves), edge_count(list(records.values()), "z"))
+    yaw_moves = yaw_moves_deg([estimates[inp.name] for inp in found], [inp.prior.pose_world for inp in found])
+    outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(list(records.values()), "yaw"))
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)
