@@ -39,6 +39,17 @@ def test_a_shared_horizontal_offset_is_said_apart_from_the_height():
     moves = np.c_[8.0 + rng.normal(0, 1, 10), -6.0 + rng.normal(0, 1, 10), rng.normal(0, 3, 10)]
     (note,) = prior_offset_notes(moves)
     assert "horizontally" in note and "x +8" in note and "y -6" in note and "--crs" in note
+    assert "--prior-sigma" not in note
+    (edge,) = prior_offset_notes(moves, at_edge=2, at_edge_xy=3)  # refused at the height edge: no z note
+    spread = 1.4826 * float(np.median(np.linalg.norm(moves[:, :2] - np.median(moves[:, :2], axis=0), axis=1)))
+    sigma = math.ceil((abs(float(np.median(moves[:, 0]))) + 2 * spread) / 3)  # x is the larger axis
+    assert (
+        edge.endswith(
+            f"3 photos were refused at the search volume's horizontal edge: run again with "
+            f"--prior-sigma xy={sigma}"
+        )
+        and 3 <= sigma <= 5
+    )
 
 
 def test_independent_priors_and_few_photos_say_nothing():
@@ -92,3 +103,4 @@ def test_yaw_moves_wrap_and_edges_are_counted_per_axis():
         {"status": "not_localized"},
     ]
     assert edge_count(records, "yaw") == 2 and edge_count(records, "z") == 2 and edge_count(records, "x") == 0
+    assert edge_count(records, "z", "yaw") == 3  # a photo at two edges counts once

@@ -91,7 +91,7 @@ OFFSET_SPREAD_RATIO = 2.0  # the median offset at least this many times the phot
 OFFSET_SAME_SIDE = 0.9  # and at least this share of the photos moved to its side
 
 
-def prior_offset_notes(moves: np.ndarray, at_edge: int = 0) -> list[str]:
+def prior_offset_notes(moves: np.ndarray, at_edge: int = 0, at_edge_xy: int = 0) -> list[str]:
     """What the localized photos' moves from their priors (``(n, 3)``: estimate minus prior centre, in the
     model's frame, z up) say about the priors as a whole: a note when they share a height or horizontal
     offset of at least ``OFFSET_NOTE_M`` that stands out of their spread (the robust spread, 1.4826 x the
@@ -102,8 +102,9 @@ def prior_offset_notes(moves: np.ndarray, at_edge: int = 0) -> list[str]:
     scatter gets it in 100 / 99 / 82 % of 10-photo sets. Why: one photo's prior 20 m off in
     height is GNSS noise; a whole flight's is a height reference (geoid, take-off altitude) the user can
     fix, and then the photos refused at the search volume's edge localize too. ``at_edge``: how many
-    photos were refused there; the height note then names the ``--prior-sigma z=`` whose 3 sigma covers
-    the offset and twice the spread, for a run again as it is."""
+    photos were refused at its height edge; the height note then names the ``--prior-sigma z=`` whose 3
+    sigma covers the offset and twice the spread, for a run again as it is. ``at_edge_xy``: the same for
+    the horizontal edges and note (``xy=``, covering the offset's larger axis)."""
     moves = np.asarray(moves, dtype=np.float64).reshape(-1, 3)
     if len(moves) < OFFSET_MIN_PHOTOS:
         return []
@@ -136,6 +137,12 @@ def prior_offset_notes(moves: np.ndarray, at_edge: int = 0) -> list[str]:
             f"the {len(moves)} localized photos sit a median {shift:.1f} m from their priors horizontally "
             f"(x {median_xy[0]:+.1f} m, y {median_xy[1]:+.1f} m in the model's frame; spread {spread_xy:.1f} "
             "m): the priors share a horizontal offset (a wrong --crs or --offset, or a GNSS bias)"
+            + (
+                f"; {at_edge_xy} photos were refused at the search volume's horizontal edge: run again with "
+                f"--prior-sigma xy={math.ceil((float(np.max(np.abs(median_xy))) + 2.0 * spread_xy) / 3.0)}"
+                if at_edge_xy
+                else ""
+            )
         )
     return notes
 
@@ -184,12 +191,12 @@ def prior_yaw_notes(moves_deg: np.ndarray, at_edge: int = 0) -> list[str]:
     ]
 
 
-def edge_count(records: list[dict], axis: str) -> int:
-    """How many photo records were refused at the search volume's edge along ``axis`` (``"z"``,
-    ``"yaw"``; ``search.at_edge`` holds the edges, e.g. ``["z-"]``)."""
+def edge_count(records: list[dict], *axes: str) -> int:
+    """How many photo records were refused at the search volume's edge along any of ``axes`` (``"x"``,
+    ``"y"``, ``"z"``, ``"yaw"``; ``search.at_edge`` holds the edges, e.g. ``["z-"]``)."""
     return sum(
         record.get("reason") == REASON_AT_EDGE
-        and any(edge.rstrip("+-") == axis for edge in (record.get("search") or {}).get("at_edge", []))
+        and any(edge.rstrip("+-") in axes for edge in (record.get("search") or {}).get("at_edge", []))
         for record in records
     )
 
@@ -253,9 +260,10 @@ def write_exports(
         outputs["notes"].append(f"{count}: {APPROXIMATE_INTRINSICS_NOTE}")
     found = [inp for inp in inputs if inp.name in estimates]
     moves = [estimates[inp.name].center - inp.prior.pose_world.center for inp in found]
-    outputs["notes"] += prior_offset_notes(np.array(moves), edge_count(list(records.values()), "z"))
+    done = list(records.values())
+    outputs["notes"] += prior_offset_notes(np.array(moves), edge_count(done, "z"), edge_count(done, "x", "y"))
     yaw_moves = yaw_moves_deg([estimates[inp.name] for inp in found], [inp.prior.pose_world for inp in found])
-    outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(list(records.values()), "yaw"))
+    outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(done, "yaw"))
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)
