@@ -104,6 +104,13 @@ def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
     assert result.reason == REASON_AT_EDGE
     assert result.pose_local is None
     assert "z-" in result.search["at_edge"]
+    # The warning says which edge, how far was searched and what to state: a volume from twice that bound.
+    (said,) = [w for w in result.warnings if "edge at its largest extent" in w]
+    assert "z- edge" in said and "z +-12 m" in said
+    assert said.endswith("--prior-sigma z=8 or correct the prior")
+    again = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=PriorUncertainty(z_m=8.0))
+    assert again.status == LOCALIZED, again.reason
+    assert center_error_m(again.pose_local, true) < 1.0
 
 
 def test_search_volume_follows_the_stated_uncertainty():

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
 
@@ -29,10 +30,10 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.agreement import BuildingAgreement, building_agreement
-from semcityloc.localization.cascade import local_search, search_volume, sweep
+from semcityloc.localization.cascade import SearchVolume, local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
 from semcityloc.localization.confidence import confidence_model, field_of_view_warning
-from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.config import CascadeConfig, LocalizerConfig
 from semcityloc.localization.covariance import (
     PROBES,
     covariance_model,
@@ -238,6 +239,7 @@ class Localizer:
             result.timings["coarse_s"] = time.perf_counter() - t_prep
             result.rejected_pose_local = result.coarse_pose_local
             result.reason = REASON_AT_EDGE
+            result.warnings.append(edge_warning(sw.at_edge, volume, cc))
             return levels[-1]
         seeds = [sw.state(c) for c in sw.top_distinct(cc.sweep.keep, cc.sweep.nms_radius)]
         hyps = local_search(
@@ -466,6 +468,23 @@ def localizer_scene(
     eaves on its pitched roofs (``citymodel.eaves``); build it once to share among Localizers of the
     same eaves. ``terrain_ring``: a tile store's terrain border (``render.scene.build_scene``)."""
     return build_scene(with_eaves(model, config.map_eaves_m), terrain_ring=terrain_ring)
+
+
+def edge_warning(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> str:
+    """What a user should do when the best hypothesis stayed on the search volume's ``edges`` (``["z-"]``)
+    at its largest extension: the ``--prior-sigma`` per axis whose volume starts at twice the bound that
+    was reached (``n_sigma`` sigmas = 2 x the grown half-width), or a corrected prior."""
+    sweep_cfg = config.sweep
+    grown = 1.0 + sweep_cfg.max_extensions * sweep_cfg.extension
+    half = {"xy": volume.half_xy_m, "z": volume.half_z_m, "yaw": volume.half_yaw_deg}
+    axes = dict.fromkeys("xy" if e.rstrip("+-") in ("x", "y") else e.rstrip("+-") for e in edges)
+    sigmas = ",".join(f"{a}={math.ceil(2.0 * grown * half[a] / config.n_sigma)}" for a in axes)
+    reached = ", ".join(f"{a} +-{grown * half[a]:.0f} {'deg' if a == 'yaw' else 'm'}" for a in axes)
+    return (
+        f"the best hypothesis stayed on the search volume's {' '.join(edges)} edge at its largest extent "
+        f"({reached} around the prior): the prior is further off than its stated uncertainty; run again "
+        f"with --prior-sigma {sigmas} or correct the prior"
+    )
 
 
 def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
