@@ -107,7 +107,7 @@ def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
     # The warning says which edge, how far was searched and what to state: a volume from twice that bound.
     (said,) = [w for w in result.warnings if "edge at its largest extent" in w]
     assert "z- edge" in said and "z +-12 m" in said
-    assert said.endswith("--prior-sigma z=8 or correct the prior")
+    assert said.endswith("--prior-sigma z=8 or correct the prior") and result.search["edge_sigma"] == {"z": 8}
     again = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=PriorUncertainty(z_m=8.0))
     assert again.status == LOCALIZED, again.reason
     assert center_error_m(again.pose_local, true) < 1.0

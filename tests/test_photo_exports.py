@@ -11,6 +11,7 @@ import numpy as np
 from semcityloc.benchmark.photo_exports import (
     OFFSET_MIN_PHOTOS,
     edge_count,
+    edge_notes,
     prior_offset_notes,
     prior_yaw_notes,
     yaw_moves_deg,
@@ -104,3 +105,18 @@ def test_yaw_moves_wrap_and_edges_are_counted_per_axis():
     ]
     assert edge_count(records, "yaw") == 2 and edge_count(records, "z") == 2 and edge_count(records, "x") == 0
     assert edge_count(records, "z", "yaw") == 3  # a photo at two edges counts once
+
+
+def test_photos_refused_at_the_edge_get_one_note_with_the_widest_sigma_they_ask_for():
+    records = [
+        {"reason": REASON_AT_EDGE, "search": {"at_edge": ["z-"], "edge_sigma": {"z": 12}}},
+        {"reason": REASON_AT_EDGE, "search": {"at_edge": ["z-", "yaw+"], "edge_sigma": {"z": 40, "yaw": 12}}},
+        {"reason": REASON_AT_EDGE, "search": {"at_edge": ["x+"], "edge_sigma": {"xy": 20}}},
+        {"reason": None, "search": {}},
+    ]
+    (note,) = edge_notes(records)
+    assert note.startswith("3 photos were refused at the search volume's edge (x+: 1, yaw+: 1, z-: 2)")
+    assert "--prior-sigma xy=20,z=40,yaw=12 to cover all of them" in note
+    assert edge_notes(records[3:]) == []
+    (old,) = edge_notes([{"reason": REASON_AT_EDGE, "search": {}}])  # a record without the edges
+    assert "edges not recorded" in old and "--prior-sigma" not in old and old.startswith("1 photo was")

@@ -46,6 +46,7 @@ from semcityloc.geometry.io import read_lens, read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_labels_png
 from semcityloc.localization.focal import estimate_focal_scale
+from semcityloc.localization.result import REASON_AT_EDGE
 from semcityloc.render import Renderer
 from test_benchmark_reference import same
 from test_tiles import _cityjson_box, split_citygml
@@ -104,18 +105,21 @@ def box_flight(tmp_path) -> dict:
 
 def test_a_flight_whose_priors_share_a_yaw_offset_is_told(tmp_path, capsys):
     """Six photos whose priors are all turned 7 deg counter-clockwise (a compass bias; within the default
-    +-9 deg search): they localize, and the run says the priors share a yaw offset, and which way."""
+    +-9 deg search): they localize, and the run says the priors share a yaw offset, and which way. A
+    seventh photo's prior is 40 m too high for the stated 3 m height sigma: refused at the volume's edge,
+    and the run names the --prior-sigma that covers it."""
     root = tmp_path / "flight"
     (root / "images").mkdir(parents=True)
     city = root / "city.obj"
     city.write_text(box_city_obj())
     model = load_city_model(city, cache=False)
     spots = [(5, -4, 90, 20, 30), (-10, 8, 85, 5, -60), (0, 0, 95, 10, 0), (12, 10, 88, 25, 120)]
-    spots += [(-6, -12, 92, 15, 200), (8, 6, 86, 30, -150)]
+    spots += [(-6, -12, 92, 15, 200), (8, 6, 86, 30, -150), (3, -8, 90, 20, 60)]
     queries = []
     for i, (x, y, z, pitch, yaw) in enumerate(spots):
         truth = Pose.from_xyz_rpy([float(x), float(y), float(z)], 0.0, float(pitch), float(yaw))
-        prior = Pose.from_xyz_rpy([x + 2.0, y - 1.5, z + 1.0], 0.0, float(pitch), yaw + 7.0)
+        dz, dyaw = (40.0, 0.0) if i == 6 else (1.0, 7.0)
+        prior = Pose.from_xyz_rpy([x + 2.0, y - 1.5, z + dz], 0.0, float(pitch), yaw + dyaw)
         name = f"Y{i}.JPG"
         queries.append(LodLocQuery(name, "flight", CAM, gt_pose_world=truth, prior_pose_world=prior))
         Image.new("RGB", (CAM.width, CAM.height), (120, 120, 120)).save(root / "images" / name)
@@ -123,13 +127,18 @@ def test_a_flight_whose_priors_share_a_yaw_offset_is_told(tmp_path, capsys):
     write_lodloc_scene(root, queries)
     argv = ["run", root / "images", "--city", city, "--priors", root / "GPS_pose", "--intrinsics"]
     argv += [root / "intrinsic", "--masks", root / "masks", "--truth", root / "GT_pose"]
-    code, stdout, err = run(capsys, *argv, "--out", tmp_path / "out", "--no-overlays")
+    code, stdout, err = run(capsys, *argv, "--prior-sigma", "z=3", "--out", tmp_path / "out", "--no-overlays")
     assert code == 0, err
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert summary["localized"] == len(spots) and summary["recall_2m2deg"] == 100.0
+    assert summary["localized"] == 6 and summary["recall_2m2deg"] == pytest.approx(100 * 6 / 7)
     said = re.search(r"the 6 localized photos are turned a median (\d+\.\d) deg clockwise", stdout + err)
     assert said and 6.0 <= float(said.group(1)) <= 8.0, stdout + err
     assert "share a yaw offset" in stdout + err and "--prior-sigma yaw=" not in stdout + err  # none refused
+    record = json.loads((tmp_path / "out" / "poses" / "Y6.json").read_text())
+    assert record["reason"] == REASON_AT_EDGE and record["search"]["edge_sigma"] == {"z": 12}
+    assert any("--prior-sigma z=12" in w for w in record["warnings"])  # 3 x 12 m = twice the 18 m searched
+    assert "1 photo was refused at the search volume's edge (z-: 1)" in err
+    assert "run again with --prior-sigma z=12 to cover all of them" in err
 
 
 def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path, capsys):

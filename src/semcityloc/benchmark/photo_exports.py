@@ -201,6 +201,28 @@ def edge_count(records: list[dict], *axes: str) -> int:
     )
 
 
+def edge_notes(records: list[dict]) -> list[str]:
+    """One note for the photos refused at the search volume's edge: how many at each edge, and the
+    ``--prior-sigma`` that the most demanding of them asks for per axis (``search.edge_sigma``, what each
+    photo's warning names), so that one run again covers them all."""
+    refused = [r for r in records if r.get("reason") == REASON_AT_EDGE]
+    if not refused:
+        return []
+    edges = Counter(e for r in refused for e in (r.get("search") or {}).get("at_edge", []))
+    sigma: dict[str, int] = {}
+    for record in refused:
+        for axis, value in ((record.get("search") or {}).get("edge_sigma") or {}).items():
+            sigma[axis] = max(sigma.get(axis, 0), int(value))
+    where = ", ".join(f"{e}: {n}" for e, n in sorted(edges.items()))
+    ask = ",".join(f"{a}={sigma[a]}" for a in ("xy", "z", "yaw") if a in sigma)
+    count = f"{len(refused)} {'photo was' if len(refused) == 1 else 'photos were'}"
+    return [
+        f"{count} refused at the search volume's edge ({where or 'edges not recorded'}): "
+        "their priors are further off than stated"
+        + (f"; run again with --prior-sigma {ask} to cover all of them, or correct the priors" if ask else "")
+    ]
+
+
 def focal_notes(inputs: list) -> list[str]:
     """One line per camera whose focal length the flight estimated, or tried to (``calibrate_focal``)."""
     estimates = [inp.focal_estimate for inp in inputs if inp.focal_estimate is not None]
@@ -264,6 +286,7 @@ def write_exports(
     outputs["notes"] += prior_offset_notes(np.array(moves), edge_count(done, "z"), edge_count(done, "x", "y"))
     yaw_moves = yaw_moves_deg([estimates[inp.name] for inp in found], [inp.prior.pose_world for inp in found])
     outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(done, "yaw"))
+    outputs["notes"] += edge_notes(done)
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)

@@ -239,6 +239,7 @@ class Localizer:
             result.timings["coarse_s"] = time.perf_counter() - t_prep
             result.rejected_pose_local = result.coarse_pose_local
             result.reason = REASON_AT_EDGE
+            result.search["edge_sigma"] = edge_sigma(sw.at_edge, volume, cc)
             result.warnings.append(edge_warning(sw.at_edge, volume, cc))
             return levels[-1]
         seeds = [sw.state(c) for c in sw.top_distinct(cc.sweep.keep, cc.sweep.nms_radius)]
@@ -470,20 +471,27 @@ def localizer_scene(
     return build_scene(with_eaves(model, config.map_eaves_m), terrain_ring=terrain_ring)
 
 
-def edge_warning(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> str:
-    """What a user should do when the best hypothesis stayed on the search volume's ``edges`` (``["z-"]``)
-    at its largest extension: the ``--prior-sigma`` per axis whose volume starts at twice the bound that
-    was reached (``n_sigma`` sigmas = 2 x the grown half-width), or a corrected prior."""
-    sweep_cfg = config.sweep
-    grown = 1.0 + sweep_cfg.max_extensions * sweep_cfg.extension
+def edge_sigma(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> dict[str, int]:
+    """The prior sigma per ``--prior-sigma`` key (``xy``, ``z``, ``yaw``) of the ``edges`` (``["z-"]``) the
+    best hypothesis stayed on at the volume's largest extension: the one whose volume starts at twice the
+    bound that was reached (``n_sigma`` sigmas = 2 x the grown half-width)."""
+    grown = 1.0 + config.sweep.max_extensions * config.sweep.extension
     half = {"xy": volume.half_xy_m, "z": volume.half_z_m, "yaw": volume.half_yaw_deg}
     axes = dict.fromkeys("xy" if e.rstrip("+-") in ("x", "y") else e.rstrip("+-") for e in edges)
-    sigmas = ",".join(f"{a}={math.ceil(2.0 * grown * half[a] / config.n_sigma)}" for a in axes)
-    reached = ", ".join(f"{a} +-{grown * half[a]:.0f} {'deg' if a == 'yaw' else 'm'}" for a in axes)
+    return {a: math.ceil(2.0 * grown * half[a] / config.n_sigma) for a in axes}
+
+
+def edge_warning(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> str:
+    """What a user should do when the best hypothesis stayed on the search volume's ``edges``: state the
+    ``edge_sigma``, or correct the prior."""
+    grown = 1.0 + config.sweep.max_extensions * config.sweep.extension
+    half = {"xy": volume.half_xy_m, "z": volume.half_z_m, "yaw": volume.half_yaw_deg}
+    sigma = edge_sigma(edges, volume, config)
+    reached = ", ".join(f"{a} +-{grown * half[a]:.0f} {'deg' if a == 'yaw' else 'm'}" for a in sigma)
     return (
         f"the best hypothesis stayed on the search volume's {' '.join(edges)} edge at its largest extent "
         f"({reached} around the prior): the prior is further off than its stated uncertainty; run again "
-        f"with --prior-sigma {sigmas} or correct the prior"
+        f"with --prior-sigma {','.join(f'{a}={v}' for a, v in sigma.items())} or correct the prior"
     )
 
 
