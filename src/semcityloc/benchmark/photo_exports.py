@@ -191,27 +191,30 @@ def prior_yaw_notes(moves_deg: np.ndarray, at_edge: int = 0) -> list[str]:
     ]
 
 
+def _edge_search(record: dict) -> dict | None:
+    """The ``search`` record of a photo refused at the search volume's edge (``at_edge``: its edges, e.g.
+    ``["z-"]``; ``edge_sigma``: the sigmas its warning names); None for any other photo."""
+    return (record.get("search") or {}) if record.get("reason") == REASON_AT_EDGE else None
+
+
 def edge_count(records: list[dict], *axes: str) -> int:
     """How many photo records were refused at the search volume's edge along any of ``axes`` (``"x"``,
-    ``"y"``, ``"z"``, ``"yaw"``; ``search.at_edge`` holds the edges, e.g. ``["z-"]``)."""
-    return sum(
-        record.get("reason") == REASON_AT_EDGE
-        and any(edge.rstrip("+-") in axes for edge in (record.get("search") or {}).get("at_edge", []))
-        for record in records
-    )
+    ``"y"``, ``"z"``, ``"yaw"``)."""
+    searches = [s for s in map(_edge_search, records) if s is not None]
+    return sum(any(edge.rstrip("+-") in axes for edge in s.get("at_edge", [])) for s in searches)
 
 
 def edge_notes(records: list[dict]) -> list[str]:
     """One note for the photos refused at the search volume's edge: how many at each edge, and the
     ``--prior-sigma`` that the most demanding of them asks for per axis (``search.edge_sigma``, what each
     photo's warning names), so that one run again covers them all."""
-    refused = [r for r in records if r.get("reason") == REASON_AT_EDGE]
+    refused = [s for s in map(_edge_search, records) if s is not None]
     if not refused:
         return []
-    edges = Counter(e for r in refused for e in (r.get("search") or {}).get("at_edge", []))
+    edges = Counter(e for s in refused for e in s.get("at_edge", []))
     sigma: dict[str, int] = {}
-    for record in refused:
-        for axis, value in ((record.get("search") or {}).get("edge_sigma") or {}).items():
+    for search in refused:
+        for axis, value in (search.get("edge_sigma") or {}).items():
             sigma[axis] = max(sigma.get(axis, 0), int(value))
     where = ", ".join(f"{e}: {n}" for e, n in sorted(edges.items()))
     ask = ",".join(f"{a}={sigma[a]}" for a in ("xy", "z", "yaw") if a in sigma)

@@ -471,23 +471,28 @@ def localizer_scene(
     return build_scene(with_eaves(model, config.map_eaves_m), terrain_ring=terrain_ring)
 
 
-def edge_sigma(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> dict[str, int]:
-    """The prior sigma per ``--prior-sigma`` key (``xy``, ``z``, ``yaw``) of the ``edges`` (``["z-"]``) the
-    best hypothesis stayed on at the volume's largest extension: the one whose volume starts at twice the
-    bound that was reached (``n_sigma`` sigmas = 2 x the grown half-width)."""
+def reached_half(volume: SearchVolume, config: CascadeConfig) -> dict[str, float]:
+    """The half-widths per ``--prior-sigma`` key (``xy``, ``z`` m; ``yaw`` deg) of ``volume`` grown by its
+    largest extension: how far from the prior the cascade may search."""
     grown = 1.0 + config.sweep.max_extensions * config.sweep.extension
-    half = {"xy": volume.half_xy_m, "z": volume.half_z_m, "yaw": volume.half_yaw_deg}
+    return {"xy": grown * volume.half_xy_m, "z": grown * volume.half_z_m, "yaw": grown * volume.half_yaw_deg}
+
+
+def edge_sigma(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> dict[str, int]:
+    """The prior sigma per ``--prior-sigma`` key of the ``edges`` (``["z-"]``) the best hypothesis stayed on
+    at the volume's largest extension: the one whose volume starts at twice the bound that was reached
+    (``n_sigma`` sigmas = 2 x ``reached_half``)."""
+    half = reached_half(volume, config)
     axes = dict.fromkeys("xy" if e.rstrip("+-") in ("x", "y") else e.rstrip("+-") for e in edges)
-    return {a: math.ceil(2.0 * grown * half[a] / config.n_sigma) for a in axes}
+    return {a: math.ceil(2.0 * half[a] / config.n_sigma) for a in axes}
 
 
 def edge_warning(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> str:
     """What a user should do when the best hypothesis stayed on the search volume's ``edges``: state the
     ``edge_sigma``, or correct the prior."""
-    grown = 1.0 + config.sweep.max_extensions * config.sweep.extension
-    half = {"xy": volume.half_xy_m, "z": volume.half_z_m, "yaw": volume.half_yaw_deg}
+    half = reached_half(volume, config)
     sigma = edge_sigma(edges, volume, config)
-    reached = ", ".join(f"{a} +-{grown * half[a]:.0f} {'deg' if a == 'yaw' else 'm'}" for a in sigma)
+    reached = ", ".join(f"{a} +-{half[a]:.0f} {'deg' if a == 'yaw' else 'm'}" for a in sigma)
     return (
         f"the best hypothesis stayed on the search volume's {' '.join(edges)} edge at its largest extent "
         f"({reached} around the prior): the prior is further off than its stated uncertainty; run again "
@@ -501,9 +506,7 @@ def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertaint
     if cfg.search == "grid":
         pre = cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0
         return (cfg.coarse.range_xy_m + pre) / 2
-    s = cfg.cascade.sweep
-    half = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade).half_xy_m
-    return half * (1 + s.max_extensions * s.extension)
+    return reached_half(search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade), cfg.cascade)["xy"]
 
 
 def check_camera_and_prior(camera: Camera, prior: Pose) -> None:
