@@ -12,8 +12,10 @@ from semcityloc.benchmark.photo_exports import (
     OFFSET_MIN_PHOTOS,
     edge_count,
     edge_notes,
+    offset_sigma,
     prior_offset_notes,
     prior_yaw_notes,
+    rerun_sigma,
     yaw_moves_deg,
 )
 from semcityloc.geometry.pose import Pose
@@ -120,3 +122,24 @@ def test_photos_refused_at_the_edge_get_one_note_with_the_widest_sigma_they_ask_
     assert edge_notes(records[3:]) == []
     (old,) = edge_notes([{"reason": REASON_AT_EDGE, "search": {}}])  # a record without the edges
     assert "edges not recorded" in old and "--prior-sigma" not in old and old.startswith("1 photo was")
+
+
+def test_the_offset_note_and_the_edge_note_name_one_sigma_for_the_same_refusals():
+    rng = np.random.default_rng(3)
+    moves = np.c_[rng.normal(0, 1, 10), rng.normal(0, 1, 10), -24.0 + rng.normal(0, 1, 10)]
+    yaws = 8.0 + rng.normal(0, 0.5, 10)
+    own = offset_sigma(moves, yaws)
+    assert set(own) == {"z", "yaw"} and 8 <= own["z"] <= 10 and 3 <= own["yaw"] <= 4
+    for warned in (4, 30):  # the refused photos' warnings ask for less, then for more, than the offset
+        records = [
+            {"reason": REASON_AT_EDGE, "search": {"at_edge": ["z-"], "edge_sigma": {"z": warned}}},
+            {"reason": REASON_AT_EDGE, "search": {"at_edge": ["yaw+"], "edge_sigma": {"yaw": 2}}},
+        ]
+        asked = rerun_sigma(records, moves, yaws)
+        assert asked == {"z": max(warned, own["z"]), "yaw": own["yaw"]}
+        (height,) = prior_offset_notes(moves, at_edge=1, asked=asked)
+        (yaw,) = prior_yaw_notes(yaws, at_edge=1, asked=asked)
+        (edge,) = edge_notes(records, asked)
+        assert f"--prior-sigma z={asked['z']})" in height and f"--prior-sigma yaw={asked['yaw']}" in yaw
+        assert f"--prior-sigma z={asked['z']},yaw={asked['yaw']} to cover all of them" in edge
+    assert rerun_sigma([], moves, yaws) == {}  # nothing refused: nothing to run again

@@ -89,9 +89,53 @@ OFFSET_MIN_PHOTOS = 5
 OFFSET_NOTE_M = 5.0  # smaller shared offsets are within what the default prior uncertainty expects
 OFFSET_SPREAD_RATIO = 2.0  # the median offset at least this many times the photos' spread about it
 OFFSET_SAME_SIDE = 0.9  # and at least this share of the photos moved to its side
+# A shared yaw offset: at least the default yaw sigma (``PriorUncertainty``: 3 deg), same rules otherwise.
+OFFSET_NOTE_DEG = 3.0
 
 
-def prior_offset_notes(moves: np.ndarray, at_edge: int = 0, at_edge_xy: int = 0) -> list[str]:
+def shared_height_offset(moves: np.ndarray) -> tuple[float, float] | None:
+    """(median, robust spread) of the photos' height moves (``moves``: ``(n, 3)``, estimate minus prior
+    centre, z up) when they share an offset by the rules of ``prior_offset_notes``; None otherwise."""
+    dz = np.asarray(moves, dtype=np.float64).reshape(-1, 3)[:, 2]
+    if len(dz) < OFFSET_MIN_PHOTOS:
+        return None
+    median = float(np.median(dz))
+    spread = 1.4826 * float(np.median(np.abs(dz - median)))
+    same_side = float(np.mean(np.sign(dz) == np.sign(median)))
+    shared = abs(median) >= max(OFFSET_NOTE_M, OFFSET_SPREAD_RATIO * spread) and same_side >= OFFSET_SAME_SIDE
+    return (median, spread) if shared else None
+
+
+def shared_horizontal_offset(moves: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(median x/y move, robust spread about it) when the photos share a horizontal offset by the rules
+    of ``prior_offset_notes``; None otherwise."""
+    xy = np.asarray(moves, dtype=np.float64).reshape(-1, 3)[:, :2]
+    if len(xy) < OFFSET_MIN_PHOTOS:
+        return None
+    median = np.median(xy, axis=0)
+    spread = 1.4826 * float(np.median(np.linalg.norm(xy - median, axis=1)))
+    shift = float(np.linalg.norm(median))
+    same_side = float(np.mean(xy @ median > 0))
+    shared = shift >= max(OFFSET_NOTE_M, OFFSET_SPREAD_RATIO * spread) and same_side >= OFFSET_SAME_SIDE
+    return (median, spread) if shared else None
+
+
+def offset_sigma(moves: np.ndarray, yaw_moves: np.ndarray) -> dict[str, int]:
+    """Per ``--prior-sigma`` key, the sigma whose 3 sigma covers a shared offset of the priors and twice
+    the photos' spread about it (only the axes with such an offset)."""
+    asked = {}
+    if (height := shared_height_offset(moves)) is not None:
+        asked["z"] = math.ceil((abs(height[0]) + 2.0 * height[1]) / 3.0)
+    if (horizontal := shared_horizontal_offset(moves)) is not None:
+        asked["xy"] = math.ceil((float(np.max(np.abs(horizontal[0]))) + 2.0 * horizontal[1]) / 3.0)
+    if (yaw := shared_yaw_offset(yaw_moves)) is not None:
+        asked["yaw"] = math.ceil((abs(yaw[0]) + 2.0 * yaw[1]) / 3.0)
+    return asked
+
+
+def prior_offset_notes(
+    moves: np.ndarray, at_edge: int = 0, at_edge_xy: int = 0, asked: dict[str, int] | None = None
+) -> list[str]:
     """What the localized photos' moves from their priors (``(n, 3)``: estimate minus prior centre, in the
     model's frame, z up) say about the priors as a whole: a note when they share a height or horizontal
     offset of at least ``OFFSET_NOTE_M`` that stands out of their spread (the robust spread, 1.4826 x the
@@ -102,53 +146,39 @@ def prior_offset_notes(moves: np.ndarray, at_edge: int = 0, at_edge_xy: int = 0)
     scatter gets it in 100 / 99 / 82 % of 10-photo sets. Why: one photo's prior 20 m off in
     height is GNSS noise; a whole flight's is a height reference (geoid, take-off altitude) the user can
     fix, and then the photos refused at the search volume's edge localize too. ``at_edge``: how many
-    photos were refused at its height edge; the height note then names the ``--prior-sigma z=`` whose 3
-    sigma covers the offset and twice the spread, for a run again as it is. ``at_edge_xy``: the same for
-    the horizontal edges and note (``xy=``, covering the offset's larger axis)."""
+    photos were refused at its height edge; the height note then names the ``--prior-sigma z=`` for a run
+    again as it is: ``asked["z"]`` (``rerun_sigma``: the same figure the run's other notes name), else the
+    one whose 3 sigma covers the offset and twice the spread (``offset_sigma``). ``at_edge_xy``: the same
+    for the horizontal edges and note (``xy=``, covering the offset's larger axis)."""
     moves = np.asarray(moves, dtype=np.float64).reshape(-1, 3)
-    if len(moves) < OFFSET_MIN_PHOTOS:
-        return []
+    own = offset_sigma(moves, np.zeros(0))
+    asked = {**own, **(asked or {})}
     notes = []
-    dz = moves[:, 2]
-    median_z = float(np.median(dz))
-    spread_z = 1.4826 * float(np.median(np.abs(dz - median_z)))
-    same_side = float(np.mean(np.sign(dz) == np.sign(median_z)))
-    if abs(median_z) >= max(OFFSET_NOTE_M, OFFSET_SPREAD_RATIO * spread_z) and same_side >= OFFSET_SAME_SIDE:
+    if (height := shared_height_offset(moves)) is not None:
+        median_z, spread_z = height
         notes.append(
             f"the {len(moves)} localized photos sit a median {abs(median_z):.1f} m "
             f"{'below' if median_z < 0 else 'above'} their priors (spread {spread_z:.1f} m): the priors "
             "share a height offset, most often the height reference (geoid, take-off altitude; "
             "docs/your-data.md, sections 2 and 8); photos refused at the search volume's edge may "
             "localize once it is fixed"
-            + (
-                f" ({at_edge} were; or run again with --prior-sigma "
-                f"z={math.ceil((abs(median_z) + 2.0 * spread_z) / 3.0)})"
-                if at_edge
-                else ""
-            )
+            + (f" ({at_edge} were; or run again with --prior-sigma z={asked['z']})" if at_edge else "")
         )
-    xy = moves[:, :2]
-    median_xy = np.median(xy, axis=0)
-    spread_xy = 1.4826 * float(np.median(np.linalg.norm(xy - median_xy, axis=1)))
-    shift = float(np.linalg.norm(median_xy))
-    same_side = float(np.mean(xy @ median_xy > 0))
-    if shift >= max(OFFSET_NOTE_M, OFFSET_SPREAD_RATIO * spread_xy) and same_side >= OFFSET_SAME_SIDE:
+    if (horizontal := shared_horizontal_offset(moves)) is not None:
+        median_xy, spread_xy = horizontal
         notes.append(
-            f"the {len(moves)} localized photos sit a median {shift:.1f} m from their priors horizontally "
-            f"(x {median_xy[0]:+.1f} m, y {median_xy[1]:+.1f} m in the model's frame; spread {spread_xy:.1f} "
-            "m): the priors share a horizontal offset (a wrong --crs or --offset, or a GNSS bias)"
+            f"the {len(moves)} localized photos sit a median {float(np.linalg.norm(median_xy)):.1f} m from "
+            f"their priors horizontally (x {median_xy[0]:+.1f} m, y {median_xy[1]:+.1f} m in the model's "
+            f"frame; spread {spread_xy:.1f} m): the priors share a horizontal offset (a wrong --crs or "
+            "--offset, or a GNSS bias)"
             + (
                 f"; {at_edge_xy} photos were refused at the search volume's horizontal edge: run again with "
-                f"--prior-sigma xy={math.ceil((float(np.max(np.abs(median_xy))) + 2.0 * spread_xy) / 3.0)}"
+                f"--prior-sigma xy={asked['xy']}"
                 if at_edge_xy
                 else ""
             )
         )
     return notes
-
-
-# A shared yaw offset: at least the default yaw sigma (``PriorUncertainty``: 3 deg), same rules otherwise.
-OFFSET_NOTE_DEG = 3.0
 
 
 def yaw_moves_deg(estimates: list[Pose], priors: list[Pose]) -> np.ndarray:
@@ -161,30 +191,43 @@ def yaw_moves_deg(estimates: list[Pose], priors: list[Pose]) -> np.ndarray:
     return (found - prior + 180.0) % 360.0 - 180.0
 
 
-def prior_yaw_notes(moves_deg: np.ndarray, at_edge: int = 0) -> list[str]:
-    """A note when the localized photos' yaw moves from their priors (``yaw_moves_deg``) share an offset
-    of at least ``OFFSET_NOTE_DEG``, by the rules of ``prior_offset_notes`` (``OFFSET_MIN_PHOTOS`` photos,
-    ``OFFSET_SPREAD_RATIO`` times their robust spread, ``OFFSET_SAME_SIDE`` of them turned that way). Why:
-    one photo's compass 5 deg off is noise; a whole flight's is a compass bias, or a heading read from
-    the aircraft (``FlightYawDegree``) where the gimbal's was meant, and the photos it pushed beyond the
-    search volume's yaw edge (``at_edge`` of them) localize with a wider stated yaw uncertainty, which the
-    note then names."""
+def shared_yaw_offset(moves_deg: np.ndarray) -> tuple[float, float] | None:
+    """(median, robust spread) of the photos' yaw moves (``yaw_moves_deg``) when they share an offset of
+    at least ``OFFSET_NOTE_DEG`` by the rules of ``prior_offset_notes``; None otherwise."""
     moves = np.asarray(moves_deg, dtype=np.float64).reshape(-1)
     if len(moves) < OFFSET_MIN_PHOTOS:
-        return []
+        return None
     median = float(np.median(moves))
     spread = 1.4826 * float(np.median(np.abs(moves - median)))
     same_side = float(np.mean(np.sign(moves) == np.sign(median)))
-    if abs(median) < max(OFFSET_NOTE_DEG, OFFSET_SPREAD_RATIO * spread) or same_side < OFFSET_SAME_SIDE:
+    shared = (
+        abs(median) >= max(OFFSET_NOTE_DEG, OFFSET_SPREAD_RATIO * spread) and same_side >= OFFSET_SAME_SIDE
+    )
+    return (median, spread) if shared else None
+
+
+def prior_yaw_notes(
+    moves_deg: np.ndarray, at_edge: int = 0, asked: dict[str, int] | None = None
+) -> list[str]:
+    """A note when the localized photos' yaw moves from their priors (``yaw_moves_deg``) share an offset
+    (``shared_yaw_offset``). Why: one photo's compass 5 deg off is noise; a whole flight's is a compass
+    bias, or a heading read from the aircraft (``FlightYawDegree``) where the gimbal's was meant, and the
+    photos it pushed beyond the search volume's yaw edge (``at_edge`` of them) localize with a wider
+    stated yaw uncertainty, which the note then names: ``asked["yaw"]`` when given (``rerun_sigma``), else
+    the one whose 3 sigma covers the offset and twice the spread."""
+    yaw = shared_yaw_offset(moves_deg)
+    if yaw is None:
         return []
+    median, spread = yaw
+    asked = {**offset_sigma(np.zeros((0, 3)), moves_deg), **(asked or {})}
     return [
-        f"the {len(moves)} localized photos are turned a median {abs(median):.1f} deg "
+        f"the {len(np.ravel(moves_deg))} localized photos are turned a median {abs(median):.1f} deg "
         f"{'counter-clockwise' if median > 0 else 'clockwise'} (seen from above) from their priors' yaw "
         f"(spread {spread:.1f} deg): the priors share a yaw offset, a compass bias or the aircraft's heading "
         "taken for the gimbal's (docs/your-data.md, section 3)"
         + (
             f"; {at_edge} photos were refused at the search volume's yaw edge: run again with --prior-sigma "
-            f"yaw={math.ceil((abs(median) + 2.0 * spread) / 3.0)}"
+            f"yaw={asked['yaw']}"
             if at_edge
             else ""
         )
@@ -204,18 +247,36 @@ def edge_count(records: list[dict], *axes: str) -> int:
     return sum(any(edge.rstrip("+-") in axes for edge in s.get("at_edge", [])) for s in searches)
 
 
-def edge_notes(records: list[dict]) -> list[str]:
+def refused_edge_sigma(records: list[dict]) -> dict[str, int]:
+    """Per ``--prior-sigma`` key, the widest sigma that the photos refused at the search volume's edge ask
+    for (``search.edge_sigma``, what each photo's warning names)."""
+    sigma: dict[str, int] = {}
+    for search in filter(None, map(_edge_search, records)):
+        for axis, value in (search.get("edge_sigma") or {}).items():
+            sigma[axis] = max(sigma.get(axis, 0), int(value))
+    return sigma
+
+
+def rerun_sigma(records: list[dict], moves: np.ndarray, yaw_moves: np.ndarray) -> dict[str, int]:
+    """The one ``--prior-sigma`` that a run's notes name for a run again: per axis on which photos were
+    refused at the search volume's edge, the larger of what their warnings ask for
+    (``refused_edge_sigma``) and what the priors' shared offset asks for (``offset_sigma``). Both notes
+    about the same refusals (the offset's and the edge's) then name the same figure."""
+    edge = refused_edge_sigma(records)
+    offset = offset_sigma(moves, yaw_moves)
+    return {axis: max(value, offset.get(axis, 0)) for axis, value in edge.items()}
+
+
+def edge_notes(records: list[dict], asked: dict[str, int] | None = None) -> list[str]:
     """One note for the photos refused at the search volume's edge: how many at each edge, and the
-    ``--prior-sigma`` that the most demanding of them asks for per axis (``search.edge_sigma``, what each
-    photo's warning names), so that one run again covers them all."""
+    ``--prior-sigma`` that covers them all: per axis the widest their warnings ask for
+    (``refused_edge_sigma``), or ``asked`` (``rerun_sigma``) where that is wider."""
     refused = [s for s in map(_edge_search, records) if s is not None]
     if not refused:
         return []
     edges = Counter(e for s in refused for e in s.get("at_edge", []))
-    sigma: dict[str, int] = {}
-    for search in refused:
-        for axis, value in (search.get("edge_sigma") or {}).items():
-            sigma[axis] = max(sigma.get(axis, 0), int(value))
+    sigma = refused_edge_sigma(records)
+    sigma = {axis: max(value, (asked or {}).get(axis, 0)) for axis, value in sigma.items()}
     where = ", ".join(f"{e}: {n}" for e, n in sorted(edges.items()))
     ask = ",".join(f"{a}={sigma[a]}" for a in ("xy", "z", "yaw") if a in sigma)
     count = f"{len(refused)} {'photo was' if len(refused) == 1 else 'photos were'}"
@@ -286,10 +347,12 @@ def write_exports(
     found = [inp for inp in inputs if inp.name in estimates]
     moves = [estimates[inp.name].center - inp.prior.pose_world.center for inp in found]
     done = list(records.values())
-    outputs["notes"] += prior_offset_notes(np.array(moves), edge_count(done, "z"), edge_count(done, "x", "y"))
     yaw_moves = yaw_moves_deg([estimates[inp.name] for inp in found], [inp.prior.pose_world for inp in found])
-    outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(done, "yaw"))
-    outputs["notes"] += edge_notes(done)
+    asked = rerun_sigma(done, np.array(moves), yaw_moves)  # one figure per axis in every note below
+    z_edge, xy_edge = edge_count(done, "z"), edge_count(done, "x", "y")
+    outputs["notes"] += prior_offset_notes(np.array(moves), z_edge, xy_edge, asked)
+    outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(done, "yaw"), asked)
+    outputs["notes"] += edge_notes(done, asked)
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)
