@@ -17,13 +17,17 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.confidence import (
     CALIBRATED_MIN_HFOV_DEG,
+    CALIBRATED_MIN_SPAN_M,
+    CLOSE_VIEW_WARNING,
     FEATURES_DEPTH,
     NARROW_VIEW_WARNING,
     calibration_error,
+    close_view_warning,
     confidence_model,
     field_of_view_warning,
     fit_logistic,
     risk_coverage,
+    view_span_m,
 )
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
 from semcityloc.localization.localize import Localizer
@@ -213,6 +217,25 @@ def test_a_camera_narrower_than_the_calibration_views_is_warned_about(city, loca
     assert not any(w.startswith(NARROW_VIEW_WARNING) for w in wide.warnings)
     assert field_of_view_warning(CALIBRATED_MIN_HFOV_DEG) is None
     assert field_of_view_warning(CALIBRATED_MIN_HFOV_DEG - 1) is not None
+
+
+def test_a_view_closer_to_the_scene_than_the_calibration_views_is_warned_about(city, localizer, renderer):
+    low = view(city, 10.0, -20.0, 45.0, 0.5, 1.0, 30.0)  # 24 m above the roof under it
+    result = localizer.localize(CAMERA, perturbed(low, [2.0, -1.5, 3.0], dyaw=1.0), *query(renderer, low))
+    seen = renderer.render(CAMERA, result.found_pose_local, depth=True).depth[0]
+    expected = view_span_m(CAMERA.hfov_deg, float(np.mean(seen[np.isfinite(seen)])))
+    span = result.confidence["view_span_m"]
+    assert 0.0 < span < CALIBRATED_MIN_SPAN_M
+    assert span == pytest.approx(expected, rel=0.1)  # the localizer's 128-pixel render, its map's eaves
+    (warning,) = [w for w in result.warnings if w.startswith(CLOSE_VIEW_WARNING)]
+    assert f"spans {span:.0f} m across" in warning
+    high = view(city, *VIEWS["nadir"])
+    usual = localizer.localize(CAMERA, perturbed(high, [2.0, -1.5, 3.0], dyaw=1.0), *query(renderer, high))
+    assert usual.confidence["view_span_m"] > CALIBRATED_MIN_SPAN_M
+    assert not any(w.startswith(CLOSE_VIEW_WARNING) for w in usual.warnings)
+    assert close_view_warning(CALIBRATED_MIN_SPAN_M) is None and close_view_warning(0.0) is None
+    assert close_view_warning(CALIBRATED_MIN_SPAN_M - 1) is not None
+    assert view_span_m(90.0, 10.0) == pytest.approx(20.0) and view_span_m(70.0, 0.0) == 0.0
 
 
 def test_fit_logistic_is_calibrated_on_held_out_data():

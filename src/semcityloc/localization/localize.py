@@ -32,7 +32,12 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.agreement import BuildingAgreement, building_agreement
 from semcityloc.localization.cascade import SearchVolume, local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
-from semcityloc.localization.confidence import confidence_model, field_of_view_warning
+from semcityloc.localization.confidence import (
+    close_view_warning,
+    confidence_model,
+    field_of_view_warning,
+    view_span_m,
+)
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
 from semcityloc.localization.covariance import (
     PROBES,
@@ -157,9 +162,14 @@ class Localizer:
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
             accepted, reason = p >= cfg.min_confidence, REASON_LOW_CONFIDENCE
-            narrow = field_of_view_warning(camera.hfov_deg)
-            if narrow is not None:
-                result.warnings.append(narrow)
+            depth_m = self._mean_depth(fine.camera, result.pose_local)
+            result.confidence["view_span_m"] = view_span_m(camera.hfov_deg, depth_m)
+            for warning in (
+                field_of_view_warning(camera.hfov_deg),
+                close_view_warning(result.confidence["view_span_m"]),
+            ):
+                if warning is not None:
+                    result.warnings.append(warning)
         else:
             accepted, reason = self._accept(result, cfg, with_depth), REASON_LOW_SCORE
         if not accepted:
@@ -330,6 +340,12 @@ class Localizer:
         out = self._render_one(camera, _pose(state), depth=True)
         seen = out.depth[np.isfinite(out.depth)]
         return float(np.median(seen)) if seen.size else 0.0
+
+    def _mean_depth(self, camera: Camera, pose_local: Pose) -> float:
+        """Mean z-depth (m) of the model seen from ``pose_local`` (0 when nothing is seen)."""
+        out = self._render_one(camera, pose_local, depth=True)
+        seen = out.depth[np.isfinite(out.depth)]
+        return float(np.mean(seen)) if seen.size else 0.0
 
     def _probe_curvature(self, levels, state: np.ndarray, cfg: LocalizerConfig, prior) -> np.ndarray | None:
         """The score's curvature at ``state`` (``covariance.py``), probed at the fine level with steps that

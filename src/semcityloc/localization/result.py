@@ -44,7 +44,9 @@ class LocalizationResult:
     with ``refine.covariance_probe_px = 0``); ``score_curvature`` the curvature it came from.
     ``warnings``: what the localizer ignored and why (a depth map dropped as unusable), and what it
     noticed about the map at the found pose (buildings on one side only: ``agreement.py``; the shares are
-    ``confidence["unmapped_building_share"]`` and ``confidence["unseen_building_share"]``).
+    ``confidence["unmapped_building_share"]`` and ``confidence["unseen_building_share"]``), and where the
+    acceptance probability reaches beyond the views it was fitted on (a narrow camera; a close view:
+    ``confidence["view_span_m"]``, ``confidence.close_view_warning``).
     """
 
     status: str
