@@ -162,8 +162,10 @@ class Localizer:
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
             accepted, reason = p >= cfg.min_confidence, REASON_LOW_CONFIDENCE
-            depth_m = self._mean_depth(fine.camera, result.pose_local)
-            result.confidence["view_span_m"] = view_span_m(camera.hfov_deg, depth_m)
+            seen = self._seen_depth(fine.camera, result.pose_local)
+            result.confidence["view_span_m"] = view_span_m(
+                camera.hfov_deg, np.mean(seen) if seen.size else 0.0
+            )
             for warning in (
                 field_of_view_warning(camera.hfov_deg),
                 close_view_warning(result.confidence["view_span_m"]),
@@ -337,15 +339,13 @@ class Localizer:
 
     def _median_depth(self, camera: Camera, state: np.ndarray) -> float:
         """Median z-depth (m) of the model seen from ``state`` (0 when nothing is seen)."""
-        out = self._render_one(camera, _pose(state), depth=True)
-        seen = out.depth[np.isfinite(out.depth)]
+        seen = self._seen_depth(camera, _pose(state))
         return float(np.median(seen)) if seen.size else 0.0
 
-    def _mean_depth(self, camera: Camera, pose_local: Pose) -> float:
-        """Mean z-depth (m) of the model seen from ``pose_local`` (0 when nothing is seen)."""
+    def _seen_depth(self, camera: Camera, pose_local: Pose) -> np.ndarray:
+        """z-depths (m) of the pixels where the model is seen from ``pose_local``."""
         out = self._render_one(camera, pose_local, depth=True)
-        seen = out.depth[np.isfinite(out.depth)]
-        return float(np.mean(seen)) if seen.size else 0.0
+        return out.depth[np.isfinite(out.depth)]
 
     def _probe_curvature(self, levels, state: np.ndarray, cfg: LocalizerConfig, prior) -> np.ndarray | None:
         """The score's curvature at ``state`` (``covariance.py``), probed at the fine level with steps that
