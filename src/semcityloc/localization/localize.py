@@ -164,7 +164,7 @@ class Localizer:
             accepted, reason = p >= cfg.min_confidence, REASON_LOW_CONFIDENCE
             seen = self._seen_depth(fine.camera, result.pose_local)
             result.confidence["view_span_m"] = view_span_m(
-                camera.hfov_deg, np.mean(seen) if seen.size else 0.0
+                camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0
             )
             for warning in (
                 field_of_view_warning(camera.hfov_deg),
