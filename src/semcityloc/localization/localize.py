@@ -29,7 +29,7 @@ from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.agreement import BuildingAgreement, building_agreement
+from semcityloc.localization.agreement import building_agreement
 from semcityloc.localization.cascade import SearchVolume, local_search, search_volume, sweep
 from semcityloc.localization.coarse import coarse_search
 from semcityloc.localization.confidence import (
@@ -150,7 +150,11 @@ class Localizer:
         if result.reason is not None:
             return self._finish(result, result.reason, t0)
 
-        agreement = self._agreement(fine.camera, result.pose_local, fine.labels)
+        found = self._render_one(fine.camera, result.pose_local, depth=True)  # agreement and view span
+        agreement = building_agreement(
+            fine.labels.reshape(fine.camera.height, fine.camera.width),
+            found.labels.reshape(fine.camera.height, fine.camera.width),
+        )
         result.confidence["building_iou"] = agreement.building_iou
         result.confidence["unmapped_building_share"] = agreement.unmapped_share
         result.confidence["unseen_building_share"] = agreement.unseen_share
@@ -162,7 +166,7 @@ class Localizer:
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
             accepted, reason = p >= cfg.min_confidence, REASON_LOW_CONFIDENCE
-            seen = self._seen_depth(fine.camera, result.pose_local)
+            seen = found.depth[np.isfinite(found.depth)]
             result.confidence["view_span_m"] = view_span_m(
                 camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0
             )
@@ -339,13 +343,9 @@ class Localizer:
 
     def _median_depth(self, camera: Camera, state: np.ndarray) -> float:
         """Median z-depth (m) of the model seen from ``state`` (0 when nothing is seen)."""
-        seen = self._seen_depth(camera, _pose(state))
+        out = self._render_one(camera, _pose(state), depth=True)
+        seen = out.depth[np.isfinite(out.depth)]
         return float(np.median(seen)) if seen.size else 0.0
-
-    def _seen_depth(self, camera: Camera, pose_local: Pose) -> np.ndarray:
-        """z-depths (m) of the pixels where the model is seen from ``pose_local``."""
-        out = self._render_one(camera, pose_local, depth=True)
-        return out.depth[np.isfinite(out.depth)]
 
     def _probe_curvature(self, levels, state: np.ndarray, cfg: LocalizerConfig, prior) -> np.ndarray | None:
         """The score's curvature at ``state`` (``covariance.py``), probed at the fine level with steps that
@@ -471,11 +471,6 @@ class Localizer:
     def _render_one(self, camera: Camera, pose_local: Pose, depth: bool = False):
         """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
         return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)
-
-    def _agreement(self, camera: Camera, pose_local: Pose, query_flat: np.ndarray) -> BuildingAgreement:
-        """How the buildings rendered at one pose agree with the query's (``agreement.py``)."""
-        labels = self.render_labels(camera, pose_local)
-        return building_agreement(query_flat.reshape(camera.height, camera.width), labels)
 
 
 def localizer_scene(
