@@ -117,6 +117,28 @@ def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
     assert center_error_m(again.pose_local, true) < 1.0
 
 
+def test_the_search_stays_above_the_ground(city, localizer, renderer):
+    """A GNSS height 25 m low puts a camera flying 30 m up below the ground: the sweep scores no camera
+    centre under the volume's floor (``min_clearance_m`` above the lowest ground near the prior), the
+    floor is not an edge to grow through, and the view is found above it."""
+    true = view(city, 10.0, -20.0, 30.0, 0.5, 1.0, 30.0)
+    prior = perturbed(true, [2.0, -1.5, -25.0], dyaw=1.0)
+    labels, depth = query(renderer, true)
+    result = localizer.localize(CAMERA, prior, labels, depth)
+    floor = result.search["volume"]["floor_z"]
+    ground = localizer.ground_below(prior.to_xyz_rpy(), PriorUncertainty(), localizer.config)
+    assert floor == pytest.approx(ground + CascadeConfig().min_clearance_m)
+    assert prior.center[2] < floor < true.center[2]
+    assert result.cost_volume.z_values.min() >= floor - 1e-6  # no camera centre below the floor was scored
+    assert not any(e.startswith("z-") for e in result.search["extensions"] + result.search["at_edge"])
+    assert result.status == LOCALIZED, result.reason
+    assert center_error_m(result.pose_local, true) < 1.0
+    # Without a floor the same sweep scores camera centres metres under the ground.
+    open_cfg = replace(localizer.config, cascade=replace(localizer.config.cascade, min_clearance_m=-1e6))
+    below = localizer.localize(CAMERA, prior, labels, depth, config=open_cfg)
+    assert below.cost_volume.z_values.min() < ground
+
+
 def test_search_volume_follows_the_stated_uncertainty():
     cfg = CascadeConfig()
     state = np.array([1.0, 2.0, 3.0, 0.0, 0.0, 10.0])

@@ -131,6 +131,19 @@ def test_prior_far_outside_the_model_is_not_localized(city, localizer, renderer)
     assert result.status == NOT_LOCALIZED and result.reason == REASON_NO_GEOMETRY
 
 
+def test_a_prior_near_the_ground_looks_for_buildings_from_the_highest_camera(city, localizer, renderer):
+    """A GNSS height far too low (2 m above the ground, 45 m beyond the district's edge) sees a few metres
+    around itself; the camera the search may find higher up sees the buildings, so the search runs
+    instead of a "no model geometry" refusal."""
+    labels = renderer.render(CAMERA, view(city, *CASES["nadir"][0])).labels[0]
+    lo, hi = city.bounds_local
+    low = Pose.from_xyz_rpy([hi[0] + 45.0, 0.5 * (lo[1] + hi[1]), lo[2] + 2.0], 0.0, 0.0, 0.0)
+    result = localizer.localize(CAMERA, low, labels)
+    assert result.reason != REASON_NO_GEOMETRY and result.counts["coarse_hypotheses"] > 0
+    narrow = localizer.localize(CAMERA, low, labels, prior_uncertainty=PriorUncertainty.parse("z=0.5"))
+    assert narrow.reason == REASON_NO_GEOMETRY  # a camera held near the ground there sees none
+
+
 def test_ablation_switches(city, localizer, renderer):
     true = view(city, *CASES["oblique"][0])
     prior = perturbed(true, np.array([3.0, -2.0, 1.0]), 0, 0, 2.0)

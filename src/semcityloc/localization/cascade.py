@@ -5,12 +5,16 @@ Why: a real GNSS prior can be 30 m off in height and a gimbal 2-3 deg off in rol
 sized for a smaller error gives a confident wrong pose at its edge. So:
 
 1. **Volume** (``search_volume``): centred on the prior, half-widths ``n_sigma`` x the stated sigma
-   (``PriorUncertainty``), floored so that an RTK prior still leaves room for the map's own errors.
+   (``PriorUncertainty``), floored so that an RTK prior still leaves room for the map's own errors. The
+   volume stops ``CascadeConfig.min_clearance_m`` above the lowest ground near the prior (``floor_z``): a
+   GNSS height 25 m low puts a camera flying 23 m up underground, and a camera under the terrain sees a
+   ground-only view that can outscore a low flight's true one.
 2. **Sweep** (``sweep``): the volume's lattice (steps ``SweepConfig.step_*``, grown when it would need
    more than ``max_centres`` camera centres) scored at a low resolution, one wide render per centre and
    every yaw read through a lookup table (``coarse.score_rotations``). If the best cell lies on the
-   volume's edge, the volume grows in that direction (bounded) and only the new cells are scored; still
-   on the edge at the bound -> ``at_edge`` (the localizer refuses: a pose at the edge of what was
+   volume's edge, the volume grows in that direction (bounded, never below the floor) and only the new
+   cells are scored; a best cell on the floor is not on an edge (nothing lies below it); still on the edge
+   at the bound -> ``at_edge`` (the localizer refuses: a pose at the edge of what was
    searched is not a pose that was found).
 3. **Local** (``local_search``): around the sweep's best distinct cells (greedy non-maximum suppression
    on the lattice), a small grid at a finer resolution that also samples roll and pitch (one wide render
@@ -40,27 +44,37 @@ AXES = ("x", "y", "z", "yaw")
 @dataclass(frozen=True)
 class SearchVolume:
     """A box around ``centre`` (6-vector state): half-widths in x/y (m), z (m), yaw (deg); roll and
-    pitch are not swept but sampled locally within ``half_roll_pitch_deg``."""
+    pitch are not swept but sampled locally within ``half_roll_pitch_deg``. No camera centre below
+    ``floor_z`` (local frame, m; -inf: no floor)."""
 
     centre: np.ndarray
     half_xy_m: float
     half_z_m: float
     half_yaw_deg: float
     half_roll_pitch_deg: float
+    floor_z: float = -math.inf
 
     def as_dict(self) -> dict:
-        return {
+        out = {
             "half_xy_m": self.half_xy_m,
             "half_z_m": self.half_z_m,
             "half_yaw_deg": self.half_yaw_deg,
             "half_roll_pitch_deg": self.half_roll_pitch_deg,
         }
+        if math.isfinite(self.floor_z):
+            out["floor_z"] = self.floor_z
+        return out
 
 
 def search_volume(
-    prior_state: np.ndarray, uncertainty: PriorUncertainty, config: CascadeConfig
+    prior_state: np.ndarray,
+    uncertainty: PriorUncertainty,
+    config: CascadeConfig,
+    ground_z: float = -math.inf,
 ) -> SearchVolume:
-    """The volume the cascade searches for a prior with this uncertainty (module docstring, step 1)."""
+    """The volume the cascade searches for a prior with this uncertainty (module docstring, step 1).
+    ``ground_z``: the lowest ground near the prior (local frame); the volume's floor lies
+    ``config.min_clearance_m`` above it."""
     k = config.n_sigma
     return SearchVolume(
         centre=np.asarray(prior_state, dtype=np.float64).copy(),
@@ -68,6 +82,7 @@ def search_volume(
         half_z_m=max(k * uncertainty.z_m, config.min_half_z_m),
         half_yaw_deg=max(k * uncertainty.yaw_deg, config.min_half_yaw_deg),
         half_roll_pitch_deg=k * uncertainty.roll_pitch_deg,
+        floor_z=float(ground_z) + config.min_clearance_m,
     )
 
 
@@ -83,6 +98,7 @@ class Sweep:
     scores: np.ndarray  # (nx, ny, nz, nyaw)
     roll: float
     pitch: float
+    floor_index: float = -math.inf  # lowest z lattice index at or above the volume's floor
     extensions: list[str] = field(default_factory=list)  # e.g. ["z-", "x+"]
     at_edge: list[str] = field(default_factory=list)  # edges the best cell still sits on at the bound
     hypotheses: int = 0  # cells scored (the lattice plus any extension)
@@ -181,13 +197,20 @@ def sweep(
     scorer = _SweepScorer(scene, camera, query_labels, class_on, origin, step, float(c[3]), float(c[4]))
     lo, hi = -n.copy(), n.copy()
     bound = n + np.ceil(config.max_extensions * config.extension * n).astype(int)
+    lower = -bound.copy()  # lowest index an extension may reach, per axis
+    floor_index = -math.inf
+    if math.isfinite(volume.floor_z):
+        floor_index = int(math.ceil((volume.floor_z - c[2]) / step[2] - 1e-9))
+        lo[2] = max(lo[2], floor_index)
+        hi[2] = max(hi[2], lo[2])  # a prior further underground than its volume reaches: the floor's layer
+        lower[2] = max(lower[2], floor_index)
     scores = scorer.score(*(np.arange(lo[a], hi[a] + 1) for a in range(4)))
-    result = Sweep(origin, step, lo, hi, scores, float(c[3]), float(c[4]))
+    result = Sweep(origin, step, lo, hi, scores, float(c[3]), float(c[4]), floor_index=floor_index)
     for _ in range(config.max_extensions + 1):
         edges = _edges(result)
         if not edges:
             break
-        grow = [(a, sgn) for a, sgn in edges if (hi[a] < bound[a] if sgn > 0 else lo[a] > -bound[a])]
+        grow = [(a, sgn) for a, sgn in edges if (hi[a] < bound[a] if sgn > 0 else lo[a] > lower[a])]
         if not grow:
             result.at_edge = [f"{AXES[a]}{'+' if s > 0 else '-'}" for a, s in edges]
             break
@@ -196,7 +219,7 @@ def sweep(
             if sgn > 0:
                 new = np.arange(hi[a] + 1, min(hi[a] + amount, bound[a]) + 1)
             else:
-                new = np.arange(max(lo[a] - amount, -bound[a]), lo[a])
+                new = np.arange(max(lo[a] - amount, lower[a]), lo[a])
             ranges = [np.arange(lo[b], hi[b] + 1) for b in range(4)]
             ranges[a] = new
             block = scorer.score(*ranges)
@@ -218,7 +241,8 @@ def sweep(
 
 
 def _edges(sw: Sweep) -> list[tuple[int, int]]:
-    """(axis, +1/-1) of every volume face the best cell lies on (axes with a single sample excluded)."""
+    """(axis, +1/-1) of every volume face the best cell lies on (axes with a single sample excluded; the
+    floor is not a face: no camera lies below it)."""
     best = sw.best()
     out = []
     for a in range(4):
@@ -226,6 +250,8 @@ def _edges(sw: Sweep) -> list[tuple[int, int]]:
         if size < 3:
             continue
         if best[a] == 0:
+            if a == 2 and sw.lo[2] <= sw.floor_index:
+                continue
             out.append((a, -1))
         elif best[a] == size - 1:
             out.append((a, +1))

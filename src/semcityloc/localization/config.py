@@ -103,6 +103,9 @@ class CascadeConfig:
     min_half_xy_m: float = 3.0
     min_half_z_m: float = 3.0
     min_half_yaw_deg: float = 3.0
+    # The volume's floor: no camera centre lower than this above the lowest ground near the prior
+    # (``cascade.search_volume``); -inf in ``ground_z`` (a model without buildings) leaves it open.
+    min_clearance_m: float = 5.0
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from semcityloc.citymodel.eaves import with_eaves
+from semcityloc.citymodel.ground import base_points
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass
 from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
@@ -72,6 +73,9 @@ from semcityloc.render.scene import RenderScene, build_scene
 # Rays that do not meet the ground plane within this distance are cut here when the view's footprint is
 # estimated for the "model geometry in the search volume" check.
 MAX_VIEW_RANGE_M = 1500.0
+# How far beyond the search's reach footprints count for the ground under it (the terrain between
+# footprints runs through the nearest ones).
+GROUND_MARGIN_M = 20.0
 
 
 class Localizer:
@@ -99,6 +103,7 @@ class Localizer:
         corners = model.vertices[model.triangles[building]].astype(np.float64)
         self._building_xy = corners.mean(1)[:, :2]
         self._ground_z = float(np.median(corners[:, :, 2].min(1))) if len(corners) else 0.0
+        self._base = base_points(model)  # the footprints' bottom points, through which the terrain runs
 
     # ------------------------------------------------------------------ public
     def localize(
@@ -237,7 +242,7 @@ class Localizer:
             result.timings["coarse_s"] = 0.0
             self._refine(result, levels, prior_state[None, :], cfg, sigma, prior=prior)
             return levels[-1]
-        volume = search_volume(prior_state, unc, cc)
+        volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
         sweep_cam = _scaled(camera, cc.sweep.width)
         q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
         sw = sweep(self.scene, sweep_cam, volume, q_sweep, self.class_on, cc.sweep)
@@ -439,10 +444,22 @@ class Localizer:
                     f"({shape[1]}x{shape[0]})"
                 )
 
+    def ground_below(self, prior_state: np.ndarray, unc: PriorUncertainty, cfg: LocalizerConfig) -> float:
+        """The lowest ground (local frame, m) under the area the search may move the camera over: the
+        lowest footprint bottom within the reached half-width (+ ``GROUND_MARGIN_M``) of the prior's x, y,
+        else the model's lowest; -inf for a model without buildings (no floor)."""
+        if not len(self._base):
+            return -math.inf
+        half = reached_half(search_volume(prior_state, unc, cfg.cascade), cfg.cascade)["xy"] + GROUND_MARGIN_M
+        near = np.all(np.abs(self._base[:, :2] - np.asarray(prior_state[:2])) <= half, axis=1)
+        return float(self._base[near, 2].min() if near.any() else self._base[:, 2].min())
+
     def _geometry_near(
         self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
     ) -> bool:
-        """Does any building lie where the prior's view, widened by the search range, could see it?"""
+        """Does any building lie where the prior's view, widened by the search range, could see it? The
+        view is cast from the highest camera the search reaches (a prior metres above the ground sees a
+        few metres of it; the camera the search may find higher up sees more)."""
         if not len(self._building_xy):
             return False
         corners_uv = np.array(
@@ -456,7 +473,10 @@ class Localizer:
             dtype=np.float64,
         )
         rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv).T  # (3, 5)
-        centre = prior_local.center
+        centre = prior_local.center.copy()
+        if cfg.search == "cascade":
+            volume = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade)
+            centre[2] += reached_half(volume, cfg.cascade)["z"]
         dz = self._ground_z - centre[2]
         with np.errstate(divide="ignore", invalid="ignore"):
             s = np.where(rays[2] * dz > 0, dz / rays[2], np.inf)
