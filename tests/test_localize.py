@@ -11,6 +11,7 @@ from scipy import ndimage
 from helpers import CAMERA, perturbed, view
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
 from semcityloc.errors import ParameterError, PoseError, ShapeError
+from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -142,6 +143,18 @@ def test_a_prior_near_the_ground_looks_for_buildings_from_the_highest_camera(cit
     assert result.reason != REASON_NO_GEOMETRY and result.counts["coarse_hypotheses"] > 0
     narrow = localizer.localize(CAMERA, low, labels, prior_uncertainty=PriorUncertainty.parse("z=0.5"))
     assert narrow.reason == REASON_NO_GEOMETRY  # a camera held near the ground there sees none
+
+
+@pytest.mark.parametrize("size", [(512, 384), (640, 360), (384, 512), (1200, 300), (640, 512)])
+def test_each_search_level_scores_as_many_pixels_whatever_the_aspect(localizer, size):
+    """A level's width x height is a pixel budget: a 16:9 or portrait camera is not scored on a thinner or
+    taller strip than the 4:3 views the search was tuned on (exact for 4:3)."""
+    camera = Camera.from_fov(*size, 70.0)
+    fine = localizer.fine_camera(camera)
+    assert abs(fine.width * fine.height / (128 * 96) - 1) < 0.03
+    assert fine.width / fine.height == pytest.approx(size[0] / size[1], rel=0.03)
+    if size == (512, 384):
+        assert (fine.width, fine.height) == (128, 96)
 
 
 def test_ablation_switches(city, localizer, renderer):

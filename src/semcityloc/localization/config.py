@@ -54,7 +54,9 @@ class CoarseConfig:
 class SweepConfig:
     """Stage 1 of the cascade: a lattice over the whole search volume at a low resolution. Steps are the
     lattice spacing; when the volume needs more than ``max_centres`` camera centres, the xy and z steps
-    grow together so that it does not (time stays bounded however wide the prior)."""
+    grow together so that it does not (time stays bounded however wide the prior). ``width`` x ``height``:
+    the pixel budget of its renders, exact for a 4:3 camera; another aspect gets as many pixels in its own
+    shape (``localize._scaled``)."""
 
     width: int = 32
     height: int = 24
@@ -78,7 +80,9 @@ class SweepConfig:
 @dataclass(frozen=True)
 class LocalConfig:
     """Stage 2 of the cascade: around each kept sweep cell, a small grid at a finer resolution that
-    also samples roll and pitch. Offsets span +-half a sweep step in x, y, z and +-1 sweep step in yaw."""
+    also samples roll and pitch. Offsets span +-half a sweep step in x, y, z and +-1 sweep step in yaw.
+    ``width`` x ``height``: its pixel budget (as the sweep's); the refinement scores at ``RefineConfig.scale``
+    times it."""
 
     width: int = 64
     height: int = 48

@@ -230,7 +230,7 @@ class Localizer:
         """The default: sweep, local grids with roll/pitch, one particle filter over the best distinct
         hypotheses, a polish."""
         cc = cfg.cascade
-        local_cam = _scaled(camera, cc.local.width)
+        local_cam = _scaled(camera, cc.local.width, cc.local.height)
         fine_cam = self.fine_camera(camera, cfg)
         q_local, d_local = query.at(local_cam.width, local_cam.height)
         q_fine, d_fine = query.at(fine_cam.width, fine_cam.height)
@@ -243,7 +243,7 @@ class Localizer:
             self._refine(result, levels, prior_state[None, :], cfg, sigma, prior=prior)
             return levels[-1]
         volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
-        sweep_cam = _scaled(camera, cc.sweep.width)
+        sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
         q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
         sw = sweep(self.scene, sweep_cam, volume, q_sweep, self.class_on, cc.sweep)
         result.search.update(
@@ -398,8 +398,9 @@ class Localizer:
         """``camera`` at the refinement's final resolution: where the final scores, the building IoU and
         the outdated-map warnings of a result are computed."""
         cfg = config or self.config
-        width = cfg.cascade.local.width if cfg.search == "cascade" else cfg.coarse.width
-        return _scaled(camera, width).scale(cfg.refine.scale)
+        if cfg.search == "cascade":
+            return _scaled(camera, cfg.cascade.local.width, cfg.cascade.local.height).scale(cfg.refine.scale)
+        return _scaled(camera, cfg.coarse.width).scale(cfg.refine.scale)
 
     def render_labels(self, camera: Camera, pose_local: Pose) -> np.ndarray:
         """(H, W) class ids of the map as this localizer searches it (``localizer_scene``: with its eaves)
@@ -571,9 +572,15 @@ def _pose(state: np.ndarray) -> Pose:
     return Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
 
 
-def _scaled(camera: Camera, width: int) -> Camera:
-    """``camera`` at ``width`` pixels across, the height following its aspect."""
-    return camera.scaled(width, max(1, round(width * camera.height / camera.width)))
+def _scaled(camera: Camera, width: int, height: int | None = None) -> Camera:
+    """``camera`` at about ``width`` x ``height`` pixels in all, in its own aspect: a cascade level's size
+    (given for 4:3, where it is exact) is a pixel budget, so a 16:9 or a portrait image is scored on as
+    many pixels as the 4:3 views the search was tuned on, not on a thinner or a taller strip. Without
+    ``height``: ``width`` pixels across, the height following the aspect (the first design's grid, kept
+    as it was)."""
+    aspect = camera.width / camera.height
+    w = width if height is None else max(1, round(math.sqrt(width * height * aspect)))
+    return camera.scaled(w, max(1, round(w / aspect)))
 
 
 def localize(
