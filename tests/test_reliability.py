@@ -39,7 +39,12 @@ from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.io.images import check_aspect_of_photo, exif_orientation, read_mask_file, save_labels_png
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
-from semcityloc.localization.query import depth_problem, usable_depth
+from semcityloc.localization.query import (
+    depth_problem,
+    depth_rank_correlation,
+    inverted_depth_warning,
+    usable_depth,
+)
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
 from test_cityjson import box_doc, write
@@ -189,6 +194,37 @@ def test_unusable_depth_is_dropped_with_a_warning_and_semantics_decide(nadir, na
     np.testing.assert_array_equal(result.pose_local.t, semantic_only.pose_local.t)  # the semantics-only pose
     assert center_error_m(result.pose_local, true) < 0.5
     assert result.to_dict(np.zeros(3))["warnings"] == result.warnings
+
+
+@pytest.mark.parametrize("inverse", ["disparity", "negated"])
+def test_depth_that_runs_backwards_is_dropped_with_a_warning_naming_it(nadir, inverse):
+    """A network's disparity (larger = nearer) handed over as depth: the depth cost cannot fit it at any
+    pose, so it only lowered the confidence, silently. It is told from the map at the best hypothesis,
+    dropped, and the result is the semantics-only one with the same probability."""
+    localizer, true, prior, labels, depth, semantic_only = nadir
+    backwards = 1000.0 / depth if inverse == "disparity" else 500.0 - depth
+    result = localizer.localize(CAMERA, prior, labels, backwards)
+    (warning,) = result.warnings
+    assert (
+        warning.startswith("depth map dropped: it runs backwards against the map")
+        and "1 / disparity" in warning
+    )
+    assert result.status == LOCALIZED == semantic_only.status, result.reason
+    np.testing.assert_array_equal(result.pose_local.t, semantic_only.pose_local.t)
+    assert result.confidence["probability"] == pytest.approx(semantic_only.confidence["probability"])
+    kept = localizer.localize(CAMERA, prior, labels, 0.5 * depth + 7.0)  # depth the right way round is used
+    assert not kept.warnings and kept.depth_cost > 0.0
+
+
+def test_depth_rank_correlation_of_depth_and_disparity():
+    rng = np.random.default_rng(1)
+    depth = rng.uniform(20.0, 120.0, (30, 40))
+    assert depth_rank_correlation(0.3 * depth + 2.0, depth) == pytest.approx(1.0)
+    assert depth_rank_correlation(1.0 / depth, depth) == pytest.approx(-1.0)
+    assert inverted_depth_warning(-1.0) is not None and inverted_depth_warning(0.2) is None
+    few = np.full((30, 40), np.nan)
+    few[0, :10] = depth[0, :10]
+    assert np.isnan(depth_rank_correlation(few, depth)) and inverted_depth_warning(float("nan")) is None
 
 
 def test_noise_depth_with_nan_rows_never_gives_a_confident_wrong_pose(nadir):

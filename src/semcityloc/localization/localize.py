@@ -47,7 +47,12 @@ from semcityloc.localization.covariance import (
     probe_steps,
     score_curvature,
 )
-from semcityloc.localization.query import Query, usable_depth
+from semcityloc.localization.query import (
+    Query,
+    depth_rank_correlation,
+    inverted_depth_warning,
+    usable_depth,
+)
 from semcityloc.localization.refine import (
     PriorTerm,
     ScoringLevel,
@@ -166,7 +171,7 @@ class Localizer:
         result.warnings.extend(agreement.warnings())
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
-        with_depth = query.depth is not None
+        with_depth = fine.depth is not None
         if cfg.acceptance == "calibrated":
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
@@ -268,6 +273,12 @@ class Localizer:
             self.scene, local_cam, seeds, sw.step, unc.roll_pitch_deg, q_local, self.class_on, cc.local
         )
         result.coarse_pose_local = _pose(hyps.states[0])
+        if d_local is not None:  # depth that runs against the map (a disparity map) is dropped, and said so
+            seen = self._render_one(local_cam, result.coarse_pose_local, depth=True).depth
+            warning = inverted_depth_warning(depth_rank_correlation(d_local, seen))
+            if warning is not None:
+                result.warnings.append(warning)
+                levels = [ScoringLevel(level.camera, level.labels, None) for level in levels]
         result.counts["coarse_hypotheses"] = sw.hypotheses + hyps.evaluated
         result.timings["coarse_s"] = time.perf_counter() - t_prep
         result.hypotheses = [

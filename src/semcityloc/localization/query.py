@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import rankdata
 
 from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
 from semcityloc.errors import ShapeError
@@ -166,6 +167,43 @@ DEPTH_BLOCK_MIN_VALID = 0.25  # share of valid pixels a block needs to be judged
 DEPTH_BLOCK_REFERENCE = 10.0  # percentile of the blocks' relative steps taken as the smooth surfaces' step
 DEPTH_MAX_BLOCK_STEP = 3.0
 SEMANTICS_ALONE = "; localized on the semantic mask alone"  # the end of a warning that dropped the whole map
+
+# Depth that runs backwards: many monocular networks (Depth Anything, MiDaS) output relative DISPARITY
+# (inverse depth, larger = nearer), which the depth cost cannot fit (its scale comes out negative at every
+# pose, so depth then only lowers the confidence). Told from the map: the rank correlation of the query's
+# depth with the map's depth seen from the search's best hypothesis. Realistic depth at the hypotheses of
+# the calibration cities' views correlates positively; a correlation below this says the map runs the
+# other way.
+DEPTH_INVERTED_RANK_CORRELATION = -0.3
+DEPTH_INVERTED_MIN_PIXELS = 50
+
+
+def depth_rank_correlation(query_depth: np.ndarray, map_depth: np.ndarray) -> float:
+    """Spearman rank correlation of two same-shaped depth maps over the pixels valid in both (finite,
+    > 0); NaN with fewer than ``DEPTH_INVERTED_MIN_PIXELS`` such pixels or no spread."""
+    q = np.asarray(query_depth, dtype=np.float64).reshape(-1)
+    m = np.asarray(map_depth, dtype=np.float64).reshape(-1)
+    if q.shape != m.shape:
+        raise ValueError(f"depth maps of {q.size} and {m.size} pixels")  # internal invariant
+    both = np.isfinite(q) & (q > 0) & np.isfinite(m) & (m > 0)
+    if both.sum() < DEPTH_INVERTED_MIN_PIXELS:
+        return float("nan")
+    rq, rm = rankdata(q[both]), rankdata(m[both])
+    if rq.std() == 0 or rm.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(rq, rm)[0, 1])
+
+
+def inverted_depth_warning(rank_correlation: float) -> str | None:
+    """The warning for a query depth that runs against the map's (``DEPTH_INVERTED_RANK_CORRELATION``),
+    else None."""
+    if not rank_correlation < DEPTH_INVERTED_RANK_CORRELATION:
+        return None
+    return (
+        f"depth map dropped: it runs backwards against the map (rank correlation {rank_correlation:+.2f} "
+        "at the best hypothesis: larger values nearer, a disparity or inverse-depth map?); give depth that "
+        f"grows with distance (for a network's disparity, 1 / disparity){SEMANTICS_ALONE}"
+    )
 
 
 @dataclass(frozen=True)
