@@ -171,9 +171,9 @@ SEMANTICS_ALONE = "; localized on the semantic mask alone"  # the end of a warni
 # Depth that runs backwards: many monocular networks (Depth Anything, MiDaS) output relative DISPARITY
 # (inverse depth, larger = nearer), which the depth cost cannot fit (its scale comes out negative at every
 # pose, so depth then only lowers the confidence). Told from the map: the rank correlation of the query's
-# depth with the map's depth seen from the search's best hypothesis. Realistic depth at the hypotheses of
-# the calibration cities' views correlates positively; a correlation below this says the map runs the
-# other way.
+# depth with the map's depth seen from the search's best hypothesis; below this the query runs the other
+# way (set before measuring; no realistic depth of the calibration cities' 800 views, flown 40-150 m,
+# 15-30 m, or with a 34 deg camera, fell below it: their poses were unchanged by the check, stop 37).
 DEPTH_INVERTED_RANK_CORRELATION = -0.3
 DEPTH_INVERTED_MIN_PIXELS = 50
 
