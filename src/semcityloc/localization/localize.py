@@ -273,6 +273,7 @@ class Localizer:
             self.scene, local_cam, seeds, sw.step, unc.roll_pitch_deg, q_local, self.class_on, cc.local
         )
         result.coarse_pose_local = _pose(hyps.states[0])
+        seen = None  # the map's depth from the best hypothesis at the local level, when rendered
         if d_local is not None:  # depth that runs against the map (a disparity map) is dropped, and said so
             seen = self._render_one(local_cam, result.coarse_pose_local, depth=True).depth
             warning = inverted_depth_warning(depth_rank_correlation(d_local, seen))
@@ -288,12 +289,15 @@ class Localizer:
         result.confidence["hypothesis_margin"] = (
             float(hyps.scores[0] - hyps.scores[1]) if len(hyps.scores) > 1 else float("nan")
         )
-        self._refine(result, levels, hyps.states, cfg, sigma, prior=prior)
+        self._refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
         return levels[-1]
 
-    def _refine(self, result, levels, seeds: np.ndarray, cfg: LocalizerConfig, sigma, prior=None) -> None:
+    def _refine(
+        self, result, levels, seeds: np.ndarray, cfg: LocalizerConfig, sigma, prior=None, seed_depth=None
+    ) -> None:
         """One particle filter seeded by ``seeds`` ((k, 6), best first); ``no_refine`` keeps the first
-        seed, scored at the fine resolution."""
+        seed, scored at the fine resolution. ``seed_depth``: the map's depth seen from the first seed at
+        ``levels[0]``, when the caller rendered it already (the pivot reuses it)."""
         t0 = time.perf_counter()
         fine = levels[-1]
         if cfg.no_refine:
@@ -302,7 +306,7 @@ class Localizer:
             result.score, result.semantic, result.depth_cost = float(score[0]), float(sem[0]), float(dep[0])
         else:
             if cfg.refine.pivot == "both":  # the same first seed for every restart: one pivot render
-                sigma = self._about_pivot(levels[0].camera, seeds[0], sigma)
+                sigma = self._about_pivot(levels[0].camera, seeds[0], sigma, seed_depth)
             restarts = range(cfg.refine.restarts)
             runs = [self._filter_and_polish(levels, seeds, cfg, sigma, prior, r) for r in restarts]
             best = max(runs, key=lambda run: run.score)
@@ -351,17 +355,18 @@ class Localizer:
         polished.spread_m, polished.spread_deg = best.spread_m, best.spread_deg  # the search's
         return polished
 
-    def _about_pivot(self, camera: Camera, state: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    def _about_pivot(
+        self, camera: Camera, state: np.ndarray, sigma: np.ndarray, seen: np.ndarray | None = None
+    ) -> np.ndarray:
         """(6, 6) perturbation matrix: ``sigma``'s rotations about the point of the optical axis at the
-        median depth of the model seen from ``state`` (``refine.pivot_jacobian``); the plain scales when
-        nothing is seen."""
-        return pivot_jacobian(state, self._median_depth(camera, state)) @ np.diag(sigma)
+        median depth of the model seen from ``state`` (``refine.pivot_jacobian``; ``seen``: that view's
+        depth if already rendered); the plain scales when nothing is seen."""
+        depth = self._median_depth(camera, state) if seen is None else _median_seen(seen)
+        return pivot_jacobian(state, depth) @ np.diag(sigma)
 
     def _median_depth(self, camera: Camera, state: np.ndarray) -> float:
         """Median z-depth (m) of the model seen from ``state`` (0 when nothing is seen)."""
-        out = self._render_one(camera, _pose(state), depth=True)
-        seen = out.depth[np.isfinite(out.depth)]
-        return float(np.median(seen)) if seen.size else 0.0
+        return _median_seen(self._render_one(camera, _pose(state), depth=True).depth)
 
     def _probe_curvature(self, levels, state: np.ndarray, cfg: LocalizerConfig, prior) -> np.ndarray | None:
         """The score's curvature at ``state`` (``covariance.py``), probed at the fine level with steps that
@@ -577,6 +582,12 @@ def prior_term(prior_state: np.ndarray, cfg: LocalizerConfig, unc: PriorUncertai
     rp = unc.roll_pitch_deg
     sigma = np.array([np.inf, np.inf, np.inf, rp, rp, np.inf])
     return PriorTerm(prior_state, sigma, cfg.refine.prior_roll_pitch_weight)
+
+
+def _median_seen(depth: np.ndarray) -> float:
+    """Median of a render's finite depths (0 when it sees nothing)."""
+    seen = depth[np.isfinite(depth)]
+    return float(np.median(seen)) if seen.size else 0.0
 
 
 def _pose(state: np.ndarray) -> Pose:
