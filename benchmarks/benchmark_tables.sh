@@ -1,7 +1,7 @@
 #!/bin/bash
 # The runs behind the tables of docs/benchmark.md ("Results: realistic scenario", held-out seed and city,
 # the two real images, the knob sweeps): one `semcityloc benchmark` per row, resumable, then the report with the acceptance
-# table and the risk-coverage plot, and each main run's miss_causes.md, and the "Other cameras and cities" checks. About 55 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
+# table and the risk-coverage plot, and each main run's miss_causes.md, and the "Other cameras and cities" checks. About 80 min on 2 cores. Usage: bash benchmarks/benchmark_tables.sh [OUT]
 # Needs ../shared/data beside the repository (the Berlin, Den Haag and real-image data).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -39,6 +39,18 @@ for KV in "prior_roll_pitch_sigma_deg 0,1,2 rp" "height_change_max_m 0,2,4 heigh
   set -- $KV
   $S sweep --knob "$1" --values "$2" --city $CITY --queries 50 --workers 2 --out "$R/sweep_$3"
 done
+# "Every draw at once": ten Berlin draws and four of Den Haag, three methods, pooled
+for SEED in 0 1 2 3 4 5 6 7 8 9; do
+  for M in semcityloc no-depth silhouette; do
+    $S benchmark --city $CITY --queries 100 --seed $SEED --method $M --workers 2 --out "$R/draws/berlin_s${SEED}_$M"
+  done
+done
+for SEED in 0 1 2 3; do
+  for M in semcityloc no-depth silhouette; do
+    $S benchmark --city "$R/DenHaag/DenHaag_01.xml" --queries 50 --seed $SEED --method $M --workers 2 \
+      --out "$R/draws/denhaag_s${SEED}_$M"
+  done
+done
 # "Other cameras and cities": cities no stop tuned on, Berlin seed 3 with one knob pushed, a narrow camera
 for C in delft rotterdam_subset; do
   $S benchmark --city $DATA/cityjson_nl/$C.json --queries 100 --workers 2 --out "$R/other_$C"
@@ -50,7 +62,9 @@ for KV in "as_is" "imu2 prior_roll_pitch_sigma_deg=2 prior_roll_pitch_deg=5" \
     "higher height_range_m=[150,250] nominal_height_m=200" "narrow focal_mm=28" \
     "focal_short focal_error=-0.024" "focal_long focal_error=0.01" \
     "lens05 lens_k1=-0.05" "lens05_unstated lens_k1=-0.05 lens_stated=false" \
-    "lens10 lens_k1=-0.1" "lens10_unstated lens_k1=-0.1 lens_stated=false"; do
+    "lens10 lens_k1=-0.1" "lens10_unstated lens_k1=-0.1 lens_stated=false" \
+    "flat_eaves reality.overhang_flat_roofs=true" "big_eaves reality.overhang_m=[1,2]" \
+    "trees3x reality.tree_m2=100" "map_err2x reality.shift_xy_max_m=2 reality.height_change_max_m=4"; do
   set -- $KV
   NAME=$1; shift
   SETS=(); for KNOB in "$@"; do SETS+=(--set "$KNOB"); done
@@ -79,6 +93,8 @@ $S benchmark --city generated --queries 100 --workers 2 --set focal_mm=28 --set 
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
 $S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html
 PY=${PYTHON:-.venv/bin/python}
+$PY benchmarks/pooled_draws.py "$R"/draws/berlin_* > "$R/draws/pooled_berlin.md"  # "Every draw at once"
+$PY benchmarks/pooled_draws.py "$R"/draws/denhaag_* > "$R/draws/pooled_denhaag.md"
 for RUN in berlin_semcityloc berlin_no-depth berlin_silhouette berlin_s1_semcityloc berlin_s2_semcityloc denhaag_semcityloc; do
   $PY benchmarks/miss_causes.py "$R/$RUN" > "$R/$RUN/miss_causes.md"  # why each miss (docs/benchmark.md)
 done
