@@ -166,6 +166,8 @@ def _localize(path: Path) -> list[dict] | None:
                 "s": seconds,
                 "err_m": err_m,
                 "err_deg": err_deg,
+                "probability": r.confidence.get("probability"),
+                "view_span_m": r.confidence.get("view_span_m"),
             }
         )
     return rows

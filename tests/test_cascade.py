@@ -31,7 +31,13 @@ from semcityloc.localization.confidence import (
 )
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
 from semcityloc.localization.localize import Localizer
-from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, REASON_AT_EDGE, LocalizationResult
+from semcityloc.localization.result import (
+    LOCALIZED,
+    NOT_LOCALIZED,
+    REASON_AT_EDGE,
+    REASON_LOW_CONFIDENCE,
+    LocalizationResult,
+)
 from semcityloc.render import Renderer
 
 
@@ -226,6 +232,28 @@ def test_confidence_is_monotone_in_every_piece_of_evidence(kind, with_depth):
     assert np.isfinite(model.probability(_result(**{**BASE, "hypothesis_margin": float("nan")})))
 
 
+def test_a_close_view_is_accepted_only_at_the_close_view_probability(city, localizer, renderer):
+    low = view(city, 10.0, -20.0, 45.0, 0.5, 1.0, 30.0)  # 24 m above the roof under it
+    args = (CAMERA, perturbed(low, [2.0, -1.5, 3.0], dyaw=1.0), *query(renderer, low))
+    result = localizer.localize(*args)
+    p = result.confidence["probability"]
+    assert result.confidence["view_span_m"] < CALIBRATED_MIN_SPAN_M
+    assert result.confidence["min_probability"] == 0.9
+    assert result.localized == (p >= 0.9)
+    # The same view decided at a bar just above and just below its probability (the pose is the same):
+    cfg = localizer.config
+    above = localizer.localize(*args, config=replace(cfg, min_confidence_close_view=min(p + 1e-6, 1.0)))
+    below = localizer.localize(*args, config=replace(cfg, min_confidence=0.0, min_confidence_close_view=p))
+    assert not above.localized and above.reason == REASON_LOW_CONFIDENCE
+    assert below.localized and below.confidence["probability"] == p
+    # A usual view keeps the usual bar; the bar is a probability.
+    high = view(city, *VIEWS["nadir"])
+    usual = localizer.localize(CAMERA, perturbed(high, [2.0, -1.5, 3.0], dyaw=1.0), *query(renderer, high))
+    assert usual.confidence["min_probability"] == 0.5
+    with pytest.raises(ParameterError, match="min_confidence_close_view must be a probability"):
+        replace(cfg, min_confidence_close_view=1.5)
+
+
 def test_a_camera_narrower_than_the_calibration_views_is_warned_about(city, localizer, renderer):
     true = view(city, 10.0, -20.0, 160.0, 0.5, 1.0, 30.0)
     prior = perturbed(true, [3.0, -2.0, 4.0], dyaw=2.0)
@@ -255,8 +283,8 @@ def test_a_view_closer_to_the_scene_than_the_calibration_views_is_warned_about(c
     usual = localizer.localize(CAMERA, perturbed(high, [2.0, -1.5, 3.0], dyaw=1.0), *query(renderer, high))
     assert usual.confidence["view_span_m"] > CALIBRATED_MIN_SPAN_M
     assert not any(w.startswith(CLOSE_VIEW_WARNING) for w in usual.warnings)
-    assert close_view_warning(CALIBRATED_MIN_SPAN_M) is None and close_view_warning(0.0) is None
-    assert close_view_warning(CALIBRATED_MIN_SPAN_M - 1) is not None
+    assert close_view_warning(CALIBRATED_MIN_SPAN_M, 0.9) is None and close_view_warning(0.0, 0.9) is None
+    assert "accepted only at 0.9 or more" in close_view_warning(CALIBRATED_MIN_SPAN_M - 1, 0.9)
     assert view_span_m(90.0, 10.0) == pytest.approx(20.0) and view_span_m(70.0, 0.0) == 0.0
 
 

@@ -236,16 +236,17 @@ def view_span_m(hfov_deg: float, mean_depth_m: float) -> float:
     return 2.0 * mean_depth_m * math.tan(math.radians(hfov_deg) / 2.0)
 
 
-def close_view_warning(span_m: float) -> str | None:
+def close_view_warning(span_m: float, min_probability: float) -> str | None:
     """What a user should hear when a view spans less of the scene than the views the models were fitted
-    on (``CALIBRATED_MIN_SPAN_M``): flown low, or through a narrow lens."""
+    on (``CALIBRATED_MIN_SPAN_M``): flown low, or through a narrow lens. ``min_probability``: what such a
+    view is accepted at (``LocalizerConfig.min_confidence_close_view``)."""
     if not 0.0 < span_m < CALIBRATED_MIN_SPAN_M:
         return None
     return (
         f"{CLOSE_VIEW_WARNING} (it spans {span_m:.0f} m across at the mean depth of the map it sees): the "
         f"acceptance probability was fitted on views spanning {CALIBRATED_MIN_SPAN_M:.0f}+ m (40-150 m above "
-        "ground) and overstates confidence here; a look-alike can be accepted (check the overlay; accepting "
-        "at 0.9 refuses some of them)"
+        f"ground) and overstates confidence here, so it is accepted only at {min_probability:g} or more; a "
+        "look-alike can still pass (check the overlay)"
     )
 
 

@@ -175,15 +175,15 @@ class Localizer:
         if cfg.acceptance == "calibrated":
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
-            accepted, reason = p >= cfg.min_confidence, REASON_LOW_CONFIDENCE
             seen = found.depth[np.isfinite(found.depth)]
-            result.confidence["view_span_m"] = view_span_m(
-                camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0
-            )
-            for warning in (
-                field_of_view_warning(camera.hfov_deg),
-                close_view_warning(result.confidence["view_span_m"]),
-            ):
+            span = view_span_m(camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0)
+            result.confidence["view_span_m"] = span
+            close_needed = max(cfg.min_confidence, cfg.min_confidence_close_view)
+            close = close_view_warning(span, close_needed)
+            needed = cfg.min_confidence if close is None else close_needed
+            result.confidence["min_probability"] = needed  # what this result was accepted or refused at
+            accepted, reason = p >= needed, REASON_LOW_CONFIDENCE
+            for warning in (field_of_view_warning(camera.hfov_deg), close):
                 if warning is not None:
                     result.warnings.append(warning)
         else:
