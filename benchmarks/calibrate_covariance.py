@@ -6,7 +6,9 @@ Usage::
         [--fit-city generated --fit-city FUERTH ...] [--check-city BERLIN ...] [--seed 0] [--check-seed 1]
 
 Fit data (never a reporting city): the realistic scenario on the calibration cities, trained and medium
-segmentation, ``--queries`` each. Every query is localized by SemCityLoc with depth and without
+segmentation, ``--queries`` each; for the narrow-camera models (``<key>/narrow``, used below
+``covariance.NARROW_BELOW_DEG`` across), trained masks seen by a 34 deg camera (``focal_mm`` 28).
+Every query is localized by SemCityLoc with depth and without
 (``no-depth``, the default acceptance); each found pose within 5 m / 5 deg of the truth gives its state
 error ``e`` (x, y, z in m; roll, pitch, yaw in deg) and the score's curvature ``A`` at the pose. The
 model ``T * A^-1 + diag(floor^2)`` (a temperature and six floor sigmas) is fitted by maximum likelihood
@@ -47,7 +49,10 @@ from semcityloc.localization.localize import Localizer
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 BERLIN = SHARED / "berlin_lod2_citygml2" / "3910_5817.gml"
-CONDITIONS = ("trained", "medium")
+# condition -> (segmentation quality, scenario knobs); the wide models are fitted on CONDITIONS, the
+# narrow-camera ones (``covariance.NARROW_BELOW_DEG``) on NARROW_CONDITIONS: a 34 deg camera (a thermal one)
+CONDITIONS = {"trained": ("trained", {}), "medium": ("medium", {})}
+NARROW_CONDITIONS = {"narrow": ("trained", {"focal_mm": 28.0})}
 VARIANTS = {"semantic/depth": False, "semantic/no-depth": True}  # model key -> the config's no_depth
 RIGHT_M, RIGHT_DEG = 5.0, 5.0
 LEVELS = (0.5, 0.68, 0.9, 0.95, 0.99)
@@ -57,8 +62,10 @@ _WORKER: dict = {}
 
 
 def _init(city: str, seed: int, queries: int, condition: str) -> None:
+    quality, knobs = {**CONDITIONS, **NARROW_CONDITIONS}[condition]
     spec = BenchmarkSpec(
-        city=city, query=query_config("realistic", queries=queries, seed=seed, seg_quality=condition)
+        city=city,
+        query=query_config("realistic", knobs, queries=queries, seed=seed, seg_quality=quality),
     )
     source = spec.open_source(spec.run_config())
     _WORKER.update(source=source, localizer=Localizer(source.map_model, LocalizerConfig.preset("default")))
@@ -207,44 +214,50 @@ def main() -> int:
         args.check_city if args.check_city is not None else ([str(BERLIN)] if BERLIN.exists() else [])
     )
 
-    def rows_of(cities: list[str], seed: int) -> dict[str, list[dict]]:
+    def rows_of(cities: list[str], seed: int, conditions) -> dict[str, list[dict]]:
         return {
             cond: [
                 r
                 for c in cities
                 for r in condition_rows(c, seed, args.queries, cond, args.workers, args.cache)
             ]
-            for cond in CONDITIONS
+            for cond in conditions
         }
 
-    fit = rows_of(fit_cities, args.seed)
-    check = rows_of(check_cities, args.check_seed) if check_cities else {}
     models, checks = {}, {}
-    for key in VARIANTS:
-        err, curv = arrays([r for rows in fit.values() for r in rows], key)
-        if len(err) < 10:
-            print(f"{key}: {len(err)} right poses, too few to fit", file=sys.stderr)
-            return 1
-        model, ml = fit_model(err, curv), fit_model(err, curv, tail=None)
-        alone = median_temperature(err, curv)
-        constant = np.cov(err.T)
-        models[key] = model
-        floor = " ".join(f"{n} {v:.3g}" for n, v in zip(STATE_NAMES, model.floor_sigma, strict=True))
-        print(
-            f"## {key}: temperature {model.temperature:.4g} (score units), floor sigma {floor}; "
-            f"{len(err)} right poses (curvature alone: temperature {alone:.4g})"
-        )
-        fitted = (model, ml, alone, constant)
-        for cond, rows in fit.items():
-            describe(*arrays(rows, key), *fitted, f"fit {cond}")
-        for cond, rows in check.items():
-            checks[f"{key} {cond}"] = describe(*arrays(rows, key), *fitted, f"check {cond}")
+    for suffix, conditions in (("", CONDITIONS), ("/narrow", NARROW_CONDITIONS)):
+        fit = rows_of(fit_cities, args.seed, conditions)
+        check = rows_of(check_cities, args.check_seed, conditions) if check_cities else {}
+        for variant in VARIANTS:
+            key = variant + suffix
+            err, curv = arrays([r for rows in fit.values() for r in rows], variant)
+            if len(err) < 10:
+                print(f"{key}: {len(err)} right poses, too few to fit", file=sys.stderr)
+                return 1
+            model, ml = fit_model(err, curv), fit_model(err, curv, tail=None)
+            alone = median_temperature(err, curv)
+            constant = np.cov(err.T)
+            models[key] = model
+            floor = " ".join(f"{n} {v:.3g}" for n, v in zip(STATE_NAMES, model.floor_sigma, strict=True))
+            print(
+                f"## {key}: temperature {model.temperature:.4g} (score units), floor sigma {floor}; "
+                f"{len(err)} right poses (curvature alone: temperature {alone:.4g})"
+            )
+            fitted = (model, ml, alone, constant)
+            for cond, rows in fit.items():
+                describe(*arrays(rows, variant), *fitted, f"fit {cond}")
+            for cond, rows in check.items():
+                checks[f"{key} {cond}"] = describe(*arrays(rows, variant), *fitted, f"check {cond}")
+                if suffix:  # what the wide model, which narrow views got before, says on the same poses
+                    wide = models[variant]
+                    describe(*arrays(rows, variant), wide, wide, alone, constant, f"check {cond}, wide model")
     if args.write:
         described = ", ".join(Path(c).stem for c in fit_cities)
         checked = ", ".join(Path(c).stem for c in check_cities)
         save_models(
             models,
-            f"realistic, {described}, seed {args.seed}, {', '.join(CONDITIONS)} masks",
+            f"realistic, {described}, seed {args.seed}, {', '.join(CONDITIONS)} masks; "
+            f"'/narrow': trained masks, focal_mm 28 (34 deg across)",
             {"on": f"realistic, {checked}, seed {args.check_seed}", **checks} if checks else None,
         )
         print("# written", file=sys.stderr)

@@ -129,6 +129,26 @@ def test_the_fitted_model_is_shipped_and_read():
     assert cov_mod.covariance_model("no-such-kind", True) is None
 
 
+def test_a_narrow_camera_gets_the_narrow_model_where_one_was_fitted(tmp_path, monkeypatch):
+    models = {
+        "semantic/depth": {"temperature": 0.01, "floor_sigma": [0.1] * 6},
+        "semantic/depth/narrow": {"temperature": 0.05, "floor_sigma": [0.2] * 6},
+        "semantic/no-depth": {"temperature": 0.02, "floor_sigma": [0.1] * 6},
+    }
+    path = tmp_path / "covariance_model.json"
+    path.write_text(json.dumps({"fitted_on": "test", "models": models}))
+    monkeypatch.setattr(cov_mod, "MODEL_PATH", path)
+    cov_mod._models.cache_clear()
+    try:
+        narrow = cov_mod.NARROW_BELOW_DEG - 1.0
+        assert cov_mod.covariance_model("semantic", True, narrow).temperature == 0.05
+        assert cov_mod.covariance_model("semantic", True, cov_mod.NARROW_BELOW_DEG).temperature == 0.01
+        assert cov_mod.covariance_model("semantic", True).temperature == 0.01  # no camera given: wide
+        assert cov_mod.covariance_model("semantic", False, narrow).temperature == 0.02  # none fitted: wide
+    finally:
+        cov_mod._models.cache_clear()
+
+
 def test_calibration_recovers_a_known_temperature_and_floor():
     script = benchmark_script("calibrate_covariance")
     rng = np.random.default_rng(7)

@@ -37,8 +37,12 @@ from scipy.spatial.transform import Rotation
 
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.pose import Pose
+from semcityloc.localization.confidence import CALIBRATED_MIN_HFOV_DEG
 
 MODEL_PATH = Path(__file__).with_name("covariance_model.json")
+# Cameras narrower than this (degrees across) get the covariance model fitted on narrow views: the same
+# bound as the acceptance's narrow-camera warning (``confidence.CALIBRATED_MIN_HFOV_DEG``).
+NARROW_BELOW_DEG = CALIBRATED_MIN_HFOV_DEG
 STATE_NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
 STATE_UNITS = ("m", "m", "m", "deg", "deg", "deg")
 # Samples per fitted coefficient below which the quadratic is not fitted (28 coefficients in 6D).
@@ -201,8 +205,9 @@ class CovarianceModel:
         return pose_covariance(curvature, self.temperature, np.array(self.floor_sigma))
 
 
-def model_key(kind: str, with_depth: bool) -> str:
-    return f"{kind}/{'depth' if with_depth else 'no-depth'}"
+def model_key(kind: str, with_depth: bool, narrow: bool = False) -> str:
+    key = f"{kind}/{'depth' if with_depth else 'no-depth'}"
+    return f"{key}/narrow" if narrow else key
 
 
 @lru_cache(maxsize=1)
@@ -212,10 +217,18 @@ def _models() -> dict:
     return json.loads(MODEL_PATH.read_text()).get("models", {})
 
 
-def covariance_model(kind: str, with_depth: bool) -> CovarianceModel | None:
+def covariance_model(kind: str, with_depth: bool, hfov_deg: float | None = None) -> CovarianceModel | None:
     """The model fitted for a localizer kind (``Localizer.confidence_kind``) with or without depth, or
-    None when none was fitted (the result then carries no covariance)."""
-    entry = _models().get(model_key(kind, with_depth))
+    None when none was fitted (the result then carries no covariance). A camera narrower than
+    ``NARROW_BELOW_DEG`` across (``hfov_deg``) gets the model fitted on narrow views where there is one:
+    its nadir views lie along a longer tilt-versus-shift ridge, and the wide views' temperature held
+    70-84 % of its right poses in the 95 % horizontal ellipse (``docs/localization.md``)."""
+    models = _models()
+    entry = None
+    if hfov_deg is not None and hfov_deg < NARROW_BELOW_DEG:
+        entry = models.get(model_key(kind, with_depth, narrow=True))
+    if entry is None:
+        entry = models.get(model_key(kind, with_depth))
     if entry is None:
         return None
     return CovarianceModel(float(entry["temperature"]), tuple(float(v) for v in entry["floor_sigma"]))

@@ -316,7 +316,7 @@ class Localizer:
             result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
             result.confidence.update(spread_m=best.spread_m, spread_deg=best.spread_deg)
             # The covariance's probe, where a fitted model will turn its curvature into one.
-            cov_model = covariance_model(self.confidence_kind, fine.depth is not None)
+            cov_model = covariance_model(self.confidence_kind, fine.depth is not None, fine.camera.hfov_deg)
             if cfg.refine.covariance_probe_px > 0 and cov_model is not None:
                 result.score_curvature = self._probe_curvature(levels, final, cfg, prior)
                 result.counts["refine_evaluations"] += PROBES
