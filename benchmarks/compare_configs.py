@@ -138,12 +138,13 @@ def _simulate(args: tuple[int, Path]) -> None:
 def _init_localize(city: str, seed: int, queries: int, settings: dict, variants: list) -> None:
     spec = _spec(city, seed, queries, settings)
     model = load_map(spec.run_config())
-    scenes: dict[float, RenderScene] = {}  # one per map (eaves); each Localizer adapts its classes
+    scenes: dict[tuple, RenderScene] = {}  # one per map (eaves); each Localizer adapts its classes
     localizers = []
     for name, cfg in variants:
-        if cfg.map_eaves_m not in scenes:
-            scenes[cfg.map_eaves_m] = localizer_scene(model, cfg)
-        localizers.append((name, Localizer(model, cfg, scene=scenes[cfg.map_eaves_m])))
+        eaves = (cfg.map_eaves_m, cfg.map_eaves_flat_roofs)
+        if eaves not in scenes:
+            scenes[eaves] = localizer_scene(model, cfg)
+        localizers.append((name, Localizer(model, cfg, scene=scenes[eaves])))
     _WORKER["localizers"] = localizers
 
 

@@ -336,6 +336,20 @@ def test_localize_intrinsics_from_exif_and_a_depth_backend_beside_a_mask_file(ex
     assert code == 0 and via_file["position"] == via_backend["position"]
 
 
+def test_localize_records_the_eaves_of_the_map_it_searched(exif_view, tmp_path, capsys):
+    r = exif_view["root"]
+    common = ("--intrinsics", "exif", "--image", exif_view["photo"], "--semantic", r / "r" / "labels.png")
+    cases = (
+        ("a", (), {"m": 0.5, "flat_roofs": False}),
+        ("b", ("--map-eaves", "0.3", "--map-eaves-flat"), {"m": 0.3, "flat_roofs": True}),
+    )
+    for out, extra, want in cases:
+        code, _, _ = _localize(capsys, exif_view, tmp_path / out, *common, *extra)
+        pose = json.loads((tmp_path / out / "pose.json").read_text())
+        assert code == 0 and pose["extra"]["map_eaves"] == want
+        assert np.linalg.norm(np.array(pose["position"]) - exif_view["truth"]) < 1.0
+
+
 @pytest.mark.parametrize(
     "extra, needle",
     [

@@ -52,6 +52,28 @@ def test_pitched_roofs_grow_by_the_eave_flat_roofs_and_walls_stay(city):
         assert span > np.ptp(before[sel][:, :, :2].reshape(-1, 2) @ [1.0, 0.3], axis=0)
 
 
+def test_flat_roofs_get_the_eave_only_when_asked(city):
+    before = city.vertices[city.triangles].astype(np.float64)
+    roof = city.classes == SemanticClass.ROOF
+    flat_roof = roof & (_flat_share(city) > 0.5)[city.building_index]
+    asked = with_eaves(city, 0.5, flat_roofs=True)
+    move = np.linalg.norm((asked.vertices[asked.triangles] - before)[:, :, :2], axis=2).max(1)
+    grown = np.bincount(city.building_index[flat_roof], move[flat_roof] > 0.4, len(city.building_ids))
+    assert (grown[_flat_share(city) > 0.5] > 0).mean() >= 0.8  # flat roofs reach out too
+    np.testing.assert_allclose(asked.vertices[asked.triangles][~roof], before[~roof], atol=1e-4)
+    assert "flat roofs too" in asked.source
+    pitched_only = with_eaves(city, 0.5)
+    assert np.array_equal(
+        pitched_only.vertices[pitched_only.triangles][flat_roof].astype(np.float64),
+        before[flat_roof].astype(np.float32).astype(np.float64),
+    )
+    # The localizer's map follows its config.
+    flat_scene = localizer_scene(city, LocalizerConfig(map_eaves_flat_roofs=True))
+    default_scene = localizer_scene(city, LocalizerConfig())
+    assert flat_scene.num_triangles == default_scene.num_triangles
+    assert not np.allclose(flat_scene.tri_xyz, default_scene.tri_xyz)
+
+
 def test_no_eave_is_the_map_itself_and_the_config_checks_it(city):
     assert with_eaves(city, 0.0) is city
     assert LocalizerConfig.preset("legacy").map_eaves_m == 0.0  # the first design searched the map as is

@@ -141,17 +141,18 @@ def overhang_roofs(
     return out, np.where(moved, over, 0.0)
 
 
-def with_eaves(model: CityModel, overhang_m: float) -> CityModel:
+def with_eaves(model: CityModel, overhang_m: float, flat_roofs: bool = False) -> CityModel:
     """``model`` with every pitched roof moved out by ``overhang_m`` over its walls (``overhang_roofs``
-    with a fixed amount; mostly flat roofs end in parapets and keep their outline; an edge on a party wall
-    does not grow into the neighbour). Walls, ground and everything else unchanged; same origin, CRS,
-    classes and building indices. ``overhang_m`` <= 0 returns ``model`` itself."""
+    with a fixed amount; mostly flat roofs end in parapets and keep their outline unless ``flat_roofs``;
+    an edge on a party wall does not grow into the neighbour). Walls, ground and everything else
+    unchanged; same origin, CRS, classes and building indices. ``overhang_m`` <= 0 returns ``model``
+    itself."""
     if not overhang_m > 0.0 or model.num_triangles == 0:
         return model
     corners = model.vertices[model.triangles].astype(np.float64)
     amount = np.full(len(model.building_ids), float(overhang_m))
     moved, _ = overhang_roofs(
-        corners, model.classes, model.building_index.astype(np.int64), amount, flat_roofs=False
+        corners, model.classes, model.building_index.astype(np.int64), amount, flat_roofs=flat_roofs
     )
     return CityModel(
         origin=model.origin.copy(),
@@ -163,5 +164,5 @@ def with_eaves(model: CityModel, overhang_m: float) -> CityModel:
         building_ids=model.building_ids,
         crs=model.crs,
         source_crs=model.source_crs,
-        source=f"{model.source or 'model'} with {overhang_m:g} m eaves",
+        source=f"{model.source or 'model'} with {overhang_m:g} m eaves{' on flat roofs too' * flat_roofs}",
     )

@@ -117,6 +117,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "0 for a model whose roofs already overhang their walls)",
     )
     p.add_argument(
+        "--map-eaves-flat",
+        action="store_true",
+        help="add the eaves to the map's flat roofs too: for a city whose flat roofs overhang their walls "
+        '(not for flat roofs ending in a parapet, where it costs; docs/localization.md, "The map\'s eaves")',
+    )
+    p.add_argument(
         "--method", default="semcityloc", choices=tuple(ABLATIONS), help="the method or one of its ablations"
     )
     p.add_argument("--seed", type=int, default=0)
@@ -198,6 +204,8 @@ def run(args: argparse.Namespace) -> int:
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
     if args.map_eaves is not None:
         config = replace(config, map_eaves_m=args.map_eaves)  # checked here, before anything loads
+    if args.map_eaves_flat:
+        config = replace(config, map_eaves_flat_roofs=True)
     _check_files(args)
     model = load_model_from_args(args)
     lens = _camera(args)
@@ -215,6 +223,8 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     crs = crs_label(model.crs)
     record = result.to_dict(model.origin, crs)  # the pose, if any, in CRS coordinates
+    # The map searched: its eaves.
+    record["map_eaves"] = {"m": config.map_eaves_m, "flat_roofs": config.map_eaves_flat_roofs}
     if not lens.distortion.is_zero:
         record["lens_distortion"] = lens.distortion.as_dict()  # the inputs were undistorted with it
     if result.pose_local is not None:

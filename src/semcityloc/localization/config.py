@@ -234,6 +234,10 @@ class LocalizerConfig:
     # 91.0 -> 93.8 % (14 gained, 3 lost), seeds 2-3 94.5 -> 96.5 % (11 gained, 3 lost). Fixed when a
     # Localizer is built (its render scene); flat roofs (parapets) and LoD1 blocks get none.
     map_eaves_m: float = 0.5
+    # Whether mostly flat roofs get those eaves too. Off: the realistic scenario (and German LoD2 practice)
+    # has flat roofs end in a parapet at the wall line. For a city whose flat roofs overhang their walls
+    # (slabs, bungalows): docs/localization.md, "The map's eaves", measures what it gives and costs.
+    map_eaves_flat_roofs: bool = False
     seed: int = 0
 
     def __post_init__(self) -> None:

@@ -516,7 +516,9 @@ def localizer_scene(
     """The render scene a ``Localizer`` with ``config`` searches: the map with ``config.map_eaves_m`` of
     eaves on its pitched roofs (``citymodel.eaves``); build it once to share among Localizers of the
     same eaves. ``terrain_ring``: a tile store's terrain border (``render.scene.build_scene``)."""
-    return build_scene(with_eaves(model, config.map_eaves_m), terrain_ring=terrain_ring)
+    return build_scene(
+        with_eaves(model, config.map_eaves_m, config.map_eaves_flat_roofs), terrain_ring=terrain_ring
+    )
 
 
 def reached_half(volume: SearchVolume, config: CascadeConfig) -> dict[str, float]:
