@@ -310,7 +310,22 @@ def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_
     assert code == 2 and "not a number" in err and err.count("\n") == 1
     code, _, err = run(capsys, "run", tmp_path / "absent", "--city", "generated", "--masks", tmp_path)
     assert code == 2 and "no such images folder" in err
+    code, _, err = run(capsys, *box_flight["argv"], "--map-eaves", "-1", "--out", tmp_path / "o")
+    assert code == 2 and "map_eaves_m must be a number of metres in [0, 3]" in err and err.count("\n") == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_a_run_searches_the_map_with_the_eaves_it_is_given(box_flight, tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--out", out, "--no-overlays", "--map-eaves", "0.3", "--map-eaves-flat"]
+    code, _, _ = run(capsys, *argv)
+    localizer = json.loads((out / "run.json").read_text())["localizer"]
+    assert code == 0 and localizer["map_eaves_m"] == 0.3 and localizer["map_eaves_flat_roofs"] is True
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["localized"] == 2  # the box city's flat roofs, 0.3 m wider, still hold both photos
+    # The eaves are part of what the run is: the same folder with the default map is refused.
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
+    assert code == 2 and "other benchmark run" in err
 
 
 # ------------------------------------------------------------------------------ a tile store of one box

@@ -158,6 +158,8 @@ class PhotoSpec:
     geoid_separation_m: float | None = None
     method: str = "semcityloc"
     preset: str = "default"
+    map_eaves_m: float | None = None  # eaves added to the map's pitched roofs; None: the preset's (0.5 m)
+    map_eaves_flat_roofs: bool = False  # and to its flat roofs (docs/localization.md, "The map's eaves")
     keep_details: int = 3
     overlays: bool = True
     # Estimate each camera's focal length from the flight's oblique photos (``localization.focal``):
@@ -185,6 +187,7 @@ class PhotoSpec:
             raise unknown_choice("calibrate_focal", self.calibrate_focal, CALIBRATE_FOCAL, BenchmarkError)
         self.fixed_uncertainty()
         check_run_options(self.method, self.preset, self.keep_details)
+        self.localizer_config()  # a bad eaves value fails here, before anything loads
 
     # ------------------------------------------------------------------ what the run is
     def fixed_uncertainty(self) -> PriorUncertainty | None:
@@ -197,7 +200,12 @@ class PhotoSpec:
         return f"{seg} + {depth}" if depth else seg
 
     def localizer_config(self) -> LocalizerConfig:
-        return LocalizerConfig.preset(self.preset)
+        config = LocalizerConfig.preset(self.preset)
+        if self.map_eaves_m is not None:
+            config = replace(config, map_eaves_m=self.map_eaves_m)
+        if self.map_eaves_flat_roofs:
+            config = replace(config, map_eaves_flat_roofs=True)
+        return config
 
     def load_model(self) -> tuple[CityModel, TileStore | None]:
         """(the city model, None) for a file; for a tile store (its frame, the store): the flight's tiles

@@ -57,6 +57,25 @@ def add_prior_sigma_argument(p: argparse.ArgumentParser, default_text: str | Non
     )
 
 
+def add_map_eaves_arguments(p: argparse.ArgumentParser) -> None:
+    """``--map-eaves M`` and ``--map-eaves-flat``: the eaves the localizer adds to the map's roofs
+    (``LocalizerConfig.map_eaves_m``, ``map_eaves_flat_roofs``)."""
+    p.add_argument(
+        "--map-eaves",
+        type=float,
+        default=None,
+        metavar="M",
+        help="eaves (m) added to the map's pitched roofs before the search (default: the preset's, 0.5 m; "
+        "0 for a model whose roofs already overhang their walls)",
+    )
+    p.add_argument(
+        "--map-eaves-flat",
+        action="store_true",
+        help="add the eaves to the map's flat roofs too: for a city whose flat roofs overhang their walls "
+        '(not for flat roofs ending in a parapet, where it costs; docs/localization.md, "The map\'s eaves")',
+    )
+
+
 def add_lossy_mask_argument(p: argparse.ArgumentParser, masks: str = "--masks") -> None:
     """``--allow-lossy-mask``: accept masks (``masks``, the option naming them) in a lossy format, which
     ``io.images.load_labels_png`` refuses otherwise."""
@@ -108,20 +127,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--preset", default="default", choices=tuple(PRESETS), help="localizer preset (default: default)"
     )
     add_prior_sigma_argument(p)
-    p.add_argument(
-        "--map-eaves",
-        type=float,
-        default=None,
-        metavar="M",
-        help="eaves (m) added to the map's pitched roofs before the search (default: the preset's, 0.5 m; "
-        "0 for a model whose roofs already overhang their walls)",
-    )
-    p.add_argument(
-        "--map-eaves-flat",
-        action="store_true",
-        help="add the eaves to the map's flat roofs too: for a city whose flat roofs overhang their walls "
-        '(not for flat roofs ending in a parapet, where it costs; docs/localization.md, "The map\'s eaves")',
-    )
+    add_map_eaves_arguments(p)
     p.add_argument(
         "--method", default="semcityloc", choices=tuple(ABLATIONS), help="the method or one of its ablations"
     )

@@ -17,7 +17,7 @@ from semcityloc.benchmark.report import summary_markdown
 from semcityloc.cli.city import add_model_arguments
 from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
-from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
+from semcityloc.cli.localize import add_lossy_mask_argument, add_map_eaves_arguments, add_prior_sigma_argument
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF
 from semcityloc.errors import InputFileError
@@ -81,6 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--geoid-separation", type=float, default=None, help="known geoid undulation N (m)")
     p.add_argument("--method", default="semcityloc", choices=ABLATIONS, help="the method or an ablation")
     p.add_argument("--preset", default="default", choices=tuple(PRESETS), help="localizer preset")
+    add_map_eaves_arguments(p)
     p.add_argument("--out", default="semcityloc_run", help="output folder (default semcityloc_run)")
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
     add_executor_arguments(p)
@@ -128,6 +129,8 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
         geoid_separation_m=args.geoid_separation,
         method=args.method,
         preset=args.preset,
+        map_eaves_m=args.map_eaves,
+        map_eaves_flat_roofs=args.map_eaves_flat,
         keep_details=args.keep_details,
         overlays=not args.no_overlays,
         calibrate_focal=args.calibrate_focal,
