@@ -53,7 +53,7 @@ from semcityloc.benchmark.spec import BenchmarkSpec, load_map
 from semcityloc.errors import BenchmarkConfigError, ParameterError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer, localizer_scene
+from semcityloc.localization.localize import Localizer, localizer_scene, scene_key
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render.scene import RenderScene
 
@@ -141,10 +141,10 @@ def _init_localize(city: str, seed: int, queries: int, settings: dict, variants:
     scenes: dict[tuple, RenderScene] = {}  # one per map (eaves); each Localizer adapts its classes
     localizers = []
     for name, cfg in variants:
-        eaves = (cfg.map_eaves_m, cfg.map_eaves_flat_roofs)
-        if eaves not in scenes:
-            scenes[eaves] = localizer_scene(model, cfg)
-        localizers.append((name, Localizer(model, cfg, scene=scenes[eaves])))
+        key = scene_key(cfg)
+        if key not in scenes:
+            scenes[key] = localizer_scene(model, cfg)
+        localizers.append((name, Localizer(model, cfg, scene=scenes[key])))
     _WORKER["localizers"] = localizers
 
 

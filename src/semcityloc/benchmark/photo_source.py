@@ -200,12 +200,7 @@ class PhotoSpec:
         return f"{seg} + {depth}" if depth else seg
 
     def localizer_config(self) -> LocalizerConfig:
-        config = LocalizerConfig.preset(self.preset)
-        if self.map_eaves_m is not None:
-            config = replace(config, map_eaves_m=self.map_eaves_m)
-        if self.map_eaves_flat_roofs:
-            config = replace(config, map_eaves_flat_roofs=True)
-        return config
+        return LocalizerConfig.preset(self.preset).with_map_eaves(self.map_eaves_m, self.map_eaves_flat_roofs)
 
     def load_model(self) -> tuple[CityModel, TileStore | None]:
         """(the city model, None) for a file; for a tile store (its frame, the store): the flight's tiles

@@ -208,10 +208,7 @@ def _pinhole_photo(path, lens: PhotoCamera, max_width: int | None = None) -> np.
 def run(args: argparse.Namespace) -> int:
     uncertainty = PriorUncertainty.parse(args.prior_sigma) if args.prior_sigma else None
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
-    if args.map_eaves is not None:
-        config = replace(config, map_eaves_m=args.map_eaves)  # checked here, before anything loads
-    if args.map_eaves_flat:
-        config = replace(config, map_eaves_flat_roofs=True)
+    config = config.with_map_eaves(args.map_eaves, args.map_eaves_flat)  # checked here, before anything loads
     _check_files(args)
     model = load_model_from_args(args)
     lens = _camera(args)

@@ -236,11 +236,17 @@ def view_span_m(hfov_deg: float, mean_depth_m: float) -> float:
     return 2.0 * mean_depth_m * math.tan(math.radians(hfov_deg) / 2.0)
 
 
+def is_close_view(span_m: float) -> bool:
+    """The view spans less of the scene than the views the models were fitted on
+    (``CALIBRATED_MIN_SPAN_M``); 0 (nothing seen) is not a span."""
+    return 0.0 < span_m < CALIBRATED_MIN_SPAN_M
+
+
 def close_view_warning(span_m: float, min_probability: float) -> str | None:
     """What a user should hear when a view spans less of the scene than the views the models were fitted
     on (``CALIBRATED_MIN_SPAN_M``): flown low, or through a narrow lens. ``min_probability``: what such a
     view is accepted at (``LocalizerConfig.min_confidence_close_view``)."""
-    if not 0.0 < span_m < CALIBRATED_MIN_SPAN_M:
+    if not is_close_view(span_m):
         return None
     return (
         f"{CLOSE_VIEW_WARNING} (it spans {span_m:.0f} m across at the mean depth of the map it sees): the "

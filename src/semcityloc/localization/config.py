@@ -275,6 +275,16 @@ class LocalizerConfig:
             return self
         return replace(self, prior_uncertainty=PriorUncertainty.parse(text, self.prior_uncertainty))
 
+    def with_map_eaves(self, eaves_m: float | None = None, flat_roofs: bool = False) -> LocalizerConfig:
+        """This config with the map's eaves ``eaves_m`` (None: unchanged) and, when ``flat_roofs``, on its
+        flat roofs too (the ``--map-eaves`` / ``--map-eaves-flat`` options; checked like any field)."""
+        changes: dict = {}
+        if eaves_m is not None:
+            changes["map_eaves_m"] = eaves_m
+        if flat_roofs:
+            changes["map_eaves_flat_roofs"] = True
+        return replace(self, **changes) if changes else self
+
     def as_dict(self) -> dict:
         return asdict(self)
 

@@ -37,6 +37,7 @@ from semcityloc.localization.confidence import (
     close_view_warning,
     confidence_model,
     field_of_view_warning,
+    is_close_view,
     view_span_m,
 )
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
@@ -178,12 +179,12 @@ class Localizer:
             seen = found.depth[np.isfinite(found.depth)]
             span = view_span_m(camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0)
             result.confidence["view_span_m"] = span
-            close_needed = max(cfg.min_confidence, cfg.min_confidence_close_view)
-            close = close_view_warning(span, close_needed)
-            needed = cfg.min_confidence if close is None else close_needed
+            needed = cfg.min_confidence
+            if is_close_view(span):
+                needed = max(needed, cfg.min_confidence_close_view)
             result.confidence["min_probability"] = needed  # what this result was accepted or refused at
             accepted, reason = p >= needed, REASON_LOW_CONFIDENCE
-            for warning in (field_of_view_warning(camera.hfov_deg), close):
+            for warning in (field_of_view_warning(camera.hfov_deg), close_view_warning(span, needed)):
                 if warning is not None:
                     result.warnings.append(warning)
         else:
@@ -508,6 +509,12 @@ class Localizer:
     def _render_one(self, camera: Camera, pose_local: Pose, depth: bool = False):
         """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
         return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)
+
+
+def scene_key(config: LocalizerConfig) -> tuple:
+    """What of ``config`` decides its ``localizer_scene``: Localizers of configs with equal keys can share
+    one scene."""
+    return (config.map_eaves_m, config.map_eaves_flat_roofs)
 
 
 def localizer_scene(
