@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.baselines.silhouette import SilhouetteLocalizer
-from semcityloc.benchmark.calibration import calibration_cities_or_exit
+from semcityloc.benchmark.calibration import ACCEPTANCE_CONDITIONS, calibration_cities_or_exit
 from semcityloc.benchmark.calibration import condition_rows as calibration_rows
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
@@ -61,14 +61,7 @@ from semcityloc.localization.localize import Localizer
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 BERLIN = SHARED / "berlin_lod2_citygml2" / "3910_5817.gml"
-# condition -> (seg_quality, prior_extra_m)
-CONDITIONS = {
-    "trained": ("trained", None),
-    "medium": ("medium", None),
-    "zero-shot": ("zero-shot", None),
-    "prior20-30": ("trained", (20.0, 30.0)),
-    "prior40-50": ("trained", (40.0, 50.0)),
-}
+CONDITIONS = ACCEPTANCE_CONDITIONS
 # (kind, with depth) -> the localizer variant whose results fit it
 VARIANTS = {
     ("semantic", True): "semcityloc",

@@ -14,7 +14,7 @@ from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.cascade import search_volume
+from semcityloc.localization.cascade import BEYOND_WARNING, look_beyond, search_volume
 from semcityloc.localization.confidence import (
     CALIBRATED_MIN_HFOV_DEG,
     CALIBRATED_MIN_SPAN_M,
@@ -30,7 +30,8 @@ from semcityloc.localization.confidence import (
     view_span_m,
 )
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
-from semcityloc.localization.localize import Localizer
+from semcityloc.localization.localize import Localizer, _scaled, reached_half
+from semcityloc.localization.query import Query
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
@@ -121,6 +122,77 @@ def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
     again = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=PriorUncertainty(z_m=8.0))
     assert again.status == LOCALIZED, again.reason
     assert center_error_m(again.pose_local, true) < 1.0
+
+
+def _ring(localizer, renderer, prior, true, found_xy):
+    """``look_beyond`` for a query seen from ``true`` and a prior with the default uncertainty."""
+    cfg = localizer.config
+    volume = search_volume(prior.to_xyz_rpy(), cfg.prior_uncertainty, cfg.cascade)
+    cam = _scaled(CAMERA, cfg.cascade.sweep.width, cfg.cascade.sweep.height)
+    labels = Query(query(renderer, true)[0], None).at(cam.width, cam.height)[0]
+    reach = reached_half(volume, cfg.cascade)["xy"]
+    beyond = cfg.cascade.beyond
+    ring = look_beyond(
+        localizer.scene, cam, volume, reach, found_xy, labels, localizer.class_on, cfg.cascade.sweep, beyond
+    )
+    return ring, reach
+
+
+def test_the_look_beyond_finds_a_view_the_search_volume_does_not_reach(city, localizer, renderer):
+    """The truth 38 m from a prior that states 5 m (the search reaches +-30 m): the ring beyond it holds a
+    view within a lattice step of the truth; told that the pose found is there, the ring's best is
+    another view, at least ``exclude_m`` away, and scores lower."""
+    true = view(city, *VIEWS["oblique"])
+    prior = perturbed(true, [-38.0, 0.0, 0.0])
+    x, y = true.to_xyz_rpy()[:2]
+    ring, reach = _ring(localizer, renderer, prior, true, prior.to_xyz_rpy()[:2])
+    assert reach == pytest.approx(30.0)
+    assert reach < ring.offset_xy_m <= 3 * 15.0 * np.sqrt(2)
+    assert np.hypot(ring.state[0] - x, ring.state[1] - y) < 8.0
+    other, _ = _ring(localizer, renderer, prior, true, np.array([x, y]))
+    assert np.hypot(other.state[0] - x, other.state[1] - y) >= localizer.config.cascade.beyond.exclude_m
+    assert other.score < ring.score
+
+
+def test_a_refusal_says_when_a_view_beyond_the_volume_scores_higher(city, localizer, renderer):
+    """The look beyond runs on refused results only: an accepted pose is not looked beyond; a refused
+    one with a correct prior has no hint (the ring scores far below the sweep); with a margin that lets
+    any ring view count, the warning names the ``--prior-sigma`` whose volume reaches past the ring. The
+    reason stays the refusal's own. Switched off, nothing is recorded."""
+    true = view(city, *VIEWS["nadir"])
+    prior = perturbed(true, [4.0, -3.0, 6.0], dyaw=2.0)
+    labels, depth = query(renderer, true)
+    accepted = localizer.localize(CAMERA, prior, labels, depth)
+    assert accepted.status == LOCALIZED, accepted.reason
+    assert "beyond" not in accepted.search
+    cfg = replace(localizer.config, min_confidence=1.0)  # refuse whatever was found (p < 1)
+    refused = localizer.localize(CAMERA, prior, labels, depth, config=cfg)
+    assert refused.reason == REASON_LOW_CONFIDENCE
+    beyond = refused.search["beyond"]
+    assert not beyond["higher"] and beyond["score"] < refused.search["sweep_best"] - 0.1
+    assert not [w for w in refused.warnings if w.startswith(BEYOND_WARNING)]
+    eager = replace(cfg, cascade=replace(cfg.cascade, beyond=replace(cfg.cascade.beyond, margin=-1.0)))
+    hinted = localizer.localize(CAMERA, prior, labels, depth, config=eager)
+    assert hinted.reason == REASON_LOW_CONFIDENCE and hinted.search["beyond"]["higher"]
+    assert center_error_m(hinted.found_pose_local, true) < 1.0  # the refused pose is kept
+    (said,) = [w for w in hinted.warnings if w.startswith(BEYOND_WARNING)]
+    assert "beyond the searched +-30 m" in said and "run again with --prior-sigma xy=20" in said
+    assert hinted.search["beyond"]["sigma"] == {"xy": 20}
+    off = replace(cfg, cascade=replace(cfg.cascade, beyond=replace(cfg.cascade.beyond, enabled=False)))
+    assert "beyond" not in localizer.localize(CAMERA, prior, labels, depth, config=off).search
+
+
+def test_a_prior_38m_off_against_a_stated_5m_is_refused_with_the_hint(city, localizer, renderer):
+    """The truth 38 m west of a prior that states 5 m: the sweep's best inside is a look-alike, refused,
+    and the refusal's warning says a view 34 m away (beyond the +-30 m searched) scores higher."""
+    true = view(city, *VIEWS["nadir"])
+    prior = perturbed(true, [-38.0, 0.0, 0.0])
+    labels, depth = query(renderer, true)
+    result = localizer.localize(CAMERA, prior, labels, depth)
+    assert result.status == NOT_LOCALIZED and result.reason == REASON_LOW_CONFIDENCE
+    assert center_error_m(result.found_pose_local, true) > 20.0
+    assert result.search["beyond"]["higher"] and result.search["beyond"]["offset_xy_m"] > 30.0
+    assert [w for w in result.warnings if w.startswith(BEYOND_WARNING) and "beyond the searched +-30 m" in w]
 
 
 def test_the_search_stays_above_the_ground(city, localizer, renderer):

@@ -10,6 +10,7 @@ import numpy as np
 
 from semcityloc.benchmark.photo_exports import (
     OFFSET_MIN_PHOTOS,
+    beyond_notes,
     edge_count,
     edge_notes,
     offset_sigma,
@@ -19,7 +20,7 @@ from semcityloc.benchmark.photo_exports import (
     yaw_moves_deg,
 )
 from semcityloc.geometry.pose import Pose
-from semcityloc.localization.result import REASON_AT_EDGE
+from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, REASON_AT_EDGE
 
 
 def test_a_shared_height_offset_is_said_with_its_size_and_side():
@@ -122,6 +123,26 @@ def test_photos_refused_at_the_edge_get_one_note_with_the_widest_sigma_they_ask_
     assert edge_notes(records[3:]) == []
     (old,) = edge_notes([{"reason": REASON_AT_EDGE, "search": {}}])  # a record without the edges
     assert "edges not recorded" in old and "--prior-sigma" not in old and old.startswith("1 photo was")
+
+
+def test_refused_photos_with_a_better_view_beyond_the_volume_get_one_note_with_the_widest_sigma():
+    def record(status, higher, xy=None):
+        beyond = {"higher": higher, **({"sigma": {"xy": xy}} if xy else {})}
+        return {"status": status, "search": {"beyond": beyond}}
+
+    records = [
+        record(NOT_LOCALIZED, True, 20),
+        record(NOT_LOCALIZED, True, 27),
+        record(NOT_LOCALIZED, False),
+        {"status": NOT_LOCALIZED, "search": {}},
+        record(LOCALIZED, True, 40),  # never looked beyond in practice; an accepted photo is no hint
+    ]
+    (note,) = beyond_notes(records)
+    assert note.startswith("2 refused photos have a view beyond the searched volume")
+    assert "run again with --prior-sigma xy=27 (a map that differs" in note
+    assert beyond_notes(records[2:]) == []
+    (old,) = beyond_notes([record(NOT_LOCALIZED, True)])  # a record without the sigma
+    assert old.startswith("1 refused photo has") and "state a larger --prior-sigma xy" in old
 
 
 def test_the_offset_note_and_the_edge_note_name_one_sigma_for_the_same_refusals():

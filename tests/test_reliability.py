@@ -21,7 +21,7 @@ from PIL import Image
 
 from helpers import CAMERA, perturbed, view
 from semcityloc.benchmark.report import make_report
-from semcityloc.benchmark.runfiles import LOCK_FILE, RUN_FILE, prepare_output, run_lock
+from semcityloc.benchmark.runfiles import LOCK_FILE, RUN_FILE, code_change_note, prepare_output, run_lock
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.obj import read_obj
@@ -445,6 +445,32 @@ def test_resume_refusal_names_only_the_differing_keys(tmp_path):
     assert "query.knob_3" in message and "knob_4" not in message and "[0, 1, 2" not in message
     assert len(message) < 300, message
     assert json.loads((tmp_path / RUN_FILE).read_text()) == config  # untouched
+
+
+def test_a_configuration_field_added_by_newer_code_does_not_refuse_a_resume(tmp_path):
+    """A run started before the localizer had a field (its run.json lacks it) resumes under code that
+    has it: the code changed, not the arguments (told by ``code_change_note``). A changed value of a
+    field both have, and a scenario knob set only now (``--set``), are still refused."""
+    old = {
+        "method": "semcityloc",
+        "localizer": {"cascade": {"sweep": {"keep": 6}}},
+        "settings": {},
+        "code": "a",
+    }
+    assert prepare_output(tmp_path, old) is None
+    newer = {
+        **old,
+        "localizer": {"cascade": {"sweep": {"keep": 6}, "beyond": {"enabled": True}}},
+        "code": "b",
+    }
+    assert prepare_output(tmp_path, newer) == old
+    note = code_change_note(tmp_path, old, newer, done=3, todo=2)
+    assert note is not None and "results mix both" in note
+    changed = {**newer, "localizer": {"cascade": {"sweep": {"keep": 4}, "beyond": {"enabled": True}}}}
+    with pytest.raises(ResumeMismatchError, match="localizer.cascade.sweep.keep: 6 -> 4"):
+        prepare_output(tmp_path, changed)
+    with pytest.raises(ResumeMismatchError, match="settings.prior_height_m"):
+        prepare_output(tmp_path, {**old, "settings": {"prior_height_m": 10}})
 
 
 # ---------------------------------------------------------------------------------------- crashed run

@@ -25,6 +25,17 @@ from semcityloc.errors import InputFileError, ParameterError
 # Fürth's LoD2 district, relative to the shared data folder (``../shared/data`` beside the repository).
 FUERTH_FILE = Path("fuerth_lod2_citygml1") / "LOD2_4424_5482_solid.gml"
 
+# The acceptance's fitting conditions (``calibrate_confidence``; ``look_beyond`` measures on them too):
+# condition -> (segmentation quality, the paper's extra prior error per axis in metres or None). The last
+# two put the truth beyond the volume the default stated uncertainty reaches, so that failures are seen.
+ACCEPTANCE_CONDITIONS: dict[str, tuple[str, tuple[float, float] | None]] = {
+    "trained": ("trained", None),
+    "medium": ("medium", None),
+    "zero-shot": ("zero-shot", None),
+    "prior20-30": ("trained", (20.0, 30.0)),
+    "prior40-50": ("trained", (40.0, 50.0)),
+}
+
 
 def calibration_cities(shared_data: Path) -> list[str]:
     """The calibration cities: the generated district, and Fürth when ``shared_data`` holds it."""

@@ -287,6 +287,27 @@ def edge_notes(records: list[dict], asked: dict[str, int] | None = None) -> list
     ]
 
 
+def beyond_notes(records: list[dict]) -> list[str]:
+    """One note for the refused photos for which a view beyond the searched volume scored higher than any
+    inside (``search.beyond.higher``, ``cascade.look_beyond``): their priors may be further off
+    horizontally than stated; the ``--prior-sigma xy`` that searches past the farthest such view."""
+    hinted = [
+        r["search"]["beyond"]
+        for r in records
+        if r.get("status") != LOCALIZED and ((r.get("search") or {}).get("beyond") or {}).get("higher")
+    ]
+    if not hinted:
+        return []
+    xy = max(int((b.get("sigma") or {}).get("xy", 0)) for b in hinted)
+    count = f"{len(hinted)} refused {'photo has' if len(hinted) == 1 else 'photos have'}"
+    return [
+        f"{count} a view beyond the searched volume that matches better than any inside: if their priors "
+        "may be further off horizontally than stated"
+        + (f", run again with --prior-sigma xy={xy}" if xy else ", state a larger --prior-sigma xy")
+        + " (a map that differs from the world in view can do the same)"
+    ]
+
+
 def focal_notes(inputs: list) -> list[str]:
     """One line per camera whose focal length the flight estimated, or tried to (``calibrate_focal``)."""
     estimates = [inp.focal_estimate for inp in inputs if inp.focal_estimate is not None]
@@ -353,6 +374,7 @@ def write_exports(
     outputs["notes"] += prior_offset_notes(np.array(moves), z_edge, xy_edge, asked)
     outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(done, "yaw"), asked)
     outputs["notes"] += edge_notes(done, asked)
+    outputs["notes"] += beyond_notes(done)
     cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)

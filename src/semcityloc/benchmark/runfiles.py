@@ -74,6 +74,10 @@ CODE_KEY = "code"
 # Keys of run.json that do not change the numbers (not compared on resume). A run resumed by changed code
 # is not refused (a fix of a typo would cost every finished query) but told (``code_change_note``).
 NOT_IDENTITY = ("city", "keep_details", "semcityloc_version", CODE_KEY)  # "city": as typed; city_path counts
+# Keys of run.json holding a whole configuration (every field of a dataclass, defaults too). A field that
+# only one side holds was added or removed by the code, not by the arguments: a resume across it is told
+# like any code change (``code_change_note``), not refused.
+FULL_CONFIGS = ("localizer", "query_config", "seg_preset")
 
 
 def plain(value: Any) -> Any:
@@ -170,18 +174,21 @@ def _lock_holder(fd: int, default: str = "pid unknown") -> str:
 _SHORT_VALUE = 40  # a differing value longer than this (as repr) is named, not shown
 
 
-def differing_settings(old: dict, new: dict, prefix: str = "") -> list[str]:
+def differing_settings(old: dict, new: dict, prefix: str = "", full: bool = False) -> list[str]:
     """The keys (dotted into nested objects) whose values differ, each with ``old -> new`` when both are
-    short: what a refused resume names (never whole configurations)."""
+    short: what a refused resume names (never whole configurations). Inside ``FULL_CONFIGS`` (``full``),
+    a key only one side has is the code's difference, not named."""
     out = []
     for k in sorted(set(old) | set(new), key=str):
         if not prefix and k in NOT_IDENTITY:
+            continue
+        if full and (k in old) != (k in new):
             continue
         a, b = old.get(k), new.get(k)
         if a == b:
             continue
         if isinstance(a, dict) and isinstance(b, dict):
-            out += differing_settings(a, b, f"{prefix}{k}.")
+            out += differing_settings(a, b, f"{prefix}{k}.", full or (not prefix and k in FULL_CONFIGS))
             continue
         shown = f"{a!r} -> {b!r}"
         out.append(f"{prefix}{k}" + (f": {shown}" if len(shown) <= 2 * _SHORT_VALUE else ""))

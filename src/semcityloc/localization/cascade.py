@@ -20,6 +20,12 @@ sized for a smaller error gives a confident wrong pose at its edge. So:
    on the lattice), a small grid at a finer resolution that also samples roll and pitch (one wide render
    per centre again; a roll/pitch/yaw hypothesis is a rotation about the centre, read through the lookup
    table). The best distinct hypotheses seed the refinement (one particle filter over all of them).
+4. (The refinement, ``refine.py``.)
+5. **Beyond** (``look_beyond``): the sweep sees only its volume, so a prior further off than its stated
+   uncertainty leads it to the best look-alike inside, which may score well. A ring of centres just beyond
+   the volume's largest extension, at a coarse lattice: if a view there, distinct from the pose found,
+   matches the image about as well as the sweep's best, the localizer refuses (the prior is further off
+   than stated) instead of returning the look-alike.
 
 Hypothesis states are ``(x, y, z, roll, pitch, yaw)`` in the model's local frame, degrees.
 """
@@ -27,7 +33,7 @@ Hypothesis states are ``(x, y, z, roll, pitch, yaw)`` in the model's local frame
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -35,10 +41,12 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.coarse import CostVolume, rotation_offsets, score_rotations
-from semcityloc.localization.config import CascadeConfig, LocalConfig, SweepConfig
+from semcityloc.localization.config import BeyondConfig, CascadeConfig, LocalConfig, SweepConfig
 from semcityloc.render.scene import RenderScene
 
 AXES = ("x", "y", "z", "yaw")
+# What a refused result's warning starts with when ``look_beyond`` found a view outside scoring higher.
+BEYOND_WARNING = "a view outside the search volume matches the image better than any inside"
 
 
 @dataclass(frozen=True)
@@ -148,6 +156,18 @@ def _lattice_extent(half: float, step: float) -> int:
     return max(1, int(math.ceil(half / step - 1e-9)))
 
 
+def _lattice(volume: SearchVolume, config: SweepConfig, max_centres: int) -> tuple[np.ndarray, np.ndarray]:
+    """(step, n) of the lattice ``-n..n`` over ``volume`` per axis (x, y, z, yaw): the sweep's steps, the
+    xy and z ones grown together until it needs at most ``max_centres`` camera centres."""
+    step = np.array([config.step_xy_m, config.step_xy_m, config.step_z_m, config.step_yaw_deg], dtype=float)
+    half = np.array([volume.half_xy_m, volume.half_xy_m, volume.half_z_m, volume.half_yaw_deg])
+    n = np.array([_lattice_extent(h, st) for h, st in zip(half, step, strict=True)])
+    while (2 * n[0] + 1) ** 2 * (2 * n[2] + 1) > max_centres and n[:3].max() > 1:
+        step[:3] *= 1.1
+        n[:3] = [_lattice_extent(h, st) for h, st in zip(half[:3], step[:3], strict=True)]
+    return step, n
+
+
 def _rotations(roll: float, pitch: float, yaws: np.ndarray) -> np.ndarray:
     n = len(yaws)
     return Pose.from_xyz_rpy(np.zeros((n, 3)), np.full(n, roll), np.full(n, pitch), yaws).R
@@ -187,12 +207,7 @@ def sweep(
 ) -> Sweep:
     """Stage 2 of the module docstring. ``camera``/``query_labels`` at the sweep's resolution."""
     c = volume.centre
-    step = np.array([config.step_xy_m, config.step_xy_m, config.step_z_m, config.step_yaw_deg], dtype=float)
-    half = np.array([volume.half_xy_m, volume.half_xy_m, volume.half_z_m, volume.half_yaw_deg])
-    n = np.array([_lattice_extent(h, st) for h, st in zip(half, step, strict=True)])
-    while (2 * n[0] + 1) ** 2 * (2 * n[2] + 1) > config.max_centres and n[:3].max() > 1:
-        step[:3] *= 1.1
-        n[:3] = [_lattice_extent(h, st) for h, st in zip(half[:3], step[:3], strict=True)]
+    step, n = _lattice(volume, config, config.max_centres)
     origin = np.array([c[0], c[1], c[2], c[5]])
     scorer = _SweepScorer(scene, camera, query_labels, class_on, origin, step, float(c[3]), float(c[4]))
     lo, hi = -n.copy(), n.copy()
@@ -256,6 +271,73 @@ def _edges(sw: Sweep) -> list[tuple[int, int]]:
         elif best[a] == size - 1:
             out.append((a, +1))
     return out
+
+
+@dataclass(frozen=True)
+class Beyond:
+    """The best distinct view of the ring beyond the search's reach (``look_beyond``)."""
+
+    score: float  # its sweep score (mean per-class IoU at the sweep's resolution)
+    state: np.ndarray  # (6,) its cell
+    offset_xy_m: float  # its horizontal distance from the prior
+    hypotheses: int  # ring cells scored
+
+    def as_dict(self) -> dict:
+        return {"score": self.score, "state": self.state.tolist(), "offset_xy_m": self.offset_xy_m}
+
+
+def look_beyond(
+    scene: RenderScene,
+    camera: Camera,
+    volume: SearchVolume,
+    reach_xy_m: float,
+    found_xy: np.ndarray,
+    query_labels: np.ndarray,
+    class_on: np.ndarray,
+    sweep_config: SweepConfig,
+    config: BeyondConfig,
+) -> Beyond | None:
+    """Stage 5 of the module docstring: the ring of centres whose x or y lies beyond ``reach_xy_m`` from the
+    prior, up to ``config.factor_xy`` x the volume's half-width, at the prior's roll and pitch, on a lattice
+    of the sweep's steps grown to ``config.max_centres`` over the whole box; cells within
+    ``config.exclude_m`` of ``found_xy`` (the pose found, local x/y) are the same view and left out. None
+    when the ring holds no cell."""
+    box = replace(
+        volume,
+        half_xy_m=config.factor_xy * volume.half_xy_m,
+        half_z_m=config.factor_z * volume.half_z_m,
+    )
+    step, n = _lattice(box, sweep_config, config.max_centres)
+    c = volume.centre
+    origin = np.array([c[0], c[1], c[2], c[5]])
+    scorer = _SweepScorer(scene, camera, query_labels, class_on, origin, step, float(c[3]), float(c[4]))
+    ixy = np.arange(-n[0], n[0] + 1)
+    outside = np.abs(ixy * step[0]) > reach_xy_m
+    if not outside.any():
+        return None
+    iz = np.arange(-n[2], n[2] + 1)
+    if math.isfinite(volume.floor_z):
+        iz = iz[origin[2] + iz * step[2] >= volume.floor_z - 1e-9]
+        if iz.size == 0:
+            iz = np.array([int(math.ceil((volume.floor_z - c[2]) / step[2] - 1e-9))])
+    iyaw = np.arange(-n[3], n[3] + 1)
+    best: tuple[float, np.ndarray] | None = None
+    for ix, iy in ((ixy[outside], ixy), (ixy[~outside], ixy[outside])):  # the ring as two blocks
+        if ix.size == 0 or iy.size == 0:
+            continue
+        scores = scorer.score(ix, iy, iz, iyaw)
+        x, y = origin[0] + ix * step[0], origin[1] + iy * step[1]
+        same = np.hypot(x[:, None] - found_xy[0], y[None, :] - found_xy[1]) < config.exclude_m
+        scores = np.where(same[:, :, None, None], -np.inf, scores)
+        k = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        if np.isfinite(scores[k]) and (best is None or scores[k] > best[0]):
+            z, yaw = origin[2] + iz[k[2]] * step[2], origin[3] + iyaw[k[3]] * step[3]
+            best = (float(scores[k]), np.array([x[k[0]], y[k[1]], z, c[3], c[4], yaw]))
+    if best is None:
+        return None
+    score, state = best
+    offset = float(np.hypot(state[0] - c[0], state[1] - c[1]))
+    return Beyond(score, state, offset, scorer.count)
 
 
 @dataclass

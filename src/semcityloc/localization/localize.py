@@ -31,7 +31,14 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.agreement import building_agreement
-from semcityloc.localization.cascade import SearchVolume, local_search, search_volume, sweep
+from semcityloc.localization.cascade import (
+    BEYOND_WARNING,
+    SearchVolume,
+    local_search,
+    look_beyond,
+    search_volume,
+    sweep,
+)
 from semcityloc.localization.coarse import coarse_search
 from semcityloc.localization.confidence import (
     close_view_warning,
@@ -189,6 +196,10 @@ class Localizer:
                     result.warnings.append(warning)
         else:
             accepted, reason = self._accept(result, cfg, with_depth), REASON_LOW_SCORE
+        if not accepted and "sweep_best" in result.search and cfg.cascade.beyond.enabled:
+            t_beyond = time.perf_counter()
+            self._look_beyond(result, camera, query, prior_state, cfg, unc)
+            result.timings["beyond_s"] = time.perf_counter() - t_beyond
         if not accepted:
             result.rejected_pose_local = result.pose_local
             result.pose_local = None
@@ -259,6 +270,7 @@ class Localizer:
             at_edge=sw.at_edge,
         )
         result.confidence["score_margin"] = sw.score_margin()
+        result.search["sweep_best"] = float(np.max(sw.scores))
         result.cost_volume = sw.cost_volume()
         result.coarse_pose_local = _pose(sw.state(sw.best()))
         if sw.at_edge:
@@ -292,6 +304,36 @@ class Localizer:
         )
         self._refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
         return levels[-1]
+
+    def _look_beyond(self, result, camera, query, prior_state, cfg: LocalizerConfig, unc) -> None:
+        """For a refused result: does a view beyond the search's reach, distinct from the refused pose,
+        score higher than the sweep's best (``cascade.look_beyond``)? Recorded in
+        ``result.search["beyond"]``; if so, a warning names the ``--prior-sigma`` that would search there.
+        A hint, not a verdict: a prior further off than stated does this, and so does a view whose map
+        differs from the world (Berlin seed 0: one of its three such refusals had a wrong prior)."""
+        cc = cfg.cascade
+        volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
+        sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
+        q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
+        reach = reached_half(volume, cc)["xy"]
+        found_xy = result.pose_local.to_xyz_rpy()[:2]
+        ring = look_beyond(
+            self.scene, sweep_cam, volume, reach, found_xy, q_sweep, self.class_on, cc.sweep, cc.beyond
+        )
+        if ring is None:
+            return
+        sweep_best = result.search["sweep_best"]
+        higher = ring.score >= sweep_best + cc.beyond.margin
+        result.search["beyond"] = {**ring.as_dict(), "hypotheses": ring.hypotheses, "higher": bool(higher)}
+        if higher:
+            sigma = edge_sigma(["x+"], volume, cc)
+            result.search["beyond"]["sigma"] = sigma
+            result.warnings.append(
+                f"{BEYOND_WARNING}: a view {ring.offset_xy_m:.0f} m from the prior, beyond the searched "
+                f"+-{reach:.0f} m, scores {ring.score:.2f} against the best inside's {sweep_best:.2f}; if "
+                "the prior may be further off than its stated uncertainty, run again with --prior-sigma "
+                f"xy={sigma['xy']} (a map that differs from the world in view can do the same)"
+            )
 
     def _refine(
         self, result, levels, seeds: np.ndarray, cfg: LocalizerConfig, sigma, prior=None, seed_depth=None
