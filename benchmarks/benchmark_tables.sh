@@ -64,12 +64,18 @@ for KV in "as_is" "imu2 prior_roll_pitch_sigma_deg=2 prior_roll_pitch_deg=5" \
     "lens05 lens_k1=-0.05" "lens05_unstated lens_k1=-0.05 lens_stated=false" \
     "lens10 lens_k1=-0.1" "lens10_unstated lens_k1=-0.1 lens_stated=false" \
     "flat_eaves reality.overhang_flat_roofs=true" "big_eaves reality.overhang_m=[1,2]" \
-    "trees3x reality.tree_m2=100" "map_err2x reality.shift_xy_max_m=2 reality.height_change_max_m=4"; do
+    "trees3x reality.tree_m2=100" "map_err2x reality.shift_xy_max_m=2 reality.height_change_max_m=4" \
+    "yaw25 prior_yaw_deg=25" "w169 width=640 height=360" "portrait width=384 height=512" \
+    "hilly reality.terrain_relief_m=10"; do
   set -- $KV
   NAME=$1; shift
   SETS=(); for KNOB in "$@"; do SETS+=(--set "$KNOB"); done
   $S benchmark --city $CITY --queries 100 --seed 3 --workers 2 ${SETS[@]+"${SETS[@]}"} --out "$R/berlin_s3_$NAME"
 done
+$S benchmark --city $CITY --queries 100 --seed 3 --workers 2 --set prior_yaw_deg=25 --prior-sigma yaw=9 \
+  --out "$R/berlin_s3_yaw25_stated"
+$S benchmark --city generated --queries 50 --workers 2 --set oblique_fraction=1 --set 'oblique_pitch_deg=[70,84]' \
+  --out "$R/generated_horizontal"
 set +f
 for F in 18.55 23.77 28; do  # 50, 40 and 34 deg across (the default camera: 70)
   for C in generated $DATA/fuerth_lod2_citygml1/LOD2_4424_5482_solid.gml; do
@@ -90,6 +96,18 @@ done
 $S benchmark --city generated --queries 100 --workers 2 --set focal_mm=28 --set prior_height_m=5 --out "$R/narrow_z5"
 $S benchmark --city generated --queries 100 --workers 2 --set focal_mm=28 --set prior_height_m=5 \
   --prior-sigma z=2 --out "$R/narrow_z5_stated"
+# "A look beyond the volume" (docs/localization.md): the ring's best against the sweep's, per condition
+for C in generated $DATA/fuerth_lod2_citygml1/LOD2_4424_5482_solid.gml; do
+  for SEED in 0 1; do for COND in trained prior20-30 prior40-50; do
+    ${PYTHON:-.venv/bin/python} benchmarks/look_beyond.py --city $C --seed $SEED --condition $COND
+  done; done
+  for COND in medium zero-shot; do
+    ${PYTHON:-.venv/bin/python} benchmarks/look_beyond.py --city $C --seed 1 --condition $COND
+  done
+done > "$R/look_beyond.jsonl"
+for COND in trained prior20-30 prior40-50 zero-shot; do
+  ${PYTHON:-.venv/bin/python} benchmarks/look_beyond.py --city $CITY --seed 1 --queries 60 --condition $COND --check-only
+done > "$R/look_beyond_berlin.jsonl"
 $S report "$R/berlin_semcityloc" "$R/berlin_no-depth" --out "$R/report_acceptance"
 $S report "$R"/sweep_rp/* "$R"/sweep_height/* "$R"/sweep_depth/* --out "$R/report_sweeps" --no-html
 PY=${PYTHON:-.venv/bin/python}
