@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import functools
 import os
+import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+from semcityloc.benchmark.ray_executor import run_token
 from semcityloc.benchmark.results import FAILED, TIMING_COLUMNS, read_results
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.spec import BenchmarkSpec
@@ -108,3 +110,40 @@ def test_executor_options_are_checked(tmp_path, capsys):
     assert main([*args, "--executor", "ray", "--ray-address", "head:http"]) == 2
     assert "expected host:port" in capsys.readouterr().err
     assert not (tmp_path / "y").exists()  # refused before the run began
+
+
+def test_a_run_token_is_set_for_the_block_unless_the_user_set_one(monkeypatch):
+    monkeypatch.delenv("RAY_AUTH_TOKEN", raising=False)
+    monkeypatch.delenv("RAY_AUTH_TOKEN_PATH", raising=False)
+    with run_token():
+        first = os.environ["RAY_AUTH_TOKEN"]
+        assert len(first) == 64 and int(first, 16) >= 0
+    assert "RAY_AUTH_TOKEN" not in os.environ
+    with run_token():
+        assert os.environ["RAY_AUTH_TOKEN"] != first  # a fresh one per run
+    monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", "/somewhere/token")
+    with run_token():
+        assert "RAY_AUTH_TOKEN" not in os.environ  # the user's own token file is used
+    monkeypatch.delenv("RAY_AUTH_TOKEN_PATH")
+    monkeypatch.setenv("RAY_AUTH_TOKEN", "mine")
+    with run_token():
+        assert os.environ["RAY_AUTH_TOKEN"] == "mine"
+    assert os.environ["RAY_AUTH_TOKEN"] == "mine"
+
+
+@pytest.mark.slow
+def test_a_local_ray_run_leaves_no_token_in_the_users_home(tmp_path):
+    """Ray's local runtimes write ``~/.ray/auth_token`` by default; a run's own runtime does not."""
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {**os.environ, "HOME": str(home)}
+    env.pop("RAY_AUTH_TOKEN", None)
+    env.pop("RAY_AUTH_TOKEN_PATH", None)
+    env.setdefault("SEMCITYLOC_CACHE", str(Path.home() / ".cache"))  # the generated city, already made
+    args = ["benchmark", "--city", "generated", "--queries", "2", "--preset", "fast", "--workers", "1"]
+    args += ["--executor", "ray", "--out", str(tmp_path / "out")]
+    code = "import sys; from semcityloc.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    done = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (tmp_path / "out" / "summary.json").is_file()
+    assert not (home / ".ray" / "auth_token").exists()

@@ -14,7 +14,10 @@ driver resumes as today).
   refused in one line (``BenchmarkError``) within ``CONNECT_TIMEOUT_S``: Ray itself retries for
   minutes, then raises from deep inside; ``auto`` with no cluster on this machine likewise. A failed
   join names ``RAY_AUTH_MODE=token`` when this machine holds a Ray token: a head started where
-  ``~/.ray/auth_token`` exists asks for it, and Ray's clients send it only in token mode.
+  ``~/.ray/auth_token`` exists asks for it, and Ray's clients send it only in token mode. A runtime of
+  its own gets a token for the run in its environment (``RAY_AUTH_TOKEN``, ``run_token``) unless the
+  user set one: Ray then writes none to ``~/.ray/auth_token`` (a local runtime otherwise leaves one in
+  the user's home, which later heads on the machine ask for).
 - Shipping: the worker arguments (the typed spec, the source with its city model or tile store) are put
   in the object store once (``ray.put``); each of ``workers`` actors builds its ``_Worker`` (method,
   render scene) from them once and then localizes one query at a time.
@@ -28,7 +31,9 @@ are seeded per query).
 
 from __future__ import annotations
 
+import contextlib
 import os
+import secrets
 import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -82,22 +87,39 @@ def run_ray(
     """
     ray = import_ray()
     started = not ray.is_initialized()
-    if started:
-        if address:
-            join_cluster(ray, address)
-        else:
-            ray.init(
-                address="local",  # a new runtime even when a `ray start` cluster runs on this machine
-                num_cpus=workers,
-                include_dashboard=False,
-                log_to_driver=False,
-                object_store_memory=OBJECT_STORE_BYTES,
-            )
-    try:
-        yield from _schedule(ray, todo, workers, make_worker, worker_args)
-    finally:
+    with contextlib.ExitStack() as stack:
         if started:
-            ray.shutdown()
+            if address:
+                join_cluster(ray, address)
+            else:
+                stack.enter_context(run_token())
+                ray.init(
+                    address="local",  # a new runtime even when a `ray start` cluster runs on this machine
+                    num_cpus=workers,
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    object_store_memory=OBJECT_STORE_BYTES,
+                )
+        try:
+            yield from _schedule(ray, todo, workers, make_worker, worker_args)
+        finally:
+            if started:
+                ray.shutdown()
+
+
+@contextlib.contextmanager
+def run_token() -> Iterator[None]:
+    """``RAY_AUTH_TOKEN`` set to a fresh random token while the block runs (the processes a local runtime
+    starts inherit it), unless the user set ``RAY_AUTH_TOKEN`` or ``RAY_AUTH_TOKEN_PATH``; the environment
+    as it was afterwards. With a token in the environment Ray writes none to ``~/.ray/auth_token``."""
+    if os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH"):
+        yield
+        return
+    os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
+    try:
+        yield
+    finally:
+        os.environ.pop("RAY_AUTH_TOKEN", None)
 
 
 def host_port(address: str) -> tuple[str, int] | None:
