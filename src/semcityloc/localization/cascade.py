@@ -21,11 +21,12 @@ sized for a smaller error gives a confident wrong pose at its edge. So:
    per centre again; a roll/pitch/yaw hypothesis is a rotation about the centre, read through the lookup
    table). The best distinct hypotheses seed the refinement (one particle filter over all of them).
 4. (The refinement, ``refine.py``.)
-5. **Beyond** (``look_beyond``): the sweep sees only its volume, so a prior further off than its stated
-   uncertainty leads it to the best look-alike inside, which may score well. A ring of centres just beyond
-   the volume's largest extension, at a coarse lattice: if a view there, distinct from the pose found,
-   matches the image about as well as the sweep's best, the localizer refuses (the prior is further off
-   than stated) instead of returning the look-alike.
+5. **Beyond** (``look_beyond``, for a refused result): the sweep sees only its volume, so a prior further
+   off than its stated uncertainty leads it to the best look-alike inside, which the acceptance refuses
+   while the warnings blame the map. A ring of centres just beyond the volume's largest extension, on a
+   coarse lattice: if a view there, distinct from the refused pose, scores higher than the sweep's best,
+   the refusal's warning says the prior may be further off than stated (a hint: a view whose map differs
+   from the world can do the same).
 
 Hypothesis states are ``(x, y, z, roll, pitch, yaw)`` in the model's local frame, degrees.
 """

@@ -102,17 +102,17 @@ class LocalConfig:
 class BeyondConfig:
     """Why a pose was refused: the look beyond the search's reach (``cascade.look_beyond``), run on refused
     results only. A ring of camera centres in x/y just outside the volume's largest extension, scored like
-    the sweep; a view there, distinct from the refused pose, that scores higher than the sweep's best says
-    the prior is further off than its stated uncertainty: the refusal's reason and warning say so and name
-    the ``--prior-sigma`` that would search there. Never changes an accepted pose (refusing with it was
-    measured and not kept: ``docs/localization.md``, "A look beyond the volume")."""
+    the sweep; a view there, distinct from the refused pose, that scores higher than the sweep's best
+    hints that the prior is further off than its stated uncertainty: the refusal's warning says so and
+    names the ``--prior-sigma`` that would search there. Never changes an accepted pose (refusing with it
+    was measured and not kept: ``docs/localization.md``, "A look beyond the volume")."""
 
     enabled: bool = True
     factor_xy: float = 3.0  # the ring's outer half-width in x/y, in the volume's stated half-widths
     factor_z: float = 2.0  # its z half-width, likewise (the sweep reaches 2 in z too: the ring is in x/y)
     max_centres: int = 750  # camera centres of the whole box (the ring is scored, the inside skipped)
     exclude_m: float = 12.0  # ring cells nearer than this (x/y) to the pose found are the same view
-    margin: float = 0.0  # refuse when the ring's best >= the sweep's best + margin
+    margin: float = 0.0  # the hint when the ring's best >= the sweep's best + margin
 
 
 @dataclass(frozen=True)
