@@ -26,6 +26,10 @@ check beside the full model's (never written). With
 ``--reached`` the check counts only the results that reached the acceptance (the population the model
 is applied to), and each model is fitted both on every row and on those.
 
+``--check-shipped`` fits nothing: it checks the models the package ships (``confidence_models.json``)
+on the check city's conditions with today's localizer, one line per condition and one over all of them
+(the table of ``docs/benchmark.md``, "Acceptance and risk-coverage").
+
 ``--cache DIR`` keeps every condition's features (``DIR/<city>_<condition>_<seed>_<queries>_<code>.json``,
 ``<code>`` the package's ``code_fingerprint``), so a refit does not localize again, and features made by
 other code (another localizer or simulation) are never reused.
@@ -50,6 +54,7 @@ from semcityloc.localization.confidence import (
     FEATURES_DEPTH,
     FEATURES_NO_DEPTH,
     calibration_error,
+    confidence_model,
     features_of,
     fit_logistic,
     risk_coverage,
@@ -195,6 +200,31 @@ def cross_city(rows_by_city: dict[str, list[dict]], without: str | None, reached
                         )
 
 
+def check_shipped(check_cities: list[str], args) -> int:
+    """``--check-shipped``: the shipped models on each check city's conditions, one line per condition and
+    one over all of them (coverage and precision at 0.3 ... 0.9, ECE, Brier)."""
+    if not check_cities:
+        print(
+            "--check-shipped: no check city (Berlin is not in ../shared/data; pass --check-city)",
+            file=sys.stderr,
+        )
+        return 2
+    for city in check_cities:
+        rows = {
+            cond: condition_rows(city, args.check_seed, args.queries, cond, args.workers, args.cache)
+            for cond in CONDITIONS
+        }
+        for (kind, with_depth), variant in VARIANTS.items():
+            model = confidence_model(kind, with_depth)
+            names = model.features
+            depth = "with" if with_depth else "without"
+            print(f"## {Path(city).stem} seed {args.check_seed}, shipped {kind} {depth} depth ({variant})")
+            for cond, cond_rows in rows.items():
+                report(model, *matrix(cond_rows, variant, names), f"  {cond}")
+            report(model, *matrix([r for rr in rows.values() for r in rr], variant, names), "  all")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--fit-city", action="append", default=None)
@@ -212,6 +242,11 @@ def main() -> int:
         action="store_true",
         help="with --cross-city: check on the results that reached the acceptance",
     )
+    ap.add_argument(
+        "--check-shipped",
+        action="store_true",
+        help="fit nothing: check the shipped models on the check city, per condition",
+    )
     args = ap.parse_args()
     if args.without is not None and args.without not in FEATURES_DEPTH:
         print(
@@ -220,10 +255,12 @@ def main() -> int:
         )
         return 2
 
-    fit_cities = calibration_cities_or_exit(args.fit_city, SHARED, "fit the confidence model")
     check_cities = (
         args.check_city if args.check_city is not None else ([str(BERLIN)] if BERLIN.exists() else [])
     )
+    if args.check_shipped:
+        return check_shipped(check_cities, args)
+    fit_cities = calibration_cities_or_exit(args.fit_city, SHARED, "fit the confidence model")
     by_city = {
         Path(city).stem: [
             row

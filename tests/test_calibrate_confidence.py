@@ -64,3 +64,22 @@ def test_reached_checks_only_the_results_that_reached_the_acceptance(calibrate, 
         for v in ("semcityloc", "no-depth", "silhouette")
     }
     assert checked <= wrong  # the 50 edge stops of each variant are not checked
+
+
+def test_check_shipped_reports_the_shipped_models_per_condition(calibrate, capsys, monkeypatch):
+    """``--check-shipped`` fits nothing: the models the package ships, one line per condition and one
+    over all, for each of the three localizer kinds."""
+    by_condition = {cond: _rows(i, n=40) for i, cond in enumerate(calibrate.CONDITIONS)}
+    monkeypatch.setattr(calibrate, "condition_rows", lambda city, seed, queries, cond, *a: by_condition[cond])
+    monkeypatch.setattr(calibrate, "fit_logistic", None)  # nothing may be fitted
+    args = type("Args", (), {"check_seed": 1, "queries": 40, "workers": 1, "cache": None})()
+    assert calibrate.check_shipped(["somewhere/berlin.gml"], args) == 0
+    lines = capsys.readouterr().out.splitlines()
+    heads = [line for line in lines if line.startswith("## berlin seed 1, shipped")]
+    assert len(heads) == 3 and "(semcityloc)" in heads[0]
+    per = len(calibrate.CONDITIONS) + 1
+    assert len(lines) == 3 * (1 + per)
+    for cond in (*calibrate.CONDITIONS, "all"):
+        assert sum(line.startswith(f"  {cond}: n=") for line in lines) == 3
+    assert "  all: n=200 " in lines[per]
+    assert calibrate.check_shipped([], args) == 2  # no check city: said, not a traceback
