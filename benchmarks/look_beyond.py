@@ -34,9 +34,8 @@ from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.localization.cascade import look_beyond, search_volume
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer, _scaled, reached_half
+from semcityloc.localization.localize import Localizer
 from semcityloc.localization.query import Query
 from semcityloc.localization.result import LOCALIZED
 
@@ -50,9 +49,8 @@ _WORKER: dict = {}
 def _init(city: str, seed: int, queries: int, condition: str, margin: float, exclude: float) -> None:
     seg, extra = CONDITIONS[condition]
     query = query_config("realistic", queries=queries, seed=seed, seg_quality=seg, prior_extra_m=extra)
-    source = BenchmarkSpec(city=city, query=query).open_source(
-        BenchmarkSpec(city=city, query=query).run_config()
-    )
+    spec = BenchmarkSpec(city=city, query=query)
+    source = spec.open_source(spec.run_config())
     base = LocalizerConfig.preset("default")
     beyond = dataclasses.replace(base.cascade.beyond, enabled=False, margin=margin, exclude_m=exclude)
     cfg = dataclasses.replace(base, cascade=dataclasses.replace(base.cascade, beyond=beyond))
@@ -73,15 +71,9 @@ def _one(index: int) -> dict | None:
         float(center_error_m(pose, q.true_pose_local)),
         float(rotation_error_deg(pose, q.true_pose_local)),
     )
-    cc, unc = cfg.cascade, cfg.prior_uncertainty
+    query = Query.from_arrays(q.labels, None, loc.has_openings)
     prior = q.prior_pose_local.to_xyz_rpy()
-    volume = search_volume(prior, unc, cc, loc.ground_below(prior, unc, cfg))
-    cam = _scaled(q.camera, cc.sweep.width, cc.sweep.height)
-    labels = Query(q.labels, None).at(cam.width, cam.height)[0]
-    reach = reached_half(volume, cc)["xy"]
-    ring = look_beyond(
-        loc.scene, cam, volume, reach, pose.to_xyz_rpy()[:2], labels, loc.class_on, cc.sweep, cc.beyond
-    )
+    ring, _ = loc.ring_beyond(q.camera, query, prior, pose.to_xyz_rpy()[:2], cfg, cfg.prior_uncertainty)
     row.update(
         error_m=e_m,
         error_deg=e_deg,

@@ -14,7 +14,7 @@ from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.cascade import BEYOND_WARNING, look_beyond, search_volume
+from semcityloc.localization.cascade import BEYOND_WARNING, search_volume
 from semcityloc.localization.confidence import (
     CALIBRATED_MIN_HFOV_DEG,
     CALIBRATED_MIN_SPAN_M,
@@ -30,7 +30,7 @@ from semcityloc.localization.confidence import (
     view_span_m,
 )
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
-from semcityloc.localization.localize import Localizer, _scaled, reached_half
+from semcityloc.localization.localize import Localizer, reached_half
 from semcityloc.localization.query import Query
 from semcityloc.localization.result import (
     LOCALIZED,
@@ -125,17 +125,13 @@ def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
 
 
 def _ring(localizer, renderer, prior, true, found_xy):
-    """``look_beyond`` for a query seen from ``true`` and a prior with the default uncertainty."""
+    """``Localizer.ring_beyond`` for a query seen from ``true`` and a prior with the default uncertainty."""
     cfg = localizer.config
-    volume = search_volume(prior.to_xyz_rpy(), cfg.prior_uncertainty, cfg.cascade)
-    cam = _scaled(CAMERA, cfg.cascade.sweep.width, cfg.cascade.sweep.height)
-    labels = Query(query(renderer, true)[0], None).at(cam.width, cam.height)[0]
-    reach = reached_half(volume, cfg.cascade)["xy"]
-    beyond = cfg.cascade.beyond
-    ring = look_beyond(
-        localizer.scene, cam, volume, reach, found_xy, labels, localizer.class_on, cfg.cascade.sweep, beyond
+    labels = Query.from_arrays(query(renderer, true)[0], None, localizer.has_openings)
+    ring, volume = localizer.ring_beyond(
+        CAMERA, labels, prior.to_xyz_rpy(), found_xy, cfg, cfg.prior_uncertainty
     )
-    return ring, reach
+    return ring, reached_half(volume, cfg.cascade)["xy"]
 
 
 def test_the_look_beyond_finds_a_view_the_search_volume_does_not_reach(city, localizer, renderer):

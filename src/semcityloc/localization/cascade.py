@@ -169,6 +169,14 @@ def _lattice(volume: SearchVolume, config: SweepConfig, max_centres: int) -> tup
     return step, n
 
 
+def _floor_index(volume: SearchVolume, step_z: float) -> float:
+    """The lowest z lattice index (spacing ``step_z`` from the volume's centre) at or above the volume's
+    floor; -inf when it has none."""
+    if not math.isfinite(volume.floor_z):
+        return -math.inf
+    return int(math.ceil((volume.floor_z - volume.centre[2]) / step_z - 1e-9))
+
+
 def _rotations(roll: float, pitch: float, yaws: np.ndarray) -> np.ndarray:
     n = len(yaws)
     return Pose.from_xyz_rpy(np.zeros((n, 3)), np.full(n, roll), np.full(n, pitch), yaws).R
@@ -214,9 +222,8 @@ def sweep(
     lo, hi = -n.copy(), n.copy()
     bound = n + np.ceil(config.max_extensions * config.extension * n).astype(int)
     lower = -bound.copy()  # lowest index an extension may reach, per axis
-    floor_index = -math.inf
-    if math.isfinite(volume.floor_z):
-        floor_index = int(math.ceil((volume.floor_z - c[2]) / step[2] - 1e-9))
+    floor_index = _floor_index(volume, step[2])
+    if math.isfinite(floor_index):
         lo[2] = max(lo[2], floor_index)
         hi[2] = max(hi[2], lo[2])  # a prior further underground than its volume reaches: the floor's layer
         lower[2] = max(lower[2], floor_index)
@@ -316,11 +323,8 @@ def look_beyond(
     outside = np.abs(ixy * step[0]) > reach_xy_m
     if not outside.any():
         return None
-    iz = np.arange(-n[2], n[2] + 1)
-    if math.isfinite(volume.floor_z):
-        iz = iz[origin[2] + iz * step[2] >= volume.floor_z - 1e-9]
-        if iz.size == 0:
-            iz = np.array([int(math.ceil((volume.floor_z - c[2]) / step[2] - 1e-9))])
+    lo_z = int(max(-n[2], _floor_index(volume, step[2])))  # as the sweep: never below the floor
+    iz = np.arange(lo_z, max(n[2], lo_z) + 1)
     iyaw = np.arange(-n[3], n[3] + 1)
     best: tuple[float, np.ndarray] | None = None
     for ix, iy in ((ixy[outside], ixy), (ixy[~outside], ixy[outside])):  # the ring as two blocks

@@ -33,6 +33,7 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.agreement import building_agreement
 from semcityloc.localization.cascade import (
     BEYOND_WARNING,
+    Beyond,
     SearchVolume,
     local_search,
     look_beyond,
@@ -305,21 +306,41 @@ class Localizer:
         self._refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
         return levels[-1]
 
-    def _look_beyond(self, result, camera, query, prior_state, cfg: LocalizerConfig, unc) -> None:
-        """For a refused result: does a view beyond the search's reach, distinct from the refused pose,
-        score higher than the sweep's best (``cascade.look_beyond``)? Recorded in
-        ``result.search["beyond"]``; if so, a warning names the ``--prior-sigma`` that would search there.
-        A hint, not a verdict: a prior further off than stated does this, and so does a view whose map
-        differs from the world (Berlin seed 0: one of its three such refusals had a wrong prior)."""
+    def ring_beyond(
+        self, camera: Camera, query: Query, prior_state: np.ndarray, found_xy, cfg: LocalizerConfig, unc
+    ) -> tuple[Beyond | None, SearchVolume]:
+        """The best view of the ring beyond the cascade's reach (``cascade.look_beyond``) for ``query`` and
+        a pose found at ``found_xy`` (local x, y), with the volume it is around. ``_look_beyond`` uses it
+        on refused results; ``benchmarks/look_beyond.py`` on any."""
         cc = cfg.cascade
         volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
         sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
         q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
         reach = reached_half(volume, cc)["xy"]
-        found_xy = result.pose_local.to_xyz_rpy()[:2]
         ring = look_beyond(
-            self.scene, sweep_cam, volume, reach, found_xy, q_sweep, self.class_on, cc.sweep, cc.beyond
+            self.scene,
+            sweep_cam,
+            volume,
+            reach,
+            np.asarray(found_xy),
+            q_sweep,
+            self.class_on,
+            cc.sweep,
+            cc.beyond,
         )
+        return ring, volume
+
+    def _look_beyond(self, result, camera, query, prior_state, cfg: LocalizerConfig, unc) -> None:
+        """For a refused result: does a view beyond the search's reach, distinct from the refused pose,
+        score higher than the sweep's best (``ring_beyond``)? Recorded in ``result.search["beyond"]``; if
+        so, a warning names the ``--prior-sigma`` that would search there. A hint, not a verdict: a prior
+        further off than stated does this, and so does a view whose map differs from the world (Berlin
+        seed 0: one of its three such refusals had a wrong prior)."""
+        cc = cfg.cascade
+        ring, volume = self.ring_beyond(
+            camera, query, prior_state, result.pose_local.to_xyz_rpy()[:2], cfg, unc
+        )
+        reach = reached_half(volume, cc)["xy"]
         if ring is None:
             return
         sweep_best = result.search["sweep_best"]
