@@ -2,9 +2,9 @@
 
 Usage::
 
-    python benchmarks/calibrate_confidence.py [--queries 60] [--workers 2] [--cache DIR] [--write]
-        [--fit-city generated --fit-city FUERTH ...] [--check-city BERLIN ...] [--seed 0]
-        [--without FEATURE] [--cross-city [--reached]]
+    python benchmarks/calibrate_confidence.py [--queries 60] [--workers 2] [--cache DIR]
+        [--write [--write-only V]] [--fit-city generated --fit-city FUERTH ...] [--check-city BERLIN ...]
+        [--seed 0] [--without FEATURE] [--cross-city [--reached]]
 
 Fit data (never a reporting city): the realistic scenario on the generated city and Fürth, with every
 segmentation quality (trained, medium, zero-shot) and with the paper's extra prior errors (20-30 and
@@ -12,7 +12,8 @@ segmentation quality (trained, medium, zero-shot) and with the paper's extra pri
 is localized by SemCityLoc with depth, without depth (``no-depth``) and by the silhouette baseline, with
 acceptance switched off, and the features of each result (``confidence.FEATURES_*``) are kept with the
 answer (within 5 m and 5 deg of the truth or not). One sign-constrained logistic model is fitted per
-(kind, with depth) and, with ``--write``, saved to ``src/semcityloc/localization/confidence_models.json``.
+(kind, with depth) and, with ``--write``, saved to ``src/semcityloc/localization/confidence_models.json``
+(``--write-only semcityloc`` replaces that localizer's model alone and keeps the others as shipped).
 
 Check (``--check-city``, default Berlin, seed 1 so that no benchmark query is reused): the same
 conditions; prints the expected calibration error (10 bins), the Brier score, and the risk-coverage
@@ -57,6 +58,7 @@ from semcityloc.localization.confidence import (
     confidence_model,
     features_of,
     fit_logistic,
+    load_models,
     risk_coverage,
     save_models,
 )
@@ -235,6 +237,13 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--write", action="store_true", help="save the fitted models into the package")
+    ap.add_argument(
+        "--write-only",
+        action="append",
+        choices=sorted(VARIANTS.values()),
+        default=None,
+        help="with --write: save only this localizer's model (repeatable); the others stay as shipped",
+    )
     ap.add_argument("--cross-city", action="store_true", help="fit on one calibration city, check on another")
     ap.add_argument("--without", default=None, help="also fit and check without this feature (not written)")
     ap.add_argument(
@@ -301,6 +310,7 @@ def main() -> int:
         if check_rows:
             Xc, yc = matrix(check_rows, variant, names)
             report(model, Xc, yc, "  check")
+            print("    check: " + _decisions(model, Xc, yc))
         if args.without is not None and args.without in names:
             fewer = tuple(n for n in names if n != args.without)
             X, y = matrix(fit_rows, variant, fewer)
@@ -309,7 +319,14 @@ def main() -> int:
             if check_rows:
                 Xc, yc = matrix(check_rows, variant, fewer)
                 report(other, Xc, yc, f"  check without {args.without}")
+                print(f"    check without {args.without}: " + _decisions(other, Xc, yc))
     if args.write:
+        if args.write_only is not None:
+            shipped = {(m.kind, m.with_depth): m for m in load_models()}
+            fitted = {(m.kind, m.with_depth): m for m in models}
+            models = [
+                fitted[k] if v in args.write_only else shipped.get(k, fitted[k]) for k, v in VARIANTS.items()
+            ]
         save_models(models)
         print("# written", file=sys.stderr)
     return 0

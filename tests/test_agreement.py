@@ -4,9 +4,17 @@ outdated."""
 import numpy as np
 import pytest
 
-from helpers import benchmark_script
+from helpers import CAMERA, benchmark_script, view
 from semcityloc.classes import IGNORE, SemanticClass
-from semcityloc.localization.agreement import MIN_REGION_SHARE, WARN_SHARE, building_agreement
+from semcityloc.localization.agreement import (
+    MIN_REGION_SHARE,
+    WARN_SHARE,
+    agreed_depth_cost,
+    building_agreement,
+)
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.query import Query
+from semcityloc.localization.scoring import robust_depth_cost
 
 G, R, W = int(SemanticClass.GROUND), int(SemanticClass.ROOF), int(SemanticClass.WALL)
 
@@ -101,3 +109,47 @@ def test_the_warning_study_counts_warnings_against_real_changes():
         {"right": False, "warned": [True, True], "real": [False, False]},  # a wrong pose
     ]
     assert study.row("x", rows) == "| x | 3 | 2 / 1 / 1 | 0 / 0 / 1 | 1 of 1 |"
+
+
+def test_depth_on_agreed_pixels_leaves_out_a_building_the_map_lacks():
+    """A building new since the survey: the query sees its roof 20 m nearer than the map's ground there.
+    Over every pixel that reads as a depth error; over the pixels where query and map agree on building
+    or not it does not, while a depth that does not fit the map anywhere still costs."""
+    rng = np.random.default_rng(0)
+    rendered = _scene(A)
+    render_depth = 100.0 + 5.0 * rng.random((40, 60))
+    render_depth[rendered == R] -= 15.0
+    query = _scene(A, B)
+    true_depth = render_depth.copy()
+    true_depth[20:35, 30:50] -= 20.0  # B's roof
+    query_depth = 0.5 * true_depth + 7.0  # relative depth: any scale and shift
+    full = robust_depth_cost(query_depth, render_depth, cap=0.3)
+    agreed = agreed_depth_cost(query, query_depth, rendered, render_depth, cap=0.3)
+    assert full > 0.02 and agreed == pytest.approx(0.0, abs=1e-9)
+    shuffled = rng.permutation(query_depth.reshape(-1)).reshape(query_depth.shape)
+    assert agreed_depth_cost(query, shuffled, rendered, render_depth, cap=0.3) > 0.02
+    # Background and ignored query pixels never count; nothing rendered (+inf) neither.
+    query[:3] = IGNORE
+    render_depth[:, :2] = np.inf
+    left = agreed_depth_cost(query, query_depth, rendered, render_depth, cap=0.3)
+    assert left == pytest.approx(0, abs=1e-9)
+    with pytest.raises(ValueError, match="one size"):
+        agreed_depth_cost(query, query_depth[:, :10], rendered, render_depth, cap=0.3)
+
+
+def test_the_numpy_depth_cost_is_the_refinements(generated_lod2):
+    """``robust_depth_cost`` on all of a view's pixels equals the fused kernel's C_d at that pose."""
+    localizer = Localizer(generated_lod2)
+    pose = view(generated_lod2, 10.0, -20.0, 80.0, 1.0, 2.0, 30.0)
+    cam = localizer.fine_camera(CAMERA)
+    truth = localizer._render_one(cam, pose, depth=True)
+    labels = truth.labels.reshape(cam.height, cam.width)
+    depth = 2.0 * truth.depth.reshape(cam.height, cam.width) + 3.0
+    depth *= 1.0 + 0.05 * np.sin(np.arange(cam.width) / 7.0)  # not affine: the fit and the cap matter
+    moved = view(generated_lod2, 11.0, -20.0, 80.0, 1.0, 2.0, 30.5)
+    scores = localizer.score_poses(CAMERA.scaled(cam.width, cam.height), labels, depth, [moved])
+    kernel = scores["depth_cost"][0]
+    at = localizer._render_one(cam, moved, depth=True)
+    q_labels, q_depth = Query.from_arrays(labels, depth, localizer.has_openings).at(cam.width, cam.height)
+    cost = agreed_depth_cost(q_labels, q_depth, q_labels, at.depth, localizer.config.refine.depth_cap)
+    assert kernel > 0.01 and cost == pytest.approx(kernel, rel=1e-6)

@@ -276,6 +276,7 @@ def _result(**features) -> LocalizationResult:
 BASE = dict(
     semantic=0.75,
     depth_cost=0.06,
+    depth_cost_agreed=0.05,
     building_iou=0.85,
     hypothesis_margin=0.02,
     score_margin=0.05,
@@ -294,7 +295,7 @@ def test_confidence_is_monotone_in_every_piece_of_evidence(kind, with_depth):
         step = 0.1 * (abs(BASE[name]) + 0.1)
         more = model.probability(_result(**{**BASE, name: BASE[name] + step}))
         less = model.probability(_result(**{**BASE, name: BASE[name] - step}))
-        sign = {"depth_cost": -1, "spread_m": -1, "prior_distance": -1}.get(name, +1)
+        sign = {"depth_cost": -1, "depth_cost_agreed": -1, "spread_m": -1, "prior_distance": -1}.get(name, +1)
         assert sign * (more - base) >= 0 and sign * (base - less) >= 0, name
     # A missing feature (one hypothesis only) sits at its mean: no NaN comes out.
     assert np.isfinite(model.probability(_result(**{**BASE, "hypothesis_margin": float("nan")})))

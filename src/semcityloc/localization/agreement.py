@@ -21,6 +21,7 @@ import numpy as np
 from scipy import ndimage
 
 from semcityloc.classes import BUILDING_CLASSES, IGNORE
+from semcityloc.localization.scoring import robust_depth_cost
 
 BAND_PX = 2
 MIN_REGION_SHARE = 0.005
@@ -83,3 +84,22 @@ def building_agreement(query: np.ndarray, rendered: np.ndarray) -> BuildingAgree
     union = np.count_nonzero(q | r)
     iou = float(np.count_nonzero(q & r) / union) if union else 0.0
     return BuildingAgreement(iou, _uncovered_share(q, r, labelled), _uncovered_share(r, q, labelled))
+
+
+def agreed_depth_cost(
+    query: np.ndarray, query_depth: np.ndarray, rendered: np.ndarray, rendered_depth: np.ndarray, cap: float
+) -> float:
+    """The refinement's depth cost at one pose (``scoring.robust_depth_cost``) on the query's labelled
+    pixels where query and render agree on building or not: a building gone or new since the survey then
+    no longer reads as a depth error, while a wrong pose still does wherever its buildings line up by
+    chance. All four arrays (H, W) or flat of one size; render depth +inf where nothing is hit."""
+    query, rendered = np.asarray(query).reshape(-1), np.asarray(rendered).reshape(-1)
+    query_depth, rendered_depth = np.asarray(query_depth).reshape(-1), np.asarray(rendered_depth).reshape(-1)
+    if not query.shape == rendered.shape == query_depth.shape == rendered_depth.shape:
+        raise ValueError(
+            f"labels {query.shape} / {rendered.shape} and depths {query_depth.shape} / "
+            f"{rendered_depth.shape} must be of one size"
+        )
+    labelled = (query != 0) & (query != IGNORE)
+    agree = labelled & (np.isin(query, BUILDING_CLASSES) == np.isin(rendered, BUILDING_CLASSES))
+    return robust_depth_cost(query_depth[agree], rendered_depth[agree], cap)

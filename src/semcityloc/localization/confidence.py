@@ -42,12 +42,13 @@ FEATURE_SIGNS: dict[str, int] = {
     "hypothesis_margin": +1,
     "score_margin": +1,
     "depth_cost": -1,
+    "depth_cost_agreed": -1,
     "spread_m": -1,
     "building_fraction": +1,
     "prior_distance": -1,
 }
 FEATURES_DEPTH = tuple(FEATURE_SIGNS)
-FEATURES_NO_DEPTH = tuple(f for f in FEATURE_SIGNS if f != "depth_cost")
+FEATURES_NO_DEPTH = tuple(f for f in FEATURE_SIGNS if f not in ("depth_cost", "depth_cost_agreed"))
 # The fitted models saw one camera, 70 deg across (``benchmark.queries.zenmuse_l2_camera``). Narrower,
 # a view holds fewer buildings and the probability overstates its confidence: accepted poses within
 # 5 m / 5 deg on the calibration cities (generated / Fürth, 100 queries each) 98.0 / 100 % at 50 deg
@@ -215,6 +216,11 @@ def _load(path: str) -> dict[tuple[str, bool], ConfidenceModel]:
         model = ConfidenceModel(**m)
         out[(model.kind, model.with_depth)] = model
     return out
+
+
+def load_models(path: Path = MODELS_PATH) -> list[ConfidenceModel]:
+    """Every fitted model in ``path`` (the shipped ones by default)."""
+    return list(_load(str(path)).values())
 
 
 def confidence_model(kind: str, with_depth: bool, path: Path = MODELS_PATH) -> ConfidenceModel:

@@ -30,7 +30,7 @@ from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.agreement import building_agreement
+from semcityloc.localization.agreement import agreed_depth_cost, building_agreement
 from semcityloc.localization.cascade import (
     BEYOND_WARNING,
     Beyond,
@@ -178,6 +178,10 @@ class Localizer:
         result.confidence["unmapped_building_share"] = agreement.unmapped_share
         result.confidence["unseen_building_share"] = agreement.unseen_share
         result.warnings.extend(agreement.warnings())
+        if fine.depth is not None:
+            result.confidence["depth_cost_agreed"] = agreed_depth_cost(
+                fine.labels, fine.depth, found.labels, found.depth, cfg.refine.depth_cap
+            )
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         with_depth = fine.depth is not None

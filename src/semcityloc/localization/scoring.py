@@ -67,6 +67,28 @@ def depth_cost(d_query: np.ndarray, d_render: np.ndarray) -> float:
     return float(np.mean(np.abs(s * dq + t - dr) / dr))
 
 
+def robust_depth_cost(d_query: np.ndarray, d_render: np.ndarray, cap: float) -> float:
+    """The refinement's depth cost (``kernels._depth_cost_robust``, ``RefineConfig.depth_cost="robust"``)
+    in numpy: scale/shift by relative least squares (``s d_q + t ~ d_r`` with every residual divided by
+    ``d_r``), then the mean relative residual with each pixel's capped at ``cap``. 1D arrays of the pixels
+    to compare; invalid depth (NaN, inf, <= 0) on either side is left out."""
+    dq = np.asarray(d_query, dtype=np.float64).reshape(-1)
+    dr = np.asarray(d_render, dtype=np.float64).reshape(-1)
+    valid = np.isfinite(dq) & (dq > 0) & np.isfinite(dr) & (dr > 0)
+    if np.count_nonzero(valid) < MIN_DEPTH_PIXELS:
+        return DEPTH_COST_INVALID
+    a, b = dq[valid] / dr[valid], 1.0 / dr[valid]
+    saa, sab, sbb, sa, sb = a @ a, a @ b, b @ b, a.sum(), b.sum()
+    det = saa * sbb - sab * sab
+    if det <= 1e-12 * saa * sbb:
+        return DEPTH_COST_INVALID
+    s = (sa * sbb - sb * sab) / det
+    t = (saa * sb - sab * sa) / det
+    if s <= 0:
+        return DEPTH_COST_INVALID
+    return float(np.mean(np.minimum(np.abs(s * a + t * b - 1.0), cap)))
+
+
 def map_classes(has_openings: bool) -> tuple[int, ...]:
     """Classes that take part in the IoU for a map with or without window/door surfaces."""
     base = (SemanticClass.GROUND, SemanticClass.WALL, SemanticClass.ROOF)
