@@ -9,6 +9,9 @@ removes bands up to ``BAND_PX`` pixels wide (at the refinement's resolution) tak
 ``MIN_REGION_SHARE`` of the query's labelled pixels are segmentation noise. The localizer warns from
 ``WARN_SHARE`` on. A wrong pose leaves blobs too, so the warning names both causes.
 
+``agreed_depth_cost``: the depth cost on the pixels where query and render agree on building or not, an
+acceptance feature (``confidence.FEATURE_SIGNS``) that a building changed since the survey does not inflate.
+
 Measured on the calibration cities and a held-out Berlin seed (``docs/localization.md``, "Map changes in
 view", ``benchmarks/map_change_warnings.py``).
 """
