@@ -47,8 +47,9 @@ FEATURE_SIGNS: dict[str, int] = {
     "building_fraction": +1,
     "prior_distance": -1,
 }
+DEPTH_FEATURES = ("depth_cost", "depth_cost_agreed")  # what only a query with depth has
 FEATURES_DEPTH = tuple(FEATURE_SIGNS)
-FEATURES_NO_DEPTH = tuple(f for f in FEATURE_SIGNS if f not in ("depth_cost", "depth_cost_agreed"))
+FEATURES_NO_DEPTH = tuple(f for f in FEATURE_SIGNS if f not in DEPTH_FEATURES)
 # The fitted models saw one camera, 70 deg across (``benchmark.queries.zenmuse_l2_camera``). Narrower,
 # a view holds fewer buildings and the probability overstates its confidence: accepted poses within
 # 5 m / 5 deg on the calibration cities (generated / Fürth, 100 queries each) 98.0 / 100 % at 50 deg

@@ -178,13 +178,13 @@ class Localizer:
         result.confidence["unmapped_building_share"] = agreement.unmapped_share
         result.confidence["unseen_building_share"] = agreement.unseen_share
         result.warnings.extend(agreement.warnings())
-        if fine.depth is not None:
+        with_depth = fine.depth is not None
+        if with_depth:
             result.confidence["depth_cost_agreed"] = agreed_depth_cost(
                 fine.labels, fine.depth, found.labels, found.depth, cfg.refine.depth_cap
             )
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
-        with_depth = fine.depth is not None
         if cfg.acceptance == "calibrated":
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
