@@ -8,8 +8,9 @@ data with known answers, then checked on data it was not fitted on.
 Model: logistic regression on standardised features of a ``LocalizationResult`` (``FEATURES``; a
 feature that is missing, e.g. the hypothesis margin when only one hypothesis was refined, sits at its
 mean), each weight constrained to the sign the evidence must have (more overlap, larger margins: more
-confident; larger depth cost, wider particle spread: less), so the probability is monotone in every
-piece of evidence by construction. Standardised values are clipped to +-``CLIP`` so that an input far
+confident; larger depth cost, wider particle spread, class boundaries farther from the map's
+(``agreement.boundary_distance_px``): less), so the probability is monotone in every piece of evidence by
+construction. Standardised values are clipped to +-``CLIP`` so that an input far
 outside the fitted range cannot produce a confident extrapolation.
 
 Fitting (``fit_logistic``, L-BFGS-B with those sign bounds and a small L2 penalty) is done by
@@ -46,6 +47,7 @@ FEATURE_SIGNS: dict[str, int] = {
     "spread_m": -1,
     "building_fraction": +1,
     "prior_distance": -1,
+    "boundary_distance_px": -1,
 }
 DEPTH_FEATURES = ("depth_cost", "depth_cost_agreed")  # what only a query with depth has
 FEATURES_DEPTH = tuple(FEATURE_SIGNS)

@@ -30,7 +30,7 @@ from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.agreement import agreed_depth_cost, building_agreement
+from semcityloc.localization.agreement import agreed_depth_cost, boundary_distance_px, building_agreement
 from semcityloc.localization.cascade import (
     BEYOND_WARNING,
     Beyond,
@@ -170,10 +170,10 @@ class Localizer:
             return self._finish(result, result.reason, t0)
 
         found = self._render_one(fine.camera, result.pose_local, depth=True)  # agreement and view span
-        agreement = building_agreement(
-            fine.labels.reshape(fine.camera.height, fine.camera.width),
-            found.labels.reshape(fine.camera.height, fine.camera.width),
-        )
+        query_2d = fine.labels.reshape(fine.camera.height, fine.camera.width)
+        found_2d = found.labels.reshape(fine.camera.height, fine.camera.width)
+        agreement = building_agreement(query_2d, found_2d)
+        result.confidence["boundary_distance_px"] = boundary_distance_px(query_2d, found_2d)
         result.confidence["building_iou"] = agreement.building_iou
         result.confidence["unmapped_building_share"] = agreement.unmapped_share
         result.confidence["unseen_building_share"] = agreement.unseen_share

@@ -34,11 +34,12 @@ class LocalizationResult:
     the final particles), ``building_iou`` (building-vs-rest overlap at the final pose),
     ``hypothesis_margin`` (final score of the winner minus the best other refined hypothesis),
     ``building_fraction`` (share of building pixels in the query), ``prior_distance`` (sigmas of the
-    prior's uncertainty between the pose and the prior, x/y/z/yaw), ``probability`` (the calibrated
-    probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume searched, its
-    extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores, best first.
-    ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never a result).
-    ``covariance``: (6, 6) covariance of the found pose's (x, y, z, roll, pitch, yaw) in m and deg
+    prior's uncertainty between the pose and the prior, x/y/z/yaw), ``boundary_distance_px`` (how far
+    apart the class boundaries of query and map lie at the pose, ``agreement.py``), ``probability``
+    (the calibrated probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume
+    searched, its extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores,
+    best first. ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never
+    a result). ``covariance``: (6, 6) covariance of the found pose's (x, y, z, roll, pitch, yaw) in m and deg
     (``covariance.py``: the score's curvature at the pose, probed after the refinement, with a fitted
     temperature and floor; None without refinement, without a model fitted for the localizer's kind, or
     with ``refine.covariance_probe_px = 0``); ``score_curvature`` the curvature it came from.
