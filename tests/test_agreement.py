@@ -10,6 +10,7 @@ from semcityloc.localization.agreement import (
     MIN_REGION_SHARE,
     WARN_SHARE,
     agreed_depth_cost,
+    boundary_distance_px,
     building_agreement,
 )
 from semcityloc.localization.localize import Localizer
@@ -109,6 +110,48 @@ def test_the_warning_study_counts_warnings_against_real_changes():
         {"right": False, "warned": [True, True], "real": [False, False]},  # a wrong pose
     ]
     assert study.row("x", rows) == "| x | 3 | 2 / 1 / 1 | 0 / 0 / 1 | 1 of 1 |"
+
+
+C = (25, 31, 8, 14)  # a small third building, 36 pixels
+
+
+def test_boundaries_on_each_other_are_zero_apart_and_a_shift_moves_them():
+    assert boundary_distance_px(_scene(A, B), _scene(A, B)) == 0.0
+    apart = [boundary_distance_px(_scene(A, B), _scene(*[_moved(b, k) for b in (A, B)])) for k in (1, 3, 6)]
+    assert 0.0 < apart[0] < apart[1] < apart[2]
+    # Symmetric: query and render swapped give the same distance.
+    moved = _scene(*[_moved(b, 3) for b in (A, B)])
+    assert boundary_distance_px(moved, _scene(A, B)) == boundary_distance_px(_scene(A, B), moved)
+
+
+def _moved(box: tuple[int, int, int, int], k: int) -> tuple[int, int, int, int]:
+    """The box moved k pixels down and k right."""
+    return box[0] + k, box[1] + k, box[2] + k, box[3] + k
+
+
+def test_a_building_on_one_side_only_does_not_move_the_boundaries_that_agree():
+    """A small building the map lacks, or one the image lacks: the median reads the boundaries that exist
+    on both sides, which lie on each other; a pose 3 px off moves all of them."""
+    assert boundary_distance_px(_scene(A, B, C), _scene(A, B)) == 0.0  # C built after the survey
+    assert boundary_distance_px(_scene(A, B), _scene(A, B, C)) == 0.0  # C torn down
+    off = boundary_distance_px(_scene(A, B, C), _scene(*[_moved(b, 3) for b in (A, B, C)]))
+    assert off >= 1.0
+
+
+def test_boundaries_of_unlabelled_pixels_do_not_count():
+    query, rendered = _scene(A, B), _scene(A, B)
+    rendered[0:4, 40:60] = R  # a roof under query pixels that are ignored or background
+    query[0:4, 40:60] = IGNORE
+    assert boundary_distance_px(query, rendered) == 0.0
+    query[0:4, 40:60] = 0
+    assert boundary_distance_px(query, rendered) == 0.0
+
+
+def test_no_boundary_on_a_side_is_no_evidence():
+    assert np.isnan(boundary_distance_px(_scene(), _scene(A)))  # the query is all ground
+    assert np.isnan(boundary_distance_px(_scene(A), _scene()))
+    with pytest.raises(ValueError, match="same 2D shape"):
+        boundary_distance_px(_scene(A), _scene(A)[:, :10])
 
 
 def test_depth_on_agreed_pixels_leaves_out_a_building_the_map_lacks():

@@ -283,7 +283,10 @@ BASE = dict(
     spread_m=0.4,
     building_fraction=0.4,
     prior_distance=1.5,
+    boundary_distance_px=1.0,
 )
+# Evidence that must lower the probability as it grows (the rest must raise it).
+LESS_CONFIDENT = ("depth_cost", "depth_cost_agreed", "spread_m", "prior_distance", "boundary_distance_px")
 
 
 @pytest.mark.parametrize("kind,with_depth", [("semantic", True), ("semantic", False), ("silhouette", False)])
@@ -295,7 +298,7 @@ def test_confidence_is_monotone_in_every_piece_of_evidence(kind, with_depth):
         step = 0.1 * (abs(BASE[name]) + 0.1)
         more = model.probability(_result(**{**BASE, name: BASE[name] + step}))
         less = model.probability(_result(**{**BASE, name: BASE[name] - step}))
-        sign = {"depth_cost": -1, "depth_cost_agreed": -1, "spread_m": -1, "prior_distance": -1}.get(name, +1)
+        sign = -1 if name in LESS_CONFIDENT else +1
         assert sign * (more - base) >= 0 and sign * (base - less) >= 0, name
     # A missing feature (one hypothesis only) sits at its mean: no NaN comes out.
     assert np.isfinite(model.probability(_result(**{**BASE, "hypothesis_margin": float("nan")})))

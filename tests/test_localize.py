@@ -15,7 +15,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.agreement import building_agreement
+from semcityloc.localization.agreement import boundary_distance_px, building_agreement
 from semcityloc.localization.coarse import yaw_lookup
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import PROBES
@@ -483,3 +483,5 @@ def test_fine_camera_and_render_labels_reproduce_the_results_map_agreement(city,
     assert agreement.building_iou == pytest.approx(result.confidence["building_iou"])
     assert agreement.unseen_share == pytest.approx(result.confidence["unseen_building_share"])
     assert agreement.unmapped_share == pytest.approx(result.confidence["unmapped_building_share"])
+    distance = boundary_distance_px(downsample_labels(labels, fine.width, fine.height), rendered)
+    assert distance == pytest.approx(result.confidence["boundary_distance_px"]) and distance < 1.0
