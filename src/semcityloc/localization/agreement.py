@@ -66,6 +66,18 @@ class BuildingAgreement:
         return out
 
 
+def _labelled(query: np.ndarray) -> np.ndarray:
+    """bool, the query's shape: the pixels every measure here reads (neither background nor ``IGNORE``)."""
+    return (query != 0) & (query != IGNORE)
+
+
+def _same_2d(query: np.ndarray, rendered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    query, rendered = np.asarray(query), np.asarray(rendered)
+    if query.ndim != 2 or query.shape != rendered.shape:
+        raise ValueError(f"query {query.shape} and render {rendered.shape} must be the same 2D shape")
+    return query, rendered
+
+
 def _uncovered_share(mine: np.ndarray, other: np.ndarray, labelled: int) -> float:
     """Pixels of ``mine`` (bool 2D) that ``other`` does not cover, in blobs wider than ``BAND_PX`` and of
     at least ``MIN_REGION_SHARE``, as a share of ``labelled``."""
@@ -80,10 +92,8 @@ def _uncovered_share(mine: np.ndarray, other: np.ndarray, labelled: int) -> floa
 def building_agreement(query: np.ndarray, rendered: np.ndarray) -> BuildingAgreement:
     """Agreement of the query's labels (H, W) with a render's (H, W) at one pose; the query's background
     (0) and ``IGNORE`` pixels are left out of both."""
-    query, rendered = np.asarray(query), np.asarray(rendered)
-    if query.ndim != 2 or query.shape != rendered.shape:
-        raise ValueError(f"query {query.shape} and render {rendered.shape} must be the same 2D shape")
-    valid = (query != 0) & (query != IGNORE)
+    query, rendered = _same_2d(query, rendered)
+    valid = _labelled(query)
     labelled = int(np.count_nonzero(valid))
     if labelled == 0:
         return BuildingAgreement(0.0, 0.0, 0.0)
@@ -108,10 +118,8 @@ def boundary_distance_px(query: np.ndarray, rendered: np.ndarray) -> float:
     render's (both (H, W), on the query's labelled pixels: neither background nor ``IGNORE``): the mean
     of the median distance from each query boundary pixel to the nearest render boundary pixel and the
     same the other way. NaN when either side has no boundary (no evidence, not a perfect fit)."""
-    query, rendered = np.asarray(query), np.asarray(rendered)
-    if query.ndim != 2 or query.shape != rendered.shape:
-        raise ValueError(f"query {query.shape} and render {rendered.shape} must be the same 2D shape")
-    labelled = (query != 0) & (query != IGNORE)
+    query, rendered = _same_2d(query, rendered)
+    labelled = _labelled(query)
     in_query = _class_boundaries(query, labelled)
     in_render = _class_boundaries(rendered, labelled)
     if not in_query.any() or not in_render.any():
@@ -135,6 +143,5 @@ def agreed_depth_cost(
             f"labels {query.shape} / {rendered.shape} and depths {query_depth.shape} / "
             f"{rendered_depth.shape} must be of one size"
         )
-    labelled = (query != 0) & (query != IGNORE)
-    agree = labelled & (np.isin(query, BUILDING_CLASSES) == np.isin(rendered, BUILDING_CLASSES))
+    agree = _labelled(query) & (np.isin(query, BUILDING_CLASSES) == np.isin(rendered, BUILDING_CLASSES))
     return robust_depth_cost(query_depth[agree], rendered_depth[agree], cap)

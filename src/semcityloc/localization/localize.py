@@ -173,11 +173,11 @@ class Localizer:
         query_2d = fine.labels.reshape(fine.camera.height, fine.camera.width)
         found_2d = found.labels.reshape(fine.camera.height, fine.camera.width)
         agreement = building_agreement(query_2d, found_2d)
-        result.confidence["boundary_distance_px"] = boundary_distance_px(query_2d, found_2d)
         result.confidence["building_iou"] = agreement.building_iou
         result.confidence["unmapped_building_share"] = agreement.unmapped_share
         result.confidence["unseen_building_share"] = agreement.unseen_share
         result.warnings.extend(agreement.warnings())
+        result.confidence["boundary_distance_px"] = boundary_distance_px(query_2d, found_2d)
         with_depth = fine.depth is not None
         if with_depth:
             result.confidence["depth_cost_agreed"] = agreed_depth_cost(
