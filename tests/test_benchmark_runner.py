@@ -141,6 +141,19 @@ def test_rows_hold_consistent_poses_errors_and_world_coordinates(baseline):
             assert r["err_xyz_m"] == "inf" and r["est_x"] == "" and r["reason"]
 
 
+def test_rows_carry_the_acceptance_inputs(baseline):
+    """Every query whose search found a pose records what the acceptance read there (stop 42): a
+    probability in [0, 1], the class boundaries' distance in pixels, map-agreement shares in [0, 1]."""
+    rows = [r for r in csv_rows(baseline.out_dir / RESULTS_FILE) if r["probability"]]
+    assert rows
+    for r in rows:
+        assert 0.0 <= float(r["probability"]) <= 1.0
+        assert float(r["boundary_distance_px"]) >= 0.0 or r["boundary_distance_px"] == "nan"
+        for c in ("building_fraction", "unmapped_building_share", "unseen_building_share"):
+            assert 0.0 <= float(r[c]) <= 1.0, c
+        assert float(r["prior_distance"]) >= 0.0 and float(r["depth_cost_agreed"]) >= 0.0
+
+
 def test_make_row_errors_and_world_coordinates_of_a_known_estimate():
     true = Pose.from_xyz_rpy([10.0, 20.0, 600.0], 0.0, 30.0, 45.0)
     est = Pose.from_xyz_rpy([13.0, 24.0, 600.0], 0.0, 30.0, 47.0)

@@ -301,7 +301,14 @@ def test_report_reads_results_of_an_earlier_version(tmp_path):
         parse_results(b"a,b\n1,2\n", tmp_path / "results.csv", strict=False)  # not a results file at all
 
 
-@pytest.mark.parametrize("dropped", [("sigma_xy_m", "sigma_z_m", "sigma_yaw_deg"), ("warnings", "sigma_z_m")])
+@pytest.mark.parametrize(
+    "dropped",
+    [
+        ("sigma_xy_m", "sigma_z_m", "sigma_yaw_deg"),
+        ("warnings", "sigma_z_m"),
+        ("boundary_distance_px", "depth_cost_agreed", "unseen_building_share"),  # before stop 42
+    ],
+)
 def test_results_without_columns_added_since_resume(tmp_path, dropped):
     """The versions before the warnings and the covariance's sigma columns: read strictly (to resume),
     the missing columns empty."""
@@ -313,6 +320,19 @@ def test_results_without_columns_added_since_resume(tmp_path, dropped):
     data = (",".join(old) + "\n" + ",".join(values[c] for c in old) + "\n").encode()
     (row,) = parse_results(data, tmp_path / "results.csv")
     assert row["status"] == "localized" and all(row[c] == "" for c in dropped) and set(row) == set(COLUMNS)
+
+
+def test_results_with_columns_out_of_order_do_not_resume(tmp_path):
+    """Only this version's order resumes (rows are appended in it): a swapped pair is another layout."""
+    from semcityloc.benchmark.results import COLUMNS, parse_results
+
+    cols = list(COLUMNS)
+    i, j = cols.index("boundary_distance_px"), cols.index("prior_distance")
+    cols[i], cols[j] = cols[j], cols[i]
+    line = ",".join("q0000" if c == "query_id" else "" for c in cols)
+    data = (",".join(cols) + "\n" + line + "\n").encode()
+    with pytest.raises(BenchmarkError, match="columns differ"):
+        parse_results(data, tmp_path / "results.csv")
 
 
 @pytest.mark.parametrize(

@@ -33,7 +33,6 @@ import io
 import json
 import os
 from collections import Counter
-from itertools import combinations
 from pathlib import Path
 from typing import Any
 
@@ -59,16 +58,32 @@ COLUMNS: tuple[str, ...] = tuple(
     prior_err_m prior_rot_deg prior_yaw_err_deg err_xyz_m err_rot_deg err_yaw_deg
     coarse_err_xyz_m coarse_err_yaw_deg score semantic depth_cost score_margin spread_m spread_deg
     building_iou probability found_err_xyz_m found_err_rot_deg coarse_hypotheses refine_evaluations
-    t_coarse_s t_refine_s t_total_s meta_json sigma_xy_m sigma_z_m sigma_yaw_deg""".split()
+    t_coarse_s t_refine_s t_total_s meta_json sigma_xy_m sigma_z_m sigma_yaw_deg
+    hypothesis_margin depth_cost_agreed building_fraction prior_distance boundary_distance_px
+    unmapped_building_share unseen_building_share""".split()
 )
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
-# Columns added after runs had been written with the others (module docstring): such a run still resumes.
-ADDED_COLUMNS = ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg")
-_RESUMABLE_HEADERS = frozenset(
-    tuple(c for c in COLUMNS if c not in dropped)
-    for n in range(len(ADDED_COLUMNS) + 1)
-    for dropped in combinations(ADDED_COLUMNS, n)
+# The acceptance's other inputs, as ``result.confidence`` holds them (stop 42; empty in earlier runs).
+CONFIDENCE_COLUMNS = (
+    "hypothesis_margin",
+    "depth_cost_agreed",
+    "building_fraction",
+    "prior_distance",
+    "boundary_distance_px",
+    "unmapped_building_share",
+    "unseen_building_share",
 )
+# Columns added after runs had been written with the others (module docstring): such a run still resumes.
+ADDED_COLUMNS = ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg") + CONFIDENCE_COLUMNS
+
+
+def _resumable(header: tuple[str, ...]) -> bool:
+    """True for this version's columns with some of ``ADDED_COLUMNS`` left out, in this version's order."""
+    return header == tuple(c for c in COLUMNS if c in header) and set(COLUMNS) - set(header) <= set(
+        ADDED_COLUMNS
+    )
+
+
 WARNING_SEPARATOR = " | "
 
 # A query whose simulated view the simulator did not accept (``meta["accepted"] is False``): recorded so a
@@ -202,6 +217,7 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "t_total_s": timings.get("total_s"),
         "meta_json": json.dumps(plain(meta), sort_keys=True),
         **_sigmas(result.covariance if est is not None else None),
+        **{c: conf.get(c) for c in CONFIDENCE_COLUMNS},
     }
     return {c: _fmt(row.get(c)) for c in COLUMNS}
 
@@ -268,7 +284,7 @@ def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = T
         raise BenchmarkError(f"{path}: not a results file of this runner ({exc}); use --overwrite") from exc
     reader = csv.reader(io.StringIO(text))
     header = tuple(next(reader))
-    if header not in _RESUMABLE_HEADERS and (strict or "query_id" not in header):
+    if not _resumable(header) and (strict or "query_id" not in header):
         raise BenchmarkError(
             f"{path}: its columns differ from this version's; use --overwrite or another --out"
         )
