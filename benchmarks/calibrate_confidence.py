@@ -21,9 +21,11 @@ curve (coverage and precision at the acceptance probabilities 0.3 ... 0.9) of ea
 
 ``--cross-city`` (judging a feature on the calibration cities alone): each model is fitted on one
 calibration city and checked on the other, both ways; with ``--without NAME`` the same is done without
-that feature too, side by side (ECE, log-loss, right and wrong poses accepted at p >= 0.5). Without
+that feature too, side by side (ECE, log-loss, right and wrong poses accepted at p >= 0.5), and the
+difference of the two in log-loss and Brier with a 95 % interval from a paired bootstrap over queries
+(a query's results under the five conditions resampled together; ``evaluation/scoring_rules.py``). Without
 ``--cross-city``, ``--without NAME`` also fits each model without that feature and reports its fit and
-check beside the full model's (never written). With
+check beside the full model's and the paired difference on the check city (never written). With
 ``--reached`` the check counts only the results that reached the acceptance (the population the model
 is applied to), and each model is fitted both on every row and on those.
 
@@ -50,6 +52,7 @@ from semcityloc.benchmark.calibration import ACCEPTANCE_CONDITIONS, calibration_
 from semcityloc.benchmark.calibration import condition_rows as calibration_rows
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.evaluation.scoring_rules import paired_difference
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.confidence import (
     FEATURES_DEPTH,
@@ -134,11 +137,23 @@ def _one(index: int) -> list[dict]:
 
 
 def condition_rows(city: str, seed: int, queries: int, condition: str, workers: int, cache: Path | None):
-    return calibration_rows("", city, seed, queries, condition, workers, cache, _init, _one)
+    """One condition's rows, each tagged with its query's ``group`` (city and query id): the unit the
+    paired bootstrap resamples, since a query is seen under every condition."""
+    rows = calibration_rows("", city, seed, queries, condition, workers, cache, _init, _one)
+    return [dict(row, group=f"{Path(city).stem}/{row['query']}") for row in rows]
+
+
+def _selected(rows: list[dict], variant: str) -> list[dict]:
+    return [r for r in rows if r["variant"] == variant and "features" in r]
+
+
+def groups_of(rows: list[dict], variant: str) -> np.ndarray:
+    """The ``group`` of each row ``matrix`` keeps, in its order (a row without one is a group of its own)."""
+    return np.array([r.get("group") or f"row {i}" for i, r in enumerate(_selected(rows, variant))])
 
 
 def matrix(rows: list[dict], variant: str, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    sel = [r for r in rows if r["variant"] == variant and "features" in r]
+    sel = _selected(rows, variant)
     X = np.array([[r["features"][n] if r["features"][n] is not None else np.nan for n in names] for r in sel])
     y = np.array([r["right"] for r in sel], dtype=float)
     return X.reshape(len(sel), len(names)), y
@@ -158,6 +173,14 @@ def report(model, X: np.ndarray, y: np.ndarray, label: str) -> dict:
         + " ".join(f"p>={t}: cover {c:.2f} prec {pr:.3f}" for t, (c, pr) in at.items())
     )
     return {"n": len(y), "ece": ece, "brier": brier, "at": at, "curve": curve}
+
+
+def compare(model_a, model_b, rows: list[dict], variant: str) -> str:
+    """Paired bootstrap over the rows' groups of (A - B) in log-loss and Brier: negative = A better."""
+    Xa, y = matrix(rows, variant, model_a.features)
+    Xb, _ = matrix(rows, variant, model_b.features)
+    pa, pb, groups = model_a.probability_of(Xa), model_b.probability_of(Xb), groups_of(rows, variant)
+    return "; ".join(str(paired_difference(pa, pb, y, groups, rule=r)) for r in ("log-loss", "brier"))
 
 
 def _decisions(model, X: np.ndarray, y: np.ndarray) -> str:
@@ -193,12 +216,19 @@ def cross_city(rows_by_city: dict[str, list[dict]], without: str | None, reached
                 if check_city == fit_city:
                     continue
                 checked = reached_acceptance(check_rows) if reached else check_rows
-                for label, feats in sets.items():
-                    for fit_label, rows in fits.items():
+                for fit_label, rows in fits.items():
+                    models = {}
+                    for label, feats in sets.items():
                         model = fit_logistic(*matrix(rows, variant, feats), feats, kind, with_depth)
+                        models[label] = model
                         print(
                             f"{variant} {fit_city} -> {check_city}, {label}{fit_label}: "
                             + _decisions(model, *matrix(checked, variant, feats))
+                        )
+                    if without is not None:
+                        print(
+                            f"    all - without {without} (paired bootstrap over queries): "
+                            + compare(models["all"], models[f"without {without}"], checked, variant)
                         )
 
 
@@ -320,6 +350,10 @@ def main() -> int:
                 Xc, yc = matrix(check_rows, variant, fewer)
                 report(other, Xc, yc, f"  check without {args.without}")
                 print(f"    check without {args.without}: " + _decisions(other, Xc, yc))
+                print(
+                    f"    all - without {args.without} (paired bootstrap over queries): "
+                    + compare(model, other, check_rows, variant)
+                )
     if args.write:
         if args.write_only is not None:
             shipped = {(m.kind, m.with_depth): m for m in load_models()}

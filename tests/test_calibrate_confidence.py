@@ -3,6 +3,8 @@ cities alone (fit on one, check on the other, with and without it)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -31,8 +33,15 @@ def _rows(seed: int, n: int = 300) -> list[dict]:
 
 def test_cross_city_shows_what_a_feature_is_worth(calibrate, capsys):
     calibrate.cross_city({"a": _rows(0), "b": _rows(1)}, "building_iou")
-    lines = capsys.readouterr().out.splitlines()
+    out = capsys.readouterr().out.splitlines()
+    lines = [line for line in out if "paired bootstrap" not in line]
+    paired = [line for line in out if "paired bootstrap" in line]
     assert len(lines) == 3 * 2 * 2  # three models, two directions, with and without
+    assert len(paired) == 3 * 2
+    for line in paired:  # the feature's worth with an interval: log-loss and Brier lower with it, surely
+        for rule in ("log-loss", "brier"):
+            mean, low, high = map(float, re.search(rf"{rule} (\S+) \[(\S+), (\S+)\]", line).groups())
+            assert low < mean < high < 0
     for with_it, without in zip(lines[::2], lines[1::2], strict=True):
         assert ", all:" in with_it and ", without building_iou:" in without
         loss_with = float(with_it.split("log-loss ")[1].split()[0])
