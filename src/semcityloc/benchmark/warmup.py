@@ -13,10 +13,18 @@ automatic label; ``localize``: the localizer's scoring; ``wireframe``: the LoD-L
 non-inlined ``cache=True`` dispatcher defined in them is warmed; inlined helpers are compiled into their
 callers and have no cache of their own. ``kernels_cached(groups)`` checks the groups a command uses, so a
 command that will not compile says nothing.
+
+Why a stamp of the sources: numba keys a cached kernel by its own file only, so a kernel that calls (and
+inlines) one of another module, as the localizer's scoring kernels call the rasteriser's ``render_view``,
+keeps running its cached old copy after that other module changed. ``warm_up()`` writes the fingerprint
+of every kernel module (and of ``classes``, whose ids the kernels bake in) beside the caches;
+``kernels_cached()`` is False when the sources differ from it, and ``warm_up()`` then recompiles every
+kernel from today's sources instead of loading the old ones.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import sys
 import tempfile
@@ -43,6 +51,9 @@ KERNEL_GROUPS = {
     "localize": ("semcityloc.localization.kernels", "semcityloc.localization.resample"),
     "wireframe": ("semcityloc.baselines.edge_score",),
 }
+# Modules whose code or constants the kernels compile in, besides KERNEL_GROUPS' own.
+BAKED_IN_MODULES = ("semcityloc.classes",)
+STAMP_NAME = "semcityloc-kernels.stamp"
 # Warmed, but used by no command (a worked example of a fused render-and-score kernel, and its tests).
 NOT_USED_BY_COMMANDS = frozenset({"render_confusion"})
 COMPILE_NOTICE = (
@@ -75,6 +86,36 @@ def cached_kernels(groups: tuple[str, ...] | None = None) -> list[CPUDispatcher]
     return out
 
 
+def sources_fingerprint() -> str:
+    """sha256 of the source files of every kernel module and of ``BAKED_IN_MODULES``."""
+    names = sorted({m for ms in KERNEL_GROUPS.values() for m in ms} | set(BAKED_IN_MODULES))
+    digest = hashlib.sha256()
+    for name in names:
+        digest.update(name.encode() + b"\0" + Path(importlib.import_module(name).__file__).read_bytes())
+    return digest.hexdigest()
+
+
+def _stamp_path() -> Path | None:
+    """Where the stamp lives (beside the rasteriser's cache), or None when numba's cache cannot be
+    inspected (its internals changed)."""
+    try:
+        return Path(cached_kernels(("render",))[0]._cache._cache_path) / STAMP_NAME
+    except Exception:  # numba-internal API: any failure means "cannot tell"
+        return None
+
+
+def sources_match_cache() -> bool | None:
+    """True when the kernels were compiled from today's sources by ``warm_up``, False when not (another
+    version of a kernel module, or compiled outside ``warm_up``), None when it cannot be told."""
+    path = _stamp_path()
+    if path is None:
+        return None
+    try:
+        return path.read_text(encoding="utf-8").strip() == sources_fingerprint()
+    except OSError:
+        return False
+
+
 def _has_cache_entry(kernel: CPUDispatcher) -> bool | None:
     """Whether ``kernel`` has a compiled version in its on-disk cache valid for its current source; None
     when numba's cache cannot be inspected (its internals changed)."""
@@ -87,6 +128,8 @@ def _has_cache_entry(kernel: CPUDispatcher) -> bool | None:
 def kernels_cached(groups: tuple[str, ...] | None = None) -> bool:
     """False when a kernel of ``groups`` (default: every group) that commands use has no cached
     compilation: the next command using it will compile."""
+    if sources_match_cache() is False:
+        return False
     kernels = [k for k in cached_kernels(groups) if k.__name__ not in NOT_USED_BY_COMMANDS]
     return all(_has_cache_entry(k) is not False for k in kernels)
 
@@ -123,10 +166,15 @@ def box_city_obj() -> str:
 
 def warm_up(say: Callable[[str], None] | None = None) -> dict[str, float]:
     """Run every kernel once (render, the localizer with and without depth, the wireframe baseline) so
-    numba compiles and caches it; returns seconds per step."""
+    numba compiles and caches it, then stamp the caches with the sources; returns seconds per step. When
+    the sources differ from the stamp, every kernel's cache (and any copy already loaded) is dropped
+    first, so nothing compiled from older sources survives."""
     say = say or (lambda text: None)
     times: dict[str, float] = {}
     t0 = time.perf_counter()
+    if sources_match_cache() is False:
+        for kernel in cached_kernels():
+            kernel.recompile()  # drops the cached and loaded versions; recompiles those loaded from source
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "warmup_city.obj"
         path.write_text(box_city_obj(), encoding="utf-8")
@@ -148,4 +196,10 @@ def warm_up(say: Callable[[str], None] | None = None) -> dict[str, float]:
         get_method(name, model, config).localize(query)
         times[f"{name}_s"] = time.perf_counter() - t
     times["total_s"] = time.perf_counter() - t0
+    stamp = _stamp_path()
+    if stamp is not None:
+        try:
+            stamp.write_text(sources_fingerprint() + "\n", encoding="utf-8")
+        except OSError:  # a read-only cache: the kernels work, the next warm-up cannot skip
+            pass
     return times
