@@ -185,14 +185,14 @@ def test_the_numpy_depth_cost_is_the_refinements(generated_lod2):
     localizer = Localizer(generated_lod2)
     pose = view(generated_lod2, 10.0, -20.0, 80.0, 1.0, 2.0, 30.0)
     cam = localizer.fine_camera(CAMERA)
-    truth = localizer._render_one(cam, pose, depth=True)
-    labels = truth.labels.reshape(cam.height, cam.width)
-    depth = 2.0 * truth.depth.reshape(cam.height, cam.width) + 3.0
+    labels, truth_depth = localizer.render_labels_and_depth(cam, pose)
+    assert labels.shape == truth_depth.shape == (cam.height, cam.width)
+    depth = 2.0 * truth_depth + 3.0
     depth *= 1.0 + 0.05 * np.sin(np.arange(cam.width) / 7.0)  # not affine: the fit and the cap matter
     moved = view(generated_lod2, 11.0, -20.0, 80.0, 1.0, 2.0, 30.5)
     scores = localizer.score_poses(CAMERA.scaled(cam.width, cam.height), labels, depth, [moved])
     kernel = scores["depth_cost"][0]
-    at = localizer._render_one(cam, moved, depth=True)
+    _, at_depth = localizer.render_labels_and_depth(cam, moved)
     q_labels, q_depth = Query.from_arrays(labels, depth, localizer.has_openings).at(cam.width, cam.height)
-    cost = agreed_depth_cost(q_labels, q_depth, q_labels, at.depth, localizer.config.refine.depth_cap)
+    cost = agreed_depth_cost(q_labels, q_depth, q_labels, at_depth, localizer.config.refine.depth_cap)
     assert kernel > 0.01 and cost == pytest.approx(kernel, rel=1e-6)

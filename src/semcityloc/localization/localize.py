@@ -491,6 +491,13 @@ class Localizer:
         seen by ``camera`` at ``pose_local`` (model's local frame)."""
         return self._render_one(camera, pose_local).labels.reshape(camera.height, camera.width)
 
+    def render_labels_and_depth(self, camera: Camera, pose_local: Pose) -> tuple[np.ndarray, np.ndarray]:
+        """``render_labels`` and the map's z-depth there, (H, W) float32, +inf where nothing is hit: what the
+        acceptance's map agreement and agreed depth cost compare the query with."""
+        out = self._render_one(camera, pose_local, depth=True)
+        shape = (camera.height, camera.width)
+        return out.labels.reshape(shape), out.depth.reshape(shape)
+
     # ------------------------------------------------------------------ helpers
     @staticmethod
     def _accept(result: LocalizationResult, cfg: LocalizerConfig, with_depth: bool) -> bool:
