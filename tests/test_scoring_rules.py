@@ -63,5 +63,9 @@ def test_bad_inputs_are_typed_errors():
         paired_difference(np.array([0.5, 0.5]), np.array([0.4, 0.4]), np.array([1, 0]), groups=np.array([0]))
     with pytest.raises(ShapeError, match="no results"):
         paired_difference(np.array([]), np.array([]), np.array([]))
+    with pytest.raises(ValueError, match="resamples"):
+        paired_difference(np.array([0.5]), np.array([0.5]), np.array([1]), resamples=0)
+    with pytest.raises(ValueError, match="level"):
+        paired_difference(np.array([0.5]), np.array([0.5]), np.array([1]), level=95)
     with pytest.raises(ValueError, match="unknown scoring rule"):
         paired_difference(np.array([0.5]), np.array([0.5]), np.array([1]), rule="ece")

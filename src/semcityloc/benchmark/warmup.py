@@ -127,7 +127,8 @@ def _has_cache_entry(kernel: CPUDispatcher) -> bool | None:
 
 def kernels_cached(groups: tuple[str, ...] | None = None) -> bool:
     """False when a kernel of ``groups`` (default: every group) that commands use has no cached
-    compilation: the next command using it will compile."""
+    compilation, or when the cache was not stamped by ``warm_up`` with today's sources: the next command
+    using it will compile."""
     if sources_match_cache() is False:
         return False
     kernels = [k for k in cached_kernels(groups) if k.__name__ not in NOT_USED_BY_COMMANDS]

@@ -84,6 +84,8 @@ def paired_difference(
         raise ValueError(f"unknown scoring rule {rule!r}; one of {', '.join(terms)}")
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be within (0, 1), not {level}")
+    if not isinstance(resamples, int) or resamples < 1:
+        raise ValueError(f"resamples must be a positive integer, not {resamples!r}")
     d = terms[rule](p_a, y) - terms[rule](p_b, y)
     if d.size == 0:
         raise ShapeError("no results to compare")
