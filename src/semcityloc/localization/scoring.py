@@ -78,7 +78,9 @@ def robust_depth_cost(d_query: np.ndarray, d_render: np.ndarray, cap: float) -> 
     if np.count_nonzero(valid) < MIN_DEPTH_PIXELS:
         return DEPTH_COST_INVALID
     a, b = dq[valid] / dr[valid], 1.0 / dr[valid]
-    saa, sab, sbb, sa, sb = a @ a, a @ b, b @ b, a.sum(), b.sum()
+    # numpy's own sums, not BLAS dot products: a BLAS dot of ~10^4 terms splits across its threads, and a
+    # process with another thread count (a Ray worker) would round the cost differently.
+    saa, sab, sbb, sa, sb = np.sum(a * a), np.sum(a * b), np.sum(b * b), a.sum(), b.sum()
     det = saa * sbb - sab * sab
     if det <= 1e-12 * saa * sbb:
         return DEPTH_COST_INVALID
