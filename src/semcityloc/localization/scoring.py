@@ -53,14 +53,28 @@ def fit_scale_shift(d_query: np.ndarray, d_render: np.ndarray) -> tuple[float, f
     return float(s), float(t)
 
 
-def depth_cost(d_query: np.ndarray, d_render: np.ndarray) -> float:
-    """Affine-invariant depth cost ``C_d`` (lower is better); invalid depth is NaN/inf/<= 0."""
+def _depth_pairs(
+    d_query: np.ndarray, d_render: np.ndarray, query_positive: bool
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The float64 (query, render) depths of the pixels both costs compare: finite on both sides, the
+    render's positive (and the query's too when ``query_positive``); None when fewer than
+    ``MIN_DEPTH_PIXELS``."""
     dq = np.asarray(d_query, dtype=np.float64).reshape(-1)
     dr = np.asarray(d_render, dtype=np.float64).reshape(-1)
     valid = np.isfinite(dq) & np.isfinite(dr) & (dr > 0)
+    if query_positive:
+        valid &= dq > 0
     if np.count_nonzero(valid) < MIN_DEPTH_PIXELS:
+        return None
+    return dq[valid], dr[valid]
+
+
+def depth_cost(d_query: np.ndarray, d_render: np.ndarray) -> float:
+    """Affine-invariant depth cost ``C_d`` (lower is better); invalid depth is NaN/inf/<= 0."""
+    pixels = _depth_pairs(d_query, d_render, query_positive=False)
+    if pixels is None:
         return DEPTH_COST_INVALID
-    dq, dr = dq[valid], dr[valid]
+    dq, dr = pixels
     s, t = fit_scale_shift(dq, dr)
     if s <= 0:
         return DEPTH_COST_INVALID
@@ -72,12 +86,11 @@ def robust_depth_cost(d_query: np.ndarray, d_render: np.ndarray, cap: float) -> 
     in numpy: scale/shift by relative least squares (``s d_q + t ~ d_r`` with every residual divided by
     ``d_r``), then the mean relative residual with each pixel's capped at ``cap``. 1D arrays of the pixels
     to compare; invalid depth (NaN, inf, <= 0) on either side is left out."""
-    dq = np.asarray(d_query, dtype=np.float64).reshape(-1)
-    dr = np.asarray(d_render, dtype=np.float64).reshape(-1)
-    valid = np.isfinite(dq) & (dq > 0) & np.isfinite(dr) & (dr > 0)
-    if np.count_nonzero(valid) < MIN_DEPTH_PIXELS:
+    pixels = _depth_pairs(d_query, d_render, query_positive=True)
+    if pixels is None:
         return DEPTH_COST_INVALID
-    a, b = dq[valid] / dr[valid], 1.0 / dr[valid]
+    dq, dr = pixels
+    a, b = dq / dr, 1.0 / dr
     # numpy's own sums, not BLAS dot products: a BLAS dot of ~10^4 terms splits across its threads, and a
     # process with another thread count (a Ray worker) would round the cost differently.
     saa, sab, sbb, sa, sb = np.sum(a * a), np.sum(a * b), np.sum(b * b), a.sum(), b.sum()
