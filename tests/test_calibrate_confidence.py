@@ -92,3 +92,24 @@ def test_check_shipped_reports_the_shipped_models_per_condition(calibrate, capsy
         assert sum(line.startswith(f"  {cond}: n=") for line in lines) == 3
     assert "  all: n=200 " in lines[per]
     assert calibrate.check_shipped([], args) == 2  # no check city: said, not a traceback
+
+
+def test_check_without_a_feature_prints_the_paired_difference(calibrate, capsys, monkeypatch):
+    """Fitted on a calibration city, checked on another with ``--without NAME``: each model's line and the
+    paired bootstrap of (with - without) over the check rows' queries, here surely in favour of the
+    feature that carries all the evidence."""
+
+    def rows(city, seed, queries, cond, *args):
+        out = _rows(seed + len(cond), n=60)
+        return [dict(r, group=f"{city}/q{i % 60:04d}") for i, r in enumerate(out)]
+
+    monkeypatch.setattr(calibrate, "condition_rows", rows)
+    argv = ["calibrate_confidence.py", "--fit-city", "generated", "--check-city", "elsewhere.gml"]
+    monkeypatch.setattr("sys.argv", [*argv, "--without", "building_iou"])
+    assert calibrate.main() == 0
+    paired = [line for line in capsys.readouterr().out.splitlines() if "paired bootstrap" in line]
+    assert len(paired) == 3  # one per localizer kind
+    for line in paired:
+        assert "all - without building_iou" in line and "groups)" in line
+        mean, low, high = map(float, re.search(r"log-loss (\S+) \[(\S+), (\S+)\]", line).groups())
+        assert low <= mean <= high < 0
