@@ -34,6 +34,9 @@ WARNED = {  # what the localizer said about the map (localization.agreement), as
 }
 
 
+BOUNDARIES = {"q3": "4.25", "q4": "nan"}  # px at the found pose; empty as in runs before stop 42
+
+
 def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     rows = [  # (status, error, found error, map agreement in pixels)
         ("q0", "localized", 0.5, 0.5, 900, 50),  # hit
@@ -44,7 +47,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
         ("q5", "skipped", "", "", 0, 0),  # not a query: left out
     ]
     with (tmp_path / "results.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, [*FIELDS.split(), "warnings", "meta_json"])
+        w = csv.DictWriter(fh, [*FIELDS.split(), "warnings", "meta_json", "boundary_distance_px"])
         w.writeheader()
         for qid, status, err, found, agree, disagree in rows:
             w.writerow(
@@ -53,7 +56,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
                     err_xyz_m=err if err != "" else (found if status != "skipped" else ""),
                     err_rot_deg=0.5 if status != "skipped" else "", found_err_xyz_m=found,
                     found_err_rot_deg=0.5 if found != "" else "",
-                    warnings=WARNED.get(qid, ""),
+                    warnings=WARNED.get(qid, ""), boundary_distance_px=BOUNDARIES.get(qid, ""),
                     meta_json=json.dumps(
                         {"map_confusion": _confusion(agree, disagree), "prior_roll_err_deg": -1.5}
                     ),
@@ -74,6 +77,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     table = [line for line in lines if line.startswith("| q") and not line.startswith("| query")]
     assert [line.split(" | ")[2] for line in table] == ["near", "refused-near", "refused-wrong", "wrong"]
     assert "1.5° / nan°" in table[0]  # the prior's roll error, unsigned; a missing pitch error says nan
+    assert [line.split(" | ")[-2] for line in table] == ["-", "-", "4.2", "nan"]  # class boundaries apart
     assert [line.split(" | ")[-1] for line in table] == [
         "- |",
         "map lacks, image lacks |",
