@@ -169,9 +169,9 @@ class Localizer:
         if result.reason is not None:
             return self._finish(result, result.reason, t0)
 
-        found = self._render_one(fine.camera, result.pose_local, depth=True)  # agreement and view span
+        # The map at the found pose: its agreement with the query and the view's span.
+        found_2d, found_depth = self.render_labels_and_depth(fine.camera, result.pose_local)
         query_2d = fine.labels.reshape(fine.camera.height, fine.camera.width)
-        found_2d = found.labels.reshape(fine.camera.height, fine.camera.width)
         agreement = building_agreement(query_2d, found_2d)
         result.confidence["building_iou"] = agreement.building_iou
         result.confidence["unmapped_building_share"] = agreement.unmapped_share
@@ -181,14 +181,14 @@ class Localizer:
         with_depth = fine.depth is not None
         if with_depth:
             result.confidence["depth_cost_agreed"] = agreed_depth_cost(
-                fine.labels, fine.depth, found.labels, found.depth, cfg.refine.depth_cap
+                fine.labels, fine.depth, found_2d, found_depth, cfg.refine.depth_cap
             )
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         if cfg.acceptance == "calibrated":
             p = confidence_model(self.confidence_kind, with_depth).probability(result)
             result.confidence["probability"] = p
-            seen = found.depth[np.isfinite(found.depth)]
+            seen = found_depth[np.isfinite(found_depth)]
             span = view_span_m(camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0)
             result.confidence["view_span_m"] = span
             needed = cfg.min_confidence
