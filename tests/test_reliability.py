@@ -5,6 +5,7 @@ One test (or parametrized group) per row of the matrix in ``docs/reliability.md`
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import json
 import os
@@ -213,6 +214,22 @@ def test_depth_that_runs_backwards_is_dropped_with_a_warning_naming_it(nadir, in
     np.testing.assert_array_equal(result.pose_local.t, semantic_only.pose_local.t)
     assert result.confidence["probability"] == pytest.approx(semantic_only.confidence["probability"])
     kept = localizer.localize(CAMERA, prior, labels, 0.5 * depth + 7.0)  # depth the right way round is used
+    assert not kept.warnings and kept.depth_cost > 0.0
+
+
+def test_the_first_designs_grid_search_drops_backwards_depth_too(city, nadir):
+    """The check runs after either search: the ``legacy`` preset's one grid, not only the cascade."""
+    _, true, prior, labels, depth, _ = nadir
+    config = dataclasses.replace(LocalizerConfig.preset("legacy"), map_eaves_m=0.0)
+    localizer = Localizer(city, config)
+    semantic_only = localizer.localize(CAMERA, prior, labels)
+    result = localizer.localize(CAMERA, prior, labels, 1000.0 / depth)
+    (warning,) = result.warnings
+    assert warning.startswith("depth map dropped: it runs backwards against the map")
+    assert result.status == semantic_only.status == LOCALIZED, result.reason
+    np.testing.assert_array_equal(result.pose_local.t, semantic_only.pose_local.t)
+    assert center_error_m(result.pose_local, true) < 1.0
+    kept = localizer.localize(CAMERA, prior, labels, 0.5 * depth + 7.0)
     assert not kept.warnings and kept.depth_cost > 0.0
 
 

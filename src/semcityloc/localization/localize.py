@@ -245,6 +245,8 @@ class Localizer:
             result.confidence["score_margin"] = volume.score_margin()
             result.timings["coarse_s"] = time.perf_counter() - t_prep
         levels = [ScoringLevel(coarse_cam, q_coarse, d_coarse), ScoringLevel(fine_cam, q_fine, d_fine)]
+        if not cfg.no_coarse:
+            levels, _ = self._drop_inverted_depth(result, levels, result.coarse_pose_local)
         self._refine(result, levels, seeds, cfg, initial_sigma(cfg.refine, 0.3))
         return levels[-1]
 
@@ -291,13 +293,7 @@ class Localizer:
             self.scene, local_cam, seeds, sw.step, unc.roll_pitch_deg, q_local, self.class_on, cc.local
         )
         result.coarse_pose_local = _pose(hyps.states[0])
-        seen = None  # the map's depth from the best hypothesis at the local level, when rendered
-        if d_local is not None:  # depth that runs against the map (a disparity map) is dropped, and said so
-            seen = self._render_one(local_cam, result.coarse_pose_local, depth=True).depth
-            warning = inverted_depth_warning(depth_rank_correlation(d_local, seen))
-            if warning is not None:
-                result.warnings.append(warning)
-                levels = [ScoringLevel(level.camera, level.labels, None) for level in levels]
+        levels, seen = self._drop_inverted_depth(result, levels, result.coarse_pose_local)
         result.counts["coarse_hypotheses"] = sw.hypotheses + hyps.evaluated
         result.timings["coarse_s"] = time.perf_counter() - t_prep
         result.hypotheses = [
@@ -309,6 +305,22 @@ class Localizer:
         )
         self._refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
         return levels[-1]
+
+    def _drop_inverted_depth(
+        self, result: LocalizationResult, levels: list[ScoringLevel], pose_local: Pose
+    ) -> tuple[list[ScoringLevel], np.ndarray | None]:
+        """Depth that runs against the map (a disparity map) is dropped from every level, and said so:
+        judged at the first level against the map rendered at ``pose_local`` (the search's best
+        hypothesis). Returns the levels and that render's depth (None when the query has no depth)."""
+        level = levels[0]
+        if level.depth is None:
+            return levels, None
+        seen = self._render_one(level.camera, pose_local, depth=True).depth
+        warning = inverted_depth_warning(depth_rank_correlation(level.depth, seen))
+        if warning is not None:
+            result.warnings.append(warning)
+            levels = [ScoringLevel(lv.camera, lv.labels, None) for lv in levels]
+        return levels, seen
 
     def ring_beyond(
         self, camera: Camera, query: Query, prior_state: np.ndarray, found_xy, cfg: LocalizerConfig, unc
