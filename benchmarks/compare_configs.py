@@ -27,7 +27,10 @@ already made, never a way to make one.
 
 Prints one JSON line per variant: found-pose recall (accepted or not) and accepted recall at 2 m / 2 deg,
 3 m / 3 deg, 5 m / 5 deg, localized count, mean seconds per query, and, for every variant after the first,
-how many queries it gains and loses at 2 m / 2 deg (found poses) against the first
+how many queries it gains and loses against the first at 2 m / 2 deg, 3 m / 3 deg and 5 m / 5 deg (found
+poses: ``gained_2m``, ``lost_2m``, ...) and ``moves``: how many queries went from one error band to another
+(bands ``2m``, ``3m``, ``5m``, ``off``: within 2 m / 2 deg, 3 m / 3 deg, 5 m / 5 deg, or beyond), e.g.
+``{"2m->3m": 5, "off->2m": 1}``: whether a change trades fine poses for far misses shows there at a glance
 (``--rows`` keeps every query's errors, to name them).
 """
 
@@ -178,6 +181,25 @@ def _hits(rows: list[dict], m: float, deg: float) -> set[str]:
     return {r["query"] for r in rows if r["err_m"] <= m and r["err_deg"] <= deg}
 
 
+def _band(row: dict) -> str:
+    """The error band of a found pose: the first of THRESHOLDS it is within, else "off"."""
+    for m, deg in THRESHOLDS:
+        if row["err_m"] <= m and row["err_deg"] <= deg:
+            return f"{m:g}m"
+    return "off"
+
+
+def _moves(rows: list[dict], reference: list[dict]) -> dict[str, int]:
+    """Queries whose error band differs from the reference's, counted per "from->to", sorted."""
+    before = {r["query"]: _band(r) for r in reference}
+    counts: dict[str, int] = {}
+    for r in rows:
+        was, now = before.get(r["query"]), _band(r)
+        if was is not None and was != now:
+            counts[f"{was}->{now}"] = counts.get(f"{was}->{now}", 0) + 1
+    return dict(sorted(counts.items()))
+
+
 def summarise(rows: list[dict], names: list[str]) -> list[dict]:
     """One summary per variant (module docstring), paired against the first. Errors are the found pose's
     (``inf`` when none); "accepted" counts a refused pose as a failure."""
@@ -197,9 +219,11 @@ def summarise(rows: list[dict], names: list[str]) -> list[dict]:
             "mean_s": round(sum(r["s"] for r in rs) / max(len(rs), 1), 3),
         }
         if name != names[0]:
-            hit, hit0 = _hits(rs, 2.0, 2.0), _hits(by[names[0]], 2.0, 2.0)
-            s["gained_2m"] = len(hit - hit0)
-            s["lost_2m"] = len(hit0 - hit)
+            for m, deg in THRESHOLDS:
+                hit, hit0 = _hits(rs, m, deg), _hits(by[names[0]], m, deg)
+                s[f"gained_{m:g}m"] = len(hit - hit0)
+                s[f"lost_{m:g}m"] = len(hit0 - hit)
+            s["moves"] = _moves(rs, by[names[0]])
         out.append(s)
     return out
 

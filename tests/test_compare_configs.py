@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -47,6 +48,24 @@ def test_summary_pairs_every_variant_with_the_first(compare):
     assert a["found_R@2/3/5"] == [50.0, 50.0, 100.0] and a["accepted_R@2/3/5"] == [50.0, 50.0, 50.0]
     assert b["found_R@2/3/5"] == [50.0, 100.0, 100.0] and b["localized"] == 2
     assert (b["gained_2m"], b["lost_2m"]) == (1, 1) and "gained_2m" not in a
+    assert (b["gained_3m"], b["lost_3m"]) == (1, 0) and (b["gained_5m"], b["lost_5m"]) == (0, 0)
+    assert b["moves"] == {"2m->3m": 1, "5m->2m": 1} and "moves" not in a
+
+
+def test_moves_name_far_misses_and_poses_not_found(compare):
+    inf = math.inf
+    rows = [
+        {"variant": "a", "query": "q0", "status": "localized", "s": 0.1, "err_m": 0.5, "err_deg": 0.2},
+        {"variant": "a", "query": "q1", "status": "localized", "s": 0.1, "err_m": 30.0, "err_deg": 9.0},
+        {"variant": "a", "query": "q2", "status": "localized", "s": 0.1, "err_m": 1.0, "err_deg": 2.5},
+        {"variant": "b", "query": "q0", "status": "not_localized", "s": 0.1, "err_m": 6.0, "err_deg": 1.0},
+        {"variant": "b", "query": "q1", "status": "localized", "s": 0.1, "err_m": 4.0, "err_deg": 4.5},
+        {"variant": "b", "query": "q2", "status": "not_localized", "s": 0.1, "err_m": inf, "err_deg": inf},
+    ]
+    _, b = compare.summarise(rows, ["a", "b"])
+    # q2 was within 3 m / 3 deg (2.5 deg is past 2), then no pose at all: "off"
+    assert b["moves"] == {"2m->off": 1, "3m->off": 1, "off->5m": 1}
+    assert (b["gained_5m"], b["lost_5m"]) == (1, 2) and (b["gained_2m"], b["lost_2m"]) == (0, 1)
 
 
 def test_a_reporting_city_is_refused_unless_checking(tmp_path):
