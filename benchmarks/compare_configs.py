@@ -45,6 +45,7 @@ import pickle
 import re
 import sys
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -192,12 +193,8 @@ def _band(row: dict) -> str:
 def _moves(rows: list[dict], reference: list[dict]) -> dict[str, int]:
     """Queries whose error band differs from the reference's, counted per "from->to", sorted."""
     before = {r["query"]: _band(r) for r in reference}
-    counts: dict[str, int] = {}
-    for r in rows:
-        was, now = before.get(r["query"]), _band(r)
-        if was is not None and was != now:
-            counts[f"{was}->{now}"] = counts.get(f"{was}->{now}", 0) + 1
-    return dict(sorted(counts.items()))
+    pairs = ((before.get(r["query"]), _band(r)) for r in rows)
+    return dict(sorted(Counter(f"{was}->{now}" for was, now in pairs if was not in (None, now)).items()))
 
 
 def summarise(rows: list[dict], names: list[str]) -> list[dict]:
