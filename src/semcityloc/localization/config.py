@@ -222,7 +222,8 @@ class LocalizerConfig:
     max_depth_cost: float = 0.06
     # Building-vs-rest IoU at the final pose below this -> not_localized. Calibrated for a trained
     # segmentation head (Berlin: correct poses >= 0.80 at 78% mIoU masks; wrong look-alikes found from
-    # priors 100+ m off <= 0.67). Poor (zero-shot) masks need the "poor-masks" preset.
+    # priors 100+ m off <= 0.67). (The first design's gate; the default
+    # preset's calibrated acceptance reads poor masks' evidence instead.)
     min_building_iou: float = 0.7
     min_building_fraction: float = 0.005  # query mask with fewer wall/roof pixels -> not_localized
     # "calibrated": accept when the estimated probability of being within 5 m / 5 deg

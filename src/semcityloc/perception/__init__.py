@@ -1,7 +1,7 @@
 """Perception: the query photo's semantic mask and relative depth, and automatic labels to train on.
 
-- ``base``: ``SegmentationBackend`` / ``DepthBackend`` protocols, their outputs, the registry
-  (``get_segmentation_backend("dinov3-dpt" | "mobilenetv2" | "files", **options)``,
+- ``base``: ``SegmentationBackend`` / ``DepthBackend`` protocols and their outputs; ``registry``: the
+  registry (``get_segmentation_backend("dinov3-dpt" | "mobilenetv2" | "files", **options)``,
   ``get_depth_backend("moge2" | "files", **options)``); ``MissingWeightsError`` (from ``semcityloc.errors``)
   is re-exported here;
 - ``autolabel``: ``auto_label(model, camera, pose)`` projects model classes into a photo (IGNORE = 255
