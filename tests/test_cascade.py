@@ -13,8 +13,8 @@ from helpers import CAMERA, perturbed, view
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.cascade import BEYOND_WARNING, search_volume
+from semcityloc.geometry.uncertainty import MAX_POSITION_SIGMA_M, PriorUncertainty
+from semcityloc.localization.cascade import BEYOND_WARNING, _lattice, search_volume
 from semcityloc.localization.confidence import (
     CALIBRATED_MIN_HFOV_DEG,
     CALIBRATED_MIN_SPAN_M,
@@ -243,6 +243,21 @@ def test_prior_uncertainty_parsing_and_errors():
     for bad in ("", "xy", "q=3", "z=abc", "z=-1", "yaw=90"):
         with pytest.raises(ParameterError):
             PriorUncertainty.parse(bad)
+
+
+def test_position_sigma_beyond_a_local_search_is_refused_and_the_largest_allowed_stays_bounded():
+    """Stop 45's audit: xy=1e9 (or an RTK tag of 1e9 m) overflowed the lattice's centre count and asked
+    for 10 GB; now refused by name, and the largest sigma allowed keeps the sweep's centres bounded."""
+    for text in ("xy=1e9", "z=20000"):
+        with pytest.raises(ParameterError, match="too large for a local search"):
+            PriorUncertainty.parse(text)
+    cfg = CascadeConfig()
+    state = np.array([1.0, 2.0, 3.0, 0.0, 0.0, 10.0])
+    volume = search_volume(
+        state, PriorUncertainty.parse(f"xy={MAX_POSITION_SIGMA_M},z={MAX_POSITION_SIGMA_M}"), cfg
+    )
+    _, n = _lattice(volume, cfg.sweep, cfg.sweep.max_centres)
+    assert (2 * n[0] + 1) ** 2 * (2 * n[2] + 1) <= cfg.sweep.max_centres
 
 
 def test_localize_refuses_a_non_uncertainty(city, localizer, renderer):

@@ -10,7 +10,7 @@ from scipy import ndimage
 
 from helpers import CAMERA, perturbed, view
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
-from semcityloc.errors import ParameterError, PoseError, ShapeError
+from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
@@ -200,6 +200,56 @@ def test_bad_inputs_raise_typed_errors(city, localizer):
         localizer.localize(CAMERA, pose, np.zeros((384, 512, 3), dtype=np.uint8))
     with pytest.raises(PoseError):
         localizer.localize(CAMERA, Pose.stack([pose, pose]), np.zeros((384, 512), np.uint8))
+
+
+def test_api_inputs_the_cli_refuses_are_refused_by_the_api_too(city, localizer):
+    """Stop 45's audit: the Python API took what the CLI refuses, and failed deep inside or silently."""
+    pose = view(city, *CASES["nadir"][0])
+    good = np.full((384, 512), 3, dtype=np.uint8)
+    with pytest.raises(ShapeError, match="invalid class ids 7 in"):
+        localizer.localize(CAMERA, pose, np.full((384, 512), 7))  # a head's own numbering: not "nothing"
+    with pytest.raises(ShapeError, match="invalid class ids -1"):
+        localizer.localize(CAMERA, pose, np.full((384, 512), -1))
+    with pytest.raises(ShapeError, match="real numbers"):
+        localizer.localize(CAMERA, pose, good, depth=np.ones((384, 512), dtype=np.complex64))
+    with pytest.raises(ParameterError, match="LocalizerConfig or a preset name"):
+        localizer.localize(CAMERA, pose, good, config=42)
+    with pytest.raises(ParameterError, match="unknown localizer preset"):
+        localizer.localize(CAMERA, pose, good, config="typo")
+    with pytest.raises(ParameterError, match="must be a CityModel"):
+        Localizer(None)
+    for seed in (-1, 1.5, "a", True):
+        with pytest.raises(ParameterError, match="seed must be a whole number"):
+            LocalizerConfig(seed=seed)
+    assert LocalizerConfig(seed=np.int64(3)).seed == 3
+
+
+@pytest.mark.parametrize(
+    "intrinsics, message",
+    [
+        ((364.0, 364.0, 5000.0, 192.0), "principal point"),  # the audit's MemoryError in the kernel
+        ((364.0, 364.0, 256.0, -1.0), "principal point"),
+        ((1e9, 1e9, 256.0, 192.0), "field of view"),  # a focal length 10^7 times too long: all RAM before
+        ((1e300, 1e300, 256.0, 192.0), "field of view"),  # OverflowError before
+        ((10.0, 10.0, 256.0, 192.0), "field of view"),  # 175 deg across
+    ],
+)
+def test_intrinsics_no_photo_has_are_refused_before_the_search(city, localizer, intrinsics, message):
+    pose = view(city, *CASES["nadir"][0])
+    camera = Camera(*intrinsics, 512, 384)
+    with pytest.raises(CameraError, match=message):
+        localizer.localize(camera, pose, np.full((384, 512), 3, dtype=np.uint8))
+
+
+def test_wide_view_of_extreme_rotations_is_refused_not_allocated():
+    """A 1 deg zoom searched over +-180 deg of yaw would need a wide view of 10^8 pixels: a typed error
+    naming the fix, where it exhausted the memory; a 70 deg camera over +-9 deg stays a few thousand."""
+    zoom = Camera.from_fov(32, 24, 1.0)
+    tilt = Pose.from_xyz_rpy(np.zeros(3), 0.0, 45.0, 0.0).R
+    with pytest.raises(CameraError, match="smaller yaw"):
+        yaw_lookup(zoom, tilt, np.linspace(-180, 180, 91))
+    wide, lut = yaw_lookup(Camera.from_fov(32, 24, 70.0), tilt, np.linspace(-9, 9, 11))
+    assert wide.width * wide.height < 5_000 and (lut >= 0).mean() > 0.99
 
 
 @pytest.mark.parametrize("preset", ["legacy", "default"])

@@ -9,7 +9,13 @@ from semcityloc.citymodel.builder import MeshBuilder, choose_origin
 from semcityloc.citymodel.export import export_model
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import EmptyModelError, ShapeError, UnsupportedFormatError
+from semcityloc.errors import (
+    EmptyModelError,
+    InputFileError,
+    ParameterError,
+    ShapeError,
+    UnsupportedFormatError,
+)
 
 E, N = 391000.0, 5817000.0  # UTM-sized offsets: float32 would lose centimetres here
 
@@ -42,6 +48,26 @@ def test_origin_subtracted_in_float64_keeps_centimetres():
     assert world[:, 1].min() == pytest.approx(N + 0.456, abs=1e-4)
     assert model.origin.dtype == np.float64 and model.vertices.dtype == np.float32
     assert model.origin[2] == 0.0  # heights stay absolute in the local frame
+
+
+def test_a_building_far_from_the_rest_is_refused_by_name_not_rounded_silently():
+    """Stop 45's audit: one box at 1e8 m moved the origin so far that float32 read the 15 m boxes as 16 m."""
+    b = MeshBuilder()
+    labels = [SemanticClass.GROUND, SemanticClass.ROOF] + [SemanticClass.WALL] * 4
+    for i, x0 in enumerate((E, E + 30.0, E + 1e8)):
+        for face, label in zip(box_polygons(x0, N, 34.0, 15.0, 15.0, 10.0), labels, strict=True):
+            b.add_polygon(face, semantic=int(label), building_id=f"b{i}", lod=2)
+    with pytest.raises(InputFileError, match="building 'b2' lies 100,000.0 km from the middle"):
+        b.build(source="far")
+
+
+@pytest.mark.parametrize("origin", [[1.0, 2.0], [np.nan, 0.0, 0.0], "here"])
+def test_a_given_origin_must_be_three_finite_numbers(origin):
+    b = MeshBuilder()
+    for face in box_polygons(E, N, 34.0, 15.0, 15.0, 10.0):
+        b.add_polygon(face, building_id="b", lod=2)
+    with pytest.raises(ParameterError, match="origin must be three finite numbers"):
+        b.build(source="box", origin=origin)
 
 
 def test_choose_origin_large_heights_recentre_z():

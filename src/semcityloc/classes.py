@@ -81,3 +81,19 @@ def class_id(name: str) -> int:
         return int(SemanticClass[name.upper()])
     except KeyError as exc:
         raise unknown_choice("semantic class", name, CLASS_NAMES, ValueError) from exc
+
+
+def invalid_class_ids(labels: np.ndarray) -> str | None:
+    """What is wrong with a label map's ids, or None: every id must be a class (0..5) or ``IGNORE``.
+    One rule for mask files (``io.images.read_mask_file``) and arrays handed to the localizer: another id
+    (a segmentation head's own numbering, say) would otherwise count as nothing, silently."""
+    labels = np.asarray(labels)
+    bad = (labels != IGNORE) & ((labels < 0) | (labels >= NUM_CLASSES))
+    if not bad.any():
+        return None
+    ids = np.unique(labels[bad])
+    shown = ", ".join(str(int(i)) for i in ids[:12]) + (", ..." if len(ids) > 12 else "")
+    return (
+        f"invalid class ids {shown} in {int(bad.sum())} pixels; class ids must be "
+        f"0..{NUM_CLASSES - 1} or {IGNORE} (semcityloc.classes)"
+    )

@@ -20,7 +20,7 @@ import pyproj
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import NONPLANAR_TOLERANCE_M, triangulate_polygon
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import EmptyModelError
+from semcityloc.errors import EmptyModelError, InputFileError, ParameterError
 
 # Builder-internal sentinel "the source gave no class": ``build()`` replaces every such triangle with a class
 # from its normal (``classify_by_normals``), so it never reaches a CityModel. Not ``classes.IGNORE`` (a
@@ -36,6 +36,10 @@ ABSOLUTE_Z_LIMIT_M = 10_000.0
 # A coordinate farther than this from the CRS origin (metres) is corrupt: ECEF radii are ~6.4e6 m, and it
 # would not survive the float32 local frame.
 MAX_ABS_COORDINATE_M = 1e9
+# Local coordinates (metres from the origin) must stay within this for float32 to keep them to 4 mm (the
+# spacing of float32 numbers is 7.8 mm from 2^16 m on): 131 km across, a whole federal state's LoD2 tile
+# set at most. Farther means a building in another place or unit (``check_local_extent``).
+MAX_LOCAL_EXTENT_M = 65_536.0
 
 
 def usable_points(points: np.ndarray) -> np.ndarray:
@@ -174,7 +178,9 @@ class MeshBuilder:
 
         if origin is None:
             origin = choose_origin(points)
-        local = points - np.asarray(origin, dtype=np.float64)
+        origin = checked_origin(origin)
+        local = points - origin
+        check_local_extent(local, tris, building, self.building_ids, source)
 
         unlabelled = classes == UNLABELLED
         if unlabelled.any():
@@ -199,6 +205,48 @@ class MeshBuilder:
             source=source,
             stats=self.stats,
         )
+
+
+def checked_origin(origin) -> np.ndarray:
+    """A given local-frame origin as float64 (3,): three finite numbers, else ``ParameterError``."""
+    try:
+        out = np.asarray(origin, dtype=np.float64)
+    except (TypeError, ValueError):
+        out = np.empty(0)
+    if out.shape != (3,) or not np.isfinite(out).all():
+        raise ParameterError(
+            f"origin must be three finite numbers (x, y, z in the model's CRS), got {origin!r}"
+        )
+    return out
+
+
+def check_local_extent(
+    local: np.ndarray, tris: np.ndarray, building: np.ndarray, building_ids: list[str], source: str
+) -> None:
+    """Refuse a model whose triangles reach farther than ``MAX_LOCAL_EXTENT_M`` from its origin, naming
+    the building farthest from the others. Why: one building at a wrong position (a typo, another unit)
+    moves the origin away from all the rest, and float32 then rounds every other vertex by metres,
+    silently (a 15 m box read as 16 m)."""
+    used = local[np.unique(tris)]
+    if not len(used) or np.abs(used).max() <= MAX_LOCAL_EXTENT_M:
+        return
+    first = local[tris[:, 0]]
+    centres = np.full((int(building.max()) + 1, 3), np.nan)
+    for b in np.unique(building):
+        centres[b] = first[building == b].mean(axis=0)
+    seen = np.isfinite(centres[:, 0])
+    middle = np.median(centres[seen], axis=0)
+    far = np.where(seen, np.linalg.norm(np.nan_to_num(centres - middle), axis=1), -1.0)
+    worst = int(np.argmax(far))
+    name = building_ids[worst] if worst < len(building_ids) else f"#{worst}"
+    span = used.max(axis=0) - used.min(axis=0)
+    raise InputFileError(
+        f"{source or 'city model'}: the model spans {span[0] / 1000:,.1f} x {span[1] / 1000:,.1f} km; "
+        f"building {name!r} lies {far[worst] / 1000:,.1f} km from the middle of the others. Local float32 "
+        f"coordinates would lose centimetres to metres of precision beyond {MAX_LOCAL_EXTENT_M / 1000:g} km "
+        "from the origin: fix or remove that building's coordinates, or split the model into tiles "
+        "(`semcityloc tiles build`)"
+    )
 
 
 def choose_origin(points: np.ndarray) -> np.ndarray:

@@ -33,6 +33,9 @@ from dataclasses import asdict, dataclass, replace
 from semcityloc.errors import ParameterError
 
 RTK_FLOOR_M = 0.5  # a map is good to ~1 m; lever arm and timing add decimetres
+# Beyond this a position is no prior for a local search (a district is a few km across): a larger sigma is
+# a unit mistake or a broken tag, refused rather than searched.
+MAX_POSITION_SIGMA_M = 10_000.0
 DEFAULT_SOURCE = "default (DJI single-point GNSS + gimbal IMU)"
 # Names accepted by ``parse`` for each field.
 _ALIASES = {
@@ -71,6 +74,11 @@ class PriorUncertainty:
             if not math.isfinite(value) or value < 0:
                 raise ParameterError(f"prior uncertainty {name} must be finite and >= 0, got {value!r}")
             object.__setattr__(self, name, value)
+        if max(self.xy_m, self.z_m) > MAX_POSITION_SIGMA_M:
+            raise ParameterError(
+                f"prior uncertainty xy {self.xy_m:g} m / z {self.z_m:g} m is too large for a local search "
+                f"(at most {MAX_POSITION_SIGMA_M:g} m each): a prior that poor is no prior"
+            )
         if self.yaw_deg > 60 or self.roll_pitch_deg > 20:
             raise ParameterError(
                 f"prior uncertainty yaw {self.yaw_deg} deg / roll-pitch {self.roll_pitch_deg} deg is too "

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, PngImagePlugin
 
-from semcityloc.classes import IGNORE, NUM_CLASSES, PALETTE
+from semcityloc.classes import IGNORE, NUM_CLASSES, PALETTE, invalid_class_ids
 from semcityloc.errors import InputFileError, ShapeError
 
 # What Pillow raises on a corrupt or hostile image file (a broken chunk is a SyntaxError, a header naming
@@ -238,14 +238,9 @@ def read_mask_file(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
         raise ShapeError(
             f"{path}: a mask must be an (H, W) array of class ids, got {labels.shape} {labels.dtype}"
         )
-    bad = (labels != IGNORE) & ((labels < 0) | (labels >= NUM_CLASSES))
-    if bad.any():
-        ids = np.unique(labels[bad])
-        shown = ", ".join(str(int(i)) for i in ids[:12]) + (", ..." if len(ids) > 12 else "")
-        raise InputFileError(
-            f"{path}: invalid class ids {shown} in {int(bad.sum())} pixels; class ids must be "
-            f"0..{NUM_CLASSES - 1} or {IGNORE} (semcityloc.classes)"
-        )
+    problem = invalid_class_ids(labels)
+    if problem is not None:
+        raise InputFileError(f"{path}: {problem}")
     return labels.astype(np.uint8)
 
 

@@ -163,7 +163,7 @@ def _lattice(volume: SearchVolume, config: SweepConfig, max_centres: int) -> tup
     step = np.array([config.step_xy_m, config.step_xy_m, config.step_z_m, config.step_yaw_deg], dtype=float)
     half = np.array([volume.half_xy_m, volume.half_xy_m, volume.half_z_m, volume.half_yaw_deg])
     n = np.array([_lattice_extent(h, st) for h, st in zip(half, step, strict=True)])
-    while (2 * n[0] + 1) ** 2 * (2 * n[2] + 1) > max_centres and n[:3].max() > 1:
+    while float(2 * n[0] + 1) ** 2 * float(2 * n[2] + 1) > max_centres and n[:3].max() > 1:
         step[:3] *= 1.1
         n[:3] = [_lattice_extent(h, st) for h, st in zip(half[:3], step[:3], strict=True)]
     return step, n

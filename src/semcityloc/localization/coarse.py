@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from semcityloc.errors import CameraError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose, rotation_about_world_z
 from semcityloc.localization.config import CoarseConfig
@@ -26,6 +27,13 @@ from semcityloc.render.scene import RenderScene
 # nearest-neighbour lookups agree with direct renders more often. Measured on Berlin at 64x48, 13 yaws over
 # 18 deg, 20 nadir/oblique centres: agreement 95.3% at 1.0, 96.9% at 1.5, 97.3% at 2.0 for ~14% more time.
 WIDE_OVERSAMPLE = 1.0  # default of CoarseConfig.wide_oversample
+# A hypothesis' ray turned more than this from the wide view's axis reads nothing (as a ray behind it):
+# near 90 deg a pinhole's image coordinate runs to infinity, and the wide view with it. The views of the
+# benchmark and of real drones stay far below (a 70 deg camera's corner rays lie 41 deg off its axis).
+MAX_WIDE_RAY_DEG = 80.0
+# The wide view's size bound: a few thousand pixels in every search the project measured; tens of millions
+# only for intrinsics or rotation ranges no drone photo has.
+MAX_WIDE_PIXELS = 4_000_000
 
 
 @dataclass
@@ -100,7 +108,9 @@ def rotation_lookup(
     rays = camera.ray_directions().reshape(-1, 3)  # target pixel centres, z = 1
     # d[y, p] = A_y^T rays[p]; batched matmul (einsum is ~10x slower here).
     d = np.matmul(rays[None], np.asarray(offsets, dtype=np.float64))
-    front = d[..., 2] > 1e-6
+    front = d[..., 2] > math.cos(math.radians(MAX_WIDE_RAY_DEG)) * np.linalg.norm(d, axis=-1)
+    if not front.any():
+        raise CameraError("every ray of the search's rotations points away from its wide view")
     z = np.where(front, d[..., 2], 1.0)
     fx, fy = camera.fx * oversample, camera.fy * oversample
     u = fx * d[..., 0] / z
@@ -114,6 +124,12 @@ def rotation_lookup(
     cy = camera.cy * oversample + math.ceil(margin - vmin - camera.cy * oversample)
     width = int(math.ceil(cx + umax + margin))
     height = int(math.ceil(cy + vmax + margin))
+    if width * height > MAX_WIDE_PIXELS:
+        raise CameraError(
+            f"the search's rotations need a {width}x{height} wide view of this "
+            f"{camera.hfov_deg:.3g} deg camera (at most {MAX_WIDE_PIXELS:,} pixels): state a smaller yaw or "
+            "roll/pitch uncertainty, or check the intrinsics"
+        )
     wide = Camera(fx, fy, cx, cy, width, height)
     col = np.floor(u + cx).astype(np.int64)
     row = np.floor(v + cy).astype(np.int64)

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
 
+import numpy as np
+
 from semcityloc.errors import ParameterError, unknown_choice
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
@@ -273,6 +275,9 @@ class LocalizerConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
                 raise ParameterError(f"{name} must be a probability in [0, 1], got {value!r}")
+        seed = self.seed
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ParameterError(f"seed must be a whole number >= 0, got {seed!r}")
 
     @classmethod
     def preset(cls, name: str) -> LocalizerConfig:

@@ -25,7 +25,7 @@ import numpy as np
 from semcityloc.citymodel.eaves import with_eaves
 from semcityloc.citymodel.ground import base_points
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass
+from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass, invalid_class_ids
 from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -90,6 +90,10 @@ MAX_VIEW_RANGE_M = 1500.0
 # How far beyond the search's reach footprints count for the ground under it (the terrain between
 # footprints runs through the nearest ones).
 GROUND_MARGIN_M = 20.0
+# A query camera's field of view, per axis (``check_query_camera``): a 200x zoom sees about 1 deg, a
+# rectified fisheye is cut to well under 150 deg.
+MIN_FOV_DEG = 1.0
+MAX_FOV_DEG = 150.0
 
 
 class Localizer:
@@ -102,8 +106,12 @@ class Localizer:
     def __init__(
         self, model: CityModel, config: LocalizerConfig | None = None, scene: RenderScene | None = None
     ):
+        if not isinstance(model, CityModel):
+            raise ParameterError(
+                f"model must be a CityModel (citymodel.load_city_model), got {type(model).__name__}"
+            )
         self.model = model
-        self.config = config or LocalizerConfig()
+        self.config = config_or_preset(config)
         self.scene = scene if scene is not None else localizer_scene(model, self.config)
         map_openings = bool(np.isin(model.classes, [SemanticClass.WINDOW, SemanticClass.DOOR]).any())
         # Openings not scored (``LocalizerConfig.score_openings``): the map's become wall, like the query's.
@@ -141,7 +149,7 @@ class Localizer:
             prior_uncertainty: how far the prior may be off (1 sigma); default ``config.prior_uncertainty``
                 (DJI single-point GNSS + gimbal IMU). The cascade searches ``n_sigma`` of it.
         """
-        cfg = config or self.config
+        cfg = self.config if config is None else config_or_preset(config)
         unc = prior_uncertainty if prior_uncertainty is not None else cfg.prior_uncertainty
         if not isinstance(unc, PriorUncertainty):
             raise ParameterError(f"prior_uncertainty must be a PriorUncertainty, got {type(unc).__name__}")
@@ -475,7 +483,7 @@ class Localizer:
         (C_s), ``depth_cost`` (C_d) and ``score`` (what the particle filter maximises; with ``prior_local``
         including the prior's roll/pitch term). Tells a failure of the search (the true pose scores higher
         than the estimate) from one of the score (it scores lower): ``benchmarks/score_at_truth.py``."""
-        cfg = config or self.config
+        cfg = self.config if config is None else config_or_preset(config)
         unc = prior_uncertainty if prior_uncertainty is not None else cfg.prior_uncertainty
         if not poses_local:
             raise ParameterError("score_poses needs at least one pose")
@@ -493,7 +501,7 @@ class Localizer:
     def fine_camera(self, camera: Camera, config: LocalizerConfig | None = None) -> Camera:
         """``camera`` at the refinement's final resolution: where the final scores, the building IoU and
         the outdated-map warnings of a result are computed."""
-        cfg = config or self.config
+        cfg = self.config if config is None else config_or_preset(config)
         if cfg.search == "cascade":
             return _scaled(camera, cfg.cascade.local.width, cfg.cascade.local.height).scale(cfg.refine.scale)
         return _scaled(camera, cfg.coarse.width).scale(cfg.refine.scale)
@@ -532,6 +540,12 @@ class Localizer:
         shape = np.shape(semantic)
         if len(shape) != 2 or 0 in shape:
             raise ShapeError(f"semantic mask must be a non-empty (H, W) array, got shape {shape}")
+        labels = np.asarray(semantic)
+        if not np.issubdtype(labels.dtype, np.integer):
+            raise ShapeError(f"semantic mask must hold integer class ids, got dtype {labels.dtype}")
+        problem = invalid_class_ids(labels)
+        if problem is not None:
+            raise ShapeError(f"semantic mask: {problem}")
         aspect_mask, aspect_cam = shape[1] / shape[0], camera.width / camera.height
         if abs(aspect_mask / aspect_cam - 1) > 0.02:
             raise ShapeError(
@@ -542,6 +556,9 @@ class Localizer:
             dshape = np.shape(depth)
             if len(dshape) != 2 or 0 in dshape:
                 raise ShapeError(f"depth must be a non-empty (H, W) array, got shape {dshape}")
+            dtype = np.asarray(depth).dtype
+            if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
+                raise ShapeError(f"depth must hold real numbers, got dtype {dtype}")
             if abs((dshape[1] / dshape[0]) / aspect_mask - 1) > 0.02:
                 raise ShapeError(
                     f"depth map {dshape[1]}x{dshape[0]} does not have the semantic mask's aspect "
@@ -652,12 +669,46 @@ def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertaint
     return reached_half(search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade), cfg.cascade)["xy"]
 
 
+def config_or_preset(config: LocalizerConfig | str | None) -> LocalizerConfig:
+    """A ``LocalizerConfig`` from a config, a preset name (``config.PRESETS``) or None (the default)."""
+    if config is None:
+        return LocalizerConfig()
+    if isinstance(config, str):
+        return LocalizerConfig.preset(config)
+    if not isinstance(config, LocalizerConfig):
+        raise ParameterError(
+            f"config must be a LocalizerConfig or a preset name, got {type(config).__name__}"
+        )
+    return config
+
+
 def check_camera_and_prior(camera: Camera, prior: Pose) -> None:
     """Typed errors for the inputs every localizer shares (this one and the baselines)."""
     if not isinstance(camera, Camera):
         raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
+    check_query_camera(camera)
     if not isinstance(prior, Pose) or prior.batch_shape:
         raise PoseError("prior must be a single Pose (cam_from_world)")
+
+
+def check_query_camera(camera: Camera) -> None:
+    """A query camera's intrinsics must describe a photo: the principal point inside the image and a field
+    of view between ``MIN_FOV_DEG`` and ``MAX_FOV_DEG`` on both axes. Why: the search renders a wide view
+    covering every rotation it tries (``coarse.rotation_lookup``); intrinsics off by orders of magnitude
+    (a focal length in mm given as pixels, a principal point in another image's pixels) would make that
+    view millions of pixels wide and exhaust the memory instead of failing."""
+    if not (0.0 <= camera.cx <= camera.width and 0.0 <= camera.cy <= camera.height):
+        raise CameraError(
+            f"principal point ({camera.cx:g}, {camera.cy:g}) lies outside the {camera.width}x{camera.height} "
+            "image: are the intrinsics for this image size?"
+        )
+    for axis, fov in (("horizontal", camera.hfov_deg), ("vertical", camera.vfov_deg)):
+        if not MIN_FOV_DEG <= fov <= MAX_FOV_DEG:
+            raise CameraError(
+                f"{axis} field of view {fov:.3g} deg (fx={camera.fx:g}, fy={camera.fy:g} px for a "
+                f"{camera.width}x{camera.height} image) is outside [{MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}] deg: "
+                "focal lengths must be in pixels of this image"
+            )
 
 
 def prior_distance(pose_local: Pose, prior_state: np.ndarray, unc: PriorUncertainty) -> float:
@@ -710,6 +761,4 @@ def localize(
 ) -> LocalizationResult:
     """One-shot ``Localizer(city, config).localize(...)``; ``config`` may be a preset name. Poses in and
     out are in ``city``'s local frame (``city.pose_to_local`` / ``city.pose_to_world`` at the boundary)."""
-    if isinstance(config, str):
-        config = LocalizerConfig.preset(config)
-    return Localizer(city, config).localize(camera, prior_local, semantic, depth)
+    return Localizer(city, config_or_preset(config)).localize(camera, prior_local, semantic, depth)
