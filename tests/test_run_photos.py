@@ -196,6 +196,54 @@ def test_a_mask_of_the_photo_turned_for_display_is_refused_saying_so(box_flight,
     assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["status"] == "localized"
 
 
+def _noisy_jpeg(path: Path) -> bytes:
+    """A CAM-sized JPEG of noise at ``path`` (its scan data is most of the file); returns its bytes."""
+    noise = np.random.default_rng(0).integers(0, 256, (CAM.height, CAM.width, 3), dtype=np.uint8)
+    Image.fromarray(noise).save(path, quality=90)
+    return path.read_bytes()
+
+
+def test_an_unreadable_photo_is_skipped_saying_why_and_the_others_are_written(box_flight, tmp_path, capsys):
+    """A truncated JPEG (its header reads, its pixels do not), random bytes, an empty file and a folder
+    named like a photo: each is skipped before anything runs, with a reason naming it; the readable photo
+    is localized and written (pose, overlay, exports) instead of the run stopping at the first bad one."""
+    images = box_flight["root"] / "images"
+    data = _noisy_jpeg(images / "P0.JPG")
+    (images / "P0.JPG").write_bytes(data[: len(data) * 2 // 3])
+    (images / "P2.JPG").write_bytes(np.random.default_rng(1).bytes(3000))
+    (images / "P3.JPG").write_bytes(b"")
+    (images / "P4.JPG").mkdir()
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", out)
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["photos"] == 6 and summary["queries"] == 1 and summary["localized"] == 1
+    skipped = summary["skipped_photos"]
+    assert set(skipped) == {"P0.JPG", "P2.JPG", "P3.JPG", "P4.JPG", "P9.JPG"}
+    assert "P0.JPG" in skipped["P0.JPG"] and "truncated" in skipped["P0.JPG"]
+    assert "P2.JPG" in skipped["P2.JPG"] and "cannot read photo" in skipped["P2.JPG"]
+    assert "P3.JPG" in skipped["P3.JPG"] and "empty" in skipped["P3.JPG"]
+    assert "P4.JPG" in skipped["P4.JPG"] and "not a file" in skipped["P4.JPG"]
+    assert json.loads((out / "run.json").read_text())["skipped_photos"] == skipped
+    assert "6 photos: 1 localized, 0 not localized, 5 skipped" in stdout
+    assert "truncated" in stdout and "Traceback" not in err
+    assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["status"] == "localized"
+    assert (out / "overlays" / "P1.png").is_file() and not (out / "poses" / "P0.json").exists()
+    # Run again: the finished run is summarised, the same photos skipped, nothing refused.
+    code, stdout, _ = run(capsys, *box_flight["argv"], "--out", out)
+    assert code == 0 and "6 photos: 1 localized, 0 not localized, 5 skipped" in stdout
+
+
+def test_a_run_whose_every_photo_is_unreadable_stops_in_one_line(box_flight, tmp_path, capsys):
+    for photo in (box_flight["root"] / "images").iterdir():
+        photo.write_bytes(b"\xff\xd8\xff")  # a JPEG's first bytes, nothing after
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out)
+    last = err.strip().splitlines()[-1]
+    assert code == 2 and last.startswith("semcityloc: error:") and "Traceback" not in err
+    assert "no photo can be localized" in last and "P0.JPG: cannot read photo" in last
+
+
 def test_a_run_undistorts_the_masks_of_a_distorting_lens(box_flight, tmp_path, capsys):
     """Masks in a wide lens's distorted pixels: right with the lens in the intrinsics, off without."""
     root = box_flight["root"]

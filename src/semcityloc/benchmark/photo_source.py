@@ -23,8 +23,11 @@ Per photo (``datasets.photos`` matches files to photos by name):
 - optional ground truth (``truth``, same forms as the priors): rows then carry errors and the summary
   recall.
 
-A photo that lacks any of these is skipped before anything is localized, with the reason (``run.json``
-``skipped_photos``, the summary, the CLI's closing lines); the others run. Outputs (``runfiles``):
+A photo that lacks any of these, or whose file cannot be read (not a file, empty, truncated, corrupt, a
+format Pillow does not read: its pixels are decoded once here, ``_readable_photo``), is skipped before
+anything is localized, with the reason naming the file (``run.json`` ``skipped_photos``, the summary, the
+CLI's closing lines); the others run. When none is left, the run stops in one line ("no photo can be
+localized") with the first reasons. Outputs (``runfiles``):
 ``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level when localized, in
 ``geometry.io.pose_to_dict``'s layout, and the result record, prior, uncertainty and perception in
 ``extra``; the record alone when not localized), ``overlays/<stem>.png`` (the model's edges at the estimate
@@ -72,6 +75,7 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import (
     check_aspect,
     check_aspect_of_photo,
+    check_decodes,
     exif_orientation,
     image_size,
     load_image,
@@ -391,10 +395,9 @@ def _resolve(spec: PhotoSpec) -> Resolved:
     fixed = spec.fixed_uncertainty()
     inputs: list[PhotoInput] = []
     skipped: dict[str, str] = {}
-    for path in list_images(spec.images):
+    for path in list_images(spec.images, every_entry=True):
         try:
-            width, height = image_size(path, "photo")
-            orientation = exif_orientation(path)
+            width, height, orientation = _readable_photo(path)
             lens = intrinsics.photo_camera(path, width, height)
             camera = lens.camera
             prior = priors.prior(path)
@@ -428,6 +431,23 @@ def _resolve(spec: PhotoSpec) -> Resolved:
     if store is not None and inputs:
         model = flight_area(store, model, inputs)
     return Resolved(model, inputs, skipped, store)
+
+
+def _readable_photo(path: Path) -> tuple[int, int, int]:
+    """(width, height, EXIF orientation) of a photo whose pixels decode (``io.images.check_decodes``);
+    ``PhotoMissing`` naming the file when it is not a file, is empty, truncated, corrupt or of a format
+    Pillow does not read: that photo is skipped with the reason, the others run."""
+    if not path.is_file():
+        raise PhotoMissing(f"{path}: not a file (named like a photo)")
+    try:
+        if path.stat().st_size == 0:
+            raise InputFileError(f"{path}: cannot read photo (empty file)")
+        width, height = image_size(path, "photo")
+        orientation = exif_orientation(path)
+        check_decodes(path, "photo")
+    except (InputFileError, OSError) as exc:
+        raise PhotoMissing(str(exc)) from None
+    return width, height, orientation
 
 
 def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) -> CityModel:

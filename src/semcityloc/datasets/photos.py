@@ -58,12 +58,15 @@ class PhotoMissing(InputFileError):
     """One photo lacks something (a prior, intrinsics, a mask); the batch goes on without it."""
 
 
-def list_images(folder: str | os.PathLike) -> list[Path]:
-    """The image files of a folder (``IMAGE_SUFFIXES``), sorted by name."""
+def list_images(folder: str | os.PathLike, every_entry: bool = False) -> list[Path]:
+    """The image files of a folder (``IMAGE_SUFFIXES``), sorted by name; with ``every_entry``, also what
+    is named like one but is not a file (a folder ``x.jpg``, a broken link), for the caller to report."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputFileError(f"{folder}: no such images folder")
-    images = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    images = sorted(
+        p for p in folder.iterdir() if (every_entry or p.is_file()) and p.suffix.lower() in IMAGE_SUFFIXES
+    )
     if not images:
         raise InputFileError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
     return images
