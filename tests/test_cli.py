@@ -11,6 +11,7 @@ import pytest
 from scipy import ndimage
 
 from semcityloc.citymodel.generator import generate_city
+from semcityloc.citymodel.io import load_city_model
 from semcityloc.cli.main import main
 from semcityloc.io.images import load_depth, load_image, load_labels_png, save_depth, save_labels_png
 from semcityloc.localization.config import PRESETS
@@ -442,3 +443,23 @@ def test_warmup_compiles_every_kernel_and_commands_say_when_they_will_compile(mo
     monkeypatch.setattr(warmup_module, "warm_up", lambda: calls.append(1) or {"total_s": 1.0})
     code, _, err = run(capsys, "demo", "--out", tmp_path / "demo", "--queries", "1", "--methods", "no-refine")
     assert code == 0 and calls == [1] and err.count(COMPILE_NOTICE) == 1 and "cached in 1 s" in err
+
+
+def test_a_pose_json_of_another_crs_is_refused_naming_both(exif_view, tmp_path, capsys):
+    """Stop 45's audit: a prior JSON tagged EPSG:4326 was used as coordinates of the model's CRS. A pose
+    written by `localize` (its CRS tagged) is accepted; the same numbers tagged with another CRS are not."""
+    x, y, z = exif_view["truth"]
+    pose = {"position": [x, y, z], "roll": 1.0, "pitch": 35.0, "yaw": 120.0, "frame": "crs"}
+    common = ("--intrinsics", "exif", "--image", exif_view["photo"])
+    common += ("--semantic", exif_view["root"] / "r" / "labels.png", "--out", tmp_path / "o", "--no-cache")
+    (tmp_path / "wgs84.json").write_text(json.dumps({**pose, "crs": "EPSG:4326"}))
+    code, _, err = run(
+        capsys, "localize", "--city", exif_view["city"], "--prior", tmp_path / "wgs84.json", *common
+    )
+    assert code == 2 and "the prior is in EPSG:4326 but the model in" in err
+    model_crs = load_city_model(exif_view["city"]).crs.to_string()
+    (tmp_path / "same.json").write_text(json.dumps({**pose, "crs": model_crs}))
+    code, _, err = run(
+        capsys, "localize", "--city", exif_view["city"], "--prior", tmp_path / "same.json", *common
+    )
+    assert code == 0, err

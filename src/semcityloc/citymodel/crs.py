@@ -144,3 +144,9 @@ class MetricFrame:
             x, y = self._transformer.transform(x, y)
         out[:, 0], out[:, 1] = x, y
         return out
+
+
+def same_horizontal_crs(a: pyproj.CRS, b: pyproj.CRS) -> bool:
+    """Whether two CRSs put x, y in the same place: their horizontal parts equal (axis order aside; a
+    compound CRS's height system does not move a pose sideways)."""
+    return horizontal_crs(a).equals(horizontal_crs(b), ignore_axis_order=True)

@@ -13,6 +13,7 @@ import numpy as np
 from semcityloc.citymodel.model import crs_label
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.cli.pose_input import read_pose_in_model_crs
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
     EXIF,
@@ -22,7 +23,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
-from semcityloc.geometry.io import read_lens, read_pose, write_pose_json
+from semcityloc.geometry.io import read_lens, write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import (
     check_aspect,
@@ -213,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
     model = load_model_from_args(args)
     lens = _camera(args)
     camera = lens.camera
-    prior_world = read_pose(args.prior)  # the model's CRS
+    prior_world = read_pose_in_model_crs(args.prior, model, "prior")
     labels, depth = _query_inputs(args, lens)
     localizer = Localizer(model, config)
     result = localizer.localize(

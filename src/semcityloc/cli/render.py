@@ -16,8 +16,9 @@ import numpy as np
 
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.cli.pose_input import read_pose_in_model_crs
 from semcityloc.geometry.distortion import distort_image
-from semcityloc.geometry.io import read_lens, read_pose
+from semcityloc.geometry.io import read_lens
 from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
@@ -50,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     model = load_model_from_args(args)
     camera, lens = read_lens(args.intrinsics, width=args.width, height=args.height)
-    pose_world = read_pose(args.pose)  # the model's CRS
+    pose_world = read_pose_in_model_crs(args.pose, model)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(model, engine=args.engine)

@@ -284,6 +284,20 @@ def _read_pose_entries(spec: str | os.PathLike) -> tuple[dict[str, Pose], str]:
     return _labelled(label, parse), label
 
 
+def declared_pose_frame(spec: str | os.PathLike) -> tuple[str | None, str | None]:
+    """(``frame``, ``crs``) that a JSON pose (file or inline) declares, each None when absent or not JSON:
+    what ``pose_to_dict`` writes beside the pose, for the caller to check against the model it is used
+    with (a pose file of another CRS is not a pose in this one)."""
+    text, label = _load(spec, PoseError, "pose")
+    if not text.lstrip().startswith("{"):
+        return None, None
+    obj = _labelled(label, _json, text)
+    if not isinstance(obj, dict):
+        return None, None
+    frame, crs = obj.get("frame"), obj.get("crs")
+    return (frame if isinstance(frame, str) else None), (crs if isinstance(crs, str) else None)
+
+
 def read_poses(spec: str | os.PathLike) -> dict[str, Pose]:
     """Every pose in a spec, by image name (``''`` for an unnamed single pose). Forms: ``read_pose``."""
     return _read_pose_entries(spec)[0]
