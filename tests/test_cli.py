@@ -463,3 +463,17 @@ def test_a_pose_json_of_another_crs_is_refused_naming_both(exif_view, tmp_path, 
         capsys, "localize", "--city", exif_view["city"], "--prior", tmp_path / "same.json", *common
     )
     assert code == 0, err
+
+
+def test_a_photo_of_another_aspect_than_the_intrinsics_is_refused(exif_view, tmp_path, capsys):
+    """Stop 45's audit: `--image` of another aspect than the camera was drawn on, misaligned, silently."""
+    from PIL import Image
+
+    Image.new("RGB", (400, 400)).save(tmp_path / "square.png")
+    x, y, z = exif_view["truth"]
+    pose = ("--pose", f"{x},{y},{z},1,35,60", "--no-cache")
+    argv = ["render", "--city", exif_view["city"], "--intrinsics", "364,364,256,192,512,384", *pose]
+    code, _, err = run(capsys, *argv, "--image", tmp_path / "square.png", "--out", tmp_path / "r")
+    assert code == 2 and "square.png: photo 400x400 does not have the photo's aspect (512x384)" in err
+    Image.new("RGB", (1024, 768)).save(tmp_path / "same.png")
+    assert run(capsys, *argv, "--image", tmp_path / "same.png", "--out", tmp_path / "r2")[0] == 0

@@ -27,7 +27,7 @@ from semcityloc.datasets.dji import (
     read_dji_metadata,
 )
 from semcityloc.datasets.lodloc import read_lodloc
-from semcityloc.errors import CRSError, InputFileError
+from semcityloc.errors import CRSError, InputFileError, ParameterError
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.errors import rotation_error_deg
 from semcityloc.geometry.uncertainty import RTK_FLOOR_M, PriorUncertainty
@@ -105,6 +105,9 @@ def test_orthometric_target_applies_the_geoid_or_says_it_did_not(tmp_path):
     given = dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=47.3)
     assert given.geoid_applied and given.position_crs[2] == pytest.approx(612.5 - 47.3)
     assert given.vertical_flag is None and "47.3" in given.z_reference
+    for bad in (math.nan, 1e9, -200.0, "47"):  # stop 45's audit: NaN was taken and broke the pose later
+        with pytest.raises(ParameterError, match="geoid separation N must be"):
+            dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=bad)
 
 
 def test_bad_targets_and_images_are_typed_errors(tmp_path):

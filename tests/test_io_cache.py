@@ -58,8 +58,11 @@ def test_sniffing_errors(tmp_path):
     (tmp_path / "x.bin").write_bytes(b"\x89PNG\r\n")
     with pytest.raises(UnsupportedFormatError):
         io.load_city_model(tmp_path / "x.bin", cache=False)
-    with pytest.raises(InputFileError):
+    with pytest.raises(InputFileError, match="missing.gml: no such file"):
         io.load_city_model(tmp_path / "missing.gml")
+    (tmp_path / "tiles").mkdir()  # stop 45's audit: a folder was called "no such file"
+    with pytest.raises(InputFileError, match="tiles: a folder, not a city model file"):
+        io.load_city_model(tmp_path / "tiles")
 
 
 def test_a_file_is_hashed_once_until_it_changes(tmp_path, monkeypatch):

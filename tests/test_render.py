@@ -248,6 +248,9 @@ def test_bad_inputs_are_rejected_with_typed_errors(city_renderer):
     grid = Pose(np.broadcast_to(np.eye(3), (2, 3, 3, 3)), np.zeros((2, 3, 3)))
     with pytest.raises(ShapeError, match="1-D batch"):
         city_renderer.render(cam, grid)
+    huge = Camera.from_fov(100_000, 75_000, 60.0)  # stop 45's audit: all the RAM, then killed
+    with pytest.raises(RenderError, match=r"1 view\(s\) of 100000x75000 pixels .* exceed"):
+        city_renderer.render(huge, nadir(0, 0, 100))
     with pytest.raises(RenderError, match="unknown render engine"):
         Renderer(box_model(), engine="opengl")
     empty = CityModel(

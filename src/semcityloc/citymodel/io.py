@@ -96,6 +96,11 @@ def load_city_model(
             parses all its tiles into its one origin. Ignored for OBJ and npz.
     """
     path = Path(path)
+    if path.is_dir():
+        raise InputFileError(
+            f"{path}: a folder, not a city model file (a folder of tiles: `semcityloc tiles build` makes a "
+            "store of them)"
+        )
     if not path.is_file():
         raise InputFileError(f"{path}: no such file")
     fmt = sniff_format(path)

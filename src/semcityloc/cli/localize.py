@@ -165,6 +165,9 @@ def _camera(args) -> PhotoCamera:
             print(f"semcityloc: note: {APPROXIMATE_INTRINSICS_NOTE}", file=sys.stderr)
         return lens
     camera, distortion = read_lens(args.intrinsics, width=args.width, height=args.height)
+    if args.image:  # an overlay on another photo's pixels would be misaligned, silently
+        width, height = image_size(args.image, "photo")
+        check_aspect((height, width), camera.width, camera.height, "photo", args.image)
     return PhotoCamera(camera, distortion, str(args.intrinsics))
 
 

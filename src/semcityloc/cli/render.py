@@ -19,7 +19,7 @@ from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.cli.pose_input import read_pose_in_model_crs
 from semcityloc.geometry.distortion import distort_image
 from semcityloc.geometry.io import read_lens
-from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
+from semcityloc.io.images import check_aspect, image_size, load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
@@ -51,6 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     model = load_model_from_args(args)
     camera, lens = read_lens(args.intrinsics, width=args.width, height=args.height)
+    if args.image:  # edges drawn on another photo's pixels would be misaligned, silently
+        width, height = image_size(args.image, "photo")
+        check_aspect((height, width), camera.width, camera.height, "photo", args.image)
     pose_world = read_pose_in_model_crs(args.pose, model)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -57,7 +57,7 @@ from PIL import Image
 from pyproj.transformer import TransformerGroup
 
 from semcityloc.citymodel.crs import parse_crs_name
-from semcityloc.errors import CameraError, CRSError, InputFileError, PoseError, unknown_choice
+from semcityloc.errors import CameraError, CRSError, InputFileError, ParameterError, PoseError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import dji_gimbal_angles, pose_from_dji, wrap_deg
 from semcityloc.geometry.distortion import LensDistortion
@@ -535,6 +535,13 @@ def dji_prior(
         raise unknown_choice("source_height", source_height, SOURCE_HEIGHTS, InputFileError)
     if target_height not in TARGET_HEIGHTS:
         raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
+    if geoid_separation_m is not None and not (
+        isinstance(geoid_separation_m, (int, float)) and abs(geoid_separation_m) <= GEOID_UNDULATION_BOUND_M
+    ):  # NaN fails the comparison too
+        raise ParameterError(
+            f"geoid separation N must be a number of metres within +-{GEOID_UNDULATION_BOUND_M:g} (the geoid "
+            f"lies -107..+86 m from the ellipsoid anywhere), got {geoid_separation_m!r}"
+        )
     crs = target_crs_of(target_crs)
     if _horizontal(crs).is_geographic:
         raise CRSError(f"the target CRS must be metric (projected), got {crs.name}")

@@ -27,6 +27,9 @@ from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene, build_scene
 
 ENGINES = ("auto", "numba", "embree", "gpu")
+# Pixels one render call may produce (all its views): ~13 bytes each with depth and face ids, so about
+# 13 GB at the bound. The largest aerial sensors have 150 MP a view; more is a size given in the wrong unit.
+MAX_RENDER_PIXELS = 1_000_000_000
 
 
 def pose_arrays(poses: Pose) -> tuple[np.ndarray, np.ndarray]:
@@ -90,6 +93,13 @@ class Renderer:
         """Labels (N, H, W) uint8, and z-depth / face ids when asked, for N poses (N = 1 for one pose)."""
         check_camera(camera)
         R, t = pose_arrays(poses)
+        pixels = len(R) * camera.width * camera.height
+        if pixels > MAX_RENDER_PIXELS:
+            raise RenderError(
+                f"{len(R)} view(s) of {camera.width}x{camera.height} pixels ({pixels:,}) exceed the "
+                f"{MAX_RENDER_PIXELS:,} one render may make: check the image size, or render fewer views "
+                "at once"
+            )
         return self.engine.render(camera, R, t, depth=bool(depth), face_ids=bool(face_ids))
 
     def __repr__(self) -> str:
