@@ -315,6 +315,8 @@ def test_crs_from_file_override_and_geographic(tmp_path):
     assert read_cityjson(write(tmp_path, urn)).crs.to_epsg() == 28992
     old = box_doc(version="0.9", metadata={"crs": {"epsg": 28992}})
     assert read_cityjson(write(tmp_path, old)).crs.to_epsg() == 28992
+    bare = box_doc(version="1.0", metadata={"referenceSystem": 28992})  # was "no referenceSystem"
+    assert read_cityjson(write(tmp_path, bare)).crs.to_epsg() == 28992
     assert read_cityjson(write(tmp_path, url), crs_override="EPSG:28992").crs.to_epsg() == 28992
 
     none = read_cityjson(write(tmp_path, box_doc()))

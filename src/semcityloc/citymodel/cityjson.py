@@ -24,7 +24,8 @@ What is read and what is skipped (counted in ``model.stats.warnings``):
   ``builder.usable_points``) likewise, under its own count, before any arithmetic on them.
 
 CRS: ``metadata.referenceSystem`` (``https://www.opengis.net/def/crs/EPSG/0/7415``, 0.8/1.0
-``urn:ogc:def:crs:EPSG::7415``) or the 0.x ``metadata.crs.epsg``; ``crs_override`` wins. A file naming no
+``urn:ogc:def:crs:EPSG::7415``, or a bare EPSG number) or the 0.x ``metadata.crs.epsg``; ``crs_override``
+wins. A file naming no
 CRS gives ``crs=None`` and a warning. A geographic CRS is projected to its UTM zone (or ``target_crs``)
 by ``MetricFrame``, axis order as the EPSG definition says (like the CityGML reader).
 """
@@ -208,6 +209,8 @@ def _source_crs_name(doc: dict) -> str | None:
     ref = meta.get("referenceSystem")
     if isinstance(ref, str) and ref.strip():
         return ref
+    if isinstance(ref, int) and not isinstance(ref, bool) and ref > 0:  # a bare EPSG code, as 0.x wrote it
+        return f"EPSG:{ref}"
     crs = meta.get("crs")  # CityJSON 0.6 - 0.9: {"epsg": 7415}
     if isinstance(crs, dict) and isinstance(crs.get("epsg"), int | str):
         return f"EPSG:{crs['epsg']}"
