@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import gzip
+import re
 import warnings
 import zipfile
 from pathlib import Path
@@ -16,6 +17,7 @@ import pytest
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.citygml import CityGMLReader, iter_citygml_polygons, read_citygml
 from semcityloc.citymodel.crs import parse_crs_name
+from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.triangulate import polygon_area, triangulate_polygon
 from semcityloc.classes import SemanticClass
@@ -24,6 +26,7 @@ from semcityloc.errors import (
     EmptyModelError,
     InputFileError,
     MalformedXMLError,
+    ParameterError,
     UnsupportedFormatError,
 )
 
@@ -670,6 +673,20 @@ def test_a_reader_streams_once(tmp_path):
         list(reader.polygons())
 
 
-def test_lod_must_be_an_int(tmp_path):
-    with pytest.raises(TypeError, match="lod"):
-        read_citygml(tmp_path / "x.gml", lod="2")
+@pytest.mark.parametrize("lod", ["foo", "-1", -1, 7, "2.2", 2.5, True, "", [2]])
+def test_a_lod_that_is_no_whole_citygml_lod_is_a_parameter_error(tmp_path, lod):
+    """CityGML's LoDs are the whole numbers 0 to 4: anything else is a ParameterError naming the value (it
+    was a raw TypeError for every str, and an EmptyModelError for 7), from the reader and load_city_model."""
+    path = _write(tmp_path, _city([_building("B", _bounded_box("b", X0, Y0))]))
+    with pytest.raises(ParameterError, match=r"LoD .*whole number 0 to 4"):
+        read_citygml(path, lod=lod)
+    with pytest.raises(ParameterError, match=re.escape(repr(lod))):
+        load_city_model(path, lod=lod, cache=False)
+
+
+@pytest.mark.parametrize("lod", [2, "2", " 2 ", "2.0", 2.0, np.int64(2)])
+def test_a_whole_lod_is_taken_in_the_forms_cityjson_takes(tmp_path, lod):
+    """``"2"`` / ``"2.0"`` / ``2.0`` name LoD 2 as they do for the CityJSON reader (``cityjson.lod_key``)."""
+    body = _bounded_box("b", X0, Y0) + _solid_inline(X0, Y0, lod=1)
+    model = read_citygml(_write(tmp_path, _city([_building("B", body)])), lod=lod)
+    assert model.lods_present() == [2] and model.num_triangles == 12

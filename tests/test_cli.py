@@ -16,6 +16,8 @@ from semcityloc.cli.main import main
 from semcityloc.io.images import load_depth, load_image, load_labels_png, save_depth, save_labels_png
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
+from test_citygml import X0, Y0, _bounded_box, _building, _city
+from test_cityjson import box_doc
 
 REAL = "real_uav_lodloc"
 STEM = "DJI_20230513163714_0033_T"
@@ -70,6 +72,40 @@ def test_bad_city_files_give_one_line_and_exit_2(tmp_path, capsys, content, need
 def test_missing_file_gives_exit_2(tmp_path, capsys):
     code, _, err = run(capsys, "city", "info", tmp_path / "nope.gml")
     assert code == 2 and "no such file" in err
+
+
+def _box_citygml(tmp_path, body=None, name="box.gml", srs="urn:ogc:def:crs:EPSG::25833"):
+    """A one-building CityGML file (``test_citygml``'s inline helpers)."""
+    path = tmp_path / name
+    path.write_text(_city([_building("B", body or _bounded_box("b", X0, Y0))], srs=srs), encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize("lod", ["foo", "-1", "2.2", "7", "2.5"])
+def test_a_lod_that_is_no_citygml_lod_is_one_line_exit_2(tmp_path, capsys, lod):
+    """``--lod foo`` (also -1, 2.2, 7) on a CityGML file was a TypeError traceback (or, for 7, a missing-LoD
+    error): now a one-line ParameterError naming the value; ``--lod 2`` and ``--lod 2.0`` read LoD 2."""
+    path = _box_citygml(tmp_path)
+    code, out, err = run(capsys, "city", "info", path, "--lod", lod, "--no-cache")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err.startswith("semcityloc: error:") and repr(lod) in err and "0 to 4" in err
+    for good in ("2", "2.0"):
+        code, out, _ = run(capsys, "city", "info", path, "--lod", good, "--json", "--no-cache")
+        assert code == 0 and json.loads(out)["lods"] == [2]
+
+
+@pytest.mark.parametrize("city", ["generated", "cityjson"])
+def test_a_lod_that_is_no_lod_is_refused_before_any_city_is_read(tmp_path, capsys, city):
+    """The generated city and CityJSON get the same one-line error for ``--lod foo``; CityJSON's refinements
+    (``--lod 2.2``: ``cityjson.lod_key``) stay valid."""
+    path = city
+    if city == "cityjson":
+        path = tmp_path / "box.json"
+        path.write_text(json.dumps(box_doc(lod="2.2")), encoding="utf-8")
+        code, out, _ = run(capsys, "city", "info", path, "--lod", "2.2", "--json", "--no-cache")
+        assert code == 0 and json.loads(out)["lods"] == [2]
+    code, out, err = run(capsys, "city", "info", path, "--lod", "foo", "--no-cache")
+    assert code == 2 and out == "" and err.count("\n") == 1 and "'foo'" in err and "0 to 4" in err
 
 
 def test_label_and_depth_image_round_trip(tmp_path):

@@ -23,7 +23,8 @@ What it reads:
   with the boundary surface's class.
 - LoD: ``lod=None`` keeps, per building and per BuildingPart, the highest LoD it has (a building's own
   geometry is dropped when one of its parts is more detailed: the coarse shell would enclose the parts);
-  ``lod=N`` keeps only LoD N. Every triangle records its LoD.
+  ``lod=N`` keeps only LoD N (a whole number 0 to 4, also as ``"2"`` / ``"2.0"``; anything else is a
+  ``ParameterError``: ``citygml_lod``). Every triangle records its LoD.
 - CRS: the first ``srsName`` of the file (root or building Envelope, or a geometry) names it; different later
   names only warn. ``crs_override`` replaces it. Geographic CRSs (PLATEAU's EPSG:6697, latitude first) are
   projected to the UTM zone of the data with ``MetricFrame``.
@@ -57,6 +58,7 @@ import pyproj
 from lxml import etree
 
 from semcityloc.citymodel.builder import MeshBuilder, invalid_coordinates_note, usable_points, usable_polygon
+from semcityloc.citymodel.cityjson import lod_key
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
@@ -66,10 +68,18 @@ from semcityloc.errors import (
     EmptyModelError,
     InputFileError,
     MalformedXMLError,
+    ParameterError,
     UnsupportedFormatError,
 )
 
-__all__ = ["CityGMLPolygon", "CityGMLReader", "CityGMLReport", "iter_citygml_polygons", "read_citygml"]
+__all__ = [
+    "CityGMLPolygon",
+    "CityGMLReader",
+    "CityGMLReport",
+    "citygml_lod",
+    "iter_citygml_polygons",
+    "read_citygml",
+]
 
 # The safe parser settings (also used for the root sniff): no entity expansion, no DTD, no network, libxml2's
 # default size limits (huge_tree=False), and no id hash table (we index gml:ids ourselves, bounded).
@@ -269,6 +279,32 @@ def _classify(tag: str) -> tuple[int, int]:
     return _K_DESCEND, 0
 
 
+def citygml_lod(lod: object, path: Path | None = None) -> int | None:
+    """The LoD the reader keeps for ``lod``: None (each building's highest) or a whole LoD 0 to 4, given as
+    an int or in a form the CityJSON reader takes for it (``"2"``, ``"2.0"``, ``2.0``: ``lod_key``).
+
+    CityGML's LoDs are whole numbers, so anything else (``"foo"``, ``-1``, ``7``, ``"2.2"``, ``True``) is a
+    ``ParameterError`` naming the value, raised before the file is opened, rather than a ``TypeError`` from
+    deep inside or an empty model.
+    """
+    if lod is None:
+        return None
+    value = lod
+    if not isinstance(lod, bool):
+        try:
+            value = operator.index(lod)  # numpy integers too
+        except TypeError:
+            pass
+    key = lod_key(value)
+    if key is None or "." in key:
+        where = f"{path}: " if path is not None else ""
+        raise ParameterError(
+            f"{where}LoD {lod!r} is not a CityGML LoD: give a whole number 0 to 4 (or no LoD for each "
+            "building's highest)"
+        )
+    return int(key)
+
+
 def _same_crs(a: str, b: str) -> bool:
     """Whether two srsName strings name the same CRS (spellings differ: EPSG:25833 vs its URN)."""
     try:
@@ -411,17 +447,12 @@ class CityGMLReader:
     def __init__(
         self,
         path: str | Path,
-        lod: int | None = None,
+        lod: int | str | None = None,
         target_crs: pyproj.CRS | str | None = None,
         crs_override: str | None = None,
     ):
         self.path = Path(path)
-        if lod is not None:
-            try:
-                lod = operator.index(lod)
-            except TypeError as exc:
-                raise TypeError(f"lod must be an int or None, not {type(lod).__name__}") from exc
-        self.lod = lod
+        self.lod = citygml_lod(lod, self.path)
         self.target_crs = parse_crs_name(target_crs) if isinstance(target_crs, str) else target_crs
         self.crs_override = crs_override
         self.stats = ParseStats()
@@ -876,7 +907,7 @@ class CityGMLReader:
 
 def iter_citygml_polygons(
     path: str | Path,
-    lod: int | None = None,
+    lod: int | str | None = None,
     target_crs: pyproj.CRS | str | None = None,
     crs_override: str | None = None,
 ) -> Iterator[CityGMLPolygon]:
@@ -886,7 +917,7 @@ def iter_citygml_polygons(
 
 def read_citygml(
     path: str | Path,
-    lod: int | None = None,
+    lod: int | str | None = None,
     target_crs: pyproj.CRS | None = None,
     crs_override: str | None = None,
     origin: np.ndarray | None = None,
@@ -898,8 +929,8 @@ def read_citygml(
     or the UTM zone of the data for a geographic CRS). ``crs_override``: CRS name replacing the file's
     ``srsName``. Raises ``InputFileError`` (missing file), ``MalformedXMLError`` (not XML, truncated,
     entity declarations), ``UnsupportedFormatError`` (not a CityGML 1-3 CityModel), ``CRSError``,
-    ``EmptyModelError``. ``origin``: the local frame's float64 origin (default: the data's rounded centre;
-    a tile store gives all its tiles one).
+    ``EmptyModelError``, ``ParameterError`` (``lod`` no whole LoD 0 to 4: ``citygml_lod``). ``origin``: the
+    local frame's float64 origin (default: the data's rounded centre; a tile store gives all its tiles one).
     """
     reader = CityGMLReader(path, lod, target_crs, crs_override)
     builder = MeshBuilder(reader.stats)

@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 
+from semcityloc.citymodel.cityjson import lod_key
 from semcityloc.citymodel.export import export_model
 from semcityloc.citymodel.generator import default_city_path
 from semcityloc.citymodel.tiles import load_city
+from semcityloc.errors import ParameterError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,7 +41,11 @@ def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
         p.add_argument("path", help=help_text)
     else:
         p.add_argument("--city", dest="path", required=True, help=help_text)
-    p.add_argument("--lod", default=None, help="LoD to read (default: the highest per building)")
+    p.add_argument(
+        "--lod",
+        default=None,
+        help="LoD to read: 0 to 4 (CityJSON also a refinement, e.g. 2.2; default: the highest per building)",
+    )
     p.add_argument("--crs", default=None, help="override the file's CRS, e.g. EPSG:25832")
     p.add_argument(
         "--no-cache",
@@ -48,11 +54,28 @@ def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
     )
 
 
+def parse_lod(text: str | None) -> int | str | None:
+    """``--lod``'s value for the readers: None, a whole number as an int (``"2"`` -> 2), or a CityJSON
+    refinement as written (``"2.2"``: the CityGML reader refuses it, ``citygml.citygml_lod``).
+
+    Anything that is no LoD (``foo``, ``-1``, ``7``) is a ``ParameterError`` here, for every format, before
+    a file is read (it was a ``TypeError`` traceback from the CityGML reader)."""
+    if text is None:
+        return None
+    stripped = str(text).strip()
+    if stripped.isdigit() and int(stripped) <= 4:
+        return int(stripped)
+    if lod_key(stripped) is None:
+        raise ParameterError(
+            f"--lod {text!r} is not a LoD: give a whole number 0 to 4 (a CityJSON file also takes a "
+            "refinement such as 2.2)"
+        )
+    return stripped
+
+
 def load_model_from_args(args: argparse.Namespace):
     """The ``CityModel`` named by ``add_model_arguments`` options (``generated`` = the embedded city)."""
-    lod = args.lod
-    if lod is not None and str(lod).isdigit():
-        lod = int(lod)
+    lod = parse_lod(args.lod)
     path = args.path
     if path == "generated":
         path = default_city_path(lod=lod if isinstance(lod, int) else 2)

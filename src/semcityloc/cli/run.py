@@ -14,7 +14,7 @@ from pathlib import Path
 
 from semcityloc.benchmark.photo_source import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report import summary_markdown
-from semcityloc.cli.city import add_model_arguments
+from semcityloc.cli.city import add_model_arguments, parse_lod
 from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_map_eaves_arguments, add_prior_sigma_argument
@@ -112,7 +112,7 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
     return PhotoSpec(
         images=args.images,
         city=args.path,
-        lod=int(args.lod) if args.lod and str(args.lod).isdigit() else args.lod,
+        lod=parse_lod(args.lod),
         crs=args.crs,
         priors=args.priors,
         intrinsics=args.intrinsics,
