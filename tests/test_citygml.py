@@ -666,6 +666,33 @@ def test_a_point_a_geographic_crs_cannot_project_is_dropped_without_a_warning(tm
     assert model.stats.invalid_coordinate_polygons == 1 and model.num_triangles == 1
 
 
+# One roof in EPSG:4326, whose axis order is latitude first: latitude 13.4, longitude 52.5 (UTM zone 39).
+ROOF_4326 = "13.4 52.5 44 13.4 52.5001 44 13.4001 52.5001 44 13.4001 52.5 44"
+
+
+def _city_4326(lower: str, upper: str) -> str:
+    """A one-roof EPSG:4326 city whose root Envelope spans ``lower`` to ``upper`` (file axis order)."""
+    text = _city([_building("B", _polygon_member(ROOF_4326))], srs="urn:ogc:def:crs:EPSG::4326")
+    envelope = f"<gml:lowerCorner>{X0} {Y0} 0</gml:lowerCorner><gml:upperCorner>{X0 + 100} {Y0 + 100} 50"
+    return text.replace(envelope, f"<gml:lowerCorner>{lower} 0</gml:lowerCorner><gml:upperCorner>{upper} 50")
+
+
+def test_a_stale_root_envelope_does_not_choose_the_utm_zone(tmp_path):
+    """A root Envelope that does not hold the geometry (0 0 / 1 1 left by a tool) chose UTM zone 31 for a
+    building in zone 39: metres off by a wrong zone's distortion (roof 266 m2 instead of 120 m2). The
+    geometry chooses then, with a warning; an Envelope that holds it chooses as before (the file's extent)."""
+    good = read_citygml(_write(tmp_path, _city_4326("13.4 52.5", "13.4001 52.5001"), "good.gml"))
+    stale = read_citygml(_write(tmp_path, _city_4326("0 0", "1 1"), "stale.gml"))
+    assert crs_label(good.crs) == crs_label(stale.crs) == "EPSG:32639"
+    assert good.class_areas()["roof"] == pytest.approx(119.8, abs=0.5)
+    assert stale.class_areas()["roof"] == pytest.approx(good.class_areas()["roof"], rel=1e-9)
+    assert any("Envelope" in w and "EPSG:32639" in w for w in stale.stats.warnings)
+    assert not any("Envelope" in w for w in good.stats.warnings)
+    # A wide Envelope that holds the roof: its centre (longitude 54, zone 40) still chooses, without a word.
+    wide = read_citygml(_write(tmp_path, _city_4326("13 50", "14 58"), "wide.gml"))
+    assert crs_label(wide.crs) == "EPSG:32640" and not any("Envelope" in w for w in wide.stats.warnings)
+
+
 def test_a_reader_streams_once(tmp_path):
     reader = CityGMLReader(_write(tmp_path, _city([_building("B", _bounded_box("b", X0, Y0))])))
     assert len(list(reader.polygons())) == 6

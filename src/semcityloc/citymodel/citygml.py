@@ -27,7 +27,8 @@ What it reads:
   ``ParameterError``: ``citygml_lod``). Every triangle records its LoD.
 - CRS: the first ``srsName`` of the file (root or building Envelope, or a geometry) names it; different later
   names only warn. ``crs_override`` replaces it. Geographic CRSs (PLATEAU's EPSG:6697, latitude first) are
-  projected to the UTM zone of the data with ``MetricFrame``.
+  projected to the UTM zone of the data with ``MetricFrame``: the zone of the first Envelope's centre when
+  that Envelope holds the first building, else (a stale Envelope) of the first building, with a warning.
 
 2D coordinates (``srsDimension="2"`` or two numbers per point): such polygons are skipped and counted; a file
 with nothing but 2D polygons raises ``InputFileError`` (there is no height to build a 3D model from).
@@ -61,7 +62,7 @@ from semcityloc.citymodel.builder import MeshBuilder, invalid_coordinates_note, 
 from semcityloc.citymodel.cityjson import lod_key
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size
-from semcityloc.citymodel.model import CityModel, ParseStats
+from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
 from semcityloc.classes import SURFACE_CLASS, SemanticClass
 from semcityloc.errors import (
     CRSError,
@@ -876,6 +877,28 @@ class CityGMLReader:
                 "for all coordinates"
             )
 
+    def _zone_sample(self, recs: list[_Rec]) -> np.ndarray:
+        """The points that locate a geographic CRS's UTM zone: the Envelope's corners (the whole file's
+        extent), else the first polygon read."""
+        if self._envelope_sample is not None:
+            return self._envelope_sample
+        return recs[0].exterior[:, :2]
+
+    def _frame_of_geometry(self, source: pyproj.CRS | None, frame: MetricFrame, recs: list[_Rec]):
+        """The metric frame located by the first building's own coordinates when the Envelope does not hold
+        them (a stale Envelope, e.g. 0 0 / 1 1 left by a tool); ``frame`` (the Envelope's) when both
+        choose the same CRS, so that only a frame the Envelope got wrong changes, with a warning."""
+        sample = np.concatenate([r.exterior[:, :2] for r in recs])
+        ours = MetricFrame.for_source(source, sample, None)
+        if ours.target == frame.target:
+            return frame
+        self.stats.warnings.append(
+            f"the file's gml:Envelope does not hold its first building (a stale Envelope?): the UTM zone is "
+            f"chosen from the building's coordinates ({crs_label(ours.target)}), not from the Envelope's "
+            f"({crs_label(frame.target)})"
+        )
+        return ours
+
     def _metric_frame(self, recs: list[_Rec]) -> MetricFrame:
         if self._frame is not None:
             return self._frame
@@ -893,16 +916,24 @@ class CityGMLReader:
             except CRSError as exc:
                 hint = "" if self.crs_override is not None else f"; {CRS_HINT} to read the file anyway"
                 raise CRSError(f"{self.path}: {exc}{hint}") from exc
-        sample = self._envelope_sample
-        if sample is None:
-            sample = recs[0].exterior[:, :2]
         target = self.target_crs if source is not None else None
-        frame = MetricFrame.for_source(source, sample, target)
+        frame = MetricFrame.for_source(source, self._zone_sample(recs), target)
+        if target is None and self._envelope_sample is not None and not _holds(self._envelope_sample, recs):
+            frame = self._frame_of_geometry(source, frame, recs)
         self._frame = frame
         self.source_crs = source
         self.crs = frame.target
         self._frame_identity = frame.target is None or (frame.target == frame.source and not frame.lat_first)
         return frame
+
+
+def _holds(box: np.ndarray, recs: list[_Rec]) -> bool:
+    """Whether the (2, 2) Envelope corners ``box`` hold every exterior point of ``recs`` (file axis order,
+    within 1 % of the box's size: Envelopes are often rounded)."""
+    lo, hi = box.min(axis=0), box.max(axis=0)
+    margin = 0.01 * (hi - lo) + 1e-9 * np.maximum(np.abs(lo), np.abs(hi))
+    points = np.concatenate([r.exterior[:, :2] for r in recs])
+    return bool(((points >= lo - margin) & (points <= hi + margin)).all())
 
 
 def iter_citygml_polygons(

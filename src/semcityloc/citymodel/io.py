@@ -23,7 +23,9 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.errors import InputFileError, UnsupportedFormatError
 
-CACHE_VERSION = 1
+# Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
+# before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope).
+CACHE_VERSION = 2
 
 
 def default_cache_dir() -> Path:
