@@ -618,6 +618,41 @@ def test_bad_coordinates_are_counted_not_fatal(tmp_path):
     assert model.class_areas()["ground"] == 0.0 and model.class_areas()["roof"] == pytest.approx(80.0)
 
 
+def test_every_skipped_polygon_is_counted_and_warned_in_the_stats(tmp_path):
+    """A roof with one token that is no number, a NaN, a 2D polygon: each is skipped (the mesh keeps the
+    rest, as before) and now counted in ``model.stats`` with a warning, and in ``summary()["skipped"]``
+    beside the model's warnings (the unreadable roof used to vanish without a count or a word)."""
+    roof = f"{X0:.3f} {Y0:.3f} 6.000"
+    unreadable = _bounded_box("b", X0, Y0).replace(roof, f"3x{X0:.3f} {Y0:.3f} 6.000", 1)
+    ground = f"{X0 + 50:.3f} {Y0:.3f} 0.000"
+    nan = _bounded_box("c", X0 + 50, Y0).replace(ground, f"nan {Y0:.3f} 0.000", 1)
+    flat = (
+        '<bldg:lod0FootPrint><gml:MultiSurface srsDimension="2"><gml:surfaceMember><gml:Polygon>'
+        f"<gml:exterior><gml:LinearRing><gml:posList>{X0} {Y0} {X0 + 5} {Y0} {X0 + 5} {Y0 + 5} {X0} {Y0}"
+        "</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface>"
+        "</bldg:lod0FootPrint>"
+    )
+    no_lod = f"<gml:MultiSurface><gml:surfaceMember>{_polygon(_box_faces(X0, Y0, 5, 5, 9)[1][1])}"
+    no_lod += "</gml:surfaceMember></gml:MultiSurface>"  # outside any lodN property (as ADE content is)
+    path = _write(tmp_path, _city([_building("B", unreadable + flat + no_lod), _building("C", nan)]))
+    model = read_citygml(path)
+    assert model.num_triangles == 2 * 12 - 2 - 2  # B's roof and C's ground are gone; nothing else
+    stats = model.stats
+    assert (stats.malformed_polygons, stats.polygons_2d, stats.invalid_coordinate_polygons) == (1, 1, 1)
+    assert stats.polygons_without_lod == 1
+    text = " | ".join(stats.warnings)
+    assert "skipped 1 polygons without an exterior ring or with unreadable coordinates" in text
+    assert "skipped 1 polygons with 2D coordinates (no heights)" in text
+    assert "skipped 1 polygons with coordinates that are NaN" in text
+    assert "skipped 1 polygons outside any lodN property" in text
+    summary = model.summary()
+    for key in ("malformed_polygons", "polygons_2d", "invalid_coordinate_polygons", "polygons_without_lod"):
+        assert summary["skipped"][key] == 1
+    assert summary["warnings"] == stats.warnings
+    clean = read_citygml(_write(tmp_path, _city([_building("B", _bounded_box("b", X0, Y0))]), "clean.gml"))
+    assert clean.stats.warnings == [] and not any(clean.summary()["skipped"].values())
+
+
 @pytest.mark.parametrize("bad", ["nan", "NaN", "inf", "-INF", "1e300", "1e12", "-2e9"])
 def test_nan_infinite_and_absurd_coordinates_are_dropped_at_parse_time(tmp_path, bad):
     """A polygon with a NaN / infinite / absurd coordinate (exterior or hole) is dropped with a counted

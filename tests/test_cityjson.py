@@ -200,6 +200,7 @@ def test_bad_vertex_indices_skip_only_that_polygon(tmp_path):
     assert class_counts(model) == (2, 2, 2)
     assert model.stats.polygons == 6
     assert any("skipped 3 polygons with invalid vertex indices" in w for w in model.stats.warnings)
+    assert model.stats.malformed_polygons == 3 and model.summary()["skipped"]["malformed_polygons"] == 3
 
 
 def test_only_bad_polygons_is_an_empty_model(tmp_path):

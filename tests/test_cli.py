@@ -108,6 +108,46 @@ def test_a_lod_that_is_no_lod_is_refused_before_any_city_is_read(tmp_path, capsy
     assert code == 2 and out == "" and err.count("\n") == 1 and "'foo'" in err and "0 to 4" in err
 
 
+def _nan_roof_city(tmp_path):
+    """Two boxes, one roof with a NaN coordinate (skipped, counted, warned), no srsName (warned)."""
+    roof = f"{X0:.3f} {Y0:.3f} 6.000"
+    body = _bounded_box("b", X0, Y0).replace(roof, f"nan {Y0:.3f} 6.000", 1)
+    path = tmp_path / "nan.gml"
+    boxes = [_building("B", body), _building("C", _bounded_box("c", X0 + 50, Y0))]
+    path.write_text(_city(boxes, srs=None), encoding="utf-8")
+    return path
+
+
+def test_city_info_shows_the_readers_warnings_and_every_skipped_polygon(tmp_path, capsys):
+    """The reader's warnings (a NaN roof skipped, no CRS) and the skipped count were hidden from city info,
+    in text and in --json."""
+    path = _nan_roof_city(tmp_path)
+    code, out, err = run(capsys, "city", "info", path, "--no-cache")
+    assert code == 0 and err == ""
+    assert "skipped:    invalid_coordinate_polygons=1" in out
+    assert "warning:    skipped 1 polygons with coordinates that are NaN" in out
+    assert "warning:    the file names no CRS (srsName)" in out
+    code, out, _ = run(capsys, "city", "info", path, "--json", "--no-cache")
+    info = json.loads(out)
+    assert code == 0 and info["skipped"]["invalid_coordinate_polygons"] == 1
+    assert any("NaN" in w for w in info["warnings"]) and any("no CRS" in w for w in info["warnings"])
+
+
+def test_localize_says_the_models_warnings_once_on_stderr(tmp_path, capsys):
+    """``localize`` prints the model's load warnings (here before a bad prior stops it, so nothing is
+    localized): once each, on stderr."""
+    path = _nan_roof_city(tmp_path)
+    save_labels_png(np.full((30, 40), 2, np.uint8), tmp_path / "mask.png")
+    code, out, err = run(capsys, "localize", "--city", path, "--intrinsics", "30,30,20,15,40,30",
+                         "--semantic", tmp_path / "mask.png", "--prior", tmp_path / "absent.txt",
+                         "--out", tmp_path / "o", "--no-cache")  # fmt: skip
+    assert code == 2 and out == ""
+    lines = err.splitlines()
+    assert sum("semcityloc: warning:" in line and "NaN" in line for line in lines) == 1
+    assert sum("semcityloc: warning:" in line and "no CRS" in line for line in lines) == 1
+    assert lines[-1].startswith("semcityloc: error:")
+
+
 def test_label_and_depth_image_round_trip(tmp_path):
     labels = np.array([[0, 1, 2], [3, 4, 255]], dtype=np.uint8)
     np.testing.assert_array_equal(load_labels_png(save_labels_png(labels, tmp_path / "l.png")), labels)

@@ -174,6 +174,17 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     assert code == 2 and "other benchmark run" in err and err.count("\n") == 1
 
 
+def test_a_run_says_the_models_warnings_once_on_stderr(box_flight, tmp_path, capsys):
+    """The model's load warnings (here: an OBJ line of an unknown keyword) were never shown by ``run``: now
+    once, on stderr, also when no photo is localized in this call."""
+    city = box_flight["root"] / "city.obj"
+    city.write_text("bevel on\n" + city.read_text())
+    argv = [*box_flight["argv"], "--out", tmp_path / "out", "--no-overlays", "--no-cache"]
+    code, stdout, err = run(capsys, *argv, "--stop-after", "0")
+    assert code == 0 and "0/2 photos done" in stdout
+    assert err.count("semcityloc: warning:") == 1 and "ignored OBJ keywords: bevel (1 lines)" in err
+
+
 def test_a_mask_of_the_photo_turned_for_display_is_refused_saying_so(box_flight, tmp_path, capsys):
     """EXIF orientation 6 (viewers turn the photo by 90 deg) and a mask of the turned photo: that photo is
     skipped with the reason; orientation 3 (180 deg) cannot be told from the mask, so the run says once

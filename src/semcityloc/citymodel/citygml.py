@@ -32,6 +32,8 @@ What it reads:
 
 2D coordinates (``srsDimension="2"`` or two numbers per point): such polygons are skipped and counted; a file
 with nothing but 2D polygons raises ``InputFileError`` (there is no height to build a 3D model from).
+Skipped polygons are counted in ``stats`` (``malformed_polygons``: no exterior ring or unreadable numbers;
+``polygons_2d``; ``polygons_without_lod``), each kind with a warning, wherever they are parsed (any LoD).
 Coordinates that are NaN, infinite or absurd (``builder.usable_points``: beyond 1e9 m): such polygons are
 dropped where they are parsed (before LoD selection, the CRS's sample point and the triangulation) and
 counted in ``stats.invalid_coordinate_polygons`` (one warning); a file with nothing else raises
@@ -519,6 +521,7 @@ class CityGMLReader:
 
         self.stats.unresolved_xlinks += sum(len(v) for v in self._pending.values())
         self._pending.clear()
+        self._count_skipped()
         if self.report.skipped_objects:
             names = ", ".join(f"{k} x{v}" for k, v in sorted(self.report.skipped_objects.items()))
             self.stats.warnings.append(f"skipped non-building city objects: {names}")
@@ -528,6 +531,25 @@ class CityGMLReader:
             )
         if yielded == 0:
             self._raise_empty()
+
+    def _count_skipped(self) -> None:
+        """The polygons skipped where they were parsed (2D, unreadable) into ``stats``, each kind with a
+        warning: a dropped roof must show in ``city info`` and in the commands' warnings, not vanish."""
+        r, stats = self.report, self.stats
+        stats.malformed_polygons += r.malformed_polygons
+        stats.polygons_2d += r.polygons_2d
+        stats.polygons_without_lod += r.polygons_without_lod
+        if r.malformed_polygons:
+            stats.warnings.append(
+                f"skipped {r.malformed_polygons} polygons without an exterior ring or with unreadable "
+                "coordinates (a token that is no number, or a count that does not fit the dimension)"
+            )
+        if r.polygons_2d:
+            stats.warnings.append(f"skipped {r.polygons_2d} polygons with 2D coordinates (no heights)")
+        if r.polygons_without_lod:
+            stats.warnings.append(
+                f"skipped {r.polygons_without_lod} polygons outside any lodN property (ADE geometry: no LoD)"
+            )
 
     def _raise_empty(self) -> None:
         r = self.report

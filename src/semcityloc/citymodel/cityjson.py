@@ -481,6 +481,7 @@ class _CityJSONReader:
             rings = self._rings(surface, cand.vertices)
             if rings is None:
                 self.counts.invalid_polygons += 1
+                self.stats.malformed_polygons += 1
                 self.stats.polygons += 1
                 continue
             builder.add_polygon(rings[0], rings[1:], self._semantic(value, surfaces), building_id, lod)

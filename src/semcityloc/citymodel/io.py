@@ -24,8 +24,9 @@ from semcityloc.citymodel.obj import read_obj
 from semcityloc.errors import InputFileError, UnsupportedFormatError
 
 # Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
-# before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope).
-CACHE_VERSION = 2
+# before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope; 3: the stats
+# count every skipped polygon, with a warning each).
+CACHE_VERSION = 3
 
 
 def default_cache_dir() -> Path:

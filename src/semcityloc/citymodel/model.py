@@ -28,6 +28,9 @@ class ParseStats:
     nonplanar_polygons: int = 0  # off their best-fit plane by more than the tolerance: still meshed
     failed_triangulations: int = 0  # earcut gave nothing for a non-degenerate polygon: skipped
     invalid_coordinate_polygons: int = 0  # NaN, infinite or absurd coordinates (``builder.usable_points``)
+    malformed_polygons: int = 0  # no exterior ring, a token that is no number, bad vertex indices: skipped
+    polygons_2d: int = 0  # no heights (CityGML ``srsDimension="2"``): skipped
+    polygons_without_lod: int = 0  # CityGML geometry outside any lodN property (ADE content): skipped
     unresolved_xlinks: int = 0
     classified_by_normal: int = 0  # polygons that had no semantics and were classified from normals
     warnings: list[str] = field(default_factory=list)
@@ -193,10 +196,15 @@ class CityModel:
             "skipped": {
                 "degenerate_polygons": self.stats.degenerate_polygons,
                 "failed_triangulations": self.stats.failed_triangulations,
+                "invalid_coordinate_polygons": self.stats.invalid_coordinate_polygons,
+                "malformed_polygons": self.stats.malformed_polygons,
+                "polygons_2d": self.stats.polygons_2d,
+                "polygons_without_lod": self.stats.polygons_without_lod,
                 "unresolved_xlinks": self.stats.unresolved_xlinks,
             },
             "nonplanar_polygons": self.stats.nonplanar_polygons,
             "classified_by_normal": self.stats.classified_by_normal,
+            "warnings": list(self.stats.warnings),  # what the reader skipped or guessed, in its words
         }
 
     # ------------------------------------------------------------------ npz round trip

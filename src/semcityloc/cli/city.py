@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 from semcityloc.citymodel.cityjson import lod_key
 from semcityloc.citymodel.export import export_model
 from semcityloc.citymodel.generator import default_city_path
+from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
 from semcityloc.errors import ParameterError
 
@@ -82,6 +85,15 @@ def load_model_from_args(args: argparse.Namespace):
     return load_city(path, lod=lod, crs=args.crs, cache=not args.no_cache)
 
 
+def print_model_warnings(model: CityModel) -> None:
+    """The reader's warnings about ``model`` (polygons it skipped, a CRS it did not find), once each on
+    stderr, for the commands that localize against it (``localize``, ``run``): a dropped roof or a
+    model in degrees taken as metres changes every pose, so it must not pass without a word.
+    ``city info`` shows them in its summary instead (``format_summary``, ``--json``)."""
+    for warning in model.stats.warnings:
+        print(f"semcityloc: warning: {Path(model.source).name or 'city model'}: {warning}", file=sys.stderr)
+
+
 _load = load_model_from_args
 
 
@@ -114,6 +126,7 @@ def format_summary(s: dict) -> str:
         lines.append("skipped:    " + ", ".join(f"{k}={v}" for k, v in skipped.items()))
     if s["classified_by_normal"]:
         lines.append(f"classified by normals: {s['classified_by_normal']} polygons without semantics")
+    lines += [f"warning:    {w}" for w in s.get("warnings", [])]
     return "\n".join(lines)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from semcityloc.citymodel.model import crs_label
 from semcityloc.classes import IGNORE
-from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.cli.city import add_model_arguments, load_model_from_args, print_model_warnings
 from semcityloc.cli.pose_input import read_pose_in_model_crs
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
@@ -215,6 +215,7 @@ def run(args: argparse.Namespace) -> int:
     config = config.with_map_eaves(args.map_eaves, args.map_eaves_flat)  # checked here, before anything loads
     _check_files(args)
     model = load_model_from_args(args)
+    print_model_warnings(model)
     lens = _camera(args)
     camera = lens.camera
     prior_world = read_pose_in_model_crs(args.prior, model, "prior")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from semcityloc.benchmark.photo_source import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report import summary_markdown
-from semcityloc.cli.city import add_model_arguments, parse_lod
+from semcityloc.cli.city import add_model_arguments, parse_lod, print_model_warnings
 from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_map_eaves_arguments, add_prior_sigma_argument
@@ -147,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
     spec = spec_from_args(args)
     out = Path(args.out)
     outcome = run_from_args(spec, out, args)
+    # The model the run loaded (PhotoSpec.resolved, cached: not loaded again); said after the run, where
+    # nothing before its first photo is delayed by it (the run's option checks come first).
+    print_model_warnings(spec.resolved().model)
     config = outcome.config
     skipped = config["skipped_photos"]
     if not outcome.complete:
