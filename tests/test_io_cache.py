@@ -31,6 +31,13 @@ def test_second_load_comes_from_the_cache(lod2, tmp_path, monkeypatch):
     assert second.crs == first.crs and second.source == str(lod2)
 
 
+def test_a_numpy_integer_lod_is_cached_as_the_same_lod(lod2, tmp_path):
+    """A LoD from a numpy array (np.int64) failed to write the cache key (JSON); it is LoD 2's key."""
+    io.load_city_model(lod2, lod=np.int64(2), cache=tmp_path)
+    io.load_city_model(lod2, lod=2, cache=tmp_path)
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+
+
 def test_other_options_or_content_miss_the_cache(lod2, tmp_path):
     io.load_city_model(lod2, cache=tmp_path)
     io.load_city_model(lod2, cache=tmp_path, crs="EPSG:25833")

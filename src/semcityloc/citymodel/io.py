@@ -113,7 +113,7 @@ def load_city_model(
     cache_file = None
     if cache:
         cache_dir = default_cache_dir() if cache is True else Path(cache)
-        options = json.dumps([CACHE_VERSION, fmt, lod, crs, target_crs], sort_keys=True)
+        options = json.dumps([CACHE_VERSION, fmt, lod, crs, target_crs], sort_keys=True, default=_key_value)
         if origin is not None:  # appended only when given: the keys of existing caches stay valid
             options += json.dumps([float(v) for v in np.asarray(origin, dtype=np.float64).reshape(3)])
         key = hashlib.sha256((file_sha256(path) + options).encode()).hexdigest()[:32]
@@ -134,6 +134,11 @@ def load_city_model(
         except OSError:
             pass  # a read-only cache never stops a parse
     return model
+
+
+def _key_value(value):
+    """A cache-key option JSON does not write itself (a numpy integer LoD): its plain value or its text."""
+    return value.item() if hasattr(value, "item") else str(value)
 
 
 def _read(path: Path, fmt: str, lod, crs, target_crs, origin=None) -> CityModel:
