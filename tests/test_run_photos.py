@@ -245,6 +245,48 @@ def test_an_unreadable_photo_is_skipped_saying_why_and_the_others_are_written(bo
     assert code == 0 and "6 photos: 1 localized, 0 not localized, 5 skipped" in stdout
 
 
+def test_a_mask_unreadable_only_when_read_in_full_is_that_photos_result_not_the_runs_end(
+    box_flight, tmp_path, capsys
+):
+    """A mask PNG whose header reads (so the checks before the run pass) but whose body is truncated: that
+    photo gets its own row, pose record and summary entry naming the mask and why; the two good photos are
+    localized and written, and the run exits 0 instead of stopping at the bad one."""
+    masks = box_flight["root"] / "masks"
+    data = (masks / "P0.png").read_bytes()  # the photos' aspect: P2's own mask has another
+    (masks / "P2.png").write_bytes(data[: len(data) * 2 // 3])
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", out)
+    assert code == 0, err
+    assert "Traceback" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["photos"] == 4 and summary["localized"] == 2
+    reason = summary["skipped_photos"]["P2.JPG"]
+    assert str(masks / "P2.png") in reason and "cannot read label image" in reason
+    assert set(summary["skipped_photos"]) == {"P2.JPG", "P9.JPG"}
+    rows = {json.loads(r["meta_json"])["name"]: r for r in read_results(out / "results.csv")}
+    assert set(rows) == {"P0.JPG", "P1.JPG", "P2.JPG"}
+    assert rows["P2.JPG"]["status"] == "skipped" and rows["P2.JPG"]["reason"] == reason
+    record = json.loads((out / "poses" / "P2.json").read_text())
+    assert record["status"] == "skipped" and record["reason"] == reason
+    for stem in ("P0", "P1"):
+        assert json.loads((out / "poses" / f"{stem}.json").read_text())["extra"]["status"] == "localized"
+        assert (out / "overlays" / f"{stem}.png").is_file()
+    assert "4 photos: 2 localized, 0 not localized, 2 skipped" in stdout
+    assert "not localized (" not in stdout and "P2.png" in stdout
+    # Run again: the finished run is summarised the same, nothing redone.
+    code, again, _ = run(capsys, *box_flight["argv"], "--out", out)
+    assert code == 0 and "4 photos: 2 localized, 0 not localized, 2 skipped" in again
+    # The mask fixed and its row deleted, a run again redoes that photo alone.
+    (masks / "P2.png").write_bytes(data)
+    lines = (out / "results.csv").read_text().splitlines(keepends=True)
+    (out / "results.csv").write_text("".join(x for x in lines if '"name"": ""P2.JPG""' not in x))
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out)
+    assert code == 0, err
+    assert json.loads((out / "summary.json").read_text())["skipped_photos"].keys() == {"P9.JPG"}
+    redone = json.loads((out / "poses" / "P2.json").read_text())
+    assert redone.get("extra", redone)["status"] != "skipped"  # localized or not, on the fixed mask
+
+
 def test_a_run_whose_every_photo_is_unreadable_stops_in_one_line(box_flight, tmp_path, capsys):
     for photo in (box_flight["root"] / "images").iterdir():
         photo.write_bytes(b"\xff\xd8\xff")  # a JPEG's first bytes, nothing after
@@ -301,21 +343,31 @@ def test_the_focal_length_is_estimated_only_when_asked_or_approximate(box_flight
 
 
 def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
+    """A lossy mask's format is in its header: refused before the run, so a flight of JPEG masks (nothing
+    else left) stops in one line naming the flag. Forced, the masks are read in full when their photos'
+    turn comes; the ids the compression made along the edges are then named, photo by photo, and the run
+    completes with each photo skipped for that reason."""
     for mask in (box_flight["root"] / "masks").glob("P[01].png"):  # JPEG content, the .png name kept
         ids = np.array(Image.open(mask))  # the palette PNG's class ids
         Image.fromarray(ids, mode="L").save(mask, format="JPEG", quality=95)
     argv = [*box_flight["argv"], "--no-overlays"]
     code, _, err = run(capsys, *argv, "--out", tmp_path / "refused")
-    last = err.strip().splitlines()[-1]  # after the progress line: the error, one line
+    last = err.strip().splitlines()[-1]  # the error, one line
     assert (
         code == 2
         and last.startswith("semcityloc: error:")
+        and "no photo can be localized" in last
         and "a lossy format" in last
         and "--allow-lossy-mask" in last
     )
-    # Forced, the masks are read; the ids the compression made along the edges are then named.
-    code, _, err = run(capsys, *argv, "--out", tmp_path / "forced", "--allow-lossy-mask")
-    assert code == 2 and "a lossy format" not in err and "invalid class ids" in err
+    # Forced, the masks are read; the ids the compression made along the edges are then named per photo.
+    code, stdout, err = run(capsys, *argv, "--out", tmp_path / "forced", "--allow-lossy-mask")
+    assert code == 0 and "a lossy format" not in err and "Traceback" not in err
+    summary = json.loads((tmp_path / "forced" / "summary.json").read_text())
+    for name in ("P0", "P1"):
+        reason = summary["skipped_photos"][f"{name}.JPG"]
+        assert f"{name}.png" in reason and "invalid class ids" in reason
+    assert "4 photos: 0 localized, 0 not localized, 4 skipped" in stdout
     assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
 
 

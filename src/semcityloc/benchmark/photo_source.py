@@ -24,10 +24,15 @@ Per photo (``datasets.photos`` matches files to photos by name):
   recall.
 
 A photo that lacks any of these, or whose file cannot be read (not a file, empty, truncated, corrupt, a
-format Pillow does not read: its pixels are decoded once here, ``_readable_photo``), is skipped before
-anything is localized, with the reason naming the file (``run.json`` ``skipped_photos``, the summary, the
-CLI's closing lines); the others run. When none is left, the run stops in one line ("no photo can be
-localized") with the first reasons. Outputs (``runfiles``):
+format Pillow does not read: its pixels are decoded once here, ``_readable_photo``), or whose mask's header
+says it cannot be used (a lossy format without ``allow_lossy_mask``, not class ids: ``_mask_file``), is
+skipped before anything is localized, with the reason naming the file (``run.json`` ``skipped_photos``, the
+summary, the CLI's closing lines); the others run. When none is left, the run stops in one line ("no photo
+can be localized") with the first reasons. A mask or depth file that fails only when read in full (a
+truncated body, class ids a lossy format made) is found when its photo's turn comes: ``PhotoSource.query``
+returns that photo not accepted, with the reason, and the run loop records it as ``skipped`` (its row, its
+``poses/<stem>.json`` record, the summary's ``skipped_photos``) and goes on with the others; its row stays
+on resume (the file fixed, deleting that line of ``results.csv`` redoes the photo). Outputs (``runfiles``):
 ``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level when localized, in
 ``geometry.io.pose_to_dict``'s layout, and the result record, prior, uncertainty and perception in
 ``extra``; the record alone when not localized), ``overlays/<stem>.png`` (the model's edges at the estimate
@@ -50,6 +55,7 @@ from semcityloc import __version__
 from semcityloc.benchmark import focal_cache
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
+from semcityloc.benchmark.results import SKIP_REASON, SKIPPED
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, Progress, plain, write_json_atomic
 from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
@@ -66,7 +72,7 @@ from semcityloc.datasets.photos import (
     PriorFiles,
     list_images,
 )
-from semcityloc.errors import BenchmarkError, InputFileError, SemCityLocError, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion, undistort_image, unseen_by_photo
 from semcityloc.geometry.io import pose_to_dict
@@ -76,6 +82,7 @@ from semcityloc.io.images import (
     check_aspect,
     check_aspect_of_photo,
     check_decodes,
+    check_label_header,
     exif_orientation,
     image_size,
     load_image,
@@ -277,12 +284,14 @@ class PhotoSpec:
         return source
 
     def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
-        """The photo counts and reasons in the summary; the exports (``photo_exports``)."""
+        """The photo counts and reasons in the summary (``skipped_photos``: those skipped before the run
+        and those whose files failed when read, ``skipped`` rows); the exports (``photo_exports``)."""
         model, inputs, skipped, _ = self.resolved()
         summary["mode"] = "photos"
         summary["perception"] = self.perception()
         summary["photos"] = len(inputs) + len(skipped)
-        summary["skipped_photos"] = skipped
+        failed = {inputs[int(r["index"])].name: r["reason"] for r in rows if r["status"] == SKIPPED}
+        summary["skipped_photos"] = {**skipped, **failed}
         offset = None if self.offset is None else np.asarray(self.offset, dtype=np.float64)
         summary["outputs"] = write_exports(out_dir, model, inputs, offset, self.target_height)
 
@@ -346,9 +355,8 @@ def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], m
     source = PhotoSource(spec, model, inputs)
     views = []
     for i in oblique:
-        try:
-            q = source.query(i)
-        except SemCityLocError:  # an unreadable mask: the run loop reports it for that photo
+        q = source.query(i)
+        if not q.meta.get("accepted", True):  # a mask that cannot be read: the run records it for that photo
             continue
         views.append(FocalView(q.camera, q.prior_pose_local, q.labels, q.depth, q.prior_uncertainty))
     bar = Progress(len(views), label="focal estimate")  # views: the oblique subset already
@@ -401,7 +409,7 @@ def _resolve(spec: PhotoSpec) -> Resolved:
             lens = intrinsics.photo_camera(path, width, height)
             camera = lens.camera
             prior = priors.prior(path)
-            mask = _input_file(spec.masks, path, MASK_SUFFIXES, "mask", camera, orientation)
+            mask = _mask_file(spec, path, camera, orientation)
             depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera, orientation)
         except PhotoMissing as exc:
             skipped[path.name] = str(exc)
@@ -456,6 +464,18 @@ def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) ->
     xy = np.array([frame.pose_to_local(inp.prior.pose_world).center[:2] for inp in inputs])
     tiles = store.tiles_around(xy, MAX_VIEW_RANGE_M) or store.tiles_near(xy[0])
     return store.load(tiles)
+
+
+def _mask_file(spec: PhotoSpec, photo: Path, camera: Camera, orientation: int) -> Path | None:
+    """``_input_file`` of the photo's mask, its header checked too (``io.images.check_label_header``: a lossy
+    format without ``allow_lossy_mask``, not class ids); ``PhotoMissing`` saying why."""
+    path = _input_file(spec.masks, photo, MASK_SUFFIXES, "mask", camera, orientation)
+    if path is not None and path.suffix.lower() != ".npy":
+        try:
+            check_label_header(path, spec.allow_lossy_mask)
+        except InputFileError as exc:
+            raise PhotoMissing(str(exc)) from None
+    return path
 
 
 def _array_shape(path: Path) -> tuple[int, int]:
@@ -518,29 +538,55 @@ class PhotoSource:
         return self._renderer
 
     def query(self, index: int) -> BenchmarkQuery:
+        """Photo ``index`` with its mask and depth on the pinhole camera; not accepted (``meta["accepted"]``
+        False, the reason naming the file in ``meta[SKIP_REASON]``) when one of its files cannot be read in
+        full, so that the run records it and goes on (module docstring)."""
         inp = self.inputs[index]
         cam = inp.camera
         seg, dep = self.backends()
-        photo = None
-        if seg or dep:
-            photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
-        if inp.mask is not None:
-            labels = read_mask_file(inp.mask, allow_lossy=self.spec.allow_lossy_mask)
-            check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask)
+        try:
+            photo, labels, depth = self._read_files(inp, seg is not None or dep is not None)
+        except (InputFileError, ShapeError) as exc:  # this photo's own file: its result, not the run's end
+            blank = np.full((cam.height, cam.width), IGNORE, dtype=np.uint8)
+            return self._query(index, blank, None, {"accepted": False, SKIP_REASON: str(exc)})
+        if photo is not None:
+            photo = inp.pinhole(photo, fill=0, nearest=False)
+        if labels is not None:
             labels = inp.pinhole(labels, fill=IGNORE, nearest=True)
         else:
             labels = seg.predict(photo, name=inp.name).labels
             check_aspect(labels.shape, cam.width, cam.height, "mask", inp.name)
             labels = np.where(unseen_by_photo(labels.shape, cam, inp.distortion), IGNORE, labels)
-        depth = None
-        if inp.depth is not None:
-            depth = read_depth_file(inp.depth)
-            check_aspect(depth.shape, cam.width, cam.height, "depth", inp.depth)
+        if depth is not None:
             depth = inp.pinhole(depth, fill=np.nan, nearest=True)
         elif dep is not None:
             depth = dep.predict(photo, name=inp.name).masked()
             check_aspect(depth.shape, cam.width, cam.height, "depth", inp.name)
             depth = np.where(unseen_by_photo(depth.shape, cam, inp.distortion), np.nan, depth)
+        return self._query(index, labels, depth)
+
+    def _read_files(
+        self, inp: PhotoInput, need_photo: bool
+    ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """(photo when ``need_photo`` (a backend's input), mask, depth) of ``inp`` as stored, None where it
+        has none; ``InputFileError`` / ``ShapeError`` naming the file when one cannot be read in full."""
+        cam = inp.camera
+        photo = load_image(inp.path, max_width=PHOTO_MAX_WIDTH) if need_photo else None
+        labels = depth = None
+        if inp.mask is not None:
+            labels = read_mask_file(inp.mask, allow_lossy=self.spec.allow_lossy_mask)
+            check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask)
+        if inp.depth is not None:
+            depth = read_depth_file(inp.depth)
+            check_aspect(depth.shape, cam.width, cam.height, "depth", inp.depth)
+        return photo, labels, depth
+
+    def _query(
+        self, index: int, labels: np.ndarray, depth: np.ndarray | None, extra: dict | None = None
+    ) -> BenchmarkQuery:
+        """The ``BenchmarkQuery`` of photo ``index`` (local frame) with these labels and depth; ``extra``
+        added to its meta."""
+        inp = self.inputs[index]
         pitch = float(inp.prior.pose_world.to_xyz_rpy()[4])
         meta = {
             "name": inp.name,
@@ -549,12 +595,13 @@ class PhotoSource:
             "prior_source": inp.prior.source,
             "prior_uncertainty": inp.uncertainty.as_dict(),
             "view": "nadir" if abs(pitch) < 15.0 else "oblique",
+            **(extra or {}),
         }
         model = self.map_model
         return BenchmarkQuery(
             query_id=query_id(index),
             index=index,
-            camera=cam,
+            camera=inp.camera,
             true_pose_local=model.pose_to_local(inp.truth_world) if inp.truth_world is not None else None,
             prior_pose_local=model.pose_to_local(inp.prior.pose_world),
             labels=labels,
@@ -586,7 +633,8 @@ class PhotoSource:
         return record
 
     def save_estimate(self, out_dir: Path, q: BenchmarkQuery, result: LocalizationResult) -> None:
-        """``poses/<stem>.json`` and ``overlays/<stem>.png`` of a finished photo (module docstring)."""
+        """``poses/<stem>.json`` and ``overlays/<stem>.png`` of a finished photo (module docstring); a skipped
+        one (its files could not be read) gets its record alone."""
         inp = self.inputs[q.index]
         model = self.map_model
         record = self.record(inp, result)
@@ -598,7 +646,7 @@ class PhotoSource:
         else:
             data = record
         write_json_atomic(folder / f"{inp.stem}.json", data)
-        if self.spec.overlays:
+        if self.spec.overlays and result.status != SKIPPED:
             photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
             panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]

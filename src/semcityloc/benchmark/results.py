@@ -22,7 +22,8 @@ row, so a row always has its details. The depth is kept as float16 (``details_de
 relative depth is good to a few percent, float16 to 0.05 %, and the file is less than half the size.
 
 ``summary.json``: metrics over all rows (``summarize_rows``). ``queries`` counts the evaluated queries: a
-view the simulator could not make acceptable gets a ``skipped`` row, is not localized and is only counted
+query its source did not accept (a view the simulator could not make acceptable, a photo whose mask or
+depth cannot be read in full) gets a ``skipped`` row with the reason, is not localized and is only counted
 under ``skipped``.
 """
 
@@ -86,14 +87,18 @@ def _resumable(header: tuple[str, ...]) -> bool:
 
 WARNING_SEPARATOR = " | "
 
-# A query whose simulated view the simulator did not accept (``meta["accepted"] is False``): recorded so a
-# resumed run does not redo it, not localized, and left out of every metric (counted as ``skipped``).
+# A query its source did not accept (``meta["accepted"] is False``): a simulated view the simulator could
+# not make acceptable, or a photo whose files could not be read in full (``meta["skip_reason"]`` says why).
+# Recorded so a resumed run does not redo it, not localized, and left out of every metric (counted as
+# ``skipped``).
 SKIPPED = "skipped"
 REASON_SKIPPED = "simulator found no acceptable view"
+SKIP_REASON = "skip_reason"  # the meta key of a source's own reason for not accepting a query
 
 
-def skipped_result() -> LocalizationResult:
-    return LocalizationResult(status=SKIPPED, reason=REASON_SKIPPED)
+def skipped_result(reason: str = REASON_SKIPPED) -> LocalizationResult:
+    """The result of a query its source did not accept (``SKIPPED``), with the reason."""
+    return LocalizationResult(status=SKIPPED, reason=reason)
 
 
 # A query whose worker process died on every try (``benchmark.ray_executor``): recorded with the reason,

@@ -35,6 +35,8 @@ from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.ray_executor import import_ray, run_ray
 from semcityloc.benchmark.results import (
+    REASON_SKIPPED,
+    SKIP_REASON,
     append_row,
     make_row,
     read_results,
@@ -106,9 +108,14 @@ class _Worker:
         self.keep = int(spec.keep_details)
 
     def run(self, index: int) -> dict[str, str]:
+        """The row of query ``index``. One its source did not accept is not localized: skipped with the
+        source's reason (``results.SKIPPED``), kept like the others (``save_estimate``: a photo's record)."""
         q = self.source.query(index)
-        if not (q.meta or {}).get("accepted", True):
-            return make_row(q, skipped_result(), self.origin)
+        meta = q.meta or {}
+        if not meta.get("accepted", True):
+            skipped = skipped_result(meta.get(SKIP_REASON, REASON_SKIPPED))
+            self.source.save_estimate(self.out_dir, q, skipped)
+            return make_row(q, skipped, self.origin)
         result = self.method.localize(q)
         if index < self.keep:
             save_details(self.out_dir / DETAILS_DIR / f"{query_id(index)}.npz", q, result, self.origin)

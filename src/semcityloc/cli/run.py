@@ -14,6 +14,7 @@ from pathlib import Path
 
 from semcityloc.benchmark.photo_source import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.results import SKIPPED
 from semcityloc.cli.city import add_model_arguments, parse_lod, print_model_warnings
 from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
@@ -151,14 +152,14 @@ def run(args: argparse.Namespace) -> int:
     # nothing before its first photo is delayed by it (the run's option checks come first).
     print_model_warnings(spec.resolved().model)
     config = outcome.config
-    skipped = config["skipped_photos"]
     if not outcome.complete:
         print(f"{len(outcome.rows)}/{config['queries']} photos done in {out}; run again to continue")
         return 0
     s = outcome.summary
+    skipped = s["skipped_photos"]  # before the run, or when its files were read (a ``skipped`` row)
     refused: dict[str, list[str]] = {}
     for row in outcome.rows:
-        if row["status"] != LOCALIZED:
+        if row["status"] not in (LOCALIZED, SKIPPED):
             name = config["query_names"][int(row["index"])]
             refused.setdefault(row["reason"] or row["status"], []).append(name)
     print(

@@ -54,19 +54,36 @@ def load_labels_png(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
     lossy format (``LOSSY_FORMATS``) is refused unless ``allow_lossy``."""
     try:
         with Image.open(path) as img:
-            if img.format in LOSSY_FORMATS and not allow_lossy:
-                raise InputFileError(
-                    f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
-                    "class ids along every edge; save masks as PNG (--allow-lossy-mask of semcityloc "
-                    "localize, run and the data-set benchmark forces it)"
-                )
-            if img.mode not in ("P", "L"):
-                raise InputFileError(
-                    f"{path}: label PNG must be a palette or grey image of class ids, got {img.mode}"
-                )
+            _check_label_image(img, path, allow_lossy)
             return np.array(img, dtype=np.uint8)
     except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read label image ({exc})") from exc
+
+
+def check_label_header(path: str | Path, allow_lossy: bool = False) -> None:
+    """What ``load_labels_png`` refuses that a label image's header tells (a lossy format unless
+    ``allow_lossy``, a mode other than palette or grey), its pixels not decoded: a photo run checks every
+    mask this way before its first photo (``benchmark.photo_source``)."""
+    try:
+        with Image.open(path) as img:
+            _check_label_image(img, path, allow_lossy)
+    except IMAGE_DECODE_ERRORS as exc:
+        raise InputFileError(f"{path}: cannot read label image ({exc})") from exc
+
+
+def _check_label_image(img: Image.Image, path: str | Path, allow_lossy: bool) -> None:
+    """``InputFileError`` naming ``path`` when the opened label image ``img`` is in a lossy format (unless
+    ``allow_lossy``) or not a palette or grey image."""
+    if img.format in LOSSY_FORMATS and not allow_lossy:
+        raise InputFileError(
+            f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
+            "class ids along every edge; save masks as PNG (--allow-lossy-mask of semcityloc "
+            "localize, run and the data-set benchmark forces it)"
+        )
+    if img.mode not in ("P", "L"):
+        raise InputFileError(
+            f"{path}: label PNG must be a palette or grey image of class ids, got {img.mode}"
+        )
 
 
 def save_depth(depth: np.ndarray, path_png: str | Path) -> tuple[Path, Path]:
