@@ -196,11 +196,12 @@ def test_bad_vertex_indices_skip_only_that_polygon(tmp_path):
     shell[2] = [[0, 1, 999, 4]]  # out of range
     shell[3] = [[1, 2, 6, -3]]  # negative: must not wrap around to the end of the list
     shell[4] = [[2, 3, "7", 6]]  # not an integer
+    shell[5] = [[3, 0, True, 7]]  # JSON true: numpy read it as vertex 1 (stop 45's audit)
     model = read_cityjson(write(tmp_path, doc))
-    assert class_counts(model) == (2, 2, 2)
+    assert class_counts(model) == (2, 0, 2)  # roof, walls (the four gone), ground
     assert model.stats.polygons == 6
-    assert any("skipped 3 polygons with invalid vertex indices" in w for w in model.stats.warnings)
-    assert model.stats.malformed_polygons == 3 and model.summary()["skipped"]["malformed_polygons"] == 3
+    assert any("skipped 4 polygons with invalid vertex indices" in w for w in model.stats.warnings)
+    assert model.stats.malformed_polygons == 4 and model.summary()["skipped"]["malformed_polygons"] == 4
 
 
 def test_only_bad_polygons_is_an_empty_model(tmp_path):

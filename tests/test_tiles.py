@@ -22,6 +22,7 @@ from semcityloc.citymodel.tiles import (
     TileStore,
     build_store,
     load_city,
+    merge_models,
     model_nbytes,
 )
 from semcityloc.cli.main import main
@@ -215,6 +216,17 @@ def test_mixed_formats_one_origin_and_the_cli(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv(BUDGET_ENV, "lots")
     assert main(["city", "info", str(tmp_path / "store")]) == 2
     assert BUDGET_ENV in capsys.readouterr().err
+
+
+def test_merged_tiles_keep_their_readers_warnings_naming_the_file(tmp_path):
+    """A skipped roof in one tile must show like one in a single file: the counts were summed, the warnings
+    dropped (noticed at stop 45)."""
+    gml = generate_city(tmp_path / "gen", seed=2, lods=(2,))[2]
+    a, b = load_city_model(gml, cache=False), load_city_model(gml, cache=False)
+    a.stats.warnings.append("skipped 6 polygons with NaN coordinates")
+    merged = merge_models([a, b])
+    assert f"{gml.name}: skipped 6 polygons with NaN coordinates" in merged.stats.warnings
+    assert len(merged.stats.warnings) == len(a.stats.warnings) + len(b.stats.warnings)
 
 
 @pytest.mark.slow

@@ -444,8 +444,8 @@ class _CityJSONReader:
         rings = []
         n = len(verts)
         for ring in surface:
-            if not isinstance(ring, list) or not ring:
-                return None
+            if not isinstance(ring, list) or not ring or any(v is True or v is False for v in ring):
+                return None  # JSON true / false are no vertex index (numpy would read true as 1)
             try:
                 idx = np.asarray(ring)
             except (TypeError, ValueError):

@@ -405,7 +405,8 @@ class TileStore:
 
 def merge_models(models: Sequence[CityModel], source: str = "") -> CityModel:
     """One model of ``models`` (all in the same origin and CRS): vertices, triangles and buildings
-    concatenated in the given order."""
+    concatenated in the given order; their readers' counts summed and their warnings kept, each prefixed
+    with the file it is about (a skipped roof in one tile must show like one in a single file)."""
     first = models[0]
     v_off = np.cumsum([0] + [len(m.vertices) for m in models[:-1]])
     b_off = np.cumsum([0] + [len(m.building_ids) for m in models[:-1]])
@@ -414,6 +415,8 @@ def merge_models(models: Sequence[CityModel], source: str = "") -> CityModel:
         for key, value in m.stats.as_dict().items():
             if isinstance(value, int):
                 setattr(stats, key, getattr(stats, key) + value)
+        name = Path(m.source).name if m.source else ""
+        stats.warnings.extend(f"{name}: {w}" if name else w for w in m.stats.warnings)
     return CityModel(
         origin=first.origin.copy(),
         vertices=np.concatenate([m.vertices for m in models]),
