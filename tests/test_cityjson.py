@@ -117,6 +117,10 @@ def test_semantics_absent_or_null_fall_back_to_normals(tmp_path):
     assert class_counts(mixed) == (2, 8, 2)
     assert mixed.stats.classified_by_normal == 2
     assert any("+FancySurface 1" in w for w in mixed.stats.warnings)
+    doc["CityObjects"]["B1"]["geometry"][0]["semantics"]["values"] = "abc"  # no list: said, not silent
+    broken = read_cityjson(write(tmp_path, doc))
+    assert class_counts(broken) == (2, 8, 2) and broken.stats.classified_by_normal == 6
+    assert any("1 semantic values pointed to no surface" in w for w in broken.stats.warnings)
 
 
 def test_semantic_class_wins_over_normal(tmp_path):

@@ -476,6 +476,8 @@ class _CityJSONReader:
         sem = geom.get("semantics") if cand.has_semantics else None
         surfaces = sem["surfaces"] if sem else []
         values = sem.get("values") if sem else None
+        if sem and not isinstance(values, list):  # e.g. "abc": no surface gets a class from it
+            self.counts.bad_semantic_values += 1
         lod = _lod_int(cand.lod)
         for surface, value in self._surfaces(geom.get("boundaries"), values, SURFACE_DEPTH[geom["type"]]):
             rings = self._rings(surface, cand.vertices)
