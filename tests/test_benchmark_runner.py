@@ -454,3 +454,43 @@ def test_real_data_options_on_simulated_queries_are_refused(cli, capsys, tmp_pat
     err = capsys.readouterr().err
     assert err.startswith("semcityloc: error:") and named in err and "--dataset" in err
     assert err.count("\n") == 1 and not (out / RESULTS_FILE).exists()
+
+
+@pytest.mark.parametrize(
+    "damage",
+    ["hello world\n", "q0001,short\n", "header"],
+    ids=["garbage-line", "short-line", "changed-header"],
+)
+def test_a_damaged_results_file_names_remedies_that_work(sim, baseline, tmp_path, damage):
+    import shutil
+
+    out = tmp_path / "damaged"
+    shutil.copytree(baseline.out_dir, out)
+    path = out / RESULTS_FILE
+    if damage == "header":
+        path.write_text(path.read_text().replace("query_id", "query", 1))
+    else:
+        with open(path, "a") as fh:
+            fh.write(damage)
+    with pytest.raises(BenchmarkError) as err:
+        run_benchmark(make_spec(sim), out, progress=False)
+    message = str(err.value)
+    assert "--overwrite" in message and "\n" not in message
+    if damage != "header":  # the line to delete, keeping the other rows
+        assert f"line {QUERIES + 2}" in message and "delete" in message
+        lines = path.read_text().splitlines(keepends=True)
+        path.write_text("".join(lines[:-1]))
+        kept = run_benchmark(make_spec(sim), out, progress=False)
+        assert kept.new_rows == 0 and differences(kept.rows, baseline.rows) == []
+        with open(path, "a") as fh:
+            fh.write(damage)
+    fresh = run_benchmark(make_spec(sim), out, overwrite=True, progress=False)  # the advice works
+    assert fresh.complete and fresh.new_rows == QUERIES
+    assert differences(csv_rows(path), baseline.rows) == []
+
+
+def test_overwrite_with_the_same_arguments_starts_again(sim, baseline, tmp_path):
+    out = tmp_path / "again"
+    run_benchmark(make_spec(sim), out, progress=False, limit=1)
+    again = run_benchmark(make_spec(sim), out, overwrite=True, progress=False, limit=1)
+    assert again.new_rows == 1 and len(csv_rows(out / RESULTS_FILE)) == 1

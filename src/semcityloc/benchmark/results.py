@@ -286,18 +286,22 @@ def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = T
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise BenchmarkError(f"{path}: not a results file of this runner ({exc}); use --overwrite") from exc
+        raise BenchmarkError(
+            f"{path}: not a results file of this runner ({exc}); pass --overwrite to start the run again"
+        ) from exc
     reader = csv.reader(io.StringIO(text))
     header = tuple(next(reader))
     if not _resumable(header) and (strict or "query_id" not in header):
         raise BenchmarkError(
-            f"{path}: its columns differ from this version's; use --overwrite or another --out"
+            f"{path}: its columns differ from this version's; pass --overwrite to start the run again, or "
+            "choose another --out"
         )
     rows: dict[str, dict[str, str]] = {}
     for n, values in enumerate(reader, start=2):
         if len(values) != len(header):
             raise BenchmarkError(
-                f"{path}: line {n} has {len(values)} fields, not {len(header)}; use --overwrite"
+                f"{path}: line {n} has {len(values)} fields, not {len(header)}: delete that line to keep "
+                "the other rows, or pass --overwrite to start the run again"
             )
         row = {c: "" for c in COLUMNS} | dict(zip(header, values, strict=True))
         rows.setdefault(row["query_id"], row)

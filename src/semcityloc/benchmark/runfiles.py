@@ -8,8 +8,9 @@ Folder ``DIR`` of a run:
 
 - ``run.json``: what decides the numbers (the spec's ``run_config``), written first. A later call with
   other arguments is refused with ``ResumeMismatchError`` naming the differing keys, unless ``overwrite``
-  (which deletes the old results). It also keeps ``code``, the package source that started the run: a
-  resume by changed code is not refused but told that its results mix (``code_change_note``).
+  (which deletes the old results, whatever the arguments: it always starts the run again). It also keeps
+  ``code``, the package source that started the run: a resume by changed code is not refused but told
+  that its results mix (``code_change_note``).
 - ``results.csv``: one row per finished query (``benchmark.results``).
 - ``details/qNNNN.npz``: the report's figures for the first ``keep_details`` queries.
 - ``summary.json``: the metrics, written when every query is done.
@@ -54,7 +55,7 @@ ESTIMATES_DIR = "estimates"
 ESTIMATES_COLMAP_DIR = "estimates_colmap"
 POSES_DIR, OVERLAYS_DIR, COLMAP_DIR = "poses", "overlays", "colmap"
 GEOTAGS_FILE, ODM_GEO_FILE, GEOJSON_FILE = "geotags.csv", "geo.txt", "cameras.geojson"
-# Everything a run writes besides run.json (removed when a run with other arguments overwrites the folder).
+# Everything a run writes besides run.json (removed by ``overwrite``).
 RUN_OUTPUTS = (
     RESULTS_FILE,
     SUMMARY_FILE,
@@ -197,7 +198,9 @@ def differing_settings(old: dict, new: dict, prefix: str = "", full: bool = Fals
 
 def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict | None:
     """Create ``out_dir`` and its ``run.json``; refuse a folder holding a run with other arguments.
-    Returns the ``run.json`` of the run being resumed (None when the run starts here)."""
+    ``overwrite`` deletes the run's files (``RUN_OUTPUTS``) and starts again, with the same arguments too
+    (a damaged ``results.csv``, a run to redo with new code). Returns the ``run.json`` of the run being
+    resumed (None when the run starts here)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     run_file, results = out_dir / RUN_FILE, out_dir / RESULTS_FILE
     mismatch = None
@@ -220,14 +223,14 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         raise ResumeMismatchError(
             f"{out_dir} holds another benchmark run: {mismatch}; pass --overwrite or choose another --out"
         )
-    if mismatch:
+    if mismatch or overwrite:  # --overwrite starts the run again, whatever the folder holds
         for name in RUN_OUTPUTS:
             path = out_dir / name
             if path.is_dir():
                 shutil.rmtree(path, ignore_errors=True)
             else:
                 path.unlink(missing_ok=True)
-    if mismatch or not run_file.exists():
+    if mismatch or overwrite or not run_file.exists():
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
         return None
     return old

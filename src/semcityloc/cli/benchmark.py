@@ -103,7 +103,7 @@ def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="discard the results in --out when they were made with other arguments",
+        help="start the run again: delete the results in --out (needed when made with other arguments)",
     )
     p.add_argument(
         "--stop-after",

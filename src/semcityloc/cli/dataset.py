@@ -143,7 +143,11 @@ def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep-details", type=int, default=3, help="save details of the first N queries")
     p.add_argument("--out", default="benchmark_output", help="output folder (default benchmark_output)")
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")
-    p.add_argument("--overwrite", action="store_true", help="discard results made with other arguments")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="start the run again: delete the results in --out (needed when made with other arguments)",
+    )
     p.add_argument(
         "--stop-after", type=int, default=None, metavar="N", help="localize at most N more queries"
     )

@@ -2,7 +2,7 @@
 photogrammetry tools and GIS read (``benchmark.photo_source`` / ``photo_exports``; docs/your-data.md).
 
 Resumable like the benchmark: run the same command again after an interruption and it continues; other
-arguments on the same ``--out`` are refused unless ``--overwrite``.
+arguments on the same ``--out`` are refused unless ``--overwrite`` (which always starts the run again).
 """
 
 from __future__ import annotations
@@ -95,7 +95,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "default) when it is the approximate 35 mm-equivalent EXIF value, on for every camera, off",
     )
     p.add_argument("--no-overlays", action="store_true", help="do not draw overlays/<stem>.png")
-    p.add_argument("--overwrite", action="store_true", help="discard results made with other arguments")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="start the run again: delete the results in --out (needed when made with other arguments)",
+    )
     p.add_argument("--stop-after", type=int, default=None, metavar="N", help="localize at most N more photos")
     p.set_defaults(func=run)
 
