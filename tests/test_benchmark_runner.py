@@ -494,3 +494,34 @@ def test_overwrite_with_the_same_arguments_starts_again(sim, baseline, tmp_path)
     run_benchmark(make_spec(sim), out, progress=False, limit=1)
     again = run_benchmark(make_spec(sim), out, overwrite=True, progress=False, limit=1)
     assert again.new_rows == 1 and len(csv_rows(out / RESULTS_FILE)) == 1
+
+
+def test_two_different_rows_of_one_query_are_refused_naming_the_id_and_lines(sim, baseline, tmp_path):
+    import shutil
+
+    out = tmp_path / "conflict"
+    shutil.copytree(baseline.out_dir, out)
+    path = out / RESULTS_FILE
+    lines = path.read_text().splitlines(keepends=True)
+    other = lines[2].replace(lines[2].split(",")[6], "1.5", 1)  # q0001 of another run, before ours
+    path.write_text(lines[0] + other + "".join(lines[1:]))
+    with pytest.raises(BenchmarkError, match=r"q0001 has 2 different rows \(lines 2 and 4\)") as err:
+        run_benchmark(make_spec(sim), out, progress=False)
+    assert "delete" in str(err.value) and "--overwrite" in str(err.value)
+    path.write_text("".join(lines[:2]) + "".join(lines[2:]) + other)  # after ours: refused too
+    with pytest.raises(BenchmarkError, match=r"q0001 has 2 different rows \(lines 3 and 5\)"):
+        run_benchmark(make_spec(sim), out, progress=False)
+
+
+def test_an_exact_duplicate_row_is_dropped_and_the_file_rewritten_without_it(sim, baseline, tmp_path):
+    import shutil
+
+    out = tmp_path / "duplicate"
+    shutil.copytree(baseline.out_dir, out)
+    path = out / RESULTS_FILE
+    original = path.read_text()
+    lines = original.splitlines(keepends=True)
+    path.write_text(original + lines[2])
+    done = run_benchmark(make_spec(sim), out, progress=False)
+    assert done.new_rows == 0 and len(done.rows) == QUERIES
+    assert path.read_text() == original

@@ -6,7 +6,8 @@ place (columns, formatting, append/read/repair, summary) keeps every run's files
 ``results.csv``: one row per finished query (``COLUMNS``), appended as ONE ``write`` of a full line
 followed by ``fsync``, by the parent process only. On start the file is read, a torn last line (no
 newline: the process died mid-write) is cut off, and the ids already there are skipped. Rows may be in any
-order (``--workers``); each id appears once. Poses: the map model's local frame (x y z m, roll pitch yaw
+order (``--workers``); each id appears once (a repeated row is dropped, two different rows of one id
+refused: ``parse_results``). Poses: the map model's local frame (x y z m, roll pitch yaw
 deg) + world x y z (``origin + local``); errors: camera-centre distance (m), full rotation angle and yaw
 (deg), "inf" when not localized; timings in s; ``sigma_xy_m`` (per axis) / ``sigma_z_m`` /
 ``sigma_yaw_deg``: the accepted pose's 1-sigma from its covariance (``localization/covariance.py``; empty
@@ -258,7 +259,8 @@ def append_row(path: Path, row: dict[str, str]) -> None:
 
 def read_results(path: Path) -> list[dict[str, str]]:
     """Rows of ``results.csv``, repairing it first: a torn last line is cut off, a missing or torn header is
-    rewritten. Rows with an id seen before are ignored (the first one counts)."""
+    rewritten. A row repeated word for word is dropped and the file rewritten without it; two different rows
+    of one id are refused (``parse_results``)."""
     data = path.read_bytes() if path.exists() else b""
     if data and not data.endswith(b"\n"):
         cut = data.rfind(b"\n") + 1
@@ -270,8 +272,8 @@ def read_results(path: Path) -> list[dict[str, str]]:
     if not data:
         write_atomic(path, ",".join(COLUMNS) + "\n")
         return []
-    rows = parse_results(data, path)
-    if not data.startswith((",".join(COLUMNS) + "\n").encode()):  # an earlier layout: brought up to date
+    rows, repeated = _parse_results(data, path, strict=True)
+    if repeated or not data.startswith((",".join(COLUMNS) + "\n").encode()):  # an earlier layout, repeats
         write_atomic(path, (",".join(COLUMNS) + "\n").encode() + b"".join(_csv_line(r) for r in rows))
     return rows
 
@@ -279,10 +281,17 @@ def read_results(path: Path) -> list[dict[str, str]]:
 def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = True) -> list[dict[str, str]]:
     """Rows of the bytes of a ``results.csv`` (read-only; a torn last line is ignored). ``strict``: the
     columns must be this version's, or this version's but ``ADDED_COLUMNS`` (a run to resume); else a file
-    of an earlier version is read by its own header. Columns of this version that a file lacks are empty."""
+    of an earlier version is read by its own header. Columns of this version that a file lacks are empty.
+    A row repeated word for word counts once; two different rows of one id (another run's row among ours)
+    are a ``BenchmarkError`` naming the id and both lines, never one of them chosen silently."""
+    return _parse_results(data, path, strict)[0]
+
+
+def _parse_results(data: bytes, path: Path | str, strict: bool) -> tuple[list[dict[str, str]], int]:
+    """``parse_results``'s rows and how many rows repeated an earlier one word for word."""
     data = data[: data.rfind(b"\n") + 1]
     if not data:
-        return []
+        return [], 0
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -297,15 +306,28 @@ def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = T
             "choose another --out"
         )
     rows: dict[str, dict[str, str]] = {}
-    for n, values in enumerate(reader, start=2):
+    first: dict[str, tuple[int, list[str]]] = {}
+    repeated = 0
+    for values in reader:
+        n = reader.line_num  # the file's line (a quoted field may hold a newline)
         if len(values) != len(header):
             raise BenchmarkError(
                 f"{path}: line {n} has {len(values)} fields, not {len(header)}: delete that line to keep "
                 "the other rows, or pass --overwrite to start the run again"
             )
         row = {c: "" for c in COLUMNS} | dict(zip(header, values, strict=True))
-        rows.setdefault(row["query_id"], row)
-    return list(rows.values())
+        qid = row["query_id"]
+        if qid in first:
+            if first[qid][1] != values:
+                raise BenchmarkError(
+                    f"{path}: query {qid} has 2 different rows (lines {first[qid][0]} and {n}): delete the "
+                    "one not of this run to keep the other rows, or pass --overwrite to start the run again"
+                )
+            repeated += 1
+            continue
+        first[qid] = (n, values)
+        rows[qid] = row
+    return list(rows.values()), repeated
 
 
 # --------------------------------------------------------------------------------------------- details
