@@ -378,3 +378,16 @@ def test_every_number_the_query_browser_gets_has_a_label():
     block = script.split("const NUMBER_LABELS = {", 1)[1].split("};", 1)[0]
     labelled = set(re.findall(r"(\w+):\s*\"", block))
     assert set(report_views.NUMBERS) <= labelled, set(report_views.NUMBERS) - labelled
+
+
+def test_rows_of_queries_the_run_does_not_have_are_left_out_and_counted(tmp_path):
+    run = fake_run(tmp_path, "extra", [(1.0, 1.0), (2.0, 2.0), (30.0, 20.0)])
+    lines = (run / RESULTS_FILE).read_text().splitlines(keepends=True)
+    stray = lines[1].replace("q0000,0,", "q0035,35,", 1)  # a row of a longer run's query
+    (run / RESULTS_FILE).write_text("".join(lines) + stray)
+    data = load_run(run)
+    assert sorted(r["query_id"] for r in data.rows) == ["q0000", "q0001", "q0002"]
+    assert data.complete and data.summary["queries"] == 3 and data.ignored == ["q0035"]
+    report = make_report([run], tmp_path / "r", overlays=0)
+    note = [n for n in report.notes if "q0035" in n]
+    assert len(note) == 1 and "1 row" in note[0] and "left out" in note[0]

@@ -80,6 +80,7 @@ class RunData:
     complete: bool
     settings: dict[str, Any] = field(default_factory=dict)  # the describable settings (``describe``)
     label: str = ""
+    ignored: list[str] = field(default_factory=list)  # ids of rows left out: no query of this run
 
 
 def load_run(path: str | Path) -> RunData:
@@ -94,9 +95,23 @@ def load_run(path: str | Path) -> RunData:
         raise BenchmarkError(f"{run_file}: unreadable ({exc})") from exc
     results = path / RESULTS_FILE
     rows = parse_results(results.read_bytes(), results, strict=False) if results.is_file() else []
+    ignored: list[str] = []
+    if "queries" in config:  # rows of ids that are not this run's queries (q0000 ... q{queries-1}) left out
+        wanted = {query_id(i) for i in range(int(config["queries"]))}
+        ignored = [r["query_id"] for r in rows if r["query_id"] not in wanted]
+        rows = [r for r in rows if r["query_id"] in wanted]
     complete = len(rows) == int(config.get("queries", -1))
     summary = summarize_rows(rows, config)  # from the rows: the same numbers as summary.json
-    return RunData(path, config, rows, summary, complete, describe(config))
+    return RunData(path, config, rows, summary, complete, describe(config), ignored=ignored)
+
+
+def ignored_note(run: RunData) -> str:
+    """The rows of a run's ``results.csv`` that are no query of the run (another run's, an edit), left out."""
+    n, shown = len(run.ignored), ", ".join(run.ignored[:5]) + (", ..." if len(run.ignored) > 5 else "")
+    return (
+        f"{run.path}: {n} row{'s' * (n != 1)} of {RESULTS_FILE} left out, not queries of this "
+        f"{run.config.get('queries')}-query run: {shown}"
+    )
 
 
 def incomplete_note(run: RunData) -> str:
@@ -713,6 +728,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     (out / "plots").mkdir(parents=True, exist_ok=True)
     differ = differing_keys(runs)
     notes: list[str] = [incomplete_note(r) for r in runs if not r.complete]
+    notes += [ignored_note(r) for r in runs if r.ignored]
     doc = ["# SemCityLoc benchmark report", "", f"Runs: {len(runs)}", ""]
     doc += [f"- `{r.path}`: {r.label}" for r in runs]
     doc += [
