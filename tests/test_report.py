@@ -391,3 +391,31 @@ def test_rows_of_queries_the_run_does_not_have_are_left_out_and_counted(tmp_path
     report = make_report([run], tmp_path / "r", overlays=0)
     note = [n for n in report.notes if "q0035" in n]
     assert len(note) == 1 and "1 row" in note[0] and "left out" in note[0]
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [("[1, 2]", "not a JSON object"), ('{"queries": "abc"}', "queries"), ('{"queries": -1}', "queries")],
+)
+def test_a_run_json_that_is_no_run_config_is_a_typed_error(tmp_path, text, match):
+    run = fake_run(tmp_path, "bad", [(1.0, 1.0)])
+    (run / RUN_FILE).write_text(text)
+    with pytest.raises(BenchmarkError, match=match):
+        load_run(run)
+
+
+def test_an_unreadable_details_file_skips_only_its_figure_with_a_note(two_runs, tmp_path):
+    import shutil
+
+    run = tmp_path / "torn"
+    shutil.copytree(two_runs[0].out_dir, run)
+    details = run / "details" / "q0000.npz"
+    details.write_bytes(details.read_bytes()[:100])
+    report = make_report([run], tmp_path / "r", overlays=2)
+    assert [p.name for p in report.plots if p.name.startswith("query_")] == ["query_00_torn_q0001.png"]
+    note = [n for n in report.notes if "q0000.npz" in n]
+    assert len(note) == 1 and "\n" not in note[0] and "no figure" in note[0]
+    from semcityloc.benchmark.report_html import make_html_report
+
+    html = make_html_report([run], tmp_path / "h")  # the query browser shows q0000 without its details
+    assert html.queries == 2 and any("q0000.npz" in n and "q0000 shown without them" in n for n in html.notes)

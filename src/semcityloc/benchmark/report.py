@@ -24,6 +24,8 @@ import csv
 import io
 import json
 import math
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,6 +95,13 @@ def load_run(path: str | Path) -> RunData:
         config = json.loads(run_file.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise BenchmarkError(f"{run_file}: unreadable ({exc})") from exc
+    if not isinstance(config, dict):
+        raise BenchmarkError(
+            f"{run_file}: not a JSON object but {type(config).__name__}; not a run's {RUN_FILE}"
+        )
+    queries = config.get("queries", 0)
+    if isinstance(queries, bool) or not isinstance(queries, int) or queries < 0:
+        raise BenchmarkError(f"{run_file}: 'queries' is {queries!r}, not a count of queries")
     results = path / RESULTS_FILE
     rows = parse_results(results.read_bytes(), results, strict=False) if results.is_file() else []
     ignored: list[str] = []
@@ -829,6 +838,16 @@ def map_renderer(run: RunData, cache: dict, notes: list[str], consequence: str):
     return cache[key]
 
 
+def readable_details(path: Path, notes: list[str], consequence: str) -> dict | None:
+    """``load_details`` of ``path``; None with a note saying ``consequence`` when the file cannot be read
+    (truncated, not an npz, a part missing): one damaged file costs its query's figure, not the report."""
+    try:
+        return load_details(path)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        notes.append(f"{path}: unreadable details ({type(exc).__name__}: {exc}); {consequence}")
+        return None
+
+
 def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: list[str]) -> list[Path]:
     figures: list[Path] = []
     maps: dict[str, Any] = {}
@@ -841,7 +860,9 @@ def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: l
             continue
         model, renderer = pair
         for f in files:
-            details = load_details(f)
+            details = readable_details(f, notes, f"no figure of {f.stem}")
+            if details is None:
+                continue
             photo = photo_of(run.config, details["meta"].get("query_meta") or {})
             name = f"query_{n:02d}_{_slug(run.path.name)}_{f.stem}.png"
             title = f"{run.label} {f.stem}"

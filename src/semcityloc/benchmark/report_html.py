@@ -38,6 +38,7 @@ from semcityloc.benchmark.report import (
     noise_x,
     photo_of,
     prior_noise_groups,
+    readable_details,
     sweep_x,
 )
 from semcityloc.benchmark.report_plotly import (
@@ -53,7 +54,7 @@ from semcityloc.benchmark.report_plotly import (
     risk_coverage_figure,
 )
 from semcityloc.benchmark.report_views import POSES, error_bins, query_camera, query_view
-from semcityloc.benchmark.results import load_details, row_pose
+from semcityloc.benchmark.results import row_pose
 from semcityloc.benchmark.runfiles import DETAILS_DIR, json_safe, write_atomic
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import BenchmarkError
@@ -101,7 +102,7 @@ def _maps(runs: list[RunData], notes: list[str]) -> list[tuple[CityModel, Render
     return [map_renderer(run, cache, notes, "its queries show no model") for run in runs]
 
 
-def _entries(runs, maps, max_queries: int | None) -> list[dict[str, Any]]:
+def _entries(runs, maps, max_queries: int | None, notes: list[str]) -> list[dict[str, Any]]:
     entries = []
     for n, (run, pair) in enumerate(zip(runs, maps, strict=True)):
         renderer = pair[1] if pair is not None else None
@@ -109,7 +110,8 @@ def _entries(runs, maps, max_queries: int | None) -> list[dict[str, Any]]:
         fallback = None
         for row in rows:
             path = run.path / DETAILS_DIR / f"{row['query_id']}.npz"
-            details = load_details(path) if path.is_file() else None
+            shown = f"{row['query_id']} shown without them"
+            details = readable_details(path, notes, shown) if path.is_file() else None
             meta = details["meta"].get("query_meta") if details is not None else None
             meta = meta or json.loads(row.get("meta_json") or "{}")
             view = query_view(run.path, run.config, row, details, renderer, photo_of(run.config, meta))
@@ -255,7 +257,7 @@ def make_html_report(
     label_runs(runs)
     notes = list(notes)
     maps = _maps(runs, notes)
-    entries = _entries(runs, maps, max_queries)
+    entries = _entries(runs, maps, max_queries, notes)
     figures = _figures(runs, entries)
     city = _city(runs, maps, entries, notes)
     frusta = {}
