@@ -156,7 +156,7 @@ def run_queries(
         source: the queries; None = ``spec.open_source(config)``, opened only when a query is left to do
             (a finished run is summarised without loading a model).
         workers: processes localizing queries in parallel (each builds its method once).
-        overwrite: start afresh when ``out_dir`` holds a run with other arguments.
+        overwrite: start afresh (the run's own files in ``out_dir`` removed), whatever ``out_dir`` holds.
         limit: process at most this many new queries in this call, then stop (a later call resumes).
         progress: True for the bar on stderr, False for none, or a stream.
         config: ``spec.run_config()`` when the caller has it already.
