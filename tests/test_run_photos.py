@@ -874,3 +874,26 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
     code, _, err = run(capsys, *argv, *backend, "--no-cache", "--no-overlays", "--out", tmp_path / "backend")
     assert code == 0, err
     assert f"was estimated from {len(views)} oblique ones" in err and built == ["files"]
+
+
+def test_a_finished_run_whose_pose_files_were_deleted_refuses_to_export_naming_them(
+    box_flight, tmp_path, capsys
+):
+    """Pose files deleted after a run used to give exports without those photos (COLMAP lacking them,
+    the GeoJSON marking them "no result" at their prior) while the summary counted them localized, exit 0:
+    now a run again refuses in one line naming the files and the remedy; deleting those rows redoes them."""
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    (out / "poses" / "P0.json").unlink()
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and "P0.json" in err and "results.csv" in err and err.count("\n") == 1, err
+    shutil.rmtree(out / "poses")
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and "2 finished photos have no pose file" in err and "P0.json, P1.json" in err, err
+    lines = (out / "results.csv").read_text().splitlines(keepends=True)
+    (out / "results.csv").write_text("".join(lines[:1]))  # the remedy: their rows deleted, they run again
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    assert len(read_model(out / "colmap").poses()) == 2

@@ -35,6 +35,7 @@ from semcityloc.benchmark.runfiles import (
     GEOTAGS_FILE,
     ODM_GEO_FILE,
     POSES_DIR,
+    RESULTS_FILE,
     json_safe,
     write_atomic,
 )
@@ -75,9 +76,8 @@ def ground_z(model: CityModel) -> float:
     return float(np.median(z) + model.origin[2]) if z.size else float(model.origin[2])
 
 
-def _read_record(path: Path) -> dict | None:
-    if not path.is_file():
-        return None
+def _read_record(path: Path) -> dict:
+    """A finished photo's ``poses/<stem>.json`` record (``write_exports`` checked that it exists)."""
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
@@ -326,6 +326,23 @@ def focal_notes(inputs: list) -> list[str]:
     return list(notes)
 
 
+def check_records(out_dir: Path, inputs: list) -> None:
+    """Refuse in one line when a finished photo (every one of ``inputs`` has its row in ``results.csv``
+    when the exports are written) has no ``poses/<stem>.json``: its record (covariance, search, prior) is
+    not in the row, so the exports would lack it (COLMAP without it, the GeoJSON and geotags at its prior
+    as "no result") while the summary counts it. Deleting its row redoes it."""
+    missing = [
+        f"{inp.stem}.json" for inp in inputs if not (out_dir / POSES_DIR / f"{inp.stem}.json").is_file()
+    ]
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" (+{len(missing) - 5} more)" if len(missing) > 5 else "")
+        count = f"{len(missing)} finished {'photo has' if len(missing) == 1 else 'photos have'}"
+        raise InputFileError(
+            f"{out_dir / POSES_DIR}: {count} no pose file ({shown}), so no exports were written; delete "
+            f"their rows from {out_dir / RESULTS_FILE} and run again to redo them (or --overwrite)"
+        )
+
+
 def write_exports(
     out_dir: Path, model: CityModel, inputs: list, offset: np.ndarray | None, target_height: str
 ) -> dict[str, Any]:
@@ -333,10 +350,11 @@ def write_exports(
     ``{output: path or None}`` and ``notes`` for the summary."""
     out_dir = Path(out_dir)
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
+    check_records(out_dir, inputs)
     records, estimates = {}, {}
     for inp in inputs:
         path = out_dir / POSES_DIR / f"{inp.stem}.json"
-        records[inp.name] = _read_record(path) or {}
+        records[inp.name] = _read_record(path)
         status = records[inp.name].get("status", records[inp.name].get("extra", {}).get("status"))
         if status == LOCALIZED:
             estimates[inp.name] = read_pose(path)
