@@ -54,8 +54,11 @@ class Pose:
     __slots__ = ("R", "t")
 
     def __init__(self, R_cam_from_world: np.ndarray, t_cam_from_world: np.ndarray):
-        R = np.asarray(R_cam_from_world, dtype=np.float64)
-        t = np.asarray(t_cam_from_world, dtype=np.float64)
+        # C-contiguous copies, not views: numpy's matrix products round by the operands' memory layout, and a
+        # pose pickled to a worker process arrives C-contiguous; a transposed view here gave ``--workers 1``
+        # poses up to 0.1 m apart from ``--workers 2`` ones (``tests/test_run_photos.py``).
+        R = np.ascontiguousarray(R_cam_from_world, dtype=np.float64)
+        t = np.ascontiguousarray(t_cam_from_world, dtype=np.float64)
         if R.shape[-2:] != (3, 3) or t.shape[-1:] != (3,) or R.shape[:-2] != t.shape[:-1]:
             raise ShapeError(f"pose needs R (..., 3, 3) and t (..., 3), got {R.shape} and {t.shape}")
         if not np.all(np.isfinite(t)):
