@@ -7,8 +7,14 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import errno
 import io
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +34,13 @@ from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import RESULTS_FILE, Progress
 from semcityloc.benchmark.spec import BenchmarkSpec, load_models
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import BenchmarkError, InputFileError, ParameterError, ResumeMismatchError
+from semcityloc.errors import (
+    BenchmarkError,
+    InputFileError,
+    OutputPathError,
+    ParameterError,
+    ResumeMismatchError,
+)
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.methods import available_methods, get_method
@@ -525,3 +537,142 @@ def test_an_exact_duplicate_row_is_dropped_and_the_file_rewritten_without_it(sim
     done = run_benchmark(make_spec(sim), out, progress=False)
     assert done.new_rows == 0 and len(done.rows) == QUERIES
     assert path.read_text() == original
+
+
+# ------------------------------------------------------------------------- a full disk, a parent killed
+def _enospc(*_args, **_kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_full_disk_mid_run_keeps_the_finished_rows_and_resumes(sim, baseline, tmp_path, monkeypatch):
+    """The second row's write fails half-way (a full disk): one typed error naming the file, the cause, what
+    to do and how many rows are kept; the file holds whole rows only, and the same call resumes."""
+    from semcityloc.benchmark import results
+
+    out = tmp_path / "full"
+    calls = []
+
+    def half_then_full(fd, data):
+        calls.append(data)
+        if len(calls) == 2:
+            os.write(fd, data[: len(data) // 2])
+            _enospc()
+        os.write(fd, data)
+
+    monkeypatch.setattr(results, "write_all", half_then_full)
+    with pytest.raises(OutputPathError) as err:
+        run_benchmark(make_spec(sim), out, progress=False)
+    message = str(err.value)
+    assert message == (
+        f"cannot write {out / RESULTS_FILE}: No space left on device; free space and run the same command "
+        "again: the 1 finished rows are kept"
+    )
+    lines = (out / RESULTS_FILE).read_text().splitlines(keepends=True)
+    assert len(lines) == 2 and lines[-1].endswith("\n") and lines[-1].startswith("q0000,")
+    monkeypatch.undo()
+    resumed = run_benchmark(make_spec(sim), out, progress=False)
+    assert resumed.complete and resumed.new_rows == QUERIES - 1
+    assert differences(csv_rows(out / RESULTS_FILE), baseline.rows) == []
+
+
+def test_a_full_disk_while_saving_details_leaves_no_temporary_file(sim, tmp_path, monkeypatch, cli, capsys):
+    out = tmp_path / "details_full"
+
+    def partial_npz(file, **_arrays):
+        Path(file).write_bytes(b"PK" * 1000)  # what fit on the disk
+        _enospc()
+
+    monkeypatch.setattr(np, "savez_compressed", partial_npz)
+    args = ["benchmark", "--city", "generated", "--queries", "2", "--preset", "fast", "--out", str(out)]
+    assert cli([*args, "--keep-details", "1"]) == 2
+    err = capsys.readouterr().err
+    last = err.splitlines()[-1]  # after the progress line, one line
+    assert last.startswith("semcityloc: error: ") and "Traceback" not in err
+    assert f"cannot write {out / 'details' / 'q0000.npz'}: No space left on device" in err
+    assert "the 0 finished rows are kept" in err
+    assert [p.name for p in (out / "details").iterdir()] == []  # no .q0000.<pid>.tmp.npz keeps it full
+
+
+def test_write_atomic_names_the_file_and_leaves_no_temporary_file(tmp_path, monkeypatch):
+    from semcityloc.benchmark import runfiles
+
+    monkeypatch.setattr(runfiles.os, "fsync", _enospc)
+    with pytest.raises(OSError) as err:
+        runfiles.write_json_atomic(tmp_path / "P059.json", {"a": 1})
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(tmp_path / "P059.json")
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(OutputPathError, match=r"P059.json: No space left on device; free space and run"):
+        with runfiles.writing():
+            runfiles.write_atomic(tmp_path / "P059.json", "x")
+
+
+def test_a_resumed_run_removes_temporary_files_no_live_process_owns(sim, tmp_path):
+    from semcityloc.benchmark.runfiles import remove_stale_temps
+
+    out = tmp_path / "stale"
+    run_benchmark(make_spec(sim), out, progress=False, limit=1)
+    dead, live = 999_999_999, os.getppid()  # no pid is that large; our parent is alive
+    stale = [out / "details" / f".q0001.{dead}.tmp.npz", out / f".summary.json.{dead}.tmp"]
+    kept = [out / "details" / f".q0002.{live}.tmp.npz", out / "details" / "q0000.npz", out / "notes.tmp"]
+    for path in stale + kept[:1] + kept[2:]:
+        path.write_bytes(b"x" * 100)
+    done = run_benchmark(make_spec(sim), out, progress=False)
+    assert done.complete
+    assert [p for p in stale if p.exists()] == [] and all(p.exists() for p in kept)
+    (out / "estimates").mkdir()
+    (out / "estimates" / ".q0001.tmp.json").write_text("{")
+    assert remove_stale_temps(out, ("estimates",)) == 1
+
+
+_GRANDCHILD = """
+import sys, time
+from semcityloc.benchmark.run import _die_with_parent
+_die_with_parent(int(sys.argv[1]))
+open(sys.argv[2], "w").close()
+time.sleep(120)
+"""
+_MIDDLE = """
+import os, subprocess, sys, time
+p = subprocess.Popen([sys.executable, "-c", sys.argv[1], str(os.getpid()), sys.argv[2]])
+print(p.pid, flush=True)
+time.sleep(120)
+"""
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] in "ZX"
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_pool_worker_ends_when_its_parent_is_killed(tmp_path, sig):
+    ready = tmp_path / "ready"
+    middle = subprocess.Popen(
+        [sys.executable, "-c", _MIDDLE, _GRANDCHILD, str(ready)], stdout=subprocess.PIPE, text=True
+    )
+    worker = int(middle.stdout.readline())
+    try:
+        deadline = time.monotonic() + 60
+        while not ready.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert ready.exists() and not _gone(worker)
+        middle.send_signal(sig)
+        middle.wait(10)
+        deadline = time.monotonic() + 10
+        while not _gone(worker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _gone(worker), "the worker outlived its parent"
+    finally:
+        if not _gone(worker):
+            os.kill(worker, signal.SIGKILL)
+        middle.kill()
+
+
+def test_a_pool_worker_whose_parent_is_already_gone_ends_at_once():
+    code = "from semcityloc.benchmark.run import _die_with_parent; _die_with_parent(1); print('alive')"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and "alive" not in done.stdout

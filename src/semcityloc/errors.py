@@ -101,7 +101,8 @@ class RunLockedError(BenchmarkError):
 
 class OutputPathError(SemCityLocError):
     """An output path that cannot be written (its parent is a file, it is a file where a folder is needed,
-    or its folder is read-only or immutable); checked before any work."""
+    or its folder is read-only or immutable); checked before any work. Also an output that fails mid-run
+    (a full disk, a folder made read-only): the message names the file, the cause and the rows kept."""
 
 
 _E = TypeVar("_E", bound=Exception)

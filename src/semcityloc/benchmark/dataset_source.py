@@ -41,7 +41,13 @@ from semcityloc import __version__
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
-from semcityloc.benchmark.runfiles import ESTIMATES_COLMAP_DIR, ESTIMATES_DIR, plain
+from semcityloc.benchmark.runfiles import (
+    ESTIMATES_COLMAP_DIR,
+    ESTIMATES_DIR,
+    plain,
+    removed_on_error,
+    writing,
+)
 from semcityloc.benchmark.spec import check_run_options
 from semcityloc.citymodel.io import file_sha256
 from semcityloc.citymodel.model import CityModel
@@ -303,5 +309,6 @@ class DatasetSource:
             extra = {"image": self.queries[q.index].name}
             if result.covariance is not None:
                 extra["covariance"] = covariance_dict(result.covariance)
-            write_pose_json(result.pose_local, tmp, origin=self.map_model.origin, extra=extra)
-            tmp.replace(path)
+            with writing(path), removed_on_error(tmp):
+                write_pose_json(result.pose_local, tmp, origin=self.map_model.origin, extra=extra)
+                tmp.replace(path)

@@ -56,7 +56,14 @@ from semcityloc.benchmark import focal_cache
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.results import SKIP_REASON, SKIPPED
-from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, Progress, plain, write_json_atomic
+from semcityloc.benchmark.runfiles import (
+    OVERLAYS_DIR,
+    POSES_DIR,
+    Progress,
+    plain,
+    write_json_atomic,
+    writing,
+)
 from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
@@ -645,7 +652,8 @@ class PhotoSource:
             data = pose_to_dict(estimate, origin=model.origin, crs=crs_label(model.crs), extra=record)
         else:
             data = record
-        write_json_atomic(folder / f"{inp.stem}.json", data)
+        with writing(folder / f"{inp.stem}.json"):
+            write_json_atomic(folder / f"{inp.stem}.json", data)
         if self.spec.overlays and result.status != SKIPPED:
             photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
@@ -653,5 +661,7 @@ class PhotoSource:
             if estimate is not None:
                 panels.insert(0, (model.pose_to_world(estimate), GT_COLOR, ESTIMATE_TITLE))
             figure = edges_figure(photo, model, camera, panels, self.renderer)
-            (out_dir / OVERLAYS_DIR).mkdir(exist_ok=True)
-            save_png(figure, out_dir / OVERLAYS_DIR / f"{inp.stem}.png")
+            png = out_dir / OVERLAYS_DIR / f"{inp.stem}.png"
+            with writing(png):
+                png.parent.mkdir(exist_ok=True)
+                save_png(figure, png)

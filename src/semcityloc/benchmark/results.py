@@ -30,6 +30,7 @@ under ``skipped``.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -42,7 +43,14 @@ import numpy as np
 
 from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
-from semcityloc.benchmark.runfiles import RESULTS_FILE, plain, write_all, write_atomic
+from semcityloc.benchmark.runfiles import (
+    RESULTS_FILE,
+    plain,
+    removed_on_error,
+    write_all,
+    write_atomic,
+    writing,
+)
 from semcityloc.classes import NUM_CLASSES
 from semcityloc.errors import BenchmarkError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall, summarize_errors
@@ -248,13 +256,22 @@ def _csv_line(row: dict[str, str]) -> bytes:
 
 
 def append_row(path: Path, row: dict[str, str]) -> None:
-    """Append one row as a single full-line write, then fsync (a crash loses at most this line)."""
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        write_all(fd, _csv_line(row))
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    """Append one row as a single full-line write, then fsync (a crash loses at most this line). A write
+    that fails (a full disk) is cut off again, so the file keeps whole lines only; the error is
+    ``runfiles.write_error`` naming the file."""
+    with writing(path):
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            size = os.fstat(fd).st_size
+            try:
+                write_all(fd, _csv_line(row))
+                os.fsync(fd)
+            except OSError:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, size)
+                raise
+        finally:
+            os.close(fd)
 
 
 def read_results(path: Path) -> list[dict[str, str]]:
@@ -367,8 +384,9 @@ def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, orig
         "meta": np.frombuffer(json.dumps(plain(meta)).encode("utf-8"), dtype=np.uint8),
     }
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    os.replace(tmp, path)
+    with writing(path), removed_on_error(tmp):
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
 
 
 def details_depth(depth: np.ndarray | None) -> np.ndarray:

@@ -19,8 +19,10 @@ seeds its own generator per query.
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
+import signal
 import sys
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -47,22 +49,29 @@ from semcityloc.benchmark.results import (
 from semcityloc.benchmark.runfiles import (
     CODE_KEY,
     DETAILS_DIR,
+    ESTIMATES_DIR,
+    OVERLAYS_DIR,
+    POSES_DIR,
     RESULTS_FILE,
     SUMMARY_FILE,
     Progress,
     code_change_note,
     prepare_output,
+    remove_stale_temps,
     run_lock,
     write_json_atomic,
+    writing,
 )
 from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
-from semcityloc.errors import BenchmarkError, unknown_choice
+from semcityloc.errors import BenchmarkError, OutputPathError, unknown_choice
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
 from semcityloc.localization.tiled import TiledMethod
 
 EXECUTORS = ("local", "ray")  # where queries run: this process / a process pool, or Ray
+# Folders of a run where atomic writes leave temporary files (removed on resume when no process owns them).
+TEMP_FOLDERS = ("", DETAILS_DIR, ESTIMATES_DIR, POSES_DIR, OVERLAYS_DIR)
 
 
 class RunSpec(Protocol):
@@ -126,8 +135,27 @@ class _Worker:
 _PROCESS_WORKER: _Worker | None = None
 
 
-def _init_process(threads: int, spec: RunSpec, source: QuerySource, out_dir: Path) -> None:
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _die_with_parent(parent: int) -> None:
+    """Make this pool worker end with the process that started it (``parent``), even when that one is
+    killed (SIGKILL, SIGTERM): else each worker, hundreds of MB, would live on as an orphan. On Linux the
+    kernel sends SIGTERM when the parent dies (``prctl(PR_SET_PDEATHSIG)``); elsewhere that is skipped.
+    A parent that died before this ran (the worker already adopted by another) ends the worker now."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - a libc without prctl
+            pass
+    if os.getppid() != parent:
+        os._exit(1)
+
+
+def _init_process(parent: int, threads: int, spec: RunSpec, source: QuerySource, out_dir: Path) -> None:
     global _PROCESS_WORKER
+    _die_with_parent(parent)
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     _PROCESS_WORKER = _Worker(spec, source, out_dir)
 
@@ -186,11 +214,13 @@ def _run_locked(
     source, spec, out: Path, config: dict, workers, overwrite, limit, progress, executor, ray_address
 ) -> BenchmarkOutcome:
     """``run_queries`` once it holds the folder's lock."""
-    resumed = prepare_output(out, config, overwrite)
-    results_path = out / RESULTS_FILE
-    total = int(config["queries"])
-    wanted = {query_id(i) for i in range(total)}
-    rows = [r for r in read_results(results_path) if r["query_id"] in wanted]
+    with writing(folder=out):  # run.json, a repaired results.csv
+        resumed = prepare_output(out, config, overwrite)
+        remove_stale_temps(out, TEMP_FOLDERS)  # we hold the lock: no other run writes here
+        results_path = out / RESULTS_FILE
+        total = int(config["queries"])
+        wanted = {query_id(i) for i in range(total)}
+        rows = [r for r in read_results(results_path) if r["query_id"] in wanted]
     done = {r["query_id"] for r in rows}
     todo = [i for i in range(total) if query_id(i) not in done]
     if limit is not None:
@@ -219,6 +249,9 @@ def _run_locked(
                 new_rows.append(row)
                 if bar:
                     bar.update()
+        except OutputPathError as exc:  # a full disk, a folder made read-only: what is finished is kept
+            kept = len(done) + len(new_rows)
+            raise OutputPathError(f"{exc}: the {kept} finished rows are kept") from exc
         finally:
             finished.close()  # stops the pool at once when the loop ends by an error
             if bar:
@@ -228,8 +261,12 @@ def _run_locked(
     summary = None
     if complete:
         summary = summarize_rows(rows, config)
-        spec.finish(out, rows, summary)
-        write_json_atomic(out / SUMMARY_FILE, summary)
+        try:
+            with writing(folder=out):  # the exports and summary.json (names the file that failed)
+                spec.finish(out, rows, summary)
+                write_json_atomic(out / SUMMARY_FILE, summary)
+        except OutputPathError as exc:
+            raise OutputPathError(f"{exc}: all {total} rows are kept") from exc
     return BenchmarkOutcome(out, complete, len(new_rows), rows, summary, config)
 
 
@@ -261,7 +298,7 @@ def _run_pool(todo: list[int], workers: int, worker_args: tuple) -> Iterator[dic
     threads = max(1, (os.cpu_count() or 1) // workers)
     ctx = multiprocessing.get_context("spawn")  # numba's thread pools are not fork-safe
     pool = ProcessPoolExecutor(
-        workers, mp_context=ctx, initializer=_init_process, initargs=(threads, *worker_args)
+        workers, mp_context=ctx, initializer=_init_process, initargs=(os.getpid(), threads, *worker_args)
     )
     try:
         pending = {pool.submit(_run_in_process, i) for i in todo}

@@ -20,7 +20,9 @@ Folder ``DIR`` of a run:
   ``overlays/<stem>.png``, and when every photo is done ``colmap/``, ``geotags.csv``, ``geo.txt``,
   ``cameras.geojson``.
 
-A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) before it starts.
+A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) before it starts. A write that
+fails mid-run (a full disk) is ``write_error``: one line naming the file; it leaves no temporary file, and a
+resumed run removes those a killed one left (``remove_stale_temps``).
 
 - ``run.lock``: held while a run writes the folder (``run_lock``): an exclusive ``flock`` on it, and the
   pid, host and start time of its holder inside. A second run on the same folder is refused
@@ -31,10 +33,12 @@ A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) be
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import json
 import math
 import os
+import re
 import shutil
 import socket
 import sys
@@ -43,7 +47,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from semcityloc.errors import ResumeMismatchError, RunLockedError
+from semcityloc.errors import OutputPathError, ResumeMismatchError, RunLockedError
 from semcityloc.geometry.io import json_default
 
 RUN_FILE = "run.json"
@@ -105,15 +109,103 @@ def write_all(fd: int, data: bytes) -> None:
 
 
 def write_atomic(path: Path, data: bytes | str) -> None:
-    """Write ``path`` through a temporary file in the same folder and ``os.replace`` (never half-written)."""
+    """Write ``path`` through a temporary file in the same folder and ``os.replace`` (never half-written).
+    An ``OSError`` (a full disk) names ``path`` and leaves no temporary file."""
     if isinstance(data, str):
         data = data.encode("utf-8")
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with removed_on_error(tmp):  # a failed write leaves no temporary file (it would keep a disk full)
+            with open(tmp, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+    except OSError as exc:  # the same kind of error, naming the file meant, not the temporary one
+        if exc.filename == str(path):
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+
+
+@contextlib.contextmanager
+def removed_on_error(tmp: Path) -> Iterator[None]:
+    """Remove the temporary file ``tmp`` when the block fails (a full disk stays no fuller), then re-raise."""
+    try:
+        yield
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise
+
+
+# What the user can do about an output that cannot be written, by errno.
+_WRITE_FIX = {
+    errno.ENOSPC: "free space",
+    errno.EDQUOT: "free space",
+    errno.EROFS: "make it writable",
+    errno.EACCES: "make it writable",
+    errno.EPERM: "make it writable",
+}
+
+
+def write_error(path: Path | str, exc: OSError) -> OutputPathError:
+    """The one-line error for an output that could not be written mid-run: the file, the cause and what to
+    do ("cannot write OUT/results.csv: No space left on device; free space and run the same command
+    again"). The run loop adds how many finished rows are kept."""
+    cause = exc.strerror or str(exc) or type(exc).__name__
+    fix = _WRITE_FIX.get(exc.errno, "fix it")
+    return OutputPathError(f"cannot write {path}: {cause}; {fix} and run the same command again")
+
+
+@contextlib.contextmanager
+def writing(path: Path | str | None = None, folder: Path | str = "the run's folder") -> Iterator[None]:
+    """Turn an ``OSError`` of the block (writing ``path``; None: the file the error names, else ``folder``)
+    into ``write_error``."""
+    try:
+        yield
+    except OSError as exc:
+        raise write_error(path if path is not None else exc.filename or folder, exc) from exc
+
+
+# A temporary file of an atomic write: ``.NAME.PID.tmp``, ``.STEM.PID.tmp.npz``, ``.ID.tmp.json``.
+_TMP_NAME = re.compile(r"^\..+?(?:\.(\d+))?\.tmp(?:\.\w+)?$")
+
+
+def remove_stale_temps(out_dir: Path, folders: tuple[str, ...] = ("",)) -> int:
+    """Remove the temporary files of atomic writes in ``out_dir`` (and its ``folders``) that no live
+    process owns: left by a run killed, or stopped by a full disk, between writing and renaming one. Only
+    called by the holder of the folder's lock (no other run writes it); a file named by the pid of a live
+    process is kept. Returns how many were removed."""
+    removed = 0
+    for name in folders:
+        folder = out_dir / name if name else out_dir
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            match = _TMP_NAME.match(entry.name)
+            if not match or not entry.is_file(follow_symlinks=False):
+                continue
+            if match.group(1) and _alive(int(match.group(1))):
+                continue
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
+                removed += 1
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists (ours or another user's)."""
+    if pid == os.getpid():
+        return False  # this process writes nothing while it cleans up
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, OverflowError):
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def write_json_atomic(path: Path, value: Any) -> None:

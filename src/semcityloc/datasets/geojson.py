@@ -110,9 +110,15 @@ def cameras_geojson(
 
 
 def write_geojson(collection: dict, path: str | os.PathLike) -> Path:
-    """Strict JSON (``allow_nan=False``), written through a temporary file."""
+    """Strict JSON (``allow_nan=False``), written through a temporary file; an ``OSError`` (a full disk)
+    names ``path`` and leaves no temporary file."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(collection, default=json_default, allow_nan=False) + "\n", encoding="utf-8")
-    tmp.replace(path)
+    text = json.dumps(collection, default=json_default, allow_nan=False) + "\n"
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
     return path
