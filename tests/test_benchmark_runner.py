@@ -614,6 +614,7 @@ def test_a_resumed_run_removes_temporary_files_no_live_process_owns(sim, tmp_pat
     dead, live = 999_999_999, os.getppid()  # no pid is that large; our parent is alive
     stale = [out / "details" / f".q0001.{dead}.tmp.npz", out / f".summary.json.{dead}.tmp"]
     kept = [out / "details" / f".q0002.{live}.tmp.npz", out / "details" / "q0000.npz", out / "notes.tmp"]
+    kept.append(out / ".my-notes.tmp")  # a hidden file of the user's, named like no temp file of ours
     for path in stale + kept[:1] + kept[2:]:
         path.write_bytes(b"x" * 100)
     done = run_benchmark(make_spec(sim), out, progress=False)

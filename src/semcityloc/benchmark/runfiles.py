@@ -168,7 +168,10 @@ def writing(path: Path | str | None = None, folder: Path | str = "the run's fold
 
 
 # A temporary file of an atomic write: ``.NAME.PID.tmp``, ``.STEM.PID.tmp.npz``, ``.ID.tmp.json``.
-_TMP_NAME = re.compile(r"^\..+?(?:\.(\d+))?\.tmp(?:\.\w+)?$")
+# The temporary files this package's atomic writes make: ``.NAME.PID.tmp``, ``.qNNNN.PID.tmp.npz`` (with the
+# writer's pid), and the two without one (``.qNNNN.tmp.json`` estimates, ``.cameras.geojson.tmp``). Nothing
+# else is touched: an --out folder may hold the user's own hidden files.
+_TMP_NAME = re.compile(r"^\.(?:.+\.(\d+)\.tmp(?:\.\w+)?|q\d+\.tmp\.json|cameras\.geojson\.tmp)$")
 
 
 def remove_stale_temps(out_dir: Path, folders: tuple[str, ...] = ("",)) -> int:
