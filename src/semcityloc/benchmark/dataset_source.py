@@ -45,7 +45,6 @@ from semcityloc.benchmark.runfiles import (
     ESTIMATES_COLMAP_DIR,
     ESTIMATES_DIR,
     plain,
-    removed_on_error,
     writing,
 )
 from semcityloc.benchmark.spec import check_run_options
@@ -58,6 +57,7 @@ from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.files import removed_on_error
 from semcityloc.io.images import read_depth_file, read_mask_file, scaled_size
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict

@@ -37,7 +37,6 @@ from semcityloc.benchmark.runfiles import (
     POSES_DIR,
     RESULTS_FILE,
     json_safe,
-    write_atomic,
 )
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES
@@ -50,6 +49,7 @@ from semcityloc.errors import InputFileError
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.files import write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 

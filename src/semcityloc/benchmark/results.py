@@ -46,15 +46,14 @@ from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import (
     RESULTS_FILE,
     plain,
-    removed_on_error,
     write_all,
-    write_atomic,
     writing,
 )
 from semcityloc.classes import NUM_CLASSES
 from semcityloc.errors import BenchmarkError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall, summarize_errors
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.files import removed_on_error, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, LocalizationResult
 from semcityloc.perception.metrics import mean_iou

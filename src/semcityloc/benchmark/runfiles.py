@@ -49,6 +49,7 @@ from typing import Any, TextIO
 
 from semcityloc.errors import OutputPathError, ResumeMismatchError, RunLockedError
 from semcityloc.geometry.io import json_default
+from semcityloc.io.files import write_atomic
 
 RUN_FILE = "run.json"
 LOCK_FILE = "run.lock"
@@ -106,36 +107,6 @@ def write_all(fd: int, data: bytes) -> None:
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view) :]
-
-
-def write_atomic(path: Path, data: bytes | str) -> None:
-    """Write ``path`` through a temporary file in the same folder and ``os.replace`` (never half-written).
-    An ``OSError`` (a full disk) names ``path`` and leaves no temporary file."""
-    if isinstance(data, str):
-        data = data.encode("utf-8")
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with removed_on_error(tmp):  # a failed write leaves no temporary file (it would keep a disk full)
-            with open(tmp, "wb") as fh:
-                fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-    except OSError as exc:  # the same kind of error, naming the file meant, not the temporary one
-        if exc.filename == str(path):
-            raise
-        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
-
-
-@contextlib.contextmanager
-def removed_on_error(tmp: Path) -> Iterator[None]:
-    """Remove the temporary file ``tmp`` when the block fails (a full disk stays no fuller), then re-raise."""
-    try:
-        yield
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        raise
 
 
 # What the user can do about an output that cannot be written, by errno.

@@ -24,6 +24,7 @@ from semcityloc.errors import CRSError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.io import json_default
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.files import write_atomic
 
 FOOTPRINT_SAMPLES = 8  # points per image border
 MAX_RANGE_M = 1500.0
@@ -113,12 +114,5 @@ def write_geojson(collection: dict, path: str | os.PathLike) -> Path:
     """Strict JSON (``allow_nan=False``), written through a temporary file; an ``OSError`` (a full disk)
     names ``path`` and leaves no temporary file."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    text = json.dumps(collection, default=json_default, allow_nan=False) + "\n"
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        tmp.replace(path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+    write_atomic(path, json.dumps(collection, default=json_default, allow_nan=False) + "\n")
     return path

@@ -1,1 +1,2 @@
-"""Reading and writing the image files the pipeline exchanges with users (label PNGs, depth maps)."""
+"""Reading and writing the files the pipeline exchanges with users: image files (label PNGs, depth maps,
+``images``) and whole-or-absent writes (``files``)."""
