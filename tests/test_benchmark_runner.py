@@ -22,6 +22,7 @@ import pytest
 
 from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.results import (
     COLUMNS,
     TIMING_COLUMNS,
@@ -40,6 +41,7 @@ from semcityloc.errors import (
     OutputPathError,
     ParameterError,
     ResumeMismatchError,
+    RunFileError,
 )
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -499,6 +501,53 @@ def test_a_damaged_results_file_names_remedies_that_work(sim, baseline, tmp_path
     fresh = run_benchmark(make_spec(sim), out, overwrite=True, progress=False)  # the advice works
     assert fresh.complete and fresh.new_rows == QUERIES
     assert differences(csv_rows(path), baseline.rows) == []
+
+
+@pytest.mark.parametrize("damage", ["no-permission", "a-folder", "not-utf8"])
+def test_a_results_file_that_cannot_be_read_says_cannot_read_naming_the_file_and_the_fix(
+    sim, baseline, tmp_path, monkeypatch, cli, capsys, damage
+):
+    """A ``results.csv`` that is there but cannot be read at the start of a resume (or by ``report``): one
+    typed line, "cannot read", the file and a fix that works; never "cannot write ... make it writable"."""
+    import shutil
+
+    out = tmp_path / damage
+    shutil.copytree(baseline.out_dir, out)
+    path = out / RESULTS_FILE
+    if damage == "no-permission":  # made by hand: root reads a file of mode 000
+        read_bytes = Path.read_bytes
+
+        def denied(self):
+            if self == path:
+                raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(self))
+            return read_bytes(self)
+
+        monkeypatch.setattr(Path, "read_bytes", denied)
+    elif damage == "a-folder":
+        path.unlink()
+        path.mkdir()
+    else:
+        path.write_bytes(path.read_bytes() + b"q0003,\xff\xfe\n")
+    fix = {"no-permission": "make it readable", "a-folder": "move that folder", "not-utf8": "0xff"}[damage]
+    for call in (
+        lambda: run_benchmark(make_spec(sim), out, progress=False),
+        lambda: make_report([out], tmp_path / "report"),
+    ):
+        with pytest.raises(RunFileError) as err:
+            call()
+        message = str(err.value)
+        assert message.startswith(f"cannot read {path}: ") and fix in message, message
+        assert "--overwrite" in message and "\n" not in message and "cannot write" not in message
+    report = ["report", str(out), "--out", str(tmp_path / "cli_report"), "--no-html"]
+    assert cli(report) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"semcityloc: error: cannot read {path}: ") and err.count("\n") == 1
+    if damage == "no-permission":  # the fix named: readable again, the run resumes with its rows
+        monkeypatch.undo()
+        kept = run_benchmark(make_spec(sim), out, progress=False)
+        assert kept.new_rows == 0 and differences(kept.rows, baseline.rows) == []
+    fresh = run_benchmark(make_spec(sim), out, overwrite=True, progress=False)  # --overwrite works for all
+    assert fresh.complete and differences(csv_rows(path), baseline.rows) == []
 
 
 def test_overwrite_with_the_same_arguments_starts_again(sim, baseline, tmp_path):

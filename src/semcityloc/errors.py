@@ -99,6 +99,11 @@ class RunLockedError(BenchmarkError):
     """The output folder is in use by another run that is still going (its lock file names the pid)."""
 
 
+class RunFileError(BenchmarkError, InputFileError):
+    """A file of a run folder that is there but cannot be read (``results.csv`` unreadable, a folder, or
+    bytes that are no UTF-8 text): the message says "cannot read", names the file and what to do."""
+
+
 class OutputPathError(SemCityLocError):
     """An output path that cannot be written (its parent is a file, it is a file where a folder is needed,
     or its folder is read-only or immutable); checked before any work. Also an output that fails mid-run

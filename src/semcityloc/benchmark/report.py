@@ -35,7 +35,7 @@ import numpy as np
 from semcityloc.benchmark.miss_kinds import MISS_KINDS, summarize_misses
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
-from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE, SUMMARY_FILE
+from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE, SUMMARY_FILE, read_run_file
 from semcityloc.benchmark.spec import load_map
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
@@ -103,7 +103,7 @@ def load_run(path: str | Path) -> RunData:
     if isinstance(queries, bool) or not isinstance(queries, int) or queries < 0:
         raise BenchmarkError(f"{run_file}: 'queries' is {queries!r}, not a count of queries")
     results = path / RESULTS_FILE
-    rows = parse_results(results.read_bytes(), results, strict=False) if results.is_file() else []
+    rows = parse_results(read_run_file(results), results, strict=False)
     ignored: list[str] = []
     if "queries" in config:  # rows of ids that are not this run's queries (q0000 ... q{queries-1}) left out
         wanted = {query_id(i) for i in range(int(config["queries"]))}

@@ -46,6 +46,8 @@ from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import (
     RESULTS_FILE,
     plain,
+    read_error,
+    read_run_file,
     write_all,
     writing,
 )
@@ -277,7 +279,7 @@ def read_results(path: Path) -> list[dict[str, str]]:
     """Rows of ``results.csv``, repairing it first: a torn last line is cut off, a missing or torn header is
     rewritten. A row repeated word for word is dropped and the file rewritten without it; two different rows
     of one id are refused (``parse_results``)."""
-    data = path.read_bytes() if path.exists() else b""
+    data = read_run_file(path)
     if data and not data.endswith(b"\n"):
         cut = data.rfind(b"\n") + 1
         with open(path, "r+b") as fh:
@@ -311,9 +313,7 @@ def _parse_results(data: bytes, path: Path | str, strict: bool) -> tuple[list[di
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise BenchmarkError(
-            f"{path}: not a results file of this runner ({exc}); pass --overwrite to start the run again"
-        ) from exc
+        raise read_error(path, exc) from exc
     reader = csv.reader(io.StringIO(text))
     header = tuple(next(reader))
     if not _resumable(header) and (strict or "query_id" not in header):

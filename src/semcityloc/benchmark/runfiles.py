@@ -22,7 +22,9 @@ Folder ``DIR`` of a run:
 
 A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) before it starts. A write that
 fails mid-run (a full disk) is ``write_error``: one line naming the file; it leaves no temporary file, and a
-resumed run removes those a killed one left (``remove_stale_temps``).
+resumed run removes those a killed one left (``remove_stale_temps``). A ``results.csv`` that is there but
+cannot be read (no permission, a folder, no UTF-8 text) is ``read_error``: "cannot read", the file and
+the fix.
 
 - ``run.lock``: held while a run writes the folder (``run_lock``): an exclusive ``flock`` on it, and the
   pid, host and start time of its holder inside. A second run on the same folder is refused
@@ -47,7 +49,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from semcityloc.errors import OutputPathError, ResumeMismatchError, RunLockedError
+from semcityloc.errors import OutputPathError, ResumeMismatchError, RunFileError, RunLockedError
 from semcityloc.geometry.io import json_default
 from semcityloc.io.files import write_atomic
 
@@ -123,9 +125,49 @@ def write_error(path: Path | str, exc: OSError) -> OutputPathError:
     """The one-line error for an output that could not be written mid-run: the file, the cause and what to
     do ("cannot write OUT/results.csv: No space left on device; free space and run the same command
     again"). The run loop adds how many finished rows are kept."""
-    cause = exc.strerror or str(exc) or type(exc).__name__
     fix = _WRITE_FIX.get(exc.errno, "fix it")
-    return OutputPathError(f"cannot write {path}: {cause}; {fix} and run the same command again")
+    return OutputPathError(f"cannot write {path}: {_cause(exc)}; {fix} and run the same command again")
+
+
+# What the user can do about a run's file that is there but cannot be read, by errno.
+_READ_FIX = {
+    errno.EACCES: "make it readable",
+    errno.EPERM: "make it readable",
+    errno.EISDIR: "move that folder out of the run's folder",
+}
+_START_AGAIN = "pass --overwrite to start the run again"
+
+
+def read_error(path: Path | str, exc: OSError | UnicodeDecodeError) -> RunFileError:
+    """The one-line error for a file of a run (``results.csv``) that is there but cannot be read: the file,
+    the cause and what to do ("cannot read OUT/results.csv: Permission denied; make it readable and run the
+    same command again, or pass --overwrite to start the run again"). Not ``write_error``: its "cannot
+    write ... make it writable" would send the user to the wrong fix."""
+    if isinstance(exc, UnicodeDecodeError):
+        byte = exc.object[exc.start : exc.start + 1].hex()
+        return RunFileError(
+            f"cannot read {path}: byte 0x{byte} at offset {exc.start} is not UTF-8 text, so it is no results "
+            f"file of this runner; {_START_AGAIN}, or choose another --out"
+        )
+    fix = _READ_FIX.get(exc.errno, "fix it")
+    again = f"run the same command again, or {_START_AGAIN}"
+    return RunFileError(f"cannot read {path}: {_cause(exc)}; {fix} and {again}")
+
+
+def _cause(exc: OSError) -> str:
+    """An ``OSError``'s cause in words ("No space left on device")."""
+    return exc.strerror or str(exc) or type(exc).__name__
+
+
+def read_run_file(path: Path) -> bytes:
+    """The bytes of a run's file, ``b""`` when there is none; ``read_error`` when it is there but cannot be
+    read (no permission, a folder of that name)."""
+    if not os.path.lexists(path):
+        return b""
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise read_error(path, exc) from exc
 
 
 @contextlib.contextmanager
