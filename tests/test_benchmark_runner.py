@@ -11,6 +11,7 @@ import errno
 import io
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -26,6 +27,7 @@ from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.results import (
     COLUMNS,
     TIMING_COLUMNS,
+    append_row,
     details_depth,
     load_details,
     make_row,
@@ -260,6 +262,7 @@ def test_a_killed_run_with_a_torn_line_resumes_to_the_same_file(sim, baseline, t
     out = tmp_path / "killed"
     out.mkdir()
     (out / "run.json").write_bytes((baseline.out_dir / "run.json").read_bytes())
+    shutil.copytree(baseline.out_dir / "details", out / "details")  # written before their rows
     lines = (baseline.out_dir / RESULTS_FILE).read_bytes().splitlines(keepends=True)
     torn = lines[3][: len(lines[3]) // 2]  # the process died in the middle of writing row 3
     (out / RESULTS_FILE).write_bytes(b"".join(lines[:3]) + torn)
@@ -509,8 +512,6 @@ def test_a_results_file_that_cannot_be_read_says_cannot_read_naming_the_file_and
 ):
     """A ``results.csv`` that is there but cannot be read at the start of a resume (or by ``report``): one
     typed line, "cannot read", the file and a fix that works; never "cannot write ... make it writable"."""
-    import shutil
-
     out = tmp_path / damage
     shutil.copytree(baseline.out_dir, out)
     path = out / RESULTS_FILE
@@ -548,6 +549,62 @@ def test_a_results_file_that_cannot_be_read_says_cannot_read_naming_the_file_and
         assert kept.new_rows == 0 and differences(kept.rows, baseline.rows) == []
     fresh = run_benchmark(make_spec(sim), out, overwrite=True, progress=False)  # --overwrite works for all
     assert fresh.complete and differences(csv_rows(path), baseline.rows) == []
+
+
+def test_a_deleted_details_folder_is_restored_on_resume_and_named_by_the_report(
+    sim, baseline, tmp_path, capsys
+):
+    """The report draws its query figures from ``details/``: deleted, the report says which are missing
+    (it drew none, silently), and a resume localizes those queries again, replacing their rows in place
+    (the others untouched), saying so once."""
+    out = tmp_path / "no_details"
+    shutil.copytree(baseline.out_dir, out)
+    shutil.rmtree(out / "details")
+    before = csv_rows(out / RESULTS_FILE)
+    said = "details files of 2 finished queries are missing (q0000, q0001)"
+    report = make_report([out], tmp_path / "report", overlays=2)
+    assert [n for n in report.notes if said in n and "no figure" in n]
+    assert not [p for p in report.plots if p.name.startswith("query_")]
+    capsys.readouterr()
+    first = run_benchmark(make_spec(sim), out, progress=False, limit=1)  # stopped after one of them
+    assert capsys.readouterr().err.count(said) == 1 and first.new_rows == 1 and first.complete
+    assert [p.name for p in (out / "details").iterdir()] == ["q0000.npz"]
+    resumed = run_benchmark(make_spec(sim), out, progress=False)
+    err = capsys.readouterr().err
+    assert "details files of 1 finished query are missing (q0001)" in err and "localizing them again" in err
+    assert resumed.complete and resumed.new_rows == 1
+    assert sorted(p.name for p in (out / "details").iterdir()) == ["q0000.npz", "q0001.npz"]
+    rows = csv_rows(out / RESULTS_FILE)
+    assert [r["query_id"] for r in rows] == [r["query_id"] for r in before]  # in place, once each
+    assert differences(rows, baseline.rows) == [] and rows[2] == before[2]  # q0002 not made again
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["recall_5m5deg"] == baseline.summary["recall_5m5deg"]
+    again = run_benchmark(make_spec(sim), out, progress=False)
+    assert again.new_rows == 0 and "details files" not in capsys.readouterr().err
+    report = make_report([out], tmp_path / "report2", overlays=2)
+    assert not [n for n in report.notes if "details files" in n]
+    assert len([p for p in report.plots if p.name.startswith("query_")]) == 2
+
+
+def test_a_query_made_again_for_its_details_keeps_its_row_unless_it_made_them(tmp_path):
+    """Restoring a query's details never costs its finished row: a new row that made no details (its
+    worker died, its source now skips it) leaves the old one; one that did replaces it in place."""
+    from semcityloc.benchmark.results import failed_row, skipped_result
+    from semcityloc.benchmark.run import _keep_rows
+
+    path = tmp_path / RESULTS_FILE
+    old = [{**failed_row(i, ""), "status": "localized", "reason": ""} for i in range(3)]
+    for row in old:
+        append_row(path, row)
+    text = path.read_text()
+    skipped = {**failed_row(1, ""), "status": skipped_result().status, "reason": "its mask is gone"}
+    died = failed_row(0, "worker died twice")
+    rows, written = _keep_rows(iter([died, skipped]), path, old, {"q0000", "q0001"}, None)
+    assert rows == old and written == 0 and path.read_text() == text
+    new = {**old[1], "score": "0.5"}
+    rows, written = _keep_rows(iter([new]), path, old, {"q0001"}, None)
+    assert rows == [old[0], new, old[2]] and written == 1
+    assert [r["score"] for r in csv_rows(path)] == ["", "0.5", ""]
 
 
 def test_overwrite_with_the_same_arguments_starts_again(sim, baseline, tmp_path):

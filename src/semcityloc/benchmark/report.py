@@ -34,7 +34,14 @@ import numpy as np
 
 from semcityloc.benchmark.miss_kinds import MISS_KINDS, summarize_misses
 from semcityloc.benchmark.queries import query_id
-from semcityloc.benchmark.results import SKIPPED, load_details, parse_results, summarize_rows
+from semcityloc.benchmark.results import (
+    SKIPPED,
+    load_details,
+    missing_details,
+    missing_details_phrase,
+    parse_results,
+    summarize_rows,
+)
 from semcityloc.benchmark.runfiles import DETAILS_DIR, RESULTS_FILE, RUN_FILE, SUMMARY_FILE, read_run_file
 from semcityloc.benchmark.spec import load_map
 from semcityloc.citymodel.model import CityModel
@@ -121,6 +128,18 @@ def ignored_note(run: RunData) -> str:
         f"{run.path}: {n} row{'s' * (n != 1)} of {RESULTS_FILE} left out, not queries of this "
         f"{run.config.get('queries')}-query run: {shown}"
     )
+
+
+def missing_details_note(run: RunData) -> str | None:
+    """The finished queries whose details file a run should hold (its first ``keep_details``) but does not
+    (a deleted ``details/``): no figure of them, and a resume restores them; None when none is missing."""
+    keep = run.config.get("keep_details", 0)
+    keep = keep if isinstance(keep, int) and not isinstance(keep, bool) else 0
+    missing = missing_details(run.path, run.rows, min(keep, int(run.config.get("queries", 0))))
+    if not missing:
+        return None
+    again = "run the command that made the run again to restore them"
+    return f"{missing_details_phrase(run.path, missing)}: no figure of them; {again}"
 
 
 def incomplete_note(run: RunData) -> str:
@@ -738,6 +757,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     differ = differing_keys(runs)
     notes: list[str] = [incomplete_note(r) for r in runs if not r.complete]
     notes += [ignored_note(r) for r in runs if r.ignored]
+    notes += [n for n in map(missing_details_note, runs) if n is not None]
     doc = ["# SemCityLoc benchmark report", "", f"Runs: {len(runs)}", ""]
     doc += [f"- `{r.path}`: {r.label}" for r in runs]
     doc += [

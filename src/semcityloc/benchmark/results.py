@@ -19,8 +19,10 @@ rewritten with that column (empty) before rows are appended, so every line match
 
 ``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
 coarse poses, the coarse cost volume and its axes, for the report's figures; written atomically BEFORE the
-row, so a row always has its details. The depth is kept as float16 (``details_depth``) when its values fit:
-relative depth is good to a few percent, float16 to 0.05 %, and the file is less than half the size.
+row, so a row always has its details. One deleted since is made again by a resume (``missing_details``:
+the query localized again, its row replaced in place by ``write_rows``). The depth is kept as float16
+(``details_depth``) when its values fit: relative depth is good to a few percent, float16 to 0.05 %, and
+the file is less than half the size.
 
 ``summary.json``: metrics over all rows (``summarize_rows``). ``queries`` counts the evaluated queries: a
 query its source did not accept (a view the simulator could not make acceptable, a photo whose mask or
@@ -36,6 +38,7 @@ import io
 import json
 import os
 from collections import Counter
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +47,7 @@ import numpy as np
 from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.runfiles import (
+    DETAILS_DIR,
     RESULTS_FILE,
     plain,
     read_error,
@@ -292,8 +296,15 @@ def read_results(path: Path) -> list[dict[str, str]]:
         return []
     rows, repeated = _parse_results(data, path, strict=True)
     if repeated or not data.startswith((",".join(COLUMNS) + "\n").encode()):  # an earlier layout, repeats
-        write_atomic(path, (",".join(COLUMNS) + "\n").encode() + b"".join(_csv_line(r) for r in rows))
+        write_rows(path, rows)
     return rows
+
+
+def write_rows(path: Path, rows: Iterable[dict[str, str]]) -> None:
+    """``results.csv`` holding exactly ``rows`` under this version's header, written atomically (a kill or
+    a full disk leaves the old file whole; the error is ``runfiles.write_error`` naming the file)."""
+    with writing(path):
+        write_atomic(path, (",".join(COLUMNS) + "\n").encode() + b"".join(_csv_line(r) for r in rows))
 
 
 def parse_results(data: bytes, path: Path | str = RESULTS_FILE, strict: bool = True) -> list[dict[str, str]]:
@@ -386,6 +397,30 @@ def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, orig
     with writing(path), removed_on_error(tmp):
         np.savez_compressed(tmp, **arrays)
         os.replace(tmp, path)
+
+
+def missing_details(out_dir: Path, rows: list[dict[str, str]], keep: int) -> list[int]:
+    """The indices of a run's finished queries below ``keep`` whose ``details/qNNNN.npz`` is gone (a
+    deleted ``details/``): the report would draw no figure of them. A resume localizes them again
+    (``benchmark.run``), the report names them. Rows that never had details (``skipped``, ``failed``) are
+    left out."""
+    ids = {query_id(i): i for i in range(keep)}
+    return sorted(
+        ids[r["query_id"]]
+        for r in rows
+        if r["query_id"] in ids
+        and r["status"] not in (SKIPPED, FAILED)
+        and not (out_dir / DETAILS_DIR / f"{r['query_id']}.npz").is_file()
+    )
+
+
+def missing_details_phrase(out_dir: Path, missing: list[int]) -> str:
+    """ "OUT/details: the details files of 2 finished queries are missing (q0000, q0001)": the start of
+    what the run and the report say about ``missing_details`` (the first five ids named)."""
+    ids = [query_id(i) for i in missing]
+    shown = ", ".join(ids[:5]) + (", ..." if len(ids) > 5 else "")
+    finished = f"{len(ids)} finished {'queries' if len(ids) != 1 else 'query'}"
+    return f"{out_dir / DETAILS_DIR}: the details files of {finished} are missing ({shown})"
 
 
 def details_depth(depth: np.ndarray | None) -> np.ndarray:

@@ -37,14 +37,19 @@ from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.ray_executor import import_ray, run_ray
 from semcityloc.benchmark.results import (
+    FAILED,
     REASON_SKIPPED,
     SKIP_REASON,
+    SKIPPED,
     append_row,
     make_row,
+    missing_details,
+    missing_details_phrase,
     read_results,
     save_details,
     skipped_result,
     summarize_rows,
+    write_rows,
 )
 from semcityloc.benchmark.runfiles import (
     CODE_KEY,
@@ -95,7 +100,7 @@ class RunSpec(Protocol):
 class BenchmarkOutcome:
     out_dir: Path
     complete: bool  # every query has a row (summary.json written)
-    new_rows: int  # rows added by this call
+    new_rows: int  # rows written by this call (a restored query's row replaces its old one)
     rows: list[dict[str, str]]
     summary: dict | None
     config: dict
@@ -222,21 +227,24 @@ def _run_locked(
         wanted = {query_id(i) for i in range(total)}
         rows = [r for r in read_results(results_path) if r["query_id"] in wanted]
     done = {r["query_id"] for r in rows}
-    todo = [i for i in range(total) if query_id(i) not in done]
+    missing = missing_details(out, rows, min(int(spec.keep_details), total))  # made again, first
+    todo = missing + [i for i in range(total) if query_id(i) not in done]
     if limit is not None:
         todo = todo[: int(limit)]
-    note = code_change_note(out, resumed, config, len(done), len(todo))
-    if note is not None:
-        print(note, file=sys.stderr if isinstance(progress, bool) else progress)
+    redo = [i for i in missing if i in todo]
+    kept = len(done) - len(redo)  # finished queries not made again
+    for note in (code_change_note(out, resumed, config, kept, len(todo)), redo_note(out, missing)):
+        if note is not None:
+            print(note, file=sys.stderr if isinstance(progress, bool) else progress)
 
     if any(i < int(spec.keep_details) for i in todo):
         (out / DETAILS_DIR).mkdir(exist_ok=True)
-    new_rows: list[dict[str, str]] = []
+    written = 0
     if todo:
         stream = None if progress is True else progress or None
         ensure_compiled(kernel_groups(spec.method), stream)
         source = source if source is not None else spec.open_source(config)
-        bar = Progress(total, len(done), stream, label=spec.label) if progress is not False else None
+        bar = Progress(total, kept, stream, label=spec.label) if progress is not False else None
         if executor == "ray":
             finished = run_ray(todo, workers, _Worker, (spec, source, out), ray_address)
         elif workers == 1 or len(todo) == 1:
@@ -244,19 +252,11 @@ def _run_locked(
         else:
             finished = _run_pool(todo, workers, (spec, source, out))
         try:
-            for row in finished:  # the parent alone appends, one fsync'd line per query
-                append_row(results_path, row)
-                new_rows.append(row)
-                if bar:
-                    bar.update()
-        except OutputPathError as exc:  # a full disk, a folder made read-only: what is finished is kept
-            kept = len(done) + len(new_rows)
-            raise OutputPathError(f"{exc}: the {kept} finished rows are kept") from exc
+            rows, written = _keep_rows(finished, results_path, rows, {query_id(i) for i in redo}, bar)
         finally:
             finished.close()  # stops the pool at once when the loop ends by an error
             if bar:
                 bar.close()
-    rows += new_rows
     complete = len(rows) == total
     summary = None
     if complete:
@@ -267,7 +267,50 @@ def _run_locked(
                 write_json_atomic(out / SUMMARY_FILE, summary)
         except OutputPathError as exc:
             raise OutputPathError(f"{exc}: all {total} rows are kept") from exc
-    return BenchmarkOutcome(out, complete, len(new_rows), rows, summary, config)
+    return BenchmarkOutcome(out, complete, written, rows, summary, config)
+
+
+def redo_note(out: Path, redo: list[int]) -> str | None:
+    """What a resume that restores missing details files (``missing_details``) says on stderr; None when
+    none are missing."""
+    if not redo:
+        return None
+    return (
+        f"{missing_details_phrase(out, redo)}, so the report would draw no figure of them; localizing them "
+        "again to restore them (each row is kept until its new one replaces it)"
+    )
+
+
+def _keep_rows(
+    finished: Iterator[dict[str, str]],
+    path: Path,
+    rows: list[dict[str, str]],
+    redo: set[str],
+    bar: Progress | None,
+) -> tuple[list[dict[str, str]], int]:
+    """Write each finished row (the parent alone writes ``results.csv``): a new query's row appended (one
+    fsync'd line), a restored query's (``redo``) replacing its old row in the file (rewritten atomically).
+    The old row stays when the new one is ``skipped`` or ``failed`` (no details made; finished work is
+    never traded for nothing). Returns every row and how many were written; a write that fails (a full
+    disk, a folder made read-only) is an ``OutputPathError`` saying how many finished rows are kept."""
+    by_id = {r["query_id"]: r for r in rows}  # the file's order
+    written = 0
+    try:
+        for row in finished:
+            qid = row["query_id"]
+            if qid not in redo:
+                append_row(path, row)
+            elif row["status"] in (SKIPPED, FAILED):
+                continue
+            by_id[qid] = row
+            if qid in redo:
+                write_rows(path, by_id.values())
+            written += 1
+            if bar:
+                bar.update()
+    except OutputPathError as exc:
+        raise OutputPathError(f"{exc}: the {len(by_id)} finished rows are kept") from exc
+    return list(by_id.values()), written
 
 
 def run_benchmark(

@@ -12,7 +12,8 @@ Folder ``DIR`` of a run:
   ``code``, the package source that started the run: a resume by changed code is not refused but told
   that its results mix (``code_change_note``).
 - ``results.csv``: one row per finished query (``benchmark.results``).
-- ``details/qNNNN.npz``: the report's figures for the first ``keep_details`` queries.
+- ``details/qNNNN.npz``: the report's figures for the first ``keep_details`` queries (a resume makes a
+  deleted one again: ``results.missing_details``).
 - ``summary.json``: the metrics, written when every query is done.
 - ``estimates/<name>.json``: the localized poses in the data set's world frame (data-set runs only);
   ``estimates_colmap/``: all of them as a COLMAP text model.
