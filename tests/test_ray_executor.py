@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import functools
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -147,3 +149,95 @@ def test_a_local_ray_run_leaves_no_token_in_the_users_home(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     assert (tmp_path / "out" / "summary.json").is_file()
     assert not (home / ".ray" / "auth_token").exists()
+
+
+# A run's driver (``run_ray`` with a local runtime) whose two workers write their pid, then wait.
+_DRIVER = """
+import os, sys, time
+from semcityloc.benchmark.ray_executor import run_ray
+
+class Waiting:
+    def __init__(self, folder):
+        self.folder = folder
+
+    def run(self, index):
+        with open(os.path.join(self.folder, f"{index}.tmp"), "w") as fh:
+            fh.write(str(os.getpid()))
+        os.replace(os.path.join(self.folder, f"{index}.tmp"), os.path.join(self.folder, f"{index}.pid"))
+        time.sleep(600)
+
+for row in run_ray([0, 1], 2, Waiting, (sys.argv[1],)):
+    pass
+"""
+
+
+_AGENTS = ("ray::DashboardA", "ray::RuntimeEnv")  # their names as /proc shows them (15 characters)
+
+
+def _descendants(pid: int) -> dict[int, str]:
+    """The processes below ``pid`` (``/proc``), with their names."""
+    parents: dict[int, list[int]] = {}
+    for entry in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        parents.setdefault(int(stat[stat.rfind(")") + 2 :].split()[1]), []).append(int(entry))
+    out, todo = {}, [pid]
+    while todo:
+        for child in parents.get(todo.pop(), []):
+            out[child] = _name(child)
+            todo.append(child)
+    return out
+
+
+def _name(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return "?"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rfind(")") + 2] != "Z"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_ray_workers_end_with_the_run_that_started_them(tmp_path, sig):
+    """Why the Ray workers need no ``_die_with_parent`` of their own (``ray_executor`` docstring): they are
+    the raylet's children, not the driver's, and Ray ends them with the driver. SIGKILL: Ray's head
+    processes die with the driver (Ray starts them with ``PR_SET_PDEATHSIG``) and the workers with the
+    raylet, within seconds; SIGTERM: Ray's own handler exits the driver, whose ``ray.shutdown`` (``run_ray``'s
+    ``finally``, Ray's ``atexit``) ends every process it started."""
+    driver = subprocess.Popen([sys.executable, "-c", _DRIVER, str(tmp_path)], stderr=subprocess.DEVNULL)
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 120
+        while len(workers) < 2 and time.monotonic() < deadline:
+            workers = [int(p.read_text()) for p in tmp_path.glob("*.pid")]
+            time.sleep(0.1)
+        assert len(workers) == 2 and all(map(_alive, workers)), "the Ray workers did not start"
+        started = _descendants(driver.pid)
+        assert set(workers) <= set(started) and "raylet" in started.values()
+        driver.send_signal(sig)
+        driver.wait(60)
+        # Every process Ray started: the workers (each holds the city), its head, its monitors; but after
+        # SIGKILL Ray's two agents (the dashboard's and the runtime environments') end by themselves
+        # about a minute later, once they notice the raylet gone.
+        ends = [p for p, name in started.items() if sig == signal.SIGTERM or not name.startswith(_AGENTS)]
+        deadline = time.monotonic() + 30
+        while any(map(_alive, ends)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        left = {p: started[p] for p in ends if _alive(p)}
+        assert not left, f"outlived the run: {left}"
+    finally:
+        driver.kill()
+        for pid in workers:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)

@@ -24,6 +24,16 @@ driver resumes as today).
 - Failures: a query whose worker process dies (killed, out of memory) is given to a new worker once more;
   if that worker dies too, the query gets a row with status ``failed`` and the reason (and is not tried
   again on resume). An exception raised by the query itself is raised here, as with the process pool.
+- The driver's death: no guard of ours, unlike the process pool's workers (``run._die_with_parent``). Ray's
+  workers are not this process's children but the raylet's, so ``PR_SET_PDEATHSIG`` in them would bind
+  them to the raylet, which Ray does already; Ray ends them with the driver itself. A driver killed
+  (SIGKILL) takes its local runtime's head with it (Ray starts the GCS and the raylet with
+  ``PR_SET_PDEATHSIG``), and the workers end with their raylet within seconds (Ray's dashboard and
+  runtime-environment agents a minute later, by themselves); on a cluster, actors die with their owner,
+  the driver (measured by hand: within a second). SIGTERM: ``ray.init`` installs a handler that exits the
+  driver, so ``run_ray``'s ``finally`` (and Ray's ``atexit``) calls ``ray.shutdown``, which ends every
+  process the runtime started (``tests/test_ray_executor.py``,
+  ``test_ray_workers_end_with_the_run_that_started_them``).
 
 Numbers do not depend on the executor or the worker count (``benchmark.run``: queries and the localizer
 are seeded per query).

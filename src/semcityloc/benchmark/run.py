@@ -147,7 +147,8 @@ def _die_with_parent(parent: int) -> None:
     """Make this pool worker end with the process that started it (``parent``), even when that one is
     killed (SIGKILL, SIGTERM): else each worker, hundreds of MB, would live on as an orphan. On Linux the
     kernel sends SIGTERM when the parent dies (``prctl(PR_SET_PDEATHSIG)``); elsewhere that is skipped.
-    A parent that died before this ran (the worker already adopted by another) ends the worker now."""
+    A parent that died before this ran (the worker already adopted by another) ends the worker now.
+    Ray's workers need none: Ray ends them with the driver (``ray_executor``, "The driver's death")."""
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL(None, use_errno=True)
