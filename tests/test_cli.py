@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
+import time
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -553,3 +557,66 @@ def test_a_photo_of_another_aspect_than_the_intrinsics_is_refused(exif_view, tmp
     assert code == 2 and "square.png: photo 400x400 does not have the photo's aspect (512x384)" in err
     Image.new("RGB", (1024, 768)).save(tmp_path / "same.png")
     assert run(capsys, *argv, "--image", tmp_path / "same.png", "--out", tmp_path / "r2")[0] == 0
+
+
+# ------------------------------------------------------------------------------------ Ctrl-C, early or late
+def console_script() -> str:
+    """The code pip writes for the ``semcityloc`` console script, from ``pyproject.toml``'s entry point:
+    it imports the entry's module first, then calls it."""
+    with open(Path(__file__).resolve().parents[1] / "pyproject.toml", "rb") as fh:
+        module, func = tomllib.load(fh)["project"]["scripts"]["semcityloc"].split(":")
+    return f"import sys\nfrom {module} import {func}\nsys.exit({func}())\n"
+
+
+# Makes the import of the module named by the first argument raise KeyboardInterrupt: a Ctrl-C that lands
+# while the command imports it.
+_CTRL_C_IN_IMPORT = """
+import sys
+
+class CtrlC:
+    def __init__(self, name):
+        self.name = name
+
+    def find_spec(self, name, path=None, target=None):
+        if name == self.name:
+            raise KeyboardInterrupt
+
+sys.meta_path.insert(0, CtrlC(sys.argv.pop(1)))
+"""
+
+
+@pytest.mark.parametrize("module", ["semcityloc.cli.main", "numba", "semcityloc.benchmark.run"])
+def test_a_ctrl_c_while_the_command_imports_is_one_line_and_exit_130(module):
+    """A Ctrl-C in the first second of ``semcityloc ...``, while the CLI's modules are imported (before
+    ``main``'s ``try``), was a ``KeyboardInterrupt`` traceback; it is one line and exit 130."""
+    code = _CTRL_C_IN_IMPORT + console_script()
+    proc = subprocess.run(
+        [sys.executable, "-c", code, module, "--version"], capture_output=True, text=True, timeout=120
+    )
+    assert (proc.returncode, proc.stderr, proc.stdout) == (130, "semcityloc: interrupted\n", "")
+
+
+def test_the_console_script_catches_a_ctrl_c_before_numpy_is_imported():
+    """What the console script imports before ``entry``'s ``try`` (``semcityloc``, ``semcityloc.cli``) is
+    kept small: numpy took 0.1-0.2 s there, in which a Ctrl-C was still a traceback."""
+    code = "import sys\nfrom semcityloc.cli import entry\n"
+    code += "print(sorted({'numpy', 'numba'} & set(sys.modules)))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.stdout == "[]\n", proc.stderr
+
+
+def test_a_real_ctrl_c_during_the_imports_is_one_line_and_exit_130():
+    """SIGINT sent while the console script imports the CLI (it takes over a second after ``import
+    semcityloc``, which the child does first: before that no code of the package can catch it)."""
+    code = "import semcityloc\nprint('ready', flush=True)\n" + console_script()
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "--version"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout.readline() == "ready\n"
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert (proc.returncode, err, out) == (130, "semcityloc: interrupted\n", "")

@@ -1,0 +1,32 @@
+"""The ``semcityloc`` command (``cli.main``); ``entry`` is its console script (``pyproject.toml``).
+
+Why ``entry`` lives here and not in ``cli.main``: a console script imports the module that holds its
+function before it calls it, and ``cli.main`` takes over a second to import (numba, every command). A
+Ctrl-C in that second came before ``main``'s ``try`` and printed a ``KeyboardInterrupt`` traceback; this
+module imports next to nothing, and ``entry`` imports the CLI inside its ``try``.
+"""
+
+from __future__ import annotations
+
+import sys
+
+INTERRUPTED = 130  # the exit status of a command ended by Ctrl-C (128 + SIGINT), as a shell reports it
+
+
+def interrupted() -> int:
+    """Say in one line on stderr that the command was interrupted (Ctrl-C); returns ``INTERRUPTED``."""
+    print("semcityloc: interrupted", file=sys.stderr)
+    return INTERRUPTED
+
+
+def entry() -> int:
+    """The ``semcityloc`` console script: ``cli.main.main`` with the CLI imported inside the ``try``, so a
+    Ctrl-C wherever it lands (the imports, the arguments, the work) is one line and exit 130, never a
+    traceback."""
+    try:
+        # the whole CLI (numba, every command): over a second to import, so inside the try
+        from semcityloc.cli.main import main
+
+        return main()
+    except KeyboardInterrupt:
+        return interrupted()

@@ -2,7 +2,8 @@
 
 Every ``SemCityLocError`` (bad input) is printed as ``semcityloc: error: <message>`` with exit code 2;
 anything else is a bug and keeps its traceback. An unwritable ``--out`` is refused so before any work
-(``cli.outputs``).
+(``cli.outputs``). A Ctrl-C is one line and exit 130; the console script is ``cli.entry``, which imports
+this module inside its own ``try`` (a Ctrl-C during these imports is one line too).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from semcityloc.cli import (
     city,
     dataset,
     demo,
+    interrupted,
     label,
     localize,
     render,
@@ -96,8 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"semcityloc: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("semcityloc: interrupted", file=sys.stderr)
-        return 130
+        return interrupted()
 
 
 if __name__ == "__main__":
