@@ -14,7 +14,7 @@ from semcityloc.benchmark.dataset_source import (
     oracle_labels,
     working_camera,
 )
-from semcityloc.benchmark.results import read_results
+from semcityloc.benchmark.results import REASON_UNREADABLE, read_results
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import ESTIMATES_DIR
 from semcityloc.cli.main import main
@@ -162,6 +162,56 @@ def test_precomputed_masks_give_the_oracle_result(dataset_dir, tmp_path):
         run_benchmark(
             spec(dataset_dir, perception="masks", masks=str(masks)), tmp_path / "m2", progress=False
         )
+
+
+DAMAGES = {  # what makes query q0001's input unusable -> a phrase of the reason
+    "truncated": "cannot read label image",
+    "not an image": "cannot read label image",
+    "invalid class ids": "invalid class ids 9",
+    "another aspect": "does not have the photo's aspect",
+    "truncated depth": "truncated .npy",
+}
+
+
+@pytest.mark.parametrize("damage", DAMAGES)
+def test_an_unreadable_mask_is_that_querys_miss_not_the_runs_end(dataset_dir, tmp_path, capsys, damage):
+    """A mask or depth file that cannot be read or used (its body truncated, bytes of no image, ids of no
+    class, another aspect) costs its query alone: the run finishes, that query's row is not localized with
+    the reason naming the file, a one-line warning says so, and the recall keeps it in its denominator (a
+    miss): 1 of 2 queries, not 1 of 1."""
+    ds = read_lodloc(dataset_dir)
+    model = ds.load_model()
+    masks, depth = tmp_path / "masks", tmp_path / "depth"
+    depth.mkdir()
+    for q in ds.queries[:2]:
+        save_labels_png(oracle_labels(model, q.camera, q.gt_pose_world), masks / f"{q.stem}.png")
+        np.save(depth / f"{q.stem}.npy", np.full((CAM.height, CAM.width), np.nan))
+    bad = depth / "DJI_0002_W.npy" if damage == "truncated depth" else masks / "DJI_0002_W.png"
+    data = bad.read_bytes()
+    if damage.startswith("truncated"):
+        bad.write_bytes(data[: len(data) * 2 // 3])
+    elif damage == "not an image":
+        bad.write_bytes(b"\x00garbage" * 50)
+    elif damage == "invalid class ids":
+        Image.fromarray(np.full((CAM.height, CAM.width), 9, np.uint8), mode="L").save(bad)
+    else:
+        save_labels_png(np.zeros((CAM.height, CAM.height), np.uint8), bad)
+    out = tmp_path / "run"
+    argv = ["benchmark", "--dataset", str(dataset_dir), "--perception", "masks", "--masks", str(masks)]
+    code = main([*argv, "--depth", str(depth), "--preset", "default", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
+    assert rows["q0000"]["status"] == "localized"
+    miss = rows["q0001"]
+    assert miss["status"] == "not_localized" and miss["reason"].startswith(REASON_UNREADABLE)
+    assert str(bad) in miss["reason"] and DAMAGES[damage] in miss["reason"]
+    assert miss["err_xyz_m"] == "inf" and json.loads(miss["meta_json"])["name"] == "DJI_0002_W.JPG"
+    warnings = [line for line in err.splitlines() if line.startswith("semcityloc: warning:")]
+    assert len(warnings) == 1 and "q0001" in warnings[0] and str(bad) in warnings[0]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["queries"] == 2 and summary["localized"] == 1 and summary["skipped"] == 0
+    assert summary["recall_5m5deg"] == 50.0  # the unreadable query is a miss, not left out
 
 
 def test_dropped_depth_is_named_in_the_rows(dataset_dir, tmp_path):

@@ -30,6 +30,12 @@ class MalformedCityJSONError(InputFileError):
     """CityJSON that is not valid JSON or breaks the CityJSON structure."""
 
 
+class LossyMaskError(InputFileError):
+    """A label mask in a lossy format (JPEG, WebP) without the flag that forces it: a choice the whole run
+    shares (every mask of a folder has one format), so a data-set benchmark refuses the run in one line
+    naming the flag instead of counting each query a miss."""
+
+
 class EmptyModelError(SemCityLocError):
     """A city model with no building geometry (or none left after LoD selection)."""
 

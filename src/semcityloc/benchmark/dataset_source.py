@@ -18,6 +18,10 @@ Perception (the query mask each method localizes with), ``--perception``:
   in a lossy format (JPEG) only with ``allow_lossy_mask`` (``--allow-lossy-mask``, kept in ``run.json``
   only when set, so that older runs resume);
   optional depth ``<depth>/<stem>.npy`` or a 16-bit depth PNG (any positive scale; NaN / <= 0 invalid).
+  A query whose mask or depth file cannot be read or used (corrupt, truncated, invalid class ids, another
+  aspect: ``read_inputs``) is a miss, not the run's end: its row is ``not_localized`` with the reason naming
+  the file (``results.unreadable_result``), in every recall's denominator, and the others run. A missing
+  file, or a lossy mask without ``allow_lossy_mask`` (a choice of the whole run), stops the run in one line.
 
 Frames: the data set's poses are world-frame (``LodLocQuery.gt_pose_world``); queries are moved into the
 model's local frame at this boundary (``CityModel.pose_to_local``). ``results.csv`` also holds world
@@ -41,6 +45,7 @@ from semcityloc import __version__
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
+from semcityloc.benchmark.results import UNREADABLE_INPUT
 from semcityloc.benchmark.runfiles import (
     ESTIMATES_COLMAP_DIR,
     ESTIMATES_DIR,
@@ -53,12 +58,12 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE
 from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.lodloc import FRAME_AUTO, LodLocDataset, LodLocQuery, read_lodloc
-from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, LossyMaskError, ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import removed_on_error
-from semcityloc.io.images import read_depth_file, read_mask_file, scaled_size
+from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, scaled_size
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
 from semcityloc.localization.methods import Method
@@ -92,6 +97,21 @@ def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:
             if candidate.is_file():
                 return candidate
     raise InputFileError(f"{folder}: no file for query {stem!r} (looked for {stem}{{{','.join(suffixes)}}})")
+
+
+def read_inputs(
+    camera: Camera, mask: Path, depth: Path | None, allow_lossy: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(labels, depth or None) of a query from its files, each checked to show the camera's field of view
+    (``io.images.check_aspect``); ``InputFileError`` / ``ShapeError`` naming the file that cannot be read
+    or used (``LossyMaskError`` for a lossy mask without ``allow_lossy``)."""
+    labels = read_mask_file(mask, allow_lossy=allow_lossy)
+    check_aspect(labels.shape, camera.width, camera.height, "mask", mask)
+    if depth is None:
+        return labels, None
+    values = read_depth_file(depth)
+    check_aspect(values.shape, camera.width, camera.height, "depth", depth)
+    return labels, values
 
 
 def perception_label(perception: str, seg_quality: str | None = None) -> str:
@@ -265,9 +285,14 @@ class DatasetSource:
         if spec.perception == PERCEPTION_MASKS:
             camera = q.camera
             mask = _find(Path(spec.masks), q.stem, (".png", ".npy"))
-            labels = read_mask_file(mask, allow_lossy=spec.allow_lossy_mask)
-            if spec.depth:
-                depth = read_depth_file(_find(Path(spec.depth), q.stem, (".npy", ".png")))
+            depth_file = _find(Path(spec.depth), q.stem, (".npy", ".png")) if spec.depth else None
+            try:
+                labels, depth = read_inputs(camera, mask, depth_file, spec.allow_lossy_mask)
+            except LossyMaskError:
+                raise  # the run's --allow-lossy-mask, not this file: refused in one line naming the flag
+            except (InputFileError, ShapeError) as exc:  # this query's file: its miss, not the run's end
+                labels = np.full((camera.height, camera.width), IGNORE, dtype=np.uint8)
+                meta[UNREADABLE_INPUT] = str(exc)
             meta["labels_source"] = "masks"
         else:
             labels = oracle_labels(self.map_model, camera, q.gt_pose_world, self.renderer)

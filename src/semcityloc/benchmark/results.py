@@ -27,7 +27,8 @@ the file is less than half the size.
 ``summary.json``: metrics over all rows (``summarize_rows``). ``queries`` counts the evaluated queries: a
 query its source did not accept (a view the simulator could not make acceptable, a photo whose mask or
 depth cannot be read in full) gets a ``skipped`` row with the reason, is not localized and is only counted
-under ``skipped``.
+under ``skipped``. A data-set query whose mask or depth cannot be read is not skipped but a miss
+(``unreadable_result``): a ``not_localized`` row in every recall.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall, summa
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import removed_on_error, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
-from semcityloc.localization.result import LOCALIZED, LocalizationResult
+from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, LocalizationResult
 from semcityloc.perception.metrics import mean_iou
 
 _POSE_FIELDS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -113,6 +114,20 @@ SKIP_REASON = "skip_reason"  # the meta key of a source's own reason for not acc
 def skipped_result(reason: str = REASON_SKIPPED) -> LocalizationResult:
     """The result of a query its source did not accept (``SKIPPED``), with the reason."""
     return LocalizationResult(status=SKIPPED, reason=reason)
+
+
+# A query of a run against ground truth whose own input files cannot be read (a data set's corrupt mask or
+# depth map; ``meta[UNREADABLE_INPUT]`` says which and why): not localized, the reason starting with
+# ``REASON_UNREADABLE``, so that it is a miss in every recall. Never ``SKIPPED``: a benchmark whose files
+# are damaged must not score better than one whose files read (the recall's denominator stays the queries).
+REASON_UNREADABLE = "input file cannot be read"
+UNREADABLE_INPUT = "unreadable_input"  # the meta key of what could not be read
+
+
+def unreadable_result(problem: str) -> LocalizationResult:
+    """The result of a query whose input files cannot be read (``UNREADABLE_INPUT``): not localized, a
+    miss, the reason naming the file and the problem."""
+    return LocalizationResult(status=NOT_LOCALIZED, reason=f"{REASON_UNREADABLE}: {problem}")
 
 
 # A query whose worker process died on every try (``benchmark.ray_executor``): recorded with the reason,

@@ -41,6 +41,7 @@ from semcityloc.benchmark.results import (
     REASON_SKIPPED,
     SKIP_REASON,
     SKIPPED,
+    UNREADABLE_INPUT,
     append_row,
     make_row,
     missing_details,
@@ -49,6 +50,7 @@ from semcityloc.benchmark.results import (
     save_details,
     skipped_result,
     summarize_rows,
+    unreadable_result,
     write_rows,
 )
 from semcityloc.benchmark.runfiles import (
@@ -72,6 +74,7 @@ from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
 from semcityloc.errors import BenchmarkError, OutputPathError, unknown_choice
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
+from semcityloc.localization.result import LocalizationResult
 from semcityloc.localization.tiled import TiledMethod
 
 EXECUTORS = ("local", "ray")  # where queries run: this process / a process pool, or Ray
@@ -123,18 +126,29 @@ class _Worker:
 
     def run(self, index: int) -> dict[str, str]:
         """The row of query ``index``. One its source did not accept is not localized: skipped with the
-        source's reason (``results.SKIPPED``), kept like the others (``save_estimate``: a photo's record)."""
+        source's reason (``results.SKIPPED``), kept like the others (``save_estimate``: a photo's record);
+        one whose input files its source could not read is a miss (``results.unreadable_result``)."""
         q = self.source.query(index)
-        meta = q.meta or {}
-        if not meta.get("accepted", True):
-            skipped = skipped_result(meta.get(SKIP_REASON, REASON_SKIPPED))
-            self.source.save_estimate(self.out_dir, q, skipped)
-            return make_row(q, skipped, self.origin)
+        refused = _refused_by_source(q.meta or {})
+        if refused is not None:
+            self.source.save_estimate(self.out_dir, q, refused)
+            return make_row(q, refused, self.origin)
         result = self.method.localize(q)
         if index < self.keep:
             save_details(self.out_dir / DETAILS_DIR / f"{query_id(index)}.npz", q, result, self.origin)
         self.source.save_estimate(self.out_dir, q, result)
         return make_row(q, result, self.origin)
+
+
+def _refused_by_source(meta: dict) -> LocalizationResult | None:
+    """The result of a query its source could not hand to a method, or None: one whose input files it
+    could not read is a miss (``results.unreadable_result``), one it did not accept is skipped
+    (``results.skipped_result``)."""
+    if UNREADABLE_INPUT in meta:
+        return unreadable_result(str(meta[UNREADABLE_INPUT]))
+    if not meta.get("accepted", True):
+        return skipped_result(meta.get(SKIP_REASON, REASON_SKIPPED))
+    return None
 
 
 _PROCESS_WORKER: _Worker | None = None

@@ -21,6 +21,7 @@ import numpy as np
 from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.results import REASON_UNREADABLE
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
 from semcityloc.datasets.colmap import ColmapModel, write_model
@@ -270,6 +271,16 @@ def run_dji_prior(args: argparse.Namespace) -> int:
     return 0
 
 
+def warn_unreadable(rows: list[dict[str, str]], config: dict) -> None:
+    """One line on stderr per query whose input files could not be read (``results.REASON_UNREADABLE``):
+    the run went on without it, and the recall counts it as a miss."""
+    for row in sorted(rows, key=lambda r: int(r["index"])):
+        if row["reason"].startswith(REASON_UNREADABLE):
+            name = config["query_names"][int(row["index"])]
+            line = f"semcityloc: warning: {row['query_id']} ({name}) is a miss: {row['reason']}"
+            print(line, file=sys.stderr)
+
+
 def run_dataset_benchmark(args: argparse.Namespace) -> int:
     if args.ecef_origin is not None and args.frame != "ecef":
         raise InputFileError("--ecef-origin needs --frame ecef")
@@ -294,6 +305,7 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
     )
     outcome = run_from_args(spec, args.out, args)
     out = Path(args.out)
+    warn_unreadable(outcome.rows, outcome.config)
     if not outcome.complete:
         print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")
         return 0

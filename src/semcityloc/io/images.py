@@ -18,7 +18,7 @@ import numpy as np
 from PIL import Image, PngImagePlugin
 
 from semcityloc.classes import IGNORE, NUM_CLASSES, PALETTE, invalid_class_ids
-from semcityloc.errors import InputFileError, ShapeError
+from semcityloc.errors import InputFileError, LossyMaskError, ShapeError
 
 # What Pillow raises on a corrupt or hostile image file (a broken chunk is a SyntaxError, a header naming
 # billions of pixels a DecompressionBombError): each becomes an ``InputFileError`` naming the file.
@@ -73,9 +73,9 @@ def check_label_header(path: str | Path, allow_lossy: bool = False) -> None:
 
 def _check_label_image(img: Image.Image, path: str | Path, allow_lossy: bool) -> None:
     """``InputFileError`` naming ``path`` when the opened label image ``img`` is in a lossy format (unless
-    ``allow_lossy``) or not a palette or grey image."""
+    ``allow_lossy``: a ``LossyMaskError``) or not a palette or grey image."""
     if img.format in LOSSY_FORMATS and not allow_lossy:
-        raise InputFileError(
+        raise LossyMaskError(
             f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
             "class ids along every edge; save masks as PNG (--allow-lossy-mask of semcityloc "
             "localize, run and the data-set benchmark forces it)"
