@@ -26,6 +26,7 @@ from semcityloc.benchmark.runfiles import LOCK_FILE, RUN_FILE, code_change_note,
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.obj import read_obj
+from semcityloc.classes import IGNORE, NUM_CLASSES, invalid_class_ids
 from semcityloc.cli.main import build_parser, main
 from semcityloc.errors import (
     InputFileError,
@@ -325,6 +326,18 @@ def test_mask_with_class_ids_outside_the_classes_names_them(tmp_path, capsys):
         *("--prior", "0,0,100,0,0,0", "--semantic", path, "--out", tmp_path / "o"),
     )
     assert code == 2 and "invalid class ids 11, 12, 13" in err and err.count("\n") == 1
+
+
+def test_the_fast_class_id_check_of_uint8_masks_accepts_what_the_rule_accepts():
+    """``invalid_class_ids`` checks uint8 masks by a wrap-around shortcut; on every value, alone or among
+    valid ones, in any layout, it finds what the rule itself (the one other dtypes use) finds."""
+    for value in range(256):
+        for mask in (np.array([[value]], np.uint8), np.array([[0, value, IGNORE]], np.uint8).T[::-1]):
+            valid = value < NUM_CLASSES or value == IGNORE
+            assert (invalid_class_ids(mask) is None) == valid
+            assert (invalid_class_ids(mask.astype(np.int64)) is None) == valid
+    assert invalid_class_ids(np.zeros((0, 4), np.uint8)) is None
+    assert invalid_class_ids(np.array([[0, 9, 255, 6]], np.uint8)).startswith("invalid class ids 6, 9 in 2 ")
 
 
 def test_jpeg_mask_is_refused_unless_forced(tmp_path, capsys):
