@@ -35,6 +35,7 @@ from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.tiles import TileStore, build_store
 from semcityloc.classes import IGNORE
 from semcityloc.cli.main import main
+from semcityloc.datasets import photos
 from semcityloc.datasets.colmap import read_model
 from semcityloc.datasets.dji import camera_from_exif, read_dji_metadata
 from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
@@ -875,6 +876,45 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
     code, _, err = run(capsys, *argv, *backend, "--no-cache", "--no-overlays", "--out", tmp_path / "backend")
     assert code == 0, err
     assert f"was estimated from {len(views)} oblique ones" in err and built == ["files"]
+
+
+def test_the_checks_before_a_run_open_each_photo_once_and_read_its_metadata_once(tmp_path, monkeypatch):
+    """Before the first photo, each photo of a DJI flight (EXIF intrinsics and priors) is opened by Pillow
+    twice, not five times: once for its size, orientation and the decode check together, once by the
+    metadata reader, whose result serves both camera and prior; a truncated photo is still skipped with the
+    reason it always had."""
+    root = tmp_path / "flight"
+    (root / "images").mkdir(parents=True)
+    fields = dict(GpsLatitude="+48.1", GpsLongitude="+11.5", AbsoluteAltitude="+600", GimbalYawDegree="0")
+    fields["GimbalPitchDegree"] = "-45"
+    for k in range(3):
+        dji_jpeg(root / "images" / f"D{k}.JPG", xmp_packet(**fields), size=(64, 48), focal_35mm=24)
+        save_labels_png(np.zeros((48, 64), np.uint8), root / "masks" / f"D{k}.png")
+    (root / "city.obj").write_text(box_city_obj())
+    data = _noisy_jpeg(root / "images" / "D2.JPG")
+    (root / "images" / "D2.JPG").write_bytes(data[: len(data) * 2 // 3])
+    images, masks = str(root / "images"), str(root / "masks")
+    spec = PhotoSpec(images, str(root / "city.obj"), crs="EPSG:25832", masks=masks)
+    opened, read = [], []
+    pillow_open, read_metadata = Image.open, photos.read_dji_metadata
+
+    def counted_open(path, *args, **kwargs):
+        opened.append(Path(path).name)
+        return pillow_open(path, *args, **kwargs)
+
+    def counted_read(path):
+        read.append(Path(path).name)
+        return read_metadata(path)
+
+    monkeypatch.setattr(Image, "open", counted_open)
+    monkeypatch.setattr(photos, "read_dji_metadata", counted_read)
+    _, inputs, skipped, _ = spec.resolved()
+    assert [i.name for i in inputs] == ["D0.JPG", "D1.JPG"] and list(skipped) == ["D2.JPG"]
+    assert "truncated" in skipped["D2.JPG"] and str(root / "images" / "D2.JPG") in skipped["D2.JPG"]
+    photos_opened = sorted(n for n in opened if n.endswith(".JPG"))
+    assert photos_opened == ["D0.JPG", "D0.JPG", "D1.JPG", "D1.JPG", "D2.JPG"]
+    assert sorted(read) == ["D0.JPG", "D1.JPG"]
+    assert inputs[0].intrinsics_source == INTRINSICS_35MM and inputs[0].prior.source == "exif"
 
 
 def test_a_finished_run_whose_pose_files_were_deleted_refuses_to_export_naming_them(

@@ -78,6 +78,7 @@ from semcityloc.datasets.photos import (
     PhotoPrior,
     PriorFiles,
     list_images,
+    photo_metadata,
 )
 from semcityloc.errors import BenchmarkError, InputFileError, ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
@@ -88,9 +89,8 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import (
     check_aspect,
     check_aspect_of_photo,
-    check_decodes,
     check_label_header,
-    exif_orientation,
+    decoded_size_and_orientation,
     image_size,
     load_image,
     read_depth_file,
@@ -413,9 +413,11 @@ def _resolve(spec: PhotoSpec) -> Resolved:
     for path in list_images(spec.images, every_entry=True):
         try:
             width, height, orientation = _readable_photo(path)
-            lens = intrinsics.photo_camera(path, width, height)
+            # Read once when both the camera and the prior come from it (each would read the whole file).
+            meta = photo_metadata(path) if intrinsics.exif and priors.exif else None
+            lens = intrinsics.photo_camera(path, width, height, meta)
             camera = lens.camera
-            prior = priors.prior(path)
+            prior = priors.prior(path, meta)
             mask = _mask_file(spec, path, camera, orientation)
             depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera, orientation)
         except PhotoMissing as exc:
@@ -424,7 +426,7 @@ def _resolve(spec: PhotoSpec) -> Resolved:
         true_pose = None
         if truth is not None:
             try:
-                true_pose = truth.prior(path).pose_world
+                true_pose = truth.prior(path, meta).pose_world
             except PhotoMissing:
                 true_pose = None  # ground truth is optional per photo
         sigma = fixed or prior.uncertainty or PriorUncertainty()
@@ -449,7 +451,8 @@ def _resolve(spec: PhotoSpec) -> Resolved:
 
 
 def _readable_photo(path: Path) -> tuple[int, int, int]:
-    """(width, height, EXIF orientation) of a photo whose pixels decode (``io.images.check_decodes``);
+    """(width, height, EXIF orientation) of a photo whose pixels decode (``io.images.check_decodes``, here
+    with the size and orientation from the same opening: ``decoded_size_and_orientation``);
     ``PhotoMissing`` naming the file when it is not a file, is empty, truncated, corrupt or of a format
     Pillow does not read: that photo is skipped with the reason, the others run."""
     if not path.is_file():
@@ -457,12 +460,9 @@ def _readable_photo(path: Path) -> tuple[int, int, int]:
     try:
         if path.stat().st_size == 0:
             raise InputFileError(f"{path}: cannot read photo (empty file)")
-        width, height = image_size(path, "photo")
-        orientation = exif_orientation(path)
-        check_decodes(path, "photo")
+        return decoded_size_and_orientation(path, "photo")
     except (InputFileError, OSError) as exc:
         raise PhotoMissing(str(exc)) from None
-    return width, height, orientation
 
 
 def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) -> CityModel:

@@ -35,6 +35,7 @@ import pyproj
 from semcityloc.datasets.dji import (
     HEIGHT_AUTO,
     HEIGHT_ELLIPSOIDAL,
+    DjiMetadata,
     calibrated_intrinsics,
     camera_from_exif,
     dewarp_lens,
@@ -56,6 +57,15 @@ EXIF = "exif"  # --priors / --intrinsics value: from the photo's own metadata
 
 class PhotoMissing(InputFileError):
     """One photo lacks something (a prior, intrinsics, a mask); the batch goes on without it."""
+
+
+def photo_metadata(image: Path) -> DjiMetadata:
+    """``dji.read_dji_metadata`` of a photo; ``PhotoMissing`` with its message when it cannot be read (a
+    malformed tag, say): that photo is skipped, not the run."""
+    try:
+        return read_dji_metadata(image)
+    except SemCityLocError as exc:
+        raise PhotoMissing(str(exc)) from None
 
 
 def list_images(folder: str | os.PathLike, every_entry: bool = False) -> list[Path]:
@@ -160,15 +170,14 @@ class IntrinsicsFiles:
             "or an intrinsic/ folder beside the pose folder)"
         )
 
-    def photo_camera(self, image: Path, width: int, height: int) -> PhotoCamera:
+    def photo_camera(
+        self, image: Path, width: int, height: int, meta: DjiMetadata | None = None
+    ) -> PhotoCamera:
         """The camera of ``image`` at ``width`` x ``height``, its lens distortion and where they came from:
         ``INTRINSICS_DJI_DEWARP``, ``INTRINSICS_DJI_CALIBRATION``, ``INTRINSICS_35MM`` (approximate) or the
-        calibration file."""
+        calibration file. ``meta``: the photo's ``photo_metadata`` when the caller has read it already."""
         if self.exif:
-            try:
-                meta = read_dji_metadata(image)
-            except SemCityLocError as exc:  # e.g. a malformed tag: this photo is skipped, not the run
-                raise PhotoMissing(str(exc)) from None
+            meta = meta if meta is not None else photo_metadata(image)
             lens = dewarp_lens(meta)
             if lens is not None:
                 (camera, distortion), source = lens, INTRINSICS_DJI_DEWARP
@@ -232,6 +241,7 @@ class PriorFiles:
         geoid_separation_m: float | None = None,
     ):
         self.spec = str(spec)
+        self.exif = self.spec == EXIF  # from each photo's own metadata
         self.crs, self.offset = crs, offset
         self.target_height, self.geoid_separation_m = target_height, geoid_separation_m
         self.geotags = None
@@ -263,9 +273,10 @@ class PriorFiles:
         details = prior.as_dict()
         return PhotoPrior(prior.pose, prior_uncertainty(prior), source, details)
 
-    def prior(self, image: Path) -> PhotoPrior:
+    def prior(self, image: Path, meta: DjiMetadata | None = None) -> PhotoPrior:
         """The prior of ``image``; ``PhotoMissing`` when it has none (``SemCityLocError`` for a CRS that
-        cannot hold it)."""
+        cannot hold it). ``meta``: the photo's ``photo_metadata`` when the caller has read it already (used
+        by ``exif`` priors only)."""
         if self.files is not None:
             pose = self.files.pose(image)
             if pose is None:
@@ -279,8 +290,4 @@ class PriorFiles:
             prior = self._from_dji(row.geotag.metadata(), source, HEIGHT_ELLIPSOIDAL)
             prior.uncertainty = row.uncertainty()
             return prior
-        try:
-            meta = read_dji_metadata(image)
-        except SemCityLocError as exc:
-            raise PhotoMissing(str(exc)) from None
-        return self._from_dji(meta, "exif", HEIGHT_AUTO)
+        return self._from_dji(meta if meta is not None else photo_metadata(image), "exif", HEIGHT_AUTO)

@@ -197,9 +197,14 @@ def exif_orientation(path: str | Path) -> int:
     describe; viewers and many tools (OpenCV's imread, PIL's ``exif_transpose``) show them turned."""
     try:
         with Image.open(path) as img:
-            value = img.getexif().get(274, 1)
+            return _orientation_of(img)
     except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read image ({exc})") from exc
+
+
+def _orientation_of(img: Image.Image) -> int:
+    """``exif_orientation`` of an opened image (Pillow's errors raised as they come)."""
+    value = img.getexif().get(274, 1)
     return value if isinstance(value, int) and 1 <= value <= 8 else 1
 
 
@@ -239,10 +244,37 @@ def check_decodes(path: str | Path, what: str = "image") -> None:
     (Pillow's draft mode: every byte of its data is still read, in a tenth of the time)."""
     try:
         with Image.open(path) as img:
-            img.draft("RGB", (max(1, img.width // 8), max(1, img.height // 8)))  # a no-op but for JPEG
-            img.load()
+            _decode_small(img)
     except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read {what} ({exc})") from exc
+
+
+def _decode_small(img: Image.Image) -> None:
+    """Decode an opened image's pixels, a JPEG at an eighth of its size (``check_decodes``); the image's
+    ``size`` is the reduced one afterwards."""
+    img.draft("RGB", (max(1, img.width // 8), max(1, img.height // 8)))  # a no-op but for JPEG
+    img.load()
+
+
+def decoded_size_and_orientation(path: str | Path, what: str = "image") -> tuple[int, int, int]:
+    """(width, height, EXIF orientation) of an image file whose pixels decode: ``image_size``,
+    ``exif_orientation`` and ``check_decodes`` with their errors, from one opening of the file instead of
+    three (a photo run asks this of every photo before its first, ``benchmark.photo_source``)."""
+    try:
+        img = Image.open(path)
+    except IMAGE_DECODE_ERRORS as exc:
+        raise InputFileError(f"{path}: cannot read {what} ({exc})") from exc
+    with img:
+        width, height = img.size  # before the draft, which shrinks it
+        try:
+            orientation = _orientation_of(img)
+        except IMAGE_DECODE_ERRORS as exc:
+            raise InputFileError(f"{path}: cannot read image ({exc})") from exc
+        try:
+            _decode_small(img)
+        except IMAGE_DECODE_ERRORS as exc:
+            raise InputFileError(f"{path}: cannot read {what} ({exc})") from exc
+    return width, height, orientation
 
 
 def save_rgb(image: np.ndarray, path: str | Path, optimize: bool = False) -> Path:
