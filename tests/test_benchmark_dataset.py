@@ -212,6 +212,10 @@ def test_an_unreadable_mask_is_that_querys_miss_not_the_runs_end(dataset_dir, tm
     summary = json.loads((out / "summary.json").read_text())
     assert summary["queries"] == 2 and summary["localized"] == 1 and summary["skipped"] == 0
     assert summary["recall_5m5deg"] == 50.0  # the unreadable query is a miss, not left out
+    # Its row has no details file and never will: a resume keeps it (nothing to restore, nothing redone).
+    code = main([*argv, "--depth", str(depth), "--preset", "default", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0 and "missing" not in err and "localizing them again" not in err, err
 
 
 def test_dropped_depth_is_named_in_the_rows(dataset_dir, tmp_path):

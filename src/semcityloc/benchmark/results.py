@@ -417,14 +417,15 @@ def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, orig
 def missing_details(out_dir: Path, rows: list[dict[str, str]], keep: int) -> list[int]:
     """The indices of a run's finished queries below ``keep`` whose ``details/qNNNN.npz`` is gone (a
     deleted ``details/``): the report would draw no figure of them. A resume localizes them again
-    (``benchmark.run``), the report names them. Rows that never had details (``skipped``, ``failed``) are
-    left out."""
+    (``benchmark.run``), the report names them. Rows that never had details (``skipped``, ``failed``, a
+    data-set query whose files cannot be read: ``unreadable_result``) are left out."""
     ids = {query_id(i): i for i in range(keep)}
     return sorted(
         ids[r["query_id"]]
         for r in rows
         if r["query_id"] in ids
         and r["status"] not in (SKIPPED, FAILED)
+        and not (r.get("reason") or "").startswith(REASON_UNREADABLE)
         and not (out_dir / DETAILS_DIR / f"{r['query_id']}.npz").is_file()
     )
 
