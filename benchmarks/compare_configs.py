@@ -173,6 +173,11 @@ def _localize(path: Path) -> list[dict] | None:
                 "err_deg": err_deg,
                 "probability": r.confidence.get("probability"),
                 "view_span_m": r.confidence.get("view_span_m"),
+                "score": r.score,
+                "semantic": r.semantic,
+                "depth_cost": r.depth_cost,
+                "building_iou": r.confidence.get("building_iou"),
+                "flat_roof_eaves": r.search.get("flat_roof_eaves"),
             }
         )
     return rows

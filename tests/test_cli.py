@@ -420,13 +420,24 @@ def test_localize_records_the_eaves_of_the_map_it_searched(exif_view, tmp_path, 
     r = exif_view["root"]
     common = ("--intrinsics", "exif", "--image", exif_view["photo"], "--semantic", r / "r" / "labels.png")
     cases = (
-        ("a", (), {"m": 0.5, "flat_roofs": False}),
-        ("b", ("--map-eaves", "0.3", "--map-eaves-flat"), {"m": 0.3, "flat_roofs": True}),
+        ("a", (), {"m": 0.5, "flat_roofs": "auto"}),
+        (
+            "b",
+            ("--map-eaves", "0.3", "--map-eaves-flat"),
+            {"m": 0.3, "flat_roofs": "on", "flat_roofs_used": True},
+        ),
+        ("c", ("--map-eaves-flat", "off"), {"m": 0.5, "flat_roofs": "off", "flat_roofs_used": False}),
     )
     for out, extra, want in cases:
         code, _, _ = _localize(capsys, exif_view, tmp_path / out, *common, *extra)
         pose = json.loads((tmp_path / out / "pose.json").read_text())
-        assert code == 0 and pose["extra"]["map_eaves"] == want
+        eaves = pose["extra"]["map_eaves"]
+        assert code == 0 and eaves == {"flat_roofs_used": eaves["flat_roofs_used"], **want}
+        # "auto" says which map it took: the one its result was found on
+        looked = pose["extra"]["search"].get("flat_roof_eaves", {}).get("used", False)
+        assert eaves["flat_roofs_used"] is (
+            looked if want["flat_roofs"] == "auto" else want["flat_roofs"] == "on"
+        )
         assert np.linalg.norm(np.array(pose["position"]) - exif_view["truth"]) < 1.0
 
 

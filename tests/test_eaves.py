@@ -68,7 +68,7 @@ def test_flat_roofs_get_the_eave_only_when_asked(city):
         before[flat_roof].astype(np.float32).astype(np.float64),
     )
     # The localizer's map follows its config.
-    flat_scene = localizer_scene(city, LocalizerConfig(map_eaves_flat_roofs=True))
+    flat_scene = localizer_scene(city, LocalizerConfig(map_eaves_flat_roofs="on"))
     default_scene = localizer_scene(city, LocalizerConfig())
     assert flat_scene.num_triangles == default_scene.num_triangles
     assert not np.allclose(flat_scene.tri_xyz, default_scene.tri_xyz)
@@ -101,3 +101,31 @@ def test_distinct_vertex_keys_match_numpys_unique_rows():
     _, want_first, want_inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     assert np.array_equal(first, want_first) and np.array_equal(inverse, want_inverse.reshape(-1))
     assert len(_unique_rows(key[:0])[0]) == 0
+
+
+def test_auto_takes_the_flat_roofs_eaves_where_the_view_shows_them_and_only_there(city):
+    """``map_eaves_flat_roofs="auto"`` (the default): a view of a world whose flat roofs overhang is
+    refined again on the map with eaves on its flat roofs too and takes that pose; a view of a world
+    whose flat roofs end at the walls keeps the map without them. "off" and "on" never look twice."""
+    from helpers import CAMERA, perturbed, view
+    from semcityloc.geometry.errors import center_error_m
+    from semcityloc.render import Renderer
+
+    auto = Localizer(city)
+    assert LocalizerConfig().map_eaves_flat_roofs == "auto" and auto.flat_eaves_scene is not None
+    assert Localizer(city, LocalizerConfig(map_eaves_flat_roofs="off")).flat_eaves_scene is None
+    assert Localizer(city, LocalizerConfig(map_eaves_flat_roofs=True)).flat_eaves_scene is None  # "on"
+    true = view(city, 10.0, -20.0, 80.0, 1.0, 2.0, 30.0)
+    prior = perturbed(true, np.array([3.0, -2.0, 1.0]), 0.3, -0.3, 2.0)
+    for eaves_on_flat_roofs in (True, False):
+        world = Renderer(with_eaves(city, 0.8, flat_roofs=eaves_on_flat_roofs), engine="numba")
+        out = world.render(CAMERA, true, depth=True)
+        result = auto.localize(CAMERA, prior, out.labels[0], 0.5 * out.depth[0] + 3.0)
+        look = result.search["flat_roof_eaves"]
+        assert look["used"] is eaves_on_flat_roofs, look
+        assert center_error_m(result.pose_local, true) < 0.5
+    with pytest.raises(ParameterError, match="map_eaves_flat_roofs"):
+        LocalizerConfig(map_eaves_flat_roofs="sometimes")
+    for bad in (float("nan"), 2.0, "0.1", True):
+        with pytest.raises(ParameterError, match="flat_eaves_gate"):
+            LocalizerConfig(flat_eaves_gate=bad)

@@ -133,3 +133,34 @@ def test_bad_tile_size_is_a_render_error(city):
         build_scene(city, tile_size_m=0.0)
     with pytest.raises(TypeError, match="CityModel"):
         build_scene("city.gml")
+
+
+def test_a_scene_with_model_triangles_moved_keeps_its_terrain_and_classes(city):
+    """``with_model_triangles``: the same scene with the model's triangles where they now are (a map with
+    eaves), re-tiled so every box still holds its triangles; terrain and classes (whatever the scene had
+    done to them) kept; None when nothing moved."""
+    from semcityloc.citymodel.eaves import with_eaves
+    from semcityloc.render.scene import with_model_triangles
+
+    scene = build_scene(city, tile_size_m=20.0)
+    scene = type(scene)(**{**scene.__dict__, "classes": np.where(scene.classes == 1, 2, scene.classes)})
+    assert with_model_triangles(scene, city.vertices[city.triangles]) is None
+    moved_model = with_eaves(city, 0.8, flat_roofs=True)
+    moved = with_model_triangles(scene, moved_model.vertices[moved_model.triangles])
+    assert moved is not None and moved.num_triangles == scene.num_triangles
+    src = moved.source_triangle
+    np.testing.assert_allclose(
+        moved.corners[src >= 0], moved_model.vertices[moved_model.triangles[src[src >= 0]]], atol=1e-5
+    )
+    old_terrain = scene.corners[scene.source_triangle < 0]
+    new_terrain = moved.corners[src < 0]
+    key = lambda c: np.lexsort(c.reshape(len(c), 9).T)  # noqa: E731  (the terrain, in any order)
+    np.testing.assert_array_equal(new_terrain[key(new_terrain)], old_terrain[key(old_terrain)])
+    class_of = np.zeros(city.num_triangles, dtype=np.uint8)
+    class_of[scene.source_triangle[scene.source_triangle >= 0]] = scene.classes[scene.source_triangle >= 0]
+    np.testing.assert_array_equal(
+        moved.classes[src >= 0], class_of[src[src >= 0]]
+    )  # the scene's, not the model's
+    tile_of = np.repeat(np.arange(moved.num_tiles), np.diff(moved.tile_start))
+    box = moved.tile_bbox[tile_of]
+    assert (moved.corners.min(1) >= box[:, :3]).all() and (moved.corners.max(1) <= box[:, 3:]).all()

@@ -433,7 +433,7 @@ def test_a_run_searches_the_map_with_the_eaves_it_is_given(box_flight, tmp_path,
     argv = [*box_flight["argv"], "--out", out, "--no-overlays", "--map-eaves", "0.3", "--map-eaves-flat"]
     code, _, _ = run(capsys, *argv)
     localizer = json.loads((out / "run.json").read_text())["localizer"]
-    assert code == 0 and localizer["map_eaves_m"] == 0.3 and localizer["map_eaves_flat_roofs"] is True
+    assert code == 0 and localizer["map_eaves_m"] == 0.3 and localizer["map_eaves_flat_roofs"] == "on"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["localized"] == 2  # the box city's flat roofs, 0.3 m wider, still hold both photos
     # The eaves are part of what the run is: the same folder with the default map is refused.

@@ -177,7 +177,8 @@ class PhotoSpec:
     method: str = "semcityloc"
     preset: str = "default"
     map_eaves_m: float | None = None  # eaves added to the map's pitched roofs; None: the preset's (0.5 m)
-    map_eaves_flat_roofs: bool = False  # and to its flat roofs (docs/localization.md, "The map's eaves")
+    # and to its flat roofs: "auto", "on", "off" (``LocalizerConfig.map_eaves_flat_roofs``); None: preset's
+    map_eaves_flat_roofs: str | None = None
     keep_details: int = 3
     overlays: bool = True
     # Estimate each camera's focal length from the flight's oblique photos (``localization.focal``):

@@ -35,7 +35,7 @@ from semcityloc.io.images import (
     read_mask_file,
     save_rgb,
 )
-from semcityloc.localization.config import PRESETS, LocalizerConfig
+from semcityloc.localization.config import FLAT_EAVES, PRESETS, LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
@@ -71,9 +71,14 @@ def add_map_eaves_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--map-eaves-flat",
-        action="store_true",
-        help="add the eaves to the map's flat roofs too: for a city whose flat roofs overhang their walls "
-        '(not for flat roofs ending in a parapet, where it costs; docs/localization.md, "The map\'s eaves")',
+        nargs="?",
+        const="on",
+        default=None,
+        choices=FLAT_EAVES,
+        help="the eaves on the map's flat roofs too: 'auto' (the default) tries them per view and keeps "
+        "them where the view fits them better; 'on' (the option alone) always, for a city whose flat roofs "
+        "overhang their walls; 'off' never, for flat roofs that end in a parapet "
+        '(docs/localization.md, "The map\'s eaves")',
     )
 
 
@@ -231,8 +236,14 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     crs = crs_label(model.crs)
     record = result.to_dict(model.origin, crs)  # the pose, if any, in CRS coordinates
-    # The map searched: its eaves.
-    record["map_eaves"] = {"m": config.map_eaves_m, "flat_roofs": config.map_eaves_flat_roofs}
+    # The map searched: its eaves, and whether the pose was found with them on the flat roofs too.
+    used = bool(result.search.get("flat_roof_eaves", {}).get("used"))
+    flat = {"on": True, "off": False}.get(config.map_eaves_flat_roofs, used)
+    record["map_eaves"] = {
+        "m": config.map_eaves_m,
+        "flat_roofs": config.map_eaves_flat_roofs,
+        "flat_roofs_used": flat,
+    }
     if not lens.distortion.is_zero:
         record["lens_distortion"] = lens.distortion.as_dict()  # the inputs were undistorted with it
     if result.pose_local is not None:

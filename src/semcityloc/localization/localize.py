@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import replace
@@ -64,6 +65,7 @@ from semcityloc.localization.query import (
 )
 from semcityloc.localization.refine import (
     PriorTerm,
+    RefineResult,
     ScoringLevel,
     initial_sigma,
     particle_filter,
@@ -82,7 +84,7 @@ from semcityloc.localization.result import (
 )
 from semcityloc.localization.scoring import map_classes, merge_openings_lut
 from semcityloc.render.raster_numba import NumbaEngine
-from semcityloc.render.scene import RenderScene, build_scene
+from semcityloc.render.scene import RenderScene, build_scene, with_model_triangles
 
 # Rays that do not meet the ground plane within this distance are cut here when the view's footprint is
 # estimated for the "model geometry in the search volume" check.
@@ -118,6 +120,9 @@ class Localizer:
         self.has_openings = map_openings and self.config.score_openings
         if map_openings and not self.has_openings:
             self.scene = replace(self.scene, classes=merge_openings_lut(False)[self.scene.classes])
+        # The map with eaves on its flat roofs too, for the second look of ``map_eaves_flat_roofs="auto"``
+        # (None: not asked for, or no flat roof to give them).
+        self.flat_eaves_scene = self._flat_eaves_scene(model)
         class_ids = map_classes(self.has_openings)
         self.class_on = np.zeros(NUM_CLASSES, dtype=bool)
         self.class_on[list(class_ids)] = True
@@ -178,7 +183,7 @@ class Localizer:
             return self._finish(result, result.reason, t0)
 
         # The map at the found pose: its agreement with the query and the view's span.
-        found_2d, found_depth = self.render_labels_and_depth(fine.camera, result.pose_local)
+        found_2d, found_depth = self.map_of(result).render_labels_and_depth(fine.camera, result.pose_local)
         query_2d = fine.labels.reshape(fine.camera.height, fine.camera.width)
         agreement = building_agreement(query_2d, found_2d)
         result.confidence["building_iou"] = agreement.building_iou
@@ -312,7 +317,61 @@ class Localizer:
             float(hyps.scores[0] - hyps.scores[1]) if len(hyps.scores) > 1 else float("nan")
         )
         self._refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
+        if self.flat_eaves_scene is not None and cfg.map_eaves_flat_roofs == "auto" and not cfg.no_refine:
+            self._look_with_flat_eaves(result, levels, hyps.states, cfg, sigma, prior)
         return levels[-1]
+
+    def _flat_eaves_scene(self, model: CityModel) -> RenderScene | None:
+        """This localizer's scene with ``map_eaves_m`` of eaves on the flat roofs as well, when its config
+        asks for ``"auto"`` and some flat roof gets them."""
+        cfg = self.config
+        if cfg.map_eaves_flat_roofs != "auto" or not cfg.map_eaves_m > 0.0:
+            return None
+        flat = with_eaves(model, cfg.map_eaves_m, flat_roofs=True)
+        return with_model_triangles(self.scene, flat.vertices[flat.triangles])
+
+    def _with_scene(self, scene: RenderScene) -> Localizer:
+        """This localizer searching ``scene`` instead (a shallow copy: the rest is shared)."""
+        other = copy.copy(self)
+        other.scene, other.flat_eaves_scene = scene, None
+        return other
+
+    def _look_with_flat_eaves(self, result, levels, seeds, cfg: LocalizerConfig, sigma, prior) -> None:
+        """``map_eaves_flat_roofs="auto"``: does the view fit the map with eaves on its flat roofs too?
+        Where the found pose scores higher on it by ``flat_eaves_gate``, the refinement runs again on that
+        map from the found pose and the search's hypotheses; its pose replaces the first when its semantic
+        score is higher by ``flat_eaves_margin``. Recorded in ``result.search["flat_roof_eaves"]``."""
+        t0 = time.perf_counter()
+        fine = levels[-1]
+        state = result.pose_local.to_xyz_rpy()
+        _, plain, _ = score_states(self.scene, fine, state[None], self.class_on, cfg.refine, prior)
+        _, flat, _ = score_states(self.flat_eaves_scene, fine, state[None], self.class_on, cfg.refine, prior)
+        look = {"gain_at_found": float(flat[0] - plain[0]), "used": False}
+        result.search["flat_roof_eaves"] = look
+        result.counts["refine_evaluations"] += 2
+        if look["gain_at_found"] > cfg.flat_eaves_gate:
+            trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
+            other = self._with_scene(self.flat_eaves_scene)
+            other._refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
+            result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
+            look["gain"] = float(trial.semantic - result.semantic)
+            moved = trial.pose_local.to_xyz_rpy() - state
+            look["moved_m"] = float(np.linalg.norm(moved[:3]))
+            if look["gain"] > cfg.flat_eaves_margin:
+                look["used"] = True
+                for name in (
+                    "pose_local",
+                    "score",
+                    "semantic",
+                    "depth_cost",
+                    "covariance",
+                    "score_curvature",
+                ):
+                    setattr(result, name, getattr(trial, name))
+                result.confidence.update(
+                    spread_m=trial.confidence["spread_m"], spread_deg=trial.confidence["spread_deg"]
+                )
+        result.timings["flat_eaves_s"] = time.perf_counter() - t0
 
     def _drop_inverted_depth(
         self, result: LocalizationResult, levels: list[ScoringLevel], pose_local: Pose
@@ -421,6 +480,13 @@ class Localizer:
         best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
         if cfg.refine.polish_iterations == 0:
             return best
+        return self._polish(levels, best, cfg, prior, restart)
+
+    def _polish(
+        self, levels, best: RefineResult, cfg: LocalizerConfig, prior, restart: int = 0
+    ) -> RefineResult:
+        """The refinement's polish: a narrow filter at the fine level around ``best``'s state; the
+        evaluations counted include ``best``'s, its spread is ``best``'s (the search's)."""
         xy, z, rp, yaw = cfg.refine.polish_sigma
         polish_sigma = np.array([xy, xy, z, rp, rp, yaw])
         if cfg.refine.pivot != "none":
@@ -497,6 +563,14 @@ class Localizer:
         prior = prior_term(prior_local.to_xyz_rpy(), cfg, unc) if with_prior else None
         score, sem, dep = score_states(self.scene, level, states, self.class_on, cfg.refine, prior)
         return {"semantic": sem, "depth_cost": dep, "score": score}
+
+    def map_of(self, result: LocalizationResult) -> Localizer:
+        """The localizer whose map ``result``'s pose was found on: this one, or the one with eaves on the
+        flat roofs too where ``map_eaves_flat_roofs="auto"`` took that map (``_look_with_flat_eaves``).
+        Its ``render_labels`` draw the map the result was scored on."""
+        if result.search.get("flat_roof_eaves", {}).get("used") and self.flat_eaves_scene is not None:
+            return self._with_scene(self.flat_eaves_scene)
+        return self
 
     def fine_camera(self, camera: Camera, config: LocalizerConfig | None = None) -> Camera:
         """``camera`` at the refinement's final resolution: where the final scores, the building IoU and
@@ -617,7 +691,7 @@ class Localizer:
 def scene_key(config: LocalizerConfig) -> tuple:
     """What of ``config`` decides its ``localizer_scene``: Localizers of configs with equal keys can share
     one scene."""
-    return (config.map_eaves_m, config.map_eaves_flat_roofs)
+    return (config.map_eaves_m, config.map_eaves_flat_roofs == "on")
 
 
 def localizer_scene(
@@ -627,7 +701,7 @@ def localizer_scene(
     eaves on its pitched roofs (``citymodel.eaves``); build it once to share among Localizers of the
     same eaves. ``terrain_ring``: a tile store's terrain border (``render.scene.build_scene``)."""
     return build_scene(
-        with_eaves(model, config.map_eaves_m, config.map_eaves_flat_roofs), terrain_ring=terrain_ring
+        with_eaves(model, config.map_eaves_m, config.map_eaves_flat_roofs == "on"), terrain_ring=terrain_ring
     )
 
 

@@ -124,6 +124,21 @@ def build_scene(
     return _tile(corners, classes, source, model.origin, float(tile_size_m))
 
 
+def with_model_triangles(scene: RenderScene, model_corners: np.ndarray) -> RenderScene | None:
+    """``scene`` with its model triangles at ``model_corners`` ((N, 3, 3), the model's triangles in the
+    local frame, indexed like ``source_triangle``), re-tiled; the terrain, classes and order of drawing
+    kept. For a variant of the same map with some triangles moved (``citymodel.eaves``): whatever was
+    done to the scene's classes (openings merged, silhouettes) and its terrain carries over. None when
+    no triangle moved by 1 mm or more."""
+    model_tri = scene.source_triangle >= 0
+    old = scene.corners.astype(np.float64)
+    new = old.copy()
+    new[model_tri] = np.asarray(model_corners, dtype=np.float64)[scene.source_triangle[model_tri]]
+    if not np.any(np.abs(new - old) >= 1e-3):
+        return None
+    return _tile(new, scene.classes, scene.source_triangle, scene.origin, scene.tile_size_m)
+
+
 def _tile(
     corners: np.ndarray, classes: np.ndarray, source: np.ndarray, origin: np.ndarray, ts: float
 ) -> RenderScene:
