@@ -616,9 +616,12 @@ def test_the_console_script_catches_a_ctrl_c_before_numpy_is_imported():
 
 
 # Holds the import of the CLI (``semcityloc.cli.main``) open for a minute after saying so on stdout: a
-# real SIGINT then lands inside it, however fast the machine imports.
+# real SIGINT then lands inside it, however fast the machine imports. Ctrl-C raises KeyboardInterrupt as in
+# a terminal even where the test runs in a background job (which starts its children with SIGINT ignored).
 _SLOW_IMPORT = """
-import sys, time
+import signal, sys, time
+
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 class Slow:
     def find_spec(self, name, path=None, target=None):
