@@ -65,7 +65,6 @@ from semcityloc.localization.query import (
 )
 from semcityloc.localization.refine import (
     PriorTerm,
-    RefineResult,
     ScoringLevel,
     initial_sigma,
     particle_filter,
@@ -480,13 +479,6 @@ class Localizer:
         best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
         if cfg.refine.polish_iterations == 0:
             return best
-        return self._polish(levels, best, cfg, prior, restart)
-
-    def _polish(
-        self, levels, best: RefineResult, cfg: LocalizerConfig, prior, restart: int = 0
-    ) -> RefineResult:
-        """The refinement's polish: a narrow filter at the fine level around ``best``'s state; the
-        evaluations counted include ``best``'s, its spread is ``best``'s (the search's)."""
         xy, z, rp, yaw = cfg.refine.polish_sigma
         polish_sigma = np.array([xy, xy, z, rp, rp, yaw])
         if cfg.refine.pivot != "none":
