@@ -1,14 +1,15 @@
 """Why a benchmark run missed what it missed, read from its ``results.csv`` alone (nothing is localized).
 
 Every query missed at ``--m`` metres / ``--deg`` degrees is one kind (``benchmark.miss_kinds``: near,
-refused-near, refused-wrong, wrong). Printed with each miss: the view, the query mask's mIoU against the
-simulated world (``query_miou``: the segmentation's errors), the mask's **building IoU against the map at
-the true pose** (``miss_kinds.map_building_iou``: low with a fair ``query_miou`` = the map is wrong where
-the camera looked), the prior's roll and pitch errors, the acceptance's probability, how far apart the
-class boundaries of the mask and of the map lie at the found pose (``boundary_distance_px``, in the
-refinement's pixels: under 1 at a right pose on a map that agrees; "-" in runs before stop 42), and the
-outdated-map warnings the result carried (``miss_kinds.map_warnings``: "map lacks" buildings the image
-shows, "image lacks" buildings the map has; what a run on real photos has instead of the map's agreement).
+refused-near, refused-wrong, wrong, unreadable-input). Printed with each miss: the view, the query mask's
+mIoU against the simulated world (``query_miou``: the segmentation's errors), the mask's **building IoU
+against the map at the true pose** (``miss_kinds.map_building_iou``: low with a fair ``query_miou`` = the
+map is wrong where the camera looked), the prior's roll and pitch errors, the acceptance's probability,
+how far apart the class boundaries of the mask and of the map lie at the found pose
+(``boundary_distance_px``, in the refinement's pixels: under 1 at a right pose on a map that agrees; "-"
+in runs before stop 42), and the outdated-map warnings the result carried (``miss_kinds.map_warnings``:
+"map lacks" buildings the image shows, "image lacks" buildings the map has; what a run on real photos has
+instead of the map's agreement).
 
     python benchmarks/miss_causes.py RUN_DIR [--m 2 --deg 2]
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from semcityloc.benchmark.results import REASON_UNREADABLE
 from semcityloc.classes import NUM_CLASSES, SemanticClass
 from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
 
@@ -37,6 +38,9 @@ WARNED = {  # what the localizer said about the map (localization.agreement), as
 BOUNDARIES = {"q3": "4.25", "q4": "nan"}  # px at the found pose; empty as in runs before stop 42
 
 
+UNREADABLE = {"q6": f"{REASON_UNREADABLE}: /d/masks/q6.png: truncated PNG"}  # results.unreadable_result
+
+
 def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     rows = [  # (status, error, found error, map agreement in pixels)
         ("q0", "localized", 0.5, 0.5, 900, 50),  # hit
@@ -45,9 +49,10 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
         ("q3", "not_localized", "", 40.0, 300, 350),  # refused-wrong
         ("q4", "localized", 9.0, 9.0, 600, 200),  # wrong, accepted
         ("q5", "skipped", "", "", 0, 0),  # not a query: left out
+        ("q6", "not_localized", "inf", "", 0, 0),  # unreadable-input: its mask could not be read
     ]
     with (tmp_path / "results.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, [*FIELDS.split(), "warnings", "meta_json", "boundary_distance_px"])
+        w = csv.DictWriter(fh, [*FIELDS.split(), "reason", "warnings", "meta_json", "boundary_distance_px"])
         w.writeheader()
         for qid, status, err, found, agree, disagree in rows:
             w.writerow(
@@ -57,6 +62,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
                     err_rot_deg=0.5 if status != "skipped" else "", found_err_xyz_m=found,
                     found_err_rot_deg=0.5 if found != "" else "",
                     warnings=WARNED.get(qid, ""), boundary_distance_px=BOUNDARIES.get(qid, ""),
+                    reason=UNREADABLE.get(qid, ""),
                     meta_json=json.dumps(
                         {"map_confusion": _confusion(agree, disagree), "prior_roll_err_deg": -1.5}
                     ),
@@ -67,22 +73,27 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     )
     lines = out.stdout.splitlines()
     summary = json.loads(lines[-1])
-    assert summary["queries"] == 5
-    assert summary["count"] == {"hit": 1, "near": 1, "refused-near": 1, "refused-wrong": 1, "wrong": 1}
+    assert summary["queries"] == 6
+    assert summary["count"] == {
+        "hit": 1, "near": 1, "refused-near": 1, "refused-wrong": 1, "wrong": 1, "unreadable-input": 1
+    }  # fmt: skip
     assert abs(summary["median_map_building_iou"]["hit"] - 900 / 1000) < 1e-9
     assert abs(summary["median_map_building_iou"]["refused-near"] - 300 / 1000) < 1e-9
     assert summary["hits_by_map_building_iou"] == {"0-0.6": [0, 2], "0.6-0.8": [0, 1], "0.8-1.01": [1, 2]}
     assert summary["map_warned"] == [0, 2]  # q2 and q4 carried an outdated-map warning, no hit did
     assert abs(summary["median_map_building_iou"]["misses"] - (0.3 + 0.6) / 2) < 1e-9  # of 0.9, 0.3, 0.3, 0.6
     table = [line for line in lines if line.startswith("| q") and not line.startswith("| query")]
-    assert [line.split(" | ")[2] for line in table] == ["near", "refused-near", "refused-wrong", "wrong"]
+    kinds = ["near", "refused-near", "refused-wrong", "wrong", "unreadable-input"]
+    assert [line.split(" | ")[2] for line in table] == kinds
     assert "1.5° / nan°" in table[0]  # the prior's roll error, unsigned; a missing pitch error says nan
-    assert [line.split(" | ")[-2] for line in table] == ["-", "-", "4.2", "nan"]  # class boundaries apart
+    apart = ["-", "-", "4.2", "nan", "-"]  # class boundaries apart
+    assert [line.split(" | ")[-2] for line in table] == apart
     assert [line.split(" | ")[-1] for line in table] == [
         "- |",
         "map lacks, image lacks |",
         "- |",
         "image lacks |",
+        "- |",
     ]
     # At 5 m the accepted 3 m pose is a hit.
     out5 = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path), "--m", "5", "--deg", "5"],

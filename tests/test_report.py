@@ -160,7 +160,7 @@ def test_report_from_two_real_runs(two_runs, tmp_path):
     # the runs differ only in the method; both have calibrated probabilities: an acceptance table
     assert set(report.tables) == {"main", "acceptance", "misses"} and len(report.notes) == 3
     for row, outcome in zip(read_csv(report.tables["misses"][1]), two_runs, strict=True):
-        kinds = ("hit", "near", "refused-near", "refused-wrong", "wrong")
+        kinds = ("hit", "near", "refused-near", "refused-wrong", "wrong", "unreadable-input")
         assert sum(int(row[k]) for k in kinds) == len(outcome.rows) == 2
     main = read_csv(report.tables["main"][1])
     assert [r["method"] for r in main] == ["semcityloc", "no-refine"]
@@ -419,3 +419,45 @@ def test_an_unreadable_details_file_skips_only_its_figure_with_a_note(two_runs, 
 
     html = make_html_report([run], tmp_path / "h")  # the query browser shows q0000 without its details
     assert html.queries == 2 and any("q0000.npz" in n and "q0000 shown without them" in n for n in html.notes)
+
+
+def _with_reason(run: Path, reasons: dict[str, str]) -> Path:
+    """``run`` with the reasons of some of its rows replaced (query id -> reason)."""
+    rows = read_csv(run / RESULTS_FILE)
+    for row in rows:
+        row["reason"] = reasons.get(row["query_id"], row["reason"])
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    (run / RESULTS_FILE).write_text(buf.getvalue())
+    return run
+
+
+def test_a_query_whose_input_could_not_be_read_is_its_own_kind_of_miss_not_a_refusal(tmp_path):
+    """A data-set query whose mask cannot be read (``results.unreadable_result``) was never searched: the
+    misses table counts it as ``unreadable-input``, not as ``refused-wrong`` ("refused, rightly"), the
+    note says what it is, and the recall still counts it as a miss."""
+    from semcityloc.benchmark.results import REASON_UNREADABLE
+
+    inf = math.inf
+    run = fake_run(tmp_path, "torn_mask", [(0.5, 0.2), (inf, inf), (inf, inf)], mode="dataset")
+    _with_reason(run, {"q0002": f"{REASON_UNREADABLE}: /d/masks/DJI_0003.png: truncated PNG"})
+    report = make_report([run], tmp_path / "r", overlays=0)
+    (row,) = read_csv(report.tables["misses"][1])
+    assert (row["hit"], row["refused-wrong"], row["unreadable-input"]) == ("1", "1", "1")
+    assert row["queries"] == "3"
+    (main,) = read_csv(report.tables["main"][1])
+    assert float(main["recall_2m2deg"]) == pytest.approx(100 / 3)  # the unreadable query is a miss
+    text = report.markdown.read_text(encoding="utf-8")
+    assert "unreadable-input: the query's mask or depth file could not be read" in text
+
+
+def test_the_query_browser_bins_a_query_whose_input_could_not_be_read_apart():
+    """The HTML report's error bins: an unreadable query is not "not localized" (nothing was refused)."""
+    from semcityloc.benchmark.report_views import NOT_LOCALIZED, UNREADABLE, error_bin, error_bins
+    from semcityloc.benchmark.results import REASON_UNREADABLE
+
+    row = {"status": "not_localized", "reason": f"{REASON_UNREADABLE}: /d/depth/x.npy: not a .npy file"}
+    assert error_bin(row) == UNREADABLE and UNREADABLE in error_bins()
+    assert error_bin({"status": "not_localized", "reason": "best score below threshold"}) == NOT_LOCALIZED

@@ -29,7 +29,7 @@ import numpy as np
 from PIL import Image
 
 from semcityloc.benchmark.queries import stated_camera
-from semcityloc.benchmark.results import SKIPPED, row_pose
+from semcityloc.benchmark.results import SKIPPED, row_pose, unreadable_row
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR
 from semcityloc.classes import IGNORE
 from semcityloc.errors import SemCityLocError
@@ -51,6 +51,7 @@ POSES: dict[str, tuple[str, tuple[int, int, int]]] = {
     "truth": ("true", (0, 220, 255)),
 }
 NO_TRUTH, NOT_LOCALIZED, WORSE = "no truth", "not localized", "worse"
+UNREADABLE = "unreadable input"  # not localized because its mask or depth could not be read: no search
 QUERY_MASK = "query mask"
 
 
@@ -75,9 +76,12 @@ def _float(text: str | None) -> float | None:
 
 
 def error_bin(row: dict[str, str]) -> str:
-    """The row's place among the recall thresholds: ``≤2 m, 2°`` ... ``worse``, or why it has none."""
+    """The row's place among the recall thresholds: ``≤2 m, 2°`` ... ``worse``, or why it has none (not
+    localized, its input unreadable, no truth, skipped)."""
     if row["status"] == SKIPPED:
         return SKIPPED
+    if unreadable_row(row):
+        return UNREADABLE
     if row["status"] != LOCALIZED:
         return NOT_LOCALIZED
     e_m, e_deg = _float(row.get("err_xyz_m")), _float(row.get("err_rot_deg"))
@@ -95,7 +99,8 @@ def threshold_label(max_m: float, max_deg: float) -> str:
 
 def error_bins() -> list[str]:
     """Every bin ``error_bin`` gives, best first (the page's filter lists them in this order)."""
-    return [threshold_label(m, d) for m, d in THRESHOLDS] + [WORSE, NOT_LOCALIZED, NO_TRUTH, SKIPPED]
+    why_none = [WORSE, NOT_LOCALIZED, UNREADABLE, NO_TRUTH, SKIPPED]
+    return [threshold_label(m, d) for m, d in THRESHOLDS] + why_none
 
 
 def query_camera(config: dict, details: dict | None) -> Camera | None:

@@ -130,6 +130,12 @@ def unreadable_result(problem: str) -> LocalizationResult:
     return LocalizationResult(status=NOT_LOCALIZED, reason=f"{REASON_UNREADABLE}: {problem}")
 
 
+def unreadable_row(row: dict[str, str]) -> bool:
+    """Is this ``results.csv`` row an ``unreadable_result``: a miss because its input could not be read,
+    not because anything was searched or refused (the report files it apart: ``miss_kinds``)?"""
+    return row["status"] == NOT_LOCALIZED and (row.get("reason") or "").startswith(REASON_UNREADABLE)
+
+
 # A query whose worker process died on every try (``benchmark.ray_executor``): recorded with the reason,
 # not tried again on resume.
 FAILED = "failed"
@@ -425,7 +431,7 @@ def missing_details(out_dir: Path, rows: list[dict[str, str]], keep: int) -> lis
         for r in rows
         if r["query_id"] in ids
         and r["status"] not in (SKIPPED, FAILED)
-        and not (r.get("reason") or "").startswith(REASON_UNREADABLE)
+        and not unreadable_row(r)
         and not (out_dir / DETAILS_DIR / f"{r['query_id']}.npz").is_file()
     )
 

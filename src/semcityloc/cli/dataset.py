@@ -21,7 +21,7 @@ import numpy as np
 from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report import summary_markdown
-from semcityloc.benchmark.results import REASON_UNREADABLE
+from semcityloc.benchmark.results import unreadable_row
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
 from semcityloc.datasets.colmap import ColmapModel, write_model
@@ -275,7 +275,7 @@ def warn_unreadable(rows: list[dict[str, str]], config: dict) -> None:
     """One line on stderr per query whose input files could not be read (``results.REASON_UNREADABLE``):
     the run went on without it, and the recall counts it as a miss."""
     for row in sorted(rows, key=lambda r: int(r["index"])):
-        if row["reason"].startswith(REASON_UNREADABLE):
+        if unreadable_row(row):
             name = config["query_names"][int(row["index"])]
             line = f"semcityloc: warning: {row['query_id']} ({name}) is a miss: {row['reason']}"
             print(line, file=sys.stderr)
