@@ -441,6 +441,31 @@ def test_localize_records_the_eaves_of_the_map_it_searched(exif_view, tmp_path, 
         assert np.linalg.norm(np.array(pose["position"]) - exif_view["truth"]) < 1.0
 
 
+def test_localize_overlay_shows_the_map_the_pose_was_found_on(exif_view, tmp_path, capsys, monkeypatch):
+    """``overlay.png`` shows the map the pose was found on (``Localizer.map_of``): where ``"auto"``'s second
+    look took the pose from the map with eaves on its flat roofs, that map's edges, as pose.json says."""
+    from semcityloc.localization.localize import Localizer
+
+    real = Localizer.localize
+    r = exif_view["root"]
+    common = ("--intrinsics", "exif", "--image", exif_view["photo"], "--semantic", r / "r" / "labels.png")
+    overlays = {}
+    for used in (False, True):
+
+        def localize(self, *args, used=used, **kwargs):
+            result = real(self, *args, **kwargs)  # the same pose; the record says which map it came from
+            result.search["flat_roof_eaves"] = {"gain_at_found": 0.01, "used": used}
+            return result
+
+        monkeypatch.setattr(Localizer, "localize", localize)
+        code, _, _ = _localize(capsys, exif_view, tmp_path / str(used), *common)
+        pose = json.loads((tmp_path / str(used) / "pose.json").read_text())
+        assert code == 0 and pose["extra"]["map_eaves"]["flat_roofs_used"] is used
+        overlays[used] = load_image(tmp_path / str(used) / "overlay.png")
+    assert overlays[False].shape == overlays[True].shape
+    assert not np.array_equal(overlays[False], overlays[True])
+
+
 @pytest.mark.parametrize(
     "extra, needle",
     [

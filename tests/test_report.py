@@ -307,6 +307,7 @@ def test_report_reads_results_of_an_earlier_version(tmp_path):
         ("sigma_xy_m", "sigma_z_m", "sigma_yaw_deg"),
         ("warnings", "sigma_z_m"),
         ("boundary_distance_px", "depth_cost_agreed", "unseen_building_share"),  # before stop 42
+        ("flat_roof_eaves_used",),  # before the drawings followed the map a pose was found on
     ],
 )
 def test_results_without_columns_added_since_resume(tmp_path, dropped):
@@ -461,3 +462,80 @@ def test_the_query_browser_bins_a_query_whose_input_could_not_be_read_apart():
     row = {"status": "not_localized", "reason": f"{REASON_UNREADABLE}: /d/depth/x.npy: not a .npy file"}
     assert error_bin(row) == UNREADABLE and UNREADABLE in error_bins()
     assert error_bin({"status": "not_localized", "reason": "best score below threshold"}) == NOT_LOCALIZED
+
+
+# ------------------------------------------------------------------------------ the map at the estimate
+def _record_flat_eaves_look(run: Path, used: bool) -> Path:
+    """``run`` as if ``map_eaves_flat_roofs="auto"``'s second look had (``used``) or had not taken every
+    pose from the map with eaves on its flat roofs: its details files and rows say so (the poses as
+    they are)."""
+    import numpy as np
+
+    for path in (run / "details").glob("q*.npz"):
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(bytes(arrays["meta"]).decode("utf-8"))
+        meta["flat_roof_eaves"] = {"gain_at_found": 0.01, "used": used}
+        arrays["meta"] = np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)
+        np.savez_compressed(path, **arrays)
+    rows = read_csv(run / RESULTS_FILE)
+    for row in rows:
+        if "flat_roof_eaves_used" in row:  # the column of this version
+            row["flat_roof_eaves_used"] = "1" if used else "0"
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, list(rows[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    (run / RESULTS_FILE).write_text(buf.getvalue())
+    return run
+
+
+def _page_entries(html_path: Path) -> list[dict]:
+    """The query browser's entries of a ``report.html``."""
+    text = html_path.read_text(encoding="utf-8")
+    data = text.split('<script type="application/json" id="report-data">', 1)[1].split("</script>", 1)[0]
+    return json.loads(data)["entries"]
+
+
+def test_an_estimate_found_on_the_flat_eaves_map_is_drawn_on_that_map_and_said_so(two_runs, tmp_path):
+    """The figures and the query browser draw the map at an estimate the localizer took from the map with
+    eaves on its flat roofs (``Localizer.map_of``) on that map, as its details and row record, and name it;
+    the truth stays on the map as it is."""
+    import shutil
+
+    import numpy as np
+
+    from semcityloc.benchmark.report_html import make_html_report
+
+    runs = {}
+    for used in (False, True):
+        run = tmp_path / f"flat_{used}"
+        shutil.copytree(two_runs[0].out_dir, run)
+        runs[used] = _record_flat_eaves_look(run, used)
+    assert json.loads((runs[True] / RUN_FILE).read_text())["localizer"]["map_eaves_flat_roofs"] == "auto"
+    figures, entries = {}, {}
+    for used, run in runs.items():
+        report = make_report([run], tmp_path / f"r_{used}", overlays=1)
+        (png,) = [p for p in report.plots if p.name.startswith("query_")]
+        with Image.open(png) as im:
+            figures[used] = np.asarray(im.convert("RGB"))
+        entries[used] = _page_entries(make_html_report([run], tmp_path / f"h_{used}").path)
+    assert figures[False].shape == figures[True].shape and not np.array_equal(figures[False], figures[True])
+    localized = [i for i, e in enumerate(entries[True]) if "estimate" in e["layers"]]
+    assert localized, "no query of the run was localized"
+    for i in localized:
+        plain, flat = entries[False][i], entries[True][i]
+        assert plain["layers"]["truth"] == flat["layers"]["truth"]  # the truth: the map as it is
+        assert plain["layers"]["estimate"]["edges"] != flat["layers"]["estimate"]["edges"]
+        assert plain.get("estimate_map") is None
+        assert flat.get("estimate_map") == "the map with eaves on its flat roofs"
+    # Without details (not kept), the row says which map.
+    rows_only = {}
+    for used, run in runs.items():
+        shutil.rmtree(run / "details")
+        rows_only[used] = _page_entries(make_html_report([run], tmp_path / f"rows_{used}").path)
+    for i in localized:
+        plain, flat = rows_only[False][i], rows_only[True][i]
+        assert plain["layers"]["truth"] == flat["layers"]["truth"]
+        assert plain["layers"]["estimate"]["edges"] != flat["layers"]["estimate"]["edges"]
+        assert flat["estimate_map"] == "the map with eaves on its flat roofs"

@@ -731,12 +731,8 @@ def test_thermal_real_image_within_2_5m_1deg_from_its_gps_prior(real_run):
     assert err_m < 2.5 and err_deg < 1.0
 
 
-def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight):
-    """Workers get the source pickled once: models and inputs travel, the renderer and backends are
-    rebuilt in each process; a query made there is the same."""
-    import pickle
-
-    root = box_flight["root"]
+def _box_source(root: Path):
+    """The ``PhotoSource`` of ``box_flight``'s photos, their masks and priors (no truth given)."""
     spec = PhotoSpec(
         images=str(root / "images"),
         city=str(root / "city.obj"),
@@ -744,14 +740,49 @@ def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight
         intrinsics=str(root / "intrinsic"),
         masks=str(root / "masks"),
     )
-    source = spec.open_source(spec.run_config())
+    return spec.open_source(spec.run_config())
+
+
+def test_a_photo_source_goes_to_worker_processes_without_its_renderer(box_flight):
+    """Workers get the source pickled once: models and inputs travel, the renderer and backends are
+    rebuilt in each process; a query made there is the same."""
+    import pickle
+
+    source = _box_source(box_flight["root"])
     assert source.renderer is not None and len(source) == 2
     copy = pickle.loads(pickle.dumps(source))
-    assert copy._renderer is None and copy._backends is None
+    assert copy._renderer is None and copy._backends is None and copy._maps is None
     a, b = source.query(1), copy.query(1)
     np.testing.assert_array_equal(a.labels, b.labels)
     assert a.prior_pose_local.cam_from_world.tolist() == b.prior_pose_local.cam_from_world.tolist()
     assert b.prior_uncertainty == a.prior_uncertainty and b.meta["image"].endswith("P1.JPG")
+
+
+def test_a_photos_overlay_draws_the_estimate_on_the_map_it_was_found_on(box_flight, tmp_path):
+    """``overlays/<stem>.png``: an estimate ``map_eaves_flat_roofs="auto"`` took from the map with eaves on
+    its flat roofs (the box city's roofs are all flat) is drawn on that map; the prior's panel stays on the
+    map as it is."""
+    from semcityloc.datasets.overlay import HEADER_PX
+    from semcityloc.localization.result import LOCALIZED, LocalizationResult
+
+    source = _box_source(box_flight["root"])
+    q = source.query(0)
+    figures = {}
+    for used in (False, True):
+        look = {"gain_at_found": 0.01, "used": used}
+        pose = q.prior_pose_local  # a pose the photo sees the boxes from
+        result = LocalizationResult(status=LOCALIZED, pose_local=pose, search={"flat_roof_eaves": look})
+        out = tmp_path / str(used)
+        out.mkdir()
+        source.save_estimate(out, q, result)
+        with Image.open(out / "overlays" / "P0.png") as im:
+            figures[used] = np.asarray(im.convert("RGB"))
+    plain, flat = figures[False], figures[True]
+    width = (plain.shape[1] - 6) // 2  # two panels and a 6-pixel gap: the estimate, then the prior
+    assert plain.shape == flat.shape
+    drawing = slice(HEADER_PX, None)  # below the title (cut at this photo's 160 pixels)
+    assert not np.array_equal(plain[drawing, :width], flat[drawing, :width])  # the estimate's map's edges
+    np.testing.assert_array_equal(plain[:, width:], flat[:, width:])  # the prior's
 
 
 def test_berlin_run_on_a_tile_store_gives_the_same_poses(berlin_run, tmp_path):

@@ -35,9 +35,10 @@ returns that photo not accepted, with the reason, and the run loop records it as
 on resume (the file fixed, deleting that line of ``results.csv`` redoes the photo). Outputs (``runfiles``):
 ``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level when localized, in
 ``geometry.io.pose_to_dict``'s layout, and the result record, prior, uncertainty and perception in
-``extra``; the record alone when not localized), ``overlays/<stem>.png`` (the model's edges at the estimate
-and at the prior over the photo) and, when every photo is done, the exports of
-``benchmark.photo_exports`` (COLMAP model, geotag CSV, OpenDroneMap ``geo.txt``, GeoJSON).
+``extra``; the record alone when not localized), ``overlays/<stem>.png`` (the model's edges at the estimate,
+on the map it was found on (``found_map``: the map with eaves on its flat roofs, named in its title, where the
+localizer took the pose from there), and at the prior over the photo) and, when every photo is done, the
+exports of ``benchmark.photo_exports`` (COLMAP model, geotag CSV, OpenDroneMap ``geo.txt``, GeoJSON).
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ import numpy as np
 
 from semcityloc import __version__
 from semcityloc.benchmark import focal_cache
+from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.results import SKIP_REASON, SKIPPED
@@ -524,10 +526,11 @@ class PhotoSource:
         self.inputs = inputs
         self._backends: tuple[Any, Any] | None = None
         self._renderer: Renderer | None = None
+        self._maps: FoundMaps | None = None
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
-        state["_backends"] = state["_renderer"] = None  # rebuilt in each process
+        state["_backends"] = state["_renderer"] = state["_maps"] = None  # rebuilt in each process
         return state
 
     def __len__(self) -> int:
@@ -544,6 +547,14 @@ class PhotoSource:
         if self._renderer is None:
             self._renderer = Renderer(self.map_model, engine="numba")
         return self._renderer
+
+    @property
+    def maps(self) -> FoundMaps:
+        """The overlays' maps: the model as it is and the map an estimate was found on (``found_map``)."""
+        if self._maps is None:
+            cfg = self.spec.localizer_config()
+            self._maps = FoundMaps(self.map_model, self.renderer, cfg.map_eaves_m, cfg.map_eaves_flat_roofs)
+        return self._maps
 
     def query(self, index: int) -> BenchmarkQuery:
         """Photo ``index`` with its mask and depth on the pinhole camera; not accepted (``meta["accepted"]``
@@ -659,9 +670,13 @@ class PhotoSource:
             photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
             panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]
+            renderers: list[Renderer | None] = [None]
             if estimate is not None:
-                panels.insert(0, (model.pose_to_world(estimate), GT_COLOR, ESTIMATE_TITLE))
-            figure = edges_figure(photo, model, camera, panels, self.renderer)
+                found_on, found_map = self.maps.for_estimate(result.search.get("flat_roof_eaves"))
+                title = ESTIMATE_TITLE if found_map is None else f"{ESTIMATE_TITLE}, on {found_map}"
+                panels.insert(0, (model.pose_to_world(estimate), GT_COLOR, title))
+                renderers.insert(0, found_on)
+            figure = edges_figure(photo, model, camera, panels, self.renderer, renderers)
             png = out_dir / OVERLAYS_DIR / f"{inp.stem}.png"
             with writing(png):
                 png.parent.mkdir(exist_ok=True)

@@ -13,7 +13,8 @@ side by what differs in their ``run.json``:
 - plots (matplotlib, Agg): cumulative position and rotation error curves (one line per run,
   ``not_localized`` never reaches the curve), recall vs prior noise, and per run a figure for its first
   saved queries (``details/``): the query mask with the label boundaries of the map rendered at the
-  estimated and true poses, an xy slice and a yaw slice of the coarse cost volume.
+  estimated and true poses (the estimate on the map it was found on: ``found_map``), an xy slice and a
+  yaw slice of the coarse cost volume.
 
 Runs are read only (an unfinished run is reported with its finished rows and marked incomplete).
 """
@@ -32,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.miss_kinds import MISS_KINDS, summarize_misses
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.results import (
@@ -536,14 +538,16 @@ def overlay_image(
     return rgb
 
 
-def photo_overlay(photo: np.ndarray, renderer: Renderer, camera: Camera, true, est) -> np.ndarray:
+def photo_overlay(
+    photo: np.ndarray, renderer: Renderer, camera: Camera, true, est, est_renderer: Renderer | None = None
+) -> np.ndarray:
     """RGB uint8: the photo (at ``camera``'s size) with the model's visible edges at the true pose (cyan)
-    and at the estimate (magenta)."""
+    and at the estimate (magenta; drawn by ``est_renderer``, the map it was found on, when given)."""
     out = photo
-    for pose, color in ((true, TRUE_COLOR), (est, EST_COLOR)):
+    for pose, color, r in ((true, TRUE_COLOR, renderer), (est, EST_COLOR, est_renderer or renderer)):
         if pose is not None:
-            view = renderer.render(camera, pose, depth=True, face_ids=True)
-            out = draw_edges(out, visible_edges(view.face_ids[0], view.depth[0], renderer.scene), color)
+            view = r.render(camera, pose, depth=True, face_ids=True)
+            out = draw_edges(out, visible_edges(view.face_ids[0], view.depth[0], r.scene), color)
     return out
 
 
@@ -552,13 +556,14 @@ def _pose(matrix: np.ndarray):
 
 
 def plot_details(
-    details: dict, map_model, path: Path, title: str, photo_path: Path | None = None, renderer=None
+    details: dict, map_model, path: Path, title: str, photo_path: Path | None = None, maps=None
 ) -> Path:
     """One query: overlay (``overlay_image``), the photo with the model's edges (``photo_overlay``, when
     ``photo_path`` is given: real-data runs), xy slice at the best (z, yaw) and yaw slice at the best
     (x, y, z) of the coarse cost volume, with the true (green), prior (blue) and estimated (red) poses.
     Drawn at most ``FIGURE_MAX_WIDTH`` wide; a query without a true pose (a user's photo) shows the
-    estimate alone."""
+    estimate alone. ``maps``: the run's ``found_map.FoundMaps`` (default: the model as it is), so that an
+    estimate found on the map with eaves on its flat roofs is drawn on that map, and the caption says so."""
 
     plt = _pyplot()
     fx, fy, cx, cy, w, h = details["camera"]
@@ -566,9 +571,12 @@ def plot_details(
     camera = camera.scaled(*scaled_size(camera.width, camera.height, FIGURE_MAX_WIDTH))
     labels = resize_nearest(details["labels"], camera.width, camera.height)
     true, prior, est = (_pose(details[f"{k}_cam_from_world"]) for k in ("true", "prior", "est"))
-    renderer = renderer or Renderer(map_model, engine="numba")
+    maps = maps or FoundMaps(map_model, Renderer(map_model, engine="numba"))
+    renderer = maps.base
+    est_renderer, est_map = maps.for_estimate(details["meta"].get("flat_roof_eaves"))
     true_lab = renderer.render(camera, true).labels[0] if true is not None else None
-    est_lab = renderer.render(camera, est).labels[0] if est is not None else None
+    est_lab = est_renderer.render(camera, est).labels[0] if est is not None else None
+    est_note = f"\nestimate drawn on {est_map}" if est is not None and est_map else ""
     scores = details["cost_scores"]
     axes_info = details["meta"].get("cost_volume")
     has_volume = scores.size > 0 and axes_info is not None
@@ -583,12 +591,12 @@ def plot_details(
     ax.imshow(overlay_image(labels, est_lab, true_lab))
     status = details["meta"].get("status")
     truth_note = "cyan = true pose, " if true is not None else "(no true pose) "
-    ax.set_title(f"{title}: {status}\nmask; boundaries: {truth_note}magenta = estimate", fontsize=8)
+    ax.set_title(f"{title}: {status}\nmask; boundaries: {truth_note}magenta = estimate{est_note}", fontsize=8)
     ax.axis("off")
     if photo is not None:
         ax = next(panels)
-        ax.imshow(photo_overlay(photo, renderer, camera, true, est))
-        ax.set_title(f"photo; model edges: {truth_note}magenta = estimate", fontsize=8)
+        ax.imshow(photo_overlay(photo, renderer, camera, true, est, est_renderer))
+        ax.set_title(f"photo; model edges: {truth_note}magenta = estimate{est_note}", fontsize=8)
         ax.axis("off")
     if has_volume:
         xs, ys, zs, yaws = (np.asarray(axes_info[k]) for k in ("x", "y", "z", "yaw"))
@@ -846,8 +854,9 @@ def photo_of(config: dict, query_meta: dict) -> Path | None:
 
 
 def map_renderer(run: RunData, cache: dict, notes: list[str], consequence: str):
-    """(map model, numba renderer) of a run, shared through ``cache`` by runs of one map; None (and a
-    note: its map cannot be loaded, ``consequence``) when the map is gone."""
+    """(map model, the renderers of its drawings: ``found_map.FoundMaps`` on a numba renderer) of a run,
+    shared through ``cache`` by runs of one map (and one map's eaves); None (and a note: its map cannot be
+    loaded, ``consequence``) when the map is gone."""
     keys = ("mode", "city_path", "lod", "map_source", "crs", "frame", "ecef_origin_llh")
     key = json.dumps([run.config.get(k) for k in keys])
     if key not in cache:
@@ -857,7 +866,11 @@ def map_renderer(run: RunData, cache: dict, notes: list[str], consequence: str):
         except SemCityLocError as exc:
             cache[key] = None
             notes.append(f"{run.path}: {consequence}, its map cannot be loaded ({exc})")
-    return cache[key]
+    if cache[key] is None:
+        return None
+    model, renderer = cache[key]
+    maps = FoundMaps.of_run(model, renderer, run.config)
+    return model, cache.setdefault(json.dumps([key, maps.eaves_m, maps.flat_roofs]), maps)
 
 
 def readable_details(path: Path, notes: list[str], consequence: str) -> dict | None:
@@ -872,15 +885,15 @@ def readable_details(path: Path, notes: list[str], consequence: str) -> dict | N
 
 def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: list[str]) -> list[Path]:
     figures: list[Path] = []
-    maps: dict[str, Any] = {}
+    cache: dict[str, Any] = {}
     for n, run in enumerate(runs):
         files = sorted((run.path / DETAILS_DIR).glob("q*.npz"))[: max(0, overlays)]
         if not files:
             continue
-        pair = map_renderer(run, maps, notes, "no query figures")
+        pair = map_renderer(run, cache, notes, "no query figures")
         if pair is None:
             continue
-        model, renderer = pair
+        model, maps = pair
         for f in files:
             details = readable_details(f, notes, f"no figure of {f.stem}")
             if details is None:
@@ -888,5 +901,5 @@ def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: l
             photo = photo_of(run.config, details["meta"].get("query_meta") or {})
             name = f"query_{n:02d}_{_slug(run.path.name)}_{f.stem}.png"
             title = f"{run.label} {f.stem}"
-            figures.append(plot_details(details, model, plot_dir / name, title, photo, renderer))
+            figures.append(plot_details(details, model, plot_dir / name, title, photo, maps))
     return figures

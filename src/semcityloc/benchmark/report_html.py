@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.report import (
     RunData,
     acceptance_data,
@@ -61,7 +62,6 @@ from semcityloc.errors import BenchmarkError
 from semcityloc.geometry.camera import Camera
 from semcityloc.io.files import write_atomic
 from semcityloc.localization.confidence import risk_coverage
-from semcityloc.render import Renderer
 
 HTML_FILE = "report.html"
 NOMINAL_CAMERA = Camera.from_fov(640, 480, 70.0)  # frusta of photos whose camera the run did not keep
@@ -97,8 +97,9 @@ def _table_html(title: str, headers: list[str], rows: list[list[str]]) -> str:
     )
 
 
-def _maps(runs: list[RunData], notes: list[str]) -> list[tuple[CityModel, Renderer] | None]:
-    """Per run, its map model and a renderer of it (shared between runs of one map), or None."""
+def _maps(runs: list[RunData], notes: list[str]) -> list[tuple[CityModel, FoundMaps] | None]:
+    """Per run, its map model and the renderers of its drawings (``found_map.FoundMaps``; shared between
+    runs of one map), or None."""
     cache: dict = {}
     return [map_renderer(run, cache, notes, "its queries show no model") for run in runs]
 
@@ -106,7 +107,7 @@ def _maps(runs: list[RunData], notes: list[str]) -> list[tuple[CityModel, Render
 def _entries(runs, maps, max_queries: int | None, notes: list[str]) -> list[dict[str, Any]]:
     entries = []
     for n, (run, pair) in enumerate(zip(runs, maps, strict=True)):
-        renderer = pair[1] if pair is not None else None
+        maps = pair[1] if pair is not None else None
         rows = sorted(run.rows, key=lambda r: int(r["index"]))[:max_queries]
         fallback = None
         for row in rows:
@@ -115,7 +116,7 @@ def _entries(runs, maps, max_queries: int | None, notes: list[str]) -> list[dict
             details = readable_details(path, notes, shown) if path.is_file() else None
             meta = details["meta"].get("query_meta") if details is not None else None
             meta = meta or json.loads(row.get("meta_json") or "{}")
-            view = query_view(run.path, run.config, row, details, renderer, photo_of(run.config, meta))
+            view = query_view(run.path, run.config, row, details, maps, photo_of(run.config, meta))
             camera = query_camera(run.config, details)
             fallback = camera if fallback is None else fallback
             view.update(key=f"{n}:{row['query_id']}", run=n, camera=camera)

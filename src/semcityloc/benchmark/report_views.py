@@ -13,7 +13,9 @@ at ``VIEW_WIDTH`` pixels wide (a few milliseconds a view):
 - the background: the photo of a real-data query when it is still where the run found it, else the
   query mask (the simulated view the localizer saw);
 - per pose (prior, estimate, truth): the rendered mask (``fill``, background transparent) and the
-  model's visible edges (``edges``, one colour per pose), drawn over the background in the browser.
+  model's visible edges (``edges``, one colour per pose), drawn over the background in the browser. The
+  estimate is drawn on the map it was found on (``found_map``: the map with eaves on its flat roofs where
+  the details or the row record it, named in ``estimate_map``), the others on the run's map as it is.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from semcityloc.benchmark.found_map import FoundMaps, row_look
 from semcityloc.benchmark.queries import stated_camera
 from semcityloc.benchmark.results import SKIPPED, row_pose, unreadable_row
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR
@@ -226,23 +229,29 @@ def query_view(
     config: dict,
     row: dict[str, str],
     details: dict | None,
-    renderer: Renderer | None,
+    maps: FoundMaps | None,
     photo: Path | None,
     width: int = VIEW_WIDTH,
 ) -> dict[str, Any]:
-    """Everything the page shows of one query (JSON-ready): status, numbers, images, cost slices."""
+    """Everything the page shows of one query (JSON-ready): status, numbers, images, cost slices.
+    ``maps``: the run's map renderers (None: its map is gone, no model drawn)."""
     poses = {name: row_pose(row, prefix) for name, (prefix, _) in POSES.items()}
     background, background_kind = _background(run_path, config, row, details, photo, width)
     camera = query_camera(config, details)
     layers: dict[str, dict[str, str]] = {}
-    if camera is not None and renderer is not None:
+    estimate_map = None
+    if camera is not None and maps is not None:
         if background is not None:
             camera = camera.scaled(background.shape[1], background.shape[0])
         else:
             camera = camera.scaled(*scaled_size(camera.width, camera.height, width))
+        look = details["meta"].get("flat_roof_eaves") if details is not None else row_look(row)
+        found_on, found_map = maps.for_estimate(look)
         for name, pose in poses.items():
             if pose is not None:
+                renderer = found_on if name == "estimate" else maps.base
                 layers[name] = _pose_layers(renderer, camera, pose, POSES[name][1])
+        estimate_map = found_map if "estimate" in layers else None
     mask = data_uri(background) if background_kind == QUERY_MASK else None
     if mask is None and details is not None:
         labels = details["labels"]
@@ -266,6 +275,7 @@ def query_view(
         "background_kind": background_kind,
         "size": [camera.width, camera.height] if camera is not None and layers else None,
         "layers": layers,
+        "estimate_map": estimate_map,  # None: the run's map as it is
         "mask": mask,
         "cost": cost_slices(details, poses) if details is not None else None,
     }

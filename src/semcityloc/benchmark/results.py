@@ -14,11 +14,15 @@ deg) + world x y z (``origin + local``); errors: camera-centre distance (m), ful
 without one);
 ``warnings``: what the localizer ignored and why (a depth map dropped) or noticed (buildings the map
 lacks; ``LocalizationResult.warnings``), joined by `` | ``, empty
-when none. A ``results.csv`` written before a column of ``ADDED_COLUMNS`` existed still resumes: it is
-rewritten with that column (empty) before rows are appended, so every line matches the header.
+when none; ``flat_roof_eaves_used``: 1 where ``map_eaves_flat_roofs="auto"``'s second look took the pose from
+the map with eaves on its flat roofs (``Localizer.map_of``), 0 where it kept the first, empty where it made
+none (the report draws the map at the estimate from it). A ``results.csv`` written before a column of
+``ADDED_COLUMNS`` existed still resumes: it is rewritten with that column (empty) before rows are appended, so
+every line matches the header.
 
 ``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
-coarse poses, the coarse cost volume and its axes, for the report's figures; written atomically BEFORE the
+coarse poses, the coarse cost volume and its axes, the second look's ``flat_roof_eaves`` record (the map
+the pose was found on), for the report's figures; written atomically BEFORE the
 row, so a row always has its details. One deleted since is made again by a resume (``missing_details``:
 the query localized again, its row replaced in place by ``write_rows``). The depth is kept as float16
 (``details_depth``) when its values fit: relative depth is good to a few percent, float16 to 0.05 %, and
@@ -76,7 +80,7 @@ COLUMNS: tuple[str, ...] = tuple(
     building_iou probability found_err_xyz_m found_err_rot_deg coarse_hypotheses refine_evaluations
     t_coarse_s t_refine_s t_total_s meta_json sigma_xy_m sigma_z_m sigma_yaw_deg
     hypothesis_margin depth_cost_agreed building_fraction prior_distance boundary_distance_px
-    unmapped_building_share unseen_building_share""".split()
+    unmapped_building_share unseen_building_share flat_roof_eaves_used""".split()
 )
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
 # The acceptance's other inputs, as ``result.confidence`` holds them (stop 42; empty in earlier runs).
@@ -90,7 +94,9 @@ CONFIDENCE_COLUMNS = (
     "unseen_building_share",
 )
 # Columns added after runs had been written with the others (module docstring): such a run still resumes.
-ADDED_COLUMNS = ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg") + CONFIDENCE_COLUMNS
+ADDED_COLUMNS = (
+    ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg") + CONFIDENCE_COLUMNS + ("flat_roof_eaves_used",)
+)
 
 
 def _resumable(header: tuple[str, ...]) -> bool:
@@ -258,8 +264,17 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "meta_json": json.dumps(plain(meta), sort_keys=True),
         **_sigmas(result.covariance if est is not None else None),
         **{c: conf.get(c) for c in CONFIDENCE_COLUMNS},
+        "flat_roof_eaves_used": flat_roof_eaves_used(result),
     }
     return {c: _fmt(row.get(c)) for c in COLUMNS}
+
+
+def flat_roof_eaves_used(result: LocalizationResult) -> bool | None:
+    """Did ``map_eaves_flat_roofs="auto"``'s second look take the result's pose from the map with eaves on
+    its flat roofs (``Localizer.map_of``)? None when it made no look; drawings of the map at the estimate
+    read it back (``benchmark.found_map``)."""
+    look = result.search.get("flat_roof_eaves")
+    return None if look is None else bool(look.get("used"))
 
 
 def _sigmas(covariance: np.ndarray | None) -> dict[str, float | None]:
@@ -399,6 +414,7 @@ def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, orig
         "query_meta": q.meta,
         "cost_volume": volume.as_dict() if volume is not None else None,
         "camera": cam.as_dict(),
+        "flat_roof_eaves": result.search.get("flat_roof_eaves"),  # the map the pose was found on
     }
     arrays = {
         "labels": np.asarray(q.labels, dtype=np.uint8),

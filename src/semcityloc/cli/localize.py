@@ -36,7 +36,7 @@ from semcityloc.io.images import (
     save_rgb,
 )
 from semcityloc.localization.config import FLAT_EAVES, PRESETS, LocalizerConfig
-from semcityloc.localization.localize import Localizer
+from semcityloc.localization.localize import Localizer, found_on_flat_eaves
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import with_lossy_masks
@@ -237,8 +237,7 @@ def run(args: argparse.Namespace) -> int:
     crs = crs_label(model.crs)
     record = result.to_dict(model.origin, crs)  # the pose, if any, in CRS coordinates
     # The map searched: its eaves, and whether the pose was found with them on the flat roofs too.
-    used = bool(result.search.get("flat_roof_eaves", {}).get("used"))
-    flat = {"on": True, "off": False}.get(config.map_eaves_flat_roofs, used)
+    flat = found_on_flat_eaves(config.map_eaves_flat_roofs, result.search.get("flat_roof_eaves"))
     record["map_eaves"] = {
         "m": config.map_eaves_m,
         "flat_roofs": config.map_eaves_flat_roofs,
@@ -252,7 +251,8 @@ def run(args: argparse.Namespace) -> int:
             result.pose_local, out / "pose.json", origin=model.origin, crs=crs, extra=record
         )
 
-        view = NumbaEngine(localizer.scene).render(
+        scene = localizer.map_of(result).scene  # the map the pose was found on (flat roofs' eaves too?)
+        view = NumbaEngine(scene).render(
             camera, result.pose_local.R[None], result.pose_local.t[None], depth=True, face_ids=True
         )
         background = (
@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
             if args.image
             else blend_labels(np.zeros(labels.shape + (3,), np.uint8) + 40, labels, alpha=0.8)
         )
-        edges = visible_edges(view.face_ids[0], view.depth[0], localizer.scene)
+        edges = visible_edges(view.face_ids[0], view.depth[0], scene)
         save_rgb(draw_edges(background, edges), out / "overlay.png")
         summary = {
             "status": result.status,

@@ -326,8 +326,7 @@ class Localizer:
         cfg = self.config
         if cfg.map_eaves_flat_roofs != "auto" or not cfg.map_eaves_m > 0.0:
             return None
-        flat = with_eaves(model, cfg.map_eaves_m, flat_roofs=True)
-        return with_model_triangles(self.scene, flat.vertices[flat.triangles])
+        return flat_eaves_scene(self.scene, model, cfg.map_eaves_m)
 
     def _with_scene(self, scene: RenderScene) -> Localizer:
         """This localizer searching ``scene`` instead (a shallow copy: the rest is shared)."""
@@ -684,6 +683,23 @@ def scene_key(config: LocalizerConfig) -> tuple:
     """What of ``config`` decides its ``localizer_scene``: Localizers of configs with equal keys can share
     one scene."""
     return (config.map_eaves_m, config.map_eaves_flat_roofs == "on")
+
+
+def flat_eaves_scene(scene: RenderScene, model: CityModel, eaves_m: float) -> RenderScene | None:
+    """``scene`` (a render scene of ``model``: the localizer's, or a drawing's of the model as it is) with
+    ``eaves_m`` of eaves on every roof, the flat ones too: the map ``Localizer.map_of`` returns for a pose
+    ``map_eaves_flat_roofs="auto"`` took from its second look. One construction, so that a drawing of the
+    map at such a pose (the report, the overlays) shows the map it was scored on. None when no roof moves
+    (``render.scene.with_model_triangles``)."""
+    flat = with_eaves(model, eaves_m, flat_roofs=True)
+    return with_model_triangles(scene, flat.vertices[flat.triangles])
+
+
+def found_on_flat_eaves(flat_roofs: str, look: dict | None) -> bool:
+    """Was a pose found on the map with eaves on its flat roofs? Always with ``map_eaves_flat_roofs``
+    ``"on"``, never with ``"off"``, with ``"auto"`` where the second look took it: ``look`` is the
+    result's ``search["flat_roof_eaves"]`` (or a saved copy of it; None: no look was made)."""
+    return {"on": True, "off": False}.get(flat_roofs, bool((look or {}).get("used")))
 
 
 def localizer_scene(

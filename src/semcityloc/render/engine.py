@@ -14,6 +14,8 @@ world pose over with ``model.pose_to_local(pose_world)``.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
@@ -86,6 +88,17 @@ class Renderer:
     @property
     def engine_name(self) -> str:
         return self.engine.name
+
+    def with_scene(self, scene: RenderScene) -> Renderer:
+        """A renderer of the same model on the same engine drawing ``scene`` instead: a variant of this
+        one's scene with some model triangles moved (``render.scene.with_model_triangles``: the map with
+        eaves the localizer searched), so that a drawing of the map shows the map a pose was found on."""
+        if not isinstance(scene, RenderScene):
+            raise TypeError(f"scene must be a RenderScene, got {type(scene).__name__}")
+        other = copy.copy(self)
+        other.scene = scene
+        other.engine = make_engine(self.engine_name, scene)
+        return other
 
     def render(
         self, camera: Camera, poses: Pose, depth: bool = False, face_ids: bool = False

@@ -183,11 +183,13 @@
       ctx.drawImage(edges, 0, 0, w, h);
     }
     let cap = stand ? "the map at the true pose (this query's image was not kept: --keep-details)" : e.background_kind;
-    if (state.overlay && layer) cap += "; model at the " + pose + " (mask and edges)";
+    // An estimate found on the map with eaves on its flat roofs is drawn on that map (found_map.py).
+    const onMap = pose === "estimate" && e.estimate_map ? ", " + e.estimate_map : "";
+    if (state.overlay && layer) cap += "; model at the " + pose + onMap + " (mask and edges)";
     else if (!layer) cap += "; no model drawn at the " + pose + (e.layers && Object.keys(e.layers).length ? " (no such pose)" : " (no camera stored)");
     $("q-canvas-cap").textContent = cap;
     imageBox($("q-render"), layer ? layer.fill : null, "no render at the " + pose);
-    $("q-render-cap").textContent = "rendered mask at the " + pose;
+    $("q-render-cap").textContent = "rendered mask at the " + pose + onMap;
     canvas.dataset.drawn = e.key + "|" + pose + "|" + (state.overlay && layer ? "on" : "off");
   }
 
