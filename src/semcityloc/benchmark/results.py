@@ -130,6 +130,11 @@ def unreadable_result(problem: str) -> LocalizationResult:
     return LocalizationResult(status=NOT_LOCALIZED, reason=f"{REASON_UNREADABLE}: {problem}")
 
 
+def is_unreadable(reason: str | None) -> bool:
+    """Whether a result's (or row's) reason is ``unreadable_result``'s."""
+    return (reason or "").startswith(REASON_UNREADABLE)
+
+
 # A query whose worker process died on every try (``benchmark.ray_executor``): recorded with the reason,
 # not tried again on resume.
 FAILED = "failed"
@@ -206,7 +211,8 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
     true = q.true_pose_local
     none = (None, None, None)  # no ground truth (a user's photo): no error
     err = pose_errors(est, true) if true is not None else none
-    prior_err = pose_errors(q.prior_pose_local, true) if true is not None else none
+    prior = q.prior_pose_local  # None: an unreadable photo's (``photo_source.PhotoInput.unreadable``)
+    prior_err = pose_errors(prior, true) if true is not None and prior is not None else none
     coarse = result.coarse_pose_local
     coarse_err = pose_errors(coarse, true) if coarse is not None and true is not None else none
     # The pose the search found, accepted or refused: what the acceptance's risk-coverage curve needs.
@@ -425,7 +431,7 @@ def missing_details(out_dir: Path, rows: list[dict[str, str]], keep: int) -> lis
         for r in rows
         if r["query_id"] in ids
         and r["status"] not in (SKIPPED, FAILED)
-        and not (r.get("reason") or "").startswith(REASON_UNREADABLE)
+        and not is_unreadable(r.get("reason"))
         and not (out_dir / DETAILS_DIR / f"{r['query_id']}.npz").is_file()
     )
 
