@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import errno
 import importlib.util
+import os
 from pathlib import Path
 from types import ModuleType
 
@@ -26,6 +28,20 @@ def perturbed(pose: Pose, dxyz, droll=0.0, dpitch=0.0, dyaw=0.0) -> Pose:
     """``pose`` moved by ``dxyz`` (m) and turned by the angle offsets (deg)."""
     x, y, z, roll, pitch, yaw = pose.to_xyz_rpy()
     return Pose.from_xyz_rpy(np.array([x, y, z]) + dxyz, roll + droll, pitch + dpitch, yaw + dyaw)
+
+
+def deny_reading(monkeypatch, path: Path) -> None:
+    """Make reading ``path`` (``Path.read_bytes`` / ``read_text``) fail with "Permission denied", as a file of
+    mode 000 does for a user other than root (the tests may run as root, who reads it anyway)."""
+    read_bytes = Path.read_bytes
+
+    def denied(self):
+        if self == path:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(self))
+        return read_bytes(self)
+
+    monkeypatch.setattr(Path, "read_bytes", denied)
+    monkeypatch.setattr(Path, "read_text", lambda self, *args, **kwargs: denied(self).decode())
 
 
 def benchmark_script(name: str) -> ModuleType:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from semcityloc.benchmark import dataset_source
 from semcityloc.benchmark.dataset_source import (
     ESTIMATES_COLMAP_DIR,
     DatasetSpec,
@@ -157,11 +158,59 @@ def test_precomputed_masks_give_the_oracle_result(dataset_dir, tmp_path):
     for a, b in zip(via_masks.rows, oracle.rows, strict=True):
         assert a["err_xyz_m"] == b["err_xyz_m"] and a["status"] == b["status"]
         assert json.loads(a["meta_json"])["labels_source"] == "masks"
+
+
+def mask_and_depth_files(dataset_dir, folder):
+    """``folder``/masks (the oracle labels) and ``folder``/depth (no valid depth) of the data set's two
+    evaluable queries."""
+    ds = read_lodloc(dataset_dir)
+    model = ds.load_model()
+    masks, depth = folder / "masks", folder / "depth"
+    depth.mkdir()
+    for q in ds.queries[:2]:
+        save_labels_png(oracle_labels(model, q.camera, q.gt_pose_world), masks / f"{q.stem}.png")
+        np.save(depth / f"{q.stem}.npy", np.full((CAM.height, CAM.width), np.nan))
+    return masks, depth
+
+
+def test_missing_mask_files_are_named_when_the_run_starts_and_are_misses(
+    dataset_dir, tmp_path, capsys, monkeypatch
+):
+    """A query whose mask (or depth) file is missing was found only at its turn, where it stopped the run
+    (possibly an hour in): the run says at its start, from a ``stat`` of each query's files before any is
+    read, how many are missing and which, goes on, and each such query is a miss naming the folder. A
+    folder holding no query's file is refused in one line before anything is written."""
+    masks, depth = mask_and_depth_files(dataset_dir, tmp_path)
     (masks / "DJI_0002_W.png").unlink()
-    with pytest.raises(InputFileError, match="no file for query 'DJI_0002_W'"):
-        run_benchmark(
-            spec(dataset_dir, perception="masks", masks=str(masks)), tmp_path / "m2", progress=False
-        )
+    opened = []
+    read_mask = dataset_source.read_inputs
+    monkeypatch.setattr(dataset_source, "read_inputs", lambda *a: opened.append(a[1]) or read_mask(*a))
+    out = tmp_path / "run"
+    argv = ["benchmark", "--dataset", str(dataset_dir), "--perception", "masks", "--masks", str(masks)]
+    argv += ["--depth", str(depth), "--preset", "default", "--out", str(out)]
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 0, err
+    start = [line for line in err.splitlines() if "have no mask or depth file" in line]
+    assert len(start) == 1 and start[0].startswith("semcityloc: warning: 1 of the 2 queries to run")
+    assert "(DJI_0002_W.JPG)" in start[0] and str(masks) in start[0]
+    assert err.index(start[0]) < err.index("q0001 (DJI_0002_W.JPG) is a miss")  # said first, then at the end
+    assert opened == [masks / "DJI_0001_W.png"]  # the missing file's query read nothing
+    rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
+    miss = rows["q0001"]
+    assert rows["q0000"]["status"] == "localized" and miss["status"] == "not_localized"
+    assert miss["reason"].startswith(REASON_UNREADABLE) and "no file for query 'DJI_0002_W'" in miss["reason"]
+    assert json.loads((out / "summary.json").read_text())["recall_5m5deg"] == 50.0
+    # A resume with nothing left to run says nothing at its start.
+    assert main(argv) == 0 and "have no mask or depth file" not in capsys.readouterr().err
+    # No query's file in the folder (a wrong --depth): refused in one line, nothing written.
+    for name in ("DJI_0001_W.npy", "DJI_0002_W.npy"):
+        (depth / name).unlink()
+    other = tmp_path / "other"
+    assert main([*argv[:-1], str(other)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{depth}: no depth file of any of the 2 queries" in err
+    assert not (other / "run.json").exists()
 
 
 DAMAGES = {  # what makes query q0001's input unusable -> a phrase of the reason
@@ -179,13 +228,7 @@ def test_an_unreadable_mask_is_that_querys_miss_not_the_runs_end(dataset_dir, tm
     class, another aspect) costs its query alone: the run finishes, that query's row is not localized with
     the reason naming the file, a one-line warning says so, and the recall keeps it in its denominator (a
     miss): 1 of 2 queries, not 1 of 1."""
-    ds = read_lodloc(dataset_dir)
-    model = ds.load_model()
-    masks, depth = tmp_path / "masks", tmp_path / "depth"
-    depth.mkdir()
-    for q in ds.queries[:2]:
-        save_labels_png(oracle_labels(model, q.camera, q.gt_pose_world), masks / f"{q.stem}.png")
-        np.save(depth / f"{q.stem}.npy", np.full((CAM.height, CAM.width), np.nan))
+    masks, depth = mask_and_depth_files(dataset_dir, tmp_path)
     bad = depth / "DJI_0002_W.npy" if damage == "truncated depth" else masks / "DJI_0002_W.png"
     data = bad.read_bytes()
     if damage.startswith("truncated"):

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import deny_reading
 from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
 from semcityloc.benchmark.report import make_report
@@ -516,14 +517,7 @@ def test_a_results_file_that_cannot_be_read_says_cannot_read_naming_the_file_and
     shutil.copytree(baseline.out_dir, out)
     path = out / RESULTS_FILE
     if damage == "no-permission":  # made by hand: root reads a file of mode 000
-        read_bytes = Path.read_bytes
-
-        def denied(self):
-            if self == path:
-                raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(self))
-            return read_bytes(self)
-
-        monkeypatch.setattr(Path, "read_bytes", denied)
+        deny_reading(monkeypatch, path)
     elif damage == "a-folder":
         path.unlink()
         path.mkdir()

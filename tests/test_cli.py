@@ -631,6 +631,32 @@ def test_a_ctrl_c_while_the_command_imports_is_one_line_and_exit_130(module):
     assert (proc.returncode, proc.stderr, proc.stdout) == (130, "semcityloc: interrupted\n", "")
 
 
+@pytest.mark.parametrize("package", ["semcityloc", "semcityloc.cli"])
+def test_python_dash_m_runs_the_command(package):
+    """``python -m semcityloc`` (and ``python -m semcityloc.cli``) is the ``semcityloc`` command: there was
+    no ``__main__.py``, so Python refused to run the package."""
+    proc = subprocess.run(
+        [sys.executable, "-m", package, "--help"], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("usage: semcityloc ") and proc.stderr == ""
+
+
+@pytest.mark.parametrize("package", ["semcityloc", "semcityloc.cli"])
+def test_python_dash_m_catches_a_ctrl_c_while_the_command_imports(package):
+    """``python -m semcityloc`` goes through the console script's ``entry``: a Ctrl-C while the CLI imports
+    is one line and exit 130 there too (``python -m semcityloc.cli.main`` is a traceback)."""
+    run_module = f"import runpy\nrunpy.run_module({package!r}, run_name='__main__', alter_sys=True)\n"
+    code = _CTRL_C_IN_IMPORT + run_module
+    proc = subprocess.run(
+        [sys.executable, "-c", code, "semcityloc.cli.main", "--version"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert (proc.returncode, proc.stderr, proc.stdout) == (130, "semcityloc: interrupted\n", "")
+
+
 def test_the_console_script_catches_a_ctrl_c_before_numpy_is_imported():
     """What the console script imports before ``entry``'s ``try`` (``semcityloc``, ``semcityloc.cli``) is
     kept small: numpy took 0.1-0.2 s there, in which a Ctrl-C was still a traceback."""

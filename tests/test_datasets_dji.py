@@ -9,6 +9,7 @@ import pyproj
 import pytest
 
 from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
+from semcityloc.datasets import dji
 from semcityloc.datasets.dji import (
     BAROMETRIC_UNCERTAINTY_M,
     GEOID_UNDULATION_BOUND_M,
@@ -108,6 +109,35 @@ def test_orthometric_target_applies_the_geoid_or_says_it_did_not(tmp_path):
     for bad in (math.nan, 1e9, -200.0, "47"):  # stop 45's audit: NaN was taken and broke the pose later
         with pytest.raises(ParameterError, match="geoid separation N must be"):
             dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=bad)
+
+
+@pytest.mark.parametrize("crs", ["EPSG:25832+7837", "CRS object"])
+def test_a_second_photo_reuses_the_crs_transformations_and_gets_the_same_prior(tmp_path, crs):
+    """pyproj's CRS and transformation objects (tens of ms a photo, a geoid's operations hundreds) are made
+    once per process and taken from the cache for the next photo: the same prior and geotag, bit for bit.
+    ``CityModel.crs`` is a CRS object (kept by its WKT), a ``--crs`` a name."""
+    if crs == "CRS object":
+        crs = pyproj.CRS.from_user_input("EPSG:25832+7837")
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
+    caches = (dji._transformer_group, dji._from_wgs84)
+    for cache in caches:
+        cache.cache_clear()
+    first = dji_prior(meta, crs)
+    made = [cache.cache_info() for cache in caches]
+    second = dji_prior(meta, crs)
+    reused = [cache.cache_info() for cache in caches]
+    assert [i.misses for i in reused] == [i.misses for i in made]  # nothing made again
+    assert reused[0].hits == made[0].hits + 2 and reused[1].hits == made[1].hits + 1  # geoid, position; north
+    for a, b in ((first.pose.R, second.pose.R), (first.pose.t, second.pose.t)):
+        assert np.array_equal(a, b)
+    assert np.array_equal(first.position_crs, second.position_crs)
+    assert (first.grid_convergence_deg, first.z_reference, first.notes, first.vertical_flag) == (
+        second.grid_convergence_deg,
+        second.z_reference,
+        second.notes,
+        second.vertical_flag,
+    )
+    assert dji_geotag(first.pose, crs) == dji_geotag(second.pose, crs)
 
 
 def test_bad_targets_and_images_are_typed_errors(tmp_path):

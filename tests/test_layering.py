@@ -37,6 +37,7 @@ ALLOWED: dict[str, set[str]] = {
     "baselines": {"localization", *_PIPELINE},
     "benchmark": {"baselines", "localization", "perception", "datasets", *_PIPELINE},
     "cli": {"benchmark", "baselines", "localization", "perception", "datasets", *_PIPELINE},
+    "__main__": {"cli"},  # python -m semcityloc: the command
 }
 
 

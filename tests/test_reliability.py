@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import CAMERA, perturbed, view
+from helpers import CAMERA, deny_reading, perturbed, view
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.runfiles import LOCK_FILE, RUN_FILE, code_change_note, prepare_output, run_lock
 from semcityloc.citymodel.citygml import read_citygml
@@ -34,6 +34,7 @@ from semcityloc.errors import (
     MalformedXMLError,
     ParameterError,
     ResumeMismatchError,
+    RunFileError,
     RunLockedError,
     ShapeError,
 )
@@ -501,6 +502,48 @@ def test_a_configuration_field_added_by_newer_code_does_not_refuse_a_resume(tmp_
         prepare_output(tmp_path, changed)
     with pytest.raises(ResumeMismatchError, match="settings.prior_height_m"):
         prepare_output(tmp_path, {**old, "settings": {"prior_height_m": 10}})
+
+
+@pytest.mark.parametrize("damage", ["no-permission", "a-folder", "not-utf8"])
+def test_a_run_json_that_cannot_be_read_says_cannot_read_and_overwrite_replaces_it(
+    tmp_path, monkeypatch, damage
+):
+    """A ``run.json`` that is there but cannot be read was "holds another benchmark run: its run.json is
+    unreadable": it is "cannot read", the file and a fix, like ``results.csv`` (``runfiles.read_error``),
+    and nothing is deleted; ``--overwrite`` does not read it, it replaces it (a folder of that name too)."""
+    config = {"method": "semcityloc", "queries": 2}
+    path = tmp_path / RUN_FILE
+    (tmp_path / "results.csv").write_text("kept\n")
+    if damage == "no-permission":  # made by hand: root reads a file of mode 000
+        path.write_text(json.dumps(config))
+        deny_reading(monkeypatch, path)
+    elif damage == "a-folder":
+        path.mkdir()
+        (path / "inside").write_text("x")
+    else:
+        path.write_bytes(b'{"method": "\xff"}')
+    fix = {"no-permission": "make it readable", "a-folder": "move that folder", "not-utf8": "0xff"}[damage]
+    with pytest.raises(RunFileError) as err:
+        prepare_output(tmp_path, config)
+    message = str(err.value)
+    assert message.startswith(f"cannot read {path}: ") and fix in message, message
+    assert "--overwrite" in message and "another benchmark run" not in message and "\n" not in message
+    assert (tmp_path / "results.csv").read_text() == "kept\n"  # refused: nothing deleted
+    assert prepare_output(tmp_path, config, overwrite=True) is None
+    monkeypatch.undo()
+    assert json.loads(path.read_text()) == config and not (tmp_path / "results.csv").exists()
+
+
+def test_a_run_json_that_reads_but_is_no_run_config_is_another_run_unless_overwrite(tmp_path):
+    """A ``run.json`` that reads but is no JSON, or no JSON object, is another run's: refused, and
+    ``--overwrite`` starts the run again."""
+    config = {"method": "semcityloc", "queries": 2}
+    for text, needle in (("{not json", "is not JSON"), ("[1, 2]", "is not a JSON object")):
+        (tmp_path / RUN_FILE).write_text(text)
+        with pytest.raises(ResumeMismatchError, match=f"holds another benchmark run: its run.json {needle}"):
+            prepare_output(tmp_path, config)
+        assert prepare_output(tmp_path, config, overwrite=True) is None
+        assert json.loads((tmp_path / RUN_FILE).read_text()) == config
 
 
 # ---------------------------------------------------------------------------------------- crashed run

@@ -29,7 +29,7 @@ from semcityloc.benchmark.perception_sim import simulate_segmentation
 from semcityloc.benchmark.photo_source import PhotoSpec
 from semcityloc.benchmark.queries import STREAM_SEG
 from semcityloc.benchmark.report import make_report
-from semcityloc.benchmark.results import COLUMNS, read_results
+from semcityloc.benchmark.results import COLUMNS, REASON_UNREADABLE, read_results
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.tiles import TileStore, build_store
@@ -216,10 +216,16 @@ def _noisy_jpeg(path: Path) -> bytes:
     return path.read_bytes()
 
 
-def test_an_unreadable_photo_is_skipped_saying_why_and_the_others_are_written(box_flight, tmp_path, capsys):
+def _rows_by_name(out: Path) -> dict[str, dict[str, str]]:
+    return {json.loads(r["meta_json"])["name"]: r for r in read_results(out / "results.csv")}
+
+
+def test_an_unreadable_photo_is_a_miss_with_a_true_pose_else_skipped(box_flight, tmp_path, capsys):
     """A truncated JPEG (its header reads, its pixels do not), random bytes, an empty file and a folder
-    named like a photo: each is skipped before anything runs, with a reason naming it; the readable photo
-    is localized and written (pose, overlay, exports) instead of the run stopping at the first bad one."""
+    named like a photo: each is found before anything runs, with a reason naming it; the readable photo
+    is localized and written (pose, overlay, exports) instead of the run stopping at the first bad one.
+    The two with a true pose (``--truth``) are misses of the run, in the recall's denominator (they were
+    skipped, so that a flight lost no recall by its unreadable photos); the two without one are skipped."""
     images = box_flight["root"] / "images"
     data = _noisy_jpeg(images / "P0.JPG")
     (images / "P0.JPG").write_bytes(data[: len(data) * 2 // 3])
@@ -230,29 +236,38 @@ def test_an_unreadable_photo_is_skipped_saying_why_and_the_others_are_written(bo
     code, stdout, err = run(capsys, *box_flight["argv"], "--out", out)
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["photos"] == 6 and summary["queries"] == 1 and summary["localized"] == 1
+    assert summary["photos"] == 6 and summary["queries"] == 3 and summary["localized"] == 1
+    assert summary["with_ground_truth"] == 3 and summary["recall_5m5deg"] == pytest.approx(100 / 3)
     skipped = summary["skipped_photos"]
-    assert set(skipped) == {"P0.JPG", "P2.JPG", "P3.JPG", "P4.JPG", "P9.JPG"}
-    assert "P0.JPG" in skipped["P0.JPG"] and "truncated" in skipped["P0.JPG"]
-    assert "P2.JPG" in skipped["P2.JPG"] and "cannot read photo" in skipped["P2.JPG"]
+    assert set(skipped) == {"P3.JPG", "P4.JPG", "P9.JPG"}
     assert "P3.JPG" in skipped["P3.JPG"] and "empty" in skipped["P3.JPG"]
     assert "P4.JPG" in skipped["P4.JPG"] and "not a file" in skipped["P4.JPG"]
     assert json.loads((out / "run.json").read_text())["skipped_photos"] == skipped
-    assert "6 photos: 1 localized, 0 not localized, 5 skipped" in stdout
+    rows = _rows_by_name(out)
+    for name, why in (("P0.JPG", "truncated"), ("P2.JPG", "cannot read photo")):
+        miss = rows[name]
+        assert miss["status"] == "not_localized" and miss["reason"].startswith(REASON_UNREADABLE)
+        assert str(box_flight["root"] / "images" / name) in miss["reason"] and why in miss["reason"]
+        assert miss["err_xyz_m"] == "inf" and miss["true_x"] != ""
+        record = json.loads((out / "poses" / f"{Path(name).stem}.json").read_text())
+        assert record["status"] == "not_localized" and record["reason"] == miss["reason"]
+    assert rows["P2.JPG"]["prior_x"] != "" and rows["P0.JPG"]["prior_err_m"] != ""  # priors from GPS_pose
+    assert "6 photos: 1 localized, 2 not localized, 3 skipped" in stdout
     assert "truncated" in stdout and "Traceback" not in err
     assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["status"] == "localized"
-    assert (out / "overlays" / "P1.png").is_file() and not (out / "poses" / "P0.json").exists()
-    # Run again: the finished run is summarised, the same photos skipped, nothing refused.
+    assert (out / "overlays" / "P1.png").is_file() and not (out / "overlays" / "P0.png").exists()
+    # Run again: the finished run is summarised, the same photos missed and skipped, nothing refused.
     code, stdout, _ = run(capsys, *box_flight["argv"], "--out", out)
-    assert code == 0 and "6 photos: 1 localized, 0 not localized, 5 skipped" in stdout
+    assert code == 0 and "6 photos: 1 localized, 2 not localized, 3 skipped" in stdout
 
 
 def test_a_mask_unreadable_only_when_read_in_full_is_that_photos_result_not_the_runs_end(
     box_flight, tmp_path, capsys
 ):
     """A mask PNG whose header reads (so the checks before the run pass) but whose body is truncated: that
-    photo gets its own row, pose record and summary entry naming the mask and why; the two good photos are
-    localized and written, and the run exits 0 instead of stopping at the bad one."""
+    photo gets its own row and pose record naming the mask and why; the two good photos are localized and
+    written, and the run exits 0 instead of stopping at the bad one. With a true pose (``--truth``) that
+    photo is a miss of the run (it was skipped, out of the recall); without one it is skipped."""
     masks = box_flight["root"] / "masks"
     data = (masks / "P0.png").read_bytes()  # the photos' aspect: P2's own mask has another
     (masks / "P2.png").write_bytes(data[: len(data) * 2 // 3])
@@ -261,23 +276,32 @@ def test_a_mask_unreadable_only_when_read_in_full_is_that_photos_result_not_the_
     assert code == 0, err
     assert "Traceback" not in err
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["photos"] == 4 and summary["localized"] == 2
-    reason = summary["skipped_photos"]["P2.JPG"]
-    assert str(masks / "P2.png") in reason and "cannot read label image" in reason
-    assert set(summary["skipped_photos"]) == {"P2.JPG", "P9.JPG"}
-    rows = {json.loads(r["meta_json"])["name"]: r for r in read_results(out / "results.csv")}
+    assert summary["photos"] == 4 and summary["localized"] == 2 and summary["not_localized"] == 1
+    assert summary["with_ground_truth"] == 3 and summary["recall_5m5deg"] == pytest.approx(200 / 3)
+    assert set(summary["skipped_photos"]) == {"P9.JPG"}
+    rows = _rows_by_name(out)
     assert set(rows) == {"P0.JPG", "P1.JPG", "P2.JPG"}
-    assert rows["P2.JPG"]["status"] == "skipped" and rows["P2.JPG"]["reason"] == reason
+    reason = rows["P2.JPG"]["reason"]
+    assert rows["P2.JPG"]["status"] == "not_localized" and reason.startswith(REASON_UNREADABLE)
+    assert str(masks / "P2.png") in reason and "cannot read label image" in reason
     record = json.loads((out / "poses" / "P2.json").read_text())
-    assert record["status"] == "skipped" and record["reason"] == reason
+    assert record["status"] == "not_localized" and record["reason"] == reason
     for stem in ("P0", "P1"):
         assert json.loads((out / "poses" / f"{stem}.json").read_text())["extra"]["status"] == "localized"
         assert (out / "overlays" / f"{stem}.png").is_file()
-    assert "4 photos: 2 localized, 0 not localized, 2 skipped" in stdout
-    assert "not localized (" not in stdout and "P2.png" in stdout
+    assert "4 photos: 2 localized, 1 not localized, 1 skipped" in stdout
+    assert "not localized (input file cannot be read: " in stdout and "P2.png" in stdout
     # Run again: the finished run is summarised the same, nothing redone.
     code, again, _ = run(capsys, *box_flight["argv"], "--out", out)
-    assert code == 0 and "4 photos: 2 localized, 0 not localized, 2 skipped" in again
+    assert code == 0 and "4 photos: 2 localized, 1 not localized, 1 skipped" in again
+    # Without --truth the photo has no true pose: skipped, out of the metrics, as before.
+    no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]
+    code, plain_run, err = run(capsys, *no_truth, "--out", tmp_path / "no_truth", "--no-overlays")
+    assert code == 0, err
+    skipped = json.loads((tmp_path / "no_truth" / "summary.json").read_text())["skipped_photos"]
+    assert "cannot read label image" in skipped["P2.JPG"]
+    assert _rows_by_name(tmp_path / "no_truth")["P2.JPG"]["status"] == "skipped"
+    assert "4 photos: 2 localized, 0 not localized, 2 skipped" in plain_run
     # The mask fixed and its row deleted, a run again redoes that photo alone.
     (masks / "P2.png").write_bytes(data)
     lines = (out / "results.csv").read_text().splitlines(keepends=True)
@@ -348,7 +372,7 @@ def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
     """A lossy mask's format is in its header: refused before the run, so a flight of JPEG masks (nothing
     else left) stops in one line naming the flag. Forced, the masks are read in full when their photos'
     turn comes; the ids the compression made along the edges are then named, photo by photo, and the run
-    completes with each photo skipped for that reason."""
+    completes with each photo a miss for that reason (they have true poses: ``--truth``)."""
     for mask in (box_flight["root"] / "masks").glob("P[01].png"):  # JPEG content, the .png name kept
         ids = np.array(Image.open(mask))  # the palette PNG's class ids
         Image.fromarray(ids, mode="L").save(mask, format="JPEG", quality=95)
@@ -365,11 +389,12 @@ def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
     # Forced, the masks are read; the ids the compression made along the edges are then named per photo.
     code, stdout, err = run(capsys, *argv, "--out", tmp_path / "forced", "--allow-lossy-mask")
     assert code == 0 and "a lossy format" not in err and "Traceback" not in err
-    summary = json.loads((tmp_path / "forced" / "summary.json").read_text())
+    rows = _rows_by_name(tmp_path / "forced")
     for name in ("P0", "P1"):
-        reason = summary["skipped_photos"][f"{name}.JPG"]
-        assert f"{name}.png" in reason and "invalid class ids" in reason
-    assert "4 photos: 0 localized, 0 not localized, 4 skipped" in stdout
+        reason = rows[f"{name}.JPG"]["reason"]
+        assert reason.startswith(REASON_UNREADABLE) and f"{name}.png" in reason
+        assert "invalid class ids" in reason
+    assert "4 photos: 0 localized, 2 not localized, 2 skipped" in stdout
     assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
 
 

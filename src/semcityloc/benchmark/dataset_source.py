@@ -18,10 +18,13 @@ Perception (the query mask each method localizes with), ``--perception``:
   in a lossy format (JPEG) only with ``allow_lossy_mask`` (``--allow-lossy-mask``, kept in ``run.json``
   only when set, so that older runs resume);
   optional depth ``<depth>/<stem>.npy`` or a 16-bit depth PNG (any positive scale; NaN / <= 0 invalid).
-  A query whose mask or depth file cannot be read or used (corrupt, truncated, invalid class ids, another
-  aspect: ``read_inputs``) is a miss, not the run's end: its row is ``not_localized`` with the reason naming
-  the file (``results.unreadable_result``), in every recall's denominator, and the others run. A missing
-  file, or a lossy mask without ``allow_lossy_mask`` (a choice of the whole run), stops the run in one line.
+  A query whose mask or depth file is missing or cannot be read or used (corrupt, truncated, invalid class
+  ids, another aspect: ``read_inputs``) is a miss, not the run's end: its row is ``not_localized`` with the
+  reason naming the file (``results.unreadable_result``), in every recall's denominator, and the others
+  run. The missing ones are found when the run starts (``DatasetSource.start_note``: a ``stat`` of each
+  query's files, one warning naming how many and the first few), not when their turn comes, possibly an
+  hour in; a ``--masks`` or ``--depth`` folder holding no query's file (a wrong path), or a lossy mask
+  without ``allow_lossy_mask`` (a choice of the whole run), stops the run in one line.
 
 Frames: the data set's poses are world-frame (``LodLocQuery.gt_pose_world``); queries are moved into the
 model's local frame at this boundary (``CityModel.pose_to_local``). ``results.csv`` also holds world
@@ -91,12 +94,26 @@ def working_camera(camera: Camera, max_width: int = ORACLE_MAX_WIDTH) -> Camera:
     return camera.scaled(*scaled_size(camera.width, camera.height, max_width))
 
 
-def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:
+MASK_SUFFIXES, DEPTH_SUFFIXES = (".png", ".npy"), (".npy", ".png")
+MISSING_SHOWN = 5  # the names of queries without their files in the warning at the start of a run
+
+
+def _found(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path | None:
+    """The file of query ``stem`` in ``folder`` (a ``stat`` per name tried), None when there is none."""
     for suffix in suffixes:
         for candidate in (folder / f"{stem}{suffix}", folder / f"{stem}{suffix.upper()}"):
             if candidate.is_file():
                 return candidate
-    raise InputFileError(f"{folder}: no file for query {stem!r} (looked for {stem}{{{','.join(suffixes)}}})")
+    return None
+
+
+def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:
+    """``_found``, or ``InputFileError`` naming the folder and the names looked for."""
+    path = _found(folder, stem, suffixes)
+    if path is None:
+        looked = f"{stem}{{{','.join(suffixes)}}}"
+        raise InputFileError(f"{folder}: no file for query {stem!r} (looked for {looked})")
+    return path
 
 
 def read_inputs(
@@ -112,6 +129,27 @@ def read_inputs(
     values = read_depth_file(depth)
     check_aspect(values.shape, camera.width, camera.height, "depth", depth)
     return labels, values
+
+
+def input_files(spec: DatasetSpec, q: LodLocQuery) -> tuple[Path, Path | None]:
+    """(mask, depth or None) files of query ``q`` of a ``masks`` run, found by ``stat`` alone (nothing read);
+    ``InputFileError`` naming the folder and the names looked for when one is missing."""
+    mask = _find(Path(str(spec.masks)), q.stem, MASK_SUFFIXES)
+    depth = _find(Path(spec.depth), q.stem, DEPTH_SUFFIXES) if spec.depth else None
+    return mask, depth
+
+
+def check_some_inputs(spec: DatasetSpec, queries: list[LodLocQuery]) -> None:
+    """``InputFileError`` when the ``masks`` (or ``depth``) folder holds the file of none of the queries: a
+    wrong path, said in one line before the run starts instead of a miss for every query."""
+    kinds = (("mask", spec.masks, MASK_SUFFIXES), ("depth", spec.depth, DEPTH_SUFFIXES))
+    for kind, folder, suffixes in kinds:
+        if folder and queries and not any(_found(Path(folder), q.stem, suffixes) for q in queries):
+            looked = f"{queries[0].stem}{{{','.join(suffixes)}}}"  # as _find says it
+            raise InputFileError(
+                f"{folder}: no {kind} file of any of the {len(queries)} queries (looked for {looked}, ...); "
+                f"is it the data set's {kind} folder?"
+            )
 
 
 def perception_label(perception: str, seg_quality: str | None = None) -> str:
@@ -194,6 +232,8 @@ class DatasetSpec:
             raise BenchmarkError(f"{dataset.root}: no query has both a ground-truth pose and a prior")
         if dataset.model_path is None:
             raise BenchmarkError(f"{dataset.root}: no LoD model found beside the data set; pass --city")
+        if self.perception == PERCEPTION_MASKS:
+            check_some_inputs(self, queries)
         return plain(
             {
                 "format": RUN_FORMAT,
@@ -284,9 +324,8 @@ class DatasetSource:
         miou = float("nan")
         if spec.perception == PERCEPTION_MASKS:
             camera = q.camera
-            mask = _find(Path(spec.masks), q.stem, (".png", ".npy"))
-            depth_file = _find(Path(spec.depth), q.stem, (".npy", ".png")) if spec.depth else None
             try:
+                mask, depth_file = input_files(spec, q)
                 labels, depth = read_inputs(camera, mask, depth_file, spec.allow_lossy_mask)
             except LossyMaskError:
                 raise  # the run's --allow-lossy-mask, not this file: refused in one line naming the flag
@@ -318,6 +357,27 @@ class DatasetSource:
             depth=depth,
             query_miou=miou,
             meta=meta,
+        )
+
+    def start_note(self, todo: list[int]) -> str | None:
+        """The warning the run says before its first query (``benchmark.run``): the queries of ``todo``
+        whose mask or depth file is missing, found by ``stat`` alone, how many and the first
+        ``MISSING_SHOWN``; each is a miss at its turn (``query``). None when every file is there."""
+        if self.spec.perception != PERCEPTION_MASKS:
+            return None
+        missing = []
+        for index in todo:
+            try:
+                input_files(self.spec, self.queries[index])
+            except InputFileError:
+                missing.append(self.queries[index].name)
+        if not missing:
+            return None
+        shown = ", ".join(missing[:MISSING_SHOWN]) + (", ..." if len(missing) > MISSING_SHOWN else "")
+        folders = " or ".join(str(f) for f in (self.spec.masks, self.spec.depth) if f)
+        return (
+            f"semcityloc: warning: {len(missing)} of the {len(todo)} queries to run have no mask or depth "
+            f"file in {folders} ({shown}): each will be a miss (in every recall), the others run"
         )
 
     def prepare(self, method: Method) -> None:

@@ -32,7 +32,14 @@ can be localized") with the first reasons. A mask or depth file that fails only 
 truncated body, class ids a lossy format made) is found when its photo's turn comes: ``PhotoSource.query``
 returns that photo not accepted, with the reason, and the run loop records it as ``skipped`` (its row, its
 ``poses/<stem>.json`` record, the summary's ``skipped_photos``) and goes on with the others; its row stays
-on resume (the file fixed, deleting that line of ``results.csv`` redoes the photo). Outputs (``runfiles``):
+on resume (the file fixed, deleting that line of ``results.csv`` redoes the photo). With ground truth
+(``truth``), a photo that has a true pose and whose own file (the photo, its mask or depth) is there but
+cannot be read (not a file, empty, corrupt, truncated, no class ids) is not skipped but a miss of the run,
+found before the run or at its turn: a ``not_localized`` row with the reason naming the file
+(``results.unreadable_result``, ``PhotoInput.unreadable``), in every recall's denominator, as in a
+data-set benchmark; a photo without a true pose, or one that lacks a file, a prior or intrinsics, or whose
+mask reads but does not fit (another aspect, a lossy format without ``allow_lossy_mask``), is skipped as
+before. Outputs (``runfiles``):
 ``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level when localized, in
 ``geometry.io.pose_to_dict``'s layout, and the result record, prior, uncertainty and perception in
 ``extra``; the record alone when not localized), ``overlays/<stem>.png`` (the model's edges at the estimate,
@@ -57,7 +64,7 @@ from semcityloc.benchmark import focal_cache
 from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
-from semcityloc.benchmark.results import SKIP_REASON, SKIPPED
+from semcityloc.benchmark.results import SKIP_REASON, SKIPPED, UNREADABLE_INPUT, is_unreadable
 from semcityloc.benchmark.runfiles import (
     OVERLAYS_DIR,
     POSES_DIR,
@@ -82,7 +89,7 @@ from semcityloc.datasets.photos import (
     list_images,
     photo_metadata,
 )
-from semcityloc.errors import BenchmarkError, InputFileError, ShapeError, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, LossyMaskError, ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion, undistort_image, unseen_by_photo
 from semcityloc.geometry.io import pose_to_dict
@@ -132,8 +139,8 @@ class PhotoInput:
 
     name: str
     path: Path
-    camera: Camera
-    prior: PhotoPrior
+    camera: Camera | None  # None: an unreadable photo (``unreadable``) whose camera is in its own file
+    prior: PhotoPrior | None  # likewise
     uncertainty: PriorUncertainty
     truth_world: Pose | None = None
     mask: Path | None = None
@@ -143,6 +150,9 @@ class PhotoInput:
     # The flight's focal-length estimate for this camera (``calibrate_focal``; one dict per camera).
     focal_estimate: dict | None = None
     orientation: int = 1  # the photo's EXIF orientation (``io.images.exif_orientation``; 1: as stored)
+    # Why a photo with a true pose cannot run: its own file cannot be read or used (checked before the
+    # run). Its query is a miss naming the file, not skipped (module docstring); None: it runs.
+    unreadable: str | None = None
 
     @property
     def stem(self) -> str:
@@ -243,8 +253,9 @@ class PhotoSpec:
     def run_config(self) -> dict:
         """The ``run.json`` of a photo run (what decides the numbers; compared on resume)."""
         model, inputs, skipped, store = self.resolved()
-        if not inputs:
-            reasons = "; ".join(f"{k}: {v}" for k, v in list(skipped.items())[:3])
+        if not any(inp.unreadable is None for inp in inputs):
+            misses = {inp.name: inp.unreadable for inp in inputs}
+            reasons = "; ".join(f"{k}: {v}" for k, v in list({**misses, **skipped}.items())[:3])
             raise InputFileError(f"{self.images}: no photo can be localized ({reasons})")
         city = resolve_city(self.city)
         return plain(
@@ -303,7 +314,8 @@ class PhotoSpec:
         failed = {inputs[int(r["index"])].name: r["reason"] for r in rows if r["status"] == SKIPPED}
         summary["skipped_photos"] = {**skipped, **failed}
         offset = None if self.offset is None else np.asarray(self.offset, dtype=np.float64)
-        summary["outputs"] = write_exports(out_dir, model, inputs, offset, self.target_height)
+        placed = [inp for inp in inputs if inp.camera is not None and inp.prior is not None]  # exports
+        summary["outputs"] = write_exports(out_dir, model, placed, offset, self.target_height)
 
 
 class Resolved(NamedTuple):
@@ -323,7 +335,8 @@ def _calibrated(spec: PhotoSpec) -> Resolved:
         return resolved
     groups: dict[tuple[Camera, str], list[int]] = {}
     for i, inp in enumerate(resolved.inputs):
-        groups.setdefault((inp.camera, inp.intrinsics_source), []).append(i)
+        if inp.unreadable is None:  # an unreadable photo's miss needs no camera
+            groups.setdefault((inp.camera, inp.intrinsics_source), []).append(i)
     inputs = list(resolved.inputs)
     for (camera, source), members in groups.items():
         if spec.calibrate_focal == "auto" and source != INTRINSICS_35MM:
@@ -366,7 +379,7 @@ def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], m
     views = []
     for i in oblique:
         q = source.query(i)
-        if not q.meta.get("accepted", True):  # a mask that cannot be read: the run records it for that photo
+        if not q.meta.get("accepted", True) or UNREADABLE_INPUT in q.meta:  # its file: recorded by the run
             continue
         views.append(FocalView(q.camera, q.prior_pose_local, q.labels, q.depth, q.prior_uncertainty))
     bar = Progress(len(views), label="focal estimate")  # views: the oblique subset already
@@ -414,6 +427,7 @@ def _resolve(spec: PhotoSpec) -> Resolved:
     inputs: list[PhotoInput] = []
     skipped: dict[str, str] = {}
     for path in list_images(spec.images, every_entry=True):
+        lens = prior = meta = None
         try:
             width, height, orientation = _readable_photo(path)
             # Read once when both the camera and the prior come from it (each would read the whole file).
@@ -424,14 +438,21 @@ def _resolve(spec: PhotoSpec) -> Resolved:
             mask = _mask_file(spec, path, camera, orientation)
             depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera, orientation)
         except PhotoMissing as exc:
-            skipped[path.name] = str(exc)
+            true_pose = _true_pose(truth, path, meta) if isinstance(exc, PhotoUnreadable) else None
+            if true_pose is None:
+                skipped[path.name] = str(exc)
+                continue
+            # A photo of the truth whose own file cannot be read: a miss of the run (module docstring),
+            # with its prior when that is not in the photo itself (a pose file, a geotag CSV).
+            prior = prior if prior is not None or lens is not None else _prior_or_none(priors, path)
+            sigma = fixed or (prior.uncertainty if prior is not None else None) or PriorUncertainty()
+            known = {} if lens is None else {"intrinsics_source": lens.source, "distortion": lens.distortion}
+            camera = lens.camera if lens is not None else None
+            inputs.append(
+                PhotoInput(path.name, path, camera, prior, sigma, true_pose, unreadable=str(exc), **known)
+            )
             continue
-        true_pose = None
-        if truth is not None:
-            try:
-                true_pose = truth.prior(path, meta).pose_world
-            except PhotoMissing:
-                true_pose = None  # ground truth is optional per photo
+        true_pose = _true_pose(truth, path, meta)
         sigma = fixed or prior.uncertainty or PriorUncertainty()
         inputs.append(
             PhotoInput(
@@ -448,9 +469,32 @@ def _resolve(spec: PhotoSpec) -> Resolved:
                 orientation=orientation,
             )
         )
-    if store is not None and inputs:
-        model = flight_area(store, model, inputs)
+    placed = [inp for inp in inputs if inp.prior is not None]
+    if store is not None and placed:
+        model = flight_area(store, model, placed)
     return Resolved(model, inputs, skipped, store)
+
+
+class PhotoUnreadable(PhotoMissing):
+    """A photo's own file (the photo, its mask or depth) is there but cannot be read or used: skipped, or
+    with a true pose a miss (module docstring)."""
+
+
+def _prior_or_none(priors: PriorFiles | None, path: Path, meta=None) -> PhotoPrior | None:
+    """``priors.prior`` of the photo ``path``, None when there is none it can give (ground truth is optional
+    per photo; an unreadable photo's prior may be in the photo itself)."""
+    if priors is None:
+        return None
+    try:
+        return priors.prior(path, meta)
+    except InputFileError:  # PhotoMissing among them
+        return None
+
+
+def _true_pose(truth: PriorFiles | None, path: Path, meta) -> Pose | None:
+    """The true pose of the photo ``path`` (world frame), None without one."""
+    given = _prior_or_none(truth, path, meta)
+    return given.pose_world if given is not None else None
 
 
 def _readable_photo(path: Path) -> tuple[int, int, int]:
@@ -459,13 +503,13 @@ def _readable_photo(path: Path) -> tuple[int, int, int]:
     ``PhotoMissing`` naming the file when it is not a file, is empty, truncated, corrupt or of a format
     Pillow does not read: that photo is skipped with the reason, the others run."""
     if not path.is_file():
-        raise PhotoMissing(f"{path}: not a file (named like a photo)")
+        raise PhotoUnreadable(f"{path}: not a file (named like a photo)")
     try:
         if path.stat().st_size == 0:
             raise InputFileError(f"{path}: cannot read photo (empty file)")
         return decoded_size_and_orientation(path, "photo")
     except (InputFileError, OSError) as exc:
-        raise PhotoMissing(str(exc)) from None
+        raise PhotoUnreadable(str(exc)) from None
 
 
 def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) -> CityModel:
@@ -478,13 +522,15 @@ def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) ->
 
 def _mask_file(spec: PhotoSpec, photo: Path, camera: Camera, orientation: int) -> Path | None:
     """``_input_file`` of the photo's mask, its header checked too (``io.images.check_label_header``: a lossy
-    format without ``allow_lossy_mask``, not class ids); ``PhotoMissing`` saying why."""
+    format without ``allow_lossy_mask``, ``PhotoMissing``; not class ids, ``PhotoUnreadable``) saying why."""
     path = _input_file(spec.masks, photo, MASK_SUFFIXES, "mask", camera, orientation)
     if path is not None and path.suffix.lower() != ".npy":
         try:
             check_label_header(path, spec.allow_lossy_mask)
-        except InputFileError as exc:
+        except LossyMaskError as exc:  # the run's --allow-lossy-mask, not this file
             raise PhotoMissing(str(exc)) from None
+        except InputFileError as exc:
+            raise PhotoUnreadable(str(exc)) from None
     return path
 
 
@@ -494,7 +540,7 @@ def _array_shape(path: Path) -> tuple[int, int]:
         try:
             shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
         except (OSError, ValueError) as exc:
-            raise PhotoMissing(f"{path}: not a readable .npy array ({exc})") from None
+            raise PhotoUnreadable(f"{path}: not a readable .npy array ({exc})") from None
         return tuple(int(v) for v in shape)
     width, height = image_size(path, "mask or depth image")
     return height, width
@@ -505,12 +551,19 @@ def _input_file(
 ) -> Path | None:
     """The photo's mask / depth file in ``folder`` (None without a folder), checked to show the photo's
     field of view (``orientation``: the photo's EXIF one); ``PhotoMissing`` when absent or of another
-    aspect."""
+    aspect, ``PhotoUnreadable`` when its header cannot be read."""
     if not folder:
         return None
     try:
         path = find_file(Path(folder), photo.name, suffixes, what)
-        check_aspect_of_photo(_array_shape(path), camera.width, camera.height, what, path, orientation)
+    except InputFileError as exc:
+        raise PhotoMissing(str(exc)) from None
+    try:
+        shape = _array_shape(path)
+    except InputFileError as exc:  # PhotoUnreadable (a .npy) among them
+        raise PhotoUnreadable(str(exc)) from None
+    try:
+        check_aspect_of_photo(shape, camera.width, camera.height, what, path, orientation)
     except (InputFileError, ValueError) as exc:
         raise PhotoMissing(str(exc)) from None
     return path
@@ -562,11 +615,16 @@ class PhotoSource:
         full, so that the run records it and goes on (module docstring)."""
         inp = self.inputs[index]
         cam = inp.camera
+        if inp.unreadable is not None:  # checked before the run: a miss of the truth (module docstring)
+            return self._query(index, None, None, {UNREADABLE_INPUT: inp.unreadable})
         seg, dep = self.backends()
         try:
             photo, labels, depth = self._read_files(inp, seg is not None or dep is not None)
         except (InputFileError, ShapeError) as exc:  # this photo's own file: its result, not the run's end
             blank = np.full((cam.height, cam.width), IGNORE, dtype=np.uint8)
+            # unreadable with a true pose: a miss of the run, else the photo is skipped (module docstring)
+            if inp.truth_world is not None and not isinstance(exc, ShapeError):
+                return self._query(index, blank, None, {UNREADABLE_INPUT: str(exc)})
             return self._query(index, blank, None, {"accepted": False, SKIP_REASON: str(exc)})
         if photo is not None:
             photo = inp.pinhole(photo, fill=0, nearest=False)
@@ -601,17 +659,19 @@ class PhotoSource:
         return photo, labels, depth
 
     def _query(
-        self, index: int, labels: np.ndarray, depth: np.ndarray | None, extra: dict | None = None
+        self, index: int, labels: np.ndarray | None, depth: np.ndarray | None, extra: dict | None = None
     ) -> BenchmarkQuery:
         """The ``BenchmarkQuery`` of photo ``index`` (local frame) with these labels and depth; ``extra``
-        added to its meta."""
+        added to its meta. An unreadable photo's (``PhotoInput.unreadable``) may have no camera or prior."""
         inp = self.inputs[index]
-        pitch = float(inp.prior.pose_world.to_xyz_rpy()[4])
+        prior = inp.prior.pose_world if inp.prior is not None else None
+        view = inp.truth_world if prior is None else prior
+        pitch = float(view.to_xyz_rpy()[4]) if view is not None else 0.0
         meta = {
             "name": inp.name,
             "image": str(inp.path.absolute()),
             "perception": self.spec.perception(),
-            "prior_source": inp.prior.source,
+            "prior_source": inp.prior.source if inp.prior is not None else None,
             "prior_uncertainty": inp.uncertainty.as_dict(),
             "view": "nadir" if abs(pitch) < 15.0 else "oblique",
             **(extra or {}),
@@ -622,7 +682,7 @@ class PhotoSource:
             index=index,
             camera=inp.camera,
             true_pose_local=model.pose_to_local(inp.truth_world) if inp.truth_world is not None else None,
-            prior_pose_local=model.pose_to_local(inp.prior.pose_world),
+            prior_pose_local=model.pose_to_local(prior) if prior is not None else None,
             labels=labels,
             depth=depth,
             query_miou=math.nan,
@@ -638,15 +698,16 @@ class PhotoSource:
         model = self.map_model
         crs = crs_label(model.crs)
         record = result.to_dict(model.origin, crs)
+        prior = inp.prior  # None: an unreadable photo's (``PhotoInput.unreadable``), and its camera too
         record.update(
             image=inp.name,
             perception=self.spec.perception(),
-            intrinsics=inp.camera.as_dict(),
+            intrinsics=inp.camera.as_dict() if inp.camera is not None else None,
             intrinsics_source=inp.intrinsics_source,
             focal_estimate=inp.focal_estimate,
             lens_distortion=None if inp.distortion.is_zero else inp.distortion.as_dict(),
-            prior=pose_to_dict(inp.prior.pose_world, crs=crs, extra=inp.prior.details),
-            prior_source=inp.prior.source,
+            prior=pose_to_dict(prior.pose_world, crs=crs, extra=prior.details) if prior is not None else None,
+            prior_source=prior.source if prior is not None else None,
             prior_uncertainty=inp.uncertainty.as_dict(),  # what the localizer searched
         )
         return record
@@ -666,7 +727,7 @@ class PhotoSource:
             data = record
         with writing(folder / f"{inp.stem}.json"):
             write_json_atomic(folder / f"{inp.stem}.json", data)
-        if self.spec.overlays and result.status != SKIPPED:
+        if self.spec.overlays and result.status != SKIPPED and not is_unreadable(result.reason):
             photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
             panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]

@@ -136,10 +136,15 @@ def unreadable_result(problem: str) -> LocalizationResult:
     return LocalizationResult(status=NOT_LOCALIZED, reason=f"{REASON_UNREADABLE}: {problem}")
 
 
+def is_unreadable(reason: str | None) -> bool:
+    """Whether a result's (or row's) reason is ``unreadable_result``'s."""
+    return (reason or "").startswith(REASON_UNREADABLE)
+
+
 def unreadable_row(row: dict[str, str]) -> bool:
     """Is this ``results.csv`` row an ``unreadable_result``: a miss because its input could not be read,
     not because anything was searched or refused (the report files it apart: ``miss_kinds``)?"""
-    return row["status"] == NOT_LOCALIZED and (row.get("reason") or "").startswith(REASON_UNREADABLE)
+    return row["status"] == NOT_LOCALIZED and is_unreadable(row.get("reason"))
 
 
 # A query whose worker process died on every try (``benchmark.ray_executor``): recorded with the reason,
@@ -218,7 +223,8 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
     true = q.true_pose_local
     none = (None, None, None)  # no ground truth (a user's photo): no error
     err = pose_errors(est, true) if true is not None else none
-    prior_err = pose_errors(q.prior_pose_local, true) if true is not None else none
+    prior = q.prior_pose_local  # None: an unreadable photo's (``photo_source.PhotoInput.unreadable``)
+    prior_err = pose_errors(prior, true) if true is not None and prior is not None else none
     coarse = result.coarse_pose_local
     coarse_err = pose_errors(coarse, true) if coarse is not None and true is not None else none
     # The pose the search found, accepted or refused: what the acceptance's risk-coverage curve needs.

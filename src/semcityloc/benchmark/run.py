@@ -11,7 +11,8 @@ A spec is a typed object (``benchmark.spec.BenchmarkSpec`` for simulated runs,
 ``finish(out, rows, summary)``.
 Workers get the spec and the source (with its models) once, never a dict to read settings back from. A
 source with a ``tile_store`` (a ``--city`` tile store) gets a ``localization.tiled.TiledMethod``: each query
-loads the parts of the city it can see.
+loads the parts of the city it can see. A source with a ``start_note(todo)`` (a data set's missing files:
+``DatasetSource.start_note``) has it said on stderr once it is open, before the first query runs.
 
 Numbers do not depend on ``workers``: every query is made from ``(seed, index)`` alone and the localizer
 seeds its own generator per query.
@@ -259,6 +260,10 @@ def _run_locked(
         stream = None if progress is True else progress or None
         ensure_compiled(kernel_groups(spec.method), stream)
         source = source if source is not None else spec.open_source(config)
+        start_note = getattr(source, "start_note", None)  # a source's word before its first query
+        note = start_note(todo) if start_note is not None else None
+        if note is not None:
+            print(note, file=sys.stderr if isinstance(progress, bool) else progress, flush=True)
         bar = Progress(total, kept, stream, label=spec.label) if progress is not False else None
         if executor == "ray":
             finished = run_ray(todo, workers, _Worker, (spec, source, out), ray_address)

@@ -25,7 +25,7 @@ A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) be
 fails mid-run (a full disk) is ``write_error``: one line naming the file; it leaves no temporary file, and a
 resumed run removes those a killed one left (``remove_stale_temps``). A ``results.csv`` that is there but
 cannot be read (no permission, a folder, no UTF-8 text) is ``read_error``: "cannot read", the file and
-the fix.
+the fix; so is such a ``run.json`` (not "another run"), which ``overwrite`` replaces unread.
 
 - ``run.lock``: held while a run writes the folder (``run_lock``): an exclusive ``flock`` on it, and the
   pid, host and start time of its holder inside. A second run on the same folder is refused
@@ -139,16 +139,18 @@ _READ_FIX = {
 _START_AGAIN = "pass --overwrite to start the run again"
 
 
-def read_error(path: Path | str, exc: OSError | UnicodeDecodeError) -> RunFileError:
-    """The one-line error for a file of a run (``results.csv``) that is there but cannot be read: the file,
-    the cause and what to do ("cannot read OUT/results.csv: Permission denied; make it readable and run the
-    same command again, or pass --overwrite to start the run again"). Not ``write_error``: its "cannot
-    write ... make it writable" would send the user to the wrong fix."""
+def read_error(
+    path: Path | str, exc: OSError | UnicodeDecodeError, what: str = "results file"
+) -> RunFileError:
+    """The one-line error for a file of a run (``results.csv``, ``run.json``: ``what``) that is there but
+    cannot be read: the file, the cause and what to do ("cannot read OUT/results.csv: Permission denied;
+    make it readable and run the same command again, or pass --overwrite to start the run again"). Not
+    ``write_error``: its "cannot write ... make it writable" would send the user to the wrong fix."""
     if isinstance(exc, UnicodeDecodeError):
         byte = exc.object[exc.start : exc.start + 1].hex()
         return RunFileError(
-            f"cannot read {path}: byte 0x{byte} at offset {exc.start} is not UTF-8 text, so it is no results "
-            f"file of this runner; {_START_AGAIN}, or choose another --out"
+            f"cannot read {path}: byte 0x{byte} at offset {exc.start} is not UTF-8 text, so it is no {what} "
+            f"of this runner; {_START_AGAIN}, or choose another --out"
         )
     fix = _READ_FIX.get(exc.errno, "fix it")
     again = f"run the same command again, or {_START_AGAIN}"
@@ -309,24 +311,32 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
     """Create ``out_dir`` and its ``run.json``; refuse a folder holding a run with other arguments.
     ``overwrite`` deletes the run's files (``RUN_OUTPUTS``) and starts again, with the same arguments too
     (a damaged ``results.csv``, a run to redo with new code). Returns the ``run.json`` of the run being
-    resumed (None when the run starts here)."""
+    resumed (None when the run starts here).
+
+    A ``run.json`` that is there but cannot be read (no permission, a folder, no UTF-8 text) is
+    ``read_error`` ("cannot read"), not another run; ``overwrite`` does not read it but replaces it (a
+    folder of that name is removed, as ``overwrite`` removes one named like an output). One that reads but
+    is no JSON object is another run's, refused unless ``overwrite``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     run_file, results = out_dir / RUN_FILE, out_dir / RESULTS_FILE
     mismatch = None
     old = None
-    if run_file.exists():
+    if run_file.exists() and not overwrite:  # --overwrite starts again: the old run.json is not read
+        data = read_run_file(run_file)
         try:
-            old = json.loads(run_file.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
+            old = json.loads(data.decode("utf-8"))
+        except UnicodeDecodeError as exc:
+            raise read_error(run_file, exc, RUN_FILE) from exc
+        except ValueError as exc:
             old = None
-            mismatch = f"its {RUN_FILE} is unreadable ({exc})"
+            mismatch = f"its {RUN_FILE} is not JSON ({exc})"
         if isinstance(old, dict):
             differ = differing_settings(old, config)
             if differ:
                 mismatch = "arguments differ: " + "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
         elif old is not None:
             mismatch = f"its {RUN_FILE} is not a JSON object"
-    elif results.exists():
+    elif results.exists() and not run_file.exists():
         mismatch = f"it has a {RESULTS_FILE} but no {RUN_FILE}"
     if mismatch and not overwrite:
         raise ResumeMismatchError(
@@ -339,6 +349,8 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
                 shutil.rmtree(path, ignore_errors=True)
             else:
                 path.unlink(missing_ok=True)
+        if run_file.is_dir() and not run_file.is_symlink():  # only --overwrite gets here with one
+            shutil.rmtree(run_file, ignore_errors=True)
     if mismatch or overwrite or not run_file.exists():
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
         return None

@@ -44,6 +44,7 @@ minus an offset; bring the result into a ``CityModel``'s local frame with ``mode
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
@@ -430,23 +431,52 @@ def _ballpark(group: TransformerGroup) -> bool:
     return (not group.best_available) or "ballpark" in group.transformers[0].description.lower()
 
 
-def _group(source, target) -> TransformerGroup:
-    """pyproj's candidate operations; its warning about missing grids is ours to report (``_ballpark``)."""
+# pyproj's CRS and transformation objects take 5-500 ms each to make (a geoid's operations the most), and
+# a flight's photos all need the same few: made once per process, kept by a hashable name of their CRSs
+# (``_crs_key``: a name as given, a CRS object's WKT). pyproj's objects are not changed once made.
+_CACHED = 32
+
+
+def _crs_key(crs: str | pyproj.CRS) -> str:
+    """A hashable name of ``crs`` for the caches: a name as given, a CRS object's WKT."""
+    return crs.to_wkt() if isinstance(crs, pyproj.CRS) else str(crs)
+
+
+def _group(source: str | pyproj.CRS, target: str | pyproj.CRS) -> TransformerGroup:
+    """pyproj's candidate operations (``always_xy``), made once per pair of CRSs (``_transformer_group``)."""
+    return _transformer_group(_crs_key(source), _crs_key(target))
+
+
+@functools.lru_cache(maxsize=_CACHED)
+def _transformer_group(source: str, target: str) -> TransformerGroup:
+    """``_group`` of two CRS names; pyproj's warning about missing grids is ours to report (``_ballpark``)."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Best transformation is not available")
         return TransformerGroup(source, target, always_xy=True)
+
+
+@functools.lru_cache(maxsize=_CACHED)
+def _from_wgs84(target: str) -> pyproj.Transformer:
+    """WGS 84 latitude / longitude -> ``target`` (a CRS name, ``always_xy``), made once per CRS."""
+    return pyproj.Transformer.from_crs("EPSG:4326", target, always_xy=True)
 
 
 def target_crs_of(name: str | pyproj.CRS) -> pyproj.CRS:
     """A CRS from a name: ``parse_crs_name`` forms, and ``EPSG:h+v`` compounds kept whole."""
     if isinstance(name, pyproj.CRS):
         return name
-    if _EPSG_PLUS.match(str(name)):
+    return _crs_of_name(str(name))
+
+
+@functools.lru_cache(maxsize=_CACHED)
+def _crs_of_name(name: str) -> pyproj.CRS:
+    """``target_crs_of`` a name, made once per name (an error is raised again each time)."""
+    if _EPSG_PLUS.match(name):
         try:
-            return pyproj.CRS.from_user_input(str(name).strip())
+            return pyproj.CRS.from_user_input(name.strip())
         except pyproj.exceptions.CRSError as exc:
             raise CRSError(f"unknown EPSG code in CRS {name!r}: {exc}") from exc
-    return parse_crs_name(str(name))
+    return parse_crs_name(name)
 
 
 def _geoid_separation(
@@ -471,7 +501,7 @@ def _geoid_separation(
 
 def grid_convergence_deg(crs: pyproj.CRS, lon: float, lat: float) -> float:
     """Grid azimuth (clockwise from grid north, degrees) of true north at (lon, lat) in ``crs``."""
-    t = pyproj.Transformer.from_crs("EPSG:4326", _horizontal(crs), always_xy=True)
+    t = _from_wgs84(_crs_key(_horizontal(crs)))
     step = 1e-4 if lat < 89.9 else -1e-4
     e0, n0 = t.transform(lon, lat)
     e1, n1 = t.transform(lon, lat + step)
@@ -571,7 +601,7 @@ def dji_prior(
             "prefer RelativeAltitude + the take-off point's height when known"
         )
     z, z_reference, applied, n_used = h, source_height, False, None
-    target_vertical = vertical if vertical is not None else pyproj.CRS(EGM96)
+    target_vertical = vertical if vertical is not None else target_crs_of(EGM96)
     if wanted == HEIGHT_ORTHOMETRIC and source_height in (HEIGHT_ELLIPSOIDAL, HEIGHT_BAROMETRIC):
         vname = target_vertical.name if vertical is not None else "EGM96 height"
         if geoid_separation_m is not None:
