@@ -777,3 +777,25 @@ def test_a_pool_worker_whose_parent_is_already_gone_ends_at_once():
     code = "from semcityloc.benchmark.run import _die_with_parent; _die_with_parent(1); print('alive')"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 1 and "alive" not in done.stdout
+
+
+def test_a_failed_query_with_a_true_pose_is_a_miss_of_every_recall(baseline):
+    """A query whose worker died on every try (Ray) is a miss in the recall's denominator when it has a
+    true pose, as a query not localized, and a miss of its own kind in the report; without one (a photo
+    run without its truth) it stays out of the errors."""
+    from semcityloc.benchmark.miss_kinds import kind_of, summarize_misses
+    from semcityloc.benchmark.results import FAILED, failed_row, summarize_rows
+
+    rows = [r for r in baseline.rows if r["query_id"] != "q0001"]
+    scored = summarize_rows([*rows, failed_row(1, "worker died 2 times", has_truth=True)], baseline.config)
+    unscored = summarize_rows([*rows, failed_row(1, "worker died 2 times")], baseline.config)
+    full = summarize_rows(rows, baseline.config)
+    truth = full["with_ground_truth"]
+    assert scored["with_ground_truth"] == truth + 1 and unscored["with_ground_truth"] == truth
+    hits = full["recall_5m5deg"] * truth
+    assert np.isclose(scored["recall_5m5deg"] * (truth + 1), hits)  # one more query, no more hits
+    assert np.isclose(unscored["recall_5m5deg"], full["recall_5m5deg"])
+    assert scored["localized"] == full["localized"]
+    assert kind_of(failed_row(1, "", has_truth=True)) == FAILED
+    misses = summarize_misses([*rows, failed_row(1, "", has_truth=True)])
+    assert misses["count"][FAILED] == 1

@@ -38,7 +38,10 @@ WARNED = {  # what the localizer said about the map (localization.agreement), as
 BOUNDARIES = {"q3": "4.25", "q4": "nan"}  # px at the found pose; empty as in runs before stop 42
 
 
-UNREADABLE = {"q6": f"{REASON_UNREADABLE}: /d/masks/q6.png: truncated PNG"}  # results.unreadable_result
+UNREADABLE = {  # results.unreadable_result, results.failed_row
+    "q6": f"{REASON_UNREADABLE}: /d/masks/q6.png: truncated PNG",
+    "q7": "worker died 2 times: the actor died unexpectedly",
+}
 
 
 def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
@@ -50,6 +53,7 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
         ("q4", "localized", 9.0, 9.0, 600, 200),  # wrong, accepted
         ("q5", "skipped", "", "", 0, 0),  # not a query: left out
         ("q6", "not_localized", "inf", "", 0, 0),  # unreadable-input: its mask could not be read
+        ("q7", "failed", "inf", "", 0, 0),  # failed: its worker died on every try (results.failed_row)
     ]
     with (tmp_path / "results.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, [*FIELDS.split(), "reason", "warnings", "meta_json", "boundary_distance_px"])
@@ -73,9 +77,10 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     )
     lines = out.stdout.splitlines()
     summary = json.loads(lines[-1])
-    assert summary["queries"] == 6
+    assert summary["queries"] == 7
     assert summary["count"] == {
-        "hit": 1, "near": 1, "refused-near": 1, "refused-wrong": 1, "wrong": 1, "unreadable-input": 1
+        "hit": 1, "near": 1, "refused-near": 1, "refused-wrong": 1, "wrong": 1, "unreadable-input": 1,
+        "failed": 1,
     }  # fmt: skip
     assert abs(summary["median_map_building_iou"]["hit"] - 900 / 1000) < 1e-9
     assert abs(summary["median_map_building_iou"]["refused-near"] - 300 / 1000) < 1e-9
@@ -83,16 +88,17 @@ def test_misses_are_sorted_by_kind_with_the_maps_agreement(tmp_path):
     assert summary["map_warned"] == [0, 2]  # q2 and q4 carried an outdated-map warning, no hit did
     assert abs(summary["median_map_building_iou"]["misses"] - (0.3 + 0.6) / 2) < 1e-9  # of 0.9, 0.3, 0.3, 0.6
     table = [line for line in lines if line.startswith("| q") and not line.startswith("| query")]
-    kinds = ["near", "refused-near", "refused-wrong", "wrong", "unreadable-input"]
+    kinds = ["near", "refused-near", "refused-wrong", "wrong", "unreadable-input", "failed"]
     assert [line.split(" | ")[2] for line in table] == kinds
     assert "1.5° / nan°" in table[0]  # the prior's roll error, unsigned; a missing pitch error says nan
-    apart = ["-", "-", "4.2", "nan", "-"]  # class boundaries apart
+    apart = ["-", "-", "4.2", "nan", "-", "-"]  # class boundaries apart
     assert [line.split(" | ")[-2] for line in table] == apart
     assert [line.split(" | ")[-1] for line in table] == [
         "- |",
         "map lacks, image lacks |",
         "- |",
         "image lacks |",
+        "- |",
         "- |",
     ]
     # At 5 m the accepted 3 m pose is a hit.

@@ -98,6 +98,8 @@ def test_a_killed_worker_is_retried_once_then_the_query_is_failed(ray_runtime, s
     for qid in ("q0000", "q0003", "q0004", "q0005"):
         assert _untimed(rows[qid]) == serial_rows[qid]
     assert outcome.summary["not_localized_reasons"].get(rows["q0002"]["reason"]) == 1
+    assert rows["q0002"]["err_xyz_m"] == "inf"  # a simulated query has a true pose: a miss of the recall
+    assert outcome.summary["queries"] == 6 and outcome.summary["with_ground_truth"] == 6
     again = run_benchmark(spec, out, workers=2, progress=False, executor="ray")
     assert again.new_rows == 0  # a failed query has its row: a resumed run does not try it again
 

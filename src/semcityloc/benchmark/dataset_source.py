@@ -315,6 +315,10 @@ class DatasetSource:
     def __len__(self) -> int:
         return len(self.queries)
 
+    def has_truth(self, index: int) -> bool:
+        """Every evaluable query of a data set has a true pose (``evaluable``)."""
+        return True
+
     def query(self, index: int) -> BenchmarkQuery:
         q = self.queries[index]
         spec = self.spec

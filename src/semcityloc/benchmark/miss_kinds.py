@@ -8,7 +8,9 @@ Why: a recall figure says how many queries were missed, not why. A miss at 2 m /
 - ``wrong``: accepted and more than 5 m / 5 deg off (a confident wrong pose);
 - ``unreadable-input``: the query's own input (a data set's mask or depth file) could not be read, so
   nothing was searched and nothing refused (``results.unreadable_result``); a miss all the same, in the
-  recall's denominator, but the data's, not the localizer's, and kept apart from ``refused-wrong``.
+  recall's denominator, but the data's, not the localizer's, and kept apart from ``refused-wrong``;
+- ``failed``: the query's worker process died on every try (Ray, ``results.failed_row``): nothing was
+  searched either; a miss where the query has a true pose.
 
 The simulated scenarios record the query mask's confusion against the MAP's own labels at the true pose
 (``meta["map_confusion"]``). Its building-vs-rest IoU (``map_building_iou``) holds the segmentation's errors
@@ -27,14 +29,14 @@ import math
 
 import numpy as np
 
-from semcityloc.benchmark.results import cell_float, unreadable_row
+from semcityloc.benchmark.results import FAILED, cell_float, unreadable_row
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
 from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
 from semcityloc.localization.result import LOCALIZED
 
 NEAR_M, NEAR_DEG = 5.0, 5.0  # "near": the calibrated probability's own event
 UNREADABLE_KIND = "unreadable-input"
-MISS_KINDS = ("near", "refused-near", "refused-wrong", "wrong", UNREADABLE_KIND)
+MISS_KINDS = ("near", "refused-near", "refused-wrong", "wrong", UNREADABLE_KIND, FAILED)
 # Bins of the map's building IoU at the truth for the hits-per-bin figure; from MAP_AGREES up the map
 # agrees with the world in view.
 MAP_AGREES = 0.6
@@ -72,6 +74,8 @@ def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> st
     """A ``results.csv`` row's kind of miss at ``max_m`` / ``max_deg`` (module docstring); None: a hit."""
     if unreadable_row(row):
         return UNREADABLE_KIND
+    if row["status"] == FAILED:
+        return FAILED
     localized = row["status"] == LOCALIZED
     if localized and cell_float(row["err_xyz_m"]) <= max_m and cell_float(row["err_rot_deg"]) <= max_deg:
         return None

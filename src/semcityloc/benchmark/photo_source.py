@@ -589,6 +589,10 @@ class PhotoSource:
     def __len__(self) -> int:
         return len(self.inputs)
 
+    def has_truth(self, index: int) -> bool:
+        """A photo has a true pose when the run was given its truth (``truth``) and it names this photo."""
+        return self.inputs[index].truth_world is not None
+
     def backends(self) -> tuple[Any, Any]:
         """(segmentation backend or None, depth backend or None), built once per process."""
         if self._backends is None:

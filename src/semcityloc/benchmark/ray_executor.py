@@ -90,10 +90,13 @@ def run_ray(
     make_worker: Callable[..., Any],
     worker_args: tuple,
     address: str | None = None,
+    has_truth: Callable[[int], bool] | None = None,
 ) -> Iterator[dict[str, str]]:
     """Rows of ``todo`` from ``workers`` Ray actors, in the order they finish (module docstring).
 
     ``make_worker(*worker_args)`` builds the object whose ``run(index)`` gives a row (``run._Worker``).
+    ``has_truth(index)``: does that query have a true pose (its ``failed`` row is then a miss of every
+    recall: ``results.failed_row``); default: none has.
     """
     ray = import_ray()
     started = not ray.is_initialized()
@@ -111,7 +114,7 @@ def run_ray(
                     object_store_memory=OBJECT_STORE_BYTES,
                 )
         try:
-            yield from _schedule(ray, todo, workers, make_worker, worker_args)
+            yield from _schedule(ray, todo, workers, make_worker, worker_args, has_truth)
         finally:
             if started:
                 ray.shutdown()
@@ -176,7 +179,7 @@ def _token_available() -> bool:
     return bool(os.environ.get("RAY_AUTH_TOKEN")) or Path(path).is_file()
 
 
-def _schedule(ray, todo, workers, make_worker, worker_args) -> Iterator[dict[str, str]]:
+def _schedule(ray, todo, workers, make_worker, worker_args, has_truth=None) -> Iterator[dict[str, str]]:
     threads = max(1, (os.cpu_count() or 1) // workers)  # numba threads per actor, as the process pool
     args_ref = ray.put(worker_args)  # shipped once; every actor reads the same copy
     actor_class = ray.remote(num_cpus=1, max_restarts=0)(_RayWorker)
@@ -208,7 +211,8 @@ def _schedule(ray, todo, workers, make_worker, worker_args) -> Iterator[dict[str
                 if deaths[index] <= RETRIES:
                     submit(slot, index)
                     continue
-                row = failed_row(index, f"worker died {deaths[index]} times: {_first_line(exc)}")
+                reason = f"worker died {deaths[index]} times: {_first_line(exc)}"
+                row = failed_row(index, reason, has_truth is not None and has_truth(index))
             except ray.exceptions.RayTaskError as exc:
                 raise exc.as_instanceof_cause() from None
             if queue:

@@ -172,10 +172,18 @@ def recall_summary(results: list[LocalizationResult], queries: list[BenchmarkQue
     }
 
 
-def failed_row(index: int, reason: str) -> dict[str, str]:
-    """The ``results.csv`` row of a query that could not be run (every other column empty)."""
+ERROR_COLUMNS = ("err_xyz_m", "err_rot_deg", "err_yaw_deg")
+
+
+def failed_row(index: int, reason: str, has_truth: bool = False) -> dict[str, str]:
+    """The ``results.csv`` row of a query that could not be run (every other column empty). With
+    ``has_truth`` (the query has a true pose: every simulated or data-set query, a photo given its truth)
+    its errors are ``inf``, as a query not localized: a miss in every recall, whose denominator stays the
+    number of queries, instead of a query left out."""
     row = dict.fromkeys(COLUMNS, "")
     row.update(query_id=query_id(index), index=str(index), status=FAILED, reason=reason.replace("\n", " "))
+    if has_truth:
+        row.update(dict.fromkeys(ERROR_COLUMNS, "inf"))
     return row
 
 
@@ -524,9 +532,7 @@ def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
     skipped = sum(r["status"] == SKIPPED for r in rows)
     every = sorted((r for r in rows if r["status"] != SKIPPED), key=lambda r: int(r["index"]))
     ordered = [r for r in every if r["err_xyz_m"] != ""]  # rows with a true pose have an error
-    err = {
-        c: np.array([cell_float(r[c]) for r in ordered]) for c in ("err_xyz_m", "err_rot_deg", "err_yaw_deg")
-    }
+    err = {c: np.array([cell_float(r[c]) for r in ordered]) for c in ERROR_COLUMNS}
     localized = np.array([r["status"] == LOCALIZED for r in ordered], dtype=bool)
 
     def errors_of(sel: np.ndarray) -> dict:

@@ -33,6 +33,10 @@ class QuerySource(Protocol):
 
     def query(self, index: int) -> BenchmarkQuery: ...
 
+    def has_truth(self, index: int) -> bool:
+        """Does query ``index`` have a true pose, known without making the query (a query that could not be
+        made is then a miss of the recall: ``results.failed_row``)?"""
+
     def prepare(self, method: Method) -> None:
         """Give ``method`` what it needs of this source before the first query (may do nothing)."""
 
@@ -77,6 +81,10 @@ class SimulatedSource:
 
     def __len__(self) -> int:
         return int(self.query_config.queries)
+
+    def has_truth(self, index: int) -> bool:
+        """Every simulated query has a true pose."""
+        return True
 
     def query(self, index: int) -> BenchmarkQuery:
         return self.simulator.query(index)
