@@ -120,10 +120,17 @@ def test_auto_takes_the_flat_roofs_eaves_where_the_view_shows_them_and_only_ther
     for eaves_on_flat_roofs in (True, False):
         world = Renderer(with_eaves(city, 0.8, flat_roofs=eaves_on_flat_roofs), engine="numba")
         out = world.render(CAMERA, true, depth=True)
-        result = auto.localize(CAMERA, prior, out.labels[0], 0.5 * out.depth[0] + 3.0)
+        labels, depth = out.labels[0], 0.5 * out.depth[0] + 3.0
+        result = auto.localize(CAMERA, prior, labels, depth)
         look = result.search["flat_roof_eaves"]
         assert look["used"] is eaves_on_flat_roofs, look
         assert center_error_m(result.pose_local, true) < 0.5
+        if not look["used"]:  # the look's gain is against the pose's score on the plain map, re-scored here
+            pose = [result.pose_local]
+            plain = auto.score_poses(CAMERA, labels, depth, pose)["semantic"][0]
+            flat = auto._with_scene(auto.flat_eaves_scene).score_poses(CAMERA, labels, depth, pose)
+            assert np.isclose(plain, result.semantic, atol=1e-9)
+            assert np.isclose(look["gain_at_found"], flat["semantic"][0] - plain, atol=1e-9)
     with pytest.raises(ParameterError, match="map_eaves_flat_roofs"):
         LocalizerConfig(map_eaves_flat_roofs="sometimes")
     for bad in (float("nan"), 2.0, "0.1", True):

@@ -342,11 +342,12 @@ class Localizer:
         t0 = time.perf_counter()
         fine = levels[-1]
         state = result.pose_local.to_xyz_rpy()
-        _, plain, _ = score_states(self.scene, fine, state[None], self.class_on, cfg.refine, prior)
+        # result.semantic is already this pose's score on the plain map at the fine level (the refinement
+        # scores its estimate with score_states there): one render, not two.
         _, flat, _ = score_states(self.flat_eaves_scene, fine, state[None], self.class_on, cfg.refine, prior)
-        look = {"gain_at_found": float(flat[0] - plain[0]), "used": False}
+        look = {"gain_at_found": float(flat[0] - result.semantic), "used": False}
         result.search["flat_roof_eaves"] = look
-        result.counts["refine_evaluations"] += 2
+        result.counts["refine_evaluations"] += 1
         if look["gain_at_found"] > cfg.flat_eaves_gate:
             trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
             other = self._with_scene(self.flat_eaves_scene)
