@@ -1,8 +1,8 @@
 """Why a benchmark run missed what it missed, read from its ``results.csv`` alone (nothing is localized).
 
 Every query missed at ``--m`` metres / ``--deg`` degrees is one kind (``benchmark.miss_kinds``: near,
-refused-near, refused-wrong, wrong, unreadable-input, failed). Printed with each miss: the view, the query mask's
-mIoU against the simulated world (``query_miou``: the segmentation's errors), the mask's **building IoU
+refused-near, refused-wrong, wrong, unreadable-input, failed). Printed with each miss: the view, the query
+mask's mIoU against the simulated world (``query_miou``: the segmentation's errors), the mask's **building IoU
 against the map at the true pose** (``miss_kinds.map_building_iou``: low with a fair ``query_miou`` = the
 map is wrong where the camera looked), the prior's roll and pitch errors, the acceptance's probability,
 how far apart the class boundaries of the mask and of the map lie at the found pose
