@@ -266,8 +266,7 @@ def _run_locked(
             print(note, file=sys.stderr if isinstance(progress, bool) else progress, flush=True)
         bar = Progress(total, kept, stream, label=spec.label) if progress is not False else None
         if executor == "ray":
-            has_truth = getattr(source, "has_truth", None)
-            finished = run_ray(todo, workers, _Worker, (spec, source, out), ray_address, has_truth)
+            finished = run_ray(todo, workers, _Worker, (spec, source, out), ray_address, source.has_truth)
         elif workers == 1 or len(todo) == 1:
             finished = _run_serial(todo, (spec, source, out))
         else:
