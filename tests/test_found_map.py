@@ -81,3 +81,61 @@ def test_a_renderer_draws_another_scene_only_of_its_own_kind(boxes):
     _, renderer = boxes
     with pytest.raises(TypeError, match="RenderScene"):
         renderer.with_scene("not a scene")
+
+
+@pytest.fixture(scope="module")
+def pitched():
+    """The generated LoD2 city (pitched roofs) and a renderer of it as it is."""
+    from semcityloc.citymodel.generator import default_city_path
+
+    model = load_city_model(default_city_path(lod=2))
+    return model, Renderer(model, engine="numba")
+
+
+def test_every_pose_is_drawn_on_the_map_the_localizer_searched(pitched):
+    """The truth, the prior and an estimate of the plain look are drawn on the model with the localizer's
+    eaves on its pitched roofs: the same triangles as ``localizer_scene``, not the model as it is."""
+    from semcityloc.localization.localize import localizer_scene
+
+    model, renderer = pitched
+    maps = FoundMaps.of_run(model, renderer, {"method": "semcityloc", "localizer": {"map_eaves_m": 0.5}})
+    searched = maps.searched()
+    assert searched is not renderer and maps.searched() is searched  # built once
+    assert maps.for_estimate(KEPT) == (searched, None)
+    expected = localizer_scene(model, LocalizerConfig(map_eaves_m=0.5))
+    np.testing.assert_allclose(_model_corners(searched.scene), _model_corners(expected), atol=1e-4)
+    assert not np.allclose(_model_corners(searched.scene), _model_corners(renderer.scene), atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("config", "eaves"),
+    [
+        ({"method": "semcityloc", "localizer": {"map_eaves_m": 0.5, "map_eaves_flat_roofs": "auto"}}, 0.5),
+        ({"method": "silhouette", "localizer": {"map_eaves_m": 0.5}}, 0.5),  # the localizer's map
+        ({"method": "lodloc-wireframe", "localizer": {"map_eaves_m": 0.5}}, 0.0),  # the model's own edges
+        ({"method": "semcityloc", "localizer": {"map_eaves_m": 0.0}}, 0.0),
+        ({"method": "semcityloc"}, 0.0),  # a run from before the map's eaves
+        ({"method": "semcityloc", "localizer": {"map_eaves_m": 0.5}, "searched_map": {"eaves_m": 1.0}}, 1.0),
+    ],
+)
+def test_which_map_a_run_searched(pitched, config, eaves):
+    """From ``run.json``: its ``searched_map`` where recorded, else its method's map: the wireframe
+    baseline searches the model as it is although its ``localizer`` config names eaves."""
+    model, renderer = pitched
+    maps = FoundMaps.of_run(model, renderer, config)
+    assert maps.eaves_m == eaves
+    assert (maps.searched() is renderer) == (eaves == 0.0)
+    assert (maps.for_estimate(None)[0] is renderer) == (eaves == 0.0)
+
+
+def test_a_run_records_the_map_its_method_searches():
+    from semcityloc.localization.methods import searched_map
+
+    cfg = LocalizerConfig()
+    assert searched_map("semcityloc", cfg) == {"eaves_m": 0.5, "flat_roofs": "auto"}
+    assert searched_map("no-depth", cfg) == {"eaves_m": 0.5, "flat_roofs": "auto"}
+    assert searched_map("lodloc-wireframe", cfg) == {"eaves_m": 0.0, "flat_roofs": "off"}
+    assert searched_map("semcityloc", LocalizerConfig.preset("no-eaves")) == {
+        "eaves_m": 0.0,
+        "flat_roofs": "off",
+    }

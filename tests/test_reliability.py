@@ -504,6 +504,14 @@ def test_a_configuration_field_added_by_newer_code_does_not_refuse_a_resume(tmp_
         prepare_output(tmp_path, {**old, "settings": {"prior_height_m": 10}})
 
 
+def test_a_run_started_before_it_recorded_its_searched_map_resumes(tmp_path):
+    """``searched_map`` follows from the method and the localizer: a run.json without it is the same run."""
+    old = {"method": "semcityloc", "localizer": {"map_eaves_m": 0.5}, "settings": {}}
+    assert prepare_output(tmp_path, old) is None
+    newer = {**old, "searched_map": {"eaves_m": 0.5, "flat_roofs": "auto"}}
+    assert prepare_output(tmp_path, newer) == old
+
+
 @pytest.mark.parametrize("damage", ["no-permission", "a-folder", "not-utf8"])
 def test_a_run_json_that_cannot_be_read_says_cannot_read_and_overwrite_replaces_it(
     tmp_path, monkeypatch, damage

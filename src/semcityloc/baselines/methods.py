@@ -132,4 +132,4 @@ def make_baseline_method(
 
 
 for _name in BASELINES:
-    register_method(_name, make_baseline_method)
+    register_method(_name, make_baseline_method, map_eaves=_name != WIREFRAME)

@@ -69,7 +69,7 @@ from semcityloc.io.files import removed_on_error
 from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, scaled_size
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
-from semcityloc.localization.methods import Method
+from semcityloc.localization.methods import Method, searched_map
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
 from semcityloc.render import Renderer
@@ -260,6 +260,7 @@ class DatasetSpec:
                 "skipped_no_gt_or_prior": skipped,
                 "localizer_preset": self.preset,
                 "localizer": self.localizer_config().as_dict(),
+                "searched_map": searched_map(self.method, self.localizer_config()),
                 "keep_details": int(self.keep_details),
                 "semcityloc_version": __version__,
                 # only when set, so that runs made before the flag existed still resume

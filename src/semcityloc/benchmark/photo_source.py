@@ -115,7 +115,7 @@ from semcityloc.localization.focal import (
     with_focal_scale,
 )
 from semcityloc.localization.localize import MAX_VIEW_RANGE_M, Localizer
-from semcityloc.localization.methods import ABLATIONS, Method
+from semcityloc.localization.methods import ABLATIONS, Method, searched_map
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import DEPTH_SUFFIXES, MASK_SUFFIXES, find_file, with_lossy_masks
@@ -285,6 +285,7 @@ class PhotoSpec:
                 "method": self.method,
                 "localizer_preset": self.preset,
                 "localizer": self.localizer_config().as_dict(),
+                "searched_map": searched_map(self.method, self.localizer_config()),
                 "overlays": self.overlays,
                 "calibrate_focal": self.calibrate_focal,
                 "queries": len(inputs),
@@ -607,10 +608,10 @@ class PhotoSource:
 
     @property
     def maps(self) -> FoundMaps:
-        """The overlays' maps: the model as it is and the map an estimate was found on (``found_map``)."""
+        """The overlays' maps: the map the run searched, the one an estimate was found on (``found_map``)."""
         if self._maps is None:
             cfg = self.spec.localizer_config()
-            self._maps = FoundMaps(self.map_model, self.renderer, cfg.map_eaves_m, cfg.map_eaves_flat_roofs)
+            self._maps = FoundMaps.of_method(self.map_model, self.renderer, self.spec.method, cfg)
         return self._maps
 
     def query(self, index: int) -> BenchmarkQuery:
@@ -735,7 +736,7 @@ class PhotoSource:
             photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
             panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]
-            renderers: list[Renderer | None] = [None]
+            renderers: list[Renderer | None] = [self.maps.searched()]
             if estimate is not None:
                 found_on, found_map = self.maps.for_estimate(result.search.get("flat_roof_eaves"))
                 title = ESTIMATE_TITLE if found_map is None else f"{ESTIMATE_TITLE}, on {found_map}"

@@ -562,8 +562,9 @@ def plot_details(
     ``photo_path`` is given: real-data runs), xy slice at the best (z, yaw) and yaw slice at the best
     (x, y, z) of the coarse cost volume, with the true (green), prior (blue) and estimated (red) poses.
     Drawn at most ``FIGURE_MAX_WIDTH`` wide; a query without a true pose (a user's photo) shows the
-    estimate alone. ``maps``: the run's ``found_map.FoundMaps`` (default: the model as it is), so that an
-    estimate found on the map with eaves on its flat roofs is drawn on that map, and the caption says so."""
+    estimate alone. ``maps``: the run's ``found_map.FoundMaps`` (default: the model as it is), so that the
+    poses are drawn on the map the run searched (with its eaves) and an estimate found on the map with
+    eaves on its flat roofs on that map, and the caption says so."""
 
     plt = _pyplot()
     fx, fy, cx, cy, w, h = details["camera"]
@@ -572,7 +573,7 @@ def plot_details(
     labels = resize_nearest(details["labels"], camera.width, camera.height)
     true, prior, est = (_pose(details[f"{k}_cam_from_world"]) for k in ("true", "prior", "est"))
     maps = maps or FoundMaps(map_model, Renderer(map_model, engine="numba"))
-    renderer = maps.base
+    renderer = maps.searched()
     est_renderer, est_map = maps.for_estimate(details["meta"].get("flat_roof_eaves"))
     true_lab = renderer.render(camera, true).labels[0] if true is not None else None
     est_lab = est_renderer.render(camera, est).labels[0] if est is not None else None

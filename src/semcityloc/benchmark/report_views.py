@@ -249,7 +249,7 @@ def query_view(
         found_on, found_map = maps.for_estimate(look)
         for name, pose in poses.items():
             if pose is not None:
-                renderer = found_on if name == "estimate" else maps.base
+                renderer = found_on if name == "estimate" else maps.searched()
                 layers[name] = _pose_layers(renderer, camera, pose, POSES[name][1])
         estimate_map = found_map if "estimate" in layers else None
     mask = data_uri(background) if background_kind == QUERY_MASK else None

@@ -82,7 +82,9 @@ RUN_OUTPUTS = (
 CODE_KEY = "code"
 # Keys of run.json that do not change the numbers (not compared on resume). A run resumed by changed code
 # is not refused (a fix of a typo would cost every finished query) but told (``code_change_note``).
-NOT_IDENTITY = ("city", "keep_details", "semcityloc_version", CODE_KEY)  # "city": as typed; city_path counts
+# "city": as typed (city_path counts); "searched_map": follows from "method" and "localizer", and runs
+# started before it was recorded resume.
+NOT_IDENTITY = ("city", "keep_details", "semcityloc_version", CODE_KEY, "searched_map")
 # Keys of run.json holding a whole configuration (every field of a dataclass, defaults too). A field that
 # only one side holds was added or removed by the code, not by the arguments: a resume across it is told
 # like any code change (``code_change_note``), not refused.

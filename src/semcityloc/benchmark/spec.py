@@ -29,7 +29,7 @@ from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.errors import BenchmarkError, InputFileError
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import check_method
+from semcityloc.localization.methods import check_method, searched_map
 
 RUN_FORMAT = 1
 GENERATED = "generated"  # --city value meaning the embedded generated district
@@ -132,6 +132,7 @@ class BenchmarkSpec:
                 "queries": int(q.queries),
                 "localizer_preset": self.preset,
                 "localizer": self.localizer_config().as_dict(),
+                "searched_map": searched_map(self.method, self.localizer_config()),
                 "query_config": dataclasses.asdict(q),
                 "seg_preset": dataclasses.asdict(q.seg_preset()),  # a retuned preset is another run
                 "keep_details": int(self.keep_details),

@@ -73,18 +73,33 @@ class LocalizerMethod:
 
 
 _REGISTRY: dict[str, MethodFactory] = {}
+# Methods that search the map model as it is, without the localizer's eaves (``register_method``).
+_AS_IS: set[str] = set()
 
 # Order of the paper's main table: the full method first, then the ablations.
 ABLATIONS: tuple[str, ...] = tuple(ABLATION_FLAGS)
 
 
-def register_method(name: str, factory: MethodFactory, replace: bool = False) -> None:
-    """Add a method: ``factory(name, map_model, localizer_config) -> Method``."""
+def register_method(name: str, factory: MethodFactory, replace: bool = False, map_eaves: bool = True) -> None:
+    """Add a method: ``factory(name, map_model, localizer_config) -> Method``. ``map_eaves``: whether it
+    searches the localizer config's map (the model with ``map_eaves_m`` of eaves, ``localizer_scene``)
+    rather than the model as it is (the wireframe baseline, whose edges are the model's own)."""
     if not name or not isinstance(name, str):
         raise BenchmarkError(f"a method name must be a non-empty string, got {name!r}")
     if name in _REGISTRY and not replace:
         raise BenchmarkError(f"method {name!r} is already registered")
     _REGISTRY[name] = factory
+    (_AS_IS.discard if map_eaves else _AS_IS.add)(name)
+
+
+def searched_map(name: str, config: LocalizerConfig) -> dict[str, Any]:
+    """The map method ``name`` searches with ``config``, as a run records it (``run.json``'s
+    ``searched_map``) and its drawings read it (``benchmark.found_map``): ``eaves_m``, the eaves on its
+    pitched roofs, and ``flat_roofs``, ``config.map_eaves_flat_roofs`` (``"off"`` without eaves)."""
+    check_method(name)
+    if name in _AS_IS or not config.map_eaves_m > 0.0:
+        return {"eaves_m": 0.0, "flat_roofs": "off"}
+    return {"eaves_m": float(config.map_eaves_m), "flat_roofs": str(config.map_eaves_flat_roofs)}
 
 
 def available_methods() -> tuple[str, ...]:
