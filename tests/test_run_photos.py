@@ -76,7 +76,7 @@ CAM = Camera.from_fov(160, 120, 60.0)
 @pytest.fixture
 def box_flight(tmp_path) -> dict:
     """Three photos over the box city: a LoD-Loc GPS_pose/ and intrinsic/ beside them, oracle masks; the
-    third photo's mask has another aspect."""
+    third photo's mask has another aspect (with ``--truth``, a miss of the run)."""
     root = tmp_path / "flight"
     (root / "images").mkdir(parents=True)
     city = root / "city.obj"
@@ -147,22 +147,25 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     out = tmp_path / "out"
     argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
     code, stdout, _ = run(capsys, *argv, "--stop-after", "1")
-    assert code == 0 and "1/2 photos done" in stdout and "run again" in stdout
+    assert code == 0 and "1/3 photos done" in stdout and "run again" in stdout
     assert len(list((out / "poses").glob("*.json"))) == 1
     code, stdout, err = run(capsys, *argv)
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["photos"] == 4 and summary["queries"] == 2 and summary["localized"] == 2
+    assert summary["photos"] == 4 and summary["queries"] == 3 and summary["localized"] == 2
     skipped = summary["skipped_photos"]
-    assert set(skipped) == {"P2.JPG", "P9.JPG"}
-    assert "aspect" in skipped["P2.JPG"] and "intrinsic" in skipped["P9.JPG"]
-    assert "4 photos: 2 localized, 0 not localized, 2 skipped" in stdout
+    assert set(skipped) == {"P9.JPG"} and "intrinsic" in skipped["P9.JPG"]
+    # P2's mask is of another aspect: it has a true pose, so it is a miss of the run, not left out of it.
+    miss = _rows_by_name(out)["P2.JPG"]
+    assert miss["status"] == "not_localized" and miss["reason"].startswith(REASON_UNREADABLE)
+    assert "P2.png" in miss["reason"] and "aspect" in miss["reason"] and miss["err_xyz_m"] == "inf"
+    assert "4 photos: 2 localized, 1 not localized, 1 skipped" in stdout
     assert f"semcityloc report {out} --out {out / 'report'}" in stdout
-    assert summary["with_ground_truth"] == 2 and summary["recall_2m2deg"] == 100.0
+    assert summary["with_ground_truth"] == 3 and summary["recall_2m2deg"] == pytest.approx(200 / 3)
     # No CRS: poses, COLMAP and GeoJSON in the model's frame, no WGS 84 geotags, and it says why.
     assert not (out / "geotags.csv").exists() and "--crs" in err
     geojson = json.loads((out / "cameras.geojson").read_text())
-    assert len(geojson["features"]) == 4 and "semcityloc_frame" in geojson
+    assert len(geojson["features"]) == 6 and "semcityloc_frame" in geojson  # P2 at its prior, no result
     model = read_model(out / "colmap")
     for name, (camera, pose) in model.poses().items():
         truth = read_pose(box_flight["root"] / "GT_pose" / f"{Path(name).stem}_pose.txt")
@@ -183,7 +186,7 @@ def test_a_run_says_the_models_warnings_once_on_stderr(box_flight, tmp_path, cap
     city.write_text("bevel on\n" + city.read_text())
     argv = [*box_flight["argv"], "--out", tmp_path / "out", "--no-overlays", "--no-cache"]
     code, stdout, err = run(capsys, *argv, "--stop-after", "0")
-    assert code == 0 and "0/2 photos done" in stdout
+    assert code == 0 and "0/3 photos done" in stdout
     assert err.count("semcityloc: warning:") == 1 and "ignored OBJ keywords: bevel (1 lines)" in err
 
 
@@ -203,8 +206,12 @@ def test_a_mask_of_the_photo_turned_for_display_is_refused_saying_so(box_flight,
     out = tmp_path / "out"
     code, _, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
     assert code == 0, err
-    reason = json.loads((out / "summary.json").read_text())["skipped_photos"]["P0.JPG"]
-    assert "turned for display (EXIF orientation 6)" in reason and "stored 160x120 pixels" in reason
+    reason = _rows_by_name(out)["P0.JPG"]["reason"]  # a miss: P0 has a true pose (--truth)
+    assert (
+        reason.startswith(REASON_UNREADABLE)
+        and "turned for display (EXIF orientation 6)" in reason
+        and "stored 160x120 pixels" in reason
+    )
     assert "1 photos carry an EXIF orientation other than 1" in err
     assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["status"] == "localized"
 
@@ -337,7 +344,8 @@ def test_a_run_undistorts_the_masks_of_a_distorting_lens(box_flight, tmp_path, c
     def errors(intrinsics, out) -> list[float]:
         argv[at] = str(intrinsics)
         assert run(capsys, *argv, "--out", tmp_path / out, "--no-overlays")[0] == 0
-        return [float(r["err_xyz_m"]) for r in read_results(tmp_path / out / "results.csv")]
+        rows = read_results(tmp_path / out / "results.csv")
+        return [float(r["err_xyz_m"]) for r in rows if json.loads(r["meta_json"])["name"] != "P2.JPG"]
 
     with_lens = errors(tmp_path / "lens.json", "with_lens")
     record = json.loads((tmp_path / "with_lens" / "poses" / "P0.json").read_text())["extra"]
@@ -394,7 +402,7 @@ def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
         reason = rows[f"{name}.JPG"]["reason"]
         assert reason.startswith(REASON_UNREADABLE) and f"{name}.png" in reason
         assert "invalid class ids" in reason
-    assert "4 photos: 0 localized, 2 not localized, 2 skipped" in stdout
+    assert "4 photos: 0 localized, 3 not localized, 1 skipped" in stdout  # P2: its mask's aspect
     assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
 
 
@@ -431,7 +439,7 @@ def test_dropped_depth_is_in_the_rows_and_an_old_results_file_resumes(box_flight
     text = (out / "results.csv").read_text()
     assert text.split("\n", 1)[0] == ",".join(COLUMNS)  # brought up to this version's columns
     rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
-    assert len(rows) == 2 and rows["q0000"]["warnings"] == "" and rows["q0000"]["status"] == "localized"
+    assert len(rows) == 3 and rows["q0000"]["warnings"] == "" and rows["q0000"]["status"] == "localized"
     assert rows["q0001"]["warnings"].startswith("depth map dropped: it looks like noise")
     assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["warnings"] == [
         rows["q0001"]["warnings"]
@@ -988,7 +996,7 @@ def test_a_finished_run_whose_pose_files_were_deleted_refuses_to_export_naming_t
     assert code == 2 and "P0.json" in err and "results.csv" in err and err.count("\n") == 1, err
     shutil.rmtree(out / "poses")
     code, _, err = run(capsys, *argv)
-    assert code == 2 and "2 finished photos have no pose file" in err and "P0.json, P1.json" in err, err
+    assert code == 2 and "3 finished photos have no pose file" in err and "P0.json, P1.json" in err, err
     lines = (out / "results.csv").read_text().splitlines(keepends=True)
     (out / "results.csv").write_text("".join(lines[:1]))  # the remedy: their rows deleted, they run again
     code, _, err = run(capsys, *argv)
@@ -1011,8 +1019,11 @@ def test_a_photo_run_gives_the_same_poses_with_one_worker_and_with_two(box_fligh
         for record in poses.values():
             record.get("extra", record).pop("timings_s")
         records.append(poses)
-    assert len(records[0]) == 2 and records[0] == records[1]
-    assert all(r["extra"]["status"] == "localized" for r in records[0].values())
+    assert len(records[0]) == 3 and records[0] == records[1]
+    assert [n for n, r in records[0].items() if r.get("extra", r)["status"] == "localized"] == [
+        "P0.json",
+        "P1.json",
+    ]
 
 
 def test_a_pose_holds_c_contiguous_arrays_so_a_pickled_one_computes_the_same():
@@ -1030,3 +1041,22 @@ def test_a_pose_holds_c_contiguous_arrays_so_a_pickled_one_computes_the_same():
     for pose in made:
         local, copied = (p.shift_world(origin) for p in (pose, pickle.loads(pickle.dumps(pose))))
         assert np.array_equal(local.t, copied.t) and np.array_equal(local.R, copied.R)
+
+
+def test_a_photo_of_the_truth_without_its_mask_is_a_miss_else_skipped(box_flight, tmp_path, capsys):
+    """A photo with a true pose whose mask file is missing is in the recall's denominator as a miss naming
+    the masks folder (as in a data-set benchmark); without ``--truth`` it is skipped, as before."""
+    (box_flight["root"] / "masks" / "P1.png").unlink()
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
+    assert code == 0, err
+    miss = _rows_by_name(out)["P1.JPG"]
+    assert miss["status"] == "not_localized" and miss["reason"].startswith(REASON_UNREADABLE)
+    assert "P1" in miss["reason"] and str(box_flight["root"] / "masks") in miss["reason"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["with_ground_truth"] == 3 and set(summary["skipped_photos"]) == {"P9.JPG"}
+    no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]
+    code, _, err = run(capsys, *no_truth, "--out", tmp_path / "no_truth", "--no-overlays")
+    assert code == 0, err
+    skipped = json.loads((tmp_path / "no_truth" / "summary.json").read_text())["skipped_photos"]
+    assert set(skipped) == {"P1.JPG", "P2.JPG", "P9.JPG"}

@@ -32,14 +32,15 @@ can be localized") with the first reasons. A mask or depth file that fails only 
 truncated body, class ids a lossy format made) is found when its photo's turn comes: ``PhotoSource.query``
 returns that photo not accepted, with the reason, and the run loop records it as ``skipped`` (its row, its
 ``poses/<stem>.json`` record, the summary's ``skipped_photos``) and goes on with the others; its row stays
-on resume (the file fixed, deleting that line of ``results.csv`` redoes the photo). With ground truth
-(``truth``), a photo that has a true pose and whose own file (the photo, its mask or depth) is there but
-cannot be read (not a file, empty, corrupt, truncated, no class ids) is not skipped but a miss of the run,
-found before the run or at its turn: a ``not_localized`` row with the reason naming the file
-(``results.unreadable_result``, ``PhotoInput.unreadable``), in every recall's denominator, as in a
-data-set benchmark; a photo without a true pose, or one that lacks a file, a prior or intrinsics, or whose
-mask reads but does not fit (another aspect, a lossy format without ``allow_lossy_mask``), is skipped as
-before. Outputs (``runfiles``):
+on resume (the file fixed, deleting that line of ``results.csv`` redoes the photo). With ground
+truth (``truth``), a photo that has a true pose and whose own input (the photo, its mask or depth) is
+missing, cannot be read (not a file, empty, corrupt, truncated, no class ids) or does not fit the photo
+(another aspect) is not skipped but a miss of the run, found before the run or at its turn: a
+``not_localized`` row with the reason naming the file (``results.unreadable_result``,
+``PhotoInput.unreadable``), in every recall's denominator, as in a data-set benchmark, so that recall
+is never over the photos that happened to have usable inputs. A photo without a true pose, or one that
+lacks a prior or intrinsics, or whose mask is in a lossy format without ``allow_lossy_mask`` (the run's
+option, not the file), is skipped as before. Outputs (``runfiles``):
 ``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level when localized, in
 ``geometry.io.pose_to_dict``'s layout, and the result record, prior, uncertainty and perception in
 ``extra``; the record alone when not localized), ``overlays/<stem>.png`` (the model's edges at the estimate,
@@ -477,8 +478,8 @@ def _resolve(spec: PhotoSpec) -> Resolved:
 
 
 class PhotoUnreadable(PhotoMissing):
-    """A photo's own file (the photo, its mask or depth) is there but cannot be read or used: skipped, or
-    with a true pose a miss (module docstring)."""
+    """A photo's own input (the photo, its mask or depth) is missing, cannot be read or does not fit the
+    photo: skipped, or with a true pose a miss (module docstring)."""
 
 
 def _prior_or_none(priors: PriorFiles | None, path: Path, meta=None) -> PhotoPrior | None:
@@ -551,14 +552,14 @@ def _input_file(
     folder: str | None, photo: Path, suffixes, what: str, camera: Camera, orientation: int
 ) -> Path | None:
     """The photo's mask / depth file in ``folder`` (None without a folder), checked to show the photo's
-    field of view (``orientation``: the photo's EXIF one); ``PhotoMissing`` when absent or of another
-    aspect, ``PhotoUnreadable`` when its header cannot be read."""
+    field of view (``orientation``: the photo's EXIF one); ``PhotoUnreadable`` when absent, when its
+    header cannot be read or when it is of another aspect."""
     if not folder:
         return None
     try:
         path = find_file(Path(folder), photo.name, suffixes, what)
     except InputFileError as exc:
-        raise PhotoMissing(str(exc)) from None
+        raise PhotoUnreadable(str(exc)) from None
     try:
         shape = _array_shape(path)
     except InputFileError as exc:  # PhotoUnreadable (a .npy) among them
@@ -566,7 +567,7 @@ def _input_file(
     try:
         check_aspect_of_photo(shape, camera.width, camera.height, what, path, orientation)
     except (InputFileError, ValueError) as exc:
-        raise PhotoMissing(str(exc)) from None
+        raise PhotoUnreadable(str(exc)) from None
     return path
 
 
@@ -627,8 +628,8 @@ class PhotoSource:
             photo, labels, depth = self._read_files(inp, seg is not None or dep is not None)
         except (InputFileError, ShapeError) as exc:  # this photo's own file: its result, not the run's end
             blank = np.full((cam.height, cam.width), IGNORE, dtype=np.uint8)
-            # unreadable with a true pose: a miss of the run, else the photo is skipped (module docstring)
-            if inp.truth_world is not None and not isinstance(exc, ShapeError):
+            # unreadable or unfit with a true pose: a miss of the run, else skipped (module docstring)
+            if inp.truth_world is not None:
                 return self._query(index, blank, None, {UNREADABLE_INPUT: str(exc)})
             return self._query(index, blank, None, {"accepted": False, SKIP_REASON: str(exc)})
         if photo is not None:
