@@ -504,6 +504,23 @@ def test_a_configuration_field_added_by_newer_code_does_not_refuse_a_resume(tmp_
         prepare_output(tmp_path, {**old, "settings": {"prior_height_m": 10}})
 
 
+def test_a_photo_run_whose_photos_changed_is_refused_saying_so_not_as_other_arguments(tmp_path):
+    """The same command on a folder whose photos changed (or under a version that skips other photos):
+    the refusal names the photos, not "arguments differ"; a changed argument besides is told as one."""
+    old = {"method": "semcityloc", "queries": 2, "query_names": ["P0.JPG", "P1.JPG"], "skipped_photos": {}}
+    assert prepare_output(tmp_path, old) is None
+    more = {**old, "queries": 3, "query_names": ["P0.JPG", "P1.JPG", "P2.JPG"]}
+    with pytest.raises(ResumeMismatchError, match=r"the photos to run differ .*queries: 2 -> 3") as info:
+        prepare_output(tmp_path, more)
+    assert "arguments differ" not in str(info.value) and "--overwrite" in str(info.value)
+    with pytest.raises(ResumeMismatchError, match="arguments differ: method"):
+        prepare_output(tmp_path, {**more, "method": "no-depth"})
+    simulated = tmp_path / "simulated"  # its "queries" is --queries: an argument
+    prepare_output(simulated, {"method": "semcityloc", "queries": 50})
+    with pytest.raises(ResumeMismatchError, match="arguments differ: queries: 50 -> 100"):
+        prepare_output(simulated, {"method": "semcityloc", "queries": 100})
+
+
 def test_a_run_started_before_it_recorded_its_searched_map_resumes(tmp_path):
     """``searched_map`` follows from the method and the localizer: a run.json without it is the same run."""
     old = {"method": "semcityloc", "localizer": {"map_eaves_m": 0.5}, "settings": {}}

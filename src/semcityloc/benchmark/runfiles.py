@@ -85,6 +85,16 @@ CODE_KEY = "code"
 # "city": as typed (city_path counts); "searched_map": follows from "method" and "localizer", and runs
 # started before it was recorded resume.
 NOT_IDENTITY = ("city", "keep_details", "semcityloc_version", CODE_KEY, "searched_map")
+# Keys of a photo (or data-set) run's run.json that its folder decides, not its arguments: the photos to
+# run and those skipped (a simulated run's "queries" is its --queries). When only they differ, the refusal
+# says so: the same command on a changed folder, or a newer version that skips other photos (since stop 48
+# a photo of the truth whose mask is missing or of another aspect is a miss, no longer skipped).
+PHOTO_SET_KEYS = ("queries", "query_names", "skipped_photos")
+PHOTOS_DIFFER = (
+    "the photos to run differ (photos added, removed or repaired since, or this version skips other photos "
+    "than the one that started the run did: a photo of the truth whose mask is missing or does not fit is "
+    "now a miss, not skipped): "
+)
 # Keys of run.json holding a whole configuration (every field of a dataclass, defaults too). A field that
 # only one side holds was added or removed by the code, not by the arguments: a resume across it is told
 # like any code change (``code_change_note``), not refused.
@@ -335,7 +345,12 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         if isinstance(old, dict):
             differ = differing_settings(old, config)
             if differ:
-                mismatch = "arguments differ: " + "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
+                shown = "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
+                changed = {d.split(":")[0].split(".")[0] for d in differ}
+                folder = changed <= set(PHOTO_SET_KEYS) and (
+                    "query_names" in changed or changed == {"skipped_photos"}
+                )
+                mismatch = (PHOTOS_DIFFER if folder else "arguments differ: ") + shown
         elif old is not None:
             mismatch = f"its {RUN_FILE} is not a JSON object"
     elif results.exists() and not run_file.exists():
