@@ -130,7 +130,8 @@ def test_page_of_a_photo_run(box_flight, tmp_path):  # noqa: F811
     assert main([str(a) for a in (*box_flight["argv"], "--out", out, "--keep-details", "1")]) == 0
     html = make_html_report([out], tmp_path / "report")
     entries = _data(html.path)["entries"]
-    assert [e["name"] for e in entries] == ["P0.JPG", "P1.JPG"] and html.rendered == 1
+    assert [e["name"] for e in entries] == ["P0.JPG", "P1.JPG", "P2.JPG"] and html.rendered == 1
+    assert entries[2]["status"] == "not_localized" and "estimate" not in entries[2]["layers"]  # P2: its mask
     assert entries[0]["background_kind"] == "photo" and entries[0]["background"].startswith("data:image/jpeg")
     assert set(entries[0]["layers"]) == {"prior", "estimate", "truth"}
     assert entries[1]["background_kind"].startswith("photo with the model") and not entries[1]["layers"]
