@@ -18,7 +18,7 @@ over the views (pooled) and mean IoU over ``MIOU_CLASSES`` present; also the mea
 Classes the map does not have (windows and doors on an LoD2 map) are folded into wall before scoring
 (``seg_errors.fold_to_map_classes``: a network trained on the map's labels never outputs them).
 
-``--reality realistic`` (default) builds the reality with ``occluders.REALISTIC_REALITY``; ``default``
+``--reality realistic`` (default) builds the reality with ``reality.REALISTIC_REALITY``; ``default``
 with ``RealityParams()`` (the clean scenario's). The line ``ceiling`` is a perfect segmentation of the
 reality with trees and cars labelled as what is behind them: what the reality's differences from the map
 alone cost. ``--cache DIR`` keeps the simulated views (truth + map labels) in ``DIR`` for re-runs.
@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.benchmark.calibration import calibration_cities_or_exit
-from semcityloc.benchmark.occluders import REALISTIC_REALITY, RealityParams
 from semcityloc.benchmark.perception_sim import MIN_PRESENT_PIXELS, MIOU_CLASSES
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
+from semcityloc.benchmark.reality import REALISTIC_REALITY, RealityParams
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.seg_calibration import CalibrationView, calibration_views, score_preset
 from semcityloc.benchmark.seg_errors import REALISTIC_SEG_PRESETS, SEG_TARGETS, ViewTruth

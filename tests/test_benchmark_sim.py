@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pytest
 
-from semcityloc.benchmark.occluders import RealityParams, build_reality
 from semcityloc.benchmark.perception_sim import (
     SEG_PRESETS,
     miou,
@@ -23,6 +22,7 @@ from semcityloc.benchmark.queries import (
     view_kind,
     zenmuse_l2_camera,
 )
+from semcityloc.benchmark.reality import RealityParams, build_reality
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.classes import IGNORE, SemanticClass

@@ -15,21 +15,18 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from semcityloc.benchmark.occluders import (
+from semcityloc.benchmark.building_changes import (
     NEW_CLEARANCE_M,
     NEW_HEIGHT_M,
     NEW_SIZE_M,
-    REALISTIC_REALITY,
-    RELIEF_ZERO_M,
     RIDGE_RISE_M,
     ROOF_CHANGES,
-    TREES_ID,
-    RealityParams,
     _oriented_box,
-    build_reality,
-    footprint_grid,
 )
+from semcityloc.benchmark.footprints import footprint_grid
 from semcityloc.benchmark.queries import zenmuse_l2_camera
+from semcityloc.benchmark.reality import REALISTIC_REALITY, TREES_ID, RealityParams, build_reality
+from semcityloc.benchmark.terrain_relief import RELIEF_ZERO_M
 from semcityloc.citymodel.generator import default_city_path
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.classes import BUILDING_CLASSES, SemanticClass

@@ -1,8 +1,9 @@
 """The benchmark: query sources (simulated, data sets), the one resumable run loop, results and report.
 
 - ``scenario``: the named simulations (``clean``, ``realistic``) and ``--set`` knobs;
-- ``queries``, ``occluders``, ``seg_errors``, ``shadows``, ``perception_sim``, ``depth_sim``: the query
-  simulator (reality != map, segmentation and depth errors);
+- ``queries``, ``seg_errors``, ``shadows``, ``perception_sim``, ``depth_sim``: the query simulator
+  (segmentation and depth errors); ``reality`` (with ``building_changes``, ``occluders``,
+  ``terrain_relief``, ``footprints``, ``meshes``): the simulated reality the queries see (reality != map);
 - ``sources``: the ``QuerySource`` protocol and ``SimulatedSource``; ``dataset_source``: a LoD-Loc data set;
 - ``spec``: ``BenchmarkSpec`` (a simulated run) and the models it loads;
 - ``run``: ``run_queries`` / ``run_benchmark``, the one loop (resume, workers, progress);

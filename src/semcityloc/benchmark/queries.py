@@ -27,7 +27,7 @@ attempt from its own generator ``default_rng([seed, i, 0, k])``):
   attempt passes, the best-covered one is returned with ``meta["accepted"] = False`` (the runner may
   skip it).
 
-Reality: ``occluders.build_reality`` (the reality model, LoD3 where the caller has it, with per-building
+Reality: ``reality.build_reality`` (the reality model, LoD3 where the caller has it, with per-building
 geometric errors, roof structures, trees and cars), built once per simulator from ``config.seed``. The
 clean labels / depth are its render at the true pose; ``perception_sim`` degrades them into the query's
 ``labels`` (``default_rng([seed, i, 3])``) and ``depth`` (``default_rng([seed, i, 4])``).
@@ -55,8 +55,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semcityloc.benchmark.depth_sim import DepthParams, simulate_depth_realistic
-from semcityloc.benchmark.occluders import RealityParams, RealityScene, build_reality
 from semcityloc.benchmark.perception_sim import SEG_PRESETS, miou, simulate_depth, simulate_segmentation
+from semcityloc.benchmark.reality import RealityParams, RealityScene, build_reality
 from semcityloc.benchmark.seg_errors import (
     REALISTIC_SEG_PRESETS,
     fold_to_map_classes,
@@ -137,7 +137,7 @@ class QueryConfig:
     scenario: str = "clean"  # the name of the bundle these values came from (recorded, not used)
     prior_height_m: float | None = None  # None: z error a part of the 3D base error; else uniform +-this
     prior_roll_pitch_sigma_deg: float | None = None  # None: uniform +-prior_roll_pitch_deg; else N(0, s)
-    reality: RealityParams = field(default_factory=RealityParams)  # reality != map (occluders.py)
+    reality: RealityParams = field(default_factory=RealityParams)  # reality != map (reality.py)
     seg_model: str = "blobs"  # "blobs": SEG_PRESETS; "structured": REALISTIC_SEG_PRESETS + view truth
     depth_model: DepthParams | None = None  # None: near-affine depth (simulate_depth); else realistic
     score_against_map: bool = False  # also measure the labels against the map's own labels (paper's way)
@@ -412,7 +412,7 @@ class QuerySimulator:
             pitch = rng.uniform(-NADIR_PITCH_DEG, NADIR_PITCH_DEG)
         target = rng.uniform(self.target_lo, self.target_hi)
         axis = Pose.from_xyz_rpy(np.zeros(3), roll, pitch, yaw).viewing_direction
-        # Millimetre camera centre (module docstring of ``occluders``: bit-identical on every machine).
+        # Millimetre camera centre (module docstring of ``reality``: bit-identical on every machine).
         cam_xy = np.round(target - axis[:2] / max(-axis[2], 1e-6) * h, 3)
         ground = float(self.reality.terrain_height(cam_xy))
         pose = Pose.from_xyz_rpy(np.array([cam_xy[0], cam_xy[1], ground + h]), roll, pitch, yaw)

@@ -20,8 +20,8 @@ import json
 from typing import Any
 
 from semcityloc.benchmark.depth_sim import DepthParams
-from semcityloc.benchmark.occluders import REALISTIC_REALITY, RealityParams
 from semcityloc.benchmark.queries import QueryConfig
+from semcityloc.benchmark.reality import REALISTIC_REALITY, RealityParams
 from semcityloc.errors import BenchmarkConfigError, unknown_choice
 
 DEFAULT_SCENARIO = "realistic"

@@ -218,7 +218,7 @@ def _extras(reality) -> _RealityExtras:
 
 
 def view_truth(reality, camera: Camera, pose_local: Pose, sun_dir: np.ndarray | None = None) -> ViewTruth:
-    """The ``ViewTruth`` of ``reality`` (an ``occluders.RealityScene``) seen by ``camera`` at
+    """The ``ViewTruth`` of ``reality`` (a ``reality.RealityScene``) seen by ``camera`` at
     ``pose_local`` (cam_from_world, the map's local frame), with shadows cast by a sun in direction
     ``sun_dir`` (toward the sun, ``sun_direction``; None = no shadows)."""
     extras = _extras(reality)

@@ -3,7 +3,7 @@
 Why: LoD2 models (the German states' among them) cut a roof at its walls, while a real pitched roof
 overhangs them by 0.3-1 m. Seen from the air the eaves hide the top of the walls and move every roof
 outline outward; a map without them is biased at exactly the scale a localizer is judged at. The
-simulated reality adds them (``benchmark.occluders``, item 4: a random amount per building); the
+simulated reality adds them (``benchmark.reality``, item 4: a random amount per building); the
 localizer can add a fixed, stated amount to its map (``LocalizerConfig.map_eaves_m``, ``with_eaves``).
 """
 
