@@ -11,7 +11,9 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from semcityloc.benchmark.report import _order_value, load_run, make_report, markdown_table
+from semcityloc.benchmark.report import make_report
+from semcityloc.benchmark.report_runs import load_run
+from semcityloc.benchmark.report_tables import _order_value, markdown_table
 from semcityloc.benchmark.results import COLUMNS
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import RESULTS_FILE, RUN_FILE
@@ -193,7 +195,7 @@ def test_report_from_two_real_runs(two_runs, tmp_path):
 def test_overlay_marks_true_and_estimated_boundaries():
     import numpy as np
 
-    from semcityloc.benchmark.report import overlay_image
+    from semcityloc.benchmark.report_plots import overlay_image
 
     q = np.zeros((20, 30), np.uint8)
     true = q.copy()
@@ -277,7 +279,7 @@ def test_report_on_real_data_runs_draws_overlays_and_labels_by_perception(real_d
 def test_overlay_of_a_mask_with_ignore_pixels():
     import numpy as np
 
-    from semcityloc.benchmark.report import overlay_image
+    from semcityloc.benchmark.report_plots import overlay_image
 
     q = np.full((10, 10), 255, np.uint8)
     q[:5] = 3

@@ -8,5 +8,6 @@
 - ``spec``: ``BenchmarkSpec`` (a simulated run) and the models it loads;
 - ``run``: ``run_queries`` / ``run_benchmark``, the one loop (resume, workers, progress);
 - ``results``: ``results.csv`` rows, details, summary; ``runfiles``: the run folder, atomic writes;
-- ``report``: the paper's tables and figures from run folders.
+- ``report``: the paper's tables and figures from run folders (with ``report_runs``: a run folder read
+  and runs described, ``report_tables``: the Markdown/CSV tables, ``report_plots``: the figures).
 """

@@ -30,18 +30,6 @@ from typing import Any
 import numpy as np
 
 from semcityloc.benchmark.found_map import FoundMaps
-from semcityloc.benchmark.report import (
-    RunData,
-    acceptance_data,
-    label_runs,
-    load_run,
-    map_renderer,
-    noise_x,
-    photo_of,
-    prior_noise_groups,
-    readable_details,
-    sweep_x,
-)
 from semcityloc.benchmark.report_plotly import (
     POSE_COLORS,
     city_figure,
@@ -53,6 +41,18 @@ from semcityloc.benchmark.report_plotly import (
     mesh_selection,
     recall_lines_figure,
     risk_coverage_figure,
+)
+from semcityloc.benchmark.report_runs import (
+    RunData,
+    acceptance_data,
+    label_runs,
+    load_run,
+    map_renderer,
+    noise_x,
+    photo_of,
+    prior_noise_groups,
+    readable_details,
+    sweep_x,
 )
 from semcityloc.benchmark.report_views import POSES, error_bins, query_camera, query_view
 from semcityloc.benchmark.results import row_pose

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from semcityloc.benchmark.report import RunData
+from semcityloc.benchmark.report_runs import RunData
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import CLASS_NAMES, PALETTE
 from semcityloc.errors import OptionalDependencyError

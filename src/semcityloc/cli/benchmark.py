@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
-from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO, SCENARIOS, parse_settings, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.cli.dataset import (

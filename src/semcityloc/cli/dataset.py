@@ -20,7 +20,7 @@ import numpy as np
 
 from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
-from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import unreadable_row
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument

@@ -18,8 +18,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from semcityloc.benchmark.report import make_report, summary_markdown
+from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.report_html import make_html_report
+from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec

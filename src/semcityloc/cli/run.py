@@ -13,7 +13,7 @@ from collections import Counter
 from pathlib import Path
 
 from semcityloc.benchmark.photo_source import CALIBRATE_FOCAL, PhotoSpec
-from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import SKIPPED
 from semcityloc.cli.city import add_model_arguments, parse_lod, print_model_warnings
 from semcityloc.cli.dataset import parse_floats

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from semcityloc.benchmark.report import summary_markdown
+from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import parse_settings, parse_value
 from semcityloc.cli.benchmark import add_simulation_arguments, spec_from_args
