@@ -281,3 +281,15 @@ def test_a_big_model_is_drawn_near_the_cameras_and_by_its_largest_triangles(gene
     near = mesh_selection(model, [np.array([*corner, model.vertices[:, 2].min() + 10.0])], limit=n - 1)
     mid = model.triangle_corners().mean(axis=1)[near, :2]
     assert 0 < len(near) < n - 1 and (mid <= corner + 50.0 + 1e-6).all()
+
+
+def test_a_run_json_that_does_not_say_where_its_map_is_gets_a_note_not_a_traceback(tmp_path):
+    """A hand-made (or other code's) run.json with a readable city but no ``map_source``: its figures are
+    left out with a note naming the key; the page is written."""
+    from semcityloc.benchmark.warmup import box_city_obj
+
+    city = tmp_path / "city.obj"
+    city.write_text(box_city_obj())
+    run = fake_run(tmp_path, "handmade", [(1.0, 1.0)], city_path=str(city), lod=2)
+    html = make_html_report([run], tmp_path / "r")
+    assert any("does not say where its map is" in n and "map_source" in n for n in html.notes), html.notes

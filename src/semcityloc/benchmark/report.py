@@ -3,8 +3,11 @@
 Why: every experiment of the paper is one ``semcityloc benchmark`` run; this module puts runs side by
 side by what differs in their ``run.json``:
 
-- tables (Markdown + CSV): ``main`` (methods and ablations), ``prior_noise`` (``prior_extra_m``),
-  ``lod`` (LoD1/LoD2/LoD3 maps), ``seg_quality`` (segmentation preset). A table of factor F holds the
+- tables (Markdown + CSV): ``main`` (methods and ablations), ``perception`` (real data: oracle labels,
+  degraded, masks, backends), ``prior_noise`` (``prior_extra_m``), ``lod`` (LoD1/LoD2/LoD3 maps),
+  ``seg_quality`` (segmentation preset), ``sweep_<knob>`` (one per swept knob), ``acceptance`` (the
+  risk-coverage table of the runs with calibrated probabilities) and ``misses`` (each run's kinds of
+  miss, ``miss_kinds``). A table of factor F holds the
   runs whose group - runs agreeing on every setting but F - has two or more values of F (so the LoD
   table compares LoD1 with LoD2 at the same method, noise and segmentation); it is skipped when there
   is no such group, except ``main``, which then lists every run. One row per run: F first, then the

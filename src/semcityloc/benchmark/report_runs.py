@@ -315,6 +315,9 @@ def map_renderer(run: RunData, cache: dict, notes: list[str], consequence: str):
         except SemCityLocError as exc:
             cache[key] = None
             notes.append(f"{run.path}: {consequence}, its map cannot be loaded ({exc})")
+        except KeyError as exc:  # a run.json written by hand or by other code: the key it lacks
+            cache[key] = None
+            notes.append(f"{run.path}: {consequence}, its run.json does not say where its map is (no {exc})")
     if cache[key] is None:
         return None
     model, renderer = cache[key]
