@@ -111,6 +111,39 @@ def test_json_intrinsics_and_pose_with_integers_beyond_float64_are_typed(tmp_pat
         read_pose(json.dumps({"xyz": [1, 2, 10**400], "roll": 0, "pitch": 0, "yaw": 0}))
 
 
+def test_intrinsics_of_an_absurd_image_size_are_typed(tmp_path):
+    """An image 2**64 pixels tall (a typo or garbage in a calibration file): numpy's linspace raised a
+    casting error from deep inside the lens check before (stop 48's fuzz run, seed 48)."""
+    with pytest.raises(CameraError, match="height must be at most 100000 pixels"):
+        read_intrinsics("1125,1125,320,256,640,18446744073709551616")
+    with pytest.raises(CameraError, match="width must be at most 100000 pixels"):
+        read_intrinsics(
+            json.dumps({"fx": 1000, "fy": 1000, "cx": 320, "cy": 256, "width": 10**17, "height": 512})
+        )
+    assert read_intrinsics("1125,1125,320,256,640,512").height == 512
+
+
+def test_an_exif_gps_hemisphere_that_is_no_letter_is_typed(tmp_path, monkeypatch):
+    """GPSLatitudeRef holding numbers instead of "N"/"S" (stop 48's fuzz run, seed 48, a mutated DJI photo):
+    an AttributeError from ``str.strip`` before; now the GPS block is unreadable, typed. Pillow will not
+    write such a tag, so the photo's GPS block is given it on reading."""
+    from dji_photo import dji_jpeg
+    from semcityloc.datasets import dji
+
+    path = dji_jpeg(tmp_path / "DJI_0001.JPG", gps=(-52.5, 13.4, 80.0))
+    assert read_dji_metadata(path).latitude == pytest.approx(-52.5, abs=1e-6)
+    real_get_ifd = Image.Exif.get_ifd
+
+    def odd_gps(self, tag):
+        ifd = real_get_ifd(self, tag)
+        return {**ifd, 1: (0.5, 1.0)} if tag == 0x8825 else ifd
+
+    monkeypatch.setattr(Image.Exif, "get_ifd", odd_gps)
+    with pytest.raises(InputFileError, match="unreadable EXIF GPS block"):
+        read_dji_metadata(path)
+    assert dji._dms((52.0, 30.0, 0.0), b"S", "S") == -52.5  # a byte string is read as its letter
+
+
 def test_colmap_ids_beyond_int64_and_colours_beyond_a_byte_are_typed(tmp_path):
     images = tmp_path / "images.txt"
     images.write_text("1 1 0 0 0 1 2 3 1 a.jpg\n100 200 18446744073709551616\n")

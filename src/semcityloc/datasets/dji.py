@@ -216,9 +216,15 @@ def finite_number(text: str | None, what: str) -> float | None:
     return value
 
 
-def _dms(values, ref: str | None, negative: str) -> float:
+def _dms(values, ref: str | bytes | None, negative: str) -> float:
+    """Degrees from EXIF (degrees, minutes, seconds) and the hemisphere letter ``ref`` (negative when it is
+    ``negative``); ``TypeError`` / ``ValueError`` when either is not what EXIF holds there."""
     d, m, s = (float(v) for v in values)
     out = d + m / 60.0 + s / 3600.0
+    if isinstance(ref, bytes):
+        ref = ref.decode("ascii", "replace")
+    if ref is not None and not isinstance(ref, str):
+        raise TypeError(f"GPS hemisphere {ref!r} is no letter")
     return -out if (ref or "").strip().upper().startswith(negative) else out
 
 

@@ -14,6 +14,8 @@ import numpy as np
 
 from semcityloc.errors import CameraError, ShapeError
 
+MAX_SIDE_PX = 100_000  # wider or taller than any camera's sensor: a calibration file's typo or garbage
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -38,6 +40,8 @@ class Camera:
                 value = int(value)
             if not isinstance(value, (int, np.integer)) or value <= 0:
                 raise CameraError(f"camera {name} must be a positive integer, got {value!r}")
+            if value > MAX_SIDE_PX:
+                raise CameraError(f"camera {name} must be at most {MAX_SIDE_PX} pixels, got {value!r}")
             object.__setattr__(self, name, int(value))
 
     # ------------------------------------------------------------------ constructors
