@@ -243,6 +243,10 @@ def test_prior_uncertainty_parsing_and_errors():
     for bad in ("", "xy", "q=3", "z=abc", "z=-1", "yaw=90"):
         with pytest.raises(ParameterError):
             PriorUncertainty.parse(bad)
+    with pytest.raises(ParameterError, match="z is given twice"):  # stop 48: the last one won, silently
+        PriorUncertainty.parse("xy=5,z=15,z=30")
+    with pytest.raises(ParameterError, match="height is given twice"):  # an alias of z counts as z
+        PriorUncertainty.parse("z=15,height=30")
 
 
 def test_position_sigma_beyond_a_local_search_is_refused_and_the_largest_allowed_stays_bounded():

@@ -503,6 +503,19 @@ def test_localize_help_names_the_backend_options_that_exist():
     assert "weights=" not in text and "backbone=DIR" in text and "model=PATH" in text and "exif" in text
 
 
+def test_backend_options_are_key_value_pairs_each_given_once():
+    """``--backend-option``: ``localize`` dropped one without ``=`` silently and both commands let a key
+    given twice win last; one parser now refuses both, for ``localize`` and ``run`` alike."""
+    from semcityloc.errors import ParameterError
+    from semcityloc.perception.registry import parse_backend_options
+
+    assert parse_backend_options(["head=a=b", "threads=2"]) == (("head", "a=b"), ("threads", "2"))
+    with pytest.raises(ParameterError, match="KEY=VALUE, got 'threads'"):
+        parse_backend_options(["threads"])
+    with pytest.raises(ParameterError, match="threads is given twice"):
+        parse_backend_options(["threads=2", "threads=4"])
+
+
 def test_perception_install_and_weights_messages_name_what_exists(monkeypatch):
     import sys
 

@@ -100,6 +100,8 @@ def test_settings_reach_every_knob_and_are_checked():
         parse_settings(["nope=1"])
     with pytest.raises(BenchmarkConfigError, match="knob=value"):
         parse_settings(["prior_height_m"])
+    with pytest.raises(BenchmarkConfigError, match="focal_mm is given twice"):  # the last one won silently
+        parse_settings(["focal_mm=20", "focal_mm=28"])
     with pytest.raises(BenchmarkConfigError, match="prior_height_m"):
         query_config("realistic", {"prior_height_m": -3}, queries=1)
     with pytest.raises(BenchmarkConfigError, match="unknown scenario 'hard'"):

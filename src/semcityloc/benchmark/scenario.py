@@ -106,6 +106,8 @@ def parse_settings(items: list[str] | None) -> dict[str, Any]:
         if not sep or not name.strip():
             raise BenchmarkConfigError(f"--set takes knob=value, got {item!r}")
         _resolve(name.strip())
+        if name.strip() in out:
+            raise BenchmarkConfigError(f"--set {name.strip()} is given twice; give each knob once")
         out[name.strip()] = parse_value(text.strip())
     return out
 

@@ -40,7 +40,12 @@ from semcityloc.localization.localize import Localizer, found_on_flat_eaves
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import with_lossy_masks
-from semcityloc.perception.registry import available_backends, get_depth_backend, get_segmentation_backend
+from semcityloc.perception.registry import (
+    available_backends,
+    get_depth_backend,
+    get_segmentation_backend,
+    parse_backend_options,
+)
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
 from semcityloc.render.raster_numba import NumbaEngine
 
@@ -181,7 +186,7 @@ def _query_inputs(args, lens: PhotoCamera):
     ``PHOTO_MAX_WIDTH``), checked to show the camera's field of view (any resolution), and resampled onto
     the pinhole camera when the lens distorts."""
     camera = lens.camera
-    given = dict(opt.split("=", 1) for opt in args.backend_option if "=" in opt)
+    given = dict(parse_backend_options(args.backend_option))
     options = with_lossy_masks(given, args.seg_backend, args.allow_lossy_mask)
     image = None
     if args.seg_backend or args.depth_backend:

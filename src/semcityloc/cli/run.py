@@ -25,7 +25,7 @@ from semcityloc.errors import InputFileError
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
-from semcityloc.perception.registry import available_backends
+from semcityloc.perception.registry import available_backends, parse_backend_options
 
 SHOWN_PHOTOS = 10  # photos named per reason in the closing lines
 
@@ -104,13 +104,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _options(pairs: list[str]) -> tuple[tuple[str, str], ...]:
-    bad = [p for p in pairs if "=" not in p]
-    if bad:
-        raise InputFileError(f"--backend-option must be KEY=VALUE, got {bad[0]!r}")
-    return tuple(tuple(p.split("=", 1)) for p in pairs)
-
-
 def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
     if not Path(args.images).is_dir():
         raise InputFileError(f"{args.images}: no such images folder")
@@ -127,7 +120,7 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
         depth=args.depth,
         seg_backend=args.seg_backend,
         depth_backend=args.depth_backend,
-        backend_options=_options(args.backend_option),
+        backend_options=parse_backend_options(args.backend_option),
         prior_sigma=args.prior_sigma,
         offset=parse_floats(args.offset, 3, "--offset"),
         target_height=args.target_height,

@@ -101,6 +101,8 @@ class PriorUncertainty:
                     f"prior uncertainty {part!r}: expected KEY=VALUE with KEY one of xy, z, yaw, rp "
                     "(e.g. xy=5,z=15,yaw=5,rp=1)"
                 )
+            if _ALIASES[key] in values:
+                raise ParameterError(f"prior uncertainty {text!r}: {key} is given twice; give each key once")
             try:
                 values[_ALIASES[key]] = float(value)
             except ValueError as exc:
