@@ -1060,3 +1060,15 @@ def test_a_photo_of_the_truth_without_its_mask_is_a_miss_else_skipped(box_flight
     assert code == 0, err
     skipped = json.loads((tmp_path / "no_truth" / "summary.json").read_text())["skipped_photos"]
     assert set(skipped) == {"P1.JPG", "P2.JPG", "P9.JPG"}
+
+
+def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_is_made(tmp_path):
+    """``--geoid-separation nan`` was accepted (and written to run.json) whenever the priors came from
+    files, since only a photo's EXIF prior checked it: now the run is refused before anything is read."""
+    from semcityloc.benchmark.photo_source import PhotoSpec
+    from semcityloc.errors import ParameterError
+
+    for bad in (float("nan"), 500.0):
+        with pytest.raises(ParameterError, match="geoid separation N must be"):
+            PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=bad)
+    assert PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=47.2)

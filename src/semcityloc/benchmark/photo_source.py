@@ -78,7 +78,7 @@ from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.classes import IGNORE
-from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
+from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS, check_geoid_separation
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.datasets.photos import (
     EXIF,
@@ -217,6 +217,7 @@ class PhotoSpec:
             raise unknown_choice("target height", self.target_height, TARGET_HEIGHTS, BenchmarkError)
         if self.calibrate_focal not in CALIBRATE_FOCAL:
             raise unknown_choice("calibrate_focal", self.calibrate_focal, CALIBRATE_FOCAL, BenchmarkError)
+        check_geoid_separation(self.geoid_separation_m)  # refused now, not only once a photo's EXIF needs it
         self.fixed_uncertainty()
         check_run_options(self.method, self.preset, self.keep_details)
         self.localizer_config()  # a bad eaves value fails here, before anything loads

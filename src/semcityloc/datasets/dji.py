@@ -485,6 +485,18 @@ def _crs_of_name(name: str) -> pyproj.CRS:
     return parse_crs_name(name)
 
 
+def check_geoid_separation(value: float | None) -> None:
+    """A stated geoid undulation N (None: none stated) is a number of metres the geoid can lie from the
+    ellipsoid; ``ParameterError`` naming it otherwise (NaN too)."""
+    if value is not None and not (
+        isinstance(value, (int, float)) and abs(value) <= GEOID_UNDULATION_BOUND_M
+    ):  # NaN fails the comparison too
+        raise ParameterError(
+            f"geoid separation N must be a number of metres within +-{GEOID_UNDULATION_BOUND_M:g} (the geoid "
+            f"lies -107..+86 m from the ellipsoid anywhere), got {value!r}"
+        )
+
+
 def _geoid_separation(
     lon: float, lat: float, h: float, target_3d: pyproj.CRS | str
 ) -> tuple[float | None, str]:
@@ -571,13 +583,7 @@ def dji_prior(
         raise unknown_choice("source_height", source_height, SOURCE_HEIGHTS, InputFileError)
     if target_height not in TARGET_HEIGHTS:
         raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
-    if geoid_separation_m is not None and not (
-        isinstance(geoid_separation_m, (int, float)) and abs(geoid_separation_m) <= GEOID_UNDULATION_BOUND_M
-    ):  # NaN fails the comparison too
-        raise ParameterError(
-            f"geoid separation N must be a number of metres within +-{GEOID_UNDULATION_BOUND_M:g} (the geoid "
-            f"lies -107..+86 m from the ellipsoid anywhere), got {geoid_separation_m!r}"
-        )
+    check_geoid_separation(geoid_separation_m)
     crs = target_crs_of(target_crs)
     if _horizontal(crs).is_geographic:
         raise CRSError(f"the target CRS must be metric (projected), got {crs.name}")
