@@ -27,7 +27,7 @@ from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.datasets.colmap import read_images_text, read_points3D_text
 from semcityloc.datasets.dji import read_dji_metadata
-from semcityloc.errors import CameraError, InputFileError, MalformedCityJSONError, PoseError
+from semcityloc.errors import CameraError, EmptyModelError, InputFileError, MalformedCityJSONError, PoseError
 from semcityloc.geometry.io import read_intrinsics, read_pose
 from semcityloc.io.images import load_image, read_depth_file, read_mask_file
 from test_cityjson import box_doc, write
@@ -160,6 +160,18 @@ def test_obj_face_index_beyond_int64_is_typed(tmp_path):
     path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 18446744073709551616\n")
     with pytest.raises(InputFileError, match="line 4"):
         read_obj(path)
+
+
+def test_obj_of_a_lone_line_continuation_is_typed(tmp_path):
+    """A file of one backslash (a continuation with nothing after it: atheris, stop 48): an IndexError
+    before; now an OBJ with no faces, a typed answer. A continuation that joins real lines still reads."""
+    path = tmp_path / "m.obj"
+    for text in ("\\", "\\\n\\\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\n\\"):
+        path.write_text(text)
+        with pytest.raises(EmptyModelError, match="no faces"):
+            read_obj(path)
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 \\\n 3\nf 2 4 3\n")
+    assert read_obj(path).num_triangles == 2
 
 
 def _npy_header(shape, descr="<f8") -> bytes:

@@ -161,12 +161,12 @@ def _logical_lines(text: str):
             pending += stripped[:-1] + " "
             continue
         if pending:
-            yield start, pending + stripped
+            yield start, (pending + stripped).strip()
             pending = ""
         else:
             yield lineno, stripped
-    if pending:
-        yield start, pending
+    if pending:  # a continuation at the end of the file (or a lone backslash): what came before it
+        yield start, pending.strip()
 
 
 def _parse(text: str, path: Path) -> _ObjMesh:
