@@ -40,6 +40,7 @@ from semcityloc.citymodel.generator import generate_city
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.datasets.colmap import read_model, write_model
 from semcityloc.datasets.dji import read_dji_metadata
+from semcityloc.datasets.geotags import read_geotags_csv
 from semcityloc.datasets.lodloc import read_split
 from semcityloc.errors import SemCityLocError
 from semcityloc.geometry.io import read_intrinsics, read_pose
@@ -437,6 +438,16 @@ def synthetic_seeds(target: str, work: Path) -> list[tuple[str, bytes]]:
     if target == "dji":
         dji_jpeg(work / "dji.jpg", xmp=xmp_packet(**RTK_FIELDS), gps=(48.1, 11.5, 612.5), focal_35mm=24)
         return [("dji.jpg", (work / "dji.jpg").read_bytes())]
+    if target == "geotags":
+        return [
+            (
+                "geotags.csv",
+                b"image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg,accuracy_xy_m,accuracy_z_m,source\n"
+                b"DJI_0001.JPG,52.5163,13.3777,112.4,-31.5,-90.0,0.0,0.02,0.03,rtk\n"
+                b"DJI_0002.JPG,52.5165,13.3779,112.9,148.2,-45.1,0.1,,,gnss\n",
+            ),
+            ("odm_like.txt", b"name;lat;lon;alt;yaw;pitch\nIMG_1.jpg;48.1;11.5;612.5;10;-60\n"),
+        ]
     raise KeyError(target)
 
 
@@ -478,6 +489,7 @@ TARGETS: dict[str, Target] = {
     "labels": Target("labels", image_mutation, lambda p: read_mask_file(p)),
     "depth": Target("depth", image_mutation, lambda p: read_depth_file(p)),
     "dji": Target("dji", dji_mutation, lambda p: read_dji_metadata(p)),
+    "geotags": Target("geotags", text_mutation, lambda p: read_geotags_csv(p)),
 }
 
 
