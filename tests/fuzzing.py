@@ -220,7 +220,7 @@ def json_mutation(rng: random.Random, data: bytes) -> bytes:
 def obj_mutation(rng: random.Random, data: bytes) -> bytes:
     """Face indices out of range, zero or negative, vertices with missing or extra numbers; or text ones."""
     lines = data.split(b"\n")
-    faces = [i for i, ln in enumerate(lines) if ln.startswith(b"f ")]
+    faces = [i for i, ln in enumerate(lines) if ln.startswith(b"f ") and len(ln.split()) > 1]
     verts = [i for i, ln in enumerate(lines) if ln.startswith(b"v ")]
     op = rng.randrange(4)
     if op == 0 and faces:
