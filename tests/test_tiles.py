@@ -218,6 +218,34 @@ def test_mixed_formats_one_origin_and_the_cli(tmp_path, capsys, monkeypatch):
     assert BUDGET_ENV in capsys.readouterr().err
 
 
+def test_a_broken_or_empty_tile_is_left_out_naming_it_and_the_rest_is_built(tmp_path, capsys):
+    """A geoportal folder with a truncated tile and a tile without buildings (water, forest): the build
+    used to stop at the first one; now each is left out with its reason (stderr, store.json) and the
+    others make the store. A folder of nothing readable is one typed line."""
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    gml = generate_city(tmp_path / "gen", seed=2, lods=(2,))[2]
+    (tiles / "a.gml").write_bytes(gml.read_bytes())
+    (tiles / "broken.gml").write_bytes(gml.read_bytes()[:5000])  # cut mid-element
+    water = {"type": "CityJSON", "version": "1.1", "transform": {"scale": [1, 1, 1], "translate": [0, 0, 0]}}
+    (tiles / "water.json").write_text(json.dumps({**water, "CityObjects": {}, "vertices": []}))
+    assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store")]) == 0
+    out, err = capsys.readouterr()
+    assert "1 tiles" in out and "2 tiles left out" in out
+    assert (
+        err.count("semcityloc: warning: tile left out:") == 2 and "broken.gml" in err and "water.json" in err
+    )
+    index = json.loads((tmp_path / "store" / "store.json").read_text())
+    assert set(index["skipped_tiles"]) == {"broken.gml", "water.json"}
+    store = TileStore.open(tmp_path / "store")
+    assert [t.name for t in store.tiles] == ["a.gml"]
+    assert store.num_buildings == len(load_city_model(gml, cache=False).building_ids)
+    (tiles / "a.gml").unlink()
+    assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store2")]) == 2
+    err = capsys.readouterr().err
+    assert "no tile can be read (2 tried" in err and err.count("\n") == 1
+
+
 def test_merged_tiles_keep_their_readers_warnings_naming_the_file(tmp_path):
     """A skipped roof in one tile must show like one in a single file: the counts were summed, the warnings
     dropped (noticed at stop 45)."""

@@ -28,7 +28,7 @@ import json
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +75,7 @@ class BuildReport:
     buildings: int
     input_bytes: int
     seconds: float
+    skipped: dict[str, str] = field(default_factory=dict)  # tile (relative path) -> why it was left out
 
     @property
     def mb_per_s(self) -> float:
@@ -123,8 +124,11 @@ def build_store(
     """Index the tiles of ``folder`` into a store at ``out`` (module docstring); returns what it did.
 
     Reads every tile twice: once in its own frame for the extents (the store's origin is their centre),
-    once into the store's origin for the parsed npz. Raises ``InputFileError`` (no tiles, unreadable
-    tile), ``CRSError`` (tiles in different CRSs).
+    once into the store's origin for the parsed npz. A tile that cannot be read (malformed, truncated) or
+    holds no building (a geoportal's water or forest tile) is left out, named with the reason in the
+    report's ``skipped`` and ``store.json``'s ``skipped_tiles``, and the others are built: one bad file of
+    hundreds must not cost the city. Raises ``InputFileError`` (no tiles, or none readable: the first
+    reasons), ``CRSError`` (tiles in different CRSs).
     """
     t0 = time.perf_counter()
     folder, root = Path(folder), Path(out)
@@ -136,14 +140,25 @@ def build_store(
         raise InputFileError(f"{folder}: no CityGML or CityJSON files in it")
     say = progress or (lambda _msg: None)
     extents, crss, boxes, counts = [], [], [], []
+    skipped: dict[str, str] = {}
+    read: list[Path] = []
     for i, path in enumerate(files):
         say(f"indexing {i + 1}/{len(files)} {path.name}")
-        model = load_city_model(path, lod=lod, crs=crs, cache=False)
+        try:
+            model = load_city_model(path, lod=lod, crs=crs, cache=False)
+        except (InputFileError, EmptyModelError) as exc:  # this tile's own trouble: left out, named
+            skipped[str(path.relative_to(folder))] = str(exc)
+            continue
+        read.append(path)
         extents.append(model.bounds_local + model.origin)
         crss.append(model.crs)
         box = _building_boxes(model)
         boxes.append(box + np.concatenate([model.origin, model.origin]))
         counts.append(len(box))
+    if not read:
+        reasons = "; ".join(f"{name}: {why}" for name, why in list(skipped.items())[:3])
+        raise InputFileError(f"{folder}: no tile can be read ({len(skipped)} tried; {reasons})")
+    files = read
     _check_one_crs(files, crss, folder)
     every = np.concatenate(extents)
     origin = choose_origin(every)
@@ -181,13 +196,14 @@ def build_store(
         "crs_override": crs,
         "source_folder": str(folder.resolve()),
         "tiles": [asdict(t) for t in infos],
+        "skipped_tiles": skipped,
     }
     tmp = root / (INDEX_FILE + ".tmp")
     tmp.write_text(json.dumps(index, indent=1), encoding="utf-8")
     tmp.replace(root / INDEX_FILE)
     total = sum(t.size_bytes for t in infos)
     store = TileStore.open(root)
-    return BuildReport(store, len(infos), int(sum(counts)), total, time.perf_counter() - t0)
+    return BuildReport(store, len(infos), int(sum(counts)), total, time.perf_counter() - t0, skipped)
 
 
 def _building_boxes(model: CityModel) -> np.ndarray:

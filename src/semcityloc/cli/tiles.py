@@ -9,6 +9,8 @@ import sys
 
 from semcityloc.citymodel.tiles import TileStore, build_store
 
+SHOWN_SKIPPED = 10  # tiles left out named one per line; the rest counted
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     tiles = sub.add_parser("tiles", help="index a folder of city-model tiles into a store for --city")
@@ -33,9 +35,18 @@ def run_build(args: argparse.Namespace) -> int:
 
     report = build_store(args.folder, args.out, lod=args.lod, crs=args.crs, progress=progress)
     print(file=sys.stderr)
+    for why in list(report.skipped.values())[:SHOWN_SKIPPED]:
+        print(f"semcityloc: warning: tile left out: {why}", file=sys.stderr)
+    if len(report.skipped) > SHOWN_SKIPPED:
+        print(
+            f"semcityloc: warning: {len(report.skipped) - SHOWN_SKIPPED} more tiles left out "
+            f"(all named in {report.store.root}/store.json, skipped_tiles)",
+            file=sys.stderr,
+        )
     print(
         f"{report.tiles} tiles, {report.buildings} buildings, {report.input_bytes / 1e6:.1f} MB in "
         f"{report.seconds:.1f} s ({report.mb_per_s:.2f} MB/s): wrote {report.store.root}"
+        + (f"; {len(report.skipped)} tiles left out (store.json, skipped_tiles)" if report.skipped else "")
     )
     return 0
 
