@@ -416,6 +416,7 @@ class TileStore:
             "extent_m": [round(float(v), 3) for v in hi - lo],
             "input_mb": round(sum(t.size_bytes for t in self.tiles) / 1e6, 3),
             "formats": sorted({t.format for t in self.tiles}),
+            "skipped_tiles": len(self.index.get("skipped_tiles") or {}),  # left out by the build, named there
         }
 
 
