@@ -292,3 +292,40 @@ def test_label_cli_errors(tmp_path, city):
     )  # fmt: skip
     with pytest.raises(InputFileError, match="no --intrinsics given"):
         args.func(args)
+
+
+def test_label_cli_goes_on_past_a_photo_it_cannot_read(city, tmp_path, capsys):
+    """A photo whose header does not read and one whose pixels do not decode: the first is not labelled,
+    the second labelled without its overlay, each named on stderr; the good photo is labelled with its
+    overlay. Before, the run stopped at the first of them."""
+    model, renderer = city
+    photos = tmp_path / "photos"
+    cam = Camera(150.0, 150.0, 80.0, 60.0, 160, 120)
+    poses = {f"view_{i}.jpg": _world_pose(model, _centre(model, 90.0), yaw=40.0 * i) for i in range(3)}
+    lines = []
+    for i, (name, pose) in enumerate(poses.items()):
+        rng = np.random.default_rng(i)
+        save_rgb(rng.integers(0, 255, (120, 160, 3), dtype=np.uint8), photos / name)
+        q, t = colmap_qvec_tvec(pose)
+        lines.append(f"{i + 1} {' '.join(f'{v:.12g}' for v in (*q, *t))} 7 {name}\n\n")
+    (photos / "view_1.jpg").write_bytes(b"not a photo at all")
+    data = (photos / "view_2.jpg").read_bytes()
+    (photos / "view_2.jpg").write_bytes(data[: len(data) // 2])  # its header reads, its pixels do not
+    (tmp_path / "images.txt").write_text("# COLMAP\n" + "".join(lines))
+    (tmp_path / "cameras.txt").write_text("7 PINHOLE 160 120 150 150 80 60\n")
+    model.save_npz(tmp_path / "city.npz")
+    args = _label_parser().parse_args(
+        ["label", "--city", str(tmp_path / "city.npz"), "--images", str(photos), "--poses",
+         str(tmp_path / "images.txt"), "--out", str(tmp_path / "out"), "--overlay", "--boundary-px", "0"]
+    )  # fmt: skip
+    assert args.func(args) == 0
+    out, err = capsys.readouterr()
+    assert "wrote 2 label map(s)" in out
+    assert "not labelled: " in err and "view_1.jpg" in err
+    assert "labelled, no overlay: " in err and "view_2.jpg" in err
+    assert (tmp_path / "out" / "overlays" / "view_0.png").is_file()
+    assert not (tmp_path / "out" / "overlays" / "view_2.png").exists()
+    written = load_labels_png(tmp_path / "out" / "view_2.png")
+    assert np.array_equal(
+        written, auto_label(model, cam, poses["view_2.jpg"], renderer=renderer, boundary_px=0)
+    )

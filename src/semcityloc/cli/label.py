@@ -24,17 +24,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.datasets.photos import IntrinsicsFiles, PoseFiles, list_images
-from semcityloc.errors import InputFileError
+from semcityloc.errors import InputFileError, SemCityLocError
 from semcityloc.geometry.distortion import distort_image
 from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
 from semcityloc.perception.autolabel import auto_label_render, label_overlay
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
+
+SHOWN_PROBLEMS = 10  # photos named per problem on stderr; the rest counted
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -71,14 +74,18 @@ def run(args: argparse.Namespace) -> int:
     renderer = Renderer(model, engine=args.engine)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    written, skipped = 0, []
+    written, skipped, failed, no_overlay = 0, [], {}, {}
     for image in images:
         pose = poses.pose(image)
         if pose is None:
             skipped.append(image.name)
             continue
-        width, height = image_size(image)
-        lens = intrinsics.photo_camera(image, width, height)
+        try:  # this photo's own files (its size, its intrinsics): its failure, not the run's end
+            width, height = image_size(image)
+            lens = intrinsics.photo_camera(image, width, height)
+        except SemCityLocError as exc:
+            failed[image.name] = str(exc)
+            continue
         camera = lens.camera
         res = auto_label_render(
             model,
@@ -94,7 +101,10 @@ def run(args: argparse.Namespace) -> int:
         labels = distort_image(res.labels, camera, lens.distortion, fill=IGNORE, nearest=True)
         save_labels_png(labels, out / f"{image.stem}.png")
         if args.overlay:
-            save_rgb(label_overlay(load_image(image), labels), out / "overlays" / f"{image.stem}.png")
+            try:  # the labels need the photo's size only; the overlay its pixels, which may not decode
+                save_rgb(label_overlay(load_image(image), labels), out / "overlays" / f"{image.stem}.png")
+            except InputFileError as exc:
+                no_overlay[image.name] = str(exc)
         labelled = float((labels != IGNORE).mean())
         print(json.dumps({"image": image.name, "labelled": round(labelled, 4), "ignored": res.reasons}))
         written += 1
@@ -103,7 +113,17 @@ def run(args: argparse.Namespace) -> int:
             f"no pose for {len(skipped)} image(s): {', '.join(skipped[:5])}"
             + (" ..." if len(skipped) > 5 else "")
         )
+    for what, problems in (("not labelled", failed), ("labelled, no overlay", no_overlay)):
+        for why in list(problems.values())[:SHOWN_PROBLEMS]:
+            print(f"semcityloc: warning: {what}: {why}", file=sys.stderr)
+        if len(problems) > SHOWN_PROBLEMS:
+            print(f"semcityloc: warning: {len(problems) - SHOWN_PROBLEMS} more {what}", file=sys.stderr)
     if written == 0:
+        if failed:
+            first = "; ".join(list(failed.values())[:3])
+            raise InputFileError(
+                f"none of the {len(images)} images in {args.images} could be labelled: {first}"
+            )
         raise InputFileError(f"none of the {len(images)} images in {args.images} has a pose in {args.poses}")
     print(f"wrote {written} label map(s) to {out}")
     return 0
