@@ -156,7 +156,7 @@ def build_store(
         boxes.append(box + np.concatenate([model.origin, model.origin]))
         counts.append(len(box))
     if not read:
-        reasons = "; ".join(f"{name}: {why}" for name, why in list(skipped.items())[:3])
+        reasons = "; ".join(list(skipped.values())[:3])  # each names its file
         raise InputFileError(f"{folder}: no tile can be read ({len(skipped)} tried; {reasons})")
     files = read
     _check_one_crs(files, crss, folder)
