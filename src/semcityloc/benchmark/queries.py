@@ -152,7 +152,9 @@ class QueryConfig:
                 raise BenchmarkConfigError(f"{name} must be an integer, got {value!r}")
             put(name, int(value))
         if self.queries < 0 or self.seed < 0:
-            raise BenchmarkConfigError("queries and seed must be >= 0")
+            raise BenchmarkConfigError(
+                f"queries and seed must be >= 0, got queries={self.queries}, seed={self.seed}"
+            )
         if self.width < 16 or self.height < 16:
             raise BenchmarkConfigError(
                 f"image size must be at least 16 x 16, got {self.width} x {self.height}"
