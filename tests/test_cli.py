@@ -187,6 +187,11 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
     )
     assert code == 0
     assert set(json.loads(out)["pixels_per_class"]) >= {"1", "2", "3"}
+    # A pose that sees nothing of the model (here: looking up at the sky) is rendered, and told.
+    code, out, err = run(capsys, "render", "--city", city_paths[2], "--intrinsics", intr, "--pose",
+                         f"{x},{y},{z},0,180,0", "--out", tmp_path / "sky", "--no-cache")  # fmt: skip
+    assert code == 0 and json.loads(out)["pixels_per_class"] == {"0": 512 * 384}
+    assert "nothing of the model is in view at this pose" in err
 
     def localize(prior: str, out: str, *extra) -> tuple[int, str, str]:
         argv = ["localize", "--city", city_paths[2], "--intrinsics", intr, "--prior", prior]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -70,4 +71,10 @@ def run(args: argparse.Namespace) -> int:
         written.append(save_rgb(blend_labels(photo, labels), out / "overlay_labels.png"))
     counts = {int(c): int((labels == c).sum()) for c in set(labels.reshape(-1).tolist())}
     print(json.dumps({"written": [str(p) for p in written], "pixels_per_class": counts}))
+    if not np.isfinite(view.depth[0]).any():  # most often a pose in another frame or with other axes
+        print(
+            "semcityloc: warning: nothing of the model is in view at this pose: is it in the model's CRS "
+            "(or local frame), with the camera's z axis forward, y down (OpenCV), and above the ground?",
+            file=sys.stderr,
+        )
     return 0
