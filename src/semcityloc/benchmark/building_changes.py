@@ -74,6 +74,19 @@ def perturb_buildings(
     return out, shift, np.where(height > 1.0, dh, 0.0)
 
 
+def _points_in_triangles(rng: np.random.Generator, corners: np.ndarray) -> np.ndarray:
+    """(n, 3): one point drawn uniformly in each of the (n, 3, 3) triangles ``corners`` (two uniforms each,
+    drawn as two arrays of n, in that order)."""
+    n = len(corners)
+    r1, r2 = rng.random(n), rng.random(n)
+    s1 = np.sqrt(r1)
+    return (
+        (1 - s1)[:, None] * corners[:, 0]
+        + (s1 * (1 - r2))[:, None] * corners[:, 1]
+        + (s1 * r2)[:, None] * corners[:, 2]
+    )
+
+
 def roof_structures(
     corners: np.ndarray,
     classes: np.ndarray,
@@ -100,13 +113,7 @@ def roof_structures(
     if n == 0:
         return empty
     pick = rng.choice(len(roof), n, p=area / area.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    s1 = np.sqrt(r1)
-    pt = (
-        (1 - s1)[:, None] * c[pick, 0]
-        + (s1 * (1 - r2))[:, None] * c[pick, 1]
-        + (s1 * r2)[:, None] * c[pick, 2]
-    )
+    pt = _points_in_triangles(rng, c[pick])
     nrm = unit[pick]
     flat = nrm[:, 2] > 0.97
     u = rng.random(n)
@@ -346,13 +353,7 @@ def extra_dormers(
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.uint8), np.zeros(0, np.int64)
     pick = np.concatenate(picks)
     n = len(pick)
-    r1, r2 = rng.random(n), rng.random(n)
-    s1 = np.sqrt(r1)
-    pt = (
-        (1 - s1)[:, None] * c[pick, 0]
-        + (s1 * (1 - r2))[:, None] * c[pick, 1]
-        + (s1 * r2)[:, None] * c[pick, 2]
-    )
+    pt = _points_in_triangles(rng, c[pick])
     nrm = unit[pick]
     half = np.stack([rng.uniform(2.0, 4.0, n), rng.uniform(2.0, 3.0, n)], 1) / 2
     angle = np.arctan2(nrm[:, 1], nrm[:, 0]) - np.pi / 2

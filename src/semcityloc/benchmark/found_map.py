@@ -24,14 +24,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import semcityloc.baselines  # noqa: F401  (registers the baselines: which map each searches)
-from semcityloc.citymodel.eaves import with_eaves
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import flat_eaves_scene, found_on_flat_eaves
+from semcityloc.localization.localize import eaves_scene, flat_eaves_scene, found_on_flat_eaves
 from semcityloc.localization.methods import searched_map
 from semcityloc.render import Renderer
-from semcityloc.render.scene import with_model_triangles
 
 FLAT_EAVES_MAP = "the map with eaves on its flat roofs"
 
@@ -94,12 +92,11 @@ class FoundMaps:
 
     def searched(self) -> Renderer:
         """The renderer of the map the run searched, built on first use: ``base`` when its eaves move no
-        roof. The same triangles as the localizer's ``localizer_scene`` (one ``with_eaves``)."""
+        roof. The same triangles as the localizer's ``localizer_scene`` (``localize.eaves_scene``)."""
         if self._searched is None:
             scene = None
             if self.eaves_m > 0:
-                eaves = with_eaves(self.model, self.eaves_m, flat_roofs=self.flat_roofs == "on")
-                scene = with_model_triangles(self.base.scene, eaves.vertices[eaves.triangles])
+                scene = eaves_scene(self.base.scene, self.model, self.eaves_m, self.flat_roofs == "on")
             self._searched = self.base if scene is None else self.base.with_scene(scene)
         return self._searched
 

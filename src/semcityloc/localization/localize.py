@@ -692,8 +692,15 @@ def flat_eaves_scene(scene: RenderScene, model: CityModel, eaves_m: float) -> Re
     ``map_eaves_flat_roofs="auto"`` took from its second look. One construction, so that a drawing of the
     map at such a pose (the report, the overlays) shows the map it was scored on. None when no roof moves
     (``render.scene.with_model_triangles``)."""
-    flat = with_eaves(model, eaves_m, flat_roofs=True)
-    return with_model_triangles(scene, flat.vertices[flat.triangles])
+    return eaves_scene(scene, model, eaves_m, flat_roofs=True)
+
+
+def eaves_scene(scene: RenderScene, model: CityModel, eaves_m: float, flat_roofs: bool) -> RenderScene | None:
+    """``scene`` (a render scene of ``model``) with its model triangles moved by ``with_eaves(model,
+    eaves_m, flat_roofs)``, its terrain and classes kept: the localizer's maps drawn on another scene of the
+    same model. None when no roof moves (``render.scene.with_model_triangles``)."""
+    moved = with_eaves(model, eaves_m, flat_roofs=flat_roofs)
+    return with_model_triangles(scene, moved.vertices[moved.triangles])
 
 
 def found_on_flat_eaves(flat_roofs: str, look: dict | None) -> bool:
