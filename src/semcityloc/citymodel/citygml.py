@@ -42,13 +42,16 @@ counted in ``stats.invalid_coordinate_polygons`` (one warning); a file with noth
 Safety: the parser never resolves entities, never loads a DTD and never touches the network; a DOCTYPE that
 declares entities is refused (``MalformedXMLError``): CityGML never uses them, and leaving them unexpanded
 would silently drop text.
+
+This module streams the file, walks each city object, resolves XLinks and selects LoDs; three modules do
+the rest: ``gml_geometry`` reads a polygon's rings, ``citygml_names`` says what each element is to the walk,
+``citygml_crs`` chooses the metric frame.
 """
 
 from __future__ import annotations
 
 import gzip
 import operator
-import re
 import zlib
 from collections import Counter, OrderedDict
 from collections.abc import Iterator
@@ -60,14 +63,37 @@ import numpy as np
 import pyproj
 from lxml import etree
 
-from semcityloc.citymodel.builder import MeshBuilder, invalid_coordinates_note, usable_points, usable_polygon
+from semcityloc.citymodel.builder import MeshBuilder, invalid_coordinates_note, usable_polygon
+from semcityloc.citymodel.citygml_crs import CRSChoice
+from semcityloc.citymodel.citygml_names import (
+    CITYGML_NS,
+    GML_ID_31,
+    GML_ID_32,
+    HREF_FEATURE_PROPERTIES,
+    K_DESCEND,
+    K_ENVELOPE_PROP,
+    K_GML_CONTAINER,
+    K_IMPLICIT,
+    K_LOD,
+    K_LOD_SKIP,
+    K_ORIENTABLE,
+    K_PART,
+    K_POLYGON,
+    K_SEMANTIC,
+    K_SKIP,
+    K_SOLID,
+    OPENING_NAMES,
+    XLINK_HREF,
+    classify,
+    local_name,
+    tag_namespace,
+)
 from semcityloc.citymodel.cityjson import lod_key
-from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
+from semcityloc.citymodel.crs import parse_crs_name
+from semcityloc.citymodel.gml_geometry import CoordError, dim_attr, polygon_rings
 from semcityloc.citymodel.limits import check_file_size
-from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
-from semcityloc.classes import SURFACE_CLASS, SemanticClass
+from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.errors import (
-    CRSError,
     EmptyModelError,
     InputFileError,
     MalformedXMLError,
@@ -103,81 +129,9 @@ XLINK_CACHE_IDS = 100_000
 
 SUPPORTED_MAJOR_VERSIONS = (1, 2, 3)
 
-_GML_ID_31 = "{http://www.opengis.net/gml}id"
-_GML_ID_32 = "{http://www.opengis.net/gml/3.2}id"
-_XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
-_CITYGML_NS = re.compile(r"^http://www\.opengis\.net/citygml/(?:([A-Za-z]+)/)?(\d+)\.(\d+)$")
-_LOD_PROPERTY = re.compile(r"^lod([0-4])([A-Za-z]*)$")
-
 # Members of the root that hold city objects / that we clear as soon as they end.
 _MEMBER_NAMES = ("cityObjectMember", "featureMember", "featureMembers")
 _TOP_LEVEL_TAGS = tuple(f"{{*}}{n}" for n in (*_MEMBER_NAMES, "appearanceMember", "boundedBy"))
-
-# CityGML 3.0 names the filling surfaces of openings this way; 1.0/2.0 have Window / Door (in SURFACE_CLASS).
-_EXTRA_SURFACE_CLASS = {"WindowSurface": SemanticClass.WINDOW, "DoorSurface": SemanticClass.DOOR}
-_OPENING_NAMES = frozenset({"Window", "Door", "WindowSurface", "DoorSurface"})
-# CityGML subtrees that hold nothing visible from outside (or nothing geometric) and are skipped whole.
-_SKIP_CITYGML = frozenset(
-    {
-        "interiorRoom",
-        "Room",
-        "interiorFurniture",
-        "BuildingFurniture",
-        "buildingFurniture",
-        "interiorBuildingInstallation",
-        "IntBuildingInstallation",
-        "buildingRoom",
-        "BuildingRoom",
-        "buildingSubdivision",
-        "Storey",
-        "BuildingUnit",
-        "address",
-        "Address",
-        "externalReference",
-        "generalizesTo",
-        "appearance",
-        "dynamizer",
-        "relatedTo",
-    }
-)
-_SKIP_CITYGML_MODULES = frozenset({"appearance", "generics", "dynamizer", "versioning", "pointcloud"})
-_SKIP_GML = frozenset(
-    {
-        "name",
-        "description",
-        "identifier",
-        "metaDataProperty",
-        "descriptionReference",
-        "LineString",
-        "MultiCurve",
-        "CompositeCurve",
-        "Curve",
-        "OrientableCurve",
-        "Point",
-        "MultiPoint",
-    }
-)
-# A polygon-like surface: rings directly below it.
-_POLYGON_NAMES = frozenset({"Polygon", "PolygonPatch", "Triangle", "Rectangle"})
-_LOD_SKIP_SUFFIXES = ("Curve", "TerrainIntersection", "Point")
-# Feature properties (outside any lodN property) whose xlink:href may point at a surface-bearing feature.
-_HREF_FEATURE_PROPERTIES = frozenset(
-    {
-        "boundedBy",
-        "boundary",
-        "opening",
-        "fillingSurface",
-        "filling",
-        "consistsOfBuildingPart",
-        "buildingPart",
-        "outerBuildingInstallation",
-        "buildingInstallation",
-    }
-)
-
-# Element kinds of the geometry walk.
-_K_SKIP, _K_DESCEND, _K_GML_CONTAINER, _K_PART, _K_SEMANTIC, _K_LOD = range(6)
-_K_LOD_SKIP, _K_IMPLICIT, _K_POLYGON, _K_ORIENTABLE, _K_SOLID, _K_ENVELOPE_PROP = range(6, 12)
 
 
 class CityGMLPolygon(NamedTuple):
@@ -231,57 +185,6 @@ class _Ref(NamedTuple):
     flip: bool
 
 
-class _CoordError(Exception):
-    def __init__(self, two_d: bool):
-        self.two_d = two_d
-
-
-def _local(tag: str) -> str:
-    return tag[tag.rfind("}") + 1 :]
-
-
-def _namespace(tag: str) -> str:
-    return tag[1 : tag.find("}")] if tag.startswith("{") else ""
-
-
-def _classify(tag: str) -> tuple[int, int]:
-    """(kind, argument) of an element in a city object, from its namespace family and local name."""
-    ns, local = _namespace(tag), _local(tag)
-    if ns.startswith("http://www.opengis.net/gml"):
-        if local in _POLYGON_NAMES:
-            return _K_POLYGON, 0
-        if local == "OrientableSurface":
-            return _K_ORIENTABLE, 0
-        if local == "Solid":
-            return _K_SOLID, 0
-        if local == "boundedBy":
-            return _K_ENVELOPE_PROP, 0
-        if local in _SKIP_GML:
-            return _K_SKIP, 0
-        return _K_GML_CONTAINER, 0
-    m = _CITYGML_NS.match(ns)
-    if m is None:
-        # xAL addresses and other non-geometry vocabularies are skipped; ADE content is walked (but its
-        # geometry only counts inside a CityGML lodN property).
-        return (_K_SKIP, 0) if ns.startswith("urn:oasis:names:tc:ciq") else (_K_DESCEND, 0)
-    if m.group(1) in _SKIP_CITYGML_MODULES or local in _SKIP_CITYGML:
-        return _K_SKIP, 0
-    if local == "BuildingPart":
-        return _K_PART, 0
-    cls = SURFACE_CLASS.get(local, _EXTRA_SURFACE_CLASS.get(local))
-    if cls is not None:
-        return _K_SEMANTIC, int(cls)
-    lod = _LOD_PROPERTY.match(local)
-    if lod:
-        suffix = lod.group(2)
-        if "Implicit" in suffix:
-            return _K_IMPLICIT, 0
-        if suffix.endswith(_LOD_SKIP_SUFFIXES):
-            return _K_LOD_SKIP, 0
-        return _K_LOD, int(lod.group(1))
-    return _K_DESCEND, 0
-
-
 def citygml_lod(lod: object, path: Path | None = None) -> int | None:
     """The LoD the reader keeps for ``lod``: None (each building's highest) or a whole LoD 0 to 4, given as
     an int or in a form the CityJSON reader takes for it (``"2"``, ``"2.0"``, ``2.0``: ``lod_key``).
@@ -306,119 +209,6 @@ def citygml_lod(lod: object, path: Path | None = None) -> int | None:
             "building's highest)"
         )
     return int(key)
-
-
-def _same_crs(a: str, b: str) -> bool:
-    """Whether two srsName strings name the same CRS (spellings differ: EPSG:25833 vs its URN)."""
-    try:
-        return parse_crs_name(a) == parse_crs_name(b)
-    except CRSError:
-        return False
-
-
-def _dim_attr(el, inherited: int | None) -> int | None:
-    d = el.get("srsDimension")
-    if d is None:
-        return inherited
-    try:
-        return int(d)
-    except ValueError:
-        return inherited
-
-
-def _coords(numbers: np.ndarray, dim: int | None, tokens_per_point: int | None = None) -> np.ndarray:
-    """(n, 3) points from a flat number array; raises _CoordError for 2D data or an impossible count."""
-    n = numbers.size
-    if dim is None:
-        dim = tokens_per_point
-    if dim is None:
-        if n % 3 == 0:
-            dim = 3
-        elif n % 2 == 0:
-            dim = 2
-        else:
-            raise _CoordError(two_d=False)
-    if dim == 2:
-        raise _CoordError(two_d=True)
-    if dim < 2 or n % dim:
-        raise _CoordError(two_d=False)
-    pts = numbers.reshape(-1, dim)
-    return pts if dim == 3 else pts[:, :3]
-
-
-def _numbers(text: str | None) -> np.ndarray:
-    try:
-        return np.array((text or "").split(), dtype=np.float64)
-    except ValueError as exc:
-        raise _CoordError(two_d=False) from exc
-
-
-def _ring(ring_el, dim: int | None) -> np.ndarray:
-    """(n, 3) float64 points of a LinearRing (posList, pos list or GML2 coordinates)."""
-    dim = _dim_attr(ring_el, dim)
-    pos_texts: list[str] = []
-    pos_dim: int | None = None
-    for c in ring_el:
-        tag = c.tag
-        if tag.__class__ is not str:
-            continue
-        local = tag[tag.rfind("}") + 1 :]
-        if local == "posList":
-            return _coords(_numbers(c.text), _dim_attr(c, dim))
-        if local == "pos":
-            text = c.text or ""
-            pos_texts.append(text)
-            if pos_dim is None:
-                pos_dim = _dim_attr(c, None) or len(text.split())
-        elif local == "coordinates":
-            return _gml2_coordinates(c, dim)
-        elif local in ("pointProperty", "pointRep"):
-            for p in c.iter("{*}pos"):
-                text = p.text or ""
-                pos_texts.append(text)
-                if pos_dim is None:
-                    pos_dim = len(text.split())
-    if not pos_texts:
-        raise _CoordError(two_d=False)
-    return _coords(_numbers(" ".join(pos_texts)), dim, pos_dim)
-
-
-def _gml2_coordinates(el, dim: int | None) -> np.ndarray:
-    """GML2 ``<coordinates cs="," ts=" " decimal=".">x,y,z x,y,z</coordinates>``."""
-    cs, ts, dec = el.get("cs", ","), el.get("ts", " "), el.get("decimal", ".")
-    text = (el.text or "").strip()
-    tuples = text.split() if ts.isspace() else [t for t in text.split(ts) if t.strip()]
-    if not tuples:
-        raise _CoordError(two_d=False)
-    per_point = len(tuples[0].split(cs))
-    flat = " ".join(t.replace(cs, " ") for t in tuples)
-    if dec != ".":
-        flat = flat.replace(dec, ".")
-    return _coords(_numbers(flat), dim, per_point)
-
-
-def _polygon_rings(el, dim: int | None) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Exterior and interior rings of a Polygon / PolygonPatch / Triangle / Rectangle element."""
-    dim = _dim_attr(el, dim)
-    exterior = None
-    interiors: list[np.ndarray] = []
-    for c in el:
-        tag = c.tag
-        if tag.__class__ is not str:
-            continue
-        local = tag[tag.rfind("}") + 1 :]
-        if local in ("exterior", "outerBoundaryIs", "interior", "innerBoundaryIs"):
-            ring_el = next((r for r in c if r.tag.__class__ is str), None)
-            if ring_el is None:
-                raise _CoordError(two_d=False)
-            ring = _ring(ring_el, dim)
-            if local in ("exterior", "outerBoundaryIs"):
-                exterior = ring
-            else:
-                interiors.append(ring)
-    if exterior is None:
-        raise _CoordError(two_d=False)
-    return exterior, interiors
 
 
 def _xml_error(path: Path, exc: etree.XMLSyntaxError) -> MalformedXMLError:
@@ -466,12 +256,10 @@ class CityGMLReader:
         self._external_dtd: str | None = None  # the DOCTYPE's external DTD (never loaded)
 
         self._kinds: dict[str, tuple[int, int]] = {}
-        self._gml_id = _GML_ID_31  # the gml:id attribute: GML 3.1 in CityGML 1.0/2.0, GML 3.2 in 3.0
-        self._frame: MetricFrame | None = None
-        self._frame_identity = True
-        self._srs_first: str | None = None
-        self._srs_seen: set[str] = set()
-        self._envelope_sample: np.ndarray | None = None
+        self._gml_id = GML_ID_31  # the gml:id attribute: GML 3.1 in CityGML 1.0/2.0, GML 3.2 in 3.0
+        self._crs_choice = CRSChoice(
+            self.path, self.target_crs, crs_override, self.stats, self.report.srs_names
+        )
         # per city object
         self._recs: list[_Rec] = []
         self._refs: list[_Ref] = []
@@ -497,9 +285,9 @@ class CityGMLReader:
                 parent = el.getparent()
                 if parent is None or parent.getparent() is not None:
                     continue  # a nested boundedBy: handled with its city object
-                local = _local(el.tag)
+                local = local_name(el.tag)
                 if local == "boundedBy":
-                    self._read_envelope_prop(el, None)
+                    self._crs_choice.read_envelope_prop(el)
                 elif local in _MEMBER_NAMES:
                     objects = list(el) if local == "featureMembers" else [next(iter(el), None)]
                     for obj in objects:
@@ -596,8 +384,8 @@ class CityGMLReader:
             self._external_dtd = docinfo.system_url or docinfo.public_id
             self.stats.warnings.append(f"external DTD {self._external_dtd!r} not loaded")
         tag = root.tag if isinstance(root.tag, str) else ""
-        ns, local = _namespace(tag), _local(tag)
-        m = _CITYGML_NS.match(ns)
+        ns, local = tag_namespace(tag), local_name(tag)
+        m = CITYGML_NS.match(ns)
         if local == "CityModel" and m is not None and m.group(1) is None:
             major, minor = int(m.group(2)), int(m.group(3))
             if major not in SUPPORTED_MAJOR_VERSIONS:
@@ -606,7 +394,7 @@ class CityGMLReader:
                     "this reader knows CityGML 1.x, 2.x and 3.x"
                 )
             self.report.version = f"{major}.{minor}"
-            self._gml_id = _GML_ID_32 if major >= 3 else _GML_ID_31
+            self._gml_id = GML_ID_32 if major >= 3 else GML_ID_31
             return
         if local == "CityModel" or m is not None:
             raise UnsupportedFormatError(
@@ -648,8 +436,8 @@ class CityGMLReader:
 
     # ------------------------------------------------------------------ one city object
     def _city_object(self, obj) -> list[CityGMLPolygon]:
-        local = _local(obj.tag)
-        m = _CITYGML_NS.match(_namespace(obj.tag))
+        local = local_name(obj.tag)
+        m = CITYGML_NS.match(tag_namespace(obj.tag))
         if local != "Building" or m is None:
             self.report.skipped_objects[local] += 1
             return []
@@ -673,49 +461,51 @@ class CityGMLReader:
                 continue  # an unexpanded entity reference
             k = kinds.get(tag)
             if k is None:
-                k = kinds[tag] = _classify(tag)
+                k = kinds[tag] = classify(tag)
             kind, arg = k
-            if kind == _K_SKIP:
+            if kind == K_SKIP:
                 continue
-            if kind == _K_ENVELOPE_PROP:
-                self._read_envelope_prop(child, dim)
+            if kind == K_ENVELOPE_PROP:
+                self._crs_choice.read_envelope_prop(child)
                 continue
-            if kind == _K_LOD_SKIP:
+            if kind == K_LOD_SKIP:
                 continue
-            if kind == _K_IMPLICIT:
+            if kind == K_IMPLICIT:
                 self.report.implicit_geometries += 1
                 continue
             gid = child.get(gml_id)
             start = len(recs)
             c_part, c_sem, c_lod, c_flip, c_dim = part, sem, lod, flip, dim
-            if kind == _K_POLYGON:
+            if kind == K_POLYGON:
                 self._polygon(child, part, sem, lod, flip, dim, gid)
-            elif kind == _K_GML_CONTAINER or kind == _K_SOLID or kind == _K_ORIENTABLE:
+            elif kind == K_GML_CONTAINER or kind == K_SOLID or kind == K_ORIENTABLE:
                 srs = child.get("srsName")
                 if srs is not None:
-                    self._note_srs(srs)
-                c_dim = _dim_attr(child, dim)
-                if kind == _K_ORIENTABLE and child.get("orientation") == "-":
+                    self._crs_choice.note_srs(srs)
+                c_dim = dim_attr(child, dim)
+                if kind == K_ORIENTABLE and child.get("orientation") == "-":
                     c_flip = not flip
-            elif kind == _K_LOD:
+            elif kind == K_LOD:
                 c_lod = arg
-            elif kind == _K_SEMANTIC:
+            elif kind == K_SEMANTIC:
                 c_sem, c_lod = arg, None
-                local = _local(tag)
-                if local in _OPENING_NAMES:
+                local = local_name(tag)
+                if local in OPENING_NAMES:
                     self.report.openings[local] += 1
-            elif kind == _K_PART:
+            elif kind == K_PART:
                 self._n_parts += 1
                 self.report.building_parts += 1
                 c_part, c_sem, c_lod, c_flip = self._n_parts, None, None, False
-            if kind != _K_POLYGON:
-                href = child.get(_XLINK_HREF)
+            if kind != K_POLYGON:
+                href = child.get(XLINK_HREF)
                 if href is not None:
-                    if c_lod is not None or (kind == _K_DESCEND and _local(tag) in _HREF_FEATURE_PROPERTIES):
+                    if c_lod is not None or (
+                        kind == K_DESCEND and local_name(tag) in HREF_FEATURE_PROPERTIES
+                    ):
                         self._refs.append(_Ref(href.lstrip("#"), c_part, c_lod, c_sem, c_flip))
-                elif kind == _K_SOLID:
+                elif kind == K_SOLID:
                     for sub in child:  # exterior shell only: interior shells are closed cavities
-                        if sub.tag.__class__ is str and _local(sub.tag) == "exterior":
+                        if sub.tag.__class__ is str and local_name(sub.tag) == "exterior":
                             self._walk(sub, c_part, c_sem, c_lod, c_flip, c_dim)
                 else:
                     self._walk(child, c_part, c_sem, c_lod, c_flip, c_dim)
@@ -728,10 +518,10 @@ class CityGMLReader:
             return
         srs = el.get("srsName")
         if srs is not None:
-            self._note_srs(srs)
+            self._crs_choice.note_srs(srs)
         try:
-            ext, holes = _polygon_rings(el, dim)
-        except _CoordError as exc:
+            ext, holes = polygon_rings(el, dim)
+        except CoordError as exc:
             if exc.two_d:
                 self.report.polygons_2d += 1
             else:
@@ -850,14 +640,17 @@ class CityGMLReader:
     def _output(self, building_id: str, recs: list[_Rec]) -> list[CityGMLPolygon]:
         if not recs:
             return []
-        frame = self._metric_frame(recs)
+        choice = self._crs_choice
+        if choice.frame is None:
+            frame = choice.choose([r.exterior for r in recs])
+            self.source_crs, self.crs = frame.source, frame.target
         out = []
-        if self._frame_identity:
+        if choice.identity:
             for r in recs:
                 out.append(CityGMLPolygon(building_id, r.semantic, r.lod, r.exterior, r.interiors))
         else:
             rings = [ring for r in recs for ring in (r.exterior, *r.interiors)]
-            metric = frame.to_metric(np.concatenate(rings))
+            metric = choice.frame.to_metric(np.concatenate(rings))
             bounds = np.cumsum([len(x) for x in rings])[:-1]
             parts = np.split(metric, bounds)
             i = 0
@@ -867,95 +660,6 @@ class CityGMLReader:
                 i += n
         self.report.polygons += len(out)
         return out
-
-    # ------------------------------------------------------------------ CRS
-    def _read_envelope_prop(self, prop, dim: int | None) -> None:
-        """``gml:boundedBy/gml:Envelope``: its srsName, and its corners as a sample location."""
-        for env in prop:
-            if env.tag.__class__ is not str or _local(env.tag) != "Envelope":
-                continue
-            srs = env.get("srsName")
-            if srs is not None:
-                self._note_srs(srs)
-            if self._envelope_sample is None:
-                corners = [c.text for c in env if c.tag.__class__ is str and _local(c.tag).endswith("Corner")]
-                try:
-                    pts = [np.array(t.split(), dtype=np.float64)[:2] for t in corners if t]
-                except ValueError:
-                    continue
-                if len(pts) == 2 and all(len(p) == 2 for p in pts) and usable_points(np.stack(pts)).all():
-                    self._envelope_sample = np.stack(pts)
-
-    def _note_srs(self, name: str) -> None:
-        if name in self._srs_seen:
-            return
-        self._srs_seen.add(name)
-        self.report.srs_names.append(name)
-        if self._srs_first is None:
-            self._srs_first = name
-        elif not _same_crs(name, self._srs_first):
-            self.stats.warnings.append(
-                f"srsName {name!r} differs from the file's first srsName {self._srs_first!r}, which is used "
-                "for all coordinates"
-            )
-
-    def _zone_sample(self, recs: list[_Rec]) -> np.ndarray:
-        """The points that locate a geographic CRS's UTM zone: the Envelope's corners (the whole file's
-        extent), else the first polygon read."""
-        if self._envelope_sample is not None:
-            return self._envelope_sample
-        return recs[0].exterior[:, :2]
-
-    def _frame_of_geometry(self, source: pyproj.CRS | None, frame: MetricFrame, recs: list[_Rec]):
-        """The metric frame located by the first building's own coordinates when the Envelope does not hold
-        them (a stale Envelope, e.g. 0 0 / 1 1 left by a tool); ``frame`` (the Envelope's) when both
-        choose the same CRS, so that only a frame the Envelope got wrong changes, with a warning."""
-        sample = np.concatenate([r.exterior[:, :2] for r in recs])
-        ours = MetricFrame.for_source(source, sample, None)
-        if ours.target == frame.target:
-            return frame
-        self.stats.warnings.append(
-            f"the file's gml:Envelope does not hold its first building (a stale Envelope?): the UTM zone is "
-            f"chosen from the building's coordinates ({crs_label(ours.target)}), not from the Envelope's "
-            f"({crs_label(frame.target)})"
-        )
-        return ours
-
-    def _metric_frame(self, recs: list[_Rec]) -> MetricFrame:
-        if self._frame is not None:
-            return self._frame
-        name = self.crs_override if self.crs_override is not None else self._srs_first
-        source = None
-        if name is None:
-            self.stats.warnings.append(
-                "the file names no CRS (srsName): coordinates are used as they are, in a local metric frame"
-            )
-            if self.target_crs is not None:
-                self.stats.warnings.append(f"target_crs ignored: the source CRS is unknown ({CRS_HINT})")
-        else:
-            try:
-                source = parse_crs_name(name)
-            except CRSError as exc:
-                hint = "" if self.crs_override is not None else f"; {CRS_HINT} to read the file anyway"
-                raise CRSError(f"{self.path}: {exc}{hint}") from exc
-        target = self.target_crs if source is not None else None
-        frame = MetricFrame.for_source(source, self._zone_sample(recs), target)
-        if target is None and self._envelope_sample is not None and not _holds(self._envelope_sample, recs):
-            frame = self._frame_of_geometry(source, frame, recs)
-        self._frame = frame
-        self.source_crs = source
-        self.crs = frame.target
-        self._frame_identity = frame.target is None or (frame.target == frame.source and not frame.lat_first)
-        return frame
-
-
-def _holds(box: np.ndarray, recs: list[_Rec]) -> bool:
-    """Whether the (2, 2) Envelope corners ``box`` hold every exterior point of ``recs`` (file axis order,
-    within 1 % of the box's size: Envelopes are often rounded)."""
-    lo, hi = box.min(axis=0), box.max(axis=0)
-    margin = 0.01 * (hi - lo) + 1e-9 * np.maximum(np.abs(lo), np.abs(hi))
-    points = np.concatenate([r.exterior[:, :2] for r in recs])
-    return bool(((points >= lo - margin) & (points <= hi + margin)).all())
 
 
 def iter_citygml_polygons(
