@@ -57,7 +57,8 @@ from semcityloc.benchmark.spec import BenchmarkSpec, load_map
 from semcityloc.errors import BenchmarkConfigError, ParameterError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer, localizer_scene, scene_key
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.map_scenes import localizer_scene, scene_key
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render.scene import RenderScene
 

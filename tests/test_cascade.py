@@ -30,7 +30,7 @@ from semcityloc.localization.confidence import (
     view_span_m,
 )
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
-from semcityloc.localization.localize import Localizer, reached_half
+from semcityloc.localization.localize import Localizer
 from semcityloc.localization.query import Query
 from semcityloc.localization.result import (
     LOCALIZED,
@@ -39,6 +39,7 @@ from semcityloc.localization.result import (
     REASON_LOW_CONFIDENCE,
     LocalizationResult,
 )
+from semcityloc.localization.search_reach import reached_half
 from semcityloc.render import Renderer
 
 

@@ -11,7 +11,8 @@ from semcityloc.citymodel.io import load_city_model
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import ParameterError
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer, localizer_scene
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.map_scenes import localizer_scene
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,8 @@ from semcityloc.benchmark.found_map import FLAT_EAVES_MAP, FoundMaps, row_look
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer, found_on_flat_eaves
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.map_scenes import found_on_flat_eaves
 from semcityloc.localization.result import LOCALIZED, LocalizationResult
 from semcityloc.render import Renderer
 
@@ -95,7 +96,7 @@ def pitched():
 def test_every_pose_is_drawn_on_the_map_the_localizer_searched(pitched):
     """The truth, the prior and an estimate of the plain look are drawn on the model with the localizer's
     eaves on its pitched roofs: the same triangles as ``localizer_scene``, not the model as it is."""
-    from semcityloc.localization.localize import localizer_scene
+    from semcityloc.localization.map_scenes import localizer_scene
 
     model, renderer = pitched
     maps = FoundMaps.of_run(model, renderer, {"method": "semcityloc", "localizer": {"map_eaves_m": 0.5}})

@@ -26,7 +26,8 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import Localizer, localizer_scene
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.map_scenes import localizer_scene
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.render.scene import RenderScene
 

@@ -43,7 +43,7 @@ from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.coarse import CostVolume, axis_samples
-from semcityloc.localization.localize import check_camera_and_prior
+from semcityloc.localization.input_checks import check_camera_and_prior
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,

@@ -8,7 +8,7 @@ A drawing of the model as it is at such a pose shows roof outlines the pose was 
 looks off by the eaves' width. So the report's figures, its query browser and a photo run's overlays draw
 every pose (the truth, the prior, the estimate) on the map the run searched (``searched``), and an
 estimate found on the flat-eaves map on that one, built by the localizer's own construction
-(``localize.flat_eaves_scene``, once per run, on the first estimate that needs it); their captions name
+(``map_scenes.flat_eaves_scene``, once per run, on the first estimate that needs it); their captions name
 it (``FLAT_EAVES_MAP``).
 
 Which map a run searched comes from its ``run.json``: ``searched_map`` (``localization.methods
@@ -16,7 +16,7 @@ Which map a run searched comes from its ``run.json``: ``searched_map`` (``locali
 its method and ``localizer`` config. Which map a pose was found on comes from what the result recorded,
 ``search["flat_roof_eaves"]``: live in a run, saved in a details file's ``meta["flat_roof_eaves"]`` and a
 ``results.csv`` row's ``flat_roof_eaves_used``, with the run's ``map_eaves_flat_roofs``
-(``localize.found_on_flat_eaves``).
+(``map_scenes.found_on_flat_eaves``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import semcityloc.baselines  # noqa: F401  (registers the baselines: which map e
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import eaves_scene, flat_eaves_scene, found_on_flat_eaves
+from semcityloc.localization.map_scenes import eaves_scene, flat_eaves_scene, found_on_flat_eaves
 from semcityloc.localization.methods import searched_map
 from semcityloc.render import Renderer
 
@@ -92,7 +92,7 @@ class FoundMaps:
 
     def searched(self) -> Renderer:
         """The renderer of the map the run searched, built on first use: ``base`` when its eaves move no
-        roof. The same triangles as the localizer's ``localizer_scene`` (``localize.eaves_scene``)."""
+        roof. The same triangles as the localizer's ``localizer_scene`` (``map_scenes.eaves_scene``)."""
         if self._searched is None:
             scene = None
             if self.eaves_m > 0:

@@ -36,7 +36,8 @@ from semcityloc.io.images import (
     save_rgb,
 )
 from semcityloc.localization.config import FLAT_EAVES, PRESETS, LocalizerConfig
-from semcityloc.localization.localize import Localizer, found_on_flat_eaves
+from semcityloc.localization.localize import Localizer
+from semcityloc.localization.map_scenes import found_on_flat_eaves
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import with_lossy_masks

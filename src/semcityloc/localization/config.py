@@ -1,6 +1,8 @@
 """Named configuration presets of the localizer (hloc-style: a dict of named, documented presets).
 
-Every number the search uses lives here; ``LocalizerConfig.preset(name)`` returns a copy to tweak.
+Every number the search uses lives here; ``LocalizerConfig.preset(name)`` returns a copy to tweak, and
+``config_or_preset`` turns what a localizer's ``config`` argument may be (a config, a preset's name, None)
+into a config.
 
 Two searches share the refinement and the scores:
 
@@ -382,3 +384,16 @@ PRESETS: dict[str, LocalizerConfig] = {
         refine=RefineConfig(particles=64, iterations=6, low_res_iterations=3),
     ),
 }
+
+
+def config_or_preset(config: LocalizerConfig | str | None) -> LocalizerConfig:
+    """A ``LocalizerConfig`` from a config, a preset name (``PRESETS``) or None (the default)."""
+    if config is None:
+        return LocalizerConfig()
+    if isinstance(config, str):
+        return LocalizerConfig.preset(config)
+    if not isinstance(config, LocalizerConfig):
+        raise ParameterError(
+            f"config must be a LocalizerConfig or a preset name, got {type(config).__name__}"
+        )
+    return config

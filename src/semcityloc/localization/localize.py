@@ -1,15 +1,22 @@
 """``localize()``: the SemCityLoc pipeline from a query (mask + depth) and a prior to a 6DoF pose.
 
-1. Prepare: the query mask (any resolution with the camera's aspect) is majority-downsampled to the
-   search resolutions; window/door merge into wall when the map has no openings.
+1. Check and prepare: inputs no photo could have are refused with a typed error (``input_checks.py``);
+   the query mask (any resolution with the camera's aspect) is majority-downsampled to the search
+   resolutions, window/door merged into wall when the map has no openings (``query.py``). A query without
+   building pixels, or a prior from whose view no building lies within the search's reach
+   (``search_reach.py``), is refused before any search.
 2. Search (``config.search``): the cascade over the prior's uncertainty volume (``cascade.py``: sweep,
    edge extension, local grids with roll/pitch) gives a few distinct hypotheses; or the first design's
    uniform 4D grid (``coarse.coarse_search``, preset ``legacy``).
-3. Refine: the particle filter (``refine.particle_filter``), semantic IoU + depth, from each hypothesis
-   on its own (cascade) or from the best grid cells together (grid); the best final score wins.
-4. Decide: ``not_localized`` with a reason when the evidence is empty, the best hypothesis sits on the
+3. Refine: one particle filter (``refine.particle_filter``: semantic IoU + depth, in the cascade also the
+   prior's roll/pitch penalty, ``prior.py``) seeded by the search's best distinct hypotheses (cascade) or
+   best grid cells (grid), then its polish; with ``restarts`` the best final score wins. With
+   ``map_eaves_flat_roofs="auto"`` a second look on the map with eaves on its flat roofs too
+   (``map_scenes.py``).
+4. Accept: ``not_localized`` with a reason when the evidence is empty, the best hypothesis sits on the
    edge of the search volume, or the calibrated probability of being right (``confidence.py``) is
    below ``min_confidence`` (``acceptance="thresholds"``: the first design's hand-set gates).
+5. Result: a ``LocalizationResult`` with the pose (or the refused one), the evidence and the timings.
 
 ``Localizer`` keeps the render scene of one city model, so a batch of queries builds it once.
 """
@@ -23,11 +30,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from semcityloc.citymodel.eaves import with_eaves
 from semcityloc.citymodel.ground import base_points
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass, invalid_class_ids
-from semcityloc.errors import CameraError, ParameterError, PoseError, ShapeError
+from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass
+from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -49,7 +55,7 @@ from semcityloc.localization.confidence import (
     is_close_view,
     view_span_m,
 )
-from semcityloc.localization.config import CascadeConfig, LocalizerConfig
+from semcityloc.localization.config import LocalizerConfig, config_or_preset
 from semcityloc.localization.covariance import (
     PROBES,
     covariance_model,
@@ -57,6 +63,9 @@ from semcityloc.localization.covariance import (
     probe_steps,
     score_curvature,
 )
+from semcityloc.localization.input_checks import check_query_inputs
+from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
+from semcityloc.localization.prior import prior_distance, prior_term
 from semcityloc.localization.query import (
     Query,
     depth_rank_correlation,
@@ -64,7 +73,6 @@ from semcityloc.localization.query import (
     usable_depth,
 )
 from semcityloc.localization.refine import (
-    PriorTerm,
     ScoringLevel,
     initial_sigma,
     particle_filter,
@@ -82,8 +90,9 @@ from semcityloc.localization.result import (
     LocalizationResult,
 )
 from semcityloc.localization.scoring import map_classes, merge_openings_lut
+from semcityloc.localization.search_reach import edge_sigma, edge_warning, reached_half, search_half_xy
 from semcityloc.render.raster_numba import NumbaEngine
-from semcityloc.render.scene import RenderScene, build_scene, with_model_triangles
+from semcityloc.render.scene import RenderScene
 
 # Rays that do not meet the ground plane within this distance are cut here when the view's footprint is
 # estimated for the "model geometry in the search volume" check.
@@ -91,10 +100,6 @@ MAX_VIEW_RANGE_M = 1500.0
 # How far beyond the search's reach footprints count for the ground under it (the terrain between
 # footprints runs through the nearest ones).
 GROUND_MARGIN_M = 20.0
-# A query camera's field of view, per axis (``check_query_camera``): a 200x zoom sees about 1 deg, a
-# rectified fisheye is cut to well under 150 deg.
-MIN_FOV_DEG = 1.0
-MAX_FOV_DEG = 150.0
 
 
 class Localizer:
@@ -158,7 +163,7 @@ class Localizer:
         if not isinstance(unc, PriorUncertainty):
             raise ParameterError(f"prior_uncertainty must be a PriorUncertainty, got {type(unc).__name__}")
         t0 = time.perf_counter()
-        self._check_inputs(camera, prior_local, semantic, depth)
+        check_query_inputs(camera, prior_local, semantic, depth)
         query = Query.from_arrays(semantic, None if cfg.no_depth else depth, self.has_openings)
         prior_state = prior_local.to_xyz_rpy()
 
@@ -181,38 +186,7 @@ class Localizer:
         if result.reason is not None:
             return self._finish(result, result.reason, t0)
 
-        # The map at the found pose: its agreement with the query and the view's span.
-        found_2d, found_depth = self.map_of(result).render_labels_and_depth(fine.camera, result.pose_local)
-        query_2d = fine.labels.reshape(fine.camera.height, fine.camera.width)
-        agreement = building_agreement(query_2d, found_2d)
-        result.confidence["building_iou"] = agreement.building_iou
-        result.confidence["unmapped_building_share"] = agreement.unmapped_share
-        result.confidence["unseen_building_share"] = agreement.unseen_share
-        result.warnings.extend(agreement.warnings())
-        result.confidence["boundary_distance_px"] = boundary_distance_px(query_2d, found_2d)
-        with_depth = fine.depth is not None
-        if with_depth:
-            result.confidence["depth_cost_agreed"] = agreed_depth_cost(
-                fine.labels, fine.depth, found_2d, found_depth, cfg.refine.depth_cap
-            )
-        result.confidence["building_fraction"] = building_fraction
-        result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
-        if cfg.acceptance == "calibrated":
-            p = confidence_model(self.confidence_kind, with_depth).probability(result)
-            result.confidence["probability"] = p
-            seen = found_depth[np.isfinite(found_depth)]
-            span = view_span_m(camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0)
-            result.confidence["view_span_m"] = span
-            needed = cfg.min_confidence
-            if is_close_view(span):
-                needed = max(needed, cfg.min_confidence_close_view)
-            result.confidence["min_probability"] = needed  # what this result was accepted or refused at
-            accepted, reason = p >= needed, REASON_LOW_CONFIDENCE
-            for warning in (field_of_view_warning(camera.hfov_deg), close_view_warning(span, needed)):
-                if warning is not None:
-                    result.warnings.append(warning)
-        else:
-            accepted, reason = self._accept(result, cfg, with_depth), REASON_LOW_SCORE
+        accepted, reason = self._decide(result, camera, fine, prior_state, cfg, unc, building_fraction)
         if not accepted and "sweep_best" in result.search and cfg.cascade.beyond.enabled:
             t_beyond = time.perf_counter()
             self._look_beyond(result, camera, query, prior_state, cfg, unc)
@@ -223,6 +197,51 @@ class Localizer:
             return self._finish(result, reason, t0)
         result.status = LOCALIZED
         return self._finish(result, None, t0)
+
+    # ------------------------------------------------------------------ the map within the search's reach
+    def _geometry_near(
+        self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
+    ) -> bool:
+        """Does any building lie where the prior's view, widened by the search range, could see it? The
+        view is cast from the highest camera the search reaches (a prior metres above the ground sees a
+        few metres of it; the camera the search may find higher up sees more)."""
+        if not len(self._building_xy):
+            return False
+        corners_uv = np.array(
+            [
+                [0, 0],
+                [camera.width, 0],
+                [camera.width, camera.height],
+                [0, camera.height],
+                [camera.cx, camera.cy],
+            ],
+            dtype=np.float64,
+        )
+        rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv).T  # (3, 5)
+        centre = prior_local.center.copy()
+        if cfg.search == "cascade":
+            volume = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade)
+            centre[2] += reached_half(volume, cfg.cascade)["z"]
+        dz = self._ground_z - centre[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(rays[2] * dz > 0, dz / rays[2], np.inf)
+        s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
+        pts = centre[:2, None] + rays[:2] * s
+        pts = np.concatenate([pts, centre[:2, None]], axis=1)
+        margin = search_half_xy(prior_local, cfg, unc) + 1.0
+        lo, hi = pts.min(1) - margin, pts.max(1) + margin
+        inside = np.all((self._building_xy >= lo) & (self._building_xy <= hi), axis=1)
+        return bool(inside.any())
+
+    def ground_below(self, prior_state: np.ndarray, unc: PriorUncertainty, cfg: LocalizerConfig) -> float:
+        """The lowest ground (local frame, m) under the area the search may move the camera over: the
+        lowest footprint bottom within the reached half-width (+ ``GROUND_MARGIN_M``) of the prior's x, y,
+        else the model's lowest; -inf for a model without buildings (no floor)."""
+        if not len(self._base):
+            return -math.inf
+        half = reached_half(search_volume(prior_state, unc, cfg.cascade), cfg.cascade)["xy"] + GROUND_MARGIN_M
+        near = np.all(np.abs(self._base[:, :2] - np.asarray(prior_state[:2])) <= half, axis=1)
+        return float(self._base[near, 2].min() if near.any() else self._base[:, 2].min())
 
     # ------------------------------------------------------------------ searches
     # Each search fills ``result`` and returns the fine scoring level (camera and query at the refinement's
@@ -320,58 +339,6 @@ class Localizer:
             self._look_with_flat_eaves(result, levels, hyps.states, cfg, sigma, prior)
         return levels[-1]
 
-    def _flat_eaves_scene(self, model: CityModel) -> RenderScene | None:
-        """This localizer's scene with ``map_eaves_m`` of eaves on the flat roofs as well, when its config
-        asks for ``"auto"`` and some flat roof gets them."""
-        cfg = self.config
-        if cfg.map_eaves_flat_roofs != "auto" or not cfg.map_eaves_m > 0.0:
-            return None
-        return flat_eaves_scene(self.scene, model, cfg.map_eaves_m)
-
-    def _with_scene(self, scene: RenderScene) -> Localizer:
-        """This localizer searching ``scene`` instead (a shallow copy: the rest is shared)."""
-        other = copy.copy(self)
-        other.scene, other.flat_eaves_scene = scene, None
-        return other
-
-    def _look_with_flat_eaves(self, result, levels, seeds, cfg: LocalizerConfig, sigma, prior) -> None:
-        """``map_eaves_flat_roofs="auto"``: does the view fit the map with eaves on its flat roofs too?
-        Where the found pose scores higher on it by ``flat_eaves_gate``, the refinement runs again on that
-        map from the found pose and the search's hypotheses; its pose replaces the first when its semantic
-        score is higher by ``flat_eaves_margin``. Recorded in ``result.search["flat_roof_eaves"]``."""
-        t0 = time.perf_counter()
-        fine = levels[-1]
-        state = result.pose_local.to_xyz_rpy()
-        # result.semantic is already this pose's score on the plain map at the fine level (the refinement
-        # scores its estimate with score_states there): one render, not two.
-        _, flat, _ = score_states(self.flat_eaves_scene, fine, state[None], self.class_on, cfg.refine, prior)
-        look = {"gain_at_found": float(flat[0] - result.semantic), "used": False}
-        result.search["flat_roof_eaves"] = look
-        result.counts["refine_evaluations"] += 1
-        if look["gain_at_found"] > cfg.flat_eaves_gate:
-            trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
-            other = self._with_scene(self.flat_eaves_scene)
-            other._refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
-            result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
-            look["gain"] = float(trial.semantic - result.semantic)
-            moved = trial.pose_local.to_xyz_rpy() - state
-            look["moved_m"] = float(np.linalg.norm(moved[:3]))
-            if look["gain"] > cfg.flat_eaves_margin:
-                look["used"] = True
-                for name in (
-                    "pose_local",
-                    "score",
-                    "semantic",
-                    "depth_cost",
-                    "covariance",
-                    "score_curvature",
-                ):
-                    setattr(result, name, getattr(trial, name))
-                result.confidence.update(
-                    spread_m=trial.confidence["spread_m"], spread_deg=trial.confidence["spread_deg"]
-                )
-        result.timings["flat_eaves_s"] = time.perf_counter() - t0
-
     def _drop_inverted_depth(
         self, result: LocalizationResult, levels: list[ScoringLevel], pose_local: Pose
     ) -> tuple[list[ScoringLevel], np.ndarray | None]:
@@ -388,56 +355,7 @@ class Localizer:
             levels = [ScoringLevel(lv.camera, lv.labels, None) for lv in levels]
         return levels, seen
 
-    def ring_beyond(
-        self, camera: Camera, query: Query, prior_state: np.ndarray, found_xy, cfg: LocalizerConfig, unc
-    ) -> tuple[Beyond | None, SearchVolume]:
-        """The best view of the ring beyond the cascade's reach (``cascade.look_beyond``) for ``query`` and
-        a pose found at ``found_xy`` (local x, y), with the volume it is around. ``_look_beyond`` uses it
-        on refused results; ``benchmarks/look_beyond.py`` on any."""
-        cc = cfg.cascade
-        volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
-        sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
-        q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
-        reach = reached_half(volume, cc)["xy"]
-        ring = look_beyond(
-            self.scene,
-            sweep_cam,
-            volume,
-            reach,
-            np.asarray(found_xy),
-            q_sweep,
-            self.class_on,
-            cc.sweep,
-            cc.beyond,
-        )
-        return ring, volume
-
-    def _look_beyond(self, result, camera, query, prior_state, cfg: LocalizerConfig, unc) -> None:
-        """For a refused result: does a view beyond the search's reach, distinct from the refused pose,
-        score higher than the sweep's best (``ring_beyond``)? Recorded in ``result.search["beyond"]``; if
-        so, a warning names the ``--prior-sigma`` that would search there. A hint, not a verdict: a prior
-        further off than stated does this, and so does a view whose map differs from the world (Berlin
-        seed 0: one of its three such refusals had a wrong prior)."""
-        cc = cfg.cascade
-        ring, volume = self.ring_beyond(
-            camera, query, prior_state, result.pose_local.to_xyz_rpy()[:2], cfg, unc
-        )
-        reach = reached_half(volume, cc)["xy"]
-        if ring is None:
-            return
-        sweep_best = result.search["sweep_best"]
-        higher = ring.score >= sweep_best + cc.beyond.margin
-        result.search["beyond"] = {**ring.as_dict(), "hypotheses": ring.hypotheses, "higher": bool(higher)}
-        if higher:
-            sigma = edge_sigma(["x+"], volume, cc)
-            result.search["beyond"]["sigma"] = sigma
-            result.warnings.append(
-                f"{BEYOND_WARNING}: a view {ring.offset_xy_m:.0f} m from the prior, beyond the searched "
-                f"+-{reach:.0f} m, scores {ring.score:.2f} against the best inside's {sweep_best:.2f}; if "
-                "the prior may be further off than its stated uncertainty, run again with --prior-sigma "
-                f"xy={sigma['xy']} (a map that differs from the world in view can do the same)"
-            )
-
+    # ------------------------------------------------------------------ refinement
     def _refine(
         self, result, levels, seeds: np.ndarray, cfg: LocalizerConfig, sigma, prior=None, seed_depth=None
     ) -> None:
@@ -526,6 +444,166 @@ class Localizer:
         score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior)
         return score_curvature(states, score, state)
 
+    # ------------------------------------------------------------------ second look: flat roofs with eaves
+    def _flat_eaves_scene(self, model: CityModel) -> RenderScene | None:
+        """This localizer's scene with ``map_eaves_m`` of eaves on the flat roofs as well, when its config
+        asks for ``"auto"`` and some flat roof gets them."""
+        cfg = self.config
+        if cfg.map_eaves_flat_roofs != "auto" or not cfg.map_eaves_m > 0.0:
+            return None
+        return flat_eaves_scene(self.scene, model, cfg.map_eaves_m)
+
+    def _with_scene(self, scene: RenderScene) -> Localizer:
+        """This localizer searching ``scene`` instead (a shallow copy: the rest is shared)."""
+        other = copy.copy(self)
+        other.scene, other.flat_eaves_scene = scene, None
+        return other
+
+    def _look_with_flat_eaves(self, result, levels, seeds, cfg: LocalizerConfig, sigma, prior) -> None:
+        """``map_eaves_flat_roofs="auto"``: does the view fit the map with eaves on its flat roofs too?
+        Where the found pose scores higher on it by ``flat_eaves_gate``, the refinement runs again on that
+        map from the found pose and the search's hypotheses; its pose replaces the first when its semantic
+        score is higher by ``flat_eaves_margin``. Recorded in ``result.search["flat_roof_eaves"]``."""
+        t0 = time.perf_counter()
+        fine = levels[-1]
+        state = result.pose_local.to_xyz_rpy()
+        # result.semantic is already this pose's score on the plain map at the fine level (the refinement
+        # scores its estimate with score_states there): one render, not two.
+        _, flat, _ = score_states(self.flat_eaves_scene, fine, state[None], self.class_on, cfg.refine, prior)
+        look = {"gain_at_found": float(flat[0] - result.semantic), "used": False}
+        result.search["flat_roof_eaves"] = look
+        result.counts["refine_evaluations"] += 1
+        if look["gain_at_found"] > cfg.flat_eaves_gate:
+            trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
+            other = self._with_scene(self.flat_eaves_scene)
+            other._refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
+            result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
+            look["gain"] = float(trial.semantic - result.semantic)
+            moved = trial.pose_local.to_xyz_rpy() - state
+            look["moved_m"] = float(np.linalg.norm(moved[:3]))
+            if look["gain"] > cfg.flat_eaves_margin:
+                look["used"] = True
+                for name in (
+                    "pose_local",
+                    "score",
+                    "semantic",
+                    "depth_cost",
+                    "covariance",
+                    "score_curvature",
+                ):
+                    setattr(result, name, getattr(trial, name))
+                result.confidence.update(
+                    spread_m=trial.confidence["spread_m"], spread_deg=trial.confidence["spread_deg"]
+                )
+        result.timings["flat_eaves_s"] = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ acceptance
+    def _decide(
+        self,
+        result: LocalizationResult,
+        camera: Camera,
+        fine: ScoringLevel,
+        prior_state: np.ndarray,
+        cfg: LocalizerConfig,
+        unc: PriorUncertainty,
+        building_fraction: float,
+    ) -> tuple[bool, str]:
+        """Is the found pose accepted, and the reason if not? The evidence goes into ``result.confidence``
+        and ``result.warnings`` first: the map at the pose against the query (``agreement.py``), the
+        query's building share, the distance from the prior. Then the calibrated probability is held
+        against ``min_confidence`` (at least ``min_confidence_close_view`` for a close view), or with
+        ``acceptance="thresholds"`` the scores against the first design's gates (``_accept``)."""
+        found_2d, found_depth = self.map_of(result).render_labels_and_depth(fine.camera, result.pose_local)
+        query_2d = fine.labels.reshape(fine.camera.height, fine.camera.width)
+        agreement = building_agreement(query_2d, found_2d)
+        result.confidence["building_iou"] = agreement.building_iou
+        result.confidence["unmapped_building_share"] = agreement.unmapped_share
+        result.confidence["unseen_building_share"] = agreement.unseen_share
+        result.warnings.extend(agreement.warnings())
+        result.confidence["boundary_distance_px"] = boundary_distance_px(query_2d, found_2d)
+        with_depth = fine.depth is not None
+        if with_depth:
+            result.confidence["depth_cost_agreed"] = agreed_depth_cost(
+                fine.labels, fine.depth, found_2d, found_depth, cfg.refine.depth_cap
+            )
+        result.confidence["building_fraction"] = building_fraction
+        result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
+        if cfg.acceptance != "calibrated":
+            return self._accept(result, cfg, with_depth), REASON_LOW_SCORE
+        p = confidence_model(self.confidence_kind, with_depth).probability(result)
+        result.confidence["probability"] = p
+        seen = found_depth[np.isfinite(found_depth)]
+        span = view_span_m(camera.hfov_deg, float(np.mean(seen)) if seen.size else 0.0)
+        result.confidence["view_span_m"] = span
+        needed = cfg.min_confidence
+        if is_close_view(span):
+            needed = max(needed, cfg.min_confidence_close_view)
+        result.confidence["min_probability"] = needed  # what this result was accepted or refused at
+        for warning in (field_of_view_warning(camera.hfov_deg), close_view_warning(span, needed)):
+            if warning is not None:
+                result.warnings.append(warning)
+        return p >= needed, REASON_LOW_CONFIDENCE
+
+    @staticmethod
+    def _accept(result: LocalizationResult, cfg: LocalizerConfig, with_depth: bool) -> bool:
+        """Is the evidence for the final pose strong enough (see ``LocalizerConfig`` thresholds)?"""
+        if result.confidence["building_iou"] < cfg.min_building_iou:
+            return False
+        if with_depth:
+            return result.semantic >= cfg.min_semantic_with_depth and result.depth_cost <= cfg.max_depth_cost
+        return result.semantic >= cfg.min_score
+
+    # ------------------------------------------------------------------ refused poses: a look beyond
+    def ring_beyond(
+        self, camera: Camera, query: Query, prior_state: np.ndarray, found_xy, cfg: LocalizerConfig, unc
+    ) -> tuple[Beyond | None, SearchVolume]:
+        """The best view of the ring beyond the cascade's reach (``cascade.look_beyond``) for ``query`` and
+        a pose found at ``found_xy`` (local x, y), with the volume it is around. ``_look_beyond`` uses it
+        on refused results; ``benchmarks/look_beyond.py`` on any."""
+        cc = cfg.cascade
+        volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
+        sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
+        q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
+        reach = reached_half(volume, cc)["xy"]
+        ring = look_beyond(
+            self.scene,
+            sweep_cam,
+            volume,
+            reach,
+            np.asarray(found_xy),
+            q_sweep,
+            self.class_on,
+            cc.sweep,
+            cc.beyond,
+        )
+        return ring, volume
+
+    def _look_beyond(self, result, camera, query, prior_state, cfg: LocalizerConfig, unc) -> None:
+        """For a refused result: does a view beyond the search's reach, distinct from the refused pose,
+        score higher than the sweep's best (``ring_beyond``)? Recorded in ``result.search["beyond"]``; if
+        so, a warning names the ``--prior-sigma`` that would search there. A hint, not a verdict: a prior
+        further off than stated does this, and so does a view whose map differs from the world (Berlin
+        seed 0: one of its three such refusals had a wrong prior)."""
+        cc = cfg.cascade
+        ring, volume = self.ring_beyond(
+            camera, query, prior_state, result.pose_local.to_xyz_rpy()[:2], cfg, unc
+        )
+        reach = reached_half(volume, cc)["xy"]
+        if ring is None:
+            return
+        sweep_best = result.search["sweep_best"]
+        higher = ring.score >= sweep_best + cc.beyond.margin
+        result.search["beyond"] = {**ring.as_dict(), "hypotheses": ring.hypotheses, "higher": bool(higher)}
+        if higher:
+            sigma = edge_sigma(["x+"], volume, cc)
+            result.search["beyond"]["sigma"] = sigma
+            result.warnings.append(
+                f"{BEYOND_WARNING}: a view {ring.offset_xy_m:.0f} m from the prior, beyond the searched "
+                f"+-{reach:.0f} m, scores {ring.score:.2f} against the best inside's {sweep_best:.2f}; if "
+                "the prior may be further off than its stated uncertainty, run again with --prior-sigma "
+                f"xy={sigma['xy']} (a map that differs from the world in view can do the same)"
+            )
+
     # ------------------------------------------------------------------ diagnostics
     def score_poses(
         self,
@@ -545,7 +623,7 @@ class Localizer:
         unc = prior_uncertainty if prior_uncertainty is not None else cfg.prior_uncertainty
         if not poses_local:
             raise ParameterError("score_poses needs at least one pose")
-        self._check_inputs(camera, poses_local[0] if prior_local is None else prior_local, semantic, depth)
+        check_query_inputs(camera, poses_local[0] if prior_local is None else prior_local, semantic, depth)
         query = Query.from_arrays(semantic, None if cfg.no_depth else depth, self.has_openings)
         query = Query(query.labels, usable_depth(query.depth)[0])
         fine_cam = self.fine_camera(camera, cfg)
@@ -585,15 +663,6 @@ class Localizer:
         return out.labels.reshape(shape), out.depth.reshape(shape)
 
     # ------------------------------------------------------------------ helpers
-    @staticmethod
-    def _accept(result: LocalizationResult, cfg: LocalizerConfig, with_depth: bool) -> bool:
-        """Is the evidence for the final pose strong enough (see ``LocalizerConfig`` thresholds)?"""
-        if result.confidence["building_iou"] < cfg.min_building_iou:
-            return False
-        if with_depth:
-            return result.semantic >= cfg.min_semantic_with_depth and result.depth_cost <= cfg.max_depth_cost
-        return result.semantic >= cfg.min_score
-
     def _finish(self, result: LocalizationResult, reason: str | None, t0: float) -> LocalizationResult:
         result.reason = reason
         if reason is not None:
@@ -601,223 +670,9 @@ class Localizer:
         result.timings["total_s"] = time.perf_counter() - t0
         return result
 
-    def _check_inputs(self, camera, prior, semantic, depth) -> None:
-        check_camera_and_prior(camera, prior)
-        shape = np.shape(semantic)
-        if len(shape) != 2 or 0 in shape:
-            raise ShapeError(f"semantic mask must be a non-empty (H, W) array, got shape {shape}")
-        labels = np.asarray(semantic)
-        if not np.issubdtype(labels.dtype, np.integer):
-            raise ShapeError(f"semantic mask must hold integer class ids, got dtype {labels.dtype}")
-        problem = invalid_class_ids(labels)
-        if problem is not None:
-            raise ShapeError(f"semantic mask: {problem}")
-        aspect_mask, aspect_cam = shape[1] / shape[0], camera.width / camera.height
-        if abs(aspect_mask / aspect_cam - 1) > 0.02:
-            raise ShapeError(
-                f"semantic mask {shape[1]}x{shape[0]} does not have the camera's aspect "
-                f"({camera.width}x{camera.height})"
-            )
-        if depth is not None:
-            dshape = np.shape(depth)
-            if len(dshape) != 2 or 0 in dshape:
-                raise ShapeError(f"depth must be a non-empty (H, W) array, got shape {dshape}")
-            dtype = np.asarray(depth).dtype
-            if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
-                raise ShapeError(f"depth must hold real numbers, got dtype {dtype}")
-            if abs((dshape[1] / dshape[0]) / aspect_mask - 1) > 0.02:
-                raise ShapeError(
-                    f"depth map {dshape[1]}x{dshape[0]} does not have the semantic mask's aspect "
-                    f"({shape[1]}x{shape[0]})"
-                )
-
-    def ground_below(self, prior_state: np.ndarray, unc: PriorUncertainty, cfg: LocalizerConfig) -> float:
-        """The lowest ground (local frame, m) under the area the search may move the camera over: the
-        lowest footprint bottom within the reached half-width (+ ``GROUND_MARGIN_M``) of the prior's x, y,
-        else the model's lowest; -inf for a model without buildings (no floor)."""
-        if not len(self._base):
-            return -math.inf
-        half = reached_half(search_volume(prior_state, unc, cfg.cascade), cfg.cascade)["xy"] + GROUND_MARGIN_M
-        near = np.all(np.abs(self._base[:, :2] - np.asarray(prior_state[:2])) <= half, axis=1)
-        return float(self._base[near, 2].min() if near.any() else self._base[:, 2].min())
-
-    def _geometry_near(
-        self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
-    ) -> bool:
-        """Does any building lie where the prior's view, widened by the search range, could see it? The
-        view is cast from the highest camera the search reaches (a prior metres above the ground sees a
-        few metres of it; the camera the search may find higher up sees more)."""
-        if not len(self._building_xy):
-            return False
-        corners_uv = np.array(
-            [
-                [0, 0],
-                [camera.width, 0],
-                [camera.width, camera.height],
-                [0, camera.height],
-                [camera.cx, camera.cy],
-            ],
-            dtype=np.float64,
-        )
-        rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv).T  # (3, 5)
-        centre = prior_local.center.copy()
-        if cfg.search == "cascade":
-            volume = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade)
-            centre[2] += reached_half(volume, cfg.cascade)["z"]
-        dz = self._ground_z - centre[2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(rays[2] * dz > 0, dz / rays[2], np.inf)
-        s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
-        pts = centre[:2, None] + rays[:2] * s
-        pts = np.concatenate([pts, centre[:2, None]], axis=1)
-        margin = search_half_xy(prior_local, cfg, unc) + 1.0
-        lo, hi = pts.min(1) - margin, pts.max(1) + margin
-        inside = np.all((self._building_xy >= lo) & (self._building_xy <= hi), axis=1)
-        return bool(inside.any())
-
     def _render_one(self, camera: Camera, pose_local: Pose, depth: bool = False):
         """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
         return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)
-
-
-def scene_key(config: LocalizerConfig) -> tuple:
-    """What of ``config`` decides its ``localizer_scene``: Localizers of configs with equal keys can share
-    one scene."""
-    return (config.map_eaves_m, config.map_eaves_flat_roofs == "on")
-
-
-def flat_eaves_scene(scene: RenderScene, model: CityModel, eaves_m: float) -> RenderScene | None:
-    """``scene`` (a render scene of ``model``: the localizer's, or a drawing's of the model as it is) with
-    ``eaves_m`` of eaves on every roof, the flat ones too: the map ``Localizer.map_of`` returns for a pose
-    ``map_eaves_flat_roofs="auto"`` took from its second look. One construction, so that a drawing of the
-    map at such a pose (the report, the overlays) shows the map it was scored on. None when no roof moves
-    (``render.scene.with_model_triangles``)."""
-    return eaves_scene(scene, model, eaves_m, flat_roofs=True)
-
-
-def eaves_scene(scene: RenderScene, model: CityModel, eaves_m: float, flat_roofs: bool) -> RenderScene | None:
-    """``scene`` (a render scene of ``model``) with its model triangles moved by ``with_eaves(model,
-    eaves_m, flat_roofs)``, its terrain and classes kept: the localizer's maps drawn on another scene of the
-    same model. None when no roof moves (``render.scene.with_model_triangles``)."""
-    moved = with_eaves(model, eaves_m, flat_roofs=flat_roofs)
-    return with_model_triangles(scene, moved.vertices[moved.triangles])
-
-
-def found_on_flat_eaves(flat_roofs: str, look: dict | None) -> bool:
-    """Was a pose found on the map with eaves on its flat roofs? Always with ``map_eaves_flat_roofs``
-    ``"on"``, never with ``"off"``, with ``"auto"`` where the second look took it: ``look`` is the
-    result's ``search["flat_roof_eaves"]`` (or a saved copy of it; None: no look was made)."""
-    return {"on": True, "off": False}.get(flat_roofs, bool((look or {}).get("used")))
-
-
-def localizer_scene(
-    model: CityModel, config: LocalizerConfig, terrain_ring: np.ndarray | None = None
-) -> RenderScene:
-    """The render scene a ``Localizer`` with ``config`` searches: the map with ``config.map_eaves_m`` of
-    eaves on its pitched roofs (``citymodel.eaves``); build it once to share among Localizers of the
-    same eaves. ``terrain_ring``: a tile store's terrain border (``render.scene.build_scene``)."""
-    return build_scene(
-        with_eaves(model, config.map_eaves_m, config.map_eaves_flat_roofs == "on"), terrain_ring=terrain_ring
-    )
-
-
-def reached_half(volume: SearchVolume, config: CascadeConfig) -> dict[str, float]:
-    """The half-widths per ``--prior-sigma`` key (``xy``, ``z`` m; ``yaw`` deg) of ``volume`` grown by its
-    largest extension: how far from the prior the cascade may search."""
-    grown = 1.0 + config.sweep.max_extensions * config.sweep.extension
-    return {"xy": grown * volume.half_xy_m, "z": grown * volume.half_z_m, "yaw": grown * volume.half_yaw_deg}
-
-
-def edge_sigma(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> dict[str, int]:
-    """The prior sigma per ``--prior-sigma`` key of the ``edges`` (``["z-"]``) the best hypothesis stayed on
-    at the volume's largest extension: the one whose volume starts at twice the bound that was reached
-    (``n_sigma`` sigmas = 2 x ``reached_half``)."""
-    half = reached_half(volume, config)
-    axes = dict.fromkeys("xy" if e.rstrip("+-") in ("x", "y") else e.rstrip("+-") for e in edges)
-    return {a: math.ceil(2.0 * half[a] / config.n_sigma) for a in axes}
-
-
-def edge_warning(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> str:
-    """What a user should do when the best hypothesis stayed on the search volume's ``edges``: state the
-    ``edge_sigma``, or correct the prior."""
-    half = reached_half(volume, config)
-    sigma = edge_sigma(edges, volume, config)
-    reached = ", ".join(f"{a} +-{half[a]:.0f} {'deg' if a == 'yaw' else 'm'}" for a in sigma)
-    return (
-        f"the best hypothesis stayed on the search volume's {' '.join(edges)} edge at its largest extent "
-        f"({reached} around the prior): the prior is further off than its stated uncertainty; run again "
-        f"with --prior-sigma {','.join(f'{a}={v}' for a, v in sigma.items())} or correct the prior"
-    )
-
-
-def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
-    """How far (m, in x and in y) the search may move the camera from the prior: the grid's range, or the
-    cascade's volume grown by its largest extension."""
-    if cfg.search == "grid":
-        pre = cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0
-        return (cfg.coarse.range_xy_m + pre) / 2
-    return reached_half(search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade), cfg.cascade)["xy"]
-
-
-def config_or_preset(config: LocalizerConfig | str | None) -> LocalizerConfig:
-    """A ``LocalizerConfig`` from a config, a preset name (``config.PRESETS``) or None (the default)."""
-    if config is None:
-        return LocalizerConfig()
-    if isinstance(config, str):
-        return LocalizerConfig.preset(config)
-    if not isinstance(config, LocalizerConfig):
-        raise ParameterError(
-            f"config must be a LocalizerConfig or a preset name, got {type(config).__name__}"
-        )
-    return config
-
-
-def check_camera_and_prior(camera: Camera, prior: Pose) -> None:
-    """Typed errors for the inputs every localizer shares (this one and the baselines)."""
-    if not isinstance(camera, Camera):
-        raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
-    check_query_camera(camera)
-    if not isinstance(prior, Pose) or prior.batch_shape:
-        raise PoseError("prior must be a single Pose (cam_from_world)")
-
-
-def check_query_camera(camera: Camera) -> None:
-    """A query camera's intrinsics must describe a photo: the principal point inside the image and a field
-    of view between ``MIN_FOV_DEG`` and ``MAX_FOV_DEG`` on both axes. Why: the search renders a wide view
-    covering every rotation it tries (``coarse.rotation_lookup``); intrinsics off by orders of magnitude
-    (a focal length in mm given as pixels, a principal point in another image's pixels) would make that
-    view millions of pixels wide and exhaust the memory instead of failing."""
-    if not (0.0 <= camera.cx <= camera.width and 0.0 <= camera.cy <= camera.height):
-        raise CameraError(
-            f"principal point ({camera.cx:g}, {camera.cy:g}) lies outside the {camera.width}x{camera.height} "
-            "image: are the intrinsics for this image size?"
-        )
-    for axis, fov in (("horizontal", camera.hfov_deg), ("vertical", camera.vfov_deg)):
-        if not MIN_FOV_DEG <= fov <= MAX_FOV_DEG:
-            raise CameraError(
-                f"{axis} field of view {fov:.3g} deg (fx={camera.fx:g}, fy={camera.fy:g} px for a "
-                f"{camera.width}x{camera.height} image) is outside [{MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}] deg: "
-                "focal lengths must be in pixels of this image"
-            )
-
-
-def prior_distance(pose_local: Pose, prior_state: np.ndarray, unc: PriorUncertainty) -> float:
-    """How many sigmas of the prior's uncertainty the pose is from the prior (Mahalanobis distance over
-    x, y, z and yaw): a pose found far out in the search volume is a priori less likely to be right."""
-    d = pose_local.to_xyz_rpy() - np.asarray(prior_state, dtype=np.float64)
-    d[5] = (d[5] + 180.0) % 360.0 - 180.0
-    sig = np.array([unc.xy_m, unc.xy_m, unc.z_m, unc.yaw_deg])
-    v = d[[0, 1, 2, 5]] / np.maximum(sig, 1e-6)
-    return float(np.sqrt(np.sum(v * v)))
-
-
-def prior_term(prior_state: np.ndarray, cfg: LocalizerConfig, unc: PriorUncertainty) -> PriorTerm | None:
-    """The prior's roll/pitch penalty of the cascade's refinement (None when switched off)."""
-    if cfg.refine.prior_roll_pitch_weight <= 0 or unc.roll_pitch_deg <= 0:
-        return None
-    rp = unc.roll_pitch_deg
-    sigma = np.array([np.inf, np.inf, np.inf, rp, rp, np.inf])
-    return PriorTerm(prior_state, sigma, cfg.refine.prior_roll_pitch_weight)
 
 
 def _median_seen(depth: np.ndarray) -> float:

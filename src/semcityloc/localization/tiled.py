@@ -4,7 +4,7 @@ Why: a city of hundreds of tiles does not fit a render scene, and a photo sees a
 each query ``TiledMethod`` computes the **reach** of its search (``reach_radius``): the horizontal distance
 at which the camera's most oblique ray meets the ground (tilted further by the search's roll/pitch range,
 from the highest camera the search volume allows, capped at ``camera_range_m``), plus how far the search
-may move the camera (``localize.search_half_xy``), plus ``TERRAIN_MARGIN_M`` so that the terrain the
+may move the camera (``search_reach.search_half_xy``), plus ``TERRAIN_MARGIN_M`` so that the terrain the
 renderer triangulates through the building bases is the same in view as with the whole city (its border
 ring is the whole city's too: ``TileStore.terrain_ring``; baselines get their part's own). The tiles
 holding a building within that disc (``TileStore.tiles_within``) are merged into one model in the store's
@@ -33,9 +33,11 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import MAX_VIEW_RANGE_M, localizer_scene, search_half_xy
+from semcityloc.localization.localize import MAX_VIEW_RANGE_M
+from semcityloc.localization.map_scenes import localizer_scene
 from semcityloc.localization.methods import LocalizerMethod, Method, QueryRecord, get_method, method_factory
 from semcityloc.localization.result import LocalizationResult
+from semcityloc.localization.search_reach import search_half_xy
 
 # Beyond the view: the terrain TIN near the edge of the loaded buildings differs from the whole city's.
 TERRAIN_MARGIN_M = 100.0

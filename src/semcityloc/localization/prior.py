@@ -1,0 +1,37 @@
+"""What the prior counts for besides the volume it spans (``cascade.search_volume``): a penalty on the
+refinement's roll and pitch, and how far a found pose lies from it.
+
+Why: the image alone barely tells a nadir camera's tilt from a sideways shift, the gimbal's IMU does, so
+the cascade's refinement pays for leaving the prior's roll and pitch (``prior_term``, a ``refine.PriorTerm``
+weighted by ``RefineConfig.prior_roll_pitch_weight``). And a pose found far out in the search volume is a
+priori less likely to be right: its distance in sigmas (``prior_distance``) is an acceptance feature
+(``confidence.FEATURE_SIGNS``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.refine import PriorTerm
+
+
+def prior_term(prior_state: np.ndarray, cfg: LocalizerConfig, unc: PriorUncertainty) -> PriorTerm | None:
+    """The prior's roll/pitch penalty of the cascade's refinement (None when switched off)."""
+    if cfg.refine.prior_roll_pitch_weight <= 0 or unc.roll_pitch_deg <= 0:
+        return None
+    rp = unc.roll_pitch_deg
+    sigma = np.array([np.inf, np.inf, np.inf, rp, rp, np.inf])
+    return PriorTerm(prior_state, sigma, cfg.refine.prior_roll_pitch_weight)
+
+
+def prior_distance(pose_local: Pose, prior_state: np.ndarray, unc: PriorUncertainty) -> float:
+    """How many sigmas of the prior's uncertainty the pose is from the prior (Mahalanobis distance over
+    x, y, z and yaw): a pose found far out in the search volume is a priori less likely to be right."""
+    d = pose_local.to_xyz_rpy() - np.asarray(prior_state, dtype=np.float64)
+    d[5] = (d[5] + 180.0) % 360.0 - 180.0
+    sig = np.array([unc.xy_m, unc.xy_m, unc.z_m, unc.yaw_deg])
+    v = d[[0, 1, 2, 5]] / np.maximum(sig, 1e-6)
+    return float(np.sqrt(np.sum(v * v)))
