@@ -675,7 +675,7 @@ def iter_citygml_polygons(
 def read_citygml(
     path: str | Path,
     lod: int | str | None = None,
-    target_crs: pyproj.CRS | None = None,
+    target_crs: pyproj.CRS | str | None = None,
     crs_override: str | None = None,
     origin: np.ndarray | None = None,
 ) -> CityModel:

@@ -1,8 +1,8 @@
 """Named configuration presets of the localizer (hloc-style: a dict of named, documented presets).
 
-Every number the search uses lives here; ``LocalizerConfig.preset(name)`` returns a copy to tweak, and
-``config_or_preset`` turns what a localizer's ``config`` argument may be (a config, a preset's name, None)
-into a config.
+Every number the search uses lives here; ``LocalizerConfig.preset(name)`` returns a preset (frozen: tweak
+it with ``dataclasses.replace``), and ``config_or_preset`` turns what a localizer's ``config`` argument may
+be (a config, a preset's name, None) into a config.
 
 Two searches share the refinement and the scores:
 
@@ -10,8 +10,8 @@ Two searches share the refinement and the scores:
   uncertainty (``geometry.uncertainty.PriorUncertainty``, ``n_sigma`` of it per component); a sweep of
   the whole volume at low resolution (``SweepConfig``), extended when its best cell lies on the volume's
   edge; local grids at a finer resolution with roll and pitch samples around the sweep's best distinct
-  cells (``LocalConfig``); the best distinct local hypotheses refined separately by the particle filter
-  and the one with the best final score kept; a calibrated confidence decides acceptance.
+  cells (``LocalConfig``); one particle filter seeded by the best distinct local hypotheses, and a
+  narrow polish of its best particle (``RefineConfig``); a calibrated confidence decides acceptance.
 - ``search="grid"`` (the first design, preset ``legacy``): one uniform 4D grid of fixed size around the
   prior (``CoarseConfig``), roll and pitch held at the prior's, the best cells seeding one particle
   filter, hand-set acceptance thresholds. Kept to measure the new design against on the same queries.
