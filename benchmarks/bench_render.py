@@ -40,7 +40,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from semcityloc.citymodel.generator import footprints_to_model, generate_footprints, tile_model
+from semcityloc.citymodel.generator import footprints_to_model, tile_model
+from semcityloc.citymodel.generator_footprints import generate_footprints
 from semcityloc.citymodel.model import CityModel
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose

@@ -38,7 +38,8 @@ def _grid(n: int) -> list[tuple[int, int]]:
 
 
 def _tile_path(work: Path, i: int, j: int) -> Path:
-    from semcityloc.citymodel.generator import DEFAULT_ORIGIN, generate_city  # the parent's job only
+    from semcityloc.citymodel.generator import generate_city  # the parent's job only
+    from semcityloc.citymodel.generator_footprints import DEFAULT_ORIGIN  # the parent's job only
 
     path = work / "all_tiles" / f"tile_{i:+03d}_{j:+03d}.gml"
     if not path.exists():

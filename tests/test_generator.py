@@ -11,19 +11,15 @@ import numpy as np
 import pytest
 from lxml import etree
 
+from semcityloc.citymodel.citygml_writer import BLDG_NS, CORE_NS, GML_NS, XLINK_NS
 from semcityloc.citymodel.generator import (
-    BLDG_NS,
-    CORE_NS,
-    GML_NS,
-    XLINK_NS,
-    Footprint,
     GeneratorParameterError,
-    building_surfaces,
     default_city_path,
     footprints_to_model,
     generate_city,
-    generate_footprints,
 )
+from semcityloc.citymodel.generator_footprints import Footprint, generate_footprints
+from semcityloc.citymodel.generator_surfaces import building_surfaces
 from semcityloc.citymodel.triangulate import newell_normal, polygon_area
 from semcityloc.errors import CRSError, InputFileError, SemCityLocError
 

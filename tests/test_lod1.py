@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from semcityloc.citymodel import lod1 as lod1_module
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.crs import parse_crs_name
-from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
+from semcityloc.citymodel.generator import footprints_to_model
+from semcityloc.citymodel.generator_footprints import generate_footprints
 from semcityloc.citymodel.lod1 import HEIGHT_MODES, Lod1ParameterError, derive_lod1, roof_median_height
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass as C

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from semcityloc.citymodel.builder import MeshBuilder
-from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
+from semcityloc.citymodel.generator import footprints_to_model
+from semcityloc.citymodel.generator_footprints import generate_footprints
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import EmptyModelError, RenderError, ShapeError

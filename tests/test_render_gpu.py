@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
+from semcityloc.citymodel.generator import footprints_to_model
+from semcityloc.citymodel.generator_footprints import generate_footprints
 from semcityloc.errors import RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcityloc.citymodel.generator import footprints_to_model, generate_footprints
+from semcityloc.citymodel.generator import footprints_to_model
+from semcityloc.citymodel.generator_footprints import generate_footprints
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE, SemanticClass
 from semcityloc.errors import ParameterError
