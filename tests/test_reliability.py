@@ -43,6 +43,7 @@ from semcityloc.io.images import check_aspect_of_photo, exif_orientation, read_m
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.query import (
+    COARSE_MASK_WARNING,
     depth_problem,
     depth_rank_correlation,
     inverted_depth_warning,
@@ -217,6 +218,21 @@ def test_depth_that_runs_backwards_is_dropped_with_a_warning_naming_it(nadir, in
     assert result.confidence["probability"] == pytest.approx(semantic_only.confidence["probability"])
     kept = localizer.localize(CAMERA, prior, labels, 0.5 * depth + 7.0)  # depth the right way round is used
     assert not kept.warnings and kept.depth_cost > 0.0
+
+
+def test_a_mask_coarser_than_the_refinement_is_told_not_silently_enlarged(nadir):
+    """A mask of 64 x 48 (a network run at low resolution) is enlarged to the refinement's 128 x 96: the pose
+    can be no finer than its pixels and the acceptance was fitted on 512 x 384 masks. The result says so,
+    naming both sizes; a mask at the refinement's size or finer says nothing of it."""
+    localizer, _, prior, labels, _, semantic_only = nadir
+    coarse = localizer.localize(CAMERA, prior, labels[::8, ::8])
+    (warning,) = [w for w in coarse.warnings if w.startswith(COARSE_MASK_WARNING)]
+    fine = localizer.fine_camera(CAMERA)
+    assert f"(64x48 against {fine.width}x{fine.height})" in warning
+    assert coarse.status == LOCALIZED, coarse.reason
+    at_refinement = localizer.localize(CAMERA, prior, labels[::4, ::4])
+    assert (fine.width, fine.height) == (128, 96)
+    assert not any(w.startswith(COARSE_MASK_WARNING) for w in at_refinement.warnings + semantic_only.warnings)
 
 
 def test_the_first_designs_grid_search_drops_backwards_depth_too(city, nadir):

@@ -68,6 +68,7 @@ from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
 from semcityloc.localization.prior import prior_distance, prior_term
 from semcityloc.localization.query import (
     Query,
+    coarse_mask_warning,
     depth_rank_correlation,
     inverted_depth_warning,
     usable_depth,
@@ -168,6 +169,10 @@ class Localizer:
         prior_state = prior_local.to_xyz_rpy()
 
         result = LocalizationResult(status=NOT_LOCALIZED)
+        fine_camera = self.fine_camera(camera, cfg)
+        warning = coarse_mask_warning(np.shape(semantic), fine_camera.width, fine_camera.height)
+        if warning is not None:
+            result.warnings.append(warning)
         depth, warning = usable_depth(query.depth)  # noise blocks dropped; unusable depth: semantics alone
         if warning is not None:
             query = Query(query.labels, depth)

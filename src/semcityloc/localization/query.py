@@ -206,6 +206,24 @@ def inverted_depth_warning(rank_correlation: float) -> str | None:
     )
 
 
+COARSE_MASK_WARNING = "semantic mask coarser than the refinement"
+
+
+def coarse_mask_warning(mask_shape: tuple[int, int], fine_width: int, fine_height: int) -> str | None:
+    """The warning for a mask with fewer pixels across or down than the refinement's final level
+    (``fine_width`` x ``fine_height``, ``Localizer.fine_camera``), else None. Why: the refinement and the
+    acceptance read the mask at that level, so a coarser mask is enlarged to it; the pose can be no finer
+    than the mask's pixels, and the acceptance probability was fitted on masks of 512 x 384."""
+    height, width = mask_shape
+    if width >= fine_width and height >= fine_height:
+        return None
+    return (
+        f"{COARSE_MASK_WARNING} ({width}x{height} against {fine_width}x{fine_height}): the pose is no finer "
+        "than the mask's pixels and its probability was fitted on finer masks; give the mask at the photo's "
+        "resolution or at least the refinement's"
+    )
+
+
 @dataclass(frozen=True)
 class BlockMeasures:
     """Per block of a depth map (``block_measures``): (rows, cols) roughness and relative step over the
