@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import zipfile
 
 import numpy as np
 import pytest
@@ -70,6 +71,30 @@ def test_sniffing_errors(tmp_path):
     (tmp_path / "tiles").mkdir()  # stop 45's audit: a folder was called "no such file"
     with pytest.raises(InputFileError, match="tiles: a folder, not a city model file"):
         io.load_city_model(tmp_path / "tiles")
+
+
+def test_a_zip_archive_is_refused_naming_the_city_models_inside(lod2, tmp_path):
+    """Geoportals ship tiles as ZIP archives; handed over as they come, one gave "not CityGML, CityJSON or
+    OBJ (starts with b'PK...')". Now the message says it is an archive and which model files it holds (its
+    listing only: nothing is decompressed), and tells what to do."""
+    archive = tmp_path / "tile.zip"
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as z:
+        z.write(lod2, f"LoD2/{lod2.name}")
+        z.writestr(f"__MACOSX/LoD2/._{lod2.name}", b"\x00resource fork")
+        z.writestr("LoD2/readme.txt", "terms of use")
+    with pytest.raises(
+        UnsupportedFormatError,
+        match=rf"a ZIP archive, not a city model file; it holds LoD2/{lod2.name}: extract",
+    ):
+        io.load_city_model(archive, cache=False)
+    empty = tmp_path / "docs.zip"
+    with zipfile.ZipFile(empty, "w") as z:
+        z.writestr("readme.txt", "nothing")
+    with pytest.raises(UnsupportedFormatError, match="a ZIP archive without a CityGML, CityJSON or OBJ file"):
+        io.load_city_model(empty, cache=False)
+    (tmp_path / "cut.zip").write_bytes(b"PK\x03\x04" + b"\x00" * 20)  # a download cut short
+    with pytest.raises(UnsupportedFormatError, match="a damaged ZIP archive"):
+        io.load_city_model(tmp_path / "cut.zip", cache=False)
 
 
 def test_a_file_is_hashed_once_until_it_changes(tmp_path, monkeypatch):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -245,6 +246,24 @@ def test_a_broken_or_empty_tile_is_left_out_naming_it_and_the_rest_is_built(tmp_
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store2")]) == 2
     err = capsys.readouterr().err
     assert "no tile can be read (2 tried" in err and err.count("\n") == 1
+
+
+def test_a_zip_archive_in_the_folder_is_named_not_passed_over(tmp_path, capsys):
+    """Geoportals ship tiles zipped. A folder of archives gave "no CityGML or CityJSON files in it", and an
+    archive beside extracted tiles was passed over silently: now each is left out naming what it holds."""
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    gml = generate_city(tmp_path / "gen", seed=2, lods=(2,))[2]
+    with zipfile.ZipFile(tiles / "east.zip", "w", zipfile.ZIP_DEFLATED) as z:
+        z.write(gml, "east/tile.gml")
+    assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "none")]) == 2
+    err = capsys.readouterr().err
+    assert "no tile can be read (1 tried" in err and "a ZIP archive" in err and "east/tile.gml" in err
+    (tiles / "west.gml").write_bytes(gml.read_bytes())
+    assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store")]) == 0
+    out, err = capsys.readouterr()
+    assert "1 tiles left out" in out and "tile left out:" in err and "east.zip: a ZIP archive" in err
+    assert [t.name for t in TileStore.open(tmp_path / "store").tiles] == ["west.gml"]
 
 
 def test_merged_tiles_keep_their_readers_warnings_naming_the_file(tmp_path):

@@ -11,6 +11,7 @@ import gzip
 import hashlib
 import json
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +35,35 @@ def default_cache_dir() -> Path:
     return cache_root() / "models"
 
 
+ZIP_MAGIC = b"PK\x03\x04"
+# What a geoportal's archive may hold that the readers take (``__MACOSX/`` resource forks left out).
+_MODEL_SUFFIXES = (".gml", ".xml", ".gml.gz", ".json", ".city.json", ".obj")
+
+
+def zip_message(path: Path) -> str:
+    """Why a ZIP archive is refused, naming the city model files it holds (its central directory only: the
+    members are not decompressed, so a hostile archive costs nothing here)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = [
+                n
+                for n in archive.namelist()
+                if n.lower().endswith(_MODEL_SUFFIXES) and not n.startswith("__MACOSX/")
+            ]
+    except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        return f"{path}: a damaged ZIP archive ({exc}), not a city model file"
+    if not names:
+        return f"{path}: a ZIP archive without a CityGML, CityJSON or OBJ file in it"
+    shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    return (
+        f"{path}: a ZIP archive, not a city model file; it holds {shown}: extract it and pass one of them "
+        "(several tiles of a city: their folder to `semcityloc tiles build`)"
+    )
+
+
 def sniff_format(path: Path) -> str:
-    """``citygml``, ``cityjson``, ``obj`` or ``npz``, from the first bytes of the file."""
+    """``citygml``, ``cityjson``, ``obj``, ``npz`` or ``zip`` (an archive, which ``load_city_model`` refuses
+    naming what it holds), from the first bytes of the file."""
     name = path.name.lower()
     if name.endswith(".npz"):
         return "npz"
@@ -45,6 +73,8 @@ def sniff_format(path: Path) -> str:
             head = fh.read(4096)
     except OSError as exc:
         raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if head.startswith(ZIP_MAGIC):
+        return "zip"
     text = head.lstrip(b"\xef\xbb\xbf").lstrip()
     if text.startswith(b"<"):
         return "citygml"
@@ -108,6 +138,8 @@ def load_city_model(
     if not path.is_file():
         raise InputFileError(f"{path}: no such file")
     fmt = sniff_format(path)
+    if fmt == "zip":
+        raise UnsupportedFormatError(zip_message(path))
     if fmt == "npz":
         return CityModel.load_npz(path)
 

@@ -100,7 +100,8 @@ def _root(path: str | Path) -> Path:
 
 
 def tile_files(folder: Path) -> list[Path]:
-    """The CityGML / CityJSON files below ``folder`` (by content), sorted by relative path."""
+    """The CityGML / CityJSON files below ``folder`` (by content), and its ZIP archives (which the build
+    leaves out, naming the files to extract), sorted by relative path."""
     out = []
     for p in sorted(folder.rglob("*")):
         if not p.is_file() or p.name.startswith("."):
@@ -109,7 +110,7 @@ def tile_files(folder: Path) -> list[Path]:
             fmt = sniff_format(p)
         except InputFileError:
             continue
-        if fmt in TILE_FORMATS:
+        if fmt in TILE_FORMATS or fmt == "zip":  # an archive is left out by the build, saying what it holds
             out.append(p)
     return out
 
