@@ -55,6 +55,9 @@ done
 for C in delft rotterdam_subset; do
   $S benchmark --city $DATA/cityjson_nl/$C.json --queries 100 --workers 2 --out "$R/other_$C"
 done
+for C in Opera-Lyon_CityGML3.0_LOD2_with_xAL3_FreeText 53394517_bldg_6697_2_op_CityGML3; do  # stop 49
+  $S benchmark --city $DATA/citygml3/$C.gml --queries 100 --workers 2 --out "$R/other_${C%%_*}"
+done
 set -f  # the knob values hold [ ]: no file-name globbing of them
 for KV in "as_is" "imu2 prior_roll_pitch_sigma_deg=2 prior_roll_pitch_deg=5" \
     "depth2 depth_model.distortion=0.2 depth_model.noise=[0.05,0.1]" \
