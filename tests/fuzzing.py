@@ -39,7 +39,7 @@ from semcityloc.citymodel.export import export_model
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.datasets.colmap import read_model, write_model
-from semcityloc.datasets.dji import read_dji_metadata
+from semcityloc.datasets.dji_metadata import read_dji_metadata
 from semcityloc.datasets.geotags import read_geotags_csv
 from semcityloc.datasets.lodloc import read_split
 from semcityloc.errors import SemCityLocError

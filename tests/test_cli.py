@@ -376,7 +376,8 @@ def exif_view(city_paths, tmp_path_factory):
     25 mm equivalent focal length), its mask and depth, and a prior 6 m / 4 deg off."""
     from dji_photo import dji_jpeg
     from semcityloc.citymodel.io import load_city_model
-    from semcityloc.datasets.dji import camera_from_exif, read_dji_metadata
+    from semcityloc.datasets.dji_camera import camera_from_exif
+    from semcityloc.datasets.dji_metadata import read_dji_metadata
 
     root = tmp_path_factory.mktemp("exif_view")
     photo = dji_jpeg(root / "view.jpg", None, size=(512, 384), focal_35mm=25)

@@ -9,24 +9,20 @@ import pyproj
 import pytest
 
 from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
-from semcityloc.datasets import dji
+from semcityloc.datasets import geodesy
 from semcityloc.datasets.dji import (
     BAROMETRIC_UNCERTAINTY_M,
-    GEOID_UNDULATION_BOUND_M,
     HEIGHT_AS_IS_NOTE,
     HEIGHT_BAROMETRIC,
     HEIGHT_ELLIPSOIDAL,
     RTK_FLOAT_FLOOR_M,
-    calibrated_intrinsics,
-    camera_from_exif,
-    dewarp_lens,
     dji_geotag,
     dji_prior,
-    grid_convergence_deg,
-    parse_xmp_fields,
     prior_uncertainty,
-    read_dji_metadata,
 )
+from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
+from semcityloc.datasets.dji_metadata import parse_xmp_fields, read_dji_metadata
+from semcityloc.datasets.geodesy import GEOID_UNDULATION_BOUND_M, grid_convergence_deg
 from semcityloc.datasets.lodloc import read_lodloc
 from semcityloc.errors import CRSError, InputFileError, ParameterError
 from semcityloc.geometry.distortion import LensDistortion
@@ -119,7 +115,7 @@ def test_a_second_photo_reuses_the_crs_transformations_and_gets_the_same_prior(t
     if crs == "CRS object":
         crs = pyproj.CRS.from_user_input("EPSG:25832+7837")
     meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
-    caches = (dji._transformer_group, dji._from_wgs84)
+    caches = (geodesy._transformer_group, geodesy._from_wgs84)
     for cache in caches:
         cache.cache_clear()
     first = dji_prior(meta, crs)

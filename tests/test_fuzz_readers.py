@@ -26,7 +26,7 @@ from fuzzing import CRASH, SHARED_DATA, TARGETS, Fuzzer, real_seeds
 from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.datasets.colmap import read_images_text, read_points3D_text
-from semcityloc.datasets.dji import read_dji_metadata
+from semcityloc.datasets.dji_metadata import read_dji_metadata
 from semcityloc.errors import CameraError, EmptyModelError, InputFileError, MalformedCityJSONError, PoseError
 from semcityloc.geometry.io import read_intrinsics, read_pose
 from semcityloc.io.images import load_image, read_depth_file, read_mask_file
@@ -128,7 +128,7 @@ def test_an_exif_gps_hemisphere_that_is_no_letter_is_typed(tmp_path, monkeypatch
     an AttributeError from ``str.strip`` before; now the GPS block is unreadable, typed. Pillow will not
     write such a tag, so the photo's GPS block is given it on reading."""
     from dji_photo import dji_jpeg
-    from semcityloc.datasets import dji
+    from semcityloc.datasets import dji_metadata
 
     path = dji_jpeg(tmp_path / "DJI_0001.JPG", gps=(-52.5, 13.4, 80.0))
     assert read_dji_metadata(path).latitude == pytest.approx(-52.5, abs=1e-6)
@@ -141,7 +141,7 @@ def test_an_exif_gps_hemisphere_that_is_no_letter_is_typed(tmp_path, monkeypatch
     monkeypatch.setattr(Image.Exif, "get_ifd", odd_gps)
     with pytest.raises(InputFileError, match="unreadable EXIF GPS block"):
         read_dji_metadata(path)
-    assert dji._dms((52.0, 30.0, 0.0), b"S", "S") == -52.5  # a byte string is read as its letter
+    assert dji_metadata._dms((52.0, 30.0, 0.0), b"S", "S") == -52.5  # a byte string is read as its letter
 
 
 def test_colmap_ids_beyond_int64_and_colours_beyond_a_byte_are_typed(tmp_path):

@@ -37,7 +37,8 @@ from semcityloc.classes import IGNORE
 from semcityloc.cli.main import main
 from semcityloc.datasets import photos
 from semcityloc.datasets.colmap import read_model
-from semcityloc.datasets.dji import camera_from_exif, read_dji_metadata
+from semcityloc.datasets.dji_camera import camera_from_exif
+from semcityloc.datasets.dji_metadata import read_dji_metadata
 from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
 from semcityloc.datasets.photos import INTRINSICS_35MM
 from semcityloc.geometry.camera import Camera

@@ -6,10 +6,10 @@ with ETA, workers, details), so a run of a thousand photos can be stopped and co
 
 Per photo (``datasets.photos`` matches files to photos by name):
 
-- intrinsics: ``exif`` (DJI's calibration with its lens distortion, ``dji.dewarp_lens``, else DJI's
-  calibration tags, else the 35 mm-equivalent focal length, ``dji.camera_from_exif``) by default, or a
-  calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all); with lens
-  distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
+- intrinsics: ``exif`` (DJI's calibration with its lens distortion, ``dji_camera.dewarp_lens``, else
+  DJI's calibration tags, else the 35 mm-equivalent focal length, ``dji_camera.camera_from_exif``) by
+  default, or a calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all); with
+  lens distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
   uses them (``PhotoInput.pinhole``); a camera whose focal length is the approximate 35 mm one gets the
   one its flight's oblique photos prefer (``calibrate_focal``, ``localization.focal``; computed with the
   inputs, once per run, and read back on resume or a repeated run: ``benchmark.focal_cache``);
@@ -78,7 +78,8 @@ from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.classes import IGNORE
-from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS, check_geoid_separation
+from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
+from semcityloc.datasets.geodesy import check_geoid_separation
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.datasets.photos import (
     EXIF,

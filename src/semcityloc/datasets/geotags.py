@@ -33,7 +33,9 @@ from pathlib import Path
 
 import pyproj
 
-from semcityloc.datasets.dji import DjiGeotag, finite_number, horizontal_crs
+from semcityloc.datasets.dji import DjiGeotag
+from semcityloc.datasets.dji_metadata import finite_number
+from semcityloc.datasets.geodesy import horizontal_crs
 from semcityloc.errors import CRSError, InputFileError
 from semcityloc.geometry.uncertainty import PriorUncertainty
 

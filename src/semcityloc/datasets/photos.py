@@ -7,14 +7,14 @@ per-photo information in whatever form they come with. This module matches each 
 
 - poses (``PoseFiles``): a COLMAP ``images.txt`` (or any file ``geometry.io.read_poses`` reads) or a
   folder of LoD-Loc ``<stem>_pose.txt`` (4x4 camera-to-world), in the model's CRS / frame;
-- intrinsics (``IntrinsicsFiles``): ``exif`` (``dji.dewarp_lens``: DJI's calibration with lens distortion,
-  else ``dji.camera_from_exif``: DJI's calibration tags, else the 35 mm-equivalent focal length of the
-  photo's EXIF), one file for every photo (LoD-Loc
-  ``*_intrinsic.txt``, COLMAP line, JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids
-  from the ``images.txt`` of the poses) or a folder of ``<stem>_intrinsic.txt``. The photo's own size
-  always wins (intrinsics of another size are rescaled). A calibration with lens distortion (COLMAP
-  ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``, JSON ``k1 k2 p1 p2 k3``) comes with it (``PhotoCamera``):
-  the photo and its mask and depth are then resampled onto the pinhole camera (``geometry.distortion``);
+- intrinsics (``IntrinsicsFiles``): ``exif`` (``dji_camera.dewarp_lens``: DJI's calibration with lens
+  distortion, else ``dji_camera.camera_from_exif``: DJI's calibration tags, else the 35 mm-equivalent
+  focal length of the photo's EXIF), one file for every photo (LoD-Loc ``*_intrinsic.txt``, COLMAP line,
+  JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids from the ``images.txt`` of the poses)
+  or a folder of ``<stem>_intrinsic.txt``. The photo's own size always wins (intrinsics of another size
+  are rescaled). A calibration with lens distortion (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``,
+  JSON ``k1 k2 p1 p2 k3``) comes with it (``PhotoCamera``): the photo and its mask and depth are then
+  resampled onto the pinhole camera (``geometry.distortion``);
 - priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
   uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
   + DJI angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above.
@@ -32,17 +32,9 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
-from semcityloc.datasets.dji import (
-    HEIGHT_AUTO,
-    HEIGHT_ELLIPSOIDAL,
-    DjiMetadata,
-    calibrated_intrinsics,
-    camera_from_exif,
-    dewarp_lens,
-    dji_prior,
-    prior_uncertainty,
-    read_dji_metadata,
-)
+from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, dji_prior, prior_uncertainty
+from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
+from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geotags import read_geotags_csv
 from semcityloc.errors import CameraError, CRSError, InputFileError, SemCityLocError
 from semcityloc.geometry.camera import Camera
@@ -60,8 +52,8 @@ class PhotoMissing(InputFileError):
 
 
 def photo_metadata(image: Path) -> DjiMetadata:
-    """``dji.read_dji_metadata`` of a photo; ``PhotoMissing`` with its message when it cannot be read (a
-    malformed tag, say): that photo is skipped, not the run."""
+    """``dji_metadata.read_dji_metadata`` of a photo; ``PhotoMissing`` with its message when it cannot be
+    read (a malformed tag, say): that photo is skipped, not the run."""
     try:
         return read_dji_metadata(image)
     except SemCityLocError as exc:
