@@ -142,6 +142,9 @@ def test_bad_targets_and_images_are_typed_errors(tmp_path):
         dji_prior(meta, "EPSG:28992")  # Dutch RD New for a Bavarian flight
     with pytest.raises(CRSError, match="metric"):
         dji_prior(meta, "EPSG:4326")
+    # an Earth-centred CRS is not geographic either: its prior was made, geocentric x, y with the height as z
+    with pytest.raises(CRSError, match=r"must be metric \(projected\), got WGS 84 \(geocentric\)"):
+        dji_prior(meta, "EPSG:4978")
     with pytest.raises(InputFileError, match="target_height"):
         dji_prior(meta, "EPSG:25832", target_height="geoid")
     no_gimbal = read_dji_metadata(
@@ -343,6 +346,8 @@ def test_geotag_needs_a_metric_crs_and_a_valid_offset():
     pose = Pose.from_xyz_rpy(np.array([690000.0, 5330000.0, 600.0]), 0.0, 30.0, 0.0)
     with pytest.raises(CRSError, match="metric"):
         dji_geotag(pose, "EPSG:4326")
+    with pytest.raises(CRSError, match="geocentric"):
+        dji_geotag(pose, "EPSG:4978")
     with pytest.raises(InputFileError, match="offset"):
         dji_geotag(pose, "EPSG:25832", offset=np.array([1.0, 2.0]))
     with pytest.raises(InputFileError, match="target_height"):

@@ -49,6 +49,7 @@ from semcityloc.datasets.geodesy import (
     WGS84_3D,
     check_area_of_use,
     check_geoid_separation,
+    check_projected,
     geoid_separation,
     grid_convergence_deg,
     horizontal_crs,
@@ -161,8 +162,7 @@ def dji_prior(
         raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
     check_geoid_separation(geoid_separation_m)
     crs = target_crs_of(target_crs)
-    if horizontal_crs(crs).is_geographic:
-        raise CRSError(f"the target CRS must be metric (projected), got {crs.name}")
+    check_projected(crs, "the target CRS")
     lat, lon, h = float(meta.latitude), float(meta.longitude), float(meta.absolute_altitude_m)
     notes: list[str] = []
 
@@ -368,9 +368,7 @@ def dji_geotag(
     if target_height not in TARGET_HEIGHTS:
         raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
     crs = target_crs_of(target_crs)
-    horizontal = horizontal_crs(crs)
-    if horizontal.is_geographic:
-        raise CRSError(f"the model's CRS must be metric (projected), got {crs.name}")
+    horizontal = check_projected(crs, "the model's CRS")
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
     if shift.shape != (3,) or not np.all(np.isfinite(shift)):
         raise InputFileError(f"offset must be 3 finite numbers, got {shift.tolist()}")

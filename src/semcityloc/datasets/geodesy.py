@@ -74,6 +74,24 @@ def horizontal_crs(crs: str | pyproj.CRS) -> pyproj.CRS:
     return crs
 
 
+def check_projected(crs: pyproj.CRS, what: str) -> pyproj.CRS:
+    """The horizontal part of ``crs`` if it is projected (metric, z up once a height is added), else a
+    ``CRSError`` naming its kind. Why not only "not geographic": an Earth-centred CRS (EPSG:4978) or a
+    local engineering one passes that test, and a prior put in it is nonsense (x, y geocentric, z the
+    height, a grid convergence of -100 degrees) rather than an error."""
+    horizontal = horizontal_crs(crs)
+    if horizontal.is_projected:
+        return horizontal
+    kind = (
+        "geographic"
+        if horizontal.is_geographic
+        else "geocentric"
+        if horizontal.is_geocentric
+        else horizontal.type_name.lower()
+    )
+    raise CRSError(f"{what} must be metric (projected), got {crs.name} ({kind})")
+
+
 def vertical_datum(crs: pyproj.CRS) -> pyproj.CRS | None:
     """The vertical part (height system) of a compound CRS; None for a CRS without one."""
     if crs.is_compound:
