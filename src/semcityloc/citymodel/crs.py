@@ -77,10 +77,15 @@ def parse_crs_name(name: str) -> pyproj.CRS:
         raise CRSError(f"cannot parse CRS {text!r}") from exc
 
 
-def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
-    """The horizontal part of a (possibly compound) CRS."""
+def horizontal_crs(crs: pyproj.CRS | str) -> pyproj.CRS:
+    """The horizontal part of a CRS or CRS name (``parse_crs_name``): a compound's first part that is not
+    vertical, the CRS itself otherwise."""
+    if isinstance(crs, str):
+        crs = parse_crs_name(crs)
     if crs.is_compound:
-        return crs.sub_crs_list[0]
+        for sub in crs.sub_crs_list:
+            if not sub.is_vertical:
+                return sub
     return crs
 
 

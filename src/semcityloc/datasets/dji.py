@@ -42,6 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pyproj
 
+from semcityloc.citymodel.crs import horizontal_crs
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geodesy import (
     EGM96,
@@ -52,7 +53,6 @@ from semcityloc.datasets.geodesy import (
     check_projected,
     geoid_separation,
     grid_convergence_deg,
-    horizontal_crs,
     is_ballpark,
     target_crs_of,
     transformer_group,

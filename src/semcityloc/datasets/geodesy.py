@@ -7,7 +7,7 @@ at all; these helpers do it once, for ``datasets.dji`` (priors and geotags), ``d
 ``datasets.geojson``.
 
 - CRS names (``target_crs_of``): ``parse_crs_name``'s forms, ``EPSG:h+v`` compounds kept whole; a
-  compound's parts: ``horizontal_crs``, ``vertical_datum``. A position more than ``AREA_MARGIN_DEG``
+  compound's vertical part: ``vertical_datum`` (its horizontal part: ``citymodel.crs.horizontal_crs``). A position more than ``AREA_MARGIN_DEG``
   outside the CRS's area of use is a wrong CRS (``check_area_of_use``).
 - Heights: city models store orthometric heights (above a geoid: NAP, DHHN2016, EGM96 "MSL", ...), which
   differ from WGS 84 ellipsoidal heights by the local geoid undulation N (-107 m .. +86 m worldwide;
@@ -30,7 +30,7 @@ import warnings
 import pyproj
 from pyproj.transformer import TransformerGroup
 
-from semcityloc.citymodel.crs import parse_crs_name
+from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
 from semcityloc.errors import CRSError, ParameterError
 
 GEOID_UNDULATION_BOUND_M = 110.0  # |N| <= ~107 m anywhere (EGM2008 extremes: -106.6 / +85.8 m)
@@ -62,16 +62,6 @@ def _crs_of_name(name: str) -> pyproj.CRS:
         except pyproj.exceptions.CRSError as exc:
             raise CRSError(f"unknown EPSG code in CRS {name!r}: {exc}") from exc
     return parse_crs_name(name)
-
-
-def horizontal_crs(crs: str | pyproj.CRS) -> pyproj.CRS:
-    """The horizontal part of a CRS (a compound's non-vertical part; the CRS itself otherwise)."""
-    crs = target_crs_of(crs)
-    if crs.is_compound:
-        for sub in crs.sub_crs_list:
-            if not sub.is_vertical:
-                return sub
-    return crs
 
 
 def check_projected(crs: pyproj.CRS, what: str) -> pyproj.CRS:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
-from semcityloc.datasets.geodesy import horizontal_crs
+from semcityloc.citymodel.crs import horizontal_crs
 from semcityloc.errors import CRSError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.io import json_default

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import pyproj
 
+from semcityloc.citymodel.crs import horizontal_crs
 from semcityloc.datasets.dji import DjiGeotag
 from semcityloc.datasets.dji_metadata import finite_number
-from semcityloc.datasets.geodesy import horizontal_crs
 from semcityloc.errors import CRSError, InputFileError
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
