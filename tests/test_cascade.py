@@ -201,7 +201,7 @@ def test_the_search_stays_above_the_ground(city, localizer, renderer):
     labels, depth = query(renderer, true)
     result = localizer.localize(CAMERA, prior, labels, depth)
     floor = result.search["volume"]["floor_z"]
-    ground = localizer.ground_below(prior.to_xyz_rpy(), PriorUncertainty(), localizer.config)
+    ground = localizer.layout.ground_below(prior.to_xyz_rpy(), PriorUncertainty(), localizer.config)
     assert floor == pytest.approx(ground + CascadeConfig().min_clearance_m)
     assert prior.center[2] < floor < true.center[2]
     assert result.cost_volume.z_values.min() >= floor - 1e-6  # no camera centre below the floor was scored

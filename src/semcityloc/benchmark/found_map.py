@@ -3,7 +3,7 @@
 Why: a localizer does not search the model as it is. It adds ``map_eaves_m`` (0.5 m by default) of eaves
 to its pitched roofs, since that is how far real roofs overhang the LoD2 walls (``citymodel.eaves``), and with
 ``map_eaves_flat_roofs="auto"`` (the default) it may take a view's pose from a second map, the one with
-eaves on its flat roofs too (``Localizer._look_with_flat_eaves``; with ``"on"`` every pose is found there).
+eaves on its flat roofs too (``Refiner.look_with_flat_eaves``; with ``"on"`` every pose is found there).
 A drawing of the model as it is at such a pose shows roof outlines the pose was not scored against: a hit
 looks off by the eaves' width. So the report's figures, its query browser and a photo run's overlays draw
 every pose (the truth, the prior, the estimate) on the map the run searched (``searched``), and an

@@ -116,9 +116,10 @@ from semcityloc.localization.focal import (
     too_few_obliques,
     with_focal_scale,
 )
-from semcityloc.localization.localize import MAX_VIEW_RANGE_M, Localizer
+from semcityloc.localization.localize import Localizer
 from semcityloc.localization.methods import ABLATIONS, Method, searched_map
 from semcityloc.localization.result import LocalizationResult
+from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import DEPTH_SUFFIXES, MASK_SUFFIXES, find_file, with_lossy_masks
 from semcityloc.perception.registry import backend_entry, get_depth_backend, get_segmentation_backend

@@ -8,14 +8,17 @@
 2. Search (``config.search``): the cascade over the prior's uncertainty volume (``cascade.py``: sweep,
    edge extension, local grids with roll/pitch) gives a few distinct hypotheses; or the first design's
    uniform 4D grid (``coarse.coarse_search``, preset ``legacy``).
-3. Refine: one particle filter (``refine.particle_filter``: semantic IoU + depth, in the cascade also the
-   prior's roll/pitch penalty, ``prior.py``) seeded by the search's best distinct hypotheses (cascade) or
-   best grid cells (grid), then its polish; with ``restarts`` the best final score wins. With
+3. Refine (``refine_stage.py``): one particle filter (``refine.particle_filter``: semantic IoU + depth, in
+   the cascade also the prior's roll/pitch penalty, ``prior.py``) seeded by the search's best distinct
+   hypotheses (cascade) or best grid cells (grid), then its polish; with ``restarts`` the best final score
+   wins; the score's curvature at the pose gives its covariance (``covariance.py``). With
    ``map_eaves_flat_roofs="auto"`` a second look on the map with eaves on its flat roofs too
    (``map_scenes.py``).
 4. Accept: ``not_localized`` with a reason when the evidence is empty, the best hypothesis sits on the
    edge of the search volume, or the calibrated probability of being right (``confidence.py``) is
-   below ``min_confidence`` (``acceptance="thresholds"``: the first design's hand-set gates).
+   below ``min_confidence`` (``acceptance="thresholds"``: the first design's hand-set gates). A pose the
+   cascade found and the acceptance refused gets a look beyond the search's reach (``cascade.look_beyond``,
+   ``ring_beyond``): a better view there is named in a warning.
 5. Result: a ``LocalizationResult`` with the pose (or the refused one), the evidence and the timings.
 
 ``Localizer`` keeps the render scene of one city model, so a batch of queries builds it once.
@@ -30,9 +33,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from semcityloc.citymodel.ground import base_points
 from semcityloc.citymodel.model import CityModel
-from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES, SemanticClass
+from semcityloc.classes import NUM_CLASSES, SemanticClass
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -56,13 +58,6 @@ from semcityloc.localization.confidence import (
     view_span_m,
 )
 from semcityloc.localization.config import LocalizerConfig, config_or_preset
-from semcityloc.localization.covariance import (
-    PROBES,
-    covariance_model,
-    probe_states,
-    probe_steps,
-    score_curvature,
-)
 from semcityloc.localization.input_checks import check_query_inputs
 from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
 from semcityloc.localization.prior import prior_distance, prior_term
@@ -73,13 +68,8 @@ from semcityloc.localization.query import (
     inverted_depth_warning,
     usable_depth,
 )
-from semcityloc.localization.refine import (
-    ScoringLevel,
-    initial_sigma,
-    particle_filter,
-    pivot_jacobian,
-    score_states,
-)
+from semcityloc.localization.refine import ScoringLevel, initial_sigma, score_states
+from semcityloc.localization.refine_stage import Refiner
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
@@ -91,16 +81,9 @@ from semcityloc.localization.result import (
     LocalizationResult,
 )
 from semcityloc.localization.scoring import map_classes, merge_openings_lut
-from semcityloc.localization.search_reach import edge_sigma, edge_warning, reached_half, search_half_xy
+from semcityloc.localization.search_reach import MapLayout, edge_sigma, edge_warning, reached_half
 from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene
-
-# Rays that do not meet the ground plane within this distance are cut here when the view's footprint is
-# estimated for the "model geometry in the search volume" check.
-MAX_VIEW_RANGE_M = 1500.0
-# How far beyond the search's reach footprints count for the ground under it (the terrain between
-# footprints runs through the nearest ones).
-GROUND_MARGIN_M = 20.0
 
 
 class Localizer:
@@ -127,15 +110,13 @@ class Localizer:
             self.scene = replace(self.scene, classes=merge_openings_lut(False)[self.scene.classes])
         # The map with eaves on its flat roofs too, for the second look of ``map_eaves_flat_roofs="auto"``
         # (None: not asked for, or no flat roof to give them).
-        self.flat_eaves_scene = self._flat_eaves_scene(model)
+        cfg = self.config
+        auto = cfg.map_eaves_flat_roofs == "auto" and cfg.map_eaves_m > 0.0
+        self.flat_eaves_scene = flat_eaves_scene(self.scene, model, cfg.map_eaves_m) if auto else None
         class_ids = map_classes(self.has_openings)
         self.class_on = np.zeros(NUM_CLASSES, dtype=bool)
         self.class_on[list(class_ids)] = True
-        building = np.isin(model.classes, BUILDING_CLASSES)
-        corners = model.vertices[model.triangles[building]].astype(np.float64)
-        self._building_xy = corners.mean(1)[:, :2]
-        self._ground_z = float(np.median(corners[:, :, 2].min(1))) if len(corners) else 0.0
-        self._base = base_points(model)  # the footprints' bottom points, through which the terrain runs
+        self.layout = MapLayout.of(model)  # where the buildings and the ground lie, for the reach's checks
 
     # ------------------------------------------------------------------ public
     def localize(
@@ -182,7 +163,7 @@ class Localizer:
         building_fraction = query.building_fraction()
         if building_fraction < cfg.min_building_fraction:
             return self._finish(result, REASON_NO_BUILDINGS_IN_QUERY, t0)
-        if not self._geometry_near(camera, prior_local, cfg, unc):
+        if not self.layout.buildings_in_reach(camera, prior_local, cfg, unc):
             return self._finish(result, REASON_NO_GEOMETRY, t0)
         if cfg.search == "grid":
             fine = self._localize_grid(result, camera, query, prior_state, cfg)
@@ -202,51 +183,6 @@ class Localizer:
             return self._finish(result, reason, t0)
         result.status = LOCALIZED
         return self._finish(result, None, t0)
-
-    # ------------------------------------------------------------------ the map within the search's reach
-    def _geometry_near(
-        self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
-    ) -> bool:
-        """Does any building lie where the prior's view, widened by the search range, could see it? The
-        view is cast from the highest camera the search reaches (a prior metres above the ground sees a
-        few metres of it; the camera the search may find higher up sees more)."""
-        if not len(self._building_xy):
-            return False
-        corners_uv = np.array(
-            [
-                [0, 0],
-                [camera.width, 0],
-                [camera.width, camera.height],
-                [0, camera.height],
-                [camera.cx, camera.cy],
-            ],
-            dtype=np.float64,
-        )
-        rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv).T  # (3, 5)
-        centre = prior_local.center.copy()
-        if cfg.search == "cascade":
-            volume = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade)
-            centre[2] += reached_half(volume, cfg.cascade)["z"]
-        dz = self._ground_z - centre[2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(rays[2] * dz > 0, dz / rays[2], np.inf)
-        s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
-        pts = centre[:2, None] + rays[:2] * s
-        pts = np.concatenate([pts, centre[:2, None]], axis=1)
-        margin = search_half_xy(prior_local, cfg, unc) + 1.0
-        lo, hi = pts.min(1) - margin, pts.max(1) + margin
-        inside = np.all((self._building_xy >= lo) & (self._building_xy <= hi), axis=1)
-        return bool(inside.any())
-
-    def ground_below(self, prior_state: np.ndarray, unc: PriorUncertainty, cfg: LocalizerConfig) -> float:
-        """The lowest ground (local frame, m) under the area the search may move the camera over: the
-        lowest footprint bottom within the reached half-width (+ ``GROUND_MARGIN_M``) of the prior's x, y,
-        else the model's lowest; -inf for a model without buildings (no floor)."""
-        if not len(self._base):
-            return -math.inf
-        half = reached_half(search_volume(prior_state, unc, cfg.cascade), cfg.cascade)["xy"] + GROUND_MARGIN_M
-        near = np.all(np.abs(self._base[:, :2] - np.asarray(prior_state[:2])) <= half, axis=1)
-        return float(self._base[near, 2].min() if near.any() else self._base[:, 2].min())
 
     # ------------------------------------------------------------------ searches
     # Each search fills ``result`` and returns the fine scoring level (camera and query at the refinement's
@@ -283,7 +219,7 @@ class Localizer:
         levels = [ScoringLevel(coarse_cam, q_coarse, d_coarse), ScoringLevel(fine_cam, q_fine, d_fine)]
         if not cfg.no_coarse:
             levels, _ = self._drop_inverted_depth(result, levels, result.coarse_pose_local)
-        self._refine(result, levels, seeds, cfg, initial_sigma(cfg.refine, 0.3))
+        self._refiner().refine(result, levels, seeds, cfg, initial_sigma(cfg.refine, 0.3))
         return levels[-1]
 
     def _localize_cascade(self, result, camera, query, prior_state, cfg, unc) -> ScoringLevel:
@@ -297,12 +233,13 @@ class Localizer:
         levels = [ScoringLevel(local_cam, q_local, d_local), ScoringLevel(fine_cam, q_fine, d_fine)]
         sigma = initial_sigma(cfg.refine, unc.roll_pitch_deg)
         prior = prior_term(prior_state, cfg, unc)
+        refiner = self._refiner()
         t_prep = time.perf_counter()
         if cfg.no_coarse:
             result.timings["coarse_s"] = 0.0
-            self._refine(result, levels, prior_state[None, :], cfg, sigma, prior=prior)
+            refiner.refine(result, levels, prior_state[None, :], cfg, sigma, prior=prior)
             return levels[-1]
-        volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
+        volume = search_volume(prior_state, unc, cc, self.layout.ground_below(prior_state, unc, cfg))
         sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
         q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
         sw = sweep(self.scene, sweep_cam, volume, q_sweep, self.class_on, cc.sweep)
@@ -339,9 +276,11 @@ class Localizer:
         result.confidence["hypothesis_margin"] = (
             float(hyps.scores[0] - hyps.scores[1]) if len(hyps.scores) > 1 else float("nan")
         )
-        self._refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
+        refiner.refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
         if self.flat_eaves_scene is not None and cfg.map_eaves_flat_roofs == "auto" and not cfg.no_refine:
-            self._look_with_flat_eaves(result, levels, hyps.states, cfg, sigma, prior)
+            refiner.look_with_flat_eaves(
+                self.flat_eaves_scene, result, levels, hyps.states, cfg, sigma, prior
+            )
         return levels[-1]
 
     def _drop_inverted_depth(
@@ -361,146 +300,9 @@ class Localizer:
         return levels, seen
 
     # ------------------------------------------------------------------ refinement
-    def _refine(
-        self, result, levels, seeds: np.ndarray, cfg: LocalizerConfig, sigma, prior=None, seed_depth=None
-    ) -> None:
-        """One particle filter seeded by ``seeds`` ((k, 6), best first); ``no_refine`` keeps the first
-        seed, scored at the fine resolution. ``seed_depth``: the map's depth seen from the first seed at
-        ``levels[0]``, when the caller rendered it already (the pivot reuses it)."""
-        t0 = time.perf_counter()
-        fine = levels[-1]
-        if cfg.no_refine:
-            final = seeds[0]
-            score, sem, dep = score_states(self.scene, fine, final[None], self.class_on, cfg.refine, prior)
-            result.score, result.semantic, result.depth_cost = float(score[0]), float(sem[0]), float(dep[0])
-        else:
-            if cfg.refine.pivot == "both":  # the same first seed for every restart: one pivot render
-                sigma = self._about_pivot(levels[0].camera, seeds[0], sigma, seed_depth)
-            restarts = range(cfg.refine.restarts)
-            runs = [self._filter_and_polish(levels, seeds, cfg, sigma, prior, r) for r in restarts]
-            best = max(runs, key=lambda run: run.score)
-            best.evaluations = sum(run.evaluations for run in runs)
-            final = best.xyz_rpy
-            result.counts["refine_evaluations"] += best.evaluations
-            result.score, result.semantic, result.depth_cost = best.score, best.semantic, best.depth_cost
-            result.confidence.update(spread_m=best.spread_m, spread_deg=best.spread_deg)
-            # The covariance's probe, where a fitted model will turn its curvature into one.
-            cov_model = covariance_model(self.confidence_kind, fine.depth is not None, fine.camera.hfov_deg)
-            if cfg.refine.covariance_probe_px > 0 and cov_model is not None:
-                result.score_curvature = self._probe_curvature(levels, final, cfg, prior)
-                result.counts["refine_evaluations"] += PROBES
-                if result.score_curvature is not None:
-                    result.covariance = cov_model.covariance(result.score_curvature)
-        result.pose_local = _pose(final)
-        result.timings["refine_s"] = time.perf_counter() - t0
-
-    def _filter_and_polish(self, levels, seeds, cfg: LocalizerConfig, sigma, prior, restart: int):
-        """One particle filter over ``seeds`` and its polish; ``restart`` > 0 draws other random numbers
-        (restart 0 is the single run of ``restarts=1``: a seed sequence ignores trailing zeros, so
-        ``[seed, 1, 0]`` is ``[seed, 1]``)."""
-        rng = np.random.default_rng(cfg.seed if restart == 0 else [cfg.seed, 2, restart])
-        best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
-        if cfg.refine.polish_iterations == 0:
-            return best
-        xy, z, rp, yaw = cfg.refine.polish_sigma
-        polish_sigma = np.array([xy, xy, z, rp, rp, yaw])
-        if cfg.refine.pivot != "none":
-            polish_sigma = self._about_pivot(levels[0].camera, best.xyz_rpy, polish_sigma)
-        polished = particle_filter(
-            self.scene,
-            levels[-1:],
-            best.xyz_rpy[None],
-            self.class_on,
-            cfg.refine,
-            np.random.default_rng([cfg.seed, 1, restart]),
-            polish_sigma,
-            particles=cfg.refine.polish_particles,
-            iterations=cfg.refine.polish_iterations,
-            low_res_iterations=0,
-            prior=prior,
-            estimate_top=cfg.refine.polish_estimate_top,
-        )
-        polished.evaluations += best.evaluations
-        polished.spread_m, polished.spread_deg = best.spread_m, best.spread_deg  # the search's
-        return polished
-
-    def _about_pivot(
-        self, camera: Camera, state: np.ndarray, sigma: np.ndarray, seen: np.ndarray | None = None
-    ) -> np.ndarray:
-        """(6, 6) perturbation matrix: ``sigma``'s rotations about the point of the optical axis at the
-        median depth of the model seen from ``state`` (``refine.pivot_jacobian``; ``seen``: that view's
-        depth if already rendered); the plain scales when nothing is seen."""
-        depth = self._median_depth(camera, state) if seen is None else _median_seen(seen)
-        return pivot_jacobian(state, depth) @ np.diag(sigma)
-
-    def _median_depth(self, camera: Camera, state: np.ndarray) -> float:
-        """Median z-depth (m) of the model seen from ``state`` (0 when nothing is seen)."""
-        return _median_seen(self._render_one(camera, _pose(state), depth=True).depth)
-
-    def _probe_curvature(self, levels, state: np.ndarray, cfg: LocalizerConfig, prior) -> np.ndarray | None:
-        """The score's curvature at ``state`` (``covariance.py``), probed at the fine level with steps that
-        move the image by ``refine.covariance_probe_px`` pixels; None when nothing is seen."""
-        fine = levels[-1]
-        depth = self._median_depth(levels[0].camera, state)
-        if not depth > 0.0:
-            return None
-        steps = probe_steps(fine.camera.fx, depth, cfg.refine.covariance_probe_px)
-        states = probe_states(state, steps)
-        score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior)
-        return score_curvature(states, score, state)
-
-    # ------------------------------------------------------------------ second look: flat roofs with eaves
-    def _flat_eaves_scene(self, model: CityModel) -> RenderScene | None:
-        """This localizer's scene with ``map_eaves_m`` of eaves on the flat roofs as well, when its config
-        asks for ``"auto"`` and some flat roof gets them."""
-        cfg = self.config
-        if cfg.map_eaves_flat_roofs != "auto" or not cfg.map_eaves_m > 0.0:
-            return None
-        return flat_eaves_scene(self.scene, model, cfg.map_eaves_m)
-
-    def _with_scene(self, scene: RenderScene) -> Localizer:
-        """This localizer searching ``scene`` instead (a shallow copy: the rest is shared)."""
-        other = copy.copy(self)
-        other.scene, other.flat_eaves_scene = scene, None
-        return other
-
-    def _look_with_flat_eaves(self, result, levels, seeds, cfg: LocalizerConfig, sigma, prior) -> None:
-        """``map_eaves_flat_roofs="auto"``: does the view fit the map with eaves on its flat roofs too?
-        Where the found pose scores higher on it by ``flat_eaves_gate``, the refinement runs again on that
-        map from the found pose and the search's hypotheses; its pose replaces the first when its semantic
-        score is higher by ``flat_eaves_margin``. Recorded in ``result.search["flat_roof_eaves"]``."""
-        t0 = time.perf_counter()
-        fine = levels[-1]
-        state = result.pose_local.to_xyz_rpy()
-        # result.semantic is already this pose's score on the plain map at the fine level (the refinement
-        # scores its estimate with score_states there): one render, not two.
-        _, flat, _ = score_states(self.flat_eaves_scene, fine, state[None], self.class_on, cfg.refine, prior)
-        look = {"gain_at_found": float(flat[0] - result.semantic), "used": False}
-        result.search["flat_roof_eaves"] = look
-        result.counts["refine_evaluations"] += 1
-        if look["gain_at_found"] > cfg.flat_eaves_gate:
-            trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
-            other = self._with_scene(self.flat_eaves_scene)
-            other._refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
-            result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
-            look["gain"] = float(trial.semantic - result.semantic)
-            moved = trial.pose_local.to_xyz_rpy() - state
-            look["moved_m"] = float(np.linalg.norm(moved[:3]))
-            if look["gain"] > cfg.flat_eaves_margin:
-                look["used"] = True
-                for name in (
-                    "pose_local",
-                    "score",
-                    "semantic",
-                    "depth_cost",
-                    "covariance",
-                    "score_curvature",
-                ):
-                    setattr(result, name, getattr(trial, name))
-                result.confidence.update(
-                    spread_m=trial.confidence["spread_m"], spread_deg=trial.confidence["spread_deg"]
-                )
-        result.timings["flat_eaves_s"] = time.perf_counter() - t0
+    def _refiner(self) -> Refiner:
+        """The refinement stage on this localizer's map (``refine_stage.py``)."""
+        return Refiner(self.scene, self.class_on, self.confidence_kind)
 
     # ------------------------------------------------------------------ acceptance
     def _decide(
@@ -566,7 +368,7 @@ class Localizer:
         a pose found at ``found_xy`` (local x, y), with the volume it is around. ``_look_beyond`` uses it
         on refused results; ``benchmarks/look_beyond.py`` on any."""
         cc = cfg.cascade
-        volume = search_volume(prior_state, unc, cc, self.ground_below(prior_state, unc, cfg))
+        volume = search_volume(prior_state, unc, cc, self.layout.ground_below(prior_state, unc, cfg))
         sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
         q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
         reach = reached_half(volume, cc)["xy"]
@@ -639,9 +441,15 @@ class Localizer:
         score, sem, dep = score_states(self.scene, level, states, self.class_on, cfg.refine, prior)
         return {"semantic": sem, "depth_cost": dep, "score": score}
 
+    def _with_scene(self, scene: RenderScene) -> Localizer:
+        """This localizer searching ``scene`` instead (a shallow copy: the rest is shared)."""
+        other = copy.copy(self)
+        other.scene, other.flat_eaves_scene = scene, None
+        return other
+
     def map_of(self, result: LocalizationResult) -> Localizer:
         """The localizer whose map ``result``'s pose was found on: this one, or the one with eaves on the
-        flat roofs too where ``map_eaves_flat_roofs="auto"`` took that map (``_look_with_flat_eaves``).
+        flat roofs too where ``map_eaves_flat_roofs="auto"`` took that map (``Refiner.look_with_flat_eaves``).
         Its ``render_labels`` draw the map the result was scored on."""
         if result.search.get("flat_roof_eaves", {}).get("used") and self.flat_eaves_scene is not None:
             return self._with_scene(self.flat_eaves_scene)
@@ -678,12 +486,6 @@ class Localizer:
     def _render_one(self, camera: Camera, pose_local: Pose, depth: bool = False):
         """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
         return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)
-
-
-def _median_seen(depth: np.ndarray) -> float:
-    """Median of a render's finite depths (0 when it sees nothing)."""
-    seen = depth[np.isfinite(depth)]
-    return float(np.median(seen)) if seen.size else 0.0
 
 
 def _pose(state: np.ndarray) -> Pose:

@@ -2,8 +2,9 @@
 
 Why: a localizer does not search the model as it is. LoD2 roofs end at their walls while real ones overhang
 them (``citymodel.eaves``), so it adds ``LocalizerConfig.map_eaves_m`` of eaves to the pitched roofs, to the
-flat ones too with ``map_eaves_flat_roofs="on"``, and with ``"auto"`` takes a view's pose from a second
-map with eaves on the flat roofs where that map fits the view better (``Localizer._look_with_flat_eaves``).
+flat ones too with ``map_eaves_flat_roofs="on"``, and with ``"auto"`` takes a view's pose from a second map
+with eaves on the flat roofs where that map fits the view better (its refinement's second look,
+``refine_stage.Refiner.look_with_flat_eaves``).
 The drawings of the map at a pose (``benchmark.found_map``: the report, a photo run's overlays) build their
 scenes here as well, so that they show the map a pose was scored on.
 """

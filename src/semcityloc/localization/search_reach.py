@@ -1,24 +1,41 @@
-"""How far the search may move the camera from the prior, and what a best hypothesis left at that reach asks
-of the user.
+"""How far the search may move the camera from the prior, what of the map lies within that reach, and what a
+best hypothesis left at that reach asks of the user.
 
 The cascade's volume (``cascade.search_volume``) grows where its best cell lies on an edge, by
 ``SweepConfig.extension`` of its half-width at most ``max_extensions`` times: ``reached_half`` is the volume
 at its largest. ``search_half_xy`` is either search's horizontal reach (the ``legacy`` grid's is its range);
-the localizer looks for buildings that far around the prior's view before it searches, and a tile store
-loads the tiles that far around a photo's (``tiled.reach_radius``). A best hypothesis still on an edge at the
-largest extent is refused, not taken (``REASON_AT_EDGE``): its warning (``edge_warning``) names the
-``--prior-sigma`` whose volume starts at twice the bound reached (``edge_sigma``), and a refused pose with
-a better view beyond the reach names one the same way (``Localizer._look_beyond``).
+the localizer looks for buildings that far around the prior's view before it searches
+(``MapLayout.buildings_in_reach``: a query with none in reach is refused, ``REASON_NO_GEOMETRY``), and a
+tile store loads the tiles that far around a photo's (``tiled.reach_radius``). The volume stays above the
+lowest ground under that reach (``MapLayout.ground_below``: a camera under the terrain sees a ground-only
+view that can outscore a low flight's true one). A best hypothesis still on an edge at the largest extent is
+refused, not taken (``REASON_AT_EDGE``): its warning (``edge_warning``) names the ``--prior-sigma`` whose
+volume starts at twice the bound reached (``edge_sigma``), and a refused pose with a better view beyond the
+reach names one the same way (``Localizer._look_beyond``).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
+import numpy as np
+
+from semcityloc.citymodel.ground import base_points
+from semcityloc.citymodel.model import CityModel
+from semcityloc.classes import BUILDING_CLASSES
+from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import SearchVolume, search_volume
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
+
+# Rays that do not meet the ground plane within this distance are cut here when the view's footprint is
+# estimated for the "model geometry in the search volume" check (``MapLayout.buildings_in_reach``).
+MAX_VIEW_RANGE_M = 1500.0
+# How far beyond the search's reach footprints count for the ground under it (the terrain between
+# footprints runs through the nearest ones).
+GROUND_MARGIN_M = 20.0
 
 
 def reached_half(volume: SearchVolume, config: CascadeConfig) -> dict[str, float]:
@@ -57,3 +74,65 @@ def edge_warning(edges: list[str], volume: SearchVolume, config: CascadeConfig) 
         f"({reached} around the prior): the prior is further off than its stated uncertainty; run again "
         f"with --prior-sigma {','.join(f'{a}={v}' for a, v in sigma.items())} or correct the prior"
     )
+
+
+@dataclass(frozen=True)
+class MapLayout:
+    """Where a city model's buildings stand and its ground lies, as the reach's checks need them: the
+    centres (x, y) of its building triangles, the median bottom of those triangles (the ground plane a
+    view's footprint is cast on) and the footprints' bottom points (through which the terrain runs)."""
+
+    building_xy: np.ndarray  # (N, 2)
+    ground_z: float
+    base: np.ndarray  # (M, 3)
+
+    @classmethod
+    def of(cls, model: CityModel) -> MapLayout:
+        building = np.isin(model.classes, BUILDING_CLASSES)
+        corners = model.vertices[model.triangles[building]].astype(np.float64)
+        ground_z = float(np.median(corners[:, :, 2].min(1))) if len(corners) else 0.0
+        return cls(corners.mean(1)[:, :2], ground_z, base_points(model))
+
+    def buildings_in_reach(
+        self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
+    ) -> bool:
+        """Does any building lie where the prior's view, widened by the search range, could see it? The
+        view is cast from the highest camera the search reaches (a prior metres above the ground sees a
+        few metres of it; the camera the search may find higher up sees more)."""
+        if not len(self.building_xy):
+            return False
+        corners_uv = np.array(
+            [
+                [0, 0],
+                [camera.width, 0],
+                [camera.width, camera.height],
+                [0, camera.height],
+                [camera.cx, camera.cy],
+            ],
+            dtype=np.float64,
+        )
+        rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv).T  # (3, 5)
+        centre = prior_local.center.copy()
+        if cfg.search == "cascade":
+            volume = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade)
+            centre[2] += reached_half(volume, cfg.cascade)["z"]
+        dz = self.ground_z - centre[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(rays[2] * dz > 0, dz / rays[2], np.inf)
+        s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
+        pts = centre[:2, None] + rays[:2] * s
+        pts = np.concatenate([pts, centre[:2, None]], axis=1)
+        margin = search_half_xy(prior_local, cfg, unc) + 1.0
+        lo, hi = pts.min(1) - margin, pts.max(1) + margin
+        inside = np.all((self.building_xy >= lo) & (self.building_xy <= hi), axis=1)
+        return bool(inside.any())
+
+    def ground_below(self, prior_state: np.ndarray, unc: PriorUncertainty, cfg: LocalizerConfig) -> float:
+        """The lowest ground (local frame, m) under the area the search may move the camera over: the
+        lowest footprint bottom within the reached half-width (+ ``GROUND_MARGIN_M``) of the prior's x, y,
+        else the model's lowest; -inf for a model without buildings (no floor)."""
+        if not len(self.base):
+            return -math.inf
+        half = reached_half(search_volume(prior_state, unc, cfg.cascade), cfg.cascade)["xy"] + GROUND_MARGIN_M
+        near = np.all(np.abs(self.base[:, :2] - np.asarray(prior_state[:2])) <= half, axis=1)
+        return float(self.base[near, 2].min() if near.any() else self.base[:, 2].min())

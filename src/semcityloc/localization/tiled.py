@@ -33,11 +33,10 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.localize import MAX_VIEW_RANGE_M
 from semcityloc.localization.map_scenes import localizer_scene
 from semcityloc.localization.methods import LocalizerMethod, Method, QueryRecord, get_method, method_factory
 from semcityloc.localization.result import LocalizationResult
-from semcityloc.localization.search_reach import search_half_xy
+from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M, search_half_xy
 
 # Beyond the view: the terrain TIN near the edge of the loaded buildings differs from the whole city's.
 TERRAIN_MARGIN_M = 100.0
