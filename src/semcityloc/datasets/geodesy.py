@@ -7,8 +7,9 @@ at all; these helpers do it once, for ``datasets.dji`` (priors and geotags), ``d
 ``datasets.geojson``.
 
 - CRS names (``target_crs_of``): ``parse_crs_name``'s forms, ``EPSG:h+v`` compounds kept whole; a
-  compound's vertical part: ``vertical_datum`` (its horizontal part: ``citymodel.crs.horizontal_crs``). A position more than ``AREA_MARGIN_DEG``
-  outside the CRS's area of use is a wrong CRS (``check_area_of_use``).
+  compound's vertical part: ``vertical_datum`` (its horizontal part: ``citymodel.crs.horizontal_crs``).
+  A position more than ``AREA_MARGIN_DEG`` outside the CRS's area of use is a wrong CRS
+  (``check_area_of_use``); a CRS that is not projected is refused (``check_projected``).
 - Heights: city models store orthometric heights (above a geoid: NAP, DHHN2016, EGM96 "MSL", ...), which
   differ from WGS 84 ellipsoidal heights by the local geoid undulation N (-107 m .. +86 m worldwide;
   ``H = h - N``). pyproj applies a geoid only when its grid file is installed (``projsync`` or
