@@ -38,6 +38,20 @@ def test_xyz_rpy_round_trip_batched():
     np.testing.assert_allclose(out[:, 5], yaw, atol=1e-8)
 
 
+def test_state_vectors_round_trip_single_and_batched_and_a_wrong_width_is_refused():
+    """``Pose.from_state`` is the one reading of the search's (x, y, z, roll, pitch, yaw) vectors (three
+    private copies before): the inverse of ``to_xyz_rpy`` for one state and for a batch."""
+    rng = np.random.default_rng(3)
+    roll, pitch, yaw = random_angles(rng, 50)
+    states = np.column_stack([rng.uniform(-1e3, 1e3, (50, 3)), roll, pitch, yaw])
+    np.testing.assert_allclose(Pose.from_state(states).to_xyz_rpy(), states, atol=1e-8)
+    one = Pose.from_state(states[7])
+    assert one.batch_shape == ()
+    np.testing.assert_array_equal(one.R, Pose.from_state(states)[7].R)
+    with pytest.raises(ShapeError, match=r"\(\.\.\., 6\), got \(5,\)"):
+        Pose.from_state(states[0, :5])
+
+
 @pytest.mark.parametrize(
     "rpy",
     [

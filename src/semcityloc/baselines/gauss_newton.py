@@ -41,7 +41,7 @@ class RefineOutcome:
 def _project(points: np.ndarray, state_rad: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Image coordinates (K, N, 2) and in-front mask (K, N) of points at states (K, 6) (angles rad)."""
     deg = state_rad / RAD_UNITS
-    poses = Pose.from_xyz_rpy(deg[:, :3], deg[:, 3], deg[:, 4], deg[:, 5])
+    poses = Pose.from_state(deg)
     cam = poses.transform(points)  # (K, N, 3)
     z = cam[..., 2]
     front = z > NEAR_M

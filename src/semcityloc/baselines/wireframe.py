@@ -268,7 +268,7 @@ class WireframeLocalizer:
             state = stage.centre
             half = self._next_half_ranges(stage, cfg)
         result.cost_volume = stages[0].volume
-        result.coarse_pose_local = _pose(state)
+        result.coarse_pose_local = Pose.from_state(state)
         result.counts["coarse_hypotheses"] = int(sum(s.volume.scores.size for s in stages))
         result.confidence["score_margin"] = stages[0].volume.score_margin()
         result.confidence["stage_half_ranges"] = [s.half_ranges.tolist() for s in stages]
@@ -277,7 +277,7 @@ class WireframeLocalizer:
         t2 = time.perf_counter()
         if not cfg.no_refine and cfg.refine_iterations > 0:
             if cfg.refresh_visibility:
-                refreshed = self.visible_points(camera, _pose(state), cfg)
+                refreshed = self.visible_points(camera, Pose.from_state(state), cfg)
                 if len(refreshed) >= cfg.min_points:
                     points = refreshed
             outcome = gauss_newton(
@@ -294,7 +294,7 @@ class WireframeLocalizer:
             result.confidence["refine_accepted_steps"] = outcome.accepted_steps
         result.timings["refine_s"] = time.perf_counter() - t2
 
-        pose_local = _pose(state)
+        pose_local = Pose.from_state(state)
         fine = pyramid.levels[-1]
         result.score = float(score_poses(points, pose_local, fine.camera, fine.emap)[0])
         result.pose_local = pose_local
@@ -309,10 +309,6 @@ class WireframeLocalizer:
     def with_config(self, **changes) -> WireframeLocalizer:
         """A localizer sharing this one's scene and edges, with some config values changed."""
         return WireframeLocalizer(self.model, replace(self.config, **changes), self.scene, self.edges)
-
-
-def _pose(state: np.ndarray) -> Pose:
-    return Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
 
 
 def _finish(result: LocalizationResult, reason: str | None, t0: float) -> LocalizationResult:

@@ -105,6 +105,15 @@ class Pose:
         return cls.from_rotation_center(R_body @ CAM_FROM_BODY_FLIP, xyz)
 
     @classmethod
+    def from_state(cls, state: np.ndarray) -> Pose:
+        """From (..., 6) state vectors (x, y, z, roll, pitch, yaw; metres and degrees), as ``to_xyz_rpy``
+        returns them and the search and the refinement move them."""
+        s = np.asarray(state, dtype=np.float64)
+        if s.shape[-1:] != (6,):
+            raise ShapeError(f"pose states must have shape (..., 6), got {s.shape}")
+        return cls.from_xyz_rpy(s[..., :3], s[..., 3], s[..., 4], s[..., 5])
+
+    @classmethod
     def stack(cls, poses: list[Pose]) -> Pose:
         return cls(np.stack([p.R for p in poses]), np.stack([p.t for p in poses]))
 

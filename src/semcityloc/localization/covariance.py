@@ -163,7 +163,7 @@ def tangent_covariance(state: np.ndarray, covariance: np.ndarray, frame: str = "
         raise ParameterError(f"need a (6,) state and a (6, 6) covariance, got {shapes}")
 
     def rotation(s: np.ndarray) -> np.ndarray:
-        return Pose.from_xyz_rpy(s[:3], s[3], s[4], s[5]).R_world_from_cam
+        return Pose.from_state(s).R_world_from_cam
 
     r0 = rotation(state)
     jac = np.zeros((6, 6))

@@ -212,7 +212,7 @@ class Localizer:
             top = volume.best_indices(c.top_k)
             seeds = np.stack([volume.xyz_rpy(i) for i in top])
             result.cost_volume = volume
-            result.coarse_pose_local = _pose(seeds[0])
+            result.coarse_pose_local = Pose.from_state(seeds[0])
             result.counts["coarse_hypotheses"] = int(volume.scores.size) + n_pre
             result.confidence["score_margin"] = volume.score_margin()
             result.timings["coarse_s"] = time.perf_counter() - t_prep
@@ -252,7 +252,7 @@ class Localizer:
         result.confidence["score_margin"] = sw.score_margin()
         result.search["sweep_best"] = float(np.max(sw.scores))
         result.cost_volume = sw.cost_volume()
-        result.coarse_pose_local = _pose(sw.state(sw.best()))
+        result.coarse_pose_local = Pose.from_state(sw.state(sw.best()))
         if sw.at_edge:
             result.counts["coarse_hypotheses"] = sw.hypotheses
             result.timings["coarse_s"] = time.perf_counter() - t_prep
@@ -265,7 +265,7 @@ class Localizer:
         hyps = local_search(
             self.scene, local_cam, seeds, sw.step, unc.roll_pitch_deg, q_local, self.class_on, cc.local
         )
-        result.coarse_pose_local = _pose(hyps.states[0])
+        result.coarse_pose_local = Pose.from_state(hyps.states[0])
         levels, seen = self._drop_inverted_depth(result, levels, result.coarse_pose_local)
         result.counts["coarse_hypotheses"] = sw.hypotheses + hyps.evaluated
         result.timings["coarse_s"] = time.perf_counter() - t_prep
@@ -486,10 +486,6 @@ class Localizer:
     def _render_one(self, camera: Camera, pose_local: Pose, depth: bool = False):
         """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
         return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)
-
-
-def _pose(state: np.ndarray) -> Pose:
-    return Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
 
 
 def _scaled(camera: Camera, width: int, height: int | None = None) -> Camera:

@@ -51,7 +51,7 @@ def evaluate(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Semantic score and depth cost of each state (N, 6); depth cost 0 where ``query_depth`` is None.
     ``depth_robust`` / ``depth_cap``: the depth cost's form (``RefineConfig.depth_cost``)."""
-    poses = Pose.from_xyz_rpy(states[:, :3], states[:, 3], states[:, 4], states[:, 5])
+    poses = Pose.from_state(states)
     n = len(states)
     sem = np.empty(n)
     dep = np.empty(n)
@@ -178,7 +178,7 @@ def pivot_jacobian(state: np.ndarray, pivot_depth_m: float) -> np.ndarray:
     eps = 1e-3  # degrees
 
     def axis(s: np.ndarray) -> np.ndarray:
-        pose = Pose.from_xyz_rpy(s[:3], s[3], s[4], s[5])
+        pose = Pose.from_state(s)
         return np.asarray(pose.R)[2]  # the optical axis in the local frame
 
     for k in range(3, 6):

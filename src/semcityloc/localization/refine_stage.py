@@ -91,7 +91,7 @@ class Refiner:
                 result.counts["refine_evaluations"] += PROBES
                 if result.score_curvature is not None:
                     result.covariance = cov_model.covariance(result.score_curvature)
-        result.pose_local = _pose(final)
+        result.pose_local = Pose.from_state(final)
         result.timings["refine_s"] = time.perf_counter() - t0
 
     def look_with_flat_eaves(
@@ -191,7 +191,7 @@ class Refiner:
 
     def _median_depth(self, camera: Camera, state: np.ndarray) -> float:
         """Median z-depth (m) of the model seen from ``state`` (0 when nothing is seen)."""
-        pose = _pose(state)
+        pose = Pose.from_state(state)
         seen = NumbaEngine(self.scene).render(camera, pose.R[None], pose.t[None], depth=True).depth
         return _median_seen(seen)
 
@@ -214,7 +214,3 @@ def _median_seen(depth: np.ndarray) -> float:
     """Median of a render's finite depths (0 when it sees nothing)."""
     seen = depth[np.isfinite(depth)]
     return float(np.median(seen)) if seen.size else 0.0
-
-
-def _pose(state: np.ndarray) -> Pose:
-    return Pose.from_xyz_rpy(state[:3], state[3], state[4], state[5])
