@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from semcityloc.benchmark import focal_cache
-from semcityloc.benchmark.photo_source import PhotoInput
+from semcityloc.benchmark.photo_inputs import PhotoInput
 from semcityloc.datasets.photos import PhotoPrior
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion

@@ -23,10 +23,10 @@ from PIL import Image
 
 from conftest import shared_file
 from dji_photo import dji_jpeg, xmp_packet
-from semcityloc.benchmark import photo_source
+from semcityloc.benchmark import photo_focal, photo_source
 from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
 from semcityloc.benchmark.perception_sim import simulate_segmentation
-from semcityloc.benchmark.photo_source import PhotoSpec
+from semcityloc.benchmark.photo_spec import PhotoSpec
 from semcityloc.benchmark.queries import STREAM_SEG
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.results import COLUMNS, REASON_UNREADABLE, read_results
@@ -915,8 +915,8 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
     def no_estimate(*args, **kwargs):
         raise AssertionError("the focal length was estimated again")
 
-    monkeypatch.setattr(photo_source, "estimate_focal_scale", no_estimate)
-    photo_source._calibrated.cache_clear()  # as a new process would: only the disk cache is left
+    monkeypatch.setattr(photo_focal, "estimate_focal_scale", no_estimate)
+    photo_focal.calibrated_inputs.cache_clear()  # as a new process would: only the disk cache is left
     again = tmp_path / "again"
     code, _, err = run(capsys, *argv, "--masks", root / "masks", "--no-overlays", "--out", again)
     assert code == 0, err
@@ -935,8 +935,8 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
 
     original_backend = photo_source.get_segmentation_backend
     monkeypatch.setattr(photo_source, "get_segmentation_backend", counted)
-    monkeypatch.setattr(photo_source, "estimate_focal_scale", estimate_focal_scale)
-    photo_source._calibrated.cache_clear()
+    monkeypatch.setattr(photo_focal, "estimate_focal_scale", estimate_focal_scale)
+    photo_focal.calibrated_inputs.cache_clear()
     backend = ["--seg-backend", "files", "--backend-option", f"masks={root / 'masks'}"]
     code, _, err = run(capsys, *argv, *backend, "--no-cache", "--no-overlays", "--out", tmp_path / "backend")
     assert code == 0, err
@@ -1066,7 +1066,7 @@ def test_a_photo_of_the_truth_without_its_mask_is_a_miss_else_skipped(box_flight
 def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_is_made(tmp_path):
     """``--geoid-separation nan`` was accepted (and written to run.json) whenever the priors came from
     files, since only a photo's EXIF prior checked it: now the run is refused before anything is read."""
-    from semcityloc.benchmark.photo_source import PhotoSpec
+    from semcityloc.benchmark.photo_spec import PhotoSpec
     from semcityloc.errors import ParameterError
 
     for bad in (float("nan"), 500.0):

@@ -5,6 +5,9 @@
   (segmentation and depth errors); ``reality`` (with ``building_changes``, ``occluders``,
   ``terrain_relief``, ``footprints``, ``meshes``): the simulated reality the queries see (reality != map);
 - ``sources``: the ``QuerySource`` protocol and ``SimulatedSource``; ``dataset_source``: a LoD-Loc data set;
+- a folder of photos (``semcityloc run``): ``photo_spec`` (the run), ``photo_inputs`` (each photo's inputs
+  checked before it), ``photo_focal`` (a camera's focal length from its flight; ``focal_cache``),
+  ``photo_source`` (the photos as queries), ``photo_exports`` (COLMAP, geotags, GeoJSON);
 - ``spec``: ``BenchmarkSpec`` (a simulated run) and the models it loads;
 - ``run``: ``run_queries`` / ``run_benchmark``, the one loop (resume, workers, progress);
 - ``results``: ``results.csv`` rows, details, summary; ``runfiles``: the run folder, atomic writes;

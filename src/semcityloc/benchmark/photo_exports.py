@@ -346,7 +346,7 @@ def check_records(out_dir: Path, inputs: list) -> None:
 def write_exports(
     out_dir: Path, model: CityModel, inputs: list, offset: np.ndarray | None, target_height: str
 ) -> dict[str, Any]:
-    """Write the exports (module docstring) of ``inputs`` (``photo_source.PhotoInput``); returns
+    """Write the exports (module docstring) of ``inputs`` (``photo_inputs.PhotoInput``); returns
     ``{output: path or None}`` and ``notes`` for the summary."""
     out_dir = Path(out_dir)
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)

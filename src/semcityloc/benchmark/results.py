@@ -231,7 +231,7 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
     true = q.true_pose_local
     none = (None, None, None)  # no ground truth (a user's photo): no error
     err = pose_errors(est, true) if true is not None else none
-    prior = q.prior_pose_local  # None: an unreadable photo's (``photo_source.PhotoInput.unreadable``)
+    prior = q.prior_pose_local  # None: an unreadable photo's (``photo_inputs.PhotoInput.unreadable``)
     prior_err = pose_errors(prior, true) if true is not None and prior is not None else none
     coarse = result.coarse_pose_local
     coarse_err = pose_errors(coarse, true) if coarse is not None and true is not None else none

@@ -6,9 +6,9 @@ localizes them (``localization.methods``). ``run_queries(source, spec, out)`` do
 summary and progress for every kind of run; ``run_benchmark(spec, out)`` opens the spec's source first.
 
 A spec is a typed object (``benchmark.spec.BenchmarkSpec`` for simulated runs,
-``benchmark.dataset_source.DatasetSpec`` for data sets) with ``method``, ``preset``, ``keep_details``,
-``label``, ``localizer_config()``, ``run_config()`` (the ``run.json`` dict), ``open_source(config)`` and
-``finish(out, rows, summary)``.
+``benchmark.dataset_source.DatasetSpec`` for data sets, ``benchmark.photo_spec.PhotoSpec`` for a folder of
+photos) with ``method``, ``preset``, ``keep_details``, ``label``, ``localizer_config()``, ``run_config()``
+(the ``run.json`` dict), ``open_source(config)`` and ``finish(out, rows, summary)``.
 Workers get the spec and the source (with its models) once, never a dict to read settings back from. A
 source with a ``tile_store`` (a ``--city`` tile store) gets a ``localization.tiled.TiledMethod``: each query
 loads the parts of the city it can see. A source with a ``start_note(todo)`` (a data set's missing files:

@@ -17,7 +17,7 @@ Folder ``DIR`` of a run:
 - ``summary.json``: the metrics, written when every query is done.
 - ``estimates/<name>.json``: the localized poses in the data set's world frame (data-set runs only);
   ``estimates_colmap/``: all of them as a COLMAP text model.
-- a photo run (``semcityloc run``, ``benchmark.photo_source``): ``poses/<stem>.json`` per photo,
+- a photo run (``semcityloc run``, ``benchmark.photo_spec``): ``poses/<stem>.json`` per photo,
   ``overlays/<stem>.png``, and when every photo is done ``colmap/``, ``geotags.csv``, ``geo.txt``,
   ``cameras.geojson``.
 

@@ -1,5 +1,5 @@
 """``semcityloc run``: a folder of photos + a city model -> a corrected pose per photo, and the files
-photogrammetry tools and GIS read (``benchmark.photo_source`` / ``photo_exports``; docs/your-data.md).
+photogrammetry tools and GIS read (``benchmark.photo_spec`` / ``photo_exports``; docs/your-data.md).
 
 Resumable like the benchmark: run the same command again after an interruption and it continues; other
 arguments on the same ``--out`` are refused unless ``--overwrite`` (which always starts the run again).
@@ -12,7 +12,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from semcityloc.benchmark.photo_source import CALIBRATE_FOCAL, PhotoSpec
+from semcityloc.benchmark.photo_spec import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import SKIPPED
 from semcityloc.cli.city import add_model_arguments, parse_lod, print_model_warnings

@@ -63,7 +63,7 @@ def load_labels_png(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
 def check_label_header(path: str | Path, allow_lossy: bool = False) -> None:
     """What ``load_labels_png`` refuses that a label image's header tells (a lossy format unless
     ``allow_lossy``, a mode other than palette or grey), its pixels not decoded: a photo run checks every
-    mask this way before its first photo (``benchmark.photo_source``)."""
+    mask this way before its first photo (``benchmark.photo_inputs``)."""
     try:
         with Image.open(path) as img:
             _check_label_image(img, path, allow_lossy)
@@ -259,7 +259,7 @@ def _decode_small(img: Image.Image) -> None:
 def decoded_size_and_orientation(path: str | Path, what: str = "image") -> tuple[int, int, int]:
     """(width, height, EXIF orientation) of an image file whose pixels decode: ``image_size``,
     ``exif_orientation`` and ``check_decodes`` with their errors, from one opening of the file instead of
-    three (a photo run asks this of every photo before its first, ``benchmark.photo_source``)."""
+    three (a photo run asks this of every photo before its first, ``benchmark.photo_inputs``)."""
     try:
         img = Image.open(path)
     except IMAGE_DECODE_ERRORS as exc:

@@ -1,0 +1,275 @@
+"""A photo run's inputs, found and checked for every photo before anything is localized (``resolve_inputs``).
+
+Why before the run: what a run can use is settled before its first photo, so that a photo lacking an input
+is named with the reason instead of stopping the run at its turn, and the run's identity (``run.json``'s
+``query_names`` and ``skipped_photos``) is known when the run starts.
+
+Per photo (``datasets.photos`` matches files to photos by name):
+
+- intrinsics: ``exif`` (DJI's calibration with its lens distortion, ``dji_camera.dewarp_lens``, else
+  DJI's calibration tags, else the 35 mm-equivalent focal length, ``dji_camera.camera_from_exif``) by
+  default, or a calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all); with
+  lens distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
+  uses them (``PhotoInput.pinhole``); a camera whose focal length is the approximate 35 mm one gets the
+  one its flight's oblique photos prefer afterwards (``benchmark.photo_focal``);
+- prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
+  COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
+- how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
+  photo), else the photo's RTK tags (``dji.prior_uncertainty``) or the geotag file's accuracy columns,
+  else the defaults. Kept in each query (``BenchmarkQuery.prior_uncertainty``) and in the outputs;
+- perception: precomputed masks (``<masks>/<stem>.png|.npy``, any resolution with the photo's aspect),
+  or a segmentation backend run on the photo (shrunk to ``PHOTO_MAX_WIDTH``); optional depth likewise;
+- optional ground truth (``truth``, same forms as the priors): rows then carry errors and the summary
+  recall.
+
+A photo that lacks any of these, or whose file cannot be read (not a file, empty, truncated, corrupt, a
+format Pillow does not read: its pixels are decoded once here, ``_readable_photo``), or whose mask's header
+says it cannot be used (a lossy format without ``allow_lossy_mask``, not class ids: ``_mask_file``), is
+skipped before anything is localized, with the reason naming the file (``run.json`` ``skipped_photos``, the
+summary, the CLI's closing lines); the others run. With ground truth (``truth``), a photo that has a true
+pose and whose own input (the photo, its mask or depth) is missing, cannot be read (not a file, empty,
+corrupt, truncated, no class ids) or does not fit the photo (another aspect) is not skipped but a miss of
+the run, found here or, for a file that fails only when read in full, at its turn
+(``benchmark.photo_source``): a ``not_localized`` row with the reason naming the file
+(``results.unreadable_result``, ``PhotoInput.unreadable``), in every recall's denominator, as in a data-set
+benchmark, so that recall is never over the photos that happened to have usable inputs. A photo without a
+true pose, or one that lacks a prior or intrinsics, or whose mask is in a lossy format without
+``allow_lossy_mask`` (the run's option, not the file), is skipped. With a tile store for the city, the map
+of the run's overlays and exports is the store's tiles within a camera's range of the priors
+(``flight_area``).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from semcityloc.citymodel.model import CityModel
+from semcityloc.citymodel.tiles import TileStore
+from semcityloc.datasets.photos import (
+    IntrinsicsFiles,
+    PhotoMissing,
+    PhotoPrior,
+    PriorFiles,
+    list_images,
+    photo_metadata,
+)
+from semcityloc.errors import InputFileError, LossyMaskError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.distortion import LensDistortion, undistort_image
+from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.io.images import (
+    check_aspect_of_photo,
+    check_label_header,
+    decoded_size_and_orientation,
+    image_size,
+)
+from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M
+from semcityloc.perception.files import DEPTH_SUFFIXES, MASK_SUFFIXES, find_file
+
+if TYPE_CHECKING:
+    # for annotations only: ``photo_spec`` imports this module, so importing it back would be a cycle
+    from semcityloc.benchmark.photo_spec import PhotoSpec
+
+
+@dataclass
+class PhotoInput:
+    """One photo's resolved inputs (module docstring); poses in the model's world frame."""
+
+    name: str
+    path: Path
+    camera: Camera | None  # None: an unreadable photo (``unreadable``) whose camera is in its own file
+    prior: PhotoPrior | None  # likewise
+    uncertainty: PriorUncertainty
+    truth_world: Pose | None = None
+    mask: Path | None = None
+    depth: Path | None = None
+    intrinsics_source: str = ""  # ``PhotoCamera.source``
+    distortion: LensDistortion = LensDistortion()  # the photo's lens; zero: pinhole already
+    # The flight's focal-length estimate for this camera (``photo_focal``; one dict per camera).
+    focal_estimate: dict | None = None
+    orientation: int = 1  # the photo's EXIF orientation (``io.images.exif_orientation``; 1: as stored)
+    # Why a photo with a true pose cannot run: its own file cannot be read or used (checked before the
+    # run). Its query is a miss naming the file, not skipped (module docstring); None: it runs.
+    unreadable: str | None = None
+
+    @property
+    def stem(self) -> str:
+        return self.path.stem
+
+    def pinhole(self, image: np.ndarray, fill: float, nearest: bool) -> np.ndarray:
+        """An array in the photo's geometry (the photo, a mask, a depth map; any resolution) resampled
+        onto the pinhole ``camera`` (``geometry.distortion.undistort_image``)."""
+        return undistort_image(image, self.camera, self.distortion, fill=fill, nearest=nearest)
+
+
+class Resolved(NamedTuple):
+    """What a ``PhotoSpec`` resolves to (``PhotoSpec.resolved``)."""
+
+    model: CityModel  # the city file, or the tiles of a store within a camera's range of the flight
+    inputs: list[PhotoInput]  # the photos that can run
+    skipped: dict[str, str]  # {name: why not} of the others
+    store: TileStore | None  # the ``--city`` tile store, opened once: the localizer's parts per photo
+
+
+@functools.lru_cache(maxsize=2)
+def resolve_inputs(spec: PhotoSpec) -> Resolved:
+    """``spec``'s model and every photo of its folder found and checked (module docstring): the photos that
+    run (with a miss of the truth among them, ``PhotoInput.unreadable``), ``{name: why not}`` of the others,
+    and the tile store (None for a file); the focal lengths as the intrinsics state them (``photo_focal``)."""
+    model, store = spec.load_model()
+    offset = None if spec.offset is None else np.asarray(spec.offset, dtype=np.float64)
+    priors = PriorFiles(spec.priors, model.crs, offset, spec.target_height, spec.geoid_separation_m)
+    truth = None
+    if spec.truth:
+        truth = PriorFiles(spec.truth, model.crs, offset, spec.target_height, spec.geoid_separation_m)
+    intrinsics = IntrinsicsFiles(spec.intrinsics, priors.files)
+    fixed = spec.fixed_uncertainty()
+    inputs: list[PhotoInput] = []
+    skipped: dict[str, str] = {}
+    for path in list_images(spec.images, every_entry=True):
+        lens = prior = meta = None
+        try:
+            width, height, orientation = _readable_photo(path)
+            # Read once when both the camera and the prior come from it (each would read the whole file).
+            meta = photo_metadata(path) if intrinsics.exif and priors.exif else None
+            lens = intrinsics.photo_camera(path, width, height, meta)
+            camera = lens.camera
+            prior = priors.prior(path, meta)
+            mask = _mask_file(spec, path, camera, orientation)
+            depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera, orientation)
+        except PhotoMissing as exc:
+            true_pose = _true_pose(truth, path, meta) if isinstance(exc, PhotoUnreadable) else None
+            if true_pose is None:
+                skipped[path.name] = str(exc)
+                continue
+            # A photo of the truth whose own file cannot be read: a miss of the run (module docstring),
+            # with its prior when that is not in the photo itself (a pose file, a geotag CSV).
+            prior = prior if prior is not None or lens is not None else _prior_or_none(priors, path)
+            sigma = fixed or (prior.uncertainty if prior is not None else None) or PriorUncertainty()
+            known = {} if lens is None else {"intrinsics_source": lens.source, "distortion": lens.distortion}
+            camera = lens.camera if lens is not None else None
+            inputs.append(
+                PhotoInput(path.name, path, camera, prior, sigma, true_pose, unreadable=str(exc), **known)
+            )
+            continue
+        true_pose = _true_pose(truth, path, meta)
+        sigma = fixed or prior.uncertainty or PriorUncertainty()
+        inputs.append(
+            PhotoInput(
+                path.name,
+                path,
+                camera,
+                prior,
+                sigma,
+                true_pose,
+                mask,
+                depth,
+                intrinsics_source=lens.source,
+                distortion=lens.distortion,
+                orientation=orientation,
+            )
+        )
+    placed = [inp for inp in inputs if inp.prior is not None]
+    if store is not None and placed:
+        model = flight_area(store, model, placed)
+    return Resolved(model, inputs, skipped, store)
+
+
+class PhotoUnreadable(PhotoMissing):
+    """A photo's own input (the photo, its mask or depth) is missing, cannot be read or does not fit the
+    photo: skipped, or with a true pose a miss (module docstring)."""
+
+
+def _prior_or_none(priors: PriorFiles | None, path: Path, meta=None) -> PhotoPrior | None:
+    """``priors.prior`` of the photo ``path``, None when there is none it can give (ground truth is optional
+    per photo; an unreadable photo's prior may be in the photo itself)."""
+    if priors is None:
+        return None
+    try:
+        return priors.prior(path, meta)
+    except InputFileError:  # PhotoMissing among them
+        return None
+
+
+def _true_pose(truth: PriorFiles | None, path: Path, meta) -> Pose | None:
+    """The true pose of the photo ``path`` (world frame), None without one."""
+    given = _prior_or_none(truth, path, meta)
+    return given.pose_world if given is not None else None
+
+
+def _readable_photo(path: Path) -> tuple[int, int, int]:
+    """(width, height, EXIF orientation) of a photo whose pixels decode (``io.images.check_decodes``, here
+    with the size and orientation from the same opening: ``decoded_size_and_orientation``);
+    ``PhotoMissing`` naming the file when it is not a file, is empty, truncated, corrupt or of a format
+    Pillow does not read: that photo is skipped with the reason, the others run."""
+    if not path.is_file():
+        raise PhotoUnreadable(f"{path}: not a file (named like a photo)")
+    try:
+        if path.stat().st_size == 0:
+            raise InputFileError(f"{path}: cannot read photo (empty file)")
+        return decoded_size_and_orientation(path, "photo")
+    except (InputFileError, OSError) as exc:
+        raise PhotoUnreadable(str(exc)) from None
+
+
+def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) -> CityModel:
+    """The tiles of a store within a camera's range of any photo's prior: the map of the run's overlays
+    and exports (the localizer loads its own per photo, ``localization.tiled``)."""
+    xy = np.array([frame.pose_to_local(inp.prior.pose_world).center[:2] for inp in inputs])
+    tiles = store.tiles_around(xy, MAX_VIEW_RANGE_M) or store.tiles_near(xy[0])
+    return store.load(tiles)
+
+
+def _mask_file(spec: PhotoSpec, photo: Path, camera: Camera, orientation: int) -> Path | None:
+    """``_input_file`` of the photo's mask, its header checked too (``io.images.check_label_header``: a lossy
+    format without ``allow_lossy_mask``, ``PhotoMissing``; not class ids, ``PhotoUnreadable``) saying why."""
+    path = _input_file(spec.masks, photo, MASK_SUFFIXES, "mask", camera, orientation)
+    if path is not None and path.suffix.lower() != ".npy":
+        try:
+            check_label_header(path, spec.allow_lossy_mask)
+        except LossyMaskError as exc:  # the run's --allow-lossy-mask, not this file
+            raise PhotoMissing(str(exc)) from None
+        except InputFileError as exc:
+            raise PhotoUnreadable(str(exc)) from None
+    return path
+
+
+def _array_shape(path: Path) -> tuple[int, int]:
+    """(H, W) of a mask / depth file from its header (PNG) or array header (``.npy``)."""
+    if path.suffix.lower() == ".npy":
+        try:
+            shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+        except (OSError, ValueError) as exc:
+            raise PhotoUnreadable(f"{path}: not a readable .npy array ({exc})") from None
+        return tuple(int(v) for v in shape)
+    width, height = image_size(path, "mask or depth image")
+    return height, width
+
+
+def _input_file(
+    folder: str | None, photo: Path, suffixes, what: str, camera: Camera, orientation: int
+) -> Path | None:
+    """The photo's mask / depth file in ``folder`` (None without a folder), checked to show the photo's
+    field of view (``orientation``: the photo's EXIF one); ``PhotoUnreadable`` when absent, when its
+    header cannot be read or when it is of another aspect."""
+    if not folder:
+        return None
+    try:
+        path = find_file(Path(folder), photo.name, suffixes, what)
+    except InputFileError as exc:
+        raise PhotoUnreadable(str(exc)) from None
+    try:
+        shape = _array_shape(path)
+    except InputFileError as exc:  # PhotoUnreadable (a .npy) among them
+        raise PhotoUnreadable(str(exc)) from None
+    try:
+        check_aspect_of_photo(shape, camera.width, camera.height, what, path, orientation)
+    except (InputFileError, ValueError) as exc:
+        raise PhotoUnreadable(str(exc)) from None
+    return path
