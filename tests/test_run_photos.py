@@ -1066,7 +1066,6 @@ def test_a_photo_of_the_truth_without_its_mask_is_a_miss_else_skipped(box_flight
 def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_is_made(tmp_path):
     """``--geoid-separation nan`` was accepted (and written to run.json) whenever the priors came from
     files, since only a photo's EXIF prior checked it: now the run is refused before anything is read."""
-    from semcityloc.benchmark.photo_spec import PhotoSpec
     from semcityloc.errors import ParameterError
 
     for bad in (float("nan"), 500.0):
