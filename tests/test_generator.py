@@ -3,7 +3,6 @@ geometry rules (closed solids, outward orientation, openings) and read-back thro
 
 from __future__ import annotations
 
-import importlib.util
 from collections import Counter
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 from lxml import etree
 
+from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.citygml_writer import BLDG_NS, CORE_NS, GML_NS, XLINK_NS
 from semcityloc.citymodel.generator import (
     GeneratorParameterError,
@@ -22,9 +22,6 @@ from semcityloc.citymodel.generator_footprints import Footprint, generate_footpr
 from semcityloc.citymodel.generator_surfaces import building_surfaces
 from semcityloc.citymodel.triangulate import newell_normal, polygon_area
 from semcityloc.errors import CRSError, InputFileError, SemCityLocError
-
-HAVE_READER = importlib.util.find_spec("semcityloc.citymodel.citygml") is not None
-needs_reader = pytest.mark.skipif(not HAVE_READER, reason="semcityloc.citymodel.citygml is not written yet")
 
 G = f"{{{GML_NS}}}"
 B = f"{{{BLDG_NS}}}"
@@ -363,12 +360,9 @@ def test_lod3_openings_cut_the_walls(models):
 # -------------------------------------------------------------------------------- read back (reader)
 @pytest.fixture(scope="module")
 def read_back(city) -> dict:
-    from semcityloc.citymodel.citygml import read_citygml
-
     return {lod: read_citygml(path) for lod, path in city.items()}
 
 
-@needs_reader
 def test_reader_sees_the_same_buildings_at_every_lod(read_back, footprints):
     for lod, model in read_back.items():
         assert model.num_buildings == len(footprints), lod
@@ -379,7 +373,6 @@ def test_reader_sees_the_same_buildings_at_every_lod(read_back, footprints):
     assert read_back[2].stats.classified_by_normal == 0
 
 
-@needs_reader
 def test_reader_lod3_has_openings_and_less_wall(read_back, models):
     lod2, lod3 = read_back[2].class_areas(), read_back[3].class_areas()
     counts = read_back[3].class_triangle_counts()

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
@@ -11,6 +9,7 @@ from hypothesis import strategies as st
 
 from semcityloc.citymodel import lod1 as lod1_module
 from semcityloc.citymodel.builder import MeshBuilder
+from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.generator import footprints_to_model
 from semcityloc.citymodel.generator_footprints import generate_footprints
@@ -314,10 +313,6 @@ def test_generated_city_keeps_every_building():
 
 def test_berlin_lod2_keeps_every_building_and_its_footprint(shared):
     path = shared("berlin_lod2_citygml2/3910_5817.gml")
-    if importlib.util.find_spec("semcityloc.citymodel.citygml") is None:
-        pytest.skip("semcityloc.citymodel.citygml is not written yet")
-    from semcityloc.citymodel.citygml import read_citygml
-
     model = read_citygml(path)
     lod1 = derive_lod1(model)
     assert lod1.num_buildings == model.num_buildings == 166
