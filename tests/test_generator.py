@@ -13,7 +13,6 @@ from lxml import etree
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.citygml_writer import BLDG_NS, CORE_NS, GML_NS, XLINK_NS
 from semcityloc.citymodel.generator import (
-    GeneratorParameterError,
     default_city_path,
     footprints_to_model,
     generate_city,
@@ -21,7 +20,7 @@ from semcityloc.citymodel.generator import (
 from semcityloc.citymodel.generator_footprints import Footprint, generate_footprints
 from semcityloc.citymodel.generator_surfaces import building_surfaces
 from semcityloc.citymodel.triangulate import newell_normal, polygon_area
-from semcityloc.errors import CRSError, InputFileError, SemCityLocError
+from semcityloc.errors import CRSError, InputFileError, ParameterError, SemCityLocError
 
 G = f"{{{GML_NS}}}"
 B = f"{{{BLDG_NS}}}"
@@ -108,25 +107,25 @@ def test_unwritable_cache_dir_is_a_typed_error(tmp_path):
 
 
 def test_bad_parameters_raise_typed_errors(tmp_path):
-    with pytest.raises(GeneratorParameterError):
+    with pytest.raises(ParameterError):
         generate_footprints(0, (0, 3))
-    with pytest.raises(GeneratorParameterError):
+    with pytest.raises(ParameterError):
         generate_footprints(0, "ab")
-    with pytest.raises(GeneratorParameterError, match="seed"):
+    with pytest.raises(ParameterError, match="seed"):
         generate_footprints(-1)
-    with pytest.raises(GeneratorParameterError, match="seed"):
+    with pytest.raises(ParameterError, match="seed"):
         generate_footprints("zero")
-    with pytest.raises(GeneratorParameterError):
+    with pytest.raises(ParameterError):
         generate_city(tmp_path, lods=(4,))
-    with pytest.raises(GeneratorParameterError):
+    with pytest.raises(ParameterError):
         generate_city(tmp_path, lods=())
-    with pytest.raises(GeneratorParameterError):
+    with pytest.raises(ParameterError):
         default_city_path(0, cache_dir=tmp_path)
     with pytest.raises(CRSError, match="projected"):
         generate_city(tmp_path, crs="EPSG:4326")
     with pytest.raises(CRSError):
         generate_city(tmp_path, crs="not a crs")
-    assert issubclass(GeneratorParameterError, SemCityLocError)
+    assert issubclass(ParameterError, SemCityLocError)
     assert not list(tmp_path.iterdir())  # nothing written before the parameters were checked
 
 

@@ -48,8 +48,6 @@ from semcityloc.errors import InputFileError, ParameterError
 GENERATOR_VERSION = 1  # bump whenever the output of the same parameters changes (cache key)
 DEFAULT_LODS = (1, 2, 3)
 
-GeneratorParameterError = ParameterError  # kept as a name for callers; the class lives in semcityloc.errors
-
 
 def footprints_to_model(footprints: list[Footprint], lod: int = 2, crs: str = DEFAULT_CRS) -> CityModel:
     """The generated surfaces straight into a ``CityModel`` (no XML). LoD1 surfaces go in unlabelled
@@ -113,7 +111,7 @@ def generate_city(
     lods = (lods,) if isinstance(lods, (int, np.integer)) else lods
     lod_list = sorted({check_lod(v) for v in lods}) if lods else []
     if not lod_list:
-        raise GeneratorParameterError("lods must name at least one of 1, 2, 3")
+        raise ParameterError("lods must name at least one of 1, 2, 3")
     srs_name(crs)  # fail on a bad CRS before any work
     footprints = generate_footprints(seed, blocks, origin)
     nx, ny = check_blocks(blocks)
