@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import functools
 import math
-import re
 import warnings
 
 import pyproj
@@ -39,8 +38,6 @@ EGM96 = "EPSG:4326+5773"  # WGS 84 + EGM96 height: DJI's "MSL", the default orth
 WGS84_3D = "EPSG:4979"
 EGM96_GRID = "us_nga_egm96_15.tif"
 AREA_MARGIN_DEG = 2.0  # tolerance around a CRS's area of use (zones are often used a little beyond)
-# "EPSG:h+v" read whole by pyproj, as parse_crs_name reads it too; the error here quotes the name as given.
-_EPSG_PLUS = re.compile(r"^\s*EPSG:\d+\+\d+\s*$", re.IGNORECASE)
 # pyproj's CRS and transformation objects take 5-500 ms each to make (a geoid's operations the most), and
 # a flight's photos all need the same few: made once per process, kept by a hashable name of their CRSs
 # (``_crs_key``: a name as given, a CRS object's WKT). pyproj's objects are not changed once made.
@@ -48,21 +45,14 @@ _CACHED = 32
 
 
 def target_crs_of(name: str | pyproj.CRS) -> pyproj.CRS:
-    """A CRS from a name: ``parse_crs_name`` forms, and ``EPSG:h+v`` compounds kept whole."""
+    """A CRS from a name (``parse_crs_name``'s forms, ``EPSG:h+v`` compounds kept whole), made once per
+    name (an error is raised again each time); a CRS as it is."""
     if isinstance(name, pyproj.CRS):
         return name
     return _crs_of_name(str(name))
 
 
-@functools.lru_cache(maxsize=_CACHED)
-def _crs_of_name(name: str) -> pyproj.CRS:
-    """``target_crs_of`` a name, made once per name (an error is raised again each time)."""
-    if _EPSG_PLUS.match(name):
-        try:
-            return pyproj.CRS.from_user_input(name.strip())
-        except pyproj.exceptions.CRSError as exc:
-            raise CRSError(f"unknown EPSG code in CRS {name!r}: {exc}") from exc
-    return parse_crs_name(name)
+_crs_of_name = functools.lru_cache(maxsize=_CACHED)(parse_crs_name)
 
 
 def check_projected(crs: pyproj.CRS, what: str) -> pyproj.CRS:
