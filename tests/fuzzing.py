@@ -193,6 +193,11 @@ def json_mutation(rng: random.Random, data: bytes) -> bytes:
     try:
         doc = json.loads(data)
     except (ValueError, UnicodeDecodeError):
+        lines = data.split(b"\n")
+        if len(lines) > 1 and rng.random() < 0.75:  # a CityJSONSeq stream: one of its lines mutated
+            i = rng.randrange(len(lines))
+            lines[i] = json_mutation(rng, lines[i])
+            return b"\n".join(lines)
         return text_mutation(rng, data)
     if rng.random() < 0.25:
         return text_mutation(rng, data)
@@ -397,7 +402,16 @@ def synthetic_seeds(target: str, work: Path) -> list[tuple[str, bytes]]:
             return [("generated.obj", obj.read_bytes())]
         return [(p.name, _citygml_excerpt(p, 2)) for p in paths.values()]
     if target == "cityjson":
-        return [("box.json", json.dumps(box_doc()).encode())]
+        doc = box_doc()
+        header = {**doc, "CityObjects": {}, "vertices": []}
+        feature = {
+            "type": "CityJSONFeature",
+            "id": "B1",
+            "CityObjects": doc["CityObjects"],
+            "vertices": doc["vertices"],
+        }
+        stream = b"\n".join(json.dumps(x).encode() for x in (header, feature, feature))
+        return [("box.json", json.dumps(box_doc()).encode()), ("box.city.jsonl", stream)]
     if target == "pose":
         return [
             ("pose.txt", b"1 0 0 10\n0 -1 0 20\n0 0 -1 100\n0 0 0 1\n"),

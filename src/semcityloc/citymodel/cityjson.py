@@ -1,5 +1,8 @@
 """Read the buildings of a CityJSON file (versions 0.8, 0.9, 1.0, 1.1, 2.0) into a semantic ``CityModel``.
 
+A CityJSONSeq stream (``.city.jsonl``, as 3DBAG's API and ``cjio export jsonl`` write it) is merged into one
+document first (``cityjson_seq``) and read the same way.
+
 Why a reader of its own: CityJSON stores one shared vertex list (integers with a ``transform`` since 1.0,
 optional in 0.x) and nests boundaries and semantics by geometry type. We convert the vertex list once to
 float64 world coordinates (``vertices * scale + translate``), then walk each building's geometry and hand
@@ -45,6 +48,7 @@ import numpy as np
 import pyproj
 
 from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, MeshBuilder, usable_points
+from semcityloc.citymodel.cityjson_seq import looks_like_sequence, merge_sequence
 from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size, gunzip_bounded
 from semcityloc.citymodel.model import CityModel, ParseStats
@@ -90,15 +94,16 @@ def read_cityjson(
         EmptyModelError: no building surface is left (after LoD selection: the message names the LoDs).
     """
     path = Path(path)
-    doc = _load_json(path)
+    doc, notes = _load_json(path)
     version = _check_header(doc, path)
-    return _CityJSONReader(doc, path, version, lod).read(target_crs, crs_override, origin)
+    return _CityJSONReader(doc, path, version, lod, notes).read(target_crs, crs_override, origin)
 
 
 # ---------------------------------------------------------------------------------------------- file
 
 
-def _load_json(path: Path) -> dict:
+def _load_json(path: Path) -> tuple[dict, list[str]]:
+    """The document (a CityJSONSeq stream merged into one) and warnings about lines of a stream left out."""
     check_file_size(path, "CityJSON")
     try:
         raw = path.read_bytes()
@@ -109,6 +114,8 @@ def _load_json(path: Path) -> dict:
             raw = gunzip_bounded(path, raw, "CityJSON")
         except (OSError, EOFError, zlib.error) as exc:
             raise MalformedCityJSONError(f"{path}: broken gzip stream ({exc})") from exc
+    if looks_like_sequence(raw):
+        return merge_sequence(raw, str(path))
     try:
         doc = json.loads(raw)
     except json.JSONDecodeError as exc:
@@ -121,7 +128,7 @@ def _load_json(path: Path) -> dict:
         raise MalformedCityJSONError(
             f"{path}: the top level is a JSON {type(doc).__name__}, not a CityJSON object"
         )
-    return doc
+    return doc, []
 
 
 def _check_header(doc: dict, path: Path) -> str:
@@ -143,7 +150,7 @@ def _check_header(doc: dict, path: Path) -> str:
         )
     if not isinstance(doc.get("CityObjects"), dict):
         raise MalformedCityJSONError(f"{path}: 'CityObjects' is missing or not an object")
-    if not isinstance(doc.get("vertices"), list):
+    if not isinstance(doc.get("vertices"), list | np.ndarray):  # an array: a CityJSONSeq stream merged
         raise MalformedCityJSONError(f"{path}: 'vertices' is missing or not an array")
     return version
 
@@ -280,13 +287,14 @@ class _Counts:
 
 
 class _CityJSONReader:
-    def __init__(self, doc: dict, path: Path, version: str, lod: str | int | float | None):
+    def __init__(self, doc: dict, path: Path, version: str, lod: str | int | float | None, notes: list[str]):
         self.doc = doc
         self.path = path
         self.version = version
         self.lod_request = lod
         self.counts = _Counts()
         self.stats = ParseStats()
+        self.stats.warnings.extend(notes)
         self.objects: dict = doc["CityObjects"]
 
     # ------------------------------------------------------------------ coordinates

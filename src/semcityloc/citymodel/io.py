@@ -1,8 +1,9 @@
 """Load any supported city model file into a ``CityModel``, with a parse cache.
 
 Formats are recognised by content, not only by extension: CityGML (XML, also ``.gml.gz``), CityJSON
-(JSON with ``"type": "CityJSON"``), Wavefront OBJ, and our own ``.npz`` cache files. Parsed models are
-cached as npz keyed by the file's SHA-256 and the reading options, so a 24 MB CityGML is parsed once.
+(JSON with ``"type": "CityJSON"``, also a CityJSONSeq stream), Wavefront OBJ, and our own ``.npz`` cache
+files. Parsed models are cached as npz keyed by the file's SHA-256 and the reading options, so a 24 MB
+CityGML is parsed once.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ def default_cache_dir() -> Path:
 
 ZIP_MAGIC = b"PK\x03\x04"
 # What a geoportal's archive may hold that the readers take (``__MACOSX/`` resource forks left out).
-_MODEL_SUFFIXES = (".gml", ".xml", ".gml.gz", ".json", ".city.json", ".obj")
+_MODEL_SUFFIXES = (".gml", ".xml", ".gml.gz", ".json", ".jsonl", ".obj")
 
 
 def zip_message(path: Path) -> str:
