@@ -15,7 +15,7 @@ from semcityloc.benchmark.dataset_source import (
     oracle_labels,
     working_camera,
 )
-from semcityloc.benchmark.results import REASON_UNREADABLE, read_results
+from semcityloc.benchmark.results import REASON_UNFIT, REASON_UNREADABLE, read_results
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import ESTIMATES_DIR
 from semcityloc.cli.main import main
@@ -247,7 +247,8 @@ def test_an_unreadable_mask_is_that_querys_miss_not_the_runs_end(dataset_dir, tm
     rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
     assert rows["q0000"]["status"] == "localized"
     miss = rows["q0001"]
-    assert miss["status"] == "not_localized" and miss["reason"].startswith(REASON_UNREADABLE)
+    said = REASON_UNFIT if damage == "another aspect" else REASON_UNREADABLE  # it reads, it does not fit
+    assert miss["status"] == "not_localized" and miss["reason"].startswith(f"{said}: ")
     assert str(bad) in miss["reason"] and DAMAGES[damage] in miss["reason"]
     assert miss["err_xyz_m"] == "inf" and json.loads(miss["meta_json"])["name"] == "DJI_0002_W.JPG"
     warnings = [line for line in err.splitlines() if line.startswith("semcityloc: warning:")]

@@ -48,7 +48,7 @@ from semcityloc import __version__
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
-from semcityloc.benchmark.results import UNREADABLE_INPUT
+from semcityloc.benchmark.results import UNFIT_INPUT, UNREADABLE_INPUT
 from semcityloc.benchmark.runfiles import (
     ESTIMATES_COLMAP_DIR,
     ESTIMATES_DIR,
@@ -337,6 +337,7 @@ class DatasetSource:
             except (InputFileError, ShapeError) as exc:  # this query's file: its miss, not the run's end
                 labels = np.full((camera.height, camera.width), IGNORE, dtype=np.uint8)
                 meta[UNREADABLE_INPUT] = str(exc)
+                meta[UNFIT_INPUT] = isinstance(exc, ShapeError)
             meta["labels_source"] = "masks"
         else:
             labels = oracle_labels(self.map_model, camera, q.gt_pose_world, self.renderer)

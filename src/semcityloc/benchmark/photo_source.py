@@ -33,7 +33,13 @@ import numpy as np
 from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.photo_inputs import PhotoInput
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
-from semcityloc.benchmark.results import SKIP_REASON, SKIPPED, UNREADABLE_INPUT, is_unreadable
+from semcityloc.benchmark.results import (
+    SKIP_REASON,
+    SKIPPED,
+    UNFIT_INPUT,
+    UNREADABLE_INPUT,
+    is_unreadable,
+)
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, write_json_atomic, writing
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore
@@ -126,7 +132,8 @@ class PhotoSource:
             blank = np.full((cam.height, cam.width), IGNORE, dtype=np.uint8)
             # unreadable or unfit with a true pose: a miss of the run, else skipped (module docstring)
             if inp.truth_world is not None:
-                return self._query(index, blank, None, {UNREADABLE_INPUT: str(exc)})
+                unfit = isinstance(exc, ShapeError)
+                return self._query(index, blank, None, {UNREADABLE_INPUT: str(exc), UNFIT_INPUT: unfit})
             return self._query(index, blank, None, {"accepted": False, SKIP_REASON: str(exc)})
         if photo is not None:
             photo = inp.pinhole(photo, fill=0, nearest=False)

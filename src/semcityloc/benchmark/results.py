@@ -126,19 +126,25 @@ def skipped_result(reason: str = REASON_SKIPPED) -> LocalizationResult:
 # depth map; ``meta[UNREADABLE_INPUT]`` says which and why): not localized, the reason starting with
 # ``REASON_UNREADABLE``, so that it is a miss in every recall. Never ``SKIPPED``: a benchmark whose files
 # are damaged must not score better than one whose files read (the recall's denominator stays the queries).
+# A file that reads but cannot be used with its camera (a mask of another size, a depth map of ids) is
+# the same kind of miss, said in its own words (``REASON_UNFIT``, ``meta[UNFIT_INPUT]`` true).
 REASON_UNREADABLE = "input file cannot be read"
-UNREADABLE_INPUT = "unreadable_input"  # the meta key of what could not be read
+REASON_UNFIT = "input file does not fit its camera"
+UNREADABLE_INPUT = "unreadable_input"  # the meta key of what could not be read (or used)
+UNFIT_INPUT = "unfit_input"  # the meta key saying it was read but does not fit
 
 
-def unreadable_result(problem: str) -> LocalizationResult:
-    """The result of a query whose input files cannot be read (``UNREADABLE_INPUT``): not localized, a
-    miss, the reason naming the file and the problem."""
-    return LocalizationResult(status=NOT_LOCALIZED, reason=f"{REASON_UNREADABLE}: {problem}")
+def unreadable_result(problem: str, unfit: bool = False) -> LocalizationResult:
+    """The result of a query whose input files cannot be read or used (``UNREADABLE_INPUT``): not localized,
+    a miss, the reason naming the file and the problem."""
+    return LocalizationResult(
+        status=NOT_LOCALIZED, reason=f"{REASON_UNFIT if unfit else REASON_UNREADABLE}: {problem}"
+    )
 
 
 def is_unreadable(reason: str | None) -> bool:
     """Whether a result's (or row's) reason is ``unreadable_result``'s."""
-    return (reason or "").startswith(REASON_UNREADABLE)
+    return (reason or "").startswith((REASON_UNREADABLE, REASON_UNFIT))
 
 
 def unreadable_row(row: dict[str, str]) -> bool:

@@ -42,6 +42,7 @@ from semcityloc.benchmark.results import (
     REASON_SKIPPED,
     SKIP_REASON,
     SKIPPED,
+    UNFIT_INPUT,
     UNREADABLE_INPUT,
     append_row,
     make_row,
@@ -146,7 +147,7 @@ def _refused_by_source(meta: dict) -> LocalizationResult | None:
     could not read is a miss (``results.unreadable_result``), one it did not accept is skipped
     (``results.skipped_result``)."""
     if UNREADABLE_INPUT in meta:
-        return unreadable_result(str(meta[UNREADABLE_INPUT]))
+        return unreadable_result(str(meta[UNREADABLE_INPUT]), unfit=bool(meta.get(UNFIT_INPUT)))
     if not meta.get("accepted", True):
         return skipped_result(meta.get(SKIP_REASON, REASON_SKIPPED))
     return None
