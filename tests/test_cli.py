@@ -664,7 +664,7 @@ def test_python_dash_m_runs_the_command(package):
 @pytest.mark.parametrize("package", ["semcityloc", "semcityloc.cli"])
 def test_python_dash_m_catches_a_ctrl_c_while_the_command_imports(package):
     """``python -m semcityloc`` goes through the console script's ``entry``: a Ctrl-C while the CLI imports
-    is one line and exit 130 there too (``python -m semcityloc.cli.main`` is a traceback)."""
+    is one line and exit 130 there too."""
     run_module = f"import runpy\nrunpy.run_module({package!r}, run_name='__main__', alter_sys=True)\n"
     code = _CTRL_C_IN_IMPORT + run_module
     proc = subprocess.run(
@@ -674,6 +674,23 @@ def test_python_dash_m_catches_a_ctrl_c_while_the_command_imports(package):
         timeout=120,
     )
     assert (proc.returncode, proc.stderr, proc.stdout) == (130, "semcityloc: interrupted\n", "")
+
+
+def test_python_dash_m_of_the_main_module_catches_a_ctrl_c_in_its_imports():
+    """``python -m semcityloc.cli.main`` ran the module's slow imports (numba) as ``__main__``, outside any
+    ``try``: a Ctrl-C there was a traceback. It hands over to ``entry`` first."""
+    code = _CTRL_C_IN_IMPORT + "import runpy\nrunpy.run_module('semcityloc.cli.main', run_name='__main__')\n"
+    proc = subprocess.run(
+        [sys.executable, "-c", code, "numba", "--version"], capture_output=True, text=True, timeout=120
+    )
+    assert (proc.returncode, proc.stderr, proc.stdout) == (130, "semcityloc: interrupted\n", "")
+    ok = subprocess.run(
+        [sys.executable, "-m", "semcityloc.cli.main", "--version"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert ok.returncode == 0 and ok.stdout.startswith("semcityloc ") and ok.stderr == ""
 
 
 def test_the_console_script_catches_a_ctrl_c_before_numpy_is_imported():

@@ -11,6 +11,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+if __name__ == "__main__":  # ``python -m semcityloc.cli.main``: through ``entry``, before the slow imports
+    from semcityloc.cli import entry
+
+    sys.exit(entry())
+
+
 from semcityloc import __version__
 from semcityloc.benchmark.warmup import COMPILE_NOTICE, kernels_cached
 from semcityloc.cli import (
@@ -99,7 +105,3 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return interrupted()
-
-
-if __name__ == "__main__":
-    sys.exit(main())
