@@ -11,7 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-if __name__ == "__main__":  # ``python -m semcityloc.cli.main``: through ``entry``, before the slow imports
+if __name__ == "__main__":
+    # ``python -m semcityloc.cli.main``: handed to ``entry`` before the slow imports below (a Ctrl-C in them)
     from semcityloc.cli import entry
 
     sys.exit(entry())
