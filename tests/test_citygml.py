@@ -690,6 +690,23 @@ def _polygon_member(poslist: str) -> str:
     )
 
 
+def test_a_geographic_crs_for_metre_coordinates_is_refused_naming_them(tmp_path):
+    """``--crs EPSG:4326`` for a file in UTM read every coordinate as degrees, dropped every polygon as
+    absurd and said the file had no readable surface; now the CRS is named as the fault, given or in the
+    file. A file in degrees under the same CRS reads."""
+    metres = _polygon_member(f"{X0} {Y0} 10 {X0 + 9} {Y0} 10 {X0 + 9} {Y0 + 7} 10")
+    path = _write(tmp_path, _city([_building("B", metres)]))
+    with pytest.raises(CRSError, match=r"no degrees, but 'WGS 84' is geographic.*\(--crs: 'EPSG:4326'\)"):
+        read_citygml(path, crs_override="EPSG:4326")
+    wrong = _write(tmp_path, _city([_building("B", metres)], srs="EPSG:4326"), "wrong.gml")
+    with pytest.raises(CRSError, match=r"\(the file's srsName: 'EPSG:4326'\)"):
+        read_citygml(wrong)
+    degrees = _polygon_member("52.5 13.4 10 52.5001 13.4 10 52.5001 13.4001 10")
+    assert read_citygml(
+        _write(tmp_path, _city([_building("B", degrees)], srs="EPSG:4326"), "deg.gml")
+    ).num_triangles
+
+
 def test_a_point_a_geographic_crs_cannot_project_is_dropped_without_a_warning(tmp_path):
     """Latitude 95 in EPSG:4326 projects to infinity: the polygon is dropped and counted (builder)."""
     good = _polygon_member("52.5 13.4 10 52.5001 13.4 10 52.5001 13.4001 10")

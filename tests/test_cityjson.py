@@ -364,6 +364,17 @@ def test_bad_input_raises_typed_errors(tmp_path, content, error, message):
         read_cityjson(write(tmp_path, content))
 
 
+def test_a_geographic_crs_for_metre_coordinates_is_refused_naming_it(tmp_path):
+    """``--crs EPSG:4326`` for a file in RD metres: the CRS is named as the fault, not the file's
+    polygons (all dropped as absurd before)."""
+    path = write(tmp_path, box_doc())
+    with pytest.raises(CRSError, match=r"\(85000\.0, 447000\.0\) are no degrees.*\(--crs: 'EPSG:4326'\)"):
+        read_cityjson(path, crs_override="EPSG:4326")
+    meta = {"referenceSystem": "https://www.opengis.net/def/crs/EPSG/0/4326"}
+    with pytest.raises(CRSError, match="the file's referenceSystem"):
+        read_cityjson(write(tmp_path, box_doc(metadata=meta), "wrong.json"))
+
+
 def test_missing_file_and_gzip(tmp_path):
     with pytest.raises(InputFileError, match="cannot read"):
         read_cityjson(tmp_path / "missing.json")

@@ -21,7 +21,7 @@ import pyproj
 
 from semcityloc.citymodel.builder import usable_points
 from semcityloc.citymodel.citygml_names import local_name
-from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
+from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, parse_crs_name
 from semcityloc.citymodel.model import ParseStats, crs_label
 from semcityloc.errors import CRSError
 
@@ -102,6 +102,11 @@ class CRSChoice:
                 hint = "" if self.crs_override is not None else f"; {CRS_HINT} to read the file anyway"
                 raise CRSError(f"{self.path}: {exc}{hint}") from exc
         target = self.target_crs if source is not None else None
+        try:
+            check_degrees(source, np.concatenate([e[:, :2] for e in exteriors]))
+        except CRSError as exc:
+            said = "--crs" if self.crs_override is not None else "the file's srsName"
+            raise CRSError(f"{self.path}: {exc} ({said}: {name!r})") from exc
         frame = MetricFrame.for_source(source, self._zone_sample(exteriors), target)
         envelope = self._envelope_sample
         if target is None and envelope is not None and not _holds(envelope, exteriors):

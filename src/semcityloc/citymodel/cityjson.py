@@ -49,7 +49,7 @@ import pyproj
 
 from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, MeshBuilder, usable_points
 from semcityloc.citymodel.cityjson_seq import looks_like_sequence, merge_sequence
-from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, parse_crs_name
+from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size, gunzip_bounded
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS
@@ -311,7 +311,13 @@ class _CityJSONReader:
                     f"{self.path}: target_crs given but the file names no CRS to convert from; {CRS_HINT}"
                 )
         finite = usable_points(raw)
-        return MetricFrame.for_source(source, raw[finite, :2] if finite.any() else None, target)
+        sample = raw[finite, :2] if finite.any() else None
+        try:
+            check_degrees(source, sample)
+        except CRSError as exc:
+            said = "--crs" if crs_override else "the file's referenceSystem"
+            raise CRSError(f"{self.path}: {exc} ({said}: {name!r})") from exc
+        return MetricFrame.for_source(source, sample, target)
 
     def _templates(self) -> tuple[list, np.ndarray]:
         """Template geometries and their (untransformed, local) vertices."""

@@ -151,6 +151,27 @@ class MetricFrame:
         return out
 
 
+def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None) -> None:
+    """Refuse a geographic CRS for coordinates that are no degrees (beyond ±360: metres of a projected CRS,
+    e.g. ``--crs EPSG:4326`` given for a file in UTM), naming one; read on, every polygon would be dropped
+    as absurd and the error would blame the file. ``sample_xy``: (n, 2) of the geometry itself (not an
+    Envelope, which may be stale); most of its points must be beyond, so a stray absurd one is not taken
+    for the file's unit."""
+    if source is None or sample_xy is None or not horizontal_crs(source).is_geographic:
+        return
+    sample = np.asarray(sample_xy, dtype=np.float64).reshape(-1, 2)
+    sample = sample[np.isfinite(sample).all(axis=1)]
+    if len(sample) == 0:
+        return
+    beyond = np.abs(sample).max(axis=1) > 360.0
+    if beyond.mean() > 0.5:  # most of them: one absurd point is its polygon's to drop (the builder's)
+        x, y = sample[np.argmax(beyond)]
+        raise CRSError(
+            f"coordinates such as ({x:.1f}, {y:.1f}) are no degrees, but {source.name!r} is geographic: "
+            "they look like metres of a projected CRS: pass that one with --crs EPSG:<code>"
+        )
+
+
 def same_horizontal_crs(a: pyproj.CRS, b: pyproj.CRS) -> bool:
     """Whether two CRSs put x, y in the same place: their horizontal parts equal (axis order aside; a
     compound CRS's height system does not move a pose sideways)."""
