@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.cli.main import main
@@ -149,6 +150,21 @@ def test_localize_says_the_models_warnings_once_on_stderr(tmp_path, capsys):
     assert sum("semcityloc: warning:" in line and "NaN" in line for line in lines) == 1
     assert sum("semcityloc: warning:" in line and "no CRS" in line for line in lines) == 1
     assert lines[-1].startswith("semcityloc: error:")
+
+
+def test_localize_refuses_a_crs_its_models_coordinates_cannot_be_in(tmp_path, capsys):
+    """A local-frame OBJ (the box city, centred near 0, 0) given ``--crs EPSG:25832``: the pose record said
+    ``"crs": "EPSG:25832"`` over local metres (which a GIS places off the coast of Africa); one line naming
+    the CRS's area and the way out, before anything is localized."""
+    city = tmp_path / "box.obj"
+    city.write_text(box_city_obj())
+    save_labels_png(np.full((30, 40), 2, np.uint8), tmp_path / "mask.png")
+    argv = ["localize", "--city", city, "--intrinsics", "30,30,20,15,40,30", "--semantic",
+            tmp_path / "mask.png", "--prior", "0,0,80,0,0,0", "--out", tmp_path / "o"]  # fmt: skip
+    code, out, err = run(capsys, *argv, "--no-cache", "--crs", "EPSG:25832")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "are not in ETRS89 / UTM zone 32N" in err and "leave out --crs" in err
+    assert not (tmp_path / "o").exists()
 
 
 def test_label_and_depth_image_round_trip(tmp_path):

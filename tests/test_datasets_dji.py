@@ -272,6 +272,8 @@ def test_dji_prior_cli_writes_a_pose_json_with_the_height_treatment(tmp_path, ca
     assert args.func(args) == 0
     data = json.loads((tmp_path / "p.json").read_text())
     assert data["extra"]["offset"] == [690000.0, 5330000.0, 0.0]
+    # Shifted coordinates are no EPSG:25832 ones: no CRS label on them (a reader took them for such)
+    assert "crs" not in data and data["extra"]["crs"] == "EPSG:25832"
     assert data["extra"]["source_height"] == "ellipsoidal"
     assert data["extra"]["geoid_applied"] or "geoid not applied" in capsys.readouterr().err
     pose = read_pose(tmp_path / "p.json")
@@ -352,3 +354,26 @@ def test_geotag_needs_a_metric_crs_and_a_valid_offset():
         dji_geotag(pose, "EPSG:25832", offset=np.array([1.0, 2.0]))
     with pytest.raises(InputFileError, match="target_height"):
         dji_geotag(pose, "EPSG:25832", target_height="geoid")
+
+
+@pytest.mark.parametrize(
+    "crs, centre, inside",
+    [
+        ("EPSG:32649", (-466.0, 286.0), False),  # a local frame read as UTM 49N: the Equator
+        ("EPSG:32649", (695_206.0, 3_131_485.0), True),
+        ("EPSG:25833", (391_000.0, 5_817_000.0), True),  # Berlin
+        ("EPSG:7415", (85_000.0, 447_000.0), True),  # RD + NAP (a compound CRS)
+        ("EPSG:7415", (100.0, 50.0), False),
+        ("EPSG:31468", (4_424_500.0, 5_482_500.0), True),  # Gauss-Krueger zone 4 (Fuerth)
+        ("EPSG:31468", (24_500.0, 82_500.0), False),
+        ("EPSG:6677", (-10_000.0, -30_000.0), True),  # a Japanese plane zone: near 0 is its own origin
+    ],
+)
+def test_a_models_coordinates_outside_its_crs_are_told(crs, centre, inside):
+    """``model_outside_crs``: coordinates beyond a CRS's area of use (in its own metres) are no coordinates
+    of it, most often a local frame given a CRS without its offset; real ones (a national grid's origin
+    included) pass."""
+    reason = geodesy.model_outside_crs(pyproj.CRS(crs), centre)
+    assert (reason is None) == inside, reason
+    if not inside:
+        assert "its area of use spans x" in reason and "a local frame?" in reason

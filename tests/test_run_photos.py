@@ -106,6 +106,17 @@ def box_flight(tmp_path) -> dict:
     return {"root": root, "argv": argv}
 
 
+def test_a_crs_the_models_coordinates_cannot_be_in_is_refused_naming_offset(box_flight, tmp_path, capsys):
+    """The box city is a local frame (centred near 0, 0): with ``--crs EPSG:32649`` and no ``--offset`` the
+    run localized every photo and wrote geotags at the Equator (local metres read as UTM 49N); now one line
+    before the run, naming the CRS's area and ``--offset``."""
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, *box_flight["argv"], "--crs", "EPSG:32649", "--out", out)
+    assert code == 2 and "Traceback" not in err
+    assert "are not in WGS 84 / UTM zone 49N" in err and "pass --offset X,Y,Z" in err
+    assert not (out / "results.csv").exists()
+
+
 def test_a_flight_whose_priors_share_a_yaw_offset_is_told(tmp_path, capsys):
     """Six photos whose priors are all turned 7 deg counter-clockwise (a compass bias; within the default
     +-9 deg search): they localize, and the run says the priors share a yaw offset, and which way. A
@@ -959,7 +970,8 @@ def test_the_checks_before_a_run_open_each_photo_once_and_read_its_metadata_once
     data = _noisy_jpeg(root / "images" / "D2.JPG")
     (root / "images" / "D2.JPG").write_bytes(data[: len(data) * 2 // 3])
     images, masks = str(root / "images"), str(root / "masks")
-    spec = PhotoSpec(images, str(root / "city.obj"), crs="EPSG:25832", masks=masks)
+    offset = (691_000.0, 5_330_000.0, 0.0)  # the box (a local frame) placed near the photos (48.1 N, 11.5 E)
+    spec = PhotoSpec(images, str(root / "city.obj"), crs="EPSG:25832", masks=masks, offset=offset)
     opened, read = [], []
     pillow_open, read_metadata = Image.open, photos.read_dji_metadata
 

@@ -50,6 +50,7 @@ import numpy as np
 
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import TileStore
+from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
     IntrinsicsFiles,
     PhotoMissing,
@@ -178,6 +179,8 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
     placed = [inp for inp in inputs if inp.prior is not None]
     if store is not None and placed:
         model = flight_area(store, model, placed)
+    remedy = "pass --offset X,Y,Z (where the model's frame has its origin in that CRS), or leave out --crs"
+    check_model_in_crs(model, offset, remedy)  # before its poses are written as CRS coordinates
     return Resolved(model, inputs, skipped, store)
 
 

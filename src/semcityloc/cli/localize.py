@@ -14,6 +14,7 @@ from semcityloc.citymodel.model import crs_label
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args, print_model_warnings
 from semcityloc.cli.pose_input import read_pose_in_model_crs
+from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
     EXIF,
@@ -226,6 +227,12 @@ def run(args: argparse.Namespace) -> int:
     config = config.with_map_eaves(args.map_eaves, args.map_eaves_flat)  # checked here, before anything loads
     _check_files(args)
     model = load_model_from_args(args)
+    check_model_in_crs(
+        model,
+        None,
+        "leave out --crs (the pose is then written in the model's own frame; `semcityloc run` "
+        "takes an --offset that places it)",
+    )
     print_model_warnings(model)
     lens = _camera(args)
     camera = lens.camera

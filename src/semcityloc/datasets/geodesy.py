@@ -9,7 +9,8 @@ at all; these helpers do it once, for ``datasets.dji`` (priors and geotags), ``d
 - CRS names (``target_crs_of``): ``parse_crs_name``'s forms, ``EPSG:h+v`` compounds kept whole; a
   compound's vertical part: ``vertical_datum`` (its horizontal part: ``citymodel.crs.horizontal_crs``).
   A position more than ``AREA_MARGIN_DEG`` outside the CRS's area of use is a wrong CRS
-  (``check_area_of_use``); a CRS that is not projected is refused (``check_projected``).
+  (``check_area_of_use``; a model's own coordinates likewise, ``model_outside_crs``: a local frame given a
+  CRS without its offset); a CRS that is not projected is refused (``check_projected``).
 - Heights: city models store orthometric heights (above a geoid: NAP, DHHN2016, EGM96 "MSL", ...), which
   differ from WGS 84 ellipsoidal heights by the local geoid undulation N (-107 m .. +86 m worldwide;
   ``H = h - N``). pyproj applies a geoid only when its grid file is installed (``projsync`` or
@@ -27,10 +28,12 @@ import functools
 import math
 import warnings
 
+import numpy as np
 import pyproj
 from pyproj.transformer import TransformerGroup
 
 from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
+from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import CRSError, ParameterError
 
 GEOID_UNDULATION_BOUND_M = 110.0  # |N| <= ~107 m anywhere (EGM2008 extremes: -106.6 / +85.8 m)
@@ -157,6 +160,57 @@ def grid_convergence_deg(crs: pyproj.CRS, lon: float, lat: float) -> float:
         raise CRSError(f"{crs.name}: the position (lat {lat}, lon {lon}) is outside its area of use")
     angle = math.degrees(math.atan2(e1 - e0, n1 - n0))
     return angle if step > 0 else angle - math.copysign(180.0, angle)
+
+
+# A model's coordinates may lie this share of its CRS's projected area of use (each axis's span) beyond it.
+MODEL_AREA_MARGIN = 0.05
+
+
+@functools.lru_cache(maxsize=_CACHED)
+def _projected_area(crs: str) -> tuple[float, float, float, float] | None:
+    """The area of use of ``crs`` (a name or WKT) in its own x, y: (xmin, ymin, xmax, ymax), or None when
+    it states none or spans the antimeridian."""
+    whole = pyproj.CRS.from_user_input(crs)
+    horizontal = horizontal_crs(whole)
+    area = whole.area_of_use or horizontal.area_of_use  # a compound's parts read from WKT state none
+    if area is None or area.west > area.east:
+        return None
+    to_crs = pyproj.Transformer.from_crs("EPSG:4326", horizontal, always_xy=True)
+    bounds = to_crs.transform_bounds(area.west, area.south, area.east, area.north, densify_pts=21)
+    return bounds if all(math.isfinite(b) for b in bounds) else None
+
+
+def check_model_in_crs(model: CityModel, offset: np.ndarray | None, remedy: str) -> None:
+    """``CRSError`` when ``model``'s coordinates (plus ``offset``: its frame is the CRS minus that) cannot be
+    in its CRS (``model_outside_crs``), naming ``remedy``: positions written as CRS coordinates would be
+    hundreds of kilometres off. A model without a CRS or without triangles (a tile store's before its
+    tiles are chosen) passes."""
+    if model.crs is None or not model.num_triangles:
+        return
+    lo, hi = model.bounds_local
+    centre = model.origin + (lo + hi) / 2.0 + (0.0 if offset is None else np.asarray(offset, np.float64))
+    reason = model_outside_crs(model.crs, (float(centre[0]), float(centre[1])))
+    if reason is not None:
+        raise CRSError(f"{reason}: {remedy}")
+
+
+def model_outside_crs(crs: pyproj.CRS, centre_xy: tuple[float, float]) -> str | None:
+    """Why a model whose coordinates centre on ``centre_xy`` (x, y in ``crs``, any offset added) cannot be
+    in ``crs``, or None: beyond the CRS's area of use (in its own metres, ``MODEL_AREA_MARGIN`` of its
+    span around it), most often a local frame (an OBJ, a model shifted to small numbers) given a CRS
+    without the offset that places it. Its positions written as ``crs`` coordinates (a pose record,
+    geotags, GeoJSON) would land hundreds of kilometres away (UTM 49N: at the Equator)."""
+    if not horizontal_crs(crs).is_projected or (bounds := _projected_area(_crs_key(crs))) is None:
+        return None
+    xmin, ymin, xmax, ymax = bounds
+    mx, my = MODEL_AREA_MARGIN * (xmax - xmin), MODEL_AREA_MARGIN * (ymax - ymin)
+    x, y = centre_xy
+    if xmin - mx <= x <= xmax + mx and ymin - my <= y <= ymax + my:
+        return None
+    return (
+        f"the model's coordinates (centre {x:.1f}, {y:.1f}) are not in {crs.name}: its area of use spans x "
+        f"{xmin:.0f}..{xmax:.0f}, y {ymin:.0f}..{ymax:.0f} (a local frame?)"
+    )
 
 
 def check_area_of_use(crs: pyproj.CRS, lon: float, lat: float) -> None:
