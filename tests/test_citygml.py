@@ -16,11 +16,12 @@ import pytest
 
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.citygml import CityGMLReader, iter_citygml_polygons, read_citygml
-from semcityloc.citymodel.crs import parse_crs_name
+from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.triangulate import polygon_area, triangulate_polygon
 from semcityloc.classes import SemanticClass
+from semcityloc.datasets.geodesy import vertical_datum
 from semcityloc.errors import (
     CRSError,
     EmptyModelError,
@@ -95,7 +96,7 @@ def test_fuerth_citygml1(shared):
     model, reader = _read(shared(FUERTH))
     assert reader.report.version == "1.0"
     assert model.num_buildings == 111
-    assert crs_label(model.crs) == "EPSG:31468"
+    assert crs_label(model.crs) == "EPSG:31468+5783"  # the srsName's "*DE_DHN92_NH": DHHN92 heights
     assert reader.report.polygons == 1056 and reader.report.duplicate_polygons == 1056
     np.testing.assert_allclose(model.extent_m, [204.0, 199.0, 20.0], rtol=0.01)
     assert all(a > 0 for k, a in model.class_areas().items() if k in ("roof", "wall", "ground"))
@@ -168,7 +169,7 @@ def test_fzk_haus_lod3_openings(shared):
     counts = model.class_triangle_counts()
     assert counts["window"] > 0 and counts["door"] > 0
     assert model.lods_present() == [3]
-    assert crs_label(model.crs) == "EPSG:25832"
+    assert crs_label(model.crs) == "EPSG:5555"  # ETRS89 / UTM 32N + DHHN92 height (AdV "*DE_DHHN92_NH")
     assert model.stats.unresolved_xlinks == 0
     # The lod3Solid points at wall composites and opening polygons: all already in boundary surfaces.
     assert reader.report.polygons == 210
@@ -190,8 +191,8 @@ def test_fzk_haus_has_no_lod2(shared):
 def test_every_srsname_in_the_data_parses(shared):
     expected = {
         BERLIN: "EPSG:25833",
-        FUERTH: "EPSG:31468",
-        FZK: "EPSG:25832",
+        FUERTH: "EPSG:31468+5783",
+        FZK: "EPSG:5555",
         PLATEAU2: "EPSG:6697",
         PLATEAU3: "EPSG:6697",
         LYON: "EPSG:3946",
@@ -216,7 +217,27 @@ def test_every_srsname_in_the_data_parses(shared):
     ],
 )
 def test_parse_crs_name_forms(name, epsg):
-    assert parse_crs_name(name).to_epsg() == epsg
+    crs = parse_crs_name(name)
+    assert epsg in (crs.to_epsg(), horizontal_crs(crs).to_epsg())  # an AdV name's height: a compound
+
+
+@pytest.mark.parametrize(
+    ("name", "vertical"),
+    [
+        ("urn:adv:crs:ETRS89_UTM32*DE_DHHN92_NH", 5783),
+        ("urn:adv:crs:DE_DHDN_3GK4*DE_DHN92_NH", 5783),  # Bavaria's spelling
+        ("urn:adv:crs:ETRS89_UTM33*DE_DHHN2016_NH", 7837),
+        ("urn:adv:crs:ETRS89_UTM33*DE_SOMETHING_ELSE", None),
+        ("urn:adv:crs:ETRS89_UTM33", None),
+    ],
+)
+def test_an_adv_height_system_is_kept_as_a_compound_crs(name, vertical):
+    """The height system after an AdV name's "*" was dropped, so a DJI photo's GNSS height was taken for
+    the model's without a geoid and the run said the model "names no vertical datum"; a known one makes a
+    compound CRS now, an unknown one leaves the horizontal CRS."""
+    crs = parse_crs_name(name)
+    found = vertical_datum(crs)
+    assert (found.to_epsg() if found is not None else None) == vertical
 
 
 def test_parse_compound_crs_name():

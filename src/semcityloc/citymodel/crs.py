@@ -17,8 +17,9 @@ from pyproj.exceptions import CRSError as PyprojCRSError
 
 from semcityloc.errors import CRSError, unknown_choice
 
-# AdV (German surveying authorities) names of horizontal CRSs, as written in state CityGML products.
-# The part after "*" is the height system (DHHN92, DHN92, ...); heights are kept as written.
+# AdV (German surveying authorities) names of horizontal CRSs, as written in state CityGML products, and
+# of the height systems after the "*" (``ADV_VERTICAL``): a known one makes a compound CRS, so that a GNSS
+# height is converted to it (its geoid); an unknown one leaves the horizontal CRS alone.
 # What an error about a file's CRS tells the user to do: the option of load_city_model and of every command.
 CRS_HINT = "pass crs='EPSG:....' to load_city_model (--crs EPSG:.... on the command line)"
 
@@ -30,6 +31,13 @@ ADV_HORIZONTAL = {
     "DE_DHDN_3GK4": 31468,
     "DE_DHDN_3GK5": 31469,
     "ETRS89_3GK3": 5677,
+}
+
+ADV_VERTICAL = {
+    "DE_DHHN92_NH": 5783,
+    "DE_DHN92_NH": 5783,  # the spelling of Bavaria's products (Fürth's LoD2)
+    "DE_DHHN2016_NH": 7837,
+    "DE_DHHN85_NH": 5784,
 }
 
 _EPSG_CODES = re.compile(r"EPSG(?:/[0-9.]+/|:[0-9.]*:|::|:)(\d+)", re.IGNORECASE)
@@ -47,12 +55,15 @@ def parse_crs_name(name: str) -> pyproj.CRS:
         raise CRSError(f"empty CRS name {name!r}")
     text = name.strip()
 
-    adv = re.match(r"urn:adv:crs:([A-Za-z0-9_]+)", text)
+    adv = re.match(r"urn:adv:crs:([A-Za-z0-9_]+)(?:\*([A-Za-z0-9_]+))?", text)
     if adv:
-        key = adv.group(1)
+        key, height = adv.groups()
         if key not in ADV_HORIZONTAL:
             raise unknown_choice("AdV CRS", text, sorted(ADV_HORIZONTAL), CRSError)
-        return pyproj.CRS.from_epsg(ADV_HORIZONTAL[key])
+        horizontal = pyproj.CRS.from_epsg(ADV_HORIZONTAL[key])
+        if height not in ADV_VERTICAL:
+            return horizontal
+        return _compound(horizontal, pyproj.CRS.from_epsg(ADV_VERTICAL[height]))
 
     if re.fullmatch(r"EPSG:\d+\+\d+", text, re.IGNORECASE):  # "EPSG:4547+5773": horizontal + vertical
         try:
@@ -64,17 +75,20 @@ def parse_crs_name(name: str) -> pyproj.CRS:
         try:
             if len(codes) == 1:
                 return pyproj.CRS.from_epsg(int(codes[0]))
-            horizontal = pyproj.CRS.from_epsg(int(codes[0]))
-            vertical = pyproj.CRS.from_epsg(int(codes[1]))
-            return pyproj.crs.CompoundCRS(
-                name=f"{horizontal.name} + {vertical.name}", components=[horizontal, vertical]
-            )
+            return _compound(pyproj.CRS.from_epsg(int(codes[0])), pyproj.CRS.from_epsg(int(codes[1])))
         except PyprojCRSError as exc:
             raise CRSError(f"unknown EPSG code in CRS {text!r}: {exc}") from exc
     try:
         return pyproj.CRS.from_user_input(text)
     except PyprojCRSError as exc:
         raise CRSError(f"cannot parse CRS {text!r}") from exc
+
+
+def _compound(horizontal: pyproj.CRS, vertical: pyproj.CRS) -> pyproj.CRS:
+    """The compound CRS of a horizontal and a vertical one (named "horizontal + vertical")."""
+    return pyproj.crs.CompoundCRS(
+        name=f"{horizontal.name} + {vertical.name}", components=[horizontal, vertical]
+    )
 
 
 def horizontal_crs(crs: pyproj.CRS | str) -> pyproj.CRS:

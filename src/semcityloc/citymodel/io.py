@@ -28,8 +28,8 @@ from semcityloc.errors import InputFileError, UnsupportedFormatError
 # Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
 # before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope; 3: the stats
 # count every skipped polygon, with a warning each; 4: CityJSON's JSON-true vertex indices and non-list
-# semantic values no longer pass silently).
-CACHE_VERSION = 4
+# semantic values no longer pass silently; 5: an AdV srsName's height system kept, a compound CRS).
+CACHE_VERSION = 5
 
 
 def default_cache_dir() -> Path:

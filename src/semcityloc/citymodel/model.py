@@ -252,10 +252,14 @@ class CityModel:
 
 
 def crs_label(crs: pyproj.CRS | None) -> str | None:
-    """Short human label for a CRS: ``EPSG:25833`` when it has one, else its name."""
+    """Short human label for a CRS: ``EPSG:25833`` when it has one, a compound without one of its own as
+    ``EPSG:31468+5783`` (a form ``parse_crs_name`` reads back), else its name."""
     if crs is None:
         return None
     auth = crs.to_authority(min_confidence=70)
     if auth:
         return f"{auth[0]}:{auth[1]}"
+    parts = [sub.to_authority(min_confidence=70) for sub in crs.sub_crs_list] if crs.is_compound else []
+    if len(parts) == 2 and all(p is not None and p[0] == "EPSG" for p in parts):
+        return f"EPSG:{parts[0][1]}+{parts[1][1]}"
     return crs.name
