@@ -191,8 +191,8 @@ def test_missing_mask_files_are_named_when_the_run_starts_and_are_misses(
     code = main(argv)
     err = capsys.readouterr().err
     assert code == 0, err
-    start = [line for line in err.splitlines() if "have no mask or depth file" in line]
-    assert len(start) == 1 and start[0].startswith("semcityloc: warning: 1 of the 2 queries to run")
+    start = [line for line in err.splitlines() if "no mask or depth file" in line]
+    assert len(start) == 1 and start[0].startswith("semcityloc: warning: 1 of the 2 queries to run has no")
     assert "(DJI_0002_W.JPG)" in start[0] and str(masks) in start[0]
     assert err.index(start[0]) < err.index("q0001 (DJI_0002_W.JPG) is a miss")  # said first, then at the end
     assert opened == [masks / "DJI_0001_W.png"]  # the missing file's query read nothing

@@ -9,7 +9,7 @@ import pyproj
 import pytest
 
 from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
-from semcityloc.datasets import geodesy
+from semcityloc.datasets import dji, geodesy
 from semcityloc.datasets.dji import (
     BAROMETRIC_UNCERTAINTY_M,
     HEIGHT_AS_IS_NOTE,
@@ -105,6 +105,16 @@ def test_orthometric_target_applies_the_geoid_or_says_it_did_not(tmp_path):
     for bad in (math.nan, 1e9, -200.0, "47"):  # stop 45's audit: NaN was taken and broke the pose later
         with pytest.raises(ParameterError, match="geoid separation N must be"):
             dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=bad)
+
+
+def test_the_geoid_not_applied_flag_names_the_cli_flag_and_the_python_keyword(tmp_path, monkeypatch):
+    """The flag told CLI users to "pass geoid_separation_m", a keyword they cannot type: it names
+    ``--geoid-separation`` (``run``, ``dataset dji-prior``) and the keyword for the Python API."""
+    monkeypatch.setattr(dji, "geoid_separation", lambda *args: (None, "no geoid grid here"))
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
+    flag = dji_prior(meta, "EPSG:25832", target_height="orthometric").vertical_flag
+    assert "geoid not applied: no geoid grid here" in flag
+    assert "--geoid-separation N" in flag and "geoid_separation_m=N" in flag
 
 
 @pytest.mark.parametrize("crs", ["EPSG:25832+7837", "CRS object"])

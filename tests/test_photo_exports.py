@@ -5,6 +5,7 @@ noise is not."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -13,12 +14,14 @@ from semcityloc.benchmark.photo_exports import (
     beyond_notes,
     edge_count,
     edge_notes,
+    focal_notes,
     offset_sigma,
     prior_offset_notes,
     prior_yaw_notes,
     rerun_sigma,
     yaw_moves_deg,
 )
+from semcityloc.errors import counted
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, REASON_AT_EDGE
 
@@ -164,3 +167,26 @@ def test_the_offset_note_and_the_edge_note_name_one_sigma_for_the_same_refusals(
         assert f"--prior-sigma z={asked['z']})" in height and f"--prior-sigma yaw={asked['yaw']}" in yaw
         assert f"--prior-sigma z={asked['z']},yaw={asked['yaw']} to cover all of them" in edge
     assert rerun_sigma([], moves, yaws) == {}  # nothing refused: nothing to run again
+
+
+def test_counts_of_one_are_singular_in_every_note():
+    """The notes said "the focal length of 1 photos", "1 photos were refused", "(1 were; ...)"."""
+    assert [counted(1, "photo"), counted(2, "photo"), counted(0, "query"), counted(1, "query")] == [
+        "1 photo",
+        "2 photos",
+        "0 queries",
+        "1 query",
+    ]
+    assert counted(1, "photo was", "photos were") == "1 photo was" and counted(3, "building") == "3 buildings"
+    one = SimpleNamespace(focal_estimate={"scale": None, "reason": "0 oblique images; need 5"})
+    assert focal_notes([one]) == [
+        "the focal length of 1 photo could not be estimated: 0 oblique images; need 5"
+    ]
+    rng = np.random.default_rng(4)
+    moves = np.c_[8.0 + rng.normal(0, 1, 10), -6.0 + rng.normal(0, 1, 10), -20.0 + rng.normal(0, 1, 10)]
+    height, horizontal = prior_offset_notes(moves, at_edge=1, at_edge_xy=1)
+    assert "(1 was; or run again with --prior-sigma z=" in height
+    assert "; 1 photo was refused at the search volume's horizontal edge" in horizontal
+    (yaw,) = prior_yaw_notes(-12.0 + rng.normal(0, 1, 10), at_edge=1)
+    assert "; 1 photo was refused at the search volume's yaw edge" in yaw
+    assert "1 photos" not in " ".join([height, horizontal, yaw])

@@ -224,7 +224,7 @@ def test_a_mask_of_the_photo_turned_for_display_is_refused_saying_so(box_flight,
         and "turned for display (EXIF orientation 6)" in reason
         and "stored 160x120 pixels" in reason
     )
-    assert "1 photos carry an EXIF orientation other than 1" in err
+    assert "1 photo carries an EXIF orientation other than 1" in err
     assert json.loads((out / "poses" / "P1.json").read_text())["extra"]["status"] == "localized"
 
 
@@ -1084,3 +1084,15 @@ def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_
         with pytest.raises(ParameterError, match="geoid separation N must be"):
             PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=bad)
     assert PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=47.2)
+
+
+def test_a_one_photo_run_counts_one_photo(box_flight, tmp_path, capsys):
+    """A run of one photo said "1 photos: 1 localized ..." (and "1/1 photos done" when stopped)."""
+    for name in ("P1.JPG", "P2.JPG", "P9.JPG"):
+        (box_flight["root"] / "images" / name).unlink()
+    argv = [*box_flight["argv"], "--out", tmp_path / "out", "--no-overlays"]
+    code, stdout, err = run(capsys, *argv, "--stop-after", "0")
+    assert code == 0 and "0/1 photo done" in stdout, stdout + err
+    code, stdout, err = run(capsys, *argv)
+    assert code == 0 and "1 photo: 1 localized, 0 not localized, 0 skipped" in stdout, stdout + err
+    assert "1 photos" not in stdout + err and "1/1 query done" in err

@@ -232,7 +232,7 @@ def test_a_broken_or_empty_tile_is_left_out_naming_it_and_the_rest_is_built(tmp_
     (tiles / "water.json").write_text(json.dumps({**water, "CityObjects": {}, "vertices": []}))
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store")]) == 0
     out, err = capsys.readouterr()
-    assert "1 tiles" in out and "2 tiles left out" in out
+    assert "1 tile, " in out and "2 tiles left out" in out and "1 tiles" not in out
     assert (
         err.count("semcityloc: warning: tile left out:") == 2 and "broken.gml" in err and "water.json" in err
     )
@@ -262,7 +262,7 @@ def test_a_zip_archive_in_the_folder_is_named_not_passed_over(tmp_path, capsys):
     (tiles / "west.gml").write_bytes(gml.read_bytes())
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store")]) == 0
     out, err = capsys.readouterr()
-    assert "1 tiles left out" in out and "tile left out:" in err and "east.zip: a ZIP archive" in err
+    assert "1 tile left out" in out and "tile left out:" in err and "east.zip: a ZIP archive" in err
     assert [t.name for t in TileStore.open(tmp_path / "store").tiles] == ["west.gml"]
 
 

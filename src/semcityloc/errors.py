@@ -1,4 +1,4 @@
-"""Every error the library raises on purpose, in one place.
+"""Every error the library raises on purpose, in one place, and the helpers that word user messages.
 
 Each is a ``SemCityLocError`` so that callers (and the CLI, which turns them into a one-line message and
 exit code 2) can tell bad input from a bug.
@@ -129,3 +129,14 @@ def unknown_choice(what: str, name: object, known: Iterable[object], error: type
     """
     names = ", ".join(repr(n) for n in name) if isinstance(name, (list, tuple)) else repr(name)
     return error(f"unknown {what} {names}; known: {', '.join(str(k) for k in known) or 'none'}")
+
+
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """``n`` and its noun for a user message: ``"1 photo"``, ``"3 photos"``, ``"0 queries"`` (``plural``:
+    the plural when it is not the noun + ``s``; a noun in ``y`` after a consonant takes ``ies``). Why: a
+    count is printed in many places and "1 photos" reads as a slip."""
+    if n == 1:
+        return f"{n} {noun}"
+    if plural is None:
+        plural = noun[:-1] + "ies" if noun.endswith("y") and noun[-2:-1] not in "aeiou" else noun + "s"
+    return f"{n} {plural}"

@@ -61,7 +61,14 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE
 from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.lodloc import FRAME_AUTO, LodLocDataset, LodLocQuery, read_lodloc
-from semcityloc.errors import BenchmarkError, InputFileError, LossyMaskError, ShapeError, unknown_choice
+from semcityloc.errors import (
+    BenchmarkError,
+    InputFileError,
+    LossyMaskError,
+    ShapeError,
+    counted,
+    unknown_choice,
+)
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
@@ -147,7 +154,8 @@ def check_some_inputs(spec: DatasetSpec, queries: list[LodLocQuery]) -> None:
         if folder and queries and not any(_found(Path(folder), q.stem, suffixes) for q in queries):
             looked = f"{queries[0].stem}{{{','.join(suffixes)}}}"  # as _find says it
             raise InputFileError(
-                f"{folder}: no {kind} file of any of the {len(queries)} queries (looked for {looked}, ...); "
+                f"{folder}: no {kind} file of any of the {counted(len(queries), 'query')} (looked for "
+                f"{looked}, ...); "
                 f"is it the data set's {kind} folder?"
             )
 
@@ -382,7 +390,8 @@ class DatasetSource:
         shown = ", ".join(missing[:MISSING_SHOWN]) + (", ..." if len(missing) > MISSING_SHOWN else "")
         folders = " or ".join(str(f) for f in (self.spec.masks, self.spec.depth) if f)
         return (
-            f"semcityloc: warning: {len(missing)} of the {len(todo)} queries to run have no mask or depth "
+            f"semcityloc: warning: {len(missing)} of the {counted(len(todo), 'query')} to run "
+            f"{'has' if len(missing) == 1 else 'have'} no mask or depth "
             f"file in {folders} ({shown}): each will be a miss (in every recall), the others run"
         )
 

@@ -45,7 +45,7 @@ from semcityloc.datasets.dji import HEIGHT_AS_IS_NOTE, dji_geotag
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
-from semcityloc.errors import InputFileError
+from semcityloc.errors import InputFileError, counted
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
@@ -162,7 +162,11 @@ def prior_offset_notes(
             "share a height offset, most often the height reference (geoid, take-off altitude; "
             "docs/your-data.md, sections 2 and 8); photos refused at the search volume's edge may "
             "localize once it is fixed"
-            + (f" ({at_edge} were; or run again with --prior-sigma z={asked['z']})" if at_edge else "")
+            + (
+                f" ({counted(at_edge, 'was', 'were')}; or run again with --prior-sigma z={asked['z']})"
+                if at_edge
+                else ""
+            )
         )
     if (horizontal := shared_horizontal_offset(moves)) is not None:
         median_xy, spread_xy = horizontal
@@ -172,7 +176,8 @@ def prior_offset_notes(
             f"frame; spread {spread_xy:.1f} m): the priors share a horizontal offset (a wrong --crs or "
             "--offset, or a GNSS bias)"
             + (
-                f"; {at_edge_xy} photos were refused at the search volume's horizontal edge: run again with "
+                f"; {counted(at_edge_xy, 'photo was', 'photos were')} refused at the search volume's "
+                "horizontal edge: run again with "
                 f"--prior-sigma xy={asked['xy']}"
                 if at_edge_xy
                 else ""
@@ -226,7 +231,8 @@ def prior_yaw_notes(
         f"(spread {spread:.1f} deg): the priors share a yaw offset, a compass bias or the aircraft's heading "
         "taken for the gimbal's (docs/your-data.md, section 3)"
         + (
-            f"; {at_edge} photos were refused at the search volume's yaw edge: run again with --prior-sigma "
+            f"; {counted(at_edge, 'photo was', 'photos were')} refused at the search volume's yaw edge: run "
+            "again with --prior-sigma "
             f"yaw={asked['yaw']}"
             if at_edge
             else ""
@@ -317,11 +323,14 @@ def focal_notes(inputs: list) -> list[str]:
         count = counts[json.dumps(est, sort_keys=True)]
         if est.get("scale") is not None:
             line = (
-                f"the focal length of {count} photos was estimated from {est['images']} oblique ones: "
+                f"the focal length of {counted(count, 'photo')} was estimated from {est['images']} oblique "
+                "ones: "
                 f"{est['scale']:.4f} x the stated one (poses/<stem>.json: focal_estimate)"
             )
         else:
-            line = f"the focal length of {count} photos could not be estimated: {est.get('reason')}"
+            line = (
+                f"the focal length of {counted(count, 'photo')} could not be estimated: {est.get('reason')}"
+            )
         notes[line] = None
     return list(notes)
 
@@ -371,7 +380,8 @@ def write_exports(
     turned = [inp.name for inp in inputs if inp.mask is not None and inp.orientation != 1]
     if turned:
         outputs["notes"].append(
-            f"{len(turned)} photos carry an EXIF orientation other than 1 (viewers turn or flip them): "
+            f"{counted(len(turned), 'photo carries', 'photos carry')} an EXIF orientation other than 1 "
+            "(viewers turn or flip them): "
             "their masks and depth were taken as of the stored pixels, as the photo's calibration and "
             "gimbal angles are; masks made of the turned photo give wrong poses"
         )
@@ -381,7 +391,8 @@ def write_exports(
         if inp.intrinsics_source == INTRINSICS_35MM and (inp.focal_estimate or {}).get("scale") is None
     ]
     if approximate:
-        count = f"{len(approximate)} of {len(inputs)} photos have no calibrated intrinsics"
+        has = "has" if len(approximate) == 1 else "have"
+        count = f"{len(approximate)} of {counted(len(inputs), 'photo')} {has} no calibrated intrinsics"
         outputs["notes"].append(f"{count}: {APPROXIMATE_INTRINSICS_NOTE}")
     found = [inp for inp in inputs if inp.name in estimates]
     moves = [estimates[inp.name].center - inp.prior.pose_world.center for inp in found]

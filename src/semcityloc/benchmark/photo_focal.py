@@ -67,6 +67,11 @@ def calibrated_inputs(spec: PhotoSpec) -> Resolved:
     return resolved._replace(inputs=inputs)
 
 
+def _camera_of(n: int) -> str:
+    """``"1 photo's camera"`` / ``"3 photos' camera"``: the camera of ``n`` photos, in the progress lines."""
+    return f"{n} photo's camera" if n == 1 else f"{n} photos' camera"
+
+
 def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], members: list[int]):
     """The focal-length estimate of the photos ``members`` (one camera) from their oblique ones."""
     # Only the photos the estimate uses go through perception.
@@ -81,14 +86,14 @@ def _flight_focal(spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], m
     cached = focal_cache.read_estimate(key) if key else None
     if cached is not None:
         print(
-            f"semcityloc: the focal length of {len(members)} photos' camera from an earlier run's estimate "
+            f"semcityloc: the focal length of {_camera_of(len(members))} from an earlier run's estimate "
             f"({focal_cache.cache_file(key)})",
             file=sys.stderr,
             flush=True,
         )
         return cached
     print(
-        f"semcityloc: estimating the focal length of {len(members)} photos' camera "
+        f"semcityloc: estimating the focal length of {_camera_of(len(members))} "
         f"({camera.width} x {camera.height}, fx {camera.fx:.1f}) from {len(oblique)} oblique ones ...",
         file=sys.stderr,
         flush=True,

@@ -36,7 +36,7 @@ from semcityloc.benchmark.spec import load_map
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
 from semcityloc.datasets.lodloc import FRAME_ECEF, IMAGE_DIR, enu_from_ecef, rotate_model
-from semcityloc.errors import BenchmarkError, SemCityLocError
+from semcityloc.errors import BenchmarkError, SemCityLocError, counted
 from semcityloc.render import Renderer
 
 REAL_MODES = ("dataset", "photos")  # runs over real images (``mode`` in run.json); others are simulated
@@ -113,7 +113,8 @@ def incomplete_note(run: RunData) -> str:
     missing = [query_id(i) for i in range(total) if query_id(i) not in {r["query_id"] for r in run.rows}]
     shown = ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
     return (
-        f"{run.path}: incomplete run, {len(run.rows)} of {total} queries have a row; missing {shown}"
+        f"{run.path}: incomplete run, {len(run.rows)} of {counted(total, 'query')} "
+        f"{'has' if len(run.rows) == 1 else 'have'} a row; missing {shown}"
         f"{'' if (run.path / SUMMARY_FILE).is_file() else f' and {SUMMARY_FILE}'} (run the same command "
         "again to finish it); the tables use the rows there are"
     )

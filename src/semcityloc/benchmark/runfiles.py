@@ -50,7 +50,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from semcityloc.errors import OutputPathError, ResumeMismatchError, RunFileError, RunLockedError
+from semcityloc.errors import OutputPathError, ResumeMismatchError, RunFileError, RunLockedError, counted
 from semcityloc.geometry.io import json_default
 from semcityloc.io.files import write_atomic
 
@@ -383,7 +383,8 @@ def code_change_note(out_dir: Path, old: dict | None, config: dict, done: int, t
         return None
     return (
         f"{out_dir}: resuming a run started by other semcityloc code (source {before}, now {now}): its "
-        f"{done} finished queries were made by that code and the {todo} left are made by this one, so its "
+        f"{counted(done, 'finished query was', 'finished queries were')} made by that code and the {todo} "
+        f"left {'is' if todo == 1 else 'are'} made by this one, so its "
         "results mix both; pass --overwrite to make them all anew"
     )
 
@@ -426,7 +427,8 @@ class Progress:
             self._draw()
             self.stream.write("\n")
         self.stream.write(
-            f"{self.label}: {self.done}/{self.total} queries done ({new} new in {_duration(elapsed)}{rate})\n"
+            f"{self.label}: {self.done}/{counted(self.total, 'query')} done ({new} new in "
+            f"{_duration(elapsed)}{rate})\n"
         )
         self.stream.flush()
 

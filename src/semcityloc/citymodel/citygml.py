@@ -99,6 +99,7 @@ from semcityloc.errors import (
     MalformedXMLError,
     ParameterError,
     UnsupportedFormatError,
+    counted,
 )
 
 __all__ = [
@@ -358,7 +359,9 @@ class CityGMLReader:
             )
         invalid = self.stats.invalid_coordinate_polygons
         why = f" ({invalid_coordinates_note(invalid)})" if invalid else ""
-        raise EmptyModelError(f"{self.path}: {r.buildings} buildings but no readable building surfaces{why}")
+        raise EmptyModelError(
+            f"{self.path}: {counted(r.buildings, 'building')} but no readable building surfaces{why}"
+        )
 
     def _check_root(self) -> None:
         """Reject unknown roots and entity-declaring DTDs before streaming the whole file."""

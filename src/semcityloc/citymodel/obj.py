@@ -44,7 +44,7 @@ from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import DUPLICATE_TOLERANCE_M, NONPLANAR_TOLERANCE_M, triangulate_polygon
-from semcityloc.errors import CRSError, EmptyModelError, InputFileError
+from semcityloc.errors import CRSError, EmptyModelError, InputFileError, counted
 
 # Vertices closer than this are the same vertex when finding connected buildings (metres).
 WELD_TOLERANCE_M = 1e-3
@@ -96,7 +96,8 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     flipped, n_oriented = _fix_winding(verts, tris, tri_building, len(order))
     if flipped:
         stats.warnings.append(
-            f"flipped the winding of {flipped} of {n_oriented} buildings: they wound clockwise seen from "
+            f"flipped the winding of {flipped} of {counted(n_oriented, 'building')}: "
+            f"{'it' if flipped == 1 else 'they'} wound clockwise seen from "
             "outside (negative signed volume)"
         )
     if mesh.unknown:

@@ -26,7 +26,7 @@ from semcityloc.cli.dataset import (
 )
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_prior_sigma_argument
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, counted
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import available_methods
 
@@ -181,14 +181,15 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     outcome = run_from_args(spec, out, args)
     if not outcome.complete:
-        print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")
+        total = counted(outcome.config["queries"], "query")
+        print(f"{len(outcome.rows)}/{total} done in {out}; run again to continue")
         return 0
     print(summary_markdown([outcome.summary], [args.method]))
     skipped = outcome.summary.get("skipped", 0)
     if skipped:
         print(
-            f"{skipped} of {outcome.config['queries']} queries skipped: the simulator found no view with "
-            "enough building pixels (a small or sparse city model); they are not in the metrics"
+            f"{skipped} of {counted(outcome.config['queries'], 'query')} skipped: the simulator found no "
+            "view with enough building pixels (a small or sparse city model); they are not in the metrics"
         )
     print(f"wrote {out / 'results.csv'} and {out / 'summary.json'}")
     return 0

@@ -28,7 +28,7 @@ from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
 from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
-from semcityloc.errors import InputFileError
+from semcityloc.errors import InputFileError, counted
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.localization.config import PRESETS
@@ -310,7 +310,8 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
     out = Path(args.out)
     warn_unreadable(outcome.rows, outcome.config)
     if not outcome.complete:
-        print(f"{len(outcome.rows)}/{outcome.config['queries']} queries done in {out}; run again to continue")
+        total = counted(outcome.config["queries"], "query")
+        print(f"{len(outcome.rows)}/{total} done in {out}; run again to continue")
         return 0
     label = f"{args.method} [{outcome.summary['perception_label']}]"
     print(summary_markdown([outcome.summary], [label]))

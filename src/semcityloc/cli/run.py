@@ -21,7 +21,7 @@ from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_map_eaves_arguments, add_prior_sigma_argument
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF
-from semcityloc.errors import InputFileError
+from semcityloc.errors import InputFileError, counted
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
@@ -150,7 +150,9 @@ def run(args: argparse.Namespace) -> int:
     print_model_warnings(spec.resolved().model)
     config = outcome.config
     if not outcome.complete:
-        print(f"{len(outcome.rows)}/{config['queries']} photos done in {out}; run again to continue")
+        print(
+            f"{len(outcome.rows)}/{counted(config['queries'], 'photo')} done in {out}; run again to continue"
+        )
         return 0
     s = outcome.summary
     skipped = s["skipped_photos"]  # before the run, or when its files were read (a ``skipped`` row)
@@ -160,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
             name = config["query_names"][int(row["index"])]
             refused.setdefault(row["reason"] or row["status"], []).append(name)
     print(
-        f"{s['photos']} photos: {s['localized']} localized, {s['not_localized']} not localized, "
+        f"{counted(s['photos'], 'photo')}: {s['localized']} localized, {s['not_localized']} not localized, "
         f"{len(skipped)} skipped (perception: {s['perception']})"
     )
     for reason, names in refused.items():

@@ -15,7 +15,7 @@ from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import parse_settings, parse_value
 from semcityloc.cli.benchmark import add_simulation_arguments, spec_from_args
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, counted
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
         if not outcome.complete:
             done = False
             print(
-                f"{knob}={value}: {len(outcome.rows)}/{outcome.config['queries']} queries done in {run_dir}"
+                f"{knob}={value}: {len(outcome.rows)}/{counted(outcome.config['queries'], 'query')} done in "
+                f"{run_dir}"
             )
             continue
         summaries.append(outcome.summary)

@@ -8,6 +8,7 @@ import json
 import sys
 
 from semcityloc.citymodel.tiles import TileStore, build_store
+from semcityloc.errors import counted
 
 SHOWN_SKIPPED = 10  # tiles left out named one per line; the rest counted
 
@@ -39,14 +40,19 @@ def run_build(args: argparse.Namespace) -> int:
         print(f"semcityloc: warning: tile left out: {why}", file=sys.stderr)
     if len(report.skipped) > SHOWN_SKIPPED:
         print(
-            f"semcityloc: warning: {len(report.skipped) - SHOWN_SKIPPED} more tiles left out "
+            f"semcityloc: warning: {counted(len(report.skipped) - SHOWN_SKIPPED, 'more tile')} left out "
             f"(all named in {report.store.root}/store.json, skipped_tiles)",
             file=sys.stderr,
         )
     print(
-        f"{report.tiles} tiles, {report.buildings} buildings, {report.input_bytes / 1e6:.1f} MB in "
+        f"{counted(report.tiles, 'tile')}, {counted(report.buildings, 'building')}, "
+        f"{report.input_bytes / 1e6:.1f} MB in "
         f"{report.seconds:.1f} s ({report.mb_per_s:.2f} MB/s): wrote {report.store.root}"
-        + (f"; {len(report.skipped)} tiles left out (store.json, skipped_tiles)" if report.skipped else "")
+        + (
+            f"; {counted(len(report.skipped), 'tile')} left out (store.json, skipped_tiles)"
+            if report.skipped
+            else ""
+        )
     )
     return 0
 

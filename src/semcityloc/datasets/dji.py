@@ -205,8 +205,8 @@ def dji_prior(
                 z_reference = "ellipsoidal (geoid NOT applied)"
                 flag = (
                     f"geoid not applied: {how}; z is the WGS 84 ellipsoidal height, not {vname}. They differ "
-                    f"by the local geoid undulation (up to {GEOID_UNDULATION_BOUND_M:g} m); or pass "
-                    "geoid_separation_m (N at the site)"
+                    f"by the local geoid undulation (up to {GEOID_UNDULATION_BOUND_M:g} m); or give N at the "
+                    "site: --geoid-separation N (in Python: geoid_separation_m=N)"
                 )
                 uncertainty = max(uncertainty, GEOID_UNDULATION_BOUND_M)
         else:
