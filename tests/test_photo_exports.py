@@ -15,10 +15,12 @@ from semcityloc.benchmark.photo_exports import (
     edge_count,
     edge_notes,
     focal_notes,
+    left_out_warning,
     offset_sigma,
     prior_offset_notes,
     prior_yaw_notes,
     rerun_sigma,
+    space_split_names,
     yaw_moves_deg,
 )
 from semcityloc.errors import counted
@@ -190,3 +192,16 @@ def test_counts_of_one_are_singular_in_every_note():
     (yaw,) = prior_yaw_notes(-12.0 + rng.normal(0, 1, 10), at_edge=1)
     assert "; 1 photo was refused at the search volume's yaw edge" in yaw
     assert "1 photos" not in " ".join([height, horizontal, yaw])
+
+
+def test_names_with_white_space_are_those_colmap_text_and_geo_txt_cannot_hold():
+    """COLMAP's images.txt and ODM's geo.txt split a line on spaces: such names are left out of them with
+    one warning naming them (the first five, then how many more)."""
+    names = ["DJI_0001.JPG", "my photo ü.JPG", "tab\there.JPG", "ünïcode.JPG", " lead.JPG", ""]
+    assert space_split_names(names) == ["my photo ü.JPG", "tab\there.JPG", " lead.JPG", ""]
+    assert left_out_warning([], ["geo.txt"]) == []
+    (one,) = left_out_warning(["my photo ü.JPG"], ["colmap/images.txt"])
+    assert one.startswith("1 localized photo left out of colmap/images.txt (their readers split a line")
+    (many,) = left_out_warning([f"p {i}.JPG" for i in range(7)], ["colmap/images.txt", "geo.txt"])
+    assert many.startswith("7 localized photos left out of colmap/images.txt and geo.txt")
+    assert "p 0.JPG, p 1.JPG, p 2.JPG, p 3.JPG, p 4.JPG (+2 more);" in many

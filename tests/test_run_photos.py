@@ -1086,6 +1086,55 @@ def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_
     assert PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=47.2)
 
 
+def _rename_photo(root: Path, stem: str, new_stem: str) -> None:
+    """Rename a box-flight photo and its mask, prior, truth and intrinsics files (named by its stem)."""
+    for sub, suffix in (
+        ("images", ".JPG"),
+        ("masks", ".png"),
+        ("GPS_pose", "_pose.txt"),
+        ("GT_pose", "_pose.txt"),
+        ("intrinsic", "_intrinsic.txt"),
+    ):
+        (root / sub / f"{stem}{suffix}").rename(root / sub / f"{new_stem}{suffix}")
+
+
+UTM_49N = ["--crs", "EPSG:32649", "--offset", "695672,3131199,0"]  # the user's flight, south China
+
+
+def test_a_photo_named_with_spaces_is_left_out_of_colmap_and_geo_txt_and_the_rest_is_exported(
+    box_flight, tmp_path, capsys
+):
+    """One photo named ``my photo ü.JPG`` cost the whole flight's exports: every photo localized, then
+    ``geo.txt cannot hold image names with spaces``, exit 2, no geo.txt or summary.json, and the same on
+    every run again. COLMAP's images.txt and ODM's geo.txt split a line on spaces (COLMAP reads the name as
+    ``my``), so the photo is left out of those two with one warning naming it; everything else is written."""
+    root = box_flight["root"]
+    _rename_photo(root, "P0", "my photo ü")
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], *UTM_49N, "--out", out, "--no-overlays"]
+    for _ in range(2):  # and the same run again: the exports written anew
+        code, _, err = run(capsys, *argv)
+        assert code == 0, err
+        assert err.count("semcityloc: warning:") == 1, err
+        assert (
+            "semcityloc: warning: 1 localized photo left out of colmap/images.txt and geo.txt "
+            "(their readers split a line on spaces"
+            in err
+            and "read back cut short): my photo ü.JPG; the poses are in poses/" in err
+        )
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["localized"] == 2 and summary["outputs"]["geo_txt"] == str(out / "geo.txt")
+    assert set(read_model(out / "colmap").poses()) == {"P1.JPG"}
+    geo = (out / "geo.txt").read_text().splitlines()
+    assert geo[0] == "EPSG:32649" and [line.split()[0] for line in geo[1:]] == ["P1.JPG"]
+    with open(out / "geotags.csv", newline="", encoding="utf-8") as fh:
+        tagged = {row["image"]: row["source"] for row in csv.DictReader(fh)}
+    assert tagged["my photo ü.JPG"] == "semcityloc" and tagged["P1.JPG"] == "semcityloc"
+    features = json.loads((out / "cameras.geojson").read_text(encoding="utf-8"))["features"]
+    assert {f["properties"]["image"] for f in features} >= {"my photo ü.JPG", "P1.JPG"}
+    assert read_pose(out / "poses" / "my photo ü.json") is not None
+
+
 def test_a_one_photo_run_counts_one_photo(box_flight, tmp_path, capsys):
     """A run of one photo said "1 photos: 1 localized ..." (and "1/1 photos done" when stopped)."""
     for name in ("P1.JPG", "P2.JPG", "P9.JPG"):

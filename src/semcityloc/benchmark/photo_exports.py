@@ -16,7 +16,9 @@ the same), in the formats users import elsewhere:
   photo (at its estimate, or at its prior when not localized).
 
 Without a CRS (a model in a local frame such as UAVD4L-LoD's) the geotag files cannot be written: the
-summary says so and names ``--crs`` / ``--offset``.
+summary says so and names ``--crs`` / ``--offset``. A photo whose name holds white space is left out of
+``colmap/`` and ``geo.txt`` (both split their lines on spaces: ``space_split_names``) with one warning;
+the run's other exports and its summary are written all the same.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ NO_CRS = (
     "the city model names no CRS, so no geotags.csv / geo.txt (WGS 84 needs one); pass --crs (and "
     "--offset when the model's frame is its CRS minus an offset)"
 )
+SHOWN_NAMES = 5  # photos named in a warning, then "(+N more)"
 
 
 def position_accuracy(covariance: dict | None) -> tuple[float, float] | None:
@@ -335,6 +338,33 @@ def focal_notes(inputs: list) -> list[str]:
     return list(notes)
 
 
+def shown_names(names: list[str]) -> str:
+    """The first ``SHOWN_NAMES`` of ``names`` for a one-line message, then how many more."""
+    more = len(names) - SHOWN_NAMES
+    return ", ".join(names[:SHOWN_NAMES]) + (f" (+{more} more)" if more > 0 else "")
+
+
+def space_split_names(names: list[str]) -> list[str]:
+    """The ``names`` that COLMAP's ``images.txt`` and OpenDroneMap's ``geo.txt`` cannot hold: both split a
+    line on white space (COLMAP's ``ReadImagesText`` takes a name up to its first space, so ``my photo.JPG``
+    reads back as ``my``; ODM takes the first token as the name), so a name holding any would read back as
+    another photo's, or as none. Why a list: ``write_exports`` leaves them out of those two files with one
+    warning instead of losing the run's exports to one legal file name."""
+    return [n for n in names if not n or any(c.isspace() for c in n)]
+
+
+def left_out_warning(names: list[str], files: list[str]) -> list[str]:
+    """One warning naming the localized photos left out of ``files`` (``space_split_names``), and where
+    their poses are; none when there are none."""
+    if not names:
+        return []
+    return [
+        f"{counted(len(names), 'localized photo')} left out of {' and '.join(files)} (their readers split a "
+        f"line on spaces: a name holding one would read back cut short): {shown_names(names)}; the poses are "
+        f"in {POSES_DIR}/ and the other exports (rename such photos without spaces to have them there too)"
+    ]
+
+
 def check_records(out_dir: Path, inputs: list) -> None:
     """Refuse in one line when a finished photo (every one of ``inputs`` has its row in ``results.csv``
     when the exports are written) has no ``poses/<stem>.json``: its record (covariance, search, prior) is
@@ -344,7 +374,7 @@ def check_records(out_dir: Path, inputs: list) -> None:
         f"{inp.stem}.json" for inp in inputs if not (out_dir / POSES_DIR / f"{inp.stem}.json").is_file()
     ]
     if missing:
-        shown = ", ".join(missing[:5]) + (f" (+{len(missing) - 5} more)" if len(missing) > 5 else "")
+        shown = shown_names(missing)
         count = f"{len(missing)} finished {'photo has' if len(missing) == 1 else 'photos have'}"
         raise InputFileError(
             f"{out_dir / POSES_DIR}: {count} no pose file ({shown}), so no exports were written; delete "
@@ -356,7 +386,7 @@ def write_exports(
     out_dir: Path, model: CityModel, inputs: list, offset: np.ndarray | None, target_height: str
 ) -> dict[str, Any]:
     """Write the exports (module docstring) of ``inputs`` (``photo_inputs.PhotoInput``); returns
-    ``{output: path or None}`` and ``notes`` for the summary."""
+    ``{output: path or None}``, and ``notes`` and ``warnings`` for the summary."""
     out_dir = Path(out_dir)
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
     check_records(out_dir, inputs)
@@ -404,10 +434,13 @@ def write_exports(
     outputs["notes"] += prior_yaw_notes(yaw_moves, edge_count(done, "yaw"), asked)
     outputs["notes"] += edge_notes(done, asked)
     outputs["notes"] += beyond_notes(done)
-    cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in inputs if inp.name in estimates}
+    split = space_split_names([inp.name for inp in found])  # left out of images.txt and geo.txt
+    cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in found if inp.name not in split}
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)
     outputs["colmap"] = str(write_model(colmap, out_dir / COLMAP_DIR, ext=".txt"))
+    files = [f"{COLMAP_DIR}/images.txt"] + ([ODM_GEO_FILE] if model.crs is not None else [])
+    outputs["warnings"] = left_out_warning(split, files)
 
     features = []
     for inp in inputs:
@@ -438,8 +471,9 @@ def write_exports(
             tag = dji_geotag(est, model.crs, shift, target_height)
             accuracy = position_accuracy(records[inp.name].get("extra", {}).get("covariance"))
             rows.append(GeotagRow(inp.name, tag, *(accuracy or (None, None)), source="semcityloc"))
-            odm.append((inp.name, tuple((est.center + shift).tolist()), tag))
-            odm_accuracy.append(accuracy)
+            if inp.name not in split:
+                odm.append((inp.name, tuple((est.center + shift).tolist()), tag))
+                odm_accuracy.append(accuracy)
         else:
             tag = dji_geotag(inp.prior.pose_world, model.crs, shift, target_height)
             reason = records[inp.name].get("reason") or "no result"

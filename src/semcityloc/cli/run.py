@@ -175,6 +175,8 @@ def run(args: argparse.Namespace) -> int:
     outputs = s["outputs"]
     for note in outputs.get("notes", []):
         print(f"semcityloc: note: {note}", file=sys.stderr)
+    for warning in outputs.get("warnings", []):  # photos left out of an export (the others are written)
+        print(f"semcityloc: warning: {warning}", file=sys.stderr)
     written = [outputs[k] for k in ("poses", "colmap", "geotags", "geo_txt", "geojson") if outputs.get(k)]
     if spec.overlays:
         written.append(str(out / "overlays"))
