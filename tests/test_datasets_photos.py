@@ -202,5 +202,12 @@ def test_geojson_is_wgs84_when_the_crs_is_known():
     ring = footprint["geometry"]["coordinates"][0]
     assert ring[0] == ring[-1] and len(ring) == 4 * 8 + 1
     assert footprint["properties"]["image"] == "a.JPG" and "semcityloc_frame" not in doc
-    local = cameras_geojson(features, None, 0.0)
-    assert "semcityloc_frame" in local and local["features"][0]["geometry"]["coordinates"] == [x, y]
+
+
+def test_geojson_of_a_model_without_a_crs_is_refused_not_written_in_local_metres():
+    """GeoJSON coordinates are longitude, latitude (RFC 7946): local metres in them (x -466 m) put a GIS's
+    camera at longitude -466; without a CRS there is no GeoJSON (a ``CRSError``), never local metres."""
+    camera = Camera(100.0, 100.0, 50.0, 40.0, 100, 80)
+    pose = Pose.from_xyz_rpy(np.array([-466.0, 285.0, 150.0]), 0.0, 0.0, 0.0)
+    with pytest.raises(CRSError, match="needs the model's CRS"):
+        cameras_geojson([CameraFeature("a.JPG", camera, pose)], None, 0.0)

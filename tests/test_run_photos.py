@@ -174,10 +174,8 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     assert "4 photos: 2 localized, 1 not localized, 1 skipped" in stdout
     assert f"semcityloc report {out} --out {out / 'report'}" in stdout
     assert summary["with_ground_truth"] == 3 and summary["recall_2m2deg"] == pytest.approx(200 / 3)
-    # No CRS: poses, COLMAP and GeoJSON in the model's frame, no WGS 84 geotags, and it says why.
-    assert not (out / "geotags.csv").exists() and "--crs" in err
-    geojson = json.loads((out / "cameras.geojson").read_text())
-    assert len(geojson["features"]) == 6 and "semcityloc_frame" in geojson  # P2 at its prior, no result
+    # No CRS: poses and COLMAP in the model's frame, no WGS 84 geotags or GeoJSON, and it says why.
+    assert not (out / "geotags.csv").exists() and not (out / "cameras.geojson").exists() and "--crs" in err
     model = read_model(out / "colmap")
     for name, (camera, pose) in model.poses().items():
         truth = read_pose(box_flight["root"] / "GT_pose" / f"{Path(name).stem}_pose.txt")
@@ -743,8 +741,7 @@ def test_run_over_both_real_images_writes_files_that_parse(real_run):
     model = read_model(out / "colmap")
     assert set(model.poses()) == {f"{THERMAL}.JPG", f"{OBLIQUE}.JPG"}
     assert {c.width for c, _ in model.poses().values()} == {640, 2325}
-    doc = json.loads((out / "cameras.geojson").read_text())
-    assert len(doc["features"]) == 4 and "names no CRS" in doc["semcityloc_frame"]
+    assert not (out / "cameras.geojson").exists()  # no CRS: no GeoJSON (its coordinates are WGS 84)
     for stem in (THERMAL, OBLIQUE):
         record = json.loads((out / "poses" / f"{stem}.json").read_text())
         assert (
@@ -1133,6 +1130,27 @@ def test_a_photo_named_with_spaces_is_left_out_of_colmap_and_geo_txt_and_the_res
     features = json.loads((out / "cameras.geojson").read_text(encoding="utf-8"))["features"]
     assert {f["properties"]["image"] for f in features} >= {"my photo ü.JPG", "P1.JPG"}
     assert read_pose(out / "poses" / "my photo ü.json") is not None
+
+
+def test_a_run_without_a_crs_writes_no_geojson_and_says_so(box_flight, tmp_path, capsys):
+    """A model in a local frame gave a cameras.geojson of local metres (only a non-standard
+    ``semcityloc_frame`` member said so), which QGIS placed at longitude -466: GeoJSON coordinates are WGS 84
+    (RFC 7946). Now no GeoJSON, one note naming --crs, and one an older version left is removed."""
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
+    code, stdout, err = run(capsys, *argv)
+    assert code == 0, err
+    assert not (out / "cameras.geojson").exists() and "cameras.geojson" not in stdout
+    note = "semcityloc: note: the city model names no CRS, so no geotags.csv / geo.txt / cameras.geojson"
+    assert err.count(note) == 1 and "pass --crs" in err
+    assert json.loads((out / "summary.json").read_text())["outputs"]["geojson"] is None
+    (out / "cameras.geojson").write_text('{"type": "FeatureCollection", "features": []}')  # an older one
+    code, _, err = run(capsys, *argv)
+    assert code == 0 and not (out / "cameras.geojson").exists(), err
+    code, _, err = run(capsys, *argv, *UTM_49N, "--overwrite")  # with a CRS: on the map
+    (point, *_) = json.loads((out / "cameras.geojson").read_text())["features"]
+    lon, lat = point["geometry"]["coordinates"]
+    assert code == 0 and 112.9 < lon < 113.1 and 28.2 < lat < 28.4, err
 
 
 def test_a_one_photo_run_counts_one_photo(box_flight, tmp_path, capsys):

@@ -12,13 +12,14 @@ the same), in the formats users import elsewhere:
 - ``geo.txt`` (model CRS known): OpenDroneMap's image geolocation file of the localized photos, in the
   model's horizontal CRS (its own coordinates: no height conversion), with the covariance's horizontal and
   vertical accuracy;
-- ``cameras.geojson``: camera centres and ground footprints for a GIS (``datasets.geojson``), every
-  photo (at its estimate, or at its prior when not localized).
+- ``cameras.geojson`` (model CRS known): camera centres and ground footprints for a GIS
+  (``datasets.geojson``), every photo (at its estimate, or at its prior when not localized).
 
-Without a CRS (a model in a local frame such as UAVD4L-LoD's) the geotag files cannot be written: the
-summary says so and names ``--crs`` / ``--offset``. A photo whose name holds white space is left out of
-``colmap/`` and ``geo.txt`` (both split their lines on spaces: ``space_split_names``) with one warning;
-the run's other exports and its summary are written all the same.
+Without a CRS (a model in a local frame such as UAVD4L-LoD's) the geotag files and the GeoJSON cannot be
+written (their coordinates are WGS 84 or the CRS's; a GIS reads local metres as degrees): the summary says
+so and names ``--crs`` / ``--offset``. A photo whose name holds white space is left out of ``colmap/`` and
+``geo.txt`` (both split their lines on spaces: ``space_split_names``) with one warning; the run's other
+exports and its summary are written all the same.
 """
 
 from __future__ import annotations
@@ -56,8 +57,8 @@ from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 
 NO_CRS = (
-    "the city model names no CRS, so no geotags.csv / geo.txt (WGS 84 needs one); pass --crs (and "
-    "--offset when the model's frame is its CRS minus an offset)"
+    "the city model names no CRS, so no geotags.csv / geo.txt / cameras.geojson (their coordinates are "
+    "WGS 84 or the CRS's); pass --crs (and --offset when the model's frame is its CRS minus an offset)"
 )
 SHOWN_NAMES = 5  # photos named in a warning, then "(+N more)"
 
@@ -382,6 +383,28 @@ def check_records(out_dir: Path, inputs: list) -> None:
         )
 
 
+def camera_features(
+    inputs: list, records: dict[str, dict], estimates: dict[str, Pose], shift: np.ndarray
+) -> list[CameraFeature]:
+    """Every photo of ``inputs`` for ``cameras.geojson``: at its estimate when localized, else at its
+    prior, with its status, position in the CRS, shift from the prior and (with a truth) error."""
+    features = []
+    for inp in inputs:
+        est = estimates.get(inp.name)
+        pose = est if est is not None else inp.prior.pose_world
+        reason = records[inp.name].get("reason") or "no result"
+        props = {
+            "status": LOCALIZED if est is not None else f"not localized: {reason}",
+            "pose": "semcityloc estimate" if est is not None else "prior",
+            "position": (pose.center + shift).tolist(),
+            "prior_shift_m": float(center_error_m(est, inp.prior.pose_world)) if est is not None else None,
+        }
+        if inp.truth_world is not None and est is not None:
+            props["error_m"] = float(center_error_m(est, inp.truth_world))
+        features.append(CameraFeature(inp.name, inp.camera, pose, json_safe(props)))
+    return features
+
+
 def write_exports(
     out_dir: Path, model: CityModel, inputs: list, offset: np.ndarray | None, target_height: str
 ) -> dict[str, Any]:
@@ -442,28 +465,14 @@ def write_exports(
     files = [f"{COLMAP_DIR}/images.txt"] + ([ODM_GEO_FILE] if model.crs is not None else [])
     outputs["warnings"] = left_out_warning(split, files)
 
-    features = []
-    for inp in inputs:
-        record = records[inp.name]
-        est = estimates.get(inp.name)
-        pose = est if est is not None else inp.prior.pose_world
-        reason = record.get("reason") or "no result"
-        props = {
-            "status": LOCALIZED if est is not None else f"not localized: {reason}",
-            "pose": "semcityloc estimate" if est is not None else "prior",
-            "position": (pose.center + shift).tolist(),
-            "prior_shift_m": float(center_error_m(est, inp.prior.pose_world)) if est is not None else None,
-        }
-        if inp.truth_world is not None and est is not None:
-            props["error_m"] = float(center_error_m(est, inp.truth_world))
-        features.append(CameraFeature(inp.name, inp.camera, pose, json_safe(props)))
-    collection = cameras_geojson(features, model.crs, ground_z(model), shift)
-    outputs["geojson"] = str(write_geojson(collection, out_dir / GEOJSON_FILE))
-
     if model.crs is None:
-        outputs["geotags"] = outputs["geo_txt"] = None
+        outputs["geotags"] = outputs["geo_txt"] = outputs["geojson"] = None
+        (out_dir / GEOJSON_FILE).unlink(missing_ok=True)  # an older version's, in local metres
         outputs["notes"].append(NO_CRS)
         return outputs
+    features = camera_features(inputs, records, estimates, shift)
+    collection = cameras_geojson(features, model.crs, ground_z(model), shift)
+    outputs["geojson"] = str(write_geojson(collection, out_dir / GEOJSON_FILE))
     rows, odm, odm_accuracy = [], [], []
     for inp in inputs:
         est = estimates.get(inp.name)

@@ -4,9 +4,10 @@ Per photo two features with the same properties (``image``, ``status``, ...): a 
 centre and a ``Polygon``, the photo's footprint: the rays through ``FOOTPRINT_SAMPLES`` points along each
 image border meet the horizontal plane at ``ground_z`` (the model's ground), rays that never meet it
 (above the horizon) are cut at ``max_range_m`` horizontally. Coordinates: WGS 84 longitude, latitude
-(RFC 7946) when the model's CRS is known (pyproj, ``always_xy``, on whole arrays); otherwise the model's
-own frame, which the collection says in its ``semcityloc_frame`` member (a GIS then shows it as a local
-plane, not on a map).
+(RFC 7946; pyproj, ``always_xy``, on whole arrays), so the model's CRS must be known: a model in a local
+frame has no GeoJSON (``CRSError``). Why not its own metres: RFC 7946 has no member for another CRS, and
+QGIS and GDAL read any GeoJSON's coordinates as longitude, latitude (a camera 466 m west of the origin
+lands at longitude -466, off the map).
 """
 
 from __future__ import annotations
@@ -63,10 +64,8 @@ def footprint_xy(camera: Camera, pose_world: Pose, ground_z: float, max_range_m:
     return (centre[:2, None] + rays[:2] * s).T
 
 
-def _to_output(xy: np.ndarray, crs: pyproj.CRS | None, offset: np.ndarray) -> np.ndarray:
-    """(N, 2) model-frame x, y -> lon, lat (crs known) or the model frame itself."""
-    if crs is None:
-        return np.asarray(xy, dtype=np.float64)
+def _to_output(xy: np.ndarray, crs: pyproj.CRS, offset: np.ndarray) -> np.ndarray:
+    """(N, 2) model-frame x, y -> WGS 84 lon, lat."""
     t = pyproj.Transformer.from_crs(horizontal_crs(crs), "EPSG:4326", always_xy=True)
     lon, lat = t.transform(xy[:, 0] + offset[0], xy[:, 1] + offset[1])
     out = np.stack([np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)], 1)
@@ -81,7 +80,12 @@ def cameras_geojson(
     ground_z: float,
     offset: np.ndarray | None = None,
 ) -> dict:
-    """A GeoJSON ``FeatureCollection`` of camera centres and footprints (module docstring)."""
+    """A GeoJSON ``FeatureCollection`` of camera centres and footprints (module docstring); ``CRSError``
+    without a CRS (``crs`` None)."""
+    if crs is None:
+        raise CRSError(
+            "cameras_geojson needs the model's CRS: GeoJSON coordinates are WGS 84 longitude, latitude"
+        )
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
     out = []
     for f in features:
@@ -104,10 +108,7 @@ def cameras_geojson(
                 "properties": {**props, "feature": "footprint", "footprint_ground_z": float(ground_z)},
             }
         )
-    collection: dict = {"type": "FeatureCollection", "features": out}
-    if crs is None:
-        collection["semcityloc_frame"] = "the city model's own frame (its file names no CRS): x, y in metres"
-    return collection
+    return {"type": "FeatureCollection", "features": out}
 
 
 def write_geojson(collection: dict, path: str | os.PathLike) -> Path:
