@@ -608,6 +608,40 @@ def test_overwrite_with_the_same_arguments_starts_again(sim, baseline, tmp_path)
     assert again.new_rows == 1 and len(csv_rows(out / RESULTS_FILE)) == 1
 
 
+def _failing_simulator(*_args):
+    raise BenchmarkError("setup failed")  # as a backend whose weights are missing fails: before any row
+
+
+def test_a_run_that_fails_before_its_first_row_leaves_the_folder_as_it_found_it(sim, tmp_path):
+    """A run that fails at setup leaves nothing that makes its folder "another run": the corrected command
+    (here: other arguments) starts there. What the folder held before stays: its own files, and a resumed
+    run's run.json and rows (stop 50)."""
+    failing = dataclasses.replace(make_spec(sim), simulator_factory=_failing_simulator)
+    fresh = tmp_path / "fresh"
+    with pytest.raises(BenchmarkError, match="setup failed"):
+        run_benchmark(failing, fresh, progress=False)
+    assert not fresh.exists()
+    assert run_benchmark(make_spec(sim, seed=9), fresh, progress=False, limit=0).rows == []  # not refused
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine\n")
+    with pytest.raises(BenchmarkError, match="setup failed"):
+        run_benchmark(failing, mine, progress=False)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    started = tmp_path / "started"
+    run_benchmark(make_spec(sim), started, progress=False, limit=0)  # run.json and no row: resumed below
+    before = {p.name: p.read_bytes() for p in started.iterdir() if p.is_file()}
+    with pytest.raises(BenchmarkError, match="setup failed"):
+        run_benchmark(failing, started, progress=False)
+    assert {p.name: p.read_bytes() for p in started.iterdir()} == before
+    run_benchmark(make_spec(sim), started, progress=False, limit=1)  # one row: a run's result, kept whole
+    before = {p.name: p.read_bytes() for p in started.rglob("*") if p.is_file()}
+    with pytest.raises(BenchmarkError, match="setup failed"):
+        run_benchmark(failing, started, progress=False)
+    assert {p.name: p.read_bytes() for p in started.rglob("*") if p.is_file()} == before
+    assert len(csv_rows(started / RESULTS_FILE)) == 1
+
+
 def test_two_different_rows_of_one_query_are_refused_naming_the_id_and_lines(sim, baseline, tmp_path):
     import shutil
 
@@ -682,15 +716,18 @@ def test_a_full_disk_while_saving_details_leaves_no_temporary_file(sim, tmp_path
         Path(file).write_bytes(b"PK" * 1000)  # what fit on the disk
         _enospc()
 
-    monkeypatch.setattr(np, "savez_compressed", partial_npz)
     args = ["benchmark", "--city", "generated", "--queries", "2", "--preset", "fast", "--out", str(out)]
-    assert cli([*args, "--keep-details", "1"]) == 2
+    assert cli([*args, "--keep-details", "0", "--stop-after", "1"]) == 0  # one finished row, kept below
+    monkeypatch.setattr(np, "savez_compressed", partial_npz)
+    assert cli([*args, "--keep-details", "1"]) == 2  # q0000's details made again: the disk is full
     err = capsys.readouterr().err
     last = err.splitlines()[-1]  # after the progress line, one line
     assert last.startswith("semcityloc: error: ") and "Traceback" not in err
     assert f"cannot write {out / 'details' / 'q0000.npz'}: No space left on device" in err
-    assert "the 0 finished rows are kept" in err
+    assert "the 1 finished rows are kept" in err and len(csv_rows(out / RESULTS_FILE)) == 1
     assert [p.name for p in (out / "details").iterdir()] == []  # no .q0000.<pid>.tmp.npz keeps it full
+    fresh = tmp_path / "fresh_full"  # failed before its first row: nothing of it is left (stop 50)
+    assert cli([*args[:-1], str(fresh), "--keep-details", "1"]) == 2 and not fresh.exists()
 
 
 def test_write_atomic_names_the_file_and_leaves_no_temporary_file(tmp_path, monkeypatch):

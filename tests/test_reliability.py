@@ -579,7 +579,11 @@ def test_a_run_json_that_reads_but_is_no_run_config_is_another_run_unless_overwr
     """A ``run.json`` that reads but is no JSON, or no JSON object, is another run's: refused, and
     ``--overwrite`` starts the run again."""
     config = {"method": "semcityloc", "queries": 2}
-    for text, needle in (("{not json", "is not JSON"), ("[1, 2]", "is not a JSON object")):
+    for text, needle in (
+        ("{not json", "is not JSON"),
+        ("[1, 2]", "is not a JSON object"),
+        ("null", "is not a JSON object"),
+    ):
         (tmp_path / RUN_FILE).write_text(text)
         with pytest.raises(ResumeMismatchError, match=f"holds another benchmark run: its run.json {needle}"):
             prepare_output(tmp_path, config)

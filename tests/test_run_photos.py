@@ -41,6 +41,7 @@ from semcityloc.datasets.dji_camera import camera_from_exif
 from semcityloc.datasets.dji_metadata import read_dji_metadata
 from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
 from semcityloc.datasets.photos import INTRINSICS_35MM
+from semcityloc.errors import MissingWeightsError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import pose_from_dji
 from semcityloc.geometry.distortion import LensDistortion, distort_image, unseen_by_photo
@@ -469,6 +470,27 @@ def test_run_without_perception_or_with_bad_options_is_one_line(box_flight, tmp_
     code, _, err = run(capsys, *box_flight["argv"], "--map-eaves", "-1", "--out", tmp_path / "o")
     assert code == 2 and "map_eaves_m must be a number of metres in [0, 3]" in err and err.count("\n") == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_a_run_whose_backend_fails_to_load_does_not_block_the_corrected_command(
+    box_flight, tmp_path, capsys, monkeypatch
+):
+    """A segmentation backend without its weights fails before the first photo: the folder keeps nothing of
+    that run, so the same command with --masks instead is not refused as "another benchmark run" (stop
+    50)."""
+
+    def no_weights(name, **options):
+        raise MissingWeightsError(f"no trained segmentation head for {name}; give --backend-option head=DIR")
+
+    monkeypatch.setattr(photo_source, "get_segmentation_backend", no_weights)
+    out = tmp_path / "out"
+    base = [a for a in box_flight["argv"] if a not in ("--masks", box_flight["root"] / "masks")]
+    code, _, err = run(capsys, *base, "--seg-backend", "files", "--no-overlays", "--out", out)
+    assert code == 2 and "no trained segmentation head" in err and err.count("\n") == 1
+    assert not out.exists()
+    code, stdout, err = run(capsys, *box_flight["argv"], "--no-overlays", "--out", out)
+    assert code == 0 and "another benchmark run" not in err, err
+    assert "4 photos: 2 localized, 1 not localized, 1 skipped" in stdout
 
 
 def test_a_run_searches_the_map_with_the_eaves_it_is_given(box_flight, tmp_path, capsys):

@@ -20,6 +20,7 @@ seeds its own generator per query.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -62,11 +63,15 @@ from semcityloc.benchmark.runfiles import (
     OVERLAYS_DIR,
     POSES_DIR,
     RESULTS_FILE,
+    RUN_FILE,
     SUMMARY_FILE,
     Progress,
     code_change_note,
+    holds_rows,
     prepare_output,
+    remove_entries,
     remove_stale_temps,
+    run_entries,
     run_lock,
     write_json_atomic,
     writing,
@@ -226,10 +231,17 @@ def run_queries(
     out = Path(out_dir)
     config = config if config is not None else spec.run_config()
     config = {**config, CODE_KEY: code_fingerprint()}
-    with run_lock(out):  # one run at a time writes a folder
-        return _run_locked(
-            source, spec, out, config, workers, overwrite, limit, progress, executor, ray_address
-        )
+    made = not out.exists()
+    try:
+        with run_lock(out):  # one run at a time writes a folder
+            return _run_locked(
+                source, spec, out, config, workers, overwrite, limit, progress, executor, ray_address
+            )
+    except BaseException:
+        if made:  # a folder this call made and left empty (a run that failed at setup): not kept
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
 
 
 def _run_locked(
@@ -237,12 +249,38 @@ def _run_locked(
 ) -> BenchmarkOutcome:
     """``run_queries`` once it holds the folder's lock."""
     with writing(folder=out):  # run.json, a repaired results.csv
+        found = run_entries(out)
         resumed = prepare_output(out, config, overwrite)
+        # What the folder held that is not this call's: run.json when resumed, outputs not cleared.
+        theirs = (found & run_entries(out)) - (set() if resumed is not None else {RUN_FILE})
         remove_stale_temps(out, TEMP_FOLDERS)  # we hold the lock: no other run writes here
-        results_path = out / RESULTS_FILE
-        total = int(config["queries"])
-        wanted = {query_id(i) for i in range(total)}
-        rows = [r for r in read_results(results_path) if r["query_id"] in wanted]
+        wanted = {query_id(i) for i in range(int(config["queries"]))}
+        rows = [r for r in read_results(out / RESULTS_FILE) if r["query_id"] in wanted]
+    try:
+        return _run_rows(
+            source, spec, out, config, rows, resumed, workers, limit, progress, executor, ray_address
+        )
+    except BaseException:
+        _undo_setup(out, theirs)
+        raise
+
+
+def _undo_setup(out: Path, theirs: set[str]) -> None:
+    """After a run that failed (or was interrupted) before the folder held any result row (a backend whose
+    weights are missing, a Ctrl-C while compiling): remove what this call made (``run.json``, an empty
+    ``results.csv``, ``details/``), so that the corrected command is not refused as "another run". What the
+    folder held before (``theirs``: a resumed run's files) stays; a folder holding any row is left whole."""
+    if holds_rows(out / RESULTS_FILE):
+        return
+    with contextlib.suppress(OSError):  # the failure that got here is the one to tell
+        remove_entries(out, run_entries(out) - theirs)
+
+
+def _run_rows(
+    source, spec, out: Path, config: dict, rows, resumed, workers, limit, progress, executor, ray_address
+) -> BenchmarkOutcome:
+    """The queries left to do, localized and their rows kept; the summary and exports once all are done."""
+    total = int(config["queries"])
     done = {r["query_id"] for r in rows}
     missing = missing_details(out, rows, min(int(spec.keep_details), total))  # made again, first
     todo = missing + [i for i in range(total) if query_id(i) not in done]
@@ -273,7 +311,7 @@ def _run_locked(
         else:
             finished = _run_pool(todo, workers, (spec, source, out))
         try:
-            rows, written = _keep_rows(finished, results_path, rows, {query_id(i) for i in redo}, bar)
+            rows, written = _keep_rows(finished, out / RESULTS_FILE, rows, {query_id(i) for i in redo}, bar)
         finally:
             finished.close()  # stops the pool at once when the loop ends by an error
             if bar:

@@ -10,7 +10,9 @@ Folder ``DIR`` of a run:
   other arguments is refused with ``ResumeMismatchError`` naming the differing keys, unless ``overwrite``
   (which deletes the old results, whatever the arguments: it always starts the run again). It also keeps
   ``code``, the package source that started the run: a resume by changed code is not refused but told
-  that its results mix (``code_change_note``).
+  that its results mix (``code_change_note``). A run that fails (or is interrupted) before the folder
+  holds its first row - a backend without its weights - leaves nothing of itself (``run_entries``,
+  ``remove_entries``, ``benchmark.run``): the corrected command is not "another run".
 - ``results.csv``: one row per finished query (``benchmark.results``).
 - ``details/qNNNN.npz``: the report's figures for the first ``keep_details`` queries (a resume makes a
   deleted one again: ``results.missing_details``).
@@ -46,7 +48,7 @@ import shutil
 import socket
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -342,6 +344,8 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         except ValueError as exc:
             old = None
             mismatch = f"its {RUN_FILE} is not JSON ({exc})"
+        if mismatch is None and not isinstance(old, dict):  # JSON null too: None means "starts here"
+            old, mismatch = None, f"its {RUN_FILE} is not a JSON object"
         if isinstance(old, dict):
             differ = differing_settings(old, config)
             if differ:
@@ -351,8 +355,6 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
                     "query_names" in changed or changed == {"skipped_photos"}
                 )
                 mismatch = (PHOTOS_DIFFER if folder else "arguments differ: ") + shown
-        elif old is not None:
-            mismatch = f"its {RUN_FILE} is not a JSON object"
     elif results.exists() and not run_file.exists():
         mismatch = f"it has a {RESULTS_FILE} but no {RUN_FILE}"
     if mismatch and not overwrite:
@@ -360,18 +362,42 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
             f"{out_dir} holds another benchmark run: {mismatch}; pass --overwrite or choose another --out"
         )
     if mismatch or overwrite:  # --overwrite starts the run again, whatever the folder holds
-        for name in RUN_OUTPUTS:
-            path = out_dir / name
-            if path.is_dir():
-                shutil.rmtree(path, ignore_errors=True)
-            else:
-                path.unlink(missing_ok=True)
+        remove_entries(out_dir, RUN_OUTPUTS)
         if run_file.is_dir() and not run_file.is_symlink():  # only --overwrite gets here with one
             shutil.rmtree(run_file, ignore_errors=True)
     if mismatch or overwrite or not run_file.exists():
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
         return None
     return old
+
+
+def run_entries(out_dir: Path) -> set[str]:
+    """The names of ``run.json`` and the run's outputs (``RUN_OUTPUTS``) that ``out_dir`` holds (a dangling
+    link too): what a run that fails at setup compares with the folder it found (``remove_entries``)."""
+    return {name for name in (RUN_FILE, *RUN_OUTPUTS) if os.path.lexists(out_dir / name)}
+
+
+def remove_entries(out_dir: Path, names: Iterable[str]) -> None:
+    """Delete ``names`` (files, links or folders) from ``out_dir``: the outputs ``overwrite`` clears, or
+    those a run that failed before its first row made (``benchmark.run``). Not there: nothing to do."""
+    for name in names:
+        path = out_dir / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+def holds_rows(path: Path) -> bool:
+    """Whether the ``results.csv`` at ``path`` holds anything beyond its header (a torn row too). One that
+    cannot be read counts as holding rows: a run's results are never deleted on a guess."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True
+    return bool(data.partition(b"\n")[2].strip())
 
 
 def code_change_note(out_dir: Path, old: dict | None, config: dict, done: int, todo: int) -> str | None:
