@@ -424,17 +424,22 @@ def test_an_unreadable_details_file_skips_only_its_figure_with_a_note(two_runs, 
     assert html.queries == 2 and any("q0000.npz" in n and "q0000 shown without them" in n for n in html.notes)
 
 
-def _with_reason(run: Path, reasons: dict[str, str]) -> Path:
-    """``run`` with the reasons of some of its rows replaced (query id -> reason)."""
-    rows = read_csv(run / RESULTS_FILE)
-    for row in rows:
-        row["reason"] = reasons.get(row["query_id"], row["reason"])
+def _write_rows(run: Path, rows: list[dict[str, str]]) -> Path:
+    """``run`` with its ``results.csv`` holding exactly ``rows``."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
     (run / RESULTS_FILE).write_text(buf.getvalue())
     return run
+
+
+def _with_reason(run: Path, reasons: dict[str, str]) -> Path:
+    """``run`` with the reasons of some of its rows replaced (query id -> reason)."""
+    rows = read_csv(run / RESULTS_FILE)
+    for row in rows:
+        row["reason"] = reasons.get(row["query_id"], row["reason"])
+    return _write_rows(run, rows)
 
 
 def test_a_query_whose_input_could_not_be_read_is_its_own_kind_of_miss_not_a_refusal(tmp_path):
@@ -541,3 +546,83 @@ def test_an_estimate_found_on_the_flat_eaves_map_is_drawn_on_that_map_and_said_s
         assert plain["layers"]["truth"] == flat["layers"]["truth"]
         assert plain["layers"]["estimate"]["edges"] != flat["layers"]["estimate"]["edges"]
         assert flat["estimate_map"] == "the map with eaves on its flat roofs"
+
+
+# ------------------------------------------------------------------------------ no ground truth (stop 50)
+def blind_run(root: Path, name: str = "photos") -> Path:
+    """A photo run without ``--truth``: three photos localized, each moved from its prior by a known
+    amount, one refused, one whose mask could not be read, one skipped; no row has an error."""
+    from semcityloc.benchmark.results import REASON_UNREADABLE
+    from semcityloc.localization.result import REASON_LOW_CONFIDENCE
+
+    run = fake_run(root, name, [(0.0, 0.0)] * 6, mode="photos", truth=None, images="/p", perception="masks")
+    # (status, probability, est - prior: dx, dy, dz, dyaw, sigma xy / z / yaw)
+    moves = [
+        ("localized", "0.99", (3.0, 4.0, 1.0, 359.0), ("0.5", "0.8", "0.2")),
+        ("localized", "0.95", (0.0, 1.0, -2.0, 2.0), ("0.7", "1.0", "0.4")),
+        ("localized", "0.90", (6.0, 8.0, 4.0, -3.0), ("1.0", "2.0", "0.6")),
+    ]
+    rows = read_csv(run / RESULTS_FILE)
+    for row in rows:
+        row.update(err_xyz_m="", err_rot_deg="", err_yaw_deg="", query_miou="")
+        row.update(prior_x="10.0", prior_y="20.0", prior_z="100.0", prior_yaw="1.0")
+    for row, (status, p, (dx, dy, dz, dyaw), (sxy, sz, syaw)) in zip(rows, moves, strict=False):
+        row.update(status=status, reason="", probability=p, sigma_xy_m=sxy, sigma_z_m=sz, sigma_yaw_deg=syaw)
+        row.update(est_x=repr(10 + dx), est_y=repr(20 + dy), est_z=repr(100 + dz), est_yaw=repr(1 + dyaw))
+    rows[3].update(status="not_localized", reason=REASON_LOW_CONFIDENCE, probability="0.2")
+    rows[4].update(status="not_localized", reason=f"{REASON_UNREADABLE}: /p/masks/P4.png: truncated PNG")
+    rows[5].update(status="skipped", reason="no intrinsics for P5.JPG")
+    return _write_rows(run, rows)
+
+
+def test_a_run_without_ground_truth_reports_what_it_says_of_itself_not_zero_recall(tmp_path):
+    """``semcityloc run`` without ``--truth``: no recall cells of "-" and no error curves flat at 0 %
+    (which read as a run that failed), but the counts with the reasons, the calibrated probability, the
+    stated sigmas and the shift from the prior (stop 50)."""
+    report = make_report([blind_run(tmp_path)], tmp_path / "report", overlays=0)
+    assert set(report.tables) == {"main", "self"}  # no acceptance or misses table: both need the truth
+    assert sorted(p.name for p in report.plots) == ["self_assessment.png"]  # no error curves
+    main_md = report.tables["main"][0].read_text(encoding="utf-8")
+    assert "R@" not in main_md and "med. xyz" not in main_md and "| 5 | 3 | 2 | 1 |" in main_md
+    (row,) = read_csv(report.tables["self"][1])
+    assert (row["queries"], row["localized"], row["not_localized"], row["skipped"]) == ("5", "3", "2", "1")
+    assert row["reasons"] == "confidence below the acceptance probability 1; input file cannot be read 1"
+    assert float(row["probability_median_localized"]) == pytest.approx(0.95)
+    assert float(row["probability_median_refused"]) == pytest.approx(0.2)
+    assert [float(row[f"sigma_{k}_median"]) for k in ("xy_m", "z_m", "yaw_deg")] == [0.7, 1.0, 0.4]
+    assert (float(row["shift_xy_m_median"]), float(row["shift_xy_m_max"])) == (5.0, 10.0)
+    assert (float(row["shift_z_m_median"]), float(row["shift_z_m_max"])) == (2.0, 4.0)
+    assert (float(row["shift_yaw_deg_median"]), float(row["shift_yaw_deg_max"])) == (2.0, 3.0)  # 359: 1
+    text = report.markdown.read_text(encoding="utf-8")
+    assert "No ground truth" in text and "Recall cells" not in text and "- 1.00 / -" not in text
+    assert any("no ground truth (a run without --truth)" in n for n in report.notes)
+    with Image.open(tmp_path / "report" / "plots" / "self_assessment.png") as im:
+        assert im.format == "PNG" and im.size[0] >= 1000
+
+
+def test_a_run_without_ground_truth_beside_one_with_it_says_no_truth_in_its_cells(tmp_path):
+    """Beside a run with ground truth, the run without it has ``no truth`` in the columns that need it
+    (not "-"), and the error curves hold the run with truth alone (stop 50)."""
+    truth = fake_run(
+        tmp_path, "truth", [(0.5, 0.2), (9.0, 0.3)], mode="photos", images="/p", perception="oracle"
+    )
+    report = make_report([blind_run(tmp_path), truth], tmp_path / "report", overlays=0)
+    rows = report.tables["main"][0].read_text(encoding="utf-8").splitlines()[4:]
+    cells = {r[1]: r for r in ([c.strip() for c in row.strip("|").split("|")] for row in rows)}
+    blind_cells, truth_cells = cells["masks"], cells["oracle"]  # told apart by their perception
+    assert blind_cells.count("no truth") == 11 and "no truth" not in truth_cells
+    assert "50.0 / 50.0" in truth_cells  # its recall as always
+    assert {"cumulative_translation.png", "self_assessment.png"} <= {p.name for p in report.plots}
+
+
+def test_the_html_report_draws_no_error_curves_of_a_run_without_ground_truth(tmp_path):
+    """report.html: no cumulative error curves (empty axes) for a run without ground truth, but its
+    probability against the shift from the prior, a point per localized photo that opens it (stop 50)."""
+    pytest.importorskip("plotly")
+    from semcityloc.benchmark.report_html import _figures
+
+    figures = _figures([load_run(blind_run(tmp_path))], [])
+    assert set(figures) == {"self"}
+    (trace,) = figures["self"][1].data
+    assert list(trace.customdata) == ["0:q0000", "0:q0001", "0:q0002"]
+    assert list(trace.y) == pytest.approx([5.0, 1.0, 10.0]) and list(trace.x) == [0.99, 0.95, 0.9]

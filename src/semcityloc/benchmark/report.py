@@ -13,8 +13,12 @@ side by what differs in their ``run.json``:
   is no such group, except ``main``, which then lists every run. One row per run: F first, then the
   settings that differ between the table's runs, then the metrics. Recall cells show both conventions,
   ``<=`` / ``<`` (see ``evaluation.metrics``);
-- plots (matplotlib, Agg): cumulative position and rotation error curves (one line per run,
-  ``not_localized`` never reaches the curve), recall vs prior noise, and per run a figure for its first
+- runs without ground truth (a user's photos run without ``--truth``, ``report_runs.has_truth``): no
+  error columns, curves or misses of them (they would read as 0 %), but a note, and the table ``self``
+  and figure ``self_assessment.png``: localized / not localized with the reasons counted, the calibrated
+  probability, the stated sigmas and the shift from the prior;
+- plots (matplotlib, Agg): cumulative position and rotation error curves (one line per run with ground
+  truth, ``not_localized`` never reaches the curve), recall vs prior noise, and per run a figure for its first
   saved queries (``details/``): the query mask with the label boundaries of the map rendered at the
   estimated and true poses (the estimate on the map it was found on: ``found_map``), an xy slice and a
   yaw slice of the coarse cost volume.
@@ -38,22 +42,32 @@ from semcityloc.benchmark.report_plots import (
     plot_recall_vs_prior,
     plot_recall_vs_sweep,
     plot_risk_coverage,
+    plot_self_assessment,
 )
 from semcityloc.benchmark.report_runs import (
     RunData,
     acceptance_data,
     comparable_runs,
     differing_keys,
+    has_truth,
     ignored_note,
     incomplete_note,
     label_runs,
     load_run,
     map_renderer,
     missing_details_note,
+    no_truth_note,
     photo_of,
     readable_details,
 )
-from semcityloc.benchmark.report_tables import MISSES_NOTE, build_table, misses_table, risk_coverage_table
+from semcityloc.benchmark.report_tables import (
+    MISSES_NOTE,
+    SELF_NOTE,
+    build_table,
+    misses_table,
+    risk_coverage_table,
+    self_assessment_table,
+)
 from semcityloc.benchmark.runfiles import DETAILS_DIR
 from semcityloc.errors import BenchmarkError
 
@@ -65,6 +79,15 @@ TABLES: dict[str, tuple[str, str]] = {
     "lod": ("lod", "Map level of detail (LoD1 / LoD2 / LoD3)"),
     "seg_quality": ("seg_quality", "Segmentation-quality sensitivity"),
 }
+
+
+RECALL_LINE = (
+    "Recall cells: `≤` convention (LoD-Loc v1) / strict `<`; not_localized queries count as failures."
+)
+NO_TRUTH_LINE = (
+    "No ground truth (no run has `--truth`): no errors or recall; the counts, the calibrated probability, "
+    "the stated sigmas and the shift from the prior are what the runs say of themselves."
+)
 
 
 @dataclass
@@ -104,13 +127,12 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     notes: list[str] = [incomplete_note(r) for r in runs if not r.complete]
     notes += [ignored_note(r) for r in runs if r.ignored]
     notes += [n for n in map(missing_details_note, runs) if n is not None]
+    truth = [r for r in runs if has_truth(r)]  # errors measured: curves and recall as always
+    blind = [r for r in runs if not has_truth(r)]  # a user's photos without --truth: what they say instead
+    notes += [no_truth_note(r) for r in blind]
     doc = ["# SemCityLoc benchmark report", "", f"Runs: {len(runs)}", ""]
     doc += [f"- `{r.path}`: {r.label}" for r in runs]
-    doc += [
-        "",
-        "Recall cells: `≤` convention (LoD-Loc v1) / strict `<`; not_localized queries count as failures.",
-        "",
-    ]
+    doc += ["", RECALL_LINE if truth else NO_TRUTH_LINE, ""]
     tables: dict[str, tuple[Path, Path]] = {}
     sweep_plots: list[Path] = []
     for name, (factor, title) in TABLES.items():
@@ -133,16 +155,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
             plot_recall_vs_sweep(members, knob, out / "plots" / f"recall_vs_{_slug(knob)}.png")
         )
 
-    plots = [
-        plot_cumulative(
-            runs, "err_xyz_m", "camera-centre error (m)", out / "plots" / "cumulative_translation.png"
-        ),
-        plot_cumulative(
-            runs, "err_rot_deg", "rotation error (deg)", out / "plots" / "cumulative_rotation.png"
-        ),
-        plot_recall_vs_prior(runs, out / "plots" / "recall_vs_prior_noise.png"),
-    ]
-    plots += sweep_plots
+    plots = _error_plots(truth, out / "plots") + sweep_plots
     acceptance = [r for r in runs if acceptance_data(r) is not None]
     if acceptance:
         title = "Acceptance: coverage and precision by probability threshold"
@@ -152,6 +165,10 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     if with_truth:
         title = "Misses at 2 m / 2°, by kind, and the map's agreement with the world at the truth"
         doc += _write_table(out, tables, "misses", title, *misses_table(with_truth), preface=MISSES_NOTE)
+    if blind:
+        title = "Without ground truth: what the runs say of themselves"
+        doc += _write_table(out, tables, "self", title, *self_assessment_table(blind), preface=SELF_NOTE)
+        plots.append(plot_self_assessment(blind, out / "plots" / "self_assessment.png"))
     plots += _detail_figures(runs, out / "plots", overlays, notes)
     doc += ["## Figures", ""] + [f"![{p.stem}](plots/{p.name})" for p in plots]
     if notes:
@@ -159,6 +176,20 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     md_file = out / "report.md"
     md_file.write_text("\n".join(doc) + "\n", encoding="utf-8")
     return ReportOutput(out, tables, plots, md_file, notes)
+
+
+def _error_plots(runs: list[RunData], plot_dir: Path) -> list[Path]:
+    """The cumulative error curves and recall against the prior noise of the runs with ground truth; none
+    when no run has it (curves at 0 % would read as a run that failed)."""
+    if not runs:
+        return []
+    return [
+        plot_cumulative(
+            runs, "err_xyz_m", "camera-centre error (m)", plot_dir / "cumulative_translation.png"
+        ),
+        plot_cumulative(runs, "err_rot_deg", "rotation error (deg)", plot_dir / "cumulative_rotation.png"),
+        plot_recall_vs_prior(runs, plot_dir / "recall_vs_prior_noise.png"),
+    ]
 
 
 def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: list[str]) -> list[Path]:

@@ -13,7 +13,9 @@ It shows
 - a 3D view of the city mesh (label palette) with the camera frusta at prior, estimate and truth (one
   legend group per run; the selected query in black) and, for a run of photos, the flight path;
 - the cumulative error curves (hover: the query; click: opens it), recall against the prior noise and
-  against each sweep's values, and the acceptance's risk-coverage curves.
+  against each sweep's values, and the acceptance's risk-coverage curves, of the runs with ground truth;
+  of a run without it (a user's photos without ``--truth``) the calibrated probability of each localized
+  query against how far its pose moved from the prior (hover, click likewise) instead.
 """
 
 from __future__ import annotations
@@ -41,10 +43,12 @@ from semcityloc.benchmark.report_plotly import (
     mesh_selection,
     recall_lines_figure,
     risk_coverage_figure,
+    self_figure,
 )
 from semcityloc.benchmark.report_runs import (
     RunData,
     acceptance_data,
+    has_truth,
     label_runs,
     load_run,
     map_renderer,
@@ -189,19 +193,30 @@ def _city(runs, maps, entries, notes) -> tuple[Any, dict] | None:
     return city_figure(model, keep, traces, title), frusta
 
 
-def _figures(runs: list[RunData], entries: list[dict]) -> dict[str, Any]:
-    keys_by_run = [[f"{n}:{r['query_id']}" for r in run.rows] for n, run in enumerate(runs)]
-    figs: dict[str, Any] = {
-        "cum-xyz": (
+def _figures(all_runs: list[RunData], entries: list[dict]) -> dict[str, Any]:
+    """The page's curves. Error curves and recall of the runs with ground truth only (none when no run has
+    it: curves at 0 % would read as a run that failed); the runs without it get the calibrated probability
+    against the shift from the prior (``self_figure``)."""
+    keys = {id(run): [f"{n}:{r['query_id']}" for r in run.rows] for n, run in enumerate(all_runs)}
+    runs = [r for r in all_runs if has_truth(r)]
+    blind = [r for r in all_runs if not has_truth(r)]
+    figs: dict[str, Any] = {}
+    if runs:
+        keys_by_run = [keys[id(r)] for r in runs]
+        figs["cum-xyz"] = (
             "Cumulative camera-centre error",
             cumulative_figure(runs, keys_by_run, "err_xyz_m", "camera-centre error (m)", 10.0),
-        ),
-        "cum-rot": (
+        )
+        figs["cum-rot"] = (
             "Cumulative rotation error",
             cumulative_figure(runs, keys_by_run, "err_rot_deg", "rotation error (deg)", 10.0),
-        ),
-    }
-    groups = prior_noise_groups(runs)
+        )
+    if blind:
+        figs["self"] = (
+            "Without ground truth: calibrated probability against the shift from the prior",
+            self_figure(blind, [keys[id(r)] for r in blind]),
+        )
+    groups = prior_noise_groups(runs) if runs else {}
     if len({noise_x(r) for g in groups.values() for r in g}) > 1:
         figs["prior-noise"] = (
             "Recall against the extra prior noise",

@@ -111,6 +111,56 @@ def recall_lines_figure(groups: dict[str, list[RunData]], x_of: Callable[[RunDat
     return fig
 
 
+def self_figure(runs: list[RunData], keys: list[list[str]]):
+    """Runs without ground truth: a point per localized query, its calibrated probability against how far
+    its pose lies from the prior (horizontal, m; hover: the query and its stated 1-sigma; click: opens
+    it). A refused query keeps no pose to measure from. ``keys[i]``: the page key of each row of run i."""
+    go = graph_objects()
+    fig = go.Figure()
+    for run, run_keys in zip(runs, keys, strict=True):
+        points = [_self_point(row, key) for row, key in zip(run.rows, run_keys, strict=True)]
+        points = [p for p in points if p is not None]
+        if points:
+            fig.add_trace(
+                go.Scatter(
+                    x=[p[0] for p in points],
+                    y=[p[1] for p in points],
+                    mode="markers",
+                    marker=dict(size=7),
+                    name=run.label,
+                    text=[p[2] for p in points],
+                    customdata=[p[3] for p in points],
+                    hovertemplate="%{text}<br>p %{x:.2f}, %{y:.1f} m from the prior<extra></extra>",
+                )
+            )
+    fig.update_layout(
+        **_layout(
+            go, "calibrated probability (pose within 5 m / 5°)", "shift from the prior, horizontal (m)"
+        ),
+        xaxis_range=[0, 1.02],
+    )
+    return fig
+
+
+def _self_point(row: dict[str, str], key: str) -> tuple[float, float, str, str] | None:
+    """(probability, horizontal shift from the prior in m, hover text, page key) of a localized row, or
+    None (not localized, or a value missing)."""
+    if row["status"] != "localized":
+        return None
+    try:
+        p = float(row.get("probability") or "nan")
+        est = [float(row.get(f"est_{k}") or "nan") for k in "xy"]
+        prior = [float(row.get(f"prior_{k}") or "nan") for k in "xy"]
+        sigma = float(row.get("sigma_xy_m") or "nan")
+    except ValueError:
+        return None
+    shift = math.hypot(est[0] - prior[0], est[1] - prior[1])
+    if not (math.isfinite(p) and math.isfinite(shift)):
+        return None
+    stated = f", stated 1σ xy {sigma:.2f} m" if math.isfinite(sigma) else ""
+    return p, shift, f"{row['query_id']}{stated}", key
+
+
 def risk_coverage_figure(curves: dict[str, list[tuple[float, float, float]]]):
     """Precision of accepted poses against the share accepted (``localization.confidence.risk_coverage``
     curves by run label; hover: the probability threshold)."""

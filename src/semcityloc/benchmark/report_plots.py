@@ -6,8 +6,9 @@ report holds (``benchmark.report``). Cumulative position and rotation error curv
 the acceptance's precision against coverage, and per saved query (``details/``) the query mask with the
 label boundaries of the map rendered at the estimated and true poses (the estimate on the map it was
 found on: ``found_map``), the photo with the model's edges (real data), and an xy slice and a yaw slice of
-the coarse cost volume. matplotlib is an optional dependency (extra ``plots``), imported when a figure is
-drawn.
+the coarse cost volume; for runs without ground truth, what they say of themselves (the calibrated
+probability, the stated sigmas, the shift from the prior). matplotlib is an optional dependency (extra
+``plots``), imported when a figure is drawn.
 """
 
 from __future__ import annotations
@@ -18,7 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.benchmark.found_map import FoundMaps
-from semcityloc.benchmark.report_runs import RunData, acceptance_data, noise_x, prior_noise_groups, sweep_x
+from semcityloc.benchmark.report_runs import (
+    RunData,
+    acceptance_data,
+    noise_x,
+    prior_noise_groups,
+    self_assessment,
+    sweep_x,
+)
 from semcityloc.benchmark.results import SKIPPED
 from semcityloc.errors import OptionalDependencyError
 from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshold_key
@@ -240,3 +248,52 @@ def plot_risk_coverage(runs: list[RunData], path: Path) -> Path:
     ax.set_ylabel("precision of accepted poses (%; within 5 m / 5°)")
     ax.set_xlim(0, 1)
     return _save_figure(plt, fig, ax, path)
+
+
+def plot_self_assessment(runs: list[RunData], path: Path) -> Path:
+    """Runs without ground truth (``report_runs.self_assessment``), three panels: the calibrated
+    probability of the poses found (localized solid, refused dashed), and the share of localized poses
+    whose stated 1-sigma, and whose shift from the prior, is at most x (horizontal solid, vertical
+    dashed): what can be read of a run whose errors cannot be measured."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    data = [self_assessment(run) for run in runs]
+    bins = np.linspace(0.0, 1.0, 21)
+    for run, a, color in zip(runs, data, colors * len(runs), strict=False):
+        p, accepted = a["probability"], a["accepted"]
+        for chosen, ls, kind in ((accepted, "-", "localized"), (~accepted, "--", "refused")):
+            if chosen.any():
+                axes[0].hist(
+                    p[chosen], bins, histtype="step", ls=ls, color=color, label=f"{run.label}: {kind}"
+                )
+    axes[0].set_xlabel("calibrated probability (pose within 5 m / 5°)")
+    axes[0].set_ylabel("queries")
+    axes[0].yaxis.get_major_locator().set_params(integer=True)
+    panels = ((axes[1], "sigma", "stated 1-sigma (m)"), (axes[2], "shift", "shift from the prior (m)"))
+    for ax, key, xlabel in panels:
+        x_max = max([_finite_max(a[f"{key}_{k}_m"]) for a in data for k in ("xy", "z")] + [1.0]) * 1.05
+        grid = np.linspace(0.0, x_max, 401)
+        for run, a, color in zip(runs, data, colors * len(runs), strict=False):
+            for k, ls in (("xy", "-"), ("z", "--")):
+                values = a[f"{key}_{k}_m"]
+                if np.isfinite(values).any():
+                    ax.plot(grid, cumulative_curve(values, grid), ls, color=color, label=f"{run.label}: {k}")
+        ax.set_xlim(0, x_max)
+        ax.set_ylim(0, 100)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("localized poses with value ≤ x (%)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _finite_max(values: np.ndarray) -> float:
+    """The largest finite value (0 when there is none): a plot's x range."""
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else 0.0

@@ -7,8 +7,11 @@ an unfinished run is reported with its finished rows and marked incomplete), and
 missing from it; ``describe``, ``differing_keys`` and ``label_runs`` name the settings that tell runs
 apart; ``comparable_runs``, ``prior_noise_groups``, ``noise_x`` and ``sweep_x`` group runs and place
 them on a plot's axis; ``acceptance_data`` takes each query's calibrated probability and whether its
-pose was right from the rows; ``run_map``, ``map_renderer``, ``photo_of`` and ``readable_details`` find
-what a query's drawing needs beyond the rows: the run's map, the query's photo, its details file.
+pose was right from the rows; ``has_truth`` tells a run whose queries have true poses from one that has
+none (a user's photos run without ``--truth``), whose report shows instead what the run says of itself
+(``self_assessment``: the probability, the stated sigmas, the shift from the prior); ``run_map``,
+``map_renderer``, ``photo_of`` and ``readable_details`` find what a query's drawing needs beyond the rows:
+the run's map, the query's photo, its details file.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ import numpy as np
 from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.results import (
+    SKIPPED,
+    cell_float,
     load_details,
     missing_details,
     missing_details_phrase,
@@ -37,6 +42,8 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
 from semcityloc.datasets.lodloc import FRAME_ECEF, IMAGE_DIR, enu_from_ecef, rotate_model
 from semcityloc.errors import BenchmarkError, SemCityLocError, counted
+from semcityloc.geometry.conventions import wrap_deg
+from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
 
 REAL_MODES = ("dataset", "photos")  # runs over real images (``mode`` in run.json); others are simulated
@@ -273,6 +280,47 @@ def acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
             p.append(prob_f)
             right.append(e_m_f <= RIGHT_M and e_deg_f <= RIGHT_DEG)
     return (np.array(p), np.array(right, dtype=float)) if p else None
+
+
+def has_truth(run: RunData) -> bool:
+    """Can the run's errors be measured: a query of it has a true pose, or it has no query to judge yet
+    (reported as always)? A run of photos without ``--truth`` has none: its recall would read 0 %, so the
+    report leaves the errors out and shows ``self_assessment`` instead."""
+    evaluated = any(r["status"] != SKIPPED for r in run.rows)
+    return bool(run.summary.get("with_ground_truth")) or not evaluated
+
+
+def no_truth_note(run: RunData) -> str:
+    """The report's note on a run without ground truth (``has_truth``): what is left out and why."""
+    return (
+        f"{run.path}: no ground truth (a run without --truth), so no errors, recall or error curves of it; "
+        "the table 'Without ground truth' shows what the run says of itself"
+    )
+
+
+def self_assessment(run: RunData) -> dict[str, np.ndarray]:
+    """What a run says of its poses, readable without ground truth, as arrays over its evaluated queries:
+    ``probability`` (the calibrated acceptance probability of the pose found, accepted or not) with
+    ``accepted`` (was the query localized); and over the localized ones the stated 1-sigma
+    (``sigma_xy_m``, ``sigma_z_m``, ``sigma_yaw_deg``) and how far the pose moved from the prior
+    (``shift_xy_m``, ``shift_z_m``, ``shift_yaw_deg``, absolute). NaN where a row lacks the value."""
+    rows = [r for r in run.rows if r["status"] != SKIPPED]
+    localized = [r for r in rows if r["status"] == LOCALIZED]
+
+    def column(chosen: list[dict[str, str]], name: str) -> np.ndarray:
+        return np.array([cell_float(r.get(name, "")) for r in chosen], dtype=np.float64)
+
+    found = [r for r in rows if np.isfinite(cell_float(r.get("probability", "")))]
+    est = {k: column(localized, f"est_{k}") for k in ("x", "y", "z", "yaw")}
+    prior = {k: column(localized, f"prior_{k}") for k in ("x", "y", "z", "yaw")}
+    return {
+        "probability": column(found, "probability"),
+        "accepted": np.array([r["status"] == LOCALIZED for r in found], dtype=bool),
+        **{name: column(localized, name) for name in ("sigma_xy_m", "sigma_z_m", "sigma_yaw_deg")},
+        "shift_xy_m": np.hypot(est["x"] - prior["x"], est["y"] - prior["y"]),
+        "shift_z_m": np.abs(est["z"] - prior["z"]),
+        "shift_yaw_deg": np.abs(wrap_deg(est["yaw"] - prior["yaw"])),
+    }
 
 
 def run_map(config: dict) -> CityModel:

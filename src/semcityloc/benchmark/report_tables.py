@@ -14,14 +14,26 @@ import io
 import math
 from typing import Any
 
+import numpy as np
+
 from semcityloc.benchmark.miss_kinds import MISS_KINDS, summarize_misses
-from semcityloc.benchmark.report_runs import RunData, acceptance_data, differing_keys, sweep_x
+from semcityloc.benchmark.report_runs import (
+    RunData,
+    acceptance_data,
+    differing_keys,
+    has_truth,
+    self_assessment,
+    sweep_x,
+)
 from semcityloc.benchmark.results import SKIPPED
 from semcityloc.evaluation.metrics import CAP_XYZ_M, THRESHOLDS, threshold_key
 from semcityloc.localization.confidence import calibration_error
 from semcityloc.localization.methods import ABLATIONS
 
 SEG_ORDER = ("perfect", "trained", "medium", "zero-shot")
+NO_TRUTH = "no truth"  # a truth-based cell of a run without ground truth (``report_runs.has_truth``)
+# The metric columns readable without ground truth (``metric_headers``): counts and time.
+UNTRUTHED_METRICS = ("queries", "localized", "not loc.", "skipped", "s/img")
 ACCEPT_THRESHOLDS = (0.3, 0.5, 0.7, 0.9)
 # The misses table's legend, written above the table in ``report.md``.
 MISSES_NOTE = (
@@ -88,7 +100,16 @@ def metric_headers() -> list[str]:
     ]
 
 
-def metric_cells(s: dict) -> list[str]:
+def metric_cells(s: dict, truth: bool = True) -> list[str]:
+    """The ``metric_headers`` cells of a summary; those that need ground truth say ``no truth`` when the
+    run has none (``truth`` False), not "-" (which would read as nothing found)."""
+    cells = _metric_cells(s)
+    if truth:
+        return cells
+    return [c if h in UNTRUTHED_METRICS else NO_TRUTH for h, c in zip(metric_headers(), cells, strict=True)]
+
+
+def _metric_cells(s: dict) -> list[str]:
     cells = [
         str(s.get("queries", "-")),
         str(s.get("localized", "-")),
@@ -167,18 +188,22 @@ def build_table(runs: list[RunData], factor: str, hide: tuple[str, ...] = ()) ->
         ),
     )
     headers = [factor, *context]
+    md_headers = [*metric_headers(), "query mIoU % (vs reality)", "mIoU % vs map: pooled / per image"]
     md_rows, csv_rows = [], []
     for r in ordered:
         keys = [str(r.settings.get(k)) for k in headers]
         if not r.complete:
             keys[0] += f" (incomplete {len(r.rows)}/{r.config['queries']})"
+        truth = has_truth(r)
         miou = f"{_num(r.summary.get('map_miou_pooled'))} / {_num(r.summary.get('map_miou_per_image'))}"
-        md_rows.append([*keys, *metric_cells(r.summary), f"{_num(r.summary.get('mean_query_miou'))}", miou])
+        miou_cells = [f"{_num(r.summary.get('mean_query_miou'))}", miou] if truth else [NO_TRUTH, NO_TRUTH]
+        md_rows.append([*keys, *metric_cells(r.summary, truth), *miou_cells])
         csv_rows.append([*keys, *_csv_metrics(r.summary), str(r.path)])
-    md = markdown_table(
-        [*headers, *metric_headers(), "query mIoU % (vs reality)", "mIoU % vs map: pooled / per image"],
-        md_rows,
-    )
+    if not any(map(has_truth, runs)):  # no run has ground truth: only the columns that need none
+        keep = [i for i, h in enumerate(md_headers) if h in UNTRUTHED_METRICS]
+        md_headers = [md_headers[i] for i in keep]
+        md_rows = [row[: len(headers)] + [row[len(headers) + i] for i in keep] for row in md_rows]
+    md = markdown_table([*headers, *md_headers], md_rows)
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow([*headers, *CSV_METRICS, "run_dir"])
@@ -236,3 +261,97 @@ def misses_table(runs: list[RunData]) -> tuple[str, str]:
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(csv_rows)
     return markdown_table(headers, rows), buf.getvalue()
+
+
+# The self-assessment table's legend, written above it in ``report.md``.
+SELF_NOTE = (
+    "What a run without ground truth says of itself: the calibrated probability that the pose found is "
+    "within 5 m / 5° (of the localized queries and of those refused), the 1-sigma each localized pose "
+    "states (its covariance) and how far it moved from the prior (median, and the largest move). A large "
+    "move with a small sigma is a correction of the prior; a move as large as the search volume is worth "
+    "a look in the query browser of report.html."
+)
+
+
+SELF_HEADERS = (
+    "run",
+    "queries",
+    "localized",
+    "not localized: reasons",
+    "skipped",
+    "probability, median: localized / refused",
+    "stated 1σ, median: xy m / z m / yaw °",
+    "shift from the prior, median / max: xy m",
+    "z m",
+    "yaw °",
+)
+SELF_CSV = (
+    "run",
+    "queries",
+    "localized",
+    "not_localized",
+    "reasons",
+    "skipped",
+    "probability_median_localized",
+    "probability_median_refused",
+    "sigma_xy_m_median",
+    "sigma_z_m_median",
+    "sigma_yaw_deg_median",
+    *(f"shift_{k}_{stat}" for k in ("xy_m", "z_m", "yaw_deg") for stat in ("median", "max")),
+    "run_dir",
+)
+
+
+def _median(values: np.ndarray) -> float:
+    """The median of the finite ``values``; NaN when there are none."""
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else float("nan")
+
+
+def _largest(values: np.ndarray) -> float:
+    """The largest of the finite ``values``; NaN when there are none."""
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else float("nan")
+
+
+def _reasons(summary: dict) -> str:
+    """The reasons queries were not localized, counted, most frequent first (``reason n; ...``); a reason
+    naming a file is counted by its kind (the text before the first ``: ``)."""
+    counts: dict[str, int] = {}
+    for reason, n in summary.get("not_localized_reasons", {}).items():
+        kind = (reason or "no reason given").split(": ")[0]
+        counts[kind] = counts.get(kind, 0) + n
+    return "; ".join(f"{k} {n}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1])) or "-"
+
+
+def self_assessment_table(runs: list[RunData]) -> tuple[str, str]:
+    """Per run without ground truth (``report_runs.self_assessment``): how many queries were localized
+    and why the others were not, the calibrated probability (median of the localized, of the refused),
+    the stated 1-sigma (median) and the shift from the prior (median / max)."""
+    rows, csv_rows = [], [list(SELF_CSV)]
+    for run in runs:
+        s, a = run.summary, self_assessment(run)
+        p, accepted = a["probability"], a["accepted"]
+        probs = [_median(p[accepted]), _median(p[~accepted])]
+        sigmas = [_median(a[k]) for k in ("sigma_xy_m", "sigma_z_m", "sigma_yaw_deg")]
+        shifts = [(_median(a[k]), _largest(a[k])) for k in ("shift_xy_m", "shift_z_m", "shift_yaw_deg")]
+        missed = s.get("not_localized", 0)
+        rows.append(
+            [
+                run.label,
+                str(s.get("queries", 0)),
+                str(s.get("localized", 0)),
+                f"{missed}: {_reasons(s)}" if missed else "0",
+                str(s.get("skipped", 0)),
+                " / ".join(_num(v, 2) for v in probs),
+                " / ".join(_num(v, 2) for v in sigmas),
+                *(f"{_num(med)} / {_num(top)}" for med, top in shifts),
+            ]
+        )
+        counts = [s.get("queries", 0), s.get("localized", 0), missed, _reasons(s), s.get("skipped", 0)]
+        csv_rows.append(
+            [run.label, *counts, *probs, *sigmas, *(v for pair in shifts for v in pair), run.path]
+        )
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(csv_rows)
+    return markdown_table(list(SELF_HEADERS), rows), buf.getvalue()
