@@ -13,6 +13,7 @@ from helpers import CAMERA, perturbed, view
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import MAX_POSITION_SIGMA_M, PriorUncertainty
 from semcityloc.localization.cascade import BEYOND_WARNING, _lattice, search_volume
 from semcityloc.localization.confidence import (
@@ -37,6 +38,9 @@ from semcityloc.localization.result import (
     NOT_LOCALIZED,
     REASON_AT_EDGE,
     REASON_LOW_CONFIDENCE,
+    REASON_PRIOR_LOOKS_UP,
+    REASON_PRIOR_TOO_HIGH,
+    REASON_PRIOR_UNDERGROUND,
     LocalizationResult,
 )
 from semcityloc.localization.search_reach import reached_half
@@ -212,6 +216,31 @@ def test_the_search_stays_above_the_ground(city, localizer, renderer):
     open_cfg = replace(localizer.config, cascade=replace(localizer.config.cascade, min_clearance_m=-1e6))
     below = localizer.localize(CAMERA, prior, labels, depth, config=open_cfg)
     assert below.cost_volume.z_values.min() < ground
+
+
+@pytest.mark.parametrize(
+    "dz, pitch, reason",
+    [
+        (-400.0, 1.0, REASON_PRIOR_UNDERGROUND),  # a height in another datum, or its sign lost
+        (5000.0, 1.0, REASON_PRIOR_TOO_HIGH),  # a height in feet, or above another datum
+        (100.0, 160.0, REASON_PRIOR_LOOKS_UP),  # DJI's gimbal pitch (-90 = down) taken for ours (0 = down)
+    ],
+)
+def test_a_prior_no_camera_of_the_search_sees_the_model_from_is_refused_saying_why(
+    city, localizer, renderer, dz, pitch, reason
+):
+    """Such priors were searched and refused on the volume's edge with a --prior-sigma to try (or at low
+    confidence): advice that cannot help. They are refused before any search, saying what is wrong; a
+    prior 25 m under the ground is still searched from the volume's floor (the test above)."""
+    true = view(city, *VIEWS["nadir"])
+    labels, depth = query(renderer, true)
+    x, y, z, roll, _, yaw = true.to_xyz_rpy()
+    prior = Pose.from_xyz_rpy([x + 3.0, y - 2.0, z + dz], roll, pitch, yaw)
+    result = localizer.localize(CAMERA, prior, labels, depth)
+    assert (result.status, result.reason) == (NOT_LOCALIZED, reason)
+    assert result.counts["coarse_hypotheses"] == 0 and not result.warnings
+    near = Pose.from_xyz_rpy([x + 3.0, y - 2.0, z + 20.0], roll, 1.0, yaw)
+    assert localizer.localize(CAMERA, near, labels, depth).status == LOCALIZED
 
 
 def test_search_volume_follows_the_stated_uncertainty():

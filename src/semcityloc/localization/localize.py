@@ -163,6 +163,9 @@ class Localizer:
         building_fraction = query.building_fraction()
         if building_fraction < cfg.min_building_fraction:
             return self._finish(result, REASON_NO_BUILDINGS_IN_QUERY, t0)
+        problem = self.layout.prior_problem(camera, prior_local, cfg, unc)
+        if problem is not None:
+            return self._finish(result, problem, t0)
         if not self.layout.buildings_in_reach(camera, prior_local, cfg, unc):
             return self._finish(result, REASON_NO_GEOMETRY, t0)
         if cfg.search == "grid":

@@ -19,6 +19,19 @@ REASON_NO_BUILDINGS_IN_QUERY = "query mask has no building pixels"
 REASON_NO_GEOMETRY = "no model geometry within the search volume around the prior"
 REASON_LOW_SCORE = "best score below threshold"
 REASON_LOW_CONFIDENCE = "confidence below the acceptance probability"
+# A prior no camera of the search can see the model from (``search_reach.MapLayout.prior_problem``).
+REASON_PRIOR_UNDERGROUND = (
+    "the prior is below the model's ground, farther than the search reaches up: is its height in the "
+    "model's height system (geoid, take-off altitude)?"
+)
+REASON_PRIOR_TOO_HIGH = (
+    "the prior is so far above the model's highest roof that no building would be seen: is its height in "
+    "the model's height system (geoid, take-off altitude)?"
+)
+REASON_PRIOR_LOOKS_UP = (
+    "the prior looks above the horizon from above every roof, so nothing of the model is in view: is its "
+    "pitch in our convention (0 = straight down; DJI's gimbal pitch -90)?"
+)
 REASON_AT_EDGE = "best hypothesis on the edge of the search volume (state a larger prior uncertainty)"
 
 

@@ -29,6 +29,11 @@ from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import SearchVolume, search_volume
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
+from semcityloc.localization.result import (
+    REASON_PRIOR_LOOKS_UP,
+    REASON_PRIOR_TOO_HIGH,
+    REASON_PRIOR_UNDERGROUND,
+)
 
 # Rays that do not meet the ground plane within this distance are cut here when the view's footprint is
 # estimated for the "model geometry in the search volume" check (``MapLayout.buildings_in_reach``).
@@ -85,13 +90,50 @@ class MapLayout:
     building_xy: np.ndarray  # (N, 2)
     ground_z: float
     base: np.ndarray  # (M, 3)
+    top_z: float = math.inf  # the highest roof (-inf: no building)
 
     @classmethod
     def of(cls, model: CityModel) -> MapLayout:
         building = np.isin(model.classes, BUILDING_CLASSES)
         corners = model.vertices[model.triangles[building]].astype(np.float64)
         ground_z = float(np.median(corners[:, :, 2].min(1))) if len(corners) else 0.0
-        return cls(corners.mean(1)[:, :2], ground_z, base_points(model))
+        top_z = float(corners[:, :, 2].max()) if len(corners) else -math.inf
+        return cls(corners.mean(1)[:, :2], ground_z, base_points(model), top_z)
+
+    def prior_problem(
+        self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
+    ) -> str | None:
+        """Why no camera the search may reach from this prior can see the model, or None: every reached
+        height far below the model's lowest ground (a height in another datum, a sign lost), all of them more
+        than ``MAX_VIEW_RANGE_M`` above its highest roof, or a view above the horizon from above every roof
+        (a pitch in another convention: DJI's gimbal pitch -90 is our 0). Said as such, not as a search that
+        ended on its volume's edge with a ``--prior-sigma`` to try."""
+        if not len(self.building_xy):
+            return None
+        reach_z = self._reach_z(prior_local, cfg, unc)
+        z = float(prior_local.center[2])
+        floor = float(self.base[:, 2].min()) if len(self.base) else self.ground_z
+        # Twice the reach: a prior somewhat under the ground is searched from the volume's floor upwards
+        # (``cascade``: the floor's layer, grown through its upper edge), which can still find the camera.
+        if z + 2.0 * reach_z < floor:
+            return REASON_PRIOR_UNDERGROUND
+        if z - reach_z > self.top_z + MAX_VIEW_RANGE_M:
+            return REASON_PRIOR_TOO_HIGH
+        corners_uv = np.array([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]])
+        rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv.astype(np.float64)).T
+        tilt = math.radians(unc.roll_pitch_deg * cfg.cascade.n_sigma) if cfg.search == "cascade" else 0.0
+        below = rays[2] / np.linalg.norm(rays, axis=0) < math.sin(tilt)  # or the search's tilt takes it there
+        if z - reach_z > self.top_z and not below.any():
+            return REASON_PRIOR_LOOKS_UP
+        return None
+
+    @staticmethod
+    def _reach_z(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
+        """How far (m) the search may move the camera up or down from the prior."""
+        if cfg.search == "grid":
+            pre = cfg.pre_coarse.range_z_m if cfg.pre_coarse is not None else 0.0
+            return (cfg.coarse.range_z_m + pre) / 2
+        return reached_half(search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade), cfg.cascade)["z"]
 
     def buildings_in_reach(
         self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
