@@ -243,6 +243,21 @@ def test_a_prior_no_camera_of_the_search_sees_the_model_from_is_refused_saying_w
     assert localizer.localize(CAMERA, near, labels, depth).status == LOCALIZED
 
 
+def test_an_accepted_pose_far_from_a_confident_prior_says_they_disagree(city, localizer, renderer):
+    """An RTK prior (0.5 m) 4 m off the camera: the image finds the camera (the volume's floor leaves room
+    for it) and is accepted, and the result says the pose lies 8 sigma from the prior: one of them is wrong
+    (on a real flight most often the image's focal length). The same pose from a default prior: no word."""
+    true = view(city, *VIEWS["nadir"])
+    labels, depth = query(renderer, true)
+    prior = perturbed(true, [4.0, 0.0, 0.0])
+    rtk = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=PriorUncertainty.rtk(0.5, 0.5))
+    assert rtk.status == LOCALIZED and center_error_m(rtk.pose_local, true) < 1.0
+    (said,) = [w for w in rtk.warnings if w.startswith("the pose lies")]
+    assert "sigma of its stated uncertainty (xy 0.5 m, z 0.5 m; RTK fixed" in said and "focal length" in said
+    default = localizer.localize(CAMERA, prior, labels, depth)
+    assert default.status == LOCALIZED and not [w for w in default.warnings if w.startswith("the pose lies")]
+
+
 def test_search_volume_follows_the_stated_uncertainty():
     cfg = CascadeConfig()
     state = np.array([1.0, 2.0, 3.0, 0.0, 0.0, 10.0])

@@ -60,7 +60,7 @@ from semcityloc.localization.confidence import (
 from semcityloc.localization.config import LocalizerConfig, config_or_preset
 from semcityloc.localization.input_checks import check_query_inputs
 from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
-from semcityloc.localization.prior import prior_distance, prior_term
+from semcityloc.localization.prior import prior_conflict_warning, prior_distance, prior_term
 from semcityloc.localization.query import (
     Query,
     coarse_mask_warning,
@@ -185,6 +185,9 @@ class Localizer:
             result.pose_local = None
             return self._finish(result, reason, t0)
         result.status = LOCALIZED
+        conflict = prior_conflict_warning(result.pose_local, prior_state, unc)
+        if conflict is not None:
+            result.warnings.append(conflict)
         return self._finish(result, None, t0)
 
     # ------------------------------------------------------------------ searches
