@@ -167,6 +167,8 @@ class Localizer:
         if problem is not None:
             return self._finish(result, problem, t0)
         if not self.layout.buildings_in_reach(camera, prior_local, cfg, unc):
+            if (far := self.layout.distance_warning(prior_local)) is not None:
+                result.warnings.append(far)
             return self._finish(result, REASON_NO_GEOMETRY, t0)
         if cfg.search == "grid":
             fine = self._localize_grid(result, camera, query, prior_state, cfg)

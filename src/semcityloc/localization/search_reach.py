@@ -127,6 +127,20 @@ class MapLayout:
             return REASON_PRIOR_LOOKS_UP
         return None
 
+    def distance_warning(self, prior_local: Pose) -> str | None:
+        """How far the prior lies from the model's nearest building, when no building is in the search's
+        reach: a wrong CRS or ``--offset`` (a typo's digit) puts a prior kilometres away, a prior just
+        beside a tile's edge metres; the distance tells the two apart. None for a model without buildings."""
+        if not len(self.building_xy):
+            return None
+        xy = prior_local.center[:2]
+        nearest = float(np.min(np.linalg.norm(self.building_xy - xy, axis=1)))
+        lo, hi = self.building_xy.min(0), self.building_xy.max(0)
+        return (
+            f"the prior lies {nearest:.0f} m from the model's nearest building (the buildings span "
+            f"{hi[0] - lo[0]:.0f} x {hi[1] - lo[1]:.0f} m); kilometres point at a wrong CRS or --offset"
+        )
+
     @staticmethod
     def _reach_z(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
         """How far (m) the search may move the camera up or down from the prior."""
