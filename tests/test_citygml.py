@@ -728,6 +728,17 @@ def test_a_geographic_crs_for_metre_coordinates_is_refused_naming_them(tmp_path)
     ).num_triangles
 
 
+def test_a_crs_override_that_moves_the_files_coordinates_is_said(tmp_path):
+    """``--crs EPSG:25832`` on a file in EPSG:25833 read it 25832's way without a word; a warning says so.
+    The same CRS in another spelling, or with a height system added, says nothing."""
+    metres = _polygon_member(f"{X0} {Y0} 10 {X0 + 9} {Y0} 10 {X0 + 9} {Y0 + 7} 10")
+    path = _write(tmp_path, _city([_building("B", metres)]))  # urn:ogc:def:crs:EPSG::25833
+    moved = read_citygml(path, crs_override="EPSG:25832")
+    assert any("--crs EPSG:25832 overrides the CRS the file states" in w for w in moved.stats.warnings)
+    for same in ("EPSG:25833", "EPSG:25833+7837"):
+        assert not any("overrides" in w for w in read_citygml(path, crs_override=same).stats.warnings)
+
+
 def test_a_point_a_geographic_crs_cannot_project_is_dropped_without_a_warning(tmp_path):
     """Latitude 95 in EPSG:4326 projects to infinity: the polygon is dropped and counted (builder)."""
     good = _polygon_member("52.5 13.4 10 52.5001 13.4 10 52.5001 13.4001 10")

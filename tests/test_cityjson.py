@@ -375,6 +375,14 @@ def test_a_geographic_crs_for_metre_coordinates_is_refused_naming_it(tmp_path):
         read_cityjson(write(tmp_path, box_doc(metadata=meta), "wrong.json"))
 
 
+def test_a_crs_override_that_moves_the_files_coordinates_is_said(tmp_path):
+    meta = {"referenceSystem": "https://www.opengis.net/def/crs/EPSG/0/7415"}
+    path = write(tmp_path, box_doc(metadata=meta))
+    moved = read_cityjson(path, crs_override="EPSG:32631")
+    assert any("--crs EPSG:32631 overrides the CRS the file states" in w for w in moved.stats.warnings)
+    assert not any("overrides" in w for w in read_cityjson(path, crs_override="EPSG:28992").stats.warnings)
+
+
 def test_missing_file_and_gzip(tmp_path):
     with pytest.raises(InputFileError, match="cannot read"):
         read_cityjson(tmp_path / "missing.json")

@@ -21,7 +21,7 @@ import pyproj
 
 from semcityloc.citymodel.builder import usable_points
 from semcityloc.citymodel.citygml_names import local_name
-from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, parse_crs_name
+from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, overridden_warning, parse_crs_name
 from semcityloc.citymodel.model import ParseStats, crs_label
 from semcityloc.errors import CRSError
 
@@ -88,6 +88,9 @@ class CRSChoice:
         if self.frame is not None:
             return self.frame
         name = self.crs_override if self.crs_override is not None else self._srs_first
+        if self.crs_override is not None and self._srs_first is not None:
+            if (said := overridden_warning(self.crs_override, self._srs_first)) is not None:
+                self.stats.warnings.append(said)
         source = None
         if name is None:
             self.stats.warnings.append(

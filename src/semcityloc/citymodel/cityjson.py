@@ -49,7 +49,7 @@ import pyproj
 
 from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, MeshBuilder, usable_points
 from semcityloc.citymodel.cityjson_seq import looks_like_sequence, merge_sequence
-from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, parse_crs_name
+from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, overridden_warning, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size, gunzip_bounded
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS
@@ -299,7 +299,10 @@ class _CityJSONReader:
 
     # ------------------------------------------------------------------ coordinates
     def _frame(self, raw: np.ndarray, target_crs, crs_override) -> MetricFrame:
-        name = crs_override or _source_crs_name(self.doc)
+        stated = _source_crs_name(self.doc)
+        name = crs_override or stated
+        if crs_override and stated and (said := overridden_warning(crs_override, stated)) is not None:
+            self.stats.warnings.append(said)
         source = parse_crs_name(name) if name else None
         target = parse_crs_name(target_crs) if isinstance(target_crs, str) else target_crs
         if source is None:

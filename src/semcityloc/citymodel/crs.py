@@ -165,6 +165,18 @@ class MetricFrame:
         return out
 
 
+def overridden_warning(given: str, stated: str) -> str | None:
+    """What a reader says when ``crs_override`` (``--crs``) puts x, y in another place than the CRS the file
+    states (a typo's zone, 25832 for 25833, moves every coordinate hundreds of kilometres, silently); None
+    when both agree there (a height system added or dropped) or the file's cannot be read."""
+    try:
+        if same_horizontal_crs(parse_crs_name(given), parse_crs_name(stated)):
+            return None
+    except CRSError:
+        return None
+    return f"--crs {given} overrides the CRS the file states ({stated}): the coordinates are read as {given}"
+
+
 def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None) -> None:
     """Refuse a geographic CRS for coordinates that are no degrees (beyond ±360: metres of a projected CRS,
     e.g. ``--crs EPSG:4326`` given for a file in UTM), naming one; read on, every polygon would be dropped
