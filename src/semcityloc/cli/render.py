@@ -39,7 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--pose",
         required=True,
         help="pose in the model's CRS: LoD-Loc *_pose.txt (camera-to-world), COLMAP line, JSON, "
-        "or x,y,z,roll,pitch,yaw",
+        "or x,y,z,roll,pitch,yaw in degrees (0,0,0 looks straight down with image-up north; pitch 90 "
+        "looks at the horizon: a DJI gimbal pitch -90 is our 0; yaw counter-clockwise from north)",
     )
     p.add_argument("--width", type=int, default=None, help="image width (when the intrinsics do not say)")
     p.add_argument("--height", type=int, default=None, help="image height")
