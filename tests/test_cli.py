@@ -496,6 +496,7 @@ def test_localize_overlay_shows_the_map_the_pose_was_found_on(exif_view, tmp_pat
         (("--depth", "full", "--depth-backend", "files"), "not both"),
         (("--intrinsics", "exif"), "--intrinsics exif reads the photo's EXIF: give --image"),
         (("--map-eaves", "-1"), "map_eaves_m must be a number of metres in [0, 3]"),
+        (("--backend-option", "threads=2"), "--seg-backend / --depth-backend: give one of them"),
     ],
 )
 def test_localize_input_errors_are_one_line_before_localizing(exif_view, tmp_path, capsys, extra, needle):
@@ -515,6 +516,16 @@ def test_localize_input_errors_are_one_line_before_localizing(exif_view, tmp_pat
     code, out, err = _localize(capsys, exif_view, tmp_path / "o", *argv)
     assert code == 2 and out == "" and err.count("\n") == 1 and needle.split(":")[-1].strip() in err
     assert not (tmp_path / "o").exists()  # refused before anything was localized or written
+
+
+def test_localize_says_when_a_method_leaves_the_given_depth_unused(exif_view, tmp_path, capsys):
+    """``--depth`` with ``--method no-depth`` was dropped silently."""
+    r = exif_view["root"]
+    argv = ["--semantic", r / "r" / "labels.png", "--depth", r / "depth" / "view.npy", "--method", "no-depth"]
+    argv += ["--intrinsics", "364.0,364.0,256.0,192.0,512,384"]
+    code, _, err = _localize(capsys, exif_view, tmp_path / "o", *argv)
+    assert code == 0, err
+    assert "semcityloc: warning: --method no-depth localizes without depth: the depth is not used" in err
 
 
 def test_localize_help_names_the_backend_options_that_exist():

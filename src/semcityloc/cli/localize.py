@@ -168,6 +168,10 @@ def _check_files(args) -> None:
         raise InputFileError("--seg-backend / --depth-backend run on the photo: give --image PHOTO")
     if args.intrinsics == EXIF and not args.image:
         raise InputFileError("--intrinsics exif reads the photo's EXIF: give --image PHOTO")
+    if args.backend_option and not (args.seg_backend or args.depth_backend):
+        raise InputFileError(
+            "--backend-option sets options of --seg-backend / --depth-backend: give one of them"
+        )
 
 
 def _camera(args) -> PhotoCamera:
@@ -226,6 +230,11 @@ def run(args: argparse.Namespace) -> int:
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
     config = config.with_map_eaves(args.map_eaves, args.map_eaves_flat)  # checked here, before anything loads
     _check_files(args)
+    if config.no_depth and (args.depth or args.depth_backend):
+        print(
+            f"semcityloc: warning: --method {args.method} localizes without depth: the depth is not used",
+            file=sys.stderr,
+        )
     model = load_model_from_args(args)
     check_model_in_crs(
         model,
