@@ -233,6 +233,10 @@ def test_a_mask_coarser_than_the_refinement_is_told_not_silently_enlarged(nadir)
     at_refinement = localizer.localize(CAMERA, prior, labels[::4, ::4])
     assert (fine.width, fine.height) == (128, 96)
     assert not any(w.startswith(COARSE_MASK_WARNING) for w in at_refinement.warnings + semantic_only.warnings)
+    # Fewer pixels than the sweep's coarsest level (32 x 24): a wrong file, refused (a 10 x 8 mask was
+    # accepted 9 m off with only the warning)
+    with pytest.raises(ShapeError, match=r"semantic mask 16x12 has fewer pixels than the search's coarsest"):
+        localizer.localize(CAMERA, prior, labels[::32, ::32])
 
 
 def test_the_first_designs_grid_search_drops_backwards_depth_too(city, nadir):

@@ -63,6 +63,7 @@ from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
 from semcityloc.localization.prior import prior_conflict_warning, prior_distance, prior_term
 from semcityloc.localization.query import (
     Query,
+    check_mask_pixels,
     coarse_mask_warning,
     depth_rank_correlation,
     inverted_depth_warning,
@@ -151,6 +152,8 @@ class Localizer:
 
         result = LocalizationResult(status=NOT_LOCALIZED)
         fine_camera = self.fine_camera(camera, cfg)
+        level = cfg.cascade.sweep if cfg.search == "cascade" else cfg.coarse
+        check_mask_pixels(np.shape(semantic), level.width, level.height)
         warning = coarse_mask_warning(np.shape(semantic), fine_camera.width, fine_camera.height)
         if warning is not None:
             result.warnings.append(warning)
