@@ -224,6 +224,14 @@ def test_cli_report(two_runs, tmp_path, monkeypatch, capsys):
     assert main.main(["report", str(tmp_path / "nothing"), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("semcityloc: error:") and err.count("\n") == 1
+    # Without --out: one run's report goes into the run (as a run's closing hint says), several runs' into
+    # ./benchmark_report (it was ./benchmark_report for one run too)
+    monkeypatch.chdir(tmp_path)
+    one = two_runs[0].out_dir
+    assert main.main(["report", str(one), "--overlays", "0", "--no-html"]) == 0
+    assert (one / "report" / "report.md").is_file() and not (tmp_path / "benchmark_report").exists()
+    assert main.main(["report", *(str(o.out_dir) for o in two_runs), "--overlays", "0", "--no-html"]) == 0
+    assert (tmp_path / "benchmark_report" / "report.md").is_file()
 
 
 # ------------------------------------------------------------------------------ real-data runs (issue 14)

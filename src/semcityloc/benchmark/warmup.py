@@ -57,7 +57,8 @@ STAMP_NAME = "semcityloc-kernels.stamp"
 # Warmed, but used by no command (a worked example of a fused render-and-score kernel, and its tests).
 NOT_USED_BY_COMMANDS = frozenset({"render_confusion"})
 COMPILE_NOTICE = (
-    "compiling numba kernels: about a minute, once per install ('semcityloc warmup' does it ahead of time)"
+    "compiling the numba kernels this command needs: about a minute, once per install for each kind of "
+    "command ('semcityloc warmup' compiles all of them ahead of time)"
 )
 # Methods run by the warm-up: each reaches kernels (or signatures) the others do not.
 WARMUP_METHODS = ("semcityloc", "no-depth", "lodloc-wireframe")

@@ -4,6 +4,7 @@ interactive page ``report.html`` (``benchmark.report_html``)."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.report_html import make_html_report
@@ -12,7 +13,12 @@ from semcityloc.benchmark.report_html import make_html_report
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="tables and plots from one or more benchmark output folders")
     p.add_argument("runs", nargs="+", metavar="DIR", help="folders written by 'semcityloc benchmark'")
-    p.add_argument("--out", default="benchmark_report", help="output folder (default benchmark_report)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="output folder (default: DIR/report for one run, as a run's closing hint says; "
+        "./benchmark_report for several)",
+    )
     p.add_argument(
         "--overlays",
         type=int,
@@ -31,6 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.out is None:
+        args.out = str(Path(args.runs[0]) / "report") if len(args.runs) == 1 else "benchmark_report"
     report = make_report(args.runs, args.out, overlays=args.overlays)
     for name, (md, csv_path) in report.tables.items():
         print(f"table {name}: {md} {csv_path}")
