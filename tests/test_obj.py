@@ -76,7 +76,7 @@ def test_open_bottom_clockwise_prism_is_flipped(tmp_path):
     text += "".join("f " + " ".join(map(str, f[::-1])) + "\n" for f in CUBE_F[1:])
     model = read_obj(write(tmp_path, text))
     assert class_counts(model) == (2, 8, 0)
-    assert any("flipped the winding of 1 of 1" in w for w in model.stats.warnings)
+    assert any("flipped the winding of 1 of the 1 building with a volume" in w for w in model.stats.warnings)
 
 
 def test_negative_indices_and_slash_forms(tmp_path):

@@ -96,7 +96,8 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     flipped, n_oriented = _fix_winding(verts, tris, tri_building, len(order))
     if flipped:
         stats.warnings.append(
-            f"flipped the winding of {flipped} of {counted(n_oriented, 'building')}: "
+            f"flipped the winding of {flipped} of the {counted(n_oriented, 'building')} with a volume to "
+            f"judge by (of {len(order)}): "
             f"{'it' if flipped == 1 else 'they'} wound clockwise seen from "
             "outside (negative signed volume)"
         )
