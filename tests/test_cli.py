@@ -626,6 +626,32 @@ def test_a_pose_json_of_another_crs_is_refused_naming_both(exif_view, tmp_path, 
     assert code == 0, err
 
 
+def test_localize_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tmp_path, capsys):
+    """Stop 50's audit: another camera's K (a 640x512 one, principal point (320, 256)) on the 512x384 photo
+    was used unchecked at --width/--height, and without them refused as a photo "of another aspect". Now
+    one line naming the file, the photo and both sizes, before the model loads; the same camera's K for
+    the photo at half its size is taken as before."""
+    import argparse
+
+    from semcityloc.cli.localize import _camera
+
+    r = exif_view["root"]
+    other = tmp_path / "T_intrinsic.txt"
+    np.savetxt(other, np.array([[400.0, 0, 320, 0], [0, 400, 256, 0], [0, 0, 1, 0]]))
+    common = ("--intrinsics", other, "--image", exif_view["photo"], "--semantic", r / "r" / "labels.png")
+    code, _, err = _localize(capsys, exif_view, tmp_path / "a", *common)
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"{other}: intrinsics of a 640x512 image do not fit photo view.jpg (512x384)" in err
+    code, _, err = _localize(capsys, exif_view, tmp_path / "b", *common, "--width", 512, "--height", 384)
+    assert code == 2 and err.count("\n") == 1 and not (tmp_path / "b").exists(), err
+    assert f"{other}: principal point (320, 256) lies 17 % of the image size off the centre" in err
+    assert "photo view.jpg (512x384" in err and "centre of a 640x512 image" in err
+    half = tmp_path / "half_intrinsic.txt"
+    np.savetxt(half, np.array([[200.0, 0, 128, 0], [0, 200, 96, 0], [0, 0, 1, 0]]))
+    args = argparse.Namespace(intrinsics=str(half), image=str(exif_view["photo"]), width=None, height=None)
+    assert _camera(args).camera.size == (256, 192)  # the photo resized: the mask may be of any size
+
+
 def test_a_photo_of_another_aspect_than_the_intrinsics_is_refused(exif_view, tmp_path, capsys):
     """Stop 45's audit: `--image` of another aspect than the camera was drawn on, misaligned, silently."""
     from PIL import Image

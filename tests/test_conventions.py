@@ -528,6 +528,42 @@ def test_read_intrinsics_size_rules():
         read_intrinsics(k, width=0)
 
 
+def test_intrinsics_of_another_image_do_not_fit_a_photo(tmp_path):
+    """Stop 50's audit: the thermal camera's K (640x512, cx 320, cy 256) was used on a 2325x1742 photo with
+    no check. Read for a photo, intrinsics must be of its size or of it resized, with a principal point
+    within ``PRINCIPAL_POINT_TOLERANCE`` of the centre; else a typed error naming file, photo and sizes."""
+    from semcityloc.errors import IntrinsicsMismatchError
+    from semcityloc.geometry.camera import PRINCIPAL_POINT_TOLERANCE
+
+    k = tmp_path / "T_intrinsic.txt"
+    np.savetxt(k, np.array([[1125.0, 0, 320, 0], [0, 1125, 256, 0], [0, 0, 1, 0]]))
+    photo = ("D.JPG", 2325, 1742)
+    with pytest.raises(IntrinsicsMismatchError, match="principal point") as exc:
+        read_intrinsics(k, 2325, 1742, photo=photo)
+    said = str(exc.value)
+    assert said.startswith(f"{k}: ") and "photo D.JPG (2325x1742" in said and "640x512 image" in said
+    stated = '{"fx": 1125, "fy": 1125, "cx": 320, "cy": 256, "width": 640, "height": 512}'
+    with pytest.raises(
+        IntrinsicsMismatchError, match=r"of a 640x512 image do not fit photo D\.JPG \(2325x1742\)"
+    ):
+        read_intrinsics(stated, 2325, 1742, photo=photo)
+    # The same image resized (each side rounded): rescaled, as before; its own size: as it is.
+    assert read_intrinsics(stated, 1280, 1024, photo=("T.JPG", 1280, 1024)) == Camera(
+        2250, 2250, 640, 512, 1280, 1024
+    )
+    big = "a PINHOLE 5280 3956 3778.4 3767.4 2663.6 1919.7"
+    assert read_intrinsics(big, 1320, 989, photo=("s.JPG", 1320, 989)).size == (1320, 989)
+    assert read_intrinsics(k, 640, 512, photo=("T.JPG", 640, 512)).cx == 320
+    # The bound: a principal point just within it fits, just beyond it does not.
+    within = 320 + (PRINCIPAL_POINT_TOLERANCE - 0.001) * 640
+    assert read_intrinsics(f"1125,1125,{within},256,640,512", photo=("T.JPG", 640, 512)).cx == within
+    beyond = 320 + (PRINCIPAL_POINT_TOLERANCE + 0.001) * 640
+    with pytest.raises(IntrinsicsMismatchError, match="principal point"):
+        read_intrinsics(f"1125,1125,{beyond},256,640,512", photo=("T.JPG", 640, 512))
+    # Without a photo (render at a chosen size): resampled to any size, as before.
+    assert read_intrinsics(stated, 2325, 1742).size == (2325, 1742)
+
+
 def test_read_intrinsics_multi_camera_file(tmp_path):
     path = tmp_path / "intrinsic.txt"
     path.write_text("a.JPG PINHOLE 640 512 1125 1125 320 256\nb.JPG PINHOLE 1280 1024 2250 2250 640 512\n")

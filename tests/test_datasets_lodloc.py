@@ -138,6 +138,22 @@ def test_images_without_intrinsics_are_skipped_with_a_warning(tmp_path):
     assert any("no intrinsics" in w for w in ds.warnings)
 
 
+def test_intrinsics_of_another_image_than_the_query_image_are_skipped_with_a_warning(tmp_path):
+    """Stop 50's audit: intrinsics of another image size (here: of the image at half its size, a principal
+    point 25 % off its centre) were applied to the query image unchecked; now that query is skipped, the
+    warning naming the file, the image and both sizes."""
+    qs = queries(2)
+    folder = make_scene(tmp_path / "s", qs)
+    half = CAM.scale(0.5)
+    k_file = folder / "intrinsic" / f"{qs[1].stem}_intrinsic.txt"
+    np.savetxt(k_file, np.hstack([half.K, np.zeros((3, 1))]))
+    ds = read_lodloc(folder)
+    assert [q.name for q in ds.queries] == [qs[0].name]
+    said = [w for w in ds.warnings if "principal point" in w]
+    assert len(said) == 1 and str(k_file) in said[0] and f"photo {qs[1].name} (640x512" in said[0]
+    assert "320x256 image" in said[0] and said[0].endswith("; skipped")
+
+
 def test_no_image_means_size_from_the_principal_point_or_an_error(tmp_path):
     qs = queries(1)
     folder = make_scene(tmp_path / "s", qs, images=False)

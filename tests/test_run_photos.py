@@ -1094,6 +1094,38 @@ def test_a_photo_of_the_truth_without_its_mask_is_a_miss_else_skipped(box_flight
     assert set(skipped) == {"P1.JPG", "P2.JPG", "P9.JPG"}
 
 
+def test_intrinsics_of_another_image_are_that_photos_miss_or_skip_naming_file_and_sizes(
+    box_flight, tmp_path, capsys
+):
+    """Stop 50's audit: a calibration of another image (the thermal camera's K on the wide photo) was
+    applied unchecked, and the photo ended "confidence below the acceptance probability". Now, as for a
+    mask of another aspect: with a true pose a miss, else skipped, the reason naming the file, the photo
+    and both sizes. P0: a K of the photo at half its size (principal point 25 % off the photo's centre);
+    P2: intrinsics stating a 160x160 image (no resize of the 160x120 photo). P1 runs."""
+    root = box_flight["root"]
+    half = CAM.scale(0.5)
+    np.savetxt(root / "intrinsic" / "P0_intrinsic.txt", np.hstack([half.K, np.zeros((3, 1))]))
+    square = {"fx": CAM.fx, "fy": CAM.fy, "cx": 80, "cy": 80, "width": 160, "height": 160}
+    (root / "intrinsic" / "P2_intrinsic.txt").write_text(json.dumps(square))
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays", "--stop-after", "1")
+    assert code == 0, err
+    miss = _rows_by_name(out)["P0.JPG"]
+    assert miss["status"] == "not_localized" and miss["err_xyz_m"] == "inf"
+    said = f"{root / 'intrinsic' / 'P0_intrinsic.txt'}: principal point (40, 30) lies 25 % of the image size "
+    assert said + "off the centre of photo P0.JPG (160x120" in miss["reason"]
+    assert "centre of a 80x60 image" in miss["reason"]
+    no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]
+    code, _, err = run(capsys, *no_truth, "--out", tmp_path / "no_truth", "--stop-after", "0")
+    assert code == 0, err
+    skipped = json.loads((tmp_path / "no_truth" / "run.json").read_text())["skipped_photos"]
+    assert skipped["P0.JPG"].startswith(said)
+    assert skipped["P2.JPG"] == (
+        f"{root / 'intrinsic' / 'P2_intrinsic.txt'}: intrinsics of a 160x160 image do not fit photo P2.JPG "
+        "(160x120), which is no resized copy of it: the calibration of another camera or image size"
+    )
+
+
 def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_is_made(tmp_path):
     """``--geoid-separation nan`` was accepted (and written to run.json) whenever the priors came from
     files, since only a photo's EXIF prior checked it: now the run is refused before anything is read."""

@@ -48,6 +48,12 @@ class CameraError(SemCityLocError, ValueError):
     """Invalid camera intrinsics (non-positive focal length or size, non-finite values)."""
 
 
+class IntrinsicsMismatchError(CameraError):
+    """Intrinsics from a file that describe another image than the photo they are used with (another size
+    that is no resize of it, a principal point far off its centre): the message names the file, the photo
+    and both sizes. ``semcityloc run`` skips that photo (with a true pose: a miss), ``localize`` stops."""
+
+
 class PoseError(SemCityLocError, ValueError):
     """Invalid pose: non-finite values, not a rotation, wrong shape."""
 

@@ -8,10 +8,12 @@ Per photo (``datasets.photos`` matches files to photos by name):
 
 - intrinsics: ``exif`` (DJI's calibration with its lens distortion, ``dji_camera.dewarp_lens``, else
   DJI's calibration tags, else the 35 mm-equivalent focal length, ``dji_camera.camera_from_exif``) by
-  default, or a calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all); with
-  lens distortion, the photo, its mask and its depth are resampled onto the pinhole camera before anything
-  uses them (``PhotoInput.pinhole``); a camera whose focal length is the approximate 35 mm one gets the
-  one its flight's oblique photos prefer afterwards (``benchmark.photo_focal``);
+  default, or a calibration (LoD-Loc ``intrinsic/`` folder, COLMAP ``cameras.txt``, one file for all),
+  which must fit the photo (``geometry.io.check_fits_photo``: its size or resized, a principal point near
+  the centre; else treated as a mask of another aspect is, ``_photo_camera``); with lens distortion, the
+  photo, its mask and its depth are resampled onto the pinhole camera before anything uses them
+  (``PhotoInput.pinhole``); a camera whose focal length is the approximate 35 mm one gets the one its
+  flight's oblique photos prefer afterwards (``benchmark.photo_focal``);
 - prior: the photo's DJI EXIF/XMP by default (``dji.dji_prior`` into the model's CRS), or a geotag CSV, a
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
@@ -28,9 +30,9 @@ says it cannot be used (a lossy format without ``allow_lossy_mask``, not class i
 skipped before anything is localized, with the reason naming the file (``run.json`` ``skipped_photos``, the
 summary, the CLI's closing lines); the others run. With ground truth (``truth``), a photo that has a true
 pose and whose own input (the photo, its mask or depth) is missing, cannot be read (not a file, empty,
-corrupt, truncated, no class ids) or does not fit the photo (another aspect) is not skipped but a miss of
-the run, found here or, for a file that fails only when read in full, at its turn
-(``benchmark.photo_source``): a ``not_localized`` row with the reason naming the file
+corrupt, truncated, no class ids) or does not fit the photo (another aspect; intrinsics of another image)
+is not skipped but a miss of the run, found here or, for a file that fails only when read in full, at its
+turn (``benchmark.photo_source``): a ``not_localized`` row with the reason naming the file
 (``results.unreadable_result``, ``PhotoInput.unreadable``), in every recall's denominator, as in a data-set
 benchmark, so that recall is never over the photos that happened to have usable inputs. A photo without a
 true pose, or one that lacks a prior or intrinsics, or whose mask is in a lossy format without
@@ -53,13 +55,14 @@ from semcityloc.citymodel.tiles import TileStore
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
     IntrinsicsFiles,
+    PhotoCamera,
     PhotoMissing,
     PhotoPrior,
     PriorFiles,
     list_images,
     photo_metadata,
 )
-from semcityloc.errors import InputFileError, LossyMaskError
+from semcityloc.errors import InputFileError, IntrinsicsMismatchError, LossyMaskError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion, undistort_image
 from semcityloc.geometry.pose import Pose
@@ -139,7 +142,7 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
             width, height, orientation = _readable_photo(path)
             # Read once when both the camera and the prior come from it (each would read the whole file).
             meta = photo_metadata(path) if intrinsics.exif and priors.exif else None
-            lens = intrinsics.photo_camera(path, width, height, meta)
+            lens = _photo_camera(intrinsics, path, width, height, meta)
             camera = lens.camera
             prior = priors.prior(path, meta)
             mask = _mask_file(spec, path, camera, orientation)
@@ -187,6 +190,16 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
 class PhotoUnreadable(PhotoMissing):
     """A photo's own input (the photo, its mask or depth) is missing, cannot be read or does not fit the
     photo: skipped, or with a true pose a miss (module docstring)."""
+
+
+def _photo_camera(intrinsics: IntrinsicsFiles, path: Path, width: int, height: int, meta) -> PhotoCamera:
+    """``intrinsics.photo_camera`` of the photo ``path``; intrinsics of another image (another size, a
+    principal point far off its centre: ``IntrinsicsMismatchError``) are ``PhotoUnreadable``, as a mask of
+    another aspect is: that photo skipped, or with a true pose a miss, the reason naming file and sizes."""
+    try:
+        return intrinsics.photo_camera(path, width, height, meta)
+    except IntrinsicsMismatchError as exc:
+        raise PhotoUnreadable(str(exc)) from None
 
 
 def _prior_or_none(priors: PriorFiles | None, path: Path, meta=None) -> PhotoPrior | None:

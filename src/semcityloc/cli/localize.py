@@ -175,15 +175,19 @@ def _check_files(args) -> None:
 
 
 def _camera(args) -> PhotoCamera:
+    """The camera of the query: from ``--image``'s EXIF, or from the ``--intrinsics`` file (at ``--width`` x
+    ``--height`` when given, ``read_lens``'s size rules). With ``--image`` the file must describe that photo
+    (``geometry.io.check_fits_photo``: its size or resized, a principal point near the centre): another
+    camera's intrinsics, or an overlay on another photo's pixels, would be wrong silently."""
     if args.intrinsics == EXIF:
         lens = IntrinsicsFiles(EXIF).photo_camera(Path(args.image), *image_size(args.image))
         if lens.source == INTRINSICS_35MM:
             print(f"semcityloc: note: {APPROXIMATE_INTRINSICS_NOTE}", file=sys.stderr)
         return lens
-    camera, distortion = read_lens(args.intrinsics, width=args.width, height=args.height)
-    if args.image:  # an overlay on another photo's pixels would be misaligned, silently
-        width, height = image_size(args.image, "photo")
-        check_aspect((height, width), camera.width, camera.height, "photo", args.image)
+    photo = (Path(args.image).name, *image_size(args.image, "photo")) if args.image else None
+    camera, distortion = read_lens(args.intrinsics, width=args.width, height=args.height, photo=photo)
+    if photo is not None:  # resampled to a --width x --height of another aspect than the photo
+        check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", args.image)
     return PhotoCamera(camera, distortion, str(args.intrinsics))
 
 
@@ -235,6 +239,8 @@ def run(args: argparse.Namespace) -> int:
             f"semcityloc: warning: --method {args.method} localizes without depth: the depth is not used",
             file=sys.stderr,
         )
+    lens = _camera(args)  # before the model loads: intrinsics that do not fit the photo stop at once
+    camera = lens.camera
     model = load_model_from_args(args)
     check_model_in_crs(
         model,
@@ -243,8 +249,6 @@ def run(args: argparse.Namespace) -> int:
         "takes an --offset that places it)",
     )
     print_model_warnings(model)
-    lens = _camera(args)
-    camera = lens.camera
     prior_world = read_pose_in_model_crs(args.prior, model, "prior")
     labels, depth = _query_inputs(args, lens)
     localizer = Localizer(model, config)

@@ -14,13 +14,10 @@ import math
 
 from semcityloc.datasets.dji_metadata import DjiMetadata
 from semcityloc.errors import CameraError
-from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.camera import PRINCIPAL_POINT_TOLERANCE, Camera
 from semcityloc.geometry.distortion import LensDistortion
 
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)  # the "35 mm equivalent" is defined on the diagonal
-# DJI calibration tags are used only while their optical centre lies within this share of the image size
-# of the photo's centre (``calibrated_intrinsics``): farther, the photo was resized or cropped since.
-CALIBRATED_CENTRE_TOLERANCE = 0.1
 
 
 def camera_from_exif(meta: DjiMetadata) -> Camera:
@@ -50,8 +47,8 @@ def dewarp_lens(meta: DjiMetadata) -> tuple[Camera, LensDistortion] | None:
 
     The tag is in pixels of the image the camera wrote; its principal point is an offset from that image's
     centre. A resized or cropped copy is recognised as in ``calibrated_intrinsics`` when the photo also
-    has the calibration tags; without them, by a focal length more than ``CALIBRATED_CENTRE_TOLERANCE``
-    off the 35 mm-equivalent one."""
+    has the calibration tags; without them, by a focal length more than ``PRINCIPAL_POINT_TOLERANCE``
+    (``geometry.camera``) off the 35 mm-equivalent one."""
     if meta.dewarp is None or meta.dewarp_flag == 1 or meta.width is None or meta.height is None:
         return None
     fx, fy, dx, dy, k1, k2, p1, p2, k3 = meta.dewarp
@@ -61,7 +58,7 @@ def dewarp_lens(meta: DjiMetadata) -> tuple[Camera, LensDistortion] | None:
         return None  # the calibration tags say the photo is not the image the camera wrote
     if meta.focal_length_35mm is not None:
         approximate = meta.focal_length_35mm / FULL_FRAME_DIAGONAL_MM * math.hypot(meta.width, meta.height)
-        if abs(fx / approximate - 1.0) > CALIBRATED_CENTRE_TOLERANCE:
+        if abs(fx / approximate - 1.0) > PRINCIPAL_POINT_TOLERANCE:
             return None
     camera = Camera(fx, fy, meta.width / 2.0 + dx, meta.height / 2.0 + dy, meta.width, meta.height)
     distortion = LensDistortion(k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
@@ -77,11 +74,10 @@ def calibrated_intrinsics(meta: DjiMetadata) -> Camera | None:
 
     The tags are in pixels of the image the camera wrote. A photo resized or cropped since has its optical
     centre far from where the tags put it; then the tags describe another image and are not used (more
-    than ``CALIBRATED_CENTRE_TOLERANCE`` of the image size off its centre)."""
+    than ``geometry.camera.PRINCIPAL_POINT_TOLERANCE`` of the image size off its centre, the bound a
+    calibration file is held to as well)."""
     f, cx, cy = meta.calibrated_focal_px, meta.calibrated_cx_px, meta.calibrated_cy_px
     if f is None or cx is None or cy is None or meta.width is None or meta.height is None or f <= 0:
         return None
-    w, h = meta.width, meta.height
-    if abs(cx - w / 2) > CALIBRATED_CENTRE_TOLERANCE * w or abs(cy - h / 2) > CALIBRATED_CENTRE_TOLERANCE * h:
-        return None
-    return Camera(f, f, cx, cy, w, h)
+    camera = Camera(f, f, cx, cy, meta.width, meta.height)
+    return camera if camera.principal_point_offset() <= PRINCIPAL_POINT_TOLERANCE else None

@@ -46,7 +46,7 @@ import pyproj
 from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, ParseStats
-from semcityloc.errors import InputFileError, SemCityLocError, unknown_choice
+from semcityloc.errors import InputFileError, IntrinsicsMismatchError, SemCityLocError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.io import read_intrinsics, read_pose, read_poses
@@ -253,6 +253,26 @@ def _pose_of(folder: Path, stem: str, text: dict[str, Pose], name: str, warnings
     return pose if pose is not None else other
 
 
+def _camera_of(
+    scene_dir: Path, name: str, stem: str, intr_text: dict[str, str], photo: tuple[str, int, int] | None
+) -> Camera | str:
+    """The camera of query ``name`` from ``intrinsic/<stem>_intrinsic.txt`` or the scene's text file, or why
+    it has none: no intrinsics, or intrinsics of another image than its photo (``photo``: name and size
+    when the scene has the image; ``geometry.io.check_fits_photo``), which would localize nothing."""
+    k_file = scene_dir / INTRINSIC_DIR / f"{stem}_intrinsic.txt"
+    if k_file.is_file():
+        spec = k_file
+    elif name in intr_text or stem in intr_text:
+        spec = intr_text.get(name) or intr_text[stem]
+    else:
+        return f"no intrinsics ({INTRINSIC_DIR}/ or {INTRINSIC_TEXT})"
+    width, height = (photo[1], photo[2]) if photo is not None else (None, None)
+    try:
+        return read_intrinsics(spec, width, height, photo=photo)
+    except IntrinsicsMismatchError as exc:
+        return str(exc)
+
+
 def _read_scene(scene_dir: Path, warnings: list[str]) -> list[LodLocQuery]:
     gt_text = _text_poses(scene_dir / GT_TEXT)
     prior_text = _text_poses(scene_dir / PRIOR_TEXT)
@@ -270,15 +290,9 @@ def _read_scene(scene_dir: Path, warnings: list[str]) -> list[LodLocQuery]:
         stem = Path(name).stem if name in images else name
         image = images.get(name)
         width, height = _image_size(image)
-        k_file = scene_dir / INTRINSIC_DIR / f"{stem}_intrinsic.txt"
-        if k_file.is_file():
-            camera = read_intrinsics(k_file, width, height)
-        elif name in intr_text or stem in intr_text:
-            camera = read_intrinsics(intr_text.get(name) or intr_text[stem], width, height)
-        else:
-            warnings.append(
-                f"{scene_dir.name}/{name}: no intrinsics ({INTRINSIC_DIR}/ or {INTRINSIC_TEXT}); skipped"
-            )
+        camera = _camera_of(scene_dir, name, stem, intr_text, (name, width, height) if image else None)
+        if isinstance(camera, str):
+            warnings.append(f"{scene_dir.name}/{name}: {camera}; skipped")
             continue
         points = scene_dir / POINTS_DIR / f"{stem}_points.npy"
         queries.append(

@@ -11,9 +11,11 @@ per-photo information in whatever form they come with. This module matches each 
   distortion, else ``dji_camera.camera_from_exif``: DJI's calibration tags, else the 35 mm-equivalent
   focal length of the photo's EXIF), one file for every photo (LoD-Loc ``*_intrinsic.txt``, COLMAP line,
   JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids from the ``images.txt`` of the poses)
-  or a folder of ``<stem>_intrinsic.txt``. The photo's own size always wins (intrinsics of another size
-  are rescaled). A calibration with lens distortion (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``,
-  JSON ``k1 k2 p1 p2 k3``) comes with it (``PhotoCamera``): the photo and its mask and depth are then
+  or a folder of ``<stem>_intrinsic.txt``. The photo's own size always wins (intrinsics of that image
+  at another size are rescaled); intrinsics of another image (another aspect, a principal point more than
+  ``PRINCIPAL_POINT_TOLERANCE`` off the photo's centre) raise ``IntrinsicsMismatchError``. A calibration
+  with lens distortion (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``, JSON ``k1 k2 p1 p2 k3``) comes
+  with it (``PhotoCamera``): the photo and its mask and depth are then
   resampled onto the pinhole camera (``geometry.distortion``);
 - priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
   uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
@@ -36,7 +38,7 @@ from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, dji_prior, 
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geotags import read_geotags_csv
-from semcityloc.errors import CameraError, CRSError, InputFileError, SemCityLocError
+from semcityloc.errors import CameraError, CRSError, InputFileError, IntrinsicsMismatchError, SemCityLocError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.io import read_colmap_camera_ids, read_lens, read_pose, read_poses
@@ -186,13 +188,18 @@ class IntrinsicsFiles:
         return PhotoCamera(camera, distortion, str(self.path))
 
     def _from_files(self, image: Path, width: int, height: int) -> tuple[Camera, LensDistortion]:
+        """The camera of ``image`` from the calibration file or folder, checked to fit the photo
+        (``geometry.io.check_fits_photo``: ``IntrinsicsMismatchError`` naming file, photo and sizes)."""
+        photo = (image.name, width, height)
         if self.folder is not None:
             f = per_stem_file(self.folder, image.stem, "intrinsic")
             if f is None:
                 raise PhotoMissing(f"{self.folder}: no {image.stem}_intrinsic.txt for {image.name}")
-            return read_lens(f, width=width, height=height)
+            return read_lens(f, width=width, height=height, photo=photo)
         try:  # one camera for every photo
-            return read_lens(self.path, width=width, height=height)
+            return read_lens(self.path, width=width, height=height, photo=photo)
+        except IntrinsicsMismatchError:
+            raise
         except CameraError:
             pass
         # Several cameras: COLMAP cameras.txt is keyed by camera id (from images.txt), other files by name.
@@ -200,7 +207,9 @@ class IntrinsicsFiles:
         if self.poses is not None and self.poses.camera_ids:
             camera_id = match_name(self.poses.camera_ids, image)
         try:
-            return read_lens(self.path, width=width, height=height, name=camera_id or image.name)
+            return read_lens(self.path, width=width, height=height, name=camera_id or image.name, photo=photo)
+        except IntrinsicsMismatchError:
+            raise
         except CameraError as exc:
             raise PhotoMissing(f"{self.path}: no intrinsics for {image.name} ({exc})") from None
 

@@ -15,6 +15,11 @@ import numpy as np
 from semcityloc.errors import CameraError, ShapeError
 
 MAX_SIDE_PX = 100_000  # wider or taller than any camera's sensor: a calibration file's typo or garbage
+# How far a principal point may lie from the image centre, as a share of the image's width / height, before
+# the intrinsics are taken for another image's: a resized or cropped copy (DJI's calibration tags are then
+# not used, ``datasets.dji_camera``), or another camera's (a calibration file is then refused for the
+# photo, ``geometry.io.check_fits_photo``). Calibrated drone lenses are centred within a few %.
+PRINCIPAL_POINT_TOLERANCE = 0.1
 
 
 @dataclass(frozen=True)
@@ -80,6 +85,11 @@ class Camera:
     @property
     def vfov_deg(self) -> float:
         return math.degrees(2 * math.atan(0.5 * self.height / self.fy))
+
+    def principal_point_offset(self) -> float:
+        """How far the principal point lies from the image centre: the larger of its offsets as shares of
+        the width and of the height (0: centred; compared with ``PRINCIPAL_POINT_TOLERANCE``)."""
+        return max(abs(self.cx - self.width / 2) / self.width, abs(self.cy - self.height / 2) / self.height)
 
     def scaled(self, width: int, height: int) -> Camera:
         """The same camera sampled at another resolution (the image edges stay where they are)."""

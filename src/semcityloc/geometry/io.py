@@ -21,8 +21,15 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.errors import CameraError, InputFileError, PoseError, SemCityLocError, ShapeError
-from semcityloc.geometry.camera import Camera
+from semcityloc.errors import (
+    CameraError,
+    InputFileError,
+    IntrinsicsMismatchError,
+    PoseError,
+    SemCityLocError,
+    ShapeError,
+)
+from semcityloc.geometry.camera import PRINCIPAL_POINT_TOLERANCE, Camera
 from semcityloc.geometry.colmap_text import (
     CAMERA_MODELS,
     IMAGE_CAMERA_ID,
@@ -357,20 +364,56 @@ def _camera(
     width: int | None,
     height: int | None,
 ) -> Camera:
-    """The camera at the requested size: its own size if it has one (resampled when both width and height
-    are given and differ), else the given size, else ``2 cx`` x ``2 cy``."""
+    """The camera at its own size if it has one (``read_lens`` resamples it to the requested size, after
+    checking it against the photo it is for), else at the given size, else ``2 cx`` x ``2 cy``."""
     if own_w is not None and own_h is not None:
-        camera = Camera(fx, fy, cx, cy, own_w, own_h)
-        if width is None and height is None:
-            return camera
-        if width is None or height is None:
+        if (width is None) != (height is None):
             raise CameraError(
                 f"intrinsics are for {own_w}x{own_h}; give both width and height to resample them, or neither"
             )
-        return camera if (width, height) == (camera.width, camera.height) else camera.scaled(width, height)
+        return Camera(fx, fy, cx, cy, own_w, own_h)
     w = width if width is not None else _size_from_principal_point(cx, "width")
     h = height if height is not None else _size_from_principal_point(cy, "height")
     return Camera(fx, fy, cx, cy, w, h)
+
+
+def _resampled(camera: Camera, width: int | None, height: int | None) -> Camera:
+    """``camera`` at ``width`` x ``height`` when both are given and differ from its size (``Camera.scaled``:
+    the same field of view, e.g. a downscaled image)."""
+    if width is None or height is None or (width, height) == camera.size:
+        return camera
+    return camera.scaled(width, height)
+
+
+def _is_resized(size: tuple[int, int], other: tuple[int, int]) -> bool:
+    """Whether an image of size ``other`` is one of ``size`` resized by one factor, each side rounded to
+    whole pixels: what ``Camera.scaled`` resamples intrinsics for. Another aspect is another image."""
+    (w, h), (w2, h2) = size, other
+    return abs(h * w2 / w - h2) <= 1.0 or abs(w * h2 / h - w2) <= 1.0
+
+
+def check_fits_photo(camera: Camera, source: str, photo: tuple[str, int, int]) -> None:
+    """``IntrinsicsMismatchError`` naming ``source`` (the intrinsics' file), the photo and both sizes unless
+    ``camera`` (at the size the file states, or was placed at) can describe ``photo`` (name, width, height):
+    its size is the photo's or the photo is it resized (``_is_resized``), and its principal point is
+    within ``PRINCIPAL_POINT_TOLERANCE`` of the image centre (the bound DJI's calibration tags are held to).
+    Why: the intrinsics of another image (a thermal camera's 640x512 on a 2325x1742 photo) localize
+    nothing, and the run then blames the map and the prior."""
+    name, width, height = photo
+    if camera.size != (width, height) and not _is_resized(camera.size, (width, height)):
+        raise IntrinsicsMismatchError(
+            f"{source}: intrinsics of a {camera.width}x{camera.height} image do not fit photo {name} "
+            f"({width}x{height}), which is no resized copy of it: the calibration of another camera or "
+            "image size"
+        )
+    offset = camera.principal_point_offset()
+    if offset > PRINCIPAL_POINT_TOLERANCE:
+        raise IntrinsicsMismatchError(
+            f"{source}: principal point ({camera.cx:g}, {camera.cy:g}) lies {100 * offset:.0f} % of the "
+            f"image size off the centre of photo {name} ({width}x{height}; at most "
+            f"{100 * PRINCIPAL_POINT_TOLERANCE:.0f} %): it is the centre of a {2 * camera.cx:.0f}x"
+            f"{2 * camera.cy:.0f} image, the calibration of another camera or image size"
+        )
 
 
 def _check_K(K: np.ndarray) -> tuple[float, float, float, float]:
@@ -469,11 +512,16 @@ def _camera_entries(
 
 
 def read_intrinsics(
-    spec: str | os.PathLike, width: int | None = None, height: int | None = None, name: str | None = None
+    spec: str | os.PathLike,
+    width: int | None = None,
+    height: int | None = None,
+    name: str | None = None,
+    photo: tuple[str, int, int] | None = None,
 ) -> Camera:
-    """Pinhole intrinsics from a file or inline text (``read_lens``'s forms); ``CameraError`` when they
-    carry a non-zero lens distortion, since a caller of this function uses the image as it is."""
-    camera, distortion = read_lens(spec, width, height, name)
+    """Pinhole intrinsics from a file or inline text (``read_lens``'s forms and ``photo`` check);
+    ``CameraError`` when they carry a non-zero lens distortion, since a caller of this function uses the
+    image as it is."""
+    camera, distortion = read_lens(spec, width, height, name, photo)
     if not distortion.is_zero:
         terms = ", ".join(f"{k}={v:g}" for k, v in distortion.as_dict().items() if k != "model" and v)
         raise CameraError(
@@ -485,7 +533,11 @@ def read_intrinsics(
 
 
 def read_lens(
-    spec: str | os.PathLike, width: int | None = None, height: int | None = None, name: str | None = None
+    spec: str | os.PathLike,
+    width: int | None = None,
+    height: int | None = None,
+    name: str | None = None,
+    photo: tuple[str, int, int] | None = None,
 ) -> tuple[Camera, LensDistortion]:
     """Intrinsics and lens distortion (``geometry.distortion``; zero for the pinhole forms) from a file or
     inline text. Accepted forms:
@@ -505,6 +557,10 @@ def read_lens(
     When the intrinsics carry their own size and both ``width`` and ``height`` are given and differ, the
     camera is resampled to that size (``Camera.scaled``: same field of view, e.g. a downscaled image; the
     distortion, in normalised coordinates, is the same at any size).
+
+    ``photo``: (name, width, height) of the photo the intrinsics are used with; before any resampling they
+    must fit it (``check_fits_photo``: the same size or the photo resized, a principal point near the
+    centre), else ``IntrinsicsMismatchError`` naming the file, the photo and both sizes.
     """
     for key, value in (("width", width), ("height", height)):
         if value is not None and (
@@ -523,6 +579,9 @@ def read_lens(
         camera, distortion = entries[""]
     else:
         camera, distortion = _labelled(label, _pick, entries, name, CameraError, "camera")
+    if photo is not None:
+        check_fits_photo(camera, label, photo)
+    camera = _labelled(label, _resampled, camera, width, height)
     _labelled(label, distortion.check, camera)
     return camera, distortion
 
