@@ -188,3 +188,29 @@ def test_files_segmentation_refuses_lossy_masks_unless_allowed_and_forged_npy_he
     forged.write_bytes(data)
     with pytest.raises(InputFileError, match="truncated"):
         seg.predict(np.zeros((6, 8, 3), np.uint8), name="P2")
+
+
+def test_files_masks_in_jpeg_or_named_after_the_whole_photo_name_are_found(tmp_path):
+    """Stop 50's audit: a ``<stem>.jpg`` mask was "no mask ... (looked for <stem>.png/.npy)" even when lossy
+    masks were forced, and without the flag the message did not name the JPEG that was there; a mask named
+    after the photo's whole file name (``P4.JPG.png``) was not found either."""
+    from PIL import Image
+
+    from semcityloc.errors import LossyMaskError
+
+    mask = np.zeros((6, 8), np.uint8)
+    mask[2:5, 1:6] = 3
+    Image.fromarray(mask, mode="L").save(tmp_path / "P3.jpg", quality=95)
+    photo = np.zeros((6, 8, 3), np.uint8)
+    with pytest.raises(LossyMaskError, match=r"no mask for image 'P3' .* but P3\.jpg, .*--allow-lossy-mask"):
+        get_segmentation_backend("files", masks=str(tmp_path)).predict(photo, name="P3.JPG")
+    forced = get_segmentation_backend("files", masks=str(tmp_path), allow_lossy=True)
+    assert forced.predict(photo, name="P3.JPG").labels.shape == (6, 8)
+    save_labels_png(mask, tmp_path / "P4.JPG.png")
+    seg = get_segmentation_backend("files", masks=str(tmp_path))
+    assert seg.predict(photo, name="photos/P4.JPG").labels.tolist() == mask.tolist()
+    save_labels_png(mask, tmp_path / "P4.png")  # one named after the stem too: which is meant is unclear
+    with pytest.raises(InputFileError, match=r"two mask files for image 'P4\.JPG': P4\.png and P4\.JPG\.png"):
+        seg.predict(photo, name="P4.JPG")
+    with pytest.raises(InputFileError, match=r"looked for P5\.png/\.npy or P5\.JPG\.png/\.npy\)$"):
+        seg.predict(photo, name="P5.JPG")

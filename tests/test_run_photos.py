@@ -417,6 +417,31 @@ def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
     assert json.loads((tmp_path / "forced" / "run.json").read_text())["allow_lossy_mask"] is True
 
 
+def test_a_jpeg_mask_is_found_when_forced_and_named_when_not(box_flight, tmp_path, capsys):
+    """Stop 50's audit: ``<stem>.jpg`` masks were never found by ``run``, even with --allow-lossy-mask
+    (``no mask ... (looked for <stem>.png/.npy)``, the JPEG there unmentioned). Now forced, the JPEG is the
+    photo's mask; not forced, the photo is skipped naming the JPEG and the flag. A mask named after the
+    photo's whole file name (``P1.JPG.png``) is found either way."""
+    masks = box_flight["root"] / "masks"
+    ids = np.array(Image.open(masks / "P0.png"))
+    Image.fromarray(ids, mode="L").save(masks / "P0.jpg", quality=95)
+    (masks / "P0.png").unlink()
+    (masks / "P1.png").rename(masks / "P1.JPG.png")
+    no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]
+    code, _, err = run(capsys, *no_truth, "--out", tmp_path / "plain", "--stop-after", "0")
+    assert code == 0, err
+    config = json.loads((tmp_path / "plain" / "run.json").read_text())
+    assert config["query_names"] == ["P1.JPG"]
+    said = config["skipped_photos"]["P0.JPG"]
+    assert said.startswith(f"{masks}: no mask for image 'P0' (looked for P0.png/.npy or P0.JPG.png/.npy)")
+    assert "but P0.jpg, a lossy format" in said and "--allow-lossy-mask" in said
+    code, _, err = run(
+        capsys, *no_truth, "--out", tmp_path / "forced", "--stop-after", "0", "--allow-lossy-mask"
+    )
+    assert code == 0, err
+    assert json.loads((tmp_path / "forced" / "run.json").read_text())["query_names"] == ["P0.JPG", "P1.JPG"]
+
+
 def _drop_column(path: Path, column: str) -> None:
     """Rewrite a results.csv without ``column``: the layout of a version before it was added."""
     with open(path, newline="", encoding="utf-8") as fh:

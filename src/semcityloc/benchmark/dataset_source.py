@@ -79,6 +79,7 @@ from semcityloc.localization.covariance import covariance_dict
 from semcityloc.localization.methods import Method, searched_map
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
+from semcityloc.perception.files import first_file
 from semcityloc.render import Renderer
 
 PERCEPTION_ORACLE, PERCEPTION_DEGRADED, PERCEPTION_MASKS = "oracle", "oracle-degraded", "masks"
@@ -105,18 +106,10 @@ MASK_SUFFIXES, DEPTH_SUFFIXES = (".png", ".npy"), (".npy", ".png")
 MISSING_SHOWN = 5  # the names of queries without their files in the warning at the start of a run
 
 
-def _found(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path | None:
-    """The file of query ``stem`` in ``folder`` (a ``stat`` per name tried), None when there is none."""
-    for suffix in suffixes:
-        for candidate in (folder / f"{stem}{suffix}", folder / f"{stem}{suffix.upper()}"):
-            if candidate.is_file():
-                return candidate
-    return None
-
-
 def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:
-    """``_found``, or ``InputFileError`` naming the folder and the names looked for."""
-    path = _found(folder, stem, suffixes)
+    """The file of query ``stem`` in ``folder`` (``perception.files.first_file``), or ``InputFileError``
+    naming the folder and the names looked for."""
+    path = first_file(folder, stem, suffixes)
     if path is None:
         looked = f"{stem}{{{','.join(suffixes)}}}"
         raise InputFileError(f"{folder}: no file for query {stem!r} (looked for {looked})")
@@ -151,7 +144,7 @@ def check_some_inputs(spec: DatasetSpec, queries: list[LodLocQuery]) -> None:
     wrong path, said in one line before the run starts instead of a miss for every query."""
     kinds = (("mask", spec.masks, MASK_SUFFIXES), ("depth", spec.depth, DEPTH_SUFFIXES))
     for kind, folder, suffixes in kinds:
-        if folder and queries and not any(_found(Path(folder), q.stem, suffixes) for q in queries):
+        if folder and queries and not any(first_file(Path(folder), q.stem, suffixes) for q in queries):
             looked = f"{queries[0].stem}{{{','.join(suffixes)}}}"  # as _find says it
             raise InputFileError(
                 f"{folder}: no {kind} file of any of the {counted(len(queries), 'query')} (looked for "

@@ -19,7 +19,8 @@ Per photo (``datasets.photos`` matches files to photos by name):
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
   photo), else the photo's RTK tags (``dji.prior_uncertainty``) or the geotag file's accuracy columns,
   else the defaults. Kept in each query (``BenchmarkQuery.prior_uncertainty``) and in the outputs;
-- perception: precomputed masks (``<masks>/<stem>.png|.npy``, any resolution with the photo's aspect),
+- perception: precomputed masks (``<masks>/<stem>.png|.npy``, or ``.jpg|.jpeg`` with ``allow_lossy_mask``;
+  also named ``<photo name>.png``, e.g. ``P0.JPG.png``; any resolution with the photo's aspect),
   or a segmentation backend run on the photo (shrunk to ``PHOTO_MAX_WIDTH``); optional depth likewise;
 - optional ground truth (``truth``, same forms as the priors): rows then carry errors and the summary
   recall.
@@ -44,6 +45,7 @@ of the run's overlays and exports is the store's tiles within a camera's range o
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
@@ -74,7 +76,7 @@ from semcityloc.io.images import (
     image_size,
 )
 from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M
-from semcityloc.perception.files import DEPTH_SUFFIXES, MASK_SUFFIXES, find_file
+from semcityloc.perception.files import DEPTH_SUFFIXES, find_file, find_mask
 
 if TYPE_CHECKING:
     # for annotations only: ``photo_spec`` imports this module, so importing it back would be a cycle
@@ -146,7 +148,7 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
             camera = lens.camera
             prior = priors.prior(path, meta)
             mask = _mask_file(spec, path, camera, orientation)
-            depth = _input_file(spec.depth, path, DEPTH_SUFFIXES, "depth", camera, orientation)
+            depth = _input_file(spec.depth, path, _find_depth, "depth", camera, orientation)
         except PhotoMissing as exc:
             true_pose = _true_pose(truth, path, meta) if isinstance(exc, PhotoUnreadable) else None
             if true_pose is None:
@@ -243,17 +245,27 @@ def flight_area(store: TileStore, frame: CityModel, inputs: list[PhotoInput]) ->
 
 
 def _mask_file(spec: PhotoSpec, photo: Path, camera: Camera, orientation: int) -> Path | None:
-    """``_input_file`` of the photo's mask, its header checked too (``io.images.check_label_header``: a lossy
-    format without ``allow_lossy_mask``, ``PhotoMissing``; not class ids, ``PhotoUnreadable``) saying why."""
-    path = _input_file(spec.masks, photo, MASK_SUFFIXES, "mask", camera, orientation)
-    if path is not None and path.suffix.lower() != ".npy":
-        try:
+    """``_input_file`` of the photo's mask (``perception.files.find_mask``: a JPEG one too with
+    ``allow_lossy_mask``), its header checked too (``io.images.check_label_header``) saying why it cannot
+    be used: a lossy format without ``allow_lossy_mask`` (named ``.png``, or a JPEG beside no other mask),
+    ``PhotoMissing``; not class ids, ``PhotoUnreadable``."""
+    find = functools.partial(find_mask, allow_lossy=spec.allow_lossy_mask)
+    try:
+        path = _input_file(spec.masks, photo, find, "mask", camera, orientation)
+        if path is not None and path.suffix.lower() != ".npy":
             check_label_header(path, spec.allow_lossy_mask)
-        except LossyMaskError as exc:  # the run's --allow-lossy-mask, not this file
-            raise PhotoMissing(str(exc)) from None
-        except InputFileError as exc:
-            raise PhotoUnreadable(str(exc)) from None
+    except LossyMaskError as exc:  # the run's --allow-lossy-mask, not this file
+        raise PhotoMissing(str(exc)) from None
+    except PhotoMissing:
+        raise
+    except InputFileError as exc:
+        raise PhotoUnreadable(str(exc)) from None
     return path
+
+
+def _find_depth(folder: Path, name: str) -> Path:
+    """The depth file of photo ``name`` in ``folder`` (``perception.files.find_file``)."""
+    return find_file(folder, name, DEPTH_SUFFIXES, "depth")
 
 
 def _array_shape(path: Path) -> tuple[int, int]:
@@ -269,15 +281,23 @@ def _array_shape(path: Path) -> tuple[int, int]:
 
 
 def _input_file(
-    folder: str | None, photo: Path, suffixes, what: str, camera: Camera, orientation: int
+    folder: str | None,
+    photo: Path,
+    find: Callable[[Path, str], Path],
+    what: str,
+    camera: Camera,
+    orientation: int,
 ) -> Path | None:
-    """The photo's mask / depth file in ``folder`` (None without a folder), checked to show the photo's
-    field of view (``orientation``: the photo's EXIF one); ``PhotoUnreadable`` when absent, when its
-    header cannot be read or when it is of another aspect."""
+    """The photo's mask / depth file in ``folder`` (None without a folder; ``find(folder, photo name)``
+    finds it), checked to show the photo's field of view (``orientation``: the photo's EXIF one);
+    ``PhotoUnreadable`` when absent, when its header cannot be read or when it is of another aspect
+    (``LossyMaskError`` as it is: the run's option, not the file)."""
     if not folder:
         return None
     try:
-        path = find_file(Path(folder), photo.name, suffixes, what)
+        path = find(Path(folder), photo.name)
+    except LossyMaskError:
+        raise
     except InputFileError as exc:
         raise PhotoUnreadable(str(exc)) from None
     try:

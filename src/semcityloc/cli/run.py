@@ -59,7 +59,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "1-sigma error of every prior (default: per photo, from its RTK tags or the geotag accuracy, "
         "else xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg); the search covers 3 sigma",
     )
-    p.add_argument("--masks", default=None, help="folder of precomputed label masks <stem>.png / .npy")
+    p.add_argument(
+        "--masks",
+        default=None,
+        help="folder of precomputed label masks <stem>.png / .npy (or <stem>.JPG.png; <stem>.jpg with "
+        "--allow-lossy-mask)",
+    )
     add_lossy_mask_argument(p, "--masks (or the files backend's masks)")
     p.add_argument("--depth", default=None, help="folder of precomputed relative depth <stem>.npy / .png")
     p.add_argument("--seg-backend", default=None, choices=available_backends("segmentation"))

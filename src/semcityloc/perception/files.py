@@ -3,8 +3,11 @@
 Why: the foundation models are best run on a GPU machine; their outputs come back as files and the
 localizer should not care. ``files`` segmentation reads ``<masks>/<stem>.png`` (palette or grey PNG of
 class ids, 255 = ignore) or ``<stem>.npy`` (an (H, W) integer label map or a (NUM_CLASSES, H, W)
-probability stack); ``files`` depth reads ``<depth>/<stem>.npy`` (float depth) or ``<stem>.png`` (16-bit,
-``semcityloc.io.images.save_depth`` format). ``masks=`` / ``depth=`` may also name one file directly.
+probability stack), or ``<stem>.jpg`` / ``.jpeg`` when lossy masks are forced (``find_mask``); ``files``
+depth reads ``<depth>/<stem>.npy`` (float depth) or ``<stem>.png`` (16-bit,
+``semcityloc.io.images.save_depth`` format). A file named after the photo's whole name
+(``<stem>.JPG.png``) is found too, unless a ``<stem>`` one is there as well (``named_file``). ``masks=`` /
+``depth=`` may also name one file directly.
 
 The stem comes from ``predict(image, name=...)`` (a file name or path; its stem is used). Without a
 name, a folder holding exactly one candidate is used; otherwise a ``ParameterError`` asks for the name.
@@ -18,12 +21,15 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.classes import IGNORE, NUM_CLASSES
-from semcityloc.errors import InputFileError, ParameterError, ShapeError
+from semcityloc.errors import InputFileError, LossyMaskError, ParameterError, ShapeError
 from semcityloc.io.images import load_depth, load_labels_png, load_npy
 from semcityloc.perception.base import TRUE_WORDS, DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
 DEPTH_SUFFIXES = (".npy", ".png")
+# Masks in a lossy format, looked for only when forced (``--allow-lossy-mask``, ``find_mask``): their
+# compression changes class ids along every edge (``io.images.LOSSY_FORMATS``).
+LOSSY_MASK_SUFFIXES = (".jpg", ".jpeg")
 
 
 def _resize_nearest(a: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -35,25 +41,90 @@ def _resize_nearest(a: np.ndarray, width: int, height: int) -> np.ndarray:
     return a[..., rows[:, None], cols[None, :]]
 
 
+def first_file(where: Path, base: str, suffixes: tuple[str, ...]) -> Path | None:
+    """The first file ``<base><suffix>`` in ``where``, suffixes in order, each also in upper case (a
+    ``stat`` per name tried, nothing read); None when there is none."""
+    for suffix in suffixes:
+        for candidate in (where / f"{base}{suffix}", where / f"{base}{suffix.upper()}"):
+            if candidate.is_file():
+                return candidate
+    return None
+
+
+def _bases(name: str) -> tuple[str, ...]:
+    """The names a photo's file may be called after: its stem, then its whole file name (``P0.JPG.png``,
+    as tools that append a suffix name it)."""
+    return tuple(dict.fromkeys((Path(str(name)).stem, Path(str(name)).name)))
+
+
+def named_file(where: Path, name: str, suffixes: tuple[str, ...], what: str) -> Path | None:
+    """The file of image ``name`` in folder ``where``: ``<stem><suffix>`` or ``<name><suffix>`` (``_bases``);
+    None when there is none, ``InputFileError`` naming both when there is one of each (which is meant is
+    not for us to guess)."""
+    hits = [path for path in (first_file(where, base, suffixes) for base in _bases(name)) if path is not None]
+    if len(hits) > 1:
+        raise InputFileError(
+            f"{where}: two {what} files for image {Path(str(name)).name!r}: {hits[0].name} and "
+            f"{hits[1].name}; keep one"
+        )
+    return hits[0] if hits else None
+
+
+def _looked_for(name: str, suffixes: tuple[str, ...]) -> str:
+    """The names ``named_file`` tries, for a message: ``P0.png/.npy or P0.JPG.png/.npy``."""
+    return " or ".join(f"{base}{'/'.join(suffixes)}" for base in _bases(name))
+
+
 def find_file(where: Path, name: str | None, suffixes: tuple[str, ...], what: str) -> Path:
-    """The file for ``name``'s stem in folder ``where`` (or ``where`` itself when it is a file)."""
+    """The file for image ``name`` in folder ``where`` (``named_file``), or ``where`` itself when it is a
+    file; without a name, the folder's only file of those suffixes."""
     if where.is_file():
         return where
     if not where.is_dir():
         raise InputFileError(f"{where}: no such {what} folder or file")
     if name is not None:
-        stem = Path(str(name)).stem
-        for suffix in suffixes:
-            for candidate in (where / f"{stem}{suffix}", where / f"{stem}{suffix.upper()}"):
-                if candidate.is_file():
-                    return candidate
-        raise InputFileError(f"{where}: no {what} for image {stem!r} (looked for {stem}{'/'.join(suffixes)})")
+        path = named_file(where, name, suffixes, what)
+        if path is None:
+            stem = Path(str(name)).stem
+            raise InputFileError(
+                f"{where}: no {what} for image {stem!r} (looked for {_looked_for(name, suffixes)})"
+            )
+        return path
     found = sorted(p for p in where.iterdir() if p.is_file() and p.suffix.lower() in suffixes)
     if len(found) == 1:
         return found[0]
     raise ParameterError(
         f"{where} holds {len(found)} {what} files: pass the image name to pick one (predict(image, name=...))"
     )
+
+
+def mask_suffixes(allow_lossy: bool) -> tuple[str, ...]:
+    """The suffixes of mask files: the lossy ones too when forced (``LOSSY_MASK_SUFFIXES``)."""
+    return MASK_SUFFIXES + LOSSY_MASK_SUFFIXES if allow_lossy else MASK_SUFFIXES
+
+
+def find_mask(where: Path, name: str | None, allow_lossy: bool) -> Path:
+    """``find_file`` of image ``name``'s mask, a JPEG one too when ``allow_lossy``; without it, a JPEG mask
+    that is there is named with the flag (``_refuse_lossy_mask``) instead of "no mask"."""
+    suffixes = mask_suffixes(allow_lossy)
+    if name is not None and not allow_lossy and where.is_dir():
+        _refuse_lossy_mask(where, name, suffixes)
+    return find_file(where, name, suffixes, "mask")
+
+
+def _refuse_lossy_mask(where: Path, name: str, suffixes: tuple[str, ...]) -> None:
+    """``LossyMaskError`` (as for a lossy mask named ``.png``) when folder ``where`` holds no mask of image
+    ``name`` with ``suffixes`` but a JPEG one: the user sees why the file they made is not used and how to
+    force it, not "no mask"."""
+    if named_file(where, name, suffixes, "mask") is not None:
+        return
+    lossy = named_file(where, name, LOSSY_MASK_SUFFIXES, "mask")
+    if lossy is not None:
+        raise LossyMaskError(
+            f"{where}: no mask for image {Path(str(name)).stem!r} (looked for {_looked_for(name, suffixes)}) "
+            f"but {lossy.name}, a lossy format (JPEG) whose compression changes class ids along every edge: "
+            "save masks as PNG, or --allow-lossy-mask uses it"
+        )
 
 
 class FilesSegmentation:
@@ -71,8 +142,8 @@ class FilesSegmentation:
     def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
         img = check_image(image)
         H, W = img.shape[:2]
-        path = find_file(self.where, name, MASK_SUFFIXES, "mask")
-        if path.suffix.lower() == ".png":
+        path = find_mask(self.where, name, self.allow_lossy)
+        if path.suffix.lower() != ".npy":  # a label image: PNG, or JPEG when forced
             return _from_labels(_resize_nearest(load_labels_png(path, self.allow_lossy), W, H))
         arr = load_npy(path, "mask array")
         if arr.ndim == 3 and arr.shape[0] == NUM_CLASSES and np.issubdtype(arr.dtype, np.floating):
