@@ -149,6 +149,18 @@ def test_markdown_tables_and_bad_input(tmp_path):
         make_html_report([tmp_path], tmp_path / "r")
 
 
+def test_report_of_a_path_that_is_no_folder_says_what_it_is(tmp_path, capsys):
+    """Stop 50's audit: ``semcityloc report nonexist/`` said "not a benchmark run folder (no run.json)" of a
+    path that does not exist; a file given for the folder likewise."""
+    from semcityloc.cli.main import main
+
+    assert main(["report", str(tmp_path / "nonexist"), "--out", str(tmp_path / "r"), "--no-html"]) == 2
+    assert capsys.readouterr().err == f"semcityloc: error: {tmp_path / 'nonexist'}: no such run folder\n"
+    (tmp_path / "results.csv").write_text("query_id\n")
+    with pytest.raises(BenchmarkError, match="results.csv: is a file, not a benchmark run folder"):
+        make_html_report([tmp_path / "results.csv"], tmp_path / "r")
+
+
 def test_a_run_without_rows_or_map_still_gets_a_page(tmp_path):
     """A run folder whose map is gone and which finished no query (crashed at once): a page, with notes."""
     run = fake_run(tmp_path, "empty", [])

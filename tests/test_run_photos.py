@@ -41,7 +41,7 @@ from semcityloc.datasets.dji_camera import camera_from_exif
 from semcityloc.datasets.dji_metadata import read_dji_metadata
 from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
 from semcityloc.datasets.photos import INTRINSICS_35MM
-from semcityloc.errors import MissingWeightsError
+from semcityloc.errors import InputFileError, MissingWeightsError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import pose_from_dji
 from semcityloc.geometry.distortion import LensDistortion, distort_image, unseen_by_photo
@@ -516,6 +516,22 @@ def test_a_run_whose_backend_fails_to_load_does_not_block_the_corrected_command(
     code, stdout, err = run(capsys, *box_flight["argv"], "--no-overlays", "--out", out)
     assert code == 0 and "another benchmark run" not in err, err
     assert "4 photos: 2 localized, 1 not localized, 1 skipped" in stdout
+
+
+def test_run_given_a_photo_instead_of_its_folder_says_it_is_a_file(tmp_path, capsys):
+    """Stop 50's audit: ``semcityloc run PHOTO.JPG`` said "no such images folder" of a file that is there."""
+    photo = tmp_path / "P0.JPG"
+    Image.new("RGB", (16, 12)).save(photo)
+    code, _, err = run(
+        capsys, "run", photo, "--city", "generated", "--masks", tmp_path, "--out", tmp_path / "o"
+    )
+    assert code == 2 and err.count("\n") == 1 and "no such" not in err
+    assert (
+        f"{photo}: is a file, not a folder of photos" in err and "semcityloc localize takes one image" in err
+    )
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(InputFileError, match="is a file, not a folder of photos"):
+        photos.list_images(photo)
 
 
 def test_a_run_searches_the_map_with_the_eaves_it_is_given(box_flight, tmp_path, capsys):

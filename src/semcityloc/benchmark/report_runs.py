@@ -64,12 +64,23 @@ class RunData:
     ignored: list[str] = field(default_factory=list)  # ids of rows left out: no query of this run
 
 
+def _run_folder(path: str | Path) -> Path:
+    """``path`` when it is a folder holding a ``run.json``; else ``BenchmarkError`` saying what it is: no
+    such folder (a typo), a file, or a folder that is no run's."""
+    path = Path(path)
+    if not path.exists():
+        raise BenchmarkError(f"{path}: no such run folder")
+    if not path.is_dir():
+        raise BenchmarkError(f"{path}: is a file, not a benchmark run folder (the folder holding {RUN_FILE})")
+    if not (path / RUN_FILE).is_file():
+        raise BenchmarkError(f"{path}: not a benchmark run folder (no {RUN_FILE})")
+    return path
+
+
 def load_run(path: str | Path) -> RunData:
     """A run folder of ``semcityloc benchmark`` (its ``run.json`` and ``results.csv``)."""
-    path = Path(path)
+    path = _run_folder(path)
     run_file = path / RUN_FILE
-    if not run_file.is_file():
-        raise BenchmarkError(f"{path}: not a benchmark run folder (no {RUN_FILE})")
     try:
         config = json.loads(run_file.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:

@@ -20,8 +20,8 @@ from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_map_eaves_arguments, add_prior_sigma_argument
 from semcityloc.datasets.dji import TARGET_HEIGHTS
-from semcityloc.datasets.photos import EXIF
-from semcityloc.errors import InputFileError, counted
+from semcityloc.datasets.photos import EXIF, check_images_folder
+from semcityloc.errors import counted
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
@@ -110,8 +110,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
-    if not Path(args.images).is_dir():
-        raise InputFileError(f"{args.images}: no such images folder")
+    """The run's ``PhotoSpec`` from its options; its images folder checked first (``check_images_folder``:
+    a photo given instead of its folder is said so, not "no such folder")."""
+    check_images_folder(args.images)
     return PhotoSpec(
         images=args.images,
         city=args.path,

@@ -62,12 +62,25 @@ def photo_metadata(image: Path) -> DjiMetadata:
         raise PhotoMissing(str(exc)) from None
 
 
-def list_images(folder: str | os.PathLike, every_entry: bool = False) -> list[Path]:
-    """The image files of a folder (``IMAGE_SUFFIXES``), sorted by name; with ``every_entry``, also what
-    is named like one but is not a file (a folder ``x.jpg``, a broken link), for the caller to report."""
+def check_images_folder(folder: str | os.PathLike) -> Path:
+    """``folder`` when it is a folder; else ``InputFileError`` saying what it is: a file (one photo given
+    where its folder is wanted: ``semcityloc localize`` takes one image) or nothing at all."""
     folder = Path(folder)
-    if not folder.is_dir():
-        raise InputFileError(f"{folder}: no such images folder")
+    if folder.is_dir():
+        return folder
+    if folder.exists():
+        raise InputFileError(
+            f"{folder}: is a file, not a folder of photos: give its folder "
+            "(semcityloc localize takes one image)"
+        )
+    raise InputFileError(f"{folder}: no such images folder")
+
+
+def list_images(folder: str | os.PathLike, every_entry: bool = False) -> list[Path]:
+    """The image files of a folder (``IMAGE_SUFFIXES``, ``check_images_folder``), sorted by name; with
+    ``every_entry``, also what is named like one but is not a file (a folder ``x.jpg``, a broken link), for
+    the caller to report."""
+    folder = check_images_folder(folder)
     images = sorted(
         p for p in folder.iterdir() if (every_entry or p.is_file()) and p.suffix.lower() in IMAGE_SUFFIXES
     )
