@@ -652,6 +652,32 @@ def test_localize_refuses_intrinsics_of_another_image_than_its_photo(exif_view, 
     assert _camera(args).camera.size == (256, 192)  # the photo resized: the mask may be of any size
 
 
+def test_render_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tmp_path, capsys):
+    """``render --image`` checked only the photo's aspect, and only when the intrinsics' own: another
+    camera's K (640x512) at --width 512 --height 384 drew the edges shifted on the photo (principal point
+    17 % off its centre). Refused like ``localize``'s, before the model loads; the photo's own draw."""
+    other = tmp_path / "T_intrinsic.txt"
+    np.savetxt(other, np.array([[400.0, 0, 320, 0], [0, 400, 256, 0], [0, 0, 1, 0]]))
+    argv = [
+        "render",
+        "--city",
+        exif_view["city"],
+        "--image",
+        exif_view["photo"],
+        "--pose",
+        exif_view["prior"],
+    ]
+    code, out, err = run(
+        capsys, *argv, "--intrinsics", other, "--width", 512, "--height", 384, "--out", tmp_path / "a"
+    )
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert "principal point (320, 256) lies 17 % of the image size off the centre of photo view.jpg" in err
+    assert not (tmp_path / "a").exists()
+    fits = "400,400,256,192,512,384"
+    code, out, err = run(capsys, *argv, "--intrinsics", fits, "--out", tmp_path / "b")
+    assert code == 0 and (tmp_path / "b" / "overlay_edges.png").is_file(), err
+
+
 def test_a_photo_of_another_aspect_than_the_intrinsics_is_refused(exif_view, tmp_path, capsys):
     """Stop 45's audit: `--image` of another aspect than the camera was drawn on, misaligned, silently."""
     from PIL import Image

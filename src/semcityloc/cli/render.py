@@ -51,11 +51,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # With --image the intrinsics must describe that photo (``geometry.io.check_fits_photo``): edges drawn
+    # with another camera's, or on another photo's pixels, would be misaligned silently.
+    photo = (Path(args.image).name, *image_size(args.image, "photo")) if args.image else None
+    camera, lens = read_lens(args.intrinsics, width=args.width, height=args.height, photo=photo)
+    if photo is not None:  # resampled to a --width x --height of another aspect than the photo
+        check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", args.image)
     model = load_model_from_args(args)
-    camera, lens = read_lens(args.intrinsics, width=args.width, height=args.height)
-    if args.image:  # edges drawn on another photo's pixels would be misaligned, silently
-        width, height = image_size(args.image, "photo")
-        check_aspect((height, width), camera.width, camera.height, "photo", args.image)
     pose_world = read_pose_in_model_crs(args.pose, model)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
