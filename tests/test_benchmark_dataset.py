@@ -305,6 +305,28 @@ def test_lossy_masks_are_refused_unless_forced(dataset_dir, tmp_path, capsys, co
     assert "allow_lossy_mask" not in spec(dataset_dir, perception="masks", masks=str(masks)).run_config()
 
 
+def test_jpeg_masks_are_found_when_forced_and_named_when_not(dataset_dir, tmp_path, capsys):
+    """Masks saved as ``<stem>.jpg`` were never looked for, even with --allow-lossy-mask ("no mask file of
+    any query: is it the data set's mask folder?"). Without the flag the refusal names the JPEG and the
+    flag; with it they are read (as ``semcityloc run`` does)."""
+    ds = read_lodloc(dataset_dir)
+    model = ds.load_model()
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for q in ds.queries[:2]:
+        labels = oracle_labels(model, q.camera, q.gt_pose_world)
+        labels[labels == 255] = 0
+        Image.fromarray(labels, mode="L").save(masks / f"{q.stem}.jpg", quality=100)
+    argv = ["benchmark", "--dataset", str(dataset_dir), "--perception", "masks", "--masks", str(masks)]
+    argv += ["--preset", "fast"]
+    assert main([*argv, "--out", str(tmp_path / "refused")]) == 2
+    err = capsys.readouterr().err
+    assert f"{ds.queries[0].stem}.jpg is there, a lossy format" in err and "--allow-lossy-mask uses it" in err
+    assert main([*argv, "--out", str(tmp_path / "forced"), "--allow-lossy-mask"]) == 0
+    rows = read_results(tmp_path / "forced" / "results.csv")
+    assert len(rows) == 2 and all(json.loads(r["meta_json"])["labels_source"] == "masks" for r in rows)
+
+
 def test_options_are_checked_before_anything_runs(dataset_dir, tmp_path):
     with pytest.raises(BenchmarkError, match="unknown perception 'gt'; known: oracle, oracle-degraded"):
         run_benchmark(spec(dataset_dir, perception="gt"), tmp_path / "x", progress=False)

@@ -79,7 +79,7 @@ from semcityloc.localization.covariance import covariance_dict
 from semcityloc.localization.methods import Method, searched_map
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
-from semcityloc.perception.files import first_file
+from semcityloc.perception.files import DEPTH_SUFFIXES, LOSSY_MASK_SUFFIXES, first_file, mask_suffixes
 from semcityloc.render import Renderer
 
 PERCEPTION_ORACLE, PERCEPTION_DEGRADED, PERCEPTION_MASKS = "oracle", "oracle-degraded", "masks"
@@ -102,7 +102,6 @@ def working_camera(camera: Camera, max_width: int = ORACLE_MAX_WIDTH) -> Camera:
     return camera.scaled(*scaled_size(camera.width, camera.height, max_width))
 
 
-MASK_SUFFIXES, DEPTH_SUFFIXES = (".png", ".npy"), (".npy", ".png")
 MISSING_SHOWN = 5  # the names of queries without their files in the warning at the start of a run
 
 
@@ -112,8 +111,21 @@ def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:
     path = first_file(folder, stem, suffixes)
     if path is None:
         looked = f"{stem}{{{','.join(suffixes)}}}"
-        raise InputFileError(f"{folder}: no file for query {stem!r} (looked for {looked})")
+        raise InputFileError(
+            f"{folder}: no file for query {stem!r} (looked for {looked}){_lossy_hint(folder, stem, suffixes)}"
+        )
     return path
+
+
+def _lossy_hint(folder: Path, stem: str, suffixes: tuple[str, ...]) -> str:
+    """When mask ``suffixes`` leave the lossy ones out and a JPEG mask of ``stem`` is there: why it is not
+    used and the flag that uses it (as ``semcityloc run`` says it)."""
+    if suffixes != mask_suffixes(False) or (lossy := first_file(folder, stem, LOSSY_MASK_SUFFIXES)) is None:
+        return ""
+    return (
+        f"; {lossy.name} is there, a lossy format (JPEG) whose compression changes class ids: "
+        "--allow-lossy-mask uses it"
+    )
 
 
 def read_inputs(
@@ -134,7 +146,7 @@ def read_inputs(
 def input_files(spec: DatasetSpec, q: LodLocQuery) -> tuple[Path, Path | None]:
     """(mask, depth or None) files of query ``q`` of a ``masks`` run, found by ``stat`` alone (nothing read);
     ``InputFileError`` naming the folder and the names looked for when one is missing."""
-    mask = _find(Path(str(spec.masks)), q.stem, MASK_SUFFIXES)
+    mask = _find(Path(str(spec.masks)), q.stem, mask_suffixes(spec.allow_lossy_mask))
     depth = _find(Path(spec.depth), q.stem, DEPTH_SUFFIXES) if spec.depth else None
     return mask, depth
 
@@ -142,14 +154,18 @@ def input_files(spec: DatasetSpec, q: LodLocQuery) -> tuple[Path, Path | None]:
 def check_some_inputs(spec: DatasetSpec, queries: list[LodLocQuery]) -> None:
     """``InputFileError`` when the ``masks`` (or ``depth``) folder holds the file of none of the queries: a
     wrong path, said in one line before the run starts instead of a miss for every query."""
-    kinds = (("mask", spec.masks, MASK_SUFFIXES), ("depth", spec.depth, DEPTH_SUFFIXES))
+    kinds = (
+        ("mask", spec.masks, mask_suffixes(spec.allow_lossy_mask)),
+        ("depth", spec.depth, DEPTH_SUFFIXES),
+    )
     for kind, folder, suffixes in kinds:
         if folder and queries and not any(first_file(Path(folder), q.stem, suffixes) for q in queries):
             looked = f"{queries[0].stem}{{{','.join(suffixes)}}}"  # as _find says it
+            hint = _lossy_hint(Path(folder), queries[0].stem, suffixes) if kind == "mask" else ""
+            tail = hint or f"; is it the data set's {kind} folder?"
             raise InputFileError(
                 f"{folder}: no {kind} file of any of the {counted(len(queries), 'query')} (looked for "
-                f"{looked}, ...); "
-                f"is it the data set's {kind} folder?"
+                f"{looked}, ...){tail}"
             )
 
 
