@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -279,18 +280,23 @@ def test_dropped_depth_is_named_in_the_rows(dataset_dir, tmp_path):
     assert rows == read_results(tmp_path / "run" / "results.csv")
 
 
-@pytest.mark.parametrize("command", [("dataset", "benchmark", "{ds}"), ("benchmark", "--dataset", "{ds}")])
-def test_lossy_masks_are_refused_unless_forced(dataset_dir, tmp_path, capsys, command):
-    """Masks of JPEG content (the ``.png`` name kept) are refused in one line naming the flag; with
-    ``--allow-lossy-mask`` they are read and the run completes, the flag kept in run.json."""
+def jpeg_masks(dataset_dir: Path, masks: Path, suffix: str) -> Path:
+    """The oracle masks of the data set's first two queries saved as JPEG under ``<stem><suffix>``."""
     ds = read_lodloc(dataset_dir)
     model = ds.load_model()
-    masks = tmp_path / "masks"
     masks.mkdir()
     for q in ds.queries[:2]:
         labels = oracle_labels(model, q.camera, q.gt_pose_world)
         labels[labels == 255] = 0  # no ignore: the compression's ids along the edges stay class ids
-        Image.fromarray(labels, mode="L").save(masks / f"{q.stem}.png", format="JPEG", quality=100)
+        Image.fromarray(labels, mode="L").save(masks / f"{q.stem}{suffix}", format="JPEG", quality=100)
+    return masks
+
+
+@pytest.mark.parametrize("command", [("dataset", "benchmark", "{ds}"), ("benchmark", "--dataset", "{ds}")])
+def test_lossy_masks_are_refused_unless_forced(dataset_dir, tmp_path, capsys, command):
+    """Masks of JPEG content (the ``.png`` name kept) are refused in one line naming the flag; with
+    ``--allow-lossy-mask`` they are read and the run completes, the flag kept in run.json."""
+    masks = jpeg_masks(dataset_dir, tmp_path / "masks", ".png")
     argv = [a.format(ds=dataset_dir) for a in command]
     argv += ["--perception", "masks", "--masks", str(masks), "--preset", "fast"]
     code = main([*argv, "--out", str(tmp_path / "refused")])
@@ -309,19 +315,13 @@ def test_jpeg_masks_are_found_when_forced_and_named_when_not(dataset_dir, tmp_pa
     """Masks saved as ``<stem>.jpg`` were never looked for, even with --allow-lossy-mask ("no mask file of
     any query: is it the data set's mask folder?"). Without the flag the refusal names the JPEG and the
     flag; with it they are read (as ``semcityloc run`` does)."""
-    ds = read_lodloc(dataset_dir)
-    model = ds.load_model()
-    masks = tmp_path / "masks"
-    masks.mkdir()
-    for q in ds.queries[:2]:
-        labels = oracle_labels(model, q.camera, q.gt_pose_world)
-        labels[labels == 255] = 0
-        Image.fromarray(labels, mode="L").save(masks / f"{q.stem}.jpg", quality=100)
+    masks = jpeg_masks(dataset_dir, tmp_path / "masks", ".jpg")
+    stem = read_lodloc(dataset_dir).queries[0].stem
     argv = ["benchmark", "--dataset", str(dataset_dir), "--perception", "masks", "--masks", str(masks)]
     argv += ["--preset", "fast"]
     assert main([*argv, "--out", str(tmp_path / "refused")]) == 2
     err = capsys.readouterr().err
-    assert f"{ds.queries[0].stem}.jpg is there, a lossy format" in err and "--allow-lossy-mask uses it" in err
+    assert f"{stem}.jpg is there, a lossy format" in err and "--allow-lossy-mask uses it" in err
     assert main([*argv, "--out", str(tmp_path / "forced"), "--allow-lossy-mask"]) == 0
     rows = read_results(tmp_path / "forced" / "results.csv")
     assert len(rows) == 2 and all(json.loads(r["meta_json"])["labels_source"] == "masks" for r in rows)
