@@ -634,3 +634,8 @@ def test_the_html_report_draws_no_error_curves_of_a_run_without_ground_truth(tmp
     (trace,) = figures["self"][1].data
     assert list(trace.customdata) == ["0:q0000", "0:q0001", "0:q0002"]
     assert list(trace.y) == pytest.approx([5.0, 1.0, 10.0]) and list(trace.x) == [0.99, 0.95, 0.9]
+    # The tables' hint says there is no ground truth, not how recall cells count (there are none)
+    from semcityloc.benchmark.report_html import make_html_report
+
+    page = make_html_report([blind_run(tmp_path, "again")], tmp_path / "h").path.read_text(encoding="utf-8")
+    assert "Recall cells" not in page and "No ground truth (no run has --truth)" in page

@@ -45,6 +45,7 @@ from semcityloc.benchmark.report_plots import (
     plot_self_assessment,
 )
 from semcityloc.benchmark.report_runs import (
+    NO_TRUTH_LINE,
     RunData,
     acceptance_data,
     comparable_runs,
@@ -83,10 +84,6 @@ TABLES: dict[str, tuple[str, str]] = {
 
 RECALL_LINE = (
     "Recall cells: `≤` convention (LoD-Loc v1) / strict `<`; not_localized queries count as failures."
-)
-NO_TRUTH_LINE = (
-    "No ground truth (no run has `--truth`): no errors or recall; the counts, the calibrated probability, "
-    "the stated sigmas and the shift from the prior are what the runs say of themselves."
 )
 
 

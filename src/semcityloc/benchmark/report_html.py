@@ -46,6 +46,7 @@ from semcityloc.benchmark.report_plotly import (
     self_figure,
 )
 from semcityloc.benchmark.report_runs import (
+    NO_TRUTH_LINE,
     RunData,
     acceptance_data,
     has_truth,
@@ -77,6 +78,13 @@ class HtmlReport:
     queries: int  # queries in the browser
     rendered: int  # of them, with the model drawn at their poses
     notes: list[str]
+
+
+# The tables' hint on recall cells (runs with ground truth; ``NO_TRUTH_LINE`` when none has it).
+RECALL_HINT = (
+    "Recall cells: <code>≤</code> (LoD-Loc v1) / strict\n    <code>&lt;</code>; not-localized queries "
+    "count as failures."
+)
 
 
 def markdown_tables(path: Path) -> tuple[str, list[str], list[list[str]]]:
@@ -301,6 +309,9 @@ def make_html_report(
         "PLOTLY": _plotly_js().replace("</script", "<\\/script"),
         "RUNS": run_list,
         "TABLES": table_html or "<p>No tables.</p>",
+        "HINT": RECALL_HINT
+        if any(has_truth(r) for r in runs)
+        else html.escape(NO_TRUTH_LINE.replace("`", "")),
         "NOTES": note_list or "<li>none</li>",
         "DATA": _script_json(data),
         "SCRIPT": _asset("report.js"),

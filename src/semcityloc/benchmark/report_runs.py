@@ -293,6 +293,13 @@ def acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
     return (np.array(p), np.array(right, dtype=float)) if p else None
 
 
+# What a report says in place of the recall conventions when no run has ground truth (``has_truth``).
+NO_TRUTH_LINE = (
+    "No ground truth (no run has `--truth`): no errors or recall; the counts, the calibrated probability, "
+    "the stated sigmas and the shift from the prior are what the runs say of themselves."
+)
+
+
 def has_truth(run: RunData) -> bool:
     """Can the run's errors be measured: a query of it has a true pose, or it has no query to judge yet
     (reported as always)? A run of photos without ``--truth`` has none: its recall would read 0 %, so the
