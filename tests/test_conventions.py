@@ -638,3 +638,15 @@ def test_real_prior_is_about_21m_and_4deg_off(shared):
     assert rotation_error_deg(prior, gt) == pytest.approx(4.03, abs=0.01)
     assert yaw_error_deg(prior, gt) == pytest.approx(3.83, abs=0.01)
     assert yaw_error_deg(prior, gt) <= rotation_error_deg(prior, gt) + 1e-9
+
+
+def test_a_world_pose_written_with_the_origin_is_refused_not_shifted_twice():
+    """``write_pose_json(pose_world, origin=model.origin)`` added the origin a second time (a Berlin
+    northing of 11.6e6 written as CRS coordinates); with an origin the pose must be the local one."""
+    from semcityloc.geometry.io import pose_to_dict
+
+    origin = np.array([391000.0, 5817000.0, 0.0])
+    local = Pose.from_xyz_rpy([10.25, -3.75, 156.5], 0.5, 29.0, 22.0)
+    assert pose_to_dict(local, origin=origin)["position"] == pytest.approx([391010.25, 5816996.25, 156.5])
+    with pytest.raises(PoseError, match=r"with an origin the pose must be in the local frame"):
+        pose_to_dict(local.shift_world(-origin), origin=origin)

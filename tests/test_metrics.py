@@ -130,3 +130,20 @@ def test_errors_over_all_queries_are_capped_and_precision_counts_accepted_poses(
     assert s["median_xyz_m_capped"] == pytest.approx((8.0 + CAP_XYZ_M) / 2)
     none = summarize_errors([inf], [inf], [inf])
     assert none["coverage"] == 0.0 and math.isnan(none["acceptance_precision"])
+
+
+def test_pose_errors_refuse_what_is_no_pose_or_a_batch_of_another_shape():
+    """Raw numpy / attribute errors before: a batch of 2 against one of 3, None, a matrix."""
+    from semcityloc.errors import ArgumentTypeError
+    from semcityloc.geometry.errors import center_error_m, rotation_error_deg
+
+    a = Pose.from_xyz_rpy([0.0, 0.0, 10.0], 0, 0, 0)
+    two, three = Pose.stack([a, a]), Pose.stack([a, a, a])
+    with pytest.raises(ShapeError, match=r"batch shapes \(2,\) and \(3,\) do not broadcast"):
+        rotation_error_deg(two, three)
+    for est in (None, a.cam_from_world):
+        with pytest.raises(ArgumentTypeError, match="est must be a semcityloc Pose"):
+            center_error_m(est, a)
+    with pytest.raises(ShapeError, match=r"one pose each, got est of batch shape \(2,\)"):
+        pose_errors(two, a)
+    assert pose_errors(None, a) == (math.inf, math.inf, math.inf)

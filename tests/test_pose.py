@@ -244,3 +244,39 @@ def test_shift_world_moves_center_only():
     np.testing.assert_allclose(shifted.transform(pts - offset), pose.transform(pts), atol=1e-6)
     back = shifted.shift_world(-offset)
     np.testing.assert_allclose(back.t, pose.t, atol=1e-6)
+
+
+def test_world_coordinates_in_float32_are_refused_not_rounded():
+    """A UTM northing of 5.8e6 in float32 is 0.5 m coarse: a Pose (and ``CityModel.to_local``) cast it to
+    float64 after the metres were lost, silently (0.2 m off in the audit). Small (local) float32 values
+    pass."""
+    centre = np.array([391500.37, 5817846.37, 30.0])
+    with pytest.raises(PoseError, match=r"camera centre in float32 at a magnitude of 5\.818e\+06 m"):
+        Pose.from_rotation_center(np.eye(3), centre.astype(np.float32))
+    with pytest.raises(PoseError, match="subtract a float64 origin"):
+        Pose.from_xyz_rpy(centre.astype(np.float32), 0.0, 0.0, 0.0)
+    local = Pose.from_xyz_rpy(np.array([10.25, -3.5, 30.0], np.float32), 0.0, 0.0, 0.0)
+    np.testing.assert_array_equal(local.center, [10.25, -3.5, 30.0])
+    assert Pose.from_rotation_center(np.eye(3), centre).center[1] == 5817846.37
+
+
+def test_a_matrix_that_is_no_rigid_transform_or_a_short_centre_is_a_typed_error():
+    """A 4x4 whose last row is not [0, 0, 0, 1] was taken as a pose by the Pose constructors (the LoD-Loc
+    reader refused it); a 2-vector centre failed inside numpy's einsum."""
+    T = np.array([[1, 0, 0, 1], [0, 1, 0, 2], [0, 0, 1, 3], [5, 5, 5, 9.0]])
+    for make in (Pose.from_world_from_cam, Pose.from_cam_from_world):
+        with pytest.raises(PoseError, match=r"last row .* must be \[0, 0, 0, 1\]"):
+            make(T)
+    with pytest.raises(ShapeError, match=r"camera centre\(s\) must have shape \(\.\.\., 3\), got \(2,\)"):
+        Pose.from_xyz_rpy([1, 2], 0, 0, 0)
+    with pytest.raises(ShapeError, match=r"a rotation \(\.\.\., 3, 3\) and a centre \(\.\.\., 3\)"):
+        Pose.from_rotation_center(np.eye(3), [1, 2])
+
+
+def test_a_single_pose_is_not_iterable():
+    """Iterating a single pose went through ``__getitem__`` and failed as a ShapeError about R and t."""
+    pose = Pose.from_xyz_rpy([1, 2, 3], 0, 0, 0)
+    with pytest.raises(TypeError, match="a single Pose cannot be indexed or iterated"):
+        [p for p in pose]
+    batch = Pose.stack([pose, pose])
+    assert [p.center.tolist() for p in batch] == [[1, 2, 3], [1, 2, 3]]

@@ -11,7 +11,7 @@ from semcityloc.citymodel.generator import footprints_to_model
 from semcityloc.citymodel.generator_footprints import generate_footprints
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import EmptyModelError, RenderError, ShapeError
+from semcityloc.errors import ArgumentTypeError, EmptyModelError, PoseError, RenderError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.render import Renderer, RenderOutput
@@ -310,3 +310,23 @@ def test_agrees_with_embree_on_a_generated_city(city, pitch):
     same_face = (a.face_ids == b.face_ids)[both]
     assert rel[same_face].max() <= 1e-3  # depth = ray-cast depth wherever both see the same triangle
     assert np.median(rel) < 1e-5
+
+
+def test_a_world_pose_or_a_wrong_kind_of_argument_is_a_typed_error():
+    """``render`` takes local poses: a world (CRS) pose drew an all-background mask without a word; a
+    path for the model, a K matrix for the camera and a list for the poses were plain TypeErrors."""
+    model = box_model()
+    renderer = Renderer(model)
+    camera = Camera.from_fov(64, 48, 60.0)
+    local = nadir(0.0, 0.0, 40.0)
+    assert (renderer.render(camera, local).labels[0] == SemanticClass.ROOF).any()
+    with pytest.raises(PoseError, match=r"takes poses in the model's local frame: camera centre \(391"):
+        renderer.render(camera, model.pose_to_world(local))
+    for call in (
+        lambda: Renderer("city.gml"),
+        lambda: renderer.render(camera.K, local),
+        lambda: renderer.render(camera, [local, local]),
+        lambda: model.pose_to_local(np.eye(4)),
+    ):
+        with pytest.raises(ArgumentTypeError):
+            call()

@@ -62,6 +62,10 @@ class ShapeError(SemCityLocError, ValueError):
     """An array argument with the wrong shape or dtype."""
 
 
+class ArgumentTypeError(SemCityLocError, TypeError):
+    """An argument of the wrong kind: a path where a ``CityModel`` is wanted, a matrix where a ``Pose`` is."""
+
+
 class RenderError(SemCityLocError):
     """A renderer that cannot run (engine missing, model unusable)."""
 

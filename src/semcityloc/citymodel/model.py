@@ -15,8 +15,8 @@ import numpy as np
 import pyproj
 
 from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
-from semcityloc.errors import EmptyModelError, InputFileError, ShapeError
-from semcityloc.geometry.pose import Pose
+from semcityloc.errors import ArgumentTypeError, EmptyModelError, InputFileError, ShapeError
+from semcityloc.geometry.pose import Pose, float64_coordinates
 
 
 @dataclass
@@ -138,8 +138,9 @@ class CityModel:
         return np.asarray(local, dtype=np.float64) + self.origin
 
     def to_local(self, world: np.ndarray) -> np.ndarray:
-        """World (..., 3) float64 -> local coordinates, float64 (cast to float32 only after this)."""
-        return np.asarray(world, dtype=np.float64) - self.origin
+        """World (..., 3) float64 -> local coordinates, float64 (cast to float32 only after this; world
+        coordinates that come in float32 have lost their centimetres already: ``PoseError``)."""
+        return float64_coordinates(world, "world coordinates") - self.origin
 
     def with_origin(self, origin: np.ndarray) -> CityModel:
         """This model re-expressed with the local frame's origin at ``origin`` (float64 world coordinates).
@@ -155,11 +156,11 @@ class CityModel:
 
     def pose_to_local(self, pose_world: Pose) -> Pose:
         """A cam_from_world pose in world (CRS) coordinates -> the same camera in this model's local frame."""
-        return pose_world.shift_world(self.origin)
+        return _pose(pose_world, "pose_world").shift_world(self.origin)
 
     def pose_to_world(self, pose_local: Pose) -> Pose:
         """A cam_from_world pose in this model's local frame -> the same camera in world (CRS) coordinates."""
-        return pose_local.shift_world(-self.origin)
+        return _pose(pose_local, "pose_local").shift_world(-self.origin)
 
     def select(self, triangle_mask: np.ndarray) -> CityModel:
         """A new model with only the triangles where ``triangle_mask`` is true (vertices compacted)."""
@@ -249,6 +250,16 @@ class CityModel:
             source=meta.get("source", ""),
             stats=ParseStats(**meta.get("stats", {})),
         )
+
+
+def _pose(pose, what: str) -> Pose:
+    """``pose`` if it is a ``Pose``; a 4x4 matrix or a position list is refused naming the constructors."""
+    if not isinstance(pose, Pose):
+        raise ArgumentTypeError(
+            f"{what} must be a semcityloc Pose (Pose.from_world_from_cam(T), Pose.from_xyz_rpy(...)), got "
+            f"{type(pose).__name__}"
+        )
+    return pose
 
 
 def crs_label(crs: pyproj.CRS | None) -> str | None:

@@ -157,6 +157,9 @@ def pose_errors(est: Pose | None, gt: Pose) -> tuple[float, float, float]:
     """(position m, rotation deg, yaw deg) of one estimate; all ``inf`` when ``est`` is None."""
     if est is None:
         return math.inf, math.inf, math.inf
+    for name, pose in (("est", est), ("gt", gt)):
+        if isinstance(pose, Pose) and pose.batch_shape:
+            raise ShapeError(f"pose_errors takes one pose each, got {name} of batch shape {pose.batch_shape}")
     return (
         float(center_error_m(est, gt)),
         float(rotation_error_deg(est, gt)),

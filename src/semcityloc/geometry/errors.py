@@ -15,12 +15,27 @@ from __future__ import annotations
 
 import numpy as np
 
+from semcityloc.errors import ArgumentTypeError, ShapeError
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
 
 
+def _poses(est: Pose, gt: Pose) -> None:
+    """Both arguments are ``Pose`` objects of broadcastable batch shapes, else a typed error saying which."""
+    for name, pose in (("est", est), ("gt", gt)):
+        if not isinstance(pose, Pose):
+            raise ArgumentTypeError(f"{name} must be a semcityloc Pose, got {type(pose).__name__}")
+    try:
+        np.broadcast_shapes(est.batch_shape, gt.batch_shape)
+    except ValueError:
+        raise ShapeError(
+            f"est and gt batch shapes {est.batch_shape} and {gt.batch_shape} do not broadcast"
+        ) from None
+
+
 def center_error_m(est: Pose, gt: Pose) -> np.ndarray:
     """Euclidean distance between the camera centres, in world units (metres)."""
+    _poses(est, gt)
     return np.linalg.norm(est.center - gt.center, axis=-1)
 
 
@@ -32,6 +47,7 @@ def rotation_error_deg(est: Pose, gt: Pose) -> np.ndarray:
     errors too (arccos loses half the digits near 0). Identical whether R is cam_from_world or
     world_from_cam.
     """
+    _poses(est, gt)
     M = est.R @ np.swapaxes(gt.R, -1, -2)
     cos = (np.trace(M, axis1=-2, axis2=-1) - 1.0) / 2.0
     w = np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1)
@@ -40,6 +56,7 @@ def rotation_error_deg(est: Pose, gt: Pose) -> np.ndarray:
 
 def yaw_error_deg(est: Pose, gt: Pose) -> np.ndarray:
     """Absolute difference of our yaw angles, wrapped to [0, 180] degrees (module docstring: meaning)."""
+    _poses(est, gt)
     yaw_est = est.to_xyz_rpy()[..., 5]
     yaw_gt = gt.to_xyz_rpy()[..., 5]
     return np.abs(wrap_deg(yaw_est - yaw_gt))

@@ -42,7 +42,7 @@ from semcityloc.geometry.colmap_text import (
 )
 from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap, pose_from_lodloc_c2w
 from semcityloc.geometry.distortion import COEFFICIENTS, LensDistortion
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, local_frame_problem
 
 # Pose and intrinsics files are a few lines long; refuse to slurp e.g. an image passed by mistake.
 MAX_SPEC_FILE_BYTES = 10_000_000
@@ -617,6 +617,10 @@ def pose_to_dict(
         raise ShapeError(f"write one pose at a time, got a batch of shape {pose.batch_shape}")
     out: dict[str, Any] = {"frame": "world"}
     local_center = pose.center
+    if origin is not None and (problem := local_frame_problem(pose.center)) is not None:
+        raise PoseError(
+            f"with an origin the pose must be in the local frame (world = local + origin): {problem}"
+        )
     if origin is not None:
         o = np.asarray(origin, dtype=np.float64)
         if o.shape != (3,):

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from semcityloc.errors import PoseError, ShapeError
+from semcityloc.errors import ArgumentTypeError, PoseError, ShapeError
 
 # The camera frame expressed in the "body" frame whose Euler angles we report (LoD-Loc's flip).
 CAM_FROM_BODY_FLIP = np.diag([1.0, -1.0, -1.0])
@@ -38,6 +38,47 @@ def rotation_about_world_z(angle_deg: np.ndarray | float) -> np.ndarray:
     return Rz
 
 
+# float32 holds a coordinate of this magnitude to about 1 cm; beyond, world (CRS) coordinates lose metres
+# (a UTM northing of 5.8e6 to 0.5 m): they must reach a Pose in float64 (``float64_coordinates``).
+FLOAT32_SAFE_M = 1.0e5
+# A local frame's cameras lie within this of its origin (the model's centre; a city's tile store spans tens
+# of km); farther out a pose is in world (CRS) coordinates given as local (``local_frame_problem``).
+LOCAL_FRAME_REACH_M = 1.0e5
+
+
+def float64_coordinates(values, what: str) -> np.ndarray:
+    """``values`` as float64, refused (``PoseError``) when they come in a narrower float type at a magnitude
+    that type cannot hold to a centimetre: the float64 origin was not subtracted before the cast, and the
+    metres lost cannot be given back here."""
+    arr = np.asarray(values)
+    if arr.dtype.kind == "f" and arr.dtype.itemsize < 8 and arr.size:
+        finite = arr[np.isfinite(arr)]
+        largest = float(np.abs(finite).max()) if finite.size else 0.0
+        if largest > FLOAT32_SAFE_M:
+            step = float(np.spacing(arr.dtype.type(largest)))
+            raise PoseError(
+                f"{what} in {arr.dtype} at a magnitude of {largest:.4g} m (its resolution there: "
+                f"{step:g} m): world coordinates must stay float64; subtract a float64 origin "
+                "(model.to_local) before anything becomes float32"
+            )
+    return np.asarray(arr, dtype=np.float64)
+
+
+def local_frame_problem(centers: np.ndarray) -> str | None:
+    """Why camera centres (..., 3) cannot be in a model's local frame (more than ``LOCAL_FRAME_REACH_M``
+    from its origin: world coordinates given as local), or None."""
+    c = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    far = np.abs(c).max(axis=1) > LOCAL_FRAME_REACH_M if len(c) else np.zeros(0, bool)
+    if not far.any():
+        return None
+    x, y, z = c[np.argmax(far)]
+    return (
+        f"camera centre ({x:.1f}, {y:.1f}, {z:.1f}) lies more than {LOCAL_FRAME_REACH_M:g} m from the "
+        "local frame's origin: a pose in world (CRS) coordinates? model.pose_to_local(pose_world) gives the "
+        "local one"
+    )
+
+
 def _check_rotation(R: np.ndarray, what: str) -> None:
     if R.size == 0:  # an empty batch is valid
         return
@@ -46,6 +87,17 @@ def _check_rotation(R: np.ndarray, what: str) -> None:
     should_be_eye = np.einsum("...ji,...jk->...ik", R, R)
     if np.abs(should_be_eye - np.eye(3)).max() > 1e-5 or np.any(np.linalg.det(R) < 0):
         raise PoseError(f"{what} is not a rotation matrix (orthonormal, det +1)")
+
+
+def _rigid(T, what: str) -> np.ndarray:
+    """(..., 4, 4) or (..., 3, 4) float64 of a rigid transform; a 4x4 whose last row is not [0, 0, 0, 1]
+    (a projective matrix, a transposed one) is refused, as the pose readers refuse it."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape[-2:] not in ((4, 4), (3, 4)):
+        raise ShapeError(f"{what} matrix must be (..., 4, 4) or (..., 3, 4), got {T.shape}")
+    if T.shape[-2:] == (4, 4) and T.size and np.abs(T[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9:
+        raise PoseError(f"the last row of a 4x4 {what} rigid transform must be [0, 0, 0, 1]")
+    return T
 
 
 class Pose:
@@ -58,7 +110,7 @@ class Pose:
         # pose pickled to a worker process arrives C-contiguous; a transposed view here gave ``--workers 1``
         # poses up to 0.1 m apart from ``--workers 2`` ones (``tests/test_run_photos.py``).
         R = np.ascontiguousarray(R_cam_from_world, dtype=np.float64)
-        t = np.ascontiguousarray(t_cam_from_world, dtype=np.float64)
+        t = np.ascontiguousarray(float64_coordinates(t_cam_from_world, "pose translation"))
         if R.shape[-2:] != (3, 3) or t.shape[-1:] != (3,) or R.shape[:-2] != t.shape[:-1]:
             raise ShapeError(f"pose needs R (..., 3, 3) and t (..., 3), got {R.shape} and {t.shape}")
         if not np.all(np.isfinite(t)):
@@ -70,24 +122,24 @@ class Pose:
     # ------------------------------------------------------------------ constructors
     @classmethod
     def from_cam_from_world(cls, T: np.ndarray) -> Pose:
-        T = np.asarray(T, dtype=np.float64)
-        if T.shape[-2:] not in ((4, 4), (3, 4)):
-            raise ShapeError(f"cam_from_world matrix must be (..., 4, 4) or (..., 3, 4), got {T.shape}")
+        T = _rigid(T, "cam_from_world")
         return cls(T[..., :3, :3], T[..., :3, 3])
 
     @classmethod
     def from_world_from_cam(cls, T: np.ndarray) -> Pose:
         """From camera-to-world matrices (LoD-Loc's ``*_pose.txt``, OpenCV camera axes)."""
-        T = np.asarray(T, dtype=np.float64)
-        if T.shape[-2:] not in ((4, 4), (3, 4)):
-            raise ShapeError(f"world_from_cam matrix must be (..., 4, 4) or (..., 3, 4), got {T.shape}")
+        T = _rigid(T, "world_from_cam")
         return cls.from_rotation_center(T[..., :3, :3], T[..., :3, 3])
 
     @classmethod
     def from_rotation_center(cls, R_world_from_cam: np.ndarray, center: np.ndarray) -> Pose:
         """From the camera's orientation in the world and its centre (world coordinates)."""
         Rwc = np.asarray(R_world_from_cam, dtype=np.float64)
-        C = np.asarray(center, dtype=np.float64)
+        C = float64_coordinates(center, "camera centre")
+        if Rwc.shape[-2:] != (3, 3) or C.shape[-1:] != (3,):
+            raise ShapeError(
+                f"a pose needs a rotation (..., 3, 3) and a centre (..., 3), got {Rwc.shape} and {C.shape}"
+            )
         if not np.all(np.isfinite(C)):
             raise PoseError("camera centre has non-finite entries")
         R = np.swapaxes(Rwc, -1, -2)
@@ -96,7 +148,9 @@ class Pose:
     @classmethod
     def from_xyz_rpy(cls, xyz: np.ndarray, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> Pose:
         """From camera centre(s) and roll/pitch/yaw in degrees (module docstring convention)."""
-        xyz = np.asarray(xyz, dtype=np.float64)
+        xyz = float64_coordinates(xyz, "camera centre")
+        if xyz.shape[-1:] != (3,):
+            raise ShapeError(f"camera centre(s) must have shape (..., 3), got {xyz.shape}")
         angles = np.stack(np.broadcast_arrays(pitch, roll, yaw), axis=-1).astype(np.float64)
         if not np.all(np.isfinite(angles)):
             raise PoseError("roll/pitch/yaw have non-finite entries")
@@ -128,6 +182,10 @@ class Pose:
         return self.batch_shape[0]
 
     def __getitem__(self, index) -> Pose:
+        if not self.batch_shape:
+            raise ArgumentTypeError(
+                "a single Pose cannot be indexed or iterated (one camera; a batch is Pose.stack([...]))"
+            )
         return Pose(self.R[index], self.t[index])
 
     def __repr__(self) -> str:

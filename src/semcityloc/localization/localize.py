@@ -136,7 +136,7 @@ class Localizer:
             prior_local: prior cam_from_world pose in the model's LOCAL frame (a world/CRS pose comes in
                 through ``model.pose_to_local``). The result's poses are in the local frame too.
             semantic: (H, W) class ids (``SemanticClass``), 255 = ignore. Same aspect as ``camera``.
-            depth: optional (H', W') relative depth (any positive scale and shift), NaN/<=0 = invalid;
+            depth: optional (H', W') relative depth (any positive scale and shift), NaN/inf/<=0 = invalid;
                 same aspect as ``semantic``.
             prior_uncertainty: how far the prior may be off (1 sigma); default ``config.prior_uncertainty``
                 (DJI single-point GNSS + gimbal IMU). The cascade searches ``n_sigma`` of it.
@@ -517,7 +517,9 @@ def localize(
     semantic: np.ndarray,
     depth: np.ndarray | None = None,
     config: LocalizerConfig | str | None = None,
+    prior_uncertainty: PriorUncertainty | None = None,
 ) -> LocalizationResult:
     """One-shot ``Localizer(city, config).localize(...)``; ``config`` may be a preset name. Poses in and
     out are in ``city``'s local frame (``city.pose_to_local`` / ``city.pose_to_world`` at the boundary)."""
-    return Localizer(city, config_or_preset(config)).localize(camera, prior_local, semantic, depth)
+    localizer = Localizer(city, config_or_preset(config))
+    return localizer.localize(camera, prior_local, semantic, depth, prior_uncertainty=prior_uncertainty)

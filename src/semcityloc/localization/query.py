@@ -133,7 +133,7 @@ def depth_problem(depth: np.ndarray, width: int = DEPTH_CHECK_WIDTH) -> str | No
     valid = np.isfinite(d) & (d > 0)
     share = float(valid.mean()) if d.size else 0.0
     if share == 0.0:
-        return "no valid pixels (all NaN, zero or negative)"
+        return "no valid pixels (all NaN, infinite, zero or negative)"
     if share < DEPTH_MIN_VALID:
         return f"only {100 * share:.1f}% of its pixels are valid (needs {100 * DEPTH_MIN_VALID:.0f}%)"
     p5, p50, p95 = np.percentile(d[valid], [5, 50, 95])

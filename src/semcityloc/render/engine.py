@@ -19,9 +19,9 @@ import copy
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import RenderError, ShapeError, unknown_choice
+from semcityloc.errors import ArgumentTypeError, PoseError, RenderError, ShapeError, unknown_choice
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, local_frame_problem
 from semcityloc.render.embree_ref import EmbreeEngine
 from semcityloc.render.gpu import GpuEngine, gpu_status
 from semcityloc.render.output import RenderOutput
@@ -37,7 +37,9 @@ MAX_RENDER_PIXELS = 1_000_000_000
 def pose_arrays(poses: Pose) -> tuple[np.ndarray, np.ndarray]:
     """(R (N, 3, 3), t (N, 3)) contiguous float64 from a single pose or a (N,) batch."""
     if not isinstance(poses, Pose):
-        raise TypeError(f"poses must be a semcityloc Pose (single or batch), got {type(poses).__name__}")
+        raise ArgumentTypeError(
+            f"poses must be a semcityloc Pose (single, or a batch: Pose.stack), got {type(poses).__name__}"
+        )
     shape = poses.batch_shape
     if len(shape) > 1:
         raise ShapeError(f"poses must be a single pose or a 1-D batch (N,), got batch shape {shape}")
@@ -48,7 +50,10 @@ def pose_arrays(poses: Pose) -> tuple[np.ndarray, np.ndarray]:
 
 def check_camera(camera: Camera) -> Camera:
     if not isinstance(camera, Camera):
-        raise TypeError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
+        raise ArgumentTypeError(
+            f"camera must be a semcityloc Camera (Camera.from_K(K, width, height), read_lens(...)), got "
+            f"{type(camera).__name__}"
+        )
     return camera
 
 
@@ -79,8 +84,12 @@ class Renderer:
     def __init__(
         self, model: CityModel, engine: str = "auto", ground: bool = True, tile_size_m: float = 25.0
     ):
+        if not isinstance(model, CityModel):
+            raise ArgumentTypeError(
+                f"model must be a CityModel (load_city_model(path)), got {type(model).__name__}"
+            )
         if not isinstance(engine, str):
-            raise TypeError(f"engine must be a string, got {type(engine).__name__}")
+            raise ArgumentTypeError(f"engine must be a string, got {type(engine).__name__}")
         self.model = model
         self.scene = build_scene(model, ground=ground, tile_size_m=tile_size_m)
         self.engine = make_engine(engine, self.scene)
@@ -106,6 +115,9 @@ class Renderer:
         """Labels (N, H, W) uint8, and z-depth / face ids when asked, for N poses (N = 1 for one pose)."""
         check_camera(camera)
         R, t = pose_arrays(poses)
+        problem = local_frame_problem(poses.center)  # a world pose draws nothing, silently
+        if problem is not None:
+            raise PoseError(f"Renderer.render takes poses in the model's local frame: {problem}")
         pixels = len(R) * camera.width * camera.height
         if pixels > MAX_RENDER_PIXELS:
             raise RenderError(
