@@ -29,7 +29,7 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE, PALETTE, SemanticClass
 from semcityloc.errors import ParameterError, PoseError, RenderError
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, local_frame_problem
 from semcityloc.render import Renderer, RenderOutput
 from semcityloc.render.overlay import class_boundaries
 
@@ -85,6 +85,11 @@ def auto_label_render(
     elif not np.array_equal(renderer.scene.origin, model.origin):
         raise RenderError("the renderer was built for another model (its origin differs from model.origin)")
     pose_local = model.pose_to_local(pose_world)
+    if (problem := local_frame_problem(pose_local.center)) is not None and np.abs(model.origin).max() > 0:
+        raise PoseError(
+            "auto_label takes the pose in world (CRS) coordinates (model.pose_to_world(pose_local) for a "
+            f"local one): this one, shifted to the local frame, is far from it ({problem.split(':')[0]})"
+        )
     view = renderer.render(camera, pose_local, depth=True, face_ids=True)
     cls = view.labels[0]
     depth = view.depth[0].astype(np.float64)
