@@ -687,7 +687,7 @@ def test_a_photo_of_another_aspect_than_the_intrinsics_is_refused(exif_view, tmp
     pose = ("--pose", f"{x},{y},{z},1,35,60", "--no-cache")
     argv = ["render", "--city", exif_view["city"], "--intrinsics", "364,364,256,192,512,384", *pose]
     code, _, err = run(capsys, *argv, "--image", tmp_path / "square.png", "--out", tmp_path / "r")
-    assert code == 2 and "square.png: photo 400x400 does not have the photo's aspect (512x384)" in err
+    assert code == 2 and "intrinsics of a 512x384 image do not fit photo square.png (400x400)" in err
     Image.new("RGB", (1024, 768)).save(tmp_path / "same.png")
     assert run(capsys, *argv, "--image", tmp_path / "same.png", "--out", tmp_path / "r2")[0] == 0
 
