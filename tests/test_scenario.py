@@ -106,6 +106,11 @@ def test_settings_reach_every_knob_and_are_checked():
         query_config("realistic", {"prior_height_m": -3}, queries=1)
     with pytest.raises(BenchmarkConfigError, match="unknown scenario 'hard'"):
         query_config("hard", queries=1)
+    # Beyond any map's error: a 1e9 m shift or a tree per 0.001 m2 ran one query to 18 GB (stop 50's audit)
+    for knob, value in (("shift_xy_max_m", 1e9), ("tree_m2", 0.001), ("overhang_m", [0.3, 1e6])):
+        with pytest.raises(BenchmarkConfigError, match=f"RealityParams.{knob} must be"):
+            set_knob(query_config("realistic", queries=1), f"reality.{knob}", value)
+    assert set_knob(query_config("realistic", queries=1), "reality.tree_m2", 0).reality.tree_m2 == 0
 
 
 def test_knobs_valid_only_together_are_set_together():

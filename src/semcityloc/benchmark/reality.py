@@ -150,15 +150,21 @@ class RealityParams:
         for name in ("roof_change_fraction", "missing_fraction", "new_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise bad(name, "in [0, 1]")
-        for name in ("shift_xy_max_m", "height_change_max_m", "roof_structure_m2", "tree_m2", "car_m2"):
-            if not 0.0 <= getattr(self, name) < np.inf:
-                raise bad(name, ">= 0")
-        for name in ("margin_m", "terrain_relief_m", "tree_facade_clearance"):
-            if not 0.0 <= getattr(self, name) < np.inf:
-                raise bad(name, ">= 0")
+        # Upper bounds: what a map or a city can differ by, not what memory holds (a 1e9 m shift or one
+        # tree per 0.001 m2 ran a one-query benchmark to 18 GB before any check).
+        for name, high in REALITY_BOUNDS.items():
+            if not 0.0 <= getattr(self, name) <= high:
+                raise bad(name, f"in [0, {high:g}]")
+        for name, low in REALITY_DENSITY_FLOORS_M2.items():
+            if getattr(self, name) != 0.0 and not low <= getattr(self, name) < np.inf:
+                raise bad(name, f"0 (none) or at least {low:g} m2 per object")
         for name in ("grid_cell_m", "terrain_wavelength_m", "terrain_grid_m"):
-            if not 0.0 < getattr(self, name) < np.inf:
-                raise bad(name, "> 0")
+            if not 0.1 <= getattr(self, name) <= 10_000.0:
+                raise bad(name, "in [0.1, 10000] m")
+        for name in ("overhang_m", "car_band_m", "tree_height_m"):
+            pair = getattr(self, name)
+            if pair is not None and pair[1] > REALITY_PAIR_BOUNDS[name]:
+                raise bad(name, f"a pair up to {REALITY_PAIR_BOUNDS[name]:g} m")
         if self.model_error_spread not in MODEL_ERROR_SPREADS:
             raise bad("model_error_spread", f"one of {', '.join(MODEL_ERROR_SPREADS)}")
         if not RELIEF_ZERO_M < self.terrain_fade_m <= self.margin_m:
@@ -168,6 +174,17 @@ class RealityParams:
 
 
 MODEL_ERROR_SPREADS = ("uniform", "normal")
+# The knobs' ranges (``RealityParams.__post_init__``): far beyond any map's error or any city, short of what
+# exhausts a machine.
+REALITY_BOUNDS = {
+    "shift_xy_max_m": 50.0,
+    "height_change_max_m": 50.0,
+    "margin_m": 2_000.0,
+    "terrain_relief_m": 200.0,
+    "tree_facade_clearance": 10.0,
+}
+REALITY_DENSITY_FLOORS_M2 = {"roof_structure_m2": 1.0, "tree_m2": 1.0, "car_m2": 1.0}
+REALITY_PAIR_BOUNDS = {"overhang_m": 5.0, "car_band_m": 50.0, "tree_height_m": 100.0}
 
 # The issue-12 "reality != map" (docs/benchmark.md gives the judgement behind each value).
 REALISTIC_REALITY = RealityParams(
