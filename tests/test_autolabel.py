@@ -330,3 +330,12 @@ def test_label_cli_goes_on_past_a_photo_it_cannot_read(city, tmp_path, capsys):
     assert np.array_equal(
         written, auto_label(model, cam, poses["view_2.jpg"], renderer=renderer, boundary_px=0)
     )
+
+
+@pytest.mark.parametrize("margin", [-50.0, float("nan"), float("inf")])
+def test_an_extent_margin_that_is_no_distance_is_refused(city, margin):
+    """``--extent-margin -50`` / nan / inf were taken, all giving the same labels (stop 50's audit)."""
+    model, renderer = city
+    pose = _world_pose(model, _centre(model, 120.0))
+    with pytest.raises(ParameterError, match="extent_margin_m must be a number of metres >= 0"):
+        auto_label(model, CAM, pose, renderer=renderer, extent_margin_m=margin)

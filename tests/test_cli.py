@@ -322,6 +322,14 @@ def test_real_uav_model_edges_lie_on_image_edges_at_gt_not_prior(shared, tmp_pat
     assert strengths["GT_pose"] > 1.3 * strengths["GPS_pose"], strengths
 
 
+@pytest.mark.parametrize("methods", ["semcityloc,bogus", " , "])
+def test_demo_checks_every_method_before_running_any(tmp_path, capsys, methods):
+    """A typo in the last of --methods was found after the first method's whole benchmark had run."""
+    code, out, err = run(capsys, "demo", "--queries", "1", "--methods", methods, "--out", tmp_path / "d")
+    assert code == 2 and err.count("\n") == 1 and "known: semcityloc" in err
+    assert not (tmp_path / "d").exists()
+
+
 def test_demo_runs_end_to_end_small(tmp_path, capsys):
     code, out, _ = run(
         capsys, "demo", "--out", tmp_path / "demo", "--queries", "2", "--methods", "semcityloc"

@@ -230,22 +230,25 @@ def test_a_broken_or_empty_tile_is_left_out_naming_it_and_the_rest_is_built(tmp_
     (tiles / "broken.gml").write_bytes(gml.read_bytes()[:5000])  # cut mid-element
     water = {"type": "CityJSON", "version": "1.1", "transform": {"scale": [1, 1, 1], "translate": [0, 0, 0]}}
     (tiles / "water.json").write_text(json.dumps({**water, "CityObjects": {}, "vertices": []}))
+    (tiles / "empty.json").write_bytes(b"")  # a failed download: passed over without a word before stop 50
+    (tiles / "notes.txt").write_bytes(b"")  # named like no model: not a tile
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store")]) == 0
     out, err = capsys.readouterr()
-    assert "1 tile, " in out and "2 tiles left out" in out and "1 tiles" not in out
+    assert "1 tile, " in out and "3 tiles left out" in out and "1 tiles" not in out
     assert (
-        err.count("semcityloc: warning: tile left out:") == 2 and "broken.gml" in err and "water.json" in err
+        err.count("semcityloc: warning: tile left out:") == 3 and "broken.gml" in err and "water.json" in err
     )
+    assert "empty.json: the file is empty" in err and "notes.txt" not in err
     index = json.loads((tmp_path / "store" / "store.json").read_text())
-    assert set(index["skipped_tiles"]) == {"broken.gml", "water.json"}
+    assert set(index["skipped_tiles"]) == {"broken.gml", "water.json", "empty.json"}
     store = TileStore.open(tmp_path / "store")
     assert [t.name for t in store.tiles] == ["a.gml"]
     assert store.num_buildings == len(load_city_model(gml, cache=False).building_ids)
-    assert store.summary()["skipped_tiles"] == 2
+    assert store.summary()["skipped_tiles"] == 3
     (tiles / "a.gml").unlink()
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store2")]) == 2
     err = capsys.readouterr().err
-    assert "no tile can be read (2 tried" in err and err.count("\n") == 1
+    assert "no tile can be read (3 tried" in err and err.count("\n") == 1
 
 
 def test_a_zip_archive_in_the_folder_is_named_not_passed_over(tmp_path, capsys):

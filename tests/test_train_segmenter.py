@@ -176,3 +176,15 @@ def test_train_cli_reads_folders(views, tmp_path, capsys):
         bad.func(bad)
     with pytest.raises(InputFileError, match="no image in"):
         load_samples(tmp_path / "labels", tmp_path / "images")
+
+
+def test_sizes_and_memory_that_are_no_sizes_are_refused():
+    """``--input-size 0x0`` was a RuntimeError traceback from torch; ``--cache-mb -5`` trained."""
+    from semcityloc.cli.train import parse_size
+    from semcityloc.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="--input-size must be positive"):
+        parse_size("0x0")
+    assert parse_size("512x384") == (512, 384)
+    with pytest.raises(ParameterError, match="cache_mb must be a number of megabytes >= 0"):
+        TrainConfig(cache_mb=-5.0).check()

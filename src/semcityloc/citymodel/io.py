@@ -38,7 +38,7 @@ def default_cache_dir() -> Path:
 
 ZIP_MAGIC = b"PK\x03\x04"
 # What a geoportal's archive may hold that the readers take (``__MACOSX/`` resource forks left out).
-_MODEL_SUFFIXES = (".gml", ".xml", ".gml.gz", ".json", ".jsonl", ".obj")
+MODEL_SUFFIXES = (".gml", ".xml", ".gml.gz", ".json", ".jsonl", ".obj")
 
 
 def zip_message(path: Path) -> str:
@@ -49,7 +49,7 @@ def zip_message(path: Path) -> str:
             names = [
                 n
                 for n in archive.namelist()
-                if n.lower().endswith(_MODEL_SUFFIXES) and not n.startswith("__MACOSX/")
+                if n.lower().endswith(MODEL_SUFFIXES) and not n.startswith("__MACOSX/")
             ]
     except (zipfile.BadZipFile, OSError, ValueError) as exc:
         return f"{path}: a damaged ZIP archive ({exc}), not a city model file"

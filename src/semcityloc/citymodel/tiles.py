@@ -38,7 +38,7 @@ import shapely
 from semcityloc.citymodel.builder import choose_origin
 from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
 from semcityloc.citymodel.ground import base_points, store_ring
-from semcityloc.citymodel.io import file_sha256, load_city_model, sniff_format
+from semcityloc.citymodel.io import MODEL_SUFFIXES, file_sha256, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
 from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
 from semcityloc.errors import CRSError, EmptyModelError, InputFileError
@@ -100,15 +100,18 @@ def _root(path: str | Path) -> Path:
 
 
 def tile_files(folder: Path) -> list[Path]:
-    """The CityGML / CityJSON files below ``folder`` (by content), and its ZIP archives (which the build
-    leaves out, naming the files to extract), sorted by relative path."""
+    """The CityGML / CityJSON files below ``folder`` (by content), its ZIP archives (which the build leaves
+    out, naming the files to extract) and files named like a model that are empty or unreadable (left out
+    with the reason, not passed over), sorted by relative path."""
     out = []
     for p in sorted(folder.rglob("*")):
         if not p.is_file() or p.name.startswith("."):
             continue
         try:
             fmt = sniff_format(p)
-        except InputFileError:
+        except InputFileError:  # empty or unreadable: a tile by its name is left out by the build, named
+            if p.name.lower().endswith(MODEL_SUFFIXES):
+                out.append(p)
             continue
         if fmt in TILE_FORMATS or fmt == "zip":  # an archive is left out by the build, saying what it holds
             out.append(p)

@@ -25,6 +25,8 @@ from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.citymodel.generator import generate_city
+from semcityloc.errors import BenchmarkError
+from semcityloc.localization.methods import available_methods, check_method
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -45,6 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Every method checked before the first one runs (a typo in the last one cost the others' minutes)
+    methods = [check_method(m.strip()) for m in args.methods.split(",") if m.strip()]
+    if not methods:
+        raise BenchmarkError(f"--methods names no method; known: {', '.join(available_methods())}")
     out = Path(args.out)
     city = args.city
     if city == "generated":
@@ -52,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         city = str(paths[2])
         print(f"generated city: {', '.join(str(p) for p in paths.values())}")
     run_dirs, summaries, labels = [], [], []
-    for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
+    for method in methods:
         spec = BenchmarkSpec(
             city=city,
             query=query_config(args.scenario, queries=args.queries, seed=args.seed),

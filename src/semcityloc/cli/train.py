@@ -50,6 +50,8 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise ParameterError(f"--input-size must look like 512x384, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise ParameterError(f"--input-size must be positive, like 512x384, got {text!r}")
     return w, h
 
 

@@ -46,7 +46,14 @@ class AutoLabelResult:
     reasons: dict[str, int]  # pixels set to IGNORE per reason (a pixel counts for its first reason)
 
 
-def _check(camera: Camera, pose_world: Pose, max_range_m: float, min_incidence_deg: float, boundary_px: int):
+def _check(
+    camera: Camera,
+    pose_world: Pose,
+    max_range_m: float,
+    min_incidence_deg: float,
+    boundary_px: int,
+    extent_margin_m: float = DEFAULT_EXTENT_MARGIN_M,
+):
     if not isinstance(camera, Camera):
         raise ParameterError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
     if not isinstance(pose_world, Pose):
@@ -59,6 +66,8 @@ def _check(camera: Camera, pose_world: Pose, max_range_m: float, min_incidence_d
         raise ParameterError(f"min_incidence_deg must be in [0, 90), got {min_incidence_deg!r}")
     if not (isinstance(boundary_px, (int, np.integer)) and 0 <= boundary_px <= 50):
         raise ParameterError(f"boundary_px must be an integer in 0..50, got {boundary_px!r}")
+    if not (np.isfinite(extent_margin_m) and extent_margin_m >= 0):  # -50, nan, inf were taken alike
+        raise ParameterError(f"extent_margin_m must be a number of metres >= 0, got {extent_margin_m!r}")
 
 
 def _unit_normals(corners: np.ndarray) -> np.ndarray:
@@ -79,7 +88,7 @@ def auto_label_render(
     boundary_px: int = 1,
 ) -> AutoLabelResult:
     """``auto_label`` that also returns the render and how many pixels each rule ignored."""
-    _check(camera, pose_world, max_range_m, min_incidence_deg, boundary_px)
+    _check(camera, pose_world, max_range_m, min_incidence_deg, boundary_px, extent_margin_m)
     if renderer is None:
         renderer = Renderer(model, engine="auto")
     elif not np.array_equal(renderer.scene.origin, model.origin):

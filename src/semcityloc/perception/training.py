@@ -79,6 +79,8 @@ class TrainConfig:
             raise ParameterError(f"lr must be > 0 and weight_decay >= 0, got {self.lr}, {self.weight_decay}")
         if self.threads is not None and int(self.threads) < 1:
             raise ParameterError(f"threads must be >= 1, got {self.threads}")
+        if not (0.0 <= self.cache_mb < math.inf):
+            raise ParameterError(f"cache_mb must be a number of megabytes >= 0, got {self.cache_mb}")
 
 
 @dataclass
