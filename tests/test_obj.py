@@ -256,3 +256,36 @@ def test_real_uavd4l_roofs_face_up(uavd4l):
     ratio = roof_per_building.sum() / footprint[ok].sum()
     assert 0.9 < ratio < 1.2, ratio  # roof area ~ footprint measured from the walls alone
     assert np.isclose(np.median(roof_per_building / footprint[ok]), 1.0, atol=0.01)
+
+
+def test_an_exported_obj_reads_back_in_place_with_its_classes(generated_lod2, tmp_path):
+    """``city convert x.gml y.obj`` then reading y.obj lost the origin and CRS its header names (the model
+    came back near 0, 0 without a CRS) and the classes its ``usemtl`` groups carry (classified by normals:
+    windows and doors gone). Both are read now; world coordinates agree to the export's 0.1 mm."""
+    from semcityloc.citymodel.export import export_model
+
+    model = generated_lod2
+    back = read_obj(export_model(model, tmp_path / "city.obj"))
+    np.testing.assert_array_equal(back.origin, model.origin)
+    assert back.crs == model.crs and back.stats.classified_by_normal == 0
+    assert back.class_triangle_counts() == model.class_triangle_counts()
+    world = np.sort(back.to_world(back.vertices[back.triangles].reshape(-1, 3)), axis=0)
+    np.testing.assert_allclose(
+        world, np.sort(model.to_world(model.vertices[model.triangles].reshape(-1, 3)), axis=0), atol=2e-4
+    )
+    # A material named like no class: those faces are classified by normals, as any OBJ's
+    text = (tmp_path / "city.obj").read_text().replace("usemtl roof", "usemtl tiles")
+    (tmp_path / "other.obj").write_text(text)
+    other = read_obj(tmp_path / "other.obj")
+    assert other.stats.classified_by_normal == model.class_triangle_counts()["roof"] > 0
+
+
+def test_a_ply_export_is_named_as_write_only(generated_lod2, tmp_path):
+    """``city convert`` writes PLY for viewers; reading one back said "not CityGML, CityJSON or OBJ"."""
+    from semcityloc.citymodel.export import export_model
+    from semcityloc.citymodel.io import load_city_model
+    from semcityloc.errors import UnsupportedFormatError
+
+    ply = export_model(generated_lod2, tmp_path / "city.ply")
+    with pytest.raises(UnsupportedFormatError, match="a PLY mesh, which semcityloc writes for viewers"):
+        load_city_model(ply, cache=False)

@@ -28,8 +28,9 @@ from semcityloc.errors import InputFileError, UnsupportedFormatError
 # Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
 # before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope; 3: the stats
 # count every skipped polygon, with a warning each; 4: CityJSON's JSON-true vertex indices and non-list
-# semantic values no longer pass silently; 5: an AdV srsName's height system kept, a compound CRS).
-CACHE_VERSION = 5
+# semantic values no longer pass silently; 5: an AdV srsName's height system kept, a compound CRS; 6: an
+# OBJ's class-named materials and semcityloc's own frame header read).
+CACHE_VERSION = 6
 
 
 def default_cache_dir() -> Path:
@@ -87,6 +88,11 @@ def sniff_format(path: Path) -> str:
         return "obj"
     if not text:
         raise InputFileError(f"{path}: the file is empty")
+    if text.startswith(b"ply"):  # what `city convert` writes for viewers: written, never read
+        raise UnsupportedFormatError(
+            f"{path}: a PLY mesh, which semcityloc writes for viewers but does not read; convert the "
+            "source to .npz (exact) or .obj instead"
+        )
     raise UnsupportedFormatError(f"{path}: not CityGML, CityJSON or OBJ (starts with {head[:40]!r})")
 
 

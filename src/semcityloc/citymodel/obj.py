@@ -5,7 +5,7 @@ building ids, so we derive both:
 
 - Parsing: ``v`` (x y z, extra colour/w values ignored), ``f`` with ``i``, ``i/t``, ``i//n``, ``i/t/n``
   tokens and negative (relative) indices, ``o``/``g`` groups. ``vt``/``vn``/``vp``/``l``/``p``/``s``/
-  ``usemtl``/``mtllib`` are ignored, other keywords counted in a warning. A line we cannot read raises
+  ``mtllib`` are ignored, other keywords counted in a warning. A line we cannot read raises
   ``InputFileError`` naming the line number.
 - Faces: triangles as they are; a polygon of more vertices is fanned when it is planar (within
   ``NONPLANAR_TOLERANCE_M``) and strictly convex, otherwise triangulated with earcut
@@ -19,8 +19,13 @@ building ids, so we derive both:
   Components of zero volume (a single flat face) are left as written. Measured on LoD-Loc's
   ``UAVD4L-LoD1.obj``: 692 of 693 judged components already wind outward (1 is flipped); its LoD1 blocks
   have no floor faces, so almost no triangle is ground.
-- Classes: from the (fixed) normals by ``builder.classify_by_normals``: walls, roofs facing up, downward
-  faces at the building's foot as ground.
+- Classes: a face under a material named like a class (``usemtl roof``: what ``export.write_obj`` writes,
+  and Blender exports whose materials are so named) has that class; the others come from the (fixed)
+  normals by ``builder.classify_by_normals``: walls, roofs facing up, downward faces at the building's foot
+  as ground.
+- semcityloc's own export: its header comment (``FRAME_HEADER``) gives the float64 origin its coordinates
+  are relative to, kept as the model's, and its CRS (``crs`` overrides it), so that ``city convert`` to OBJ
+  and back keeps the model in place.
 - Frame: the coordinates are a local metric frame (``crs`` optional, must be projected/metric). With
   ``z_up=False`` (Y-up exports such as Blender's default) the axes map as
   ``(x, y, z)_world = (x, -z, y)_obj``: a +90 deg rotation about x, so the winding is kept.
@@ -29,6 +34,7 @@ building ids, so we derive both:
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +50,7 @@ from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
 from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import DUPLICATE_TOLERANCE_M, NONPLANAR_TOLERANCE_M, triangulate_polygon
+from semcityloc.classes import CLASS_NAMES
 from semcityloc.errors import CRSError, EmptyModelError, InputFileError, counted
 
 # Vertices closer than this are the same vertex when finding connected buildings (metres).
@@ -51,7 +58,15 @@ WELD_TOLERANCE_M = 1e-3
 # The LoD stored for OBJ triangles (the format names none; LoD-Loc's block models are LoD1).
 OBJ_LOD = 1
 # Keywords that carry nothing we use: ignored without a warning.
-IGNORED_KEYWORDS = frozenset({"vt", "vn", "vp", "s", "usemtl", "mtllib", "l", "p", "cstype", "deg"})
+IGNORED_KEYWORDS = frozenset({"vt", "vn", "vp", "s", "mtllib", "l", "p", "cstype", "deg"})
+# Materials named like a class (``usemtl roof``, as ``citymodel.export.write_obj`` writes them, and Blender
+# exports whose materials are named so) give their faces that class; other faces are classified by normals.
+MATERIAL_CLASSES = {name: i for i, name in enumerate(CLASS_NAMES)}
+# ``export``'s header comment: the local frame's float64 origin and the CRS, read back so that a converted
+# model keeps its place (``# semcityloc local frame: world = origin + vertex; origin X Y Z; crs EPSG:n``).
+FRAME_HEADER = re.compile(
+    r"#\s*semcityloc local frame: world = origin \+ vertex; origin (\S+) (\S+) (\S+); crs (\S+)"
+)
 # A component's |signed volume| below this (m^3) says nothing about its winding.
 MIN_WINDING_VOLUME_M3 = 1e-9
 # Z-up world from Y-up OBJ: world = M @ obj, i.e. (x, -z, y); det = +1 keeps the winding.
@@ -73,8 +88,8 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     """
     path = Path(path)
     stats = ParseStats()
-    source_crs = _metric_crs(crs)
     mesh = _parse(_read_text(path), path)
+    source_crs = _metric_crs(crs if crs is not None else mesh.header_crs)
     verts = mesh.vertices if z_up else mesh.vertices @ Y_UP_TO_Z_UP.T
     if not len(mesh.face_len):
         raise EmptyModelError(f"{path}: the OBJ has no faces")
@@ -114,9 +129,15 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     builder = MeshBuilder(stats)
     for n in range(len(present)):
         builder.building(f"obj_{n}")
-    stats.classified_by_normal = int(len(np.unique(tri_face)))
-    builder.add_mesh(verts[used], compact.reshape(-1, 3), np.full(len(tris), UNLABELLED), tri_index, OBJ_LOD)
-    return builder.build(crs=source_crs, source_crs=source_crs, source=str(path))
+    tri_class = mesh.face_class[tri_face]
+    stats.classified_by_normal = int(len(np.unique(tri_face[tri_class < 0])))
+    classes = np.where(tri_class >= 0, tri_class, UNLABELLED)
+    if mesh.origin is None:
+        builder.add_mesh(verts[used], compact.reshape(-1, 3), classes, tri_index, OBJ_LOD)
+        return builder.build(crs=source_crs, source_crs=source_crs, source=str(path))
+    # An exported model: its coordinates are relative to the header's float64 origin, kept as the frame's
+    builder.add_mesh(verts[used] + mesh.origin, compact.reshape(-1, 3), classes, tri_index, OBJ_LOD)
+    return builder.build(crs=source_crs, source_crs=source_crs, source=str(path), origin=mesh.origin)
 
 
 # ---------------------------------------------------------------------------------------------- parsing
@@ -130,6 +151,9 @@ class _ObjMesh:
     face_group: np.ndarray  # (F,) int64 id of the o/g group
     face_line: np.ndarray  # (F,) int64 line number, for messages
     unknown: Counter
+    face_class: np.ndarray  # (F,) int64 class of the face's material (MATERIAL_CLASSES), -1 for none
+    origin: np.ndarray | None = None  # FRAME_HEADER's origin, the file's coordinates being relative to it
+    header_crs: str | None = None  # FRAME_HEADER's CRS
 
 
 def _metric_crs(crs: str | None) -> pyproj.CRS | None:
@@ -171,6 +195,18 @@ def _logical_lines(text: str):
         yield start, pending.strip()
 
 
+def _frame_header(match: re.Match) -> tuple[np.ndarray | None, str | None]:
+    """(origin, CRS name) of ``FRAME_HEADER``; (None, None) when its numbers are none (a hand-edited file)."""
+    try:
+        origin = np.array([float(match.group(i)) for i in (1, 2, 3)], dtype=np.float64)
+    except ValueError:
+        return None, None
+    if not usable_points(origin[None]).all():
+        return None, None
+    crs = match.group(4)
+    return origin, (None if crs == "None" else crs)
+
+
 def _parse(text: str, path: Path) -> _ObjMesh:
     verts: list[tuple[float, float, float]] = []
     vert_lines: list[int] = []
@@ -182,11 +218,17 @@ def _parse(text: str, path: Path) -> _ObjMesh:
     obj_name, group_name = "", ""
     group_id = groups.setdefault((obj_name, group_name), 0)
     unknown: Counter = Counter()
+    face_class: list[int] = []
+    material = -1
+    origin, header_crs = None, None
 
     def fail(lineno: int, line: str, why: str) -> InputFileError:
         return InputFileError(f"{path}: line {lineno}: {why}: {line[:80]!r}")
 
     for lineno, line in _logical_lines(text):
+        if line.startswith("#") and origin is None and (frame := FRAME_HEADER.match(line)):
+            origin, header_crs = _frame_header(frame)
+            continue
         if not line or line[0] == "#":
             continue
         parts = line.split()
@@ -218,6 +260,9 @@ def _parse(text: str, path: Path) -> _ObjMesh:
             face_len.append(len(parts) - 1)
             face_group.append(group_id)
             face_line.append(lineno)
+            face_class.append(material)
+        elif kw == "usemtl":
+            material = MATERIAL_CLASSES.get(" ".join(parts[1:]).strip().lower(), -1)
         elif kw in ("o", "g"):
             name = " ".join(parts[1:])
             if kw == "o":
@@ -242,6 +287,9 @@ def _parse(text: str, path: Path) -> _ObjMesh:
         np.array(face_group, dtype=np.int64),
         np.array(face_line, dtype=np.int64),
         unknown,
+        np.array(face_class, dtype=np.int64),
+        origin,
+        header_crs,
     )
     out_of_range = mesh.face_index >= len(vertices)
     if out_of_range.any():
