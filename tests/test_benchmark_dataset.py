@@ -417,3 +417,22 @@ def test_dataset_options_fit_the_benchmark_command(dataset_dir, tmp_path, capsys
     assert cli.run_dataset_benchmark(args) == 0
     assert "oracle perception" in capsys.readouterr().out
     assert json.loads((tmp_path / "b" / "run.json").read_text())["city"] == str(dataset_dir / "city.obj")
+
+
+@pytest.mark.parametrize(
+    "extra, named",
+    [
+        (["--queries", "50"], "--queries"),
+        (["--set", "prior_height_m=10"], "--set"),
+        (["--scenario", "clean"], "--scenario"),
+        (["--prior-extra", "10-20"], "--prior-extra"),
+        (["--seg-quality", "zero-shot"], "--seg-quality (only with --perception oracle-degraded)"),
+    ],
+)
+def test_simulation_options_given_to_a_data_set_run_are_refused(dataset_dir, tmp_path, capsys, extra, named):
+    """Each of these gave the identical row before (ignored without a word, stop 50's audit)."""
+    argv = ["benchmark", "--dataset", str(dataset_dir), *extra, "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert named in err and "options of a simulated benchmark" in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()

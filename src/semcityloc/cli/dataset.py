@@ -22,13 +22,14 @@ from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpe
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import unreadable_row
+from semcityloc.benchmark.scenario import DEFAULT_SCENARIO
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
 from semcityloc.datasets.colmap import ColmapModel, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
 from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
-from semcityloc.errors import InputFileError, counted
+from semcityloc.errors import InputFileError, ParameterError, counted
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.localization.config import PRESETS
@@ -284,7 +285,34 @@ def warn_unreadable(rows: list[dict[str, str]], config: dict) -> None:
             print(line, file=sys.stderr)
 
 
+# Options of a simulated benchmark that a data-set run has no use for, with their defaults
+# (``cli.benchmark.add_simulation_arguments``): given, they were ignored without a word.
+SIMULATION_ONLY = {
+    "queries": ("--queries", 100),
+    "settings": ("--set", []),
+    "scenario": ("--scenario", DEFAULT_SCENARIO),
+    "prior_extra": ("--prior-extra", None),
+    "lod": ("--lod", None),
+}
+
+
+def check_dataset_options(args: argparse.Namespace) -> None:
+    """``ParameterError`` naming the simulation-only options given to a data-set run (its queries are its
+    images, its perception ``--perception``'s), and ``--seg-quality`` without ``oracle-degraded``."""
+    given = [
+        flag for key, (flag, default) in SIMULATION_ONLY.items() if getattr(args, key, default) != default
+    ]
+    if getattr(args, "seg_quality", "trained") != "trained" and args.perception != "oracle-degraded":
+        given.append("--seg-quality (only with --perception oracle-degraded)")
+    if given:
+        raise ParameterError(
+            f"{', '.join(given)}: options of a simulated benchmark, not of a data set's (--dataset), whose "
+            "queries are its images; leave them out"
+        )
+
+
 def run_dataset_benchmark(args: argparse.Namespace) -> int:
+    check_dataset_options(args)
     if args.ecef_origin is not None and args.frame != "ecef":
         raise InputFileError("--ecef-origin needs --frame ecef")
     spec = DatasetSpec(
