@@ -314,3 +314,22 @@ def test_tiles_in_different_crss_are_refused(tmp_path):
     with pytest.raises(CRSError, match=r"different CRSs.*a\.json: EPSG:25832.*b\.json: EPSG:25833"):
         build_store(tiles, tmp_path / "store")
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "s2")]) == 2
+
+
+def test_the_same_buildings_in_two_tiles_are_said(tmp_path, capsys):
+    """Den Haag's .json beside its .xml (the same area, the same ids) or a copied tile made a store holding
+    every building twice (2 tiles, 1688 buildings for 844), without a word."""
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    gml = generate_city(tmp_path / "gen", seed=2, lods=(2,))[2]
+    (tiles / "a.gml").write_bytes(gml.read_bytes())
+    (tiles / "copy of a.gml").write_bytes(gml.read_bytes())
+    assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store")]) == 0
+    err = capsys.readouterr().err
+    n = len(load_city_model(gml, cache=False).building_ids)
+    assert (
+        f"{n} building ids appear in more than one tile ({n} of them in both a.gml and copy of a.gml)" in err
+    )
+    (tiles / "copy of a.gml").unlink()
+    assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store2")]) == 0
+    assert "more than one tile" not in capsys.readouterr().err

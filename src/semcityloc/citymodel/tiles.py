@@ -76,6 +76,7 @@ class BuildReport:
     input_bytes: int
     seconds: float
     skipped: dict[str, str] = field(default_factory=dict)  # tile (relative path) -> why it was left out
+    warnings: list[str] = field(default_factory=list)  # e.g. buildings found in more than one tile
 
     @property
     def mb_per_s(self) -> float:
@@ -144,6 +145,7 @@ def build_store(
         raise InputFileError(f"{folder}: no CityGML or CityJSON files in it")
     say = progress or (lambda _msg: None)
     extents, crss, boxes, counts = [], [], [], []
+    ids: list[set[str]] = []
     skipped: dict[str, str] = {}
     read: list[Path] = []
     for i, path in enumerate(files):
@@ -159,11 +161,13 @@ def build_store(
         box = _building_boxes(model)
         boxes.append(box + np.concatenate([model.origin, model.origin]))
         counts.append(len(box))
+        ids.append(set(model.building_ids))
     if not read:
         reasons = "; ".join(list(skipped.values())[:3])  # each names its file
         raise InputFileError(f"{folder}: no tile can be read ({len(skipped)} tried; {reasons})")
     files = read
     _check_one_crs(files, crss, folder)
+    warnings = _repeated_buildings(files, ids, folder)
     every = np.concatenate(extents)
     origin = choose_origin(every)
     tiles_dir = root / TILES_DIR
@@ -207,7 +211,30 @@ def build_store(
     tmp.replace(root / INDEX_FILE)
     total = sum(t.size_bytes for t in infos)
     store = TileStore.open(root)
-    return BuildReport(store, len(infos), int(sum(counts)), total, time.perf_counter() - t0, skipped)
+    return BuildReport(
+        store, len(infos), int(sum(counts)), total, time.perf_counter() - t0, skipped, warnings
+    )
+
+
+def _repeated_buildings(files: list[Path], ids: list[set[str]], folder: Path) -> list[str]:
+    """A warning when building ids appear in more than one tile: the same area in two formats (a
+    geoportal's .json beside its .xml) or a copied tile, whose buildings the store would hold twice."""
+    seen: dict[str, int] = {}
+    repeated: dict[tuple[int, int], int] = {}
+    for i, tile in enumerate(ids):
+        for building in tile:
+            first = seen.setdefault(building, i)
+            if first != i:
+                repeated[(first, i)] = repeated.get((first, i), 0) + 1
+    if not repeated:
+        return []
+    (a, b), n = max(repeated.items(), key=lambda kv: kv[1])
+    total = sum(repeated.values())
+    return [
+        f"{total} building ids appear in more than one tile ({n} of them in both "
+        f"{files[a].relative_to(folder)} and {files[b].relative_to(folder)}): the same buildings twice "
+        "(one area in two formats, a copied tile)? Leave the copies out of the folder"
+    ]
 
 
 def _building_boxes(model: CityModel) -> np.ndarray:

@@ -44,6 +44,8 @@ def run_build(args: argparse.Namespace) -> int:
             f"(all named in {report.store.root}/store.json, skipped_tiles)",
             file=sys.stderr,
         )
+    for warning in report.warnings:
+        print(f"semcityloc: warning: {warning}", file=sys.stderr)
     print(
         f"{counted(report.tiles, 'tile')}, {counted(report.buildings, 'building')}, "
         f"{report.input_bytes / 1e6:.1f} MB in "
