@@ -442,6 +442,14 @@ def test_cli_runs_resumes_and_refuses_other_arguments(sim, cli, capsys, tmp_path
     assert err.startswith("semcityloc: error:") and "seed" in err and err.count("\n") == 1
     assert cli([*args, "--prior-extra", "oops"]) == 2
     assert "--prior-extra" in capsys.readouterr().err
+    # More queries grow the finished run: its two rows kept as they are, one localized (was refused, and
+    # --overwrite threw the done queries away; query i does not depend on the run's length)
+    before = csv_rows(Path(out) / RESULTS_FILE)
+    assert cli([*args[:4], "3", *args[5:]]) == 0
+    capsys.readouterr()
+    after = csv_rows(Path(out) / RESULTS_FILE)
+    assert len(after) == 3 and after[:2] == before
+    assert json.loads((Path(out) / "summary.json").read_text())["queries"] == 3
 
 
 def test_prior_extra_parsing():

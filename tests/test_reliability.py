@@ -535,10 +535,13 @@ def test_a_photo_run_whose_photos_changed_is_refused_saying_so_not_as_other_argu
     assert "arguments differ" not in str(info.value) and "--overwrite" in str(info.value)
     with pytest.raises(ResumeMismatchError, match="arguments differ: method"):
         prepare_output(tmp_path, {**more, "method": "no-depth"})
-    simulated = tmp_path / "simulated"  # its "queries" is --queries: an argument
-    prepare_output(simulated, {"method": "semcityloc", "queries": 50})
-    with pytest.raises(ResumeMismatchError, match="arguments differ: queries: 50 -> 100"):
-        prepare_output(simulated, {"method": "semcityloc", "queries": 100})
+    simulated = tmp_path / "simulated"  # its "queries" is --queries: the run grows (stop 50), alone
+    first = {"method": "semcityloc", "queries": 50}
+    prepare_output(simulated, first)
+    assert prepare_output(simulated, {**first, "queries": 100}) == first
+    assert json.loads((simulated / "run.json").read_text())["queries"] == 100
+    with pytest.raises(ResumeMismatchError, match="arguments differ: method"):
+        prepare_output(simulated, {"method": "no-depth", "queries": 120})
 
 
 def test_a_run_started_before_it_recorded_its_searched_map_resumes(tmp_path):

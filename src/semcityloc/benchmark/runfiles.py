@@ -348,6 +348,9 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
             old, mismatch = None, f"its {RUN_FILE} is not a JSON object"
         if isinstance(old, dict):
             differ = differing_settings(old, config)
+            if differ and _only_the_query_count(old, differ):
+                write_atomic(run_file, json.dumps(config, indent=2) + "\n")  # the run grows or shrinks
+                return old
             if differ:
                 shown = "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
                 changed = {d.split(":")[0].split(".")[0] for d in differ}
@@ -369,6 +372,20 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
         return None
     return old
+
+
+# The settings that count a simulated run's queries: a difference a resume may have (``prepare_output``).
+QUERY_COUNT_KEYS = ("queries", "query_config.queries")
+
+
+def _only_the_query_count(old: dict, differ: list[str]) -> bool:
+    """Whether a simulated run differs from ``old`` in its number of queries alone. Query ``i`` is drawn from
+    its own generator (``queries``: seeded by (seed, i, ...), its view kind by a sequence over ``i``), so the
+    first n queries of a run of m are those of a run of n: a finished run grows (``--queries 25`` after 20
+    localizes 5 more) or is reported on fewer, with nothing redone. A data set's or a flight's query count is
+    its images', never an argument."""
+    names = {d.split(":")[0] for d in differ}
+    return old.get("mode") is None and names <= set(QUERY_COUNT_KEYS) and "queries" in names
 
 
 def run_entries(out_dir: Path) -> set[str]:
