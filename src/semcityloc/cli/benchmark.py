@@ -46,8 +46,8 @@ def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--city",
         default=None,
-        help="CityGML / CityJSON file, or 'generated' for the embedded city (with --dataset: the LoD model, "
-        "default the *.obj beside the data set)",
+        help="CityGML / CityJSON / OBJ file, a tile store, or 'generated' for the embedded city (with "
+        "--dataset: the LoD model, default the *.obj beside the data set)",
     )
     p.add_argument(
         "--lod",

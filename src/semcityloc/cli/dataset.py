@@ -39,7 +39,8 @@ from semcityloc.render import Renderer
 
 def register(sub: argparse._SubParsersAction) -> None:
     ds = sub.add_parser(
-        "dataset", help="inspect, overlay, export or benchmark a LoD-Loc data set; DJI priors"
+        "dataset",
+        help="a LoD-Loc data set: info, overlay, benchmark, colmap export; dji-prior: a DJI photo's prior",
     )
     ds_sub = ds.add_subparsers(dest="dataset_command", required=True, metavar="ACTION")
 
@@ -62,7 +63,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     colmap = ds_sub.add_parser("colmap", help="write the data set's GT or prior poses as a COLMAP model")
     add_dataset_arguments(colmap)
     colmap.add_argument("--out", required=True, help="output model folder")
-    colmap.add_argument("--poses", choices=("gt", "prior"), default="gt")
+    colmap.add_argument(
+        "--poses", choices=("gt", "prior"), default="gt", help="which poses (default %(default)s)"
+    )
     colmap.add_argument("--binary", action="store_true", help="write .bin files (default .txt)")
     colmap.set_defaults(func=run_colmap)
 

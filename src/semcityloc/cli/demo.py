@@ -33,15 +33,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo", help="generate a city, benchmark the localizer on it, write tables and figures"
     )
-    p.add_argument("--out", default="demo_output", help="output folder")
+    p.add_argument("--out", default="demo_output", help="output folder (default %(default)s)")
     p.add_argument("--city", default="generated", help="city model file (default: the generated city)")
     p.add_argument("--queries", type=int, default=20, help="simulated queries per method (default 20)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of the city and the queries (default %(default)s)"
+    )
     p.add_argument(
         "--scenario", default="realistic", choices=("realistic", "clean"), help="simulation scenario"
     )
     p.add_argument(
-        "--methods", default="semcityloc,no-refine,lodloc-wireframe", help="comma-separated benchmark methods"
+        "--methods",
+        default="semcityloc,no-refine,lodloc-wireframe",
+        help="comma-separated benchmark methods (default %(default)s)",
     )
     p.set_defaults(func=run)
 

@@ -52,14 +52,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         "are resampled onto the photo's distorted pixels)",
     )
     p.add_argument("--out", required=True, help="output folder for <stem>.png label maps")
-    p.add_argument("--max-range", type=float, default=1500.0, help="ignore surfaces farther than this (m)")
+    p.add_argument(
+        "--max-range",
+        type=float,
+        default=1500.0,
+        help="ignore surfaces farther than this (m; default %(default)g)",
+    )
     p.add_argument(
         "--min-incidence", type=float, default=10.0, help="ignore rays this close to a surface (deg)"
     )
     p.add_argument(
-        "--extent-margin", type=float, default=25.0, help="terrain this far outside the buildings counts (m)"
+        "--extent-margin",
+        type=float,
+        default=25.0,
+        help="terrain this far outside the buildings counts (m; default %(default)g)",
     )
-    p.add_argument("--boundary-px", type=int, default=1, help="ignore band at class boundaries (px, 0 = off)")
+    p.add_argument(
+        "--boundary-px",
+        type=int,
+        default=1,
+        help="ignore band at class boundaries (px, 0 = off; default %(default)s)",
+    )
     p.add_argument("--overlay", action="store_true", help="also write overlays/<stem>.png (photo + labels)")
     p.add_argument("--engine", default="auto", choices=ENGINES, help="render engine (default auto)")
     p.set_defaults(func=run)

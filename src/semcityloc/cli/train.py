@@ -25,19 +25,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder: head.safetensors, head.json, checkpoint.pt")
     p.add_argument("--val-images", default=None, help="validation photos (default: hold out --val-fraction)")
     p.add_argument("--val-labels", default=None, help="validation label maps")
-    p.add_argument("--val-fraction", type=float, default=0.2, help="share held out when no --val-images")
-    p.add_argument("--epochs", type=int, default=20)
-    p.add_argument("--batch-size", type=int, default=8)
-    p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--weight-decay", type=float, default=1e-4)
+    p.add_argument(
+        "--val-fraction",
+        type=float,
+        default=0.2,
+        help="share held out when no --val-images (default %(default)s)",
+    )
+    p.add_argument(
+        "--epochs", type=int, default=20, help="passes over the training photos (default %(default)s)"
+    )
+    p.add_argument("--batch-size", type=int, default=8, help="photos per step (default %(default)s)")
+    p.add_argument("--lr", type=float, default=2e-3, help="learning rate (default %(default)g)")
+    p.add_argument(
+        "--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default %(default)g)"
+    )
     p.add_argument(
         "--classes", default=None, help="comma-separated class names (default: those in the labels)"
     )
     p.add_argument("--input-size", default=None, help="network input WxH (default: backbone's, photo aspect)")
     p.add_argument("--no-hflip", action="store_true", help="do not add mirrored copies of the photos")
-    p.add_argument("--cache-mb", type=float, default=2048.0, help="memory for cached backbone features")
+    p.add_argument(
+        "--cache-mb",
+        type=float,
+        default=2048.0,
+        help="memory for cached backbone features (MB; default %(default)g)",
+    )
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the split and the head's initialisation (default %(default)s)",
+    )
     p.add_argument("--device", default=None, help="cpu (default) or cuda")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.set_defaults(func=run)
