@@ -115,3 +115,16 @@ def test_a_file_is_hashed_once_until_it_changes(tmp_path, monkeypatch):
     changed = io.file_sha256(path)
     assert reads == [path] and changed != first
     assert changed == hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_a_npz_of_pickled_objects_is_named_damaged_not_explained_in_numpys_words(tmp_path):
+    """A tile npz of another program (pickled objects) gave numpy's advice on ``allow_pickle``."""
+    from semcityloc.citymodel.model import CityModel
+
+    path = tmp_path / "00000.npz"
+    np.savez(path, meta=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(
+        InputFileError,
+        match=r"not a semcityloc city-model npz \(damaged, or another program's: it holds pickled objects\)",
+    ):
+        CityModel.load_npz(path)

@@ -213,6 +213,11 @@ def citygml_lod(lod: object, path: Path | None = None) -> int | None:
 
 
 def _xml_error(path: Path, exc: etree.XMLSyntaxError) -> MalformedXMLError:
+    if "amplification" in str(exc.msg):  # libxml2 stopped an entity expansion: a hostile file, not a typo
+        return MalformedXMLError(
+            f"{path}: refused: its DTD declares entities that expand without bound (a 'billion laughs' or "
+            f"quadratic-blowup document, line {exc.lineno}); city models need no entities"
+        )
     return MalformedXMLError(f"{path}: not well-formed XML, line {exc.lineno}: {exc.msg}")
 
 

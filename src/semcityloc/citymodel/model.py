@@ -241,7 +241,10 @@ class CityModel:
                     k: z[k] for k in ("origin", "vertices", "triangles", "classes", "building_index", "lods")
                 }
         except (OSError, KeyError, ValueError) as exc:
-            raise InputFileError(f"{path}: not a semcityloc city-model npz ({exc})") from exc
+            why = "it holds pickled objects" if "pickle" in str(exc) else str(exc)  # numpy's own advice
+            raise InputFileError(
+                f"{path}: not a semcityloc city-model npz (damaged, or another program's: {why})"
+            ) from exc
         return cls(
             **arrays,
             building_ids=list(meta["building_ids"]),
