@@ -207,5 +207,10 @@ def test_cli_scenario_set_and_sweep_with_a_report(cli, capsys, tmp_path):
     assert (tmp_path / "rep" / "plots" / "recall_vs_prior_height_m.png").is_file()
     assert cli(["sweep", "--knob", "nope", "--values", "1", *args, "--out", str(out)]) == 2
     assert "unknown knob 'nope'" in capsys.readouterr().err
+    # A sweep of another knob into the same folder: its hint named `report OUT/*`, mixing both sweeps
+    assert cli(["sweep", "--knob", "seed", "--values", "1", *args, "--out", str(out)]) == 0
+    printed, err = capsys.readouterr()
+    assert "also holds 2 run folders of another sweep (prior_height_m=0, prior_height_m=20)" in err
+    assert f"report: semcityloc report {out / 'seed=1'}" in printed and f"{out}/*" not in printed
     assert cli(["benchmark", *args, "--set", "prior_height_m=-1", "--out", str(tmp_path / "b")]) == 2
     assert "prior_height_m" in capsys.readouterr().err

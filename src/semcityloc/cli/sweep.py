@@ -9,6 +9,8 @@ continues where it stopped), prints one table with a row per value and tells how
 from __future__ import annotations
 
 import argparse
+import shlex
+import sys
 from pathlib import Path
 
 from semcityloc.benchmark.report_tables import summary_markdown
@@ -41,9 +43,9 @@ def run(args: argparse.Namespace) -> int:
     values = sweep_values(args.values)
     specs = [spec_from_args(args, {knob: v}, sweep=(knob, v)) for v in values]  # all checked first
     out = Path(args.out)
+    run_dirs = [out / f"{knob}={value}".replace("/", "_").replace(" ", "") for value in values]
     summaries, labels, done = [], [], True
-    for value, spec in zip(values, specs, strict=True):
-        run_dir = out / f"{knob}={value}".replace("/", "_").replace(" ", "")
+    for value, spec, run_dir in zip(values, specs, run_dirs, strict=True):
         outcome = run_benchmark(
             spec, run_dir, workers=args.workers, overwrite=args.overwrite, limit=args.stop_after
         )
@@ -58,5 +60,16 @@ def run(args: argparse.Namespace) -> int:
         labels.append(f"{knob}={value}")
     if summaries:
         print(summary_markdown(summaries, labels, label_header=f"{args.method}, {knob}"))
-    print(("" if done else "run again to continue; ") + f"report: semcityloc report {out}/*")
+    others = sorted(p.name for p in out.iterdir() if (p / "run.json").is_file() and p not in run_dirs)
+    if others:  # another sweep's runs in the same folder (--overwrite clears a run, not its neighbours)
+        print(
+            f"semcityloc: warning: {out} also holds {counted(len(others), 'run folder')} of another sweep "
+            f"({', '.join(others[:4])}{', ...' if len(others) > 4 else ''}): the report below names this "
+            "sweep's runs only",
+            file=sys.stderr,
+        )
+        hint = "semcityloc report " + " ".join(shlex.quote(str(d)) for d in run_dirs)
+    else:
+        hint = f"semcityloc report {out}/*"
+    print(("" if done else "run again to continue; ") + f"report: {hint}")
     return 0
