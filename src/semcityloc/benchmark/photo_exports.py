@@ -339,10 +339,10 @@ def focal_notes(inputs: list) -> list[str]:
     return list(notes)
 
 
-def shown_names(names: list[str]) -> str:
-    """The first ``SHOWN_NAMES`` of ``names`` for a one-line message, then how many more."""
-    more = len(names) - SHOWN_NAMES
-    return ", ".join(names[:SHOWN_NAMES]) + (f" (+{more} more)" if more > 0 else "")
+def shown_names(names: list[str], shown: int = SHOWN_NAMES) -> str:
+    """The first ``shown`` of ``names`` for a one-line message, then how many more."""
+    more = len(names) - shown
+    return ", ".join(names[:shown]) + (f" (+{more} more)" if more > 0 else "")
 
 
 def space_split_names(names: list[str]) -> list[str]:

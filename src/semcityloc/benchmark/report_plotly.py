@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from semcityloc.benchmark.report_runs import RunData
+from semcityloc.benchmark.results import cell_float
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import CLASS_NAMES, PALETTE
 from semcityloc.errors import OptionalDependencyError
@@ -148,10 +149,9 @@ def _self_point(row: dict[str, str], key: str) -> tuple[float, float, str, str] 
     if row["status"] != "localized":
         return None
     try:
-        p = float(row.get("probability") or "nan")
-        est = [float(row.get(f"est_{k}") or "nan") for k in "xy"]
-        prior = [float(row.get(f"prior_{k}") or "nan") for k in "xy"]
-        sigma = float(row.get("sigma_xy_m") or "nan")
+        p, sigma = cell_float(row.get("probability")), cell_float(row.get("sigma_xy_m"))
+        est = [cell_float(row.get(f"est_{k}")) for k in "xy"]
+        prior = [cell_float(row.get(f"prior_{k}")) for k in "xy"]
     except ValueError:
         return None
     shift = math.hypot(est[0] - prior[0], est[1] - prior[1])

@@ -22,6 +22,7 @@ from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.report_runs import (
     RunData,
     acceptance_data,
+    finite_max,
     noise_x,
     prior_noise_groups,
     self_assessment,
@@ -272,7 +273,7 @@ def plot_self_assessment(runs: list[RunData], path: Path) -> Path:
     axes[0].yaxis.get_major_locator().set_params(integer=True)
     panels = ((axes[1], "sigma", "stated 1-sigma (m)"), (axes[2], "shift", "shift from the prior (m)"))
     for ax, key, xlabel in panels:
-        x_max = max([_finite_max(a[f"{key}_{k}_m"]) for a in data for k in ("xy", "z")] + [1.0]) * 1.05
+        x_max = max([finite_max(a[f"{key}_{k}_m"], 0.0) for a in data for k in ("xy", "z")] + [1.0]) * 1.05
         grid = np.linspace(0.0, x_max, 401)
         for run, a, color in zip(runs, data, colors * len(runs), strict=False):
             for k, ls in (("xy", "-"), ("z", "--")):
@@ -291,9 +292,3 @@ def plot_self_assessment(runs: list[RunData], path: Path) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
-
-
-def _finite_max(values: np.ndarray) -> float:
-    """The largest finite value (0 when there is none): a plot's x range."""
-    finite = values[np.isfinite(values)]
-    return float(finite.max()) if finite.size else 0.0

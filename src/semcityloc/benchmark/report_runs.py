@@ -341,6 +341,12 @@ def self_assessment(run: RunData) -> dict[str, np.ndarray]:
     }
 
 
+def finite_max(values: np.ndarray, empty: float = float("nan")) -> float:
+    """The largest of the finite ``values`` (a ``self_assessment`` array); ``empty`` when there are none."""
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else empty
+
+
 def run_map(config: dict) -> CityModel:
     """The map model a run localized against, in its queries' frame: a simulated run's (``spec.load_map``),
     a data set's model (rotated into ENU for Swiss-EPFL's ECEF frame, as ``read_lodloc`` does) or a photo

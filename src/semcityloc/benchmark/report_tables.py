@@ -21,6 +21,7 @@ from semcityloc.benchmark.report_runs import (
     RunData,
     acceptance_data,
     differing_keys,
+    finite_max,
     has_truth,
     self_assessment,
     sweep_x,
@@ -308,12 +309,6 @@ def _median(values: np.ndarray) -> float:
     return float(np.median(finite)) if finite.size else float("nan")
 
 
-def _largest(values: np.ndarray) -> float:
-    """The largest of the finite ``values``; NaN when there are none."""
-    finite = values[np.isfinite(values)]
-    return float(finite.max()) if finite.size else float("nan")
-
-
 def _reasons(summary: dict) -> str:
     """The reasons queries were not localized, counted, most frequent first (``reason n; ...``); a reason
     naming a file is counted by its kind (the text before the first ``: ``)."""
@@ -334,7 +329,7 @@ def self_assessment_table(runs: list[RunData]) -> tuple[str, str]:
         p, accepted = a["probability"], a["accepted"]
         probs = [_median(p[accepted]), _median(p[~accepted])]
         sigmas = [_median(a[k]) for k in ("sigma_xy_m", "sigma_z_m", "sigma_yaw_deg")]
-        shifts = [(_median(a[k]), _largest(a[k])) for k in ("shift_xy_m", "shift_z_m", "shift_yaw_deg")]
+        shifts = [(_median(a[k]), finite_max(a[k])) for k in ("shift_xy_m", "shift_z_m", "shift_yaw_deg")]
         missed = s.get("not_localized", 0)
         rows.append(
             [

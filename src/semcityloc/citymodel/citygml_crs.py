@@ -105,11 +105,10 @@ class CRSChoice:
                 hint = "" if self.crs_override is not None else f"; {CRS_HINT} to read the file anyway"
                 raise CRSError(f"{self.path}: {exc}{hint}") from exc
         target = self.target_crs if source is not None else None
-        try:
-            check_degrees(source, np.concatenate([e[:, :2] for e in exteriors]))
-        except CRSError as exc:
-            said = "--crs" if self.crs_override is not None else "the file's srsName"
-            raise CRSError(f"{self.path}: {exc} ({said}: {name!r})") from exc
+        said = "--crs" if self.crs_override is not None else "the file's srsName"
+        check_degrees(
+            source, np.concatenate([e[:, :2] for e in exteriors]), str(self.path), f"{said}: {name!r}"
+        )
         frame = MetricFrame.for_source(source, self._zone_sample(exteriors), target)
         envelope = self._envelope_sample
         if target is None and envelope is not None and not _holds(envelope, exteriors):

@@ -315,11 +315,8 @@ class _CityJSONReader:
                 )
         finite = usable_points(raw)
         sample = raw[finite, :2] if finite.any() else None
-        try:
-            check_degrees(source, sample)
-        except CRSError as exc:
-            said = "--crs" if crs_override else "the file's referenceSystem"
-            raise CRSError(f"{self.path}: {exc} ({said}: {name!r})") from exc
+        said = "--crs" if crs_override else "the file's referenceSystem"
+        check_degrees(source, sample, str(self.path), f"{said}: {name!r}")
         return MetricFrame.for_source(source, sample, target)
 
     def _templates(self) -> tuple[list, np.ndarray]:

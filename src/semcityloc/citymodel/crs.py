@@ -177,12 +177,13 @@ def overridden_warning(given: str, stated: str) -> str | None:
     return f"--crs {given} overrides the CRS the file states ({stated}): the coordinates are read as {given}"
 
 
-def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None) -> None:
+def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None, where: str, named_by: str) -> None:
     """Refuse a geographic CRS for coordinates that are no degrees (beyond ±360: metres of a projected CRS,
     e.g. ``--crs EPSG:4326`` given for a file in UTM), naming one; read on, every polygon would be dropped
     as absurd and the error would blame the file. ``sample_xy``: (n, 2) of the geometry itself (not an
     Envelope, which may be stale); most of its points must be beyond, so a stray absurd one is not taken
-    for the file's unit."""
+    for the file's unit. The message starts with ``where`` (the file) and ends with ``named_by`` (who named
+    the CRS: ``--crs: 'EPSG:4326'``, the file's own)."""
     if source is None or sample_xy is None or not horizontal_crs(source).is_geographic:
         return
     sample = np.asarray(sample_xy, dtype=np.float64).reshape(-1, 2)
@@ -193,8 +194,9 @@ def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None) -> No
     if beyond.mean() > 0.5:  # most of them: one absurd point is its polygon's to drop (the builder's)
         x, y = sample[np.argmax(beyond)]
         raise CRSError(
-            f"coordinates such as ({x:.1f}, {y:.1f}) are no degrees, but {source.name!r} is geographic: "
-            "they look like metres of a projected CRS: pass that one with --crs EPSG:<code>"
+            f"{where}: coordinates such as ({x:.1f}, {y:.1f}) are no degrees, but {source.name!r} is "
+            f"geographic: they look like metres of a projected CRS: pass that one with --crs EPSG:<code> "
+            f"({named_by})"
         )
 
 

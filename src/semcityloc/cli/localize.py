@@ -13,7 +13,7 @@ import numpy as np
 from semcityloc.citymodel.model import crs_label
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args, print_model_warnings
-from semcityloc.cli.pose_input import read_pose_in_model_crs
+from semcityloc.cli.pose_input import read_lens_for_photo, read_pose_in_model_crs
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
@@ -24,7 +24,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import InputFileError
 from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
-from semcityloc.geometry.io import read_lens, write_pose_json
+from semcityloc.geometry.io import write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import (
     check_aspect,
@@ -184,10 +184,7 @@ def _camera(args) -> PhotoCamera:
         if lens.source == INTRINSICS_35MM:
             print(f"semcityloc: note: {APPROXIMATE_INTRINSICS_NOTE}", file=sys.stderr)
         return lens
-    photo = (Path(args.image).name, *image_size(args.image, "photo")) if args.image else None
-    camera, distortion = read_lens(args.intrinsics, width=args.width, height=args.height, photo=photo)
-    if photo is not None:  # resampled to a --width x --height of another aspect than the photo
-        check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", args.image)
+    camera, distortion = read_lens_for_photo(args.intrinsics, args.width, args.height, args.image)
     return PhotoCamera(camera, distortion, str(args.intrinsics))
 
 

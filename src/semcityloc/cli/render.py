@@ -17,10 +17,9 @@ import numpy as np
 
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.cli.pose_input import read_pose_in_model_crs
+from semcityloc.cli.pose_input import read_lens_for_photo, read_pose_in_model_crs
 from semcityloc.geometry.distortion import distort_image
-from semcityloc.geometry.io import read_lens
-from semcityloc.io.images import check_aspect, image_size, load_image, save_depth, save_labels_png, save_rgb
+from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
@@ -51,12 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    # With --image the intrinsics must describe that photo (``geometry.io.check_fits_photo``): edges drawn
-    # with another camera's, or on another photo's pixels, would be misaligned silently.
-    photo = (Path(args.image).name, *image_size(args.image, "photo")) if args.image else None
-    camera, lens = read_lens(args.intrinsics, width=args.width, height=args.height, photo=photo)
-    if photo is not None:  # resampled to a --width x --height of another aspect than the photo
-        check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", args.image)
+    # With --image the intrinsics must describe that photo: edges drawn with another camera's are misaligned
+    camera, lens = read_lens_for_photo(args.intrinsics, args.width, args.height, args.image)
     model = load_model_from_args(args)
     pose_world = read_pose_in_model_crs(args.pose, model)
     out = Path(args.out)

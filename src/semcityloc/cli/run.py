@@ -12,6 +12,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from semcityloc.benchmark.photo_exports import shown_names
 from semcityloc.benchmark.photo_spec import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import SKIPPED
@@ -142,11 +143,6 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
     )
 
 
-def _names(names: list[str]) -> str:
-    shown = ", ".join(names[:SHOWN_PHOTOS])
-    return shown + (f" (+{len(names) - SHOWN_PHOTOS} more)" if len(names) > SHOWN_PHOTOS else "")
-
-
 def run(args: argparse.Namespace) -> int:
     spec = spec_from_args(args)
     out = Path(args.out)
@@ -172,10 +168,10 @@ def run(args: argparse.Namespace) -> int:
         f"{len(skipped)} skipped (perception: {s['perception']})"
     )
     for reason, names in refused.items():
-        print(f"  not localized ({reason}): {_names(names)}")
+        print(f"  not localized ({reason}): {shown_names(names, SHOWN_PHOTOS)}")
     for reason, count in Counter(skipped.values()).most_common():
         names = [n for n, r in skipped.items() if r == reason]
-        print(f"  skipped ({count}): {reason}: {_names(names)}")
+        print(f"  skipped ({count}): {reason}: {shown_names(names, SHOWN_PHOTOS)}")
     if s.get("with_ground_truth"):
         print(summary_markdown([s], [f"{spec.method} [{s['perception']}] vs --truth"]))
     outputs = s["outputs"]

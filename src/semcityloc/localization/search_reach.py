@@ -3,15 +3,15 @@ best hypothesis left at that reach asks of the user.
 
 The cascade's volume (``cascade.search_volume``) grows where its best cell lies on an edge, by
 ``SweepConfig.extension`` of its half-width at most ``max_extensions`` times: ``reached_half`` is the volume
-at its largest. ``search_half_xy`` is either search's horizontal reach (the ``legacy`` grid's is its range);
-the localizer looks for buildings that far around the prior's view before it searches
-(``MapLayout.buildings_in_reach``: a query with none in reach is refused, ``REASON_NO_GEOMETRY``), and a
-tile store loads the tiles that far around a photo's (``tiled.reach_radius``). The volume stays above the
-lowest ground under that reach (``MapLayout.ground_below``: a camera under the terrain sees a ground-only
-view that can outscore a low flight's true one). A best hypothesis still on an edge at the largest extent is
-refused, not taken (``REASON_AT_EDGE``): its warning (``edge_warning``) names the ``--prior-sigma`` whose
-volume starts at twice the bound reached (``edge_sigma``), and a refused pose with a better view beyond the
-reach names one the same way (``Localizer._look_beyond``).
+at its largest. ``search_half`` is either search's reach along an axis (the ``legacy`` grid's is its range;
+``search_half_xy`` the horizontal one); the localizer looks for buildings that far around the prior's view
+before it searches (``MapLayout.buildings_in_reach``: a query with none in reach is refused,
+``REASON_NO_GEOMETRY``), and a tile store loads the tiles that far around a photo's (``tiled.reach_radius``).
+The volume stays above the lowest ground under that reach (``MapLayout.ground_below``: a camera under the
+terrain sees a ground-only view that can outscore a low flight's true one). A best hypothesis still on an edge
+at the largest extent is refused, not taken (``REASON_AT_EDGE``): its warning (``edge_warning``) names the
+``--prior-sigma`` whose volume starts at twice the bound reached (``edge_sigma``), and a refused pose with a
+better view beyond the reach names one the same way (``Localizer._look_beyond``).
 """
 
 from __future__ import annotations
@@ -50,13 +50,27 @@ def reached_half(volume: SearchVolume, config: CascadeConfig) -> dict[str, float
     return {"xy": grown * volume.half_xy_m, "z": grown * volume.half_z_m, "yaw": grown * volume.half_yaw_deg}
 
 
-def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
-    """How far (m, in x and in y) the search may move the camera from the prior: the grid's range, or the
-    cascade's volume grown by its largest extension."""
+def search_half(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty, axis: str) -> float:
+    """How far (m) the search may move the camera from the prior along ``axis`` (``"xy"``: in x and in y;
+    ``"z"``): the grid's range, or the cascade's volume grown by its largest extension."""
     if cfg.search == "grid":
-        pre = cfg.pre_coarse.range_xy_m if cfg.pre_coarse is not None else 0.0
-        return (cfg.coarse.range_xy_m + pre) / 2
-    return reached_half(search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade), cfg.cascade)["xy"]
+        ranges = {"xy": lambda c: c.range_xy_m, "z": lambda c: c.range_z_m}[axis]
+        pre = ranges(cfg.pre_coarse) if cfg.pre_coarse is not None else 0.0
+        return (ranges(cfg.coarse) + pre) / 2
+    return reached_half(search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade), cfg.cascade)[axis]
+
+
+def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
+    """``search_half`` in x and in y."""
+    return search_half(prior_local, cfg, unc, "xy")
+
+
+def _view_rays(camera: Camera, pose: Pose, centre: bool) -> np.ndarray:
+    """(3, 4 or 5) world directions of the view's corner rays (and its principal ray, ``centre``)."""
+    uv = [[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]]
+    if centre:
+        uv.append([camera.cx, camera.cy])
+    return pose.R_world_from_cam @ camera.unproject(np.array(uv, dtype=np.float64)).T
 
 
 def edge_sigma(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> dict[str, int]:
@@ -90,7 +104,7 @@ class MapLayout:
     building_xy: np.ndarray  # (N, 2)
     ground_z: float
     base: np.ndarray  # (M, 3)
-    top_z: float = math.inf  # the highest roof (-inf: no building)
+    top_z: float  # the highest roof (-inf: no building)
 
     @classmethod
     def of(cls, model: CityModel) -> MapLayout:
@@ -110,7 +124,7 @@ class MapLayout:
         ended on its volume's edge with a ``--prior-sigma`` to try."""
         if not len(self.building_xy):
             return None
-        reach_z = self._reach_z(prior_local, cfg, unc)
+        reach_z = search_half(prior_local, cfg, unc, "z")
         z = float(prior_local.center[2])
         floor = float(self.base[:, 2].min()) if len(self.base) else self.ground_z
         # Twice the reach: a prior somewhat under the ground is searched from the volume's floor upwards
@@ -119,8 +133,7 @@ class MapLayout:
             return REASON_PRIOR_UNDERGROUND
         if z - reach_z > self.top_z + MAX_VIEW_RANGE_M:
             return REASON_PRIOR_TOO_HIGH
-        corners_uv = np.array([[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]])
-        rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv.astype(np.float64)).T
+        rays = _view_rays(camera, prior_local, centre=False)
         tilt = math.radians(unc.roll_pitch_deg * cfg.cascade.n_sigma) if cfg.search == "cascade" else 0.0
         below = rays[2] / np.linalg.norm(rays, axis=0) < math.sin(tilt)  # or the search's tilt takes it there
         if z - reach_z > self.top_z and not below.any():
@@ -141,14 +154,6 @@ class MapLayout:
             f"{hi[0] - lo[0]:.0f} x {hi[1] - lo[1]:.0f} m); kilometres point at a wrong CRS or --offset"
         )
 
-    @staticmethod
-    def _reach_z(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> float:
-        """How far (m) the search may move the camera up or down from the prior."""
-        if cfg.search == "grid":
-            pre = cfg.pre_coarse.range_z_m if cfg.pre_coarse is not None else 0.0
-            return (cfg.coarse.range_z_m + pre) / 2
-        return reached_half(search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade), cfg.cascade)["z"]
-
     def buildings_in_reach(
         self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
     ) -> bool:
@@ -157,17 +162,7 @@ class MapLayout:
         few metres of it; the camera the search may find higher up sees more)."""
         if not len(self.building_xy):
             return False
-        corners_uv = np.array(
-            [
-                [0, 0],
-                [camera.width, 0],
-                [camera.width, camera.height],
-                [0, camera.height],
-                [camera.cx, camera.cy],
-            ],
-            dtype=np.float64,
-        )
-        rays = prior_local.R_world_from_cam @ camera.unproject(corners_uv).T  # (3, 5)
+        rays = _view_rays(camera, prior_local, centre=True)  # (3, 5)
         centre = prior_local.center.copy()
         if cfg.search == "cascade":
             volume = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade)
