@@ -27,7 +27,7 @@ from semcityloc.citymodel.tiles import (
     model_nbytes,
 )
 from semcityloc.cli.main import main
-from semcityloc.errors import CRSError
+from semcityloc.errors import CRSError, OutputPathError
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
@@ -280,16 +280,22 @@ def test_merged_tiles_keep_their_readers_warnings_naming_the_file(tmp_path):
     assert len(merged.stats.warnings) == len(a.stats.warnings) + len(b.stats.warnings)
 
 
+def _city_and_a_box(tmp_path: Path, seed: int, east_m: float) -> Path:
+    """A folder of two tiles: a generated city (``a.gml``) and one CityJSON box ``east_m`` east of it."""
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    gml = generate_city(tmp_path / "gen", seed=seed, lods=(2,))[2]
+    (tiles / "a.gml").write_bytes(gml.read_bytes())
+    far = load_city_model(gml, cache=False).origin + [east_m, 0.0, 0.0]
+    _cityjson_box(tiles / "b.json", 25832, far[0], far[1])
+    return tiles
+
+
 @pytest.mark.slow
 def test_benchmark_on_a_store_loads_per_query(tmp_path, capsys, monkeypatch):
     """``semcityloc benchmark --city STORE``: the simulator sees the whole city, the localizer its part;
     the run opens the store once (the simulator's merged city is made from the localizer's store)."""
-    tiles = tmp_path / "tiles"
-    tiles.mkdir()
-    gml = generate_city(tmp_path / "gen", seed=0, lods=(2,))[2]
-    (tiles / "a.gml").write_bytes(gml.read_bytes())
-    far = load_city_model(gml, cache=False).origin + [600.0, 0.0, 0.0]
-    _cityjson_box(tiles / "b.json", 25832, far[0], far[1])
+    tiles = _city_and_a_box(tmp_path, seed=0, east_m=600.0)
     store = tmp_path / "store"
     assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 0
     out = tmp_path / "run"
@@ -333,3 +339,26 @@ def test_the_same_buildings_in_two_tiles_are_said(tmp_path, capsys):
     (tiles / "copy of a.gml").unlink()
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store2")]) == 0
     assert "more than one tile" not in capsys.readouterr().err
+
+
+def test_a_store_is_not_replaced_without_overwrite_and_a_rebuild_leaves_no_old_tiles(tmp_path, capsys):
+    """``tiles build`` into a store's folder replaced it silently (an hour's build lost to a typo), and a
+    rebuild from fewer tiles left the old build's npz files beside the new index."""
+    tiles = _city_and_a_box(tmp_path, seed=2, east_m=20000.0)
+    store = tmp_path / "store"
+    assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 0
+    capsys.readouterr()
+    before = (store / "store.json").read_bytes()
+    (tiles / "b.json").unlink()
+    assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 2
+    err = capsys.readouterr().err
+    assert "holds a tile store already" in err and "--overwrite" in err and err.count("\n") == 1
+    assert (store / "store.json").read_bytes() == before
+    with pytest.raises(OutputPathError, match="overwrite=True"):
+        build_store(tiles, store)
+    assert main(["tiles", "build", str(tiles), "--out", str(store), "--overwrite"]) == 0
+    assert [t.name for t in TileStore.open(store).tiles] == ["a.gml"]
+    assert sorted(p.name for p in (store / "tiles").iterdir()) == ["00000.npz"]
+    (store / "store.json").unlink()  # a build stopped before its index: still refused, said so
+    assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 2
+    assert "part of a tile store (a build stopped?)" in capsys.readouterr().err

@@ -41,7 +41,7 @@ from semcityloc.citymodel.ground import base_points, store_ring
 from semcityloc.citymodel.io import MODEL_SUFFIXES, file_sha256, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
 from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
-from semcityloc.errors import CRSError, EmptyModelError, InputFileError
+from semcityloc.errors import CRSError, EmptyModelError, InputFileError, OutputPathError
 
 STORE_FORMAT = 1
 INDEX_FILE = "store.json"
@@ -125,6 +125,7 @@ def build_store(
     lod: int | None = None,
     crs: str | None = None,
     progress: Callable[[str], None] | None = None,
+    overwrite: bool = False,
 ) -> BuildReport:
     """Index the tiles of ``folder`` into a store at ``out`` (module docstring); returns what it did.
 
@@ -133,12 +134,15 @@ def build_store(
     holds no building (a geoportal's water or forest tile) is left out, named with the reason in the
     report's ``skipped`` and ``store.json``'s ``skipped_tiles``, and the others are built: one bad file of
     hundreds must not cost the city. Raises ``InputFileError`` (no tiles, or none readable: the first
-    reasons), ``CRSError`` (tiles in different CRSs).
+    reasons), ``CRSError`` (tiles in different CRSs), ``OutputPathError`` (``out`` holds a store already
+    and ``overwrite`` is false: an hour's build is not replaced by a typo; with it, the old store's index
+    goes first, so a build stopped half-way never leaves an index naming tiles of two builds).
     """
     t0 = time.perf_counter()
     folder, root = Path(folder), Path(out)
     if not folder.is_dir():
         raise InputFileError(f"{folder}: no such folder of tiles")
+    _clear_old_store(root, overwrite)
     inside = root.resolve()
     files = [f for f in tile_files(folder) if inside not in f.resolve().parents]  # not an old store's files
     if not files:
@@ -214,6 +218,24 @@ def build_store(
     return BuildReport(
         store, len(infos), int(sum(counts)), total, time.perf_counter() - t0, skipped, warnings
     )
+
+
+def _clear_old_store(root: Path, overwrite: bool) -> None:
+    """Refuse (``OutputPathError``) or, with ``overwrite``, remove the store already at ``root``: its
+    index first, then its tile and building files (only the names a build writes)."""
+    old = [root / INDEX_FILE, root / BUILDINGS_FILE, root / TILES_DIR]
+    if not any(p.exists() for p in old):
+        return
+    if not overwrite:
+        what = "a tile store" if (root / INDEX_FILE).is_file() else "part of a tile store (a build stopped?)"
+        raise OutputPathError(
+            f"{root}: holds {what} already; build it again with --overwrite (overwrite=True) or into "
+            "another folder"
+        )
+    (root / INDEX_FILE).unlink(missing_ok=True)
+    (root / BUILDINGS_FILE).unlink(missing_ok=True)
+    for npz in (root / TILES_DIR).glob("*.npz"):
+        npz.unlink()
 
 
 def _repeated_buildings(files: list[Path], ids: list[set[str]], folder: Path) -> list[str]:

@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--lod", type=int, default=None, help="LoD to read (default: the highest per building)"
     )
     build.add_argument("--crs", default=None, help="override the tiles' CRS, e.g. EPSG:25832")
+    build.add_argument(
+        "--overwrite", action="store_true", help="replace the store already in --out (default: refuse)"
+    )
     build.set_defaults(func=run_build)
     info = tiles_sub.add_parser("info", help="tiles, buildings, CRS, origin and extent of a store")
     info.add_argument("store", help="a store made by 'semcityloc tiles build'")
@@ -34,7 +37,9 @@ def run_build(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"\r{message[:100]:<100}", end="", file=sys.stderr, flush=True)
 
-    report = build_store(args.folder, args.out, lod=args.lod, crs=args.crs, progress=progress)
+    report = build_store(
+        args.folder, args.out, lod=args.lod, crs=args.crs, progress=progress, overwrite=args.overwrite
+    )
     print(file=sys.stderr)
     for why in list(report.skipped.values())[:SHOWN_SKIPPED]:
         print(f"semcityloc: warning: tile left out: {why}", file=sys.stderr)
