@@ -9,6 +9,7 @@ import pytest
 from scipy import ndimage
 
 from semcityloc.classes import IGNORE, SemanticClass
+from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, ColmapModel, write_model
 from semcityloc.errors import InputFileError, ParameterError, PoseError, RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
@@ -264,6 +265,38 @@ def test_label_cli_with_colmap_images_and_cameras(city, tmp_path):
         pinhole = auto_label(model, cam, pose, renderer=renderer, boundary_px=0)
         assert np.array_equal(written, distort_image(pinhole, cam, lens, fill=IGNORE, nearest=True))
         assert (written != pinhole).mean() > 0.02 and written[0, 0] == IGNORE  # barrel: corners unseen
+
+
+def test_label_cli_reads_a_binary_colmap_model_as_its_text(city, tmp_path):
+    """``--poses sparse/0/images.bin`` (what COLMAP and hloc write by default) was read as text: "cannot
+    read". Now a binary model, its ``images.bin`` or its folder, labels exactly as the same model in text,
+    the camera of each photo taken from ``cameras.bin`` by the image's camera id."""
+    model, renderer = city
+    photos = tmp_path / "photos"
+    sfm = ColmapModel(cameras={7: ColmapCamera(7, "PINHOLE", 320, 240, [300.0, 300.0, 160.0, 120.0])})
+    sfm.cameras[8] = ColmapCamera(8, "PINHOLE", 160, 120, [120.0, 120.0, 80.0, 60.0])
+    for i in range(2):
+        name, pose = f"view_{i}.png", _world_pose(model, _centre(model, 90.0 + 20 * i), yaw=30.0 * i)
+        save_rgb(np.full((120, 160, 3), 100, np.uint8), photos / name)
+        sfm.images[i + 1] = ColmapImage.from_pose(i + 1, name, 7 + i, pose)
+    write_model(sfm, tmp_path / "bin", ext=".bin")
+    write_model(sfm, tmp_path / "txt", ext=".txt")
+    gml = tmp_path / "city.npz"
+    model.save_npz(gml)
+    outputs = {}
+    for form, poses in (("txt", "txt/images.txt"), ("bin", "bin/images.bin"), ("folder", "bin")):
+        args = _label_parser().parse_args(
+            ["label", "--city", str(gml), "--images", str(photos), "--poses", str(tmp_path / poses),
+             "--out", str(tmp_path / form), "--boundary-px", "0"]
+        )  # fmt: skip
+        assert args.func(args) == 0
+        outputs[form] = [load_labels_png(tmp_path / form / f"view_{i}.png") for i in range(2)]
+    wide = Camera(150.0, 150.0, 80.0, 60.0, 160, 120)  # camera 7 at the photo's size
+    expected = auto_label(model, wide, sfm.images[1].pose, renderer=renderer, boundary_px=0)
+    assert np.array_equal(outputs["bin"][0], expected)
+    assert (outputs["bin"][0] != outputs["bin"][1]).any()
+    for form in ("bin", "folder"):
+        assert all(np.array_equal(a, b) for a, b in zip(outputs[form], outputs["txt"], strict=True))
 
 
 def test_label_cli_errors(tmp_path, city):

@@ -6,8 +6,8 @@ reliable) and written as ``--out/<stem>.png`` (palette PNG, ``semcityloc.classes
 ``--overlay`` also ``--out/overlays/<stem>.png`` for a person to check the alignment.
 
 Poses (``--poses``), in the model's CRS / frame:
-- a COLMAP ``images.txt`` (or any file ``geometry.io.read_poses`` reads), matched to photos by name, file
-  name or stem;
+- a COLMAP ``images.txt`` / ``images.bin`` or the model folder holding one (or any file
+  ``geometry.io.read_poses`` reads), matched to photos by name, file name or stem;
 - a folder of LoD-Loc ``<stem>_pose.txt`` (4x4 camera-to-world) files, e.g. ``GT_pose/``.
 
 Intrinsics (``--intrinsics``): one file for every photo (a LoD-Loc ``*_intrinsic.txt``, a COLMAP line,
@@ -44,12 +44,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("label", help="automatic label PNGs: project the city model into posed photos")
     add_model_arguments(p, positional=False)
     p.add_argument("--images", required=True, help="folder of photos")
-    p.add_argument("--poses", required=True, help="COLMAP images.txt, or a folder of LoD-Loc <stem>_pose.txt")
+    p.add_argument(
+        "--poses",
+        required=True,
+        help="COLMAP images.txt / images.bin / model folder, or a folder of LoD-Loc <stem>_pose.txt",
+    )
     p.add_argument(
         "--intrinsics",
         default=None,
-        help="file, COLMAP cameras.txt, or folder of <stem>_intrinsic.txt (with lens distortion, the labels "
-        "are resampled onto the photo's distorted pixels)",
+        help="file, COLMAP cameras.txt / cameras.bin, or folder of <stem>_intrinsic.txt (with lens "
+        "distortion, the labels are resampled onto the photo's distorted pixels)",
     )
     p.add_argument("--out", required=True, help="output folder for <stem>.png label maps")
     p.add_argument(

@@ -5,12 +5,13 @@ Why: ``semcityloc label`` and ``semcityloc run`` take photos as users have them:
 per-photo information in whatever form they come with. This module matches each photo to it by name
 (exact file name, then stem):
 
-- poses (``PoseFiles``): a COLMAP ``images.txt`` (or any file ``geometry.io.read_poses`` reads) or a
-  folder of LoD-Loc ``<stem>_pose.txt`` (4x4 camera-to-world), in the model's CRS / frame;
+- poses (``PoseFiles``): a COLMAP ``images.txt`` / ``images.bin`` or the model folder holding one (or
+  any file ``geometry.io.read_poses`` reads) or a folder of LoD-Loc ``<stem>_pose.txt`` (4x4
+  camera-to-world), in the model's CRS / frame;
 - intrinsics (``IntrinsicsFiles``): ``exif`` (``dji_camera.dewarp_lens``: DJI's calibration with lens
   distortion, else ``dji_camera.camera_from_exif``: DJI's calibration tags, else the 35 mm-equivalent
   focal length of the photo's EXIF), one file for every photo (LoD-Loc ``*_intrinsic.txt``, COLMAP line,
-  JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (camera ids from the ``images.txt`` of the poses)
+  JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` / ``cameras.bin`` (camera ids from the poses')
   or a folder of ``<stem>_intrinsic.txt``. The photo's own size always wins (intrinsics of that image
   at another size are rescaled); intrinsics of another image (another aspect, a principal point more than
   ``PRINCIPAL_POINT_TOLERANCE`` off the photo's centre) raise ``IntrinsicsMismatchError``. A calibration
@@ -34,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
+from semcityloc.datasets.colmap import ColmapCamera, read_cameras_binary, read_images_binary
 from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, dji_prior, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
@@ -41,7 +43,7 @@ from semcityloc.datasets.geotags import read_geotags_csv
 from semcityloc.errors import CameraError, CRSError, InputFileError, IntrinsicsMismatchError, SemCityLocError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
-from semcityloc.geometry.io import read_colmap_camera_ids, read_lens, read_pose, read_poses
+from semcityloc.geometry.io import check_fits_photo, read_colmap_camera_ids, read_lens, read_pose, read_poses
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
@@ -106,16 +108,38 @@ def per_stem_file(folder: Path, stem: str, suffix: str) -> Path | None:
     return None
 
 
+def colmap_file(path: Path, kind: str) -> Path | None:
+    """The COLMAP ``<kind>.bin`` / ``<kind>.txt`` that ``path`` names: the file itself (``images.bin``, or
+    any ``*.bin``: COLMAP text is read by ``geometry.io``), or the one in a model folder (``sparse/0``,
+    binary first as COLMAP reads it); None for anything else (a LoD-Loc folder, a pose file)."""
+    if path.is_dir():
+        for ext in (".bin", ".txt"):
+            if (path / f"{kind}{ext}").is_file():
+                return path / f"{kind}{ext}"
+        return None
+    return path if path.suffix.lower() == ".bin" else None
+
+
 class PoseFiles:
-    """Poses by image from a COLMAP images.txt (or any read_poses file) or a LoD-Loc pose folder."""
+    """Poses by image from a COLMAP model (``images.txt`` / ``images.bin`` or their folder), any file
+    ``read_poses`` reads, or a LoD-Loc pose folder."""
 
     def __init__(self, spec: str | os.PathLike):
         self.path = Path(spec)
         if not self.path.exists():
             raise InputFileError(f"{self.path}: no such pose file or folder")
-        self.folder = self.path if self.path.is_dir() else None
-        self.entries = {} if self.folder else read_poses(self.path)
-        self.camera_ids = {} if self.folder else read_colmap_camera_ids(self.path)
+        colmap = colmap_file(self.path, "images")
+        self.source = colmap or self.path  # the file the poses are read from (or the LoD-Loc folder)
+        self.folder = self.path if colmap is None and self.path.is_dir() else None
+        self.entries: dict[str, Pose] = {}
+        self.camera_ids: dict[str, str] = {}
+        if colmap is not None and colmap.suffix.lower() == ".bin":
+            images = read_images_binary(colmap).values()
+            self.entries = {image.name: image.pose for image in images}
+            self.camera_ids = {image.name: str(image.camera_id) for image in images}
+        elif self.folder is None:
+            self.entries = read_poses(self.source)
+            self.camera_ids = read_colmap_camera_ids(self.source)
 
     def pose(self, image: Path) -> Pose | None:
         if self.folder is not None:
@@ -160,7 +184,12 @@ class IntrinsicsFiles:
         self.path = Path(spec)
         if not self.exif and not self.path.exists():
             raise InputFileError(f"{self.path}: no such intrinsics file or folder")
+        colmap = None if self.exif else colmap_file(self.path, "cameras")
+        self.path = colmap or self.path
         self.folder = self.path if not self.exif and self.path.is_dir() else None
+        self.binary: dict[str, ColmapCamera] | None = None  # a COLMAP cameras.bin's cameras by id
+        if colmap is not None and colmap.suffix.lower() == ".bin":
+            self.binary = {str(k): c for k, c in read_cameras_binary(colmap).items()}
 
     @staticmethod
     def _default(poses: PoseFiles | None) -> str:
@@ -169,12 +198,14 @@ class IntrinsicsFiles:
             if sibling.is_dir():
                 return str(sibling)
         elif poses is not None:
-            sibling = poses.path.parent / "cameras.txt"
+            sibling = poses.source.parent / f"cameras{poses.source.suffix.lower()}"
             if sibling.is_file():
                 return str(sibling)
+            if (poses.source.parent / "cameras.txt").is_file():
+                return str(poses.source.parent / "cameras.txt")
         raise InputFileError(
-            "no --intrinsics given and none found beside the poses (expected cameras.txt beside images.txt "
-            "or an intrinsic/ folder beside the pose folder)"
+            "no --intrinsics given and none found beside the poses (expected cameras.txt or cameras.bin "
+            "beside images.txt / images.bin, or an intrinsic/ folder beside the pose folder)"
         )
 
     def photo_camera(
@@ -204,6 +235,8 @@ class IntrinsicsFiles:
         """The camera of ``image`` from the calibration file or folder, checked to fit the photo
         (``geometry.io.check_fits_photo``: ``IntrinsicsMismatchError`` naming file, photo and sizes)."""
         photo = (image.name, width, height)
+        if self.binary is not None:
+            return self._from_binary(self.binary, image, photo)
         if self.folder is not None:
             f = per_stem_file(self.folder, image.stem, "intrinsic")
             if f is None:
@@ -225,6 +258,26 @@ class IntrinsicsFiles:
             raise
         except CameraError as exc:
             raise PhotoMissing(f"{self.path}: no intrinsics for {image.name} ({exc})") from None
+
+    def _from_binary(
+        self, cameras: dict[str, ColmapCamera], image: Path, photo: tuple[str, int, int]
+    ) -> tuple[Camera, LensDistortion]:
+        """The camera of ``image`` among a COLMAP ``cameras.bin``'s ``cameras`` (its id from the poses'
+        ``images``; the only camera when the poses name none), checked to fit the photo, at its size."""
+        camera_id = None
+        if self.poses is not None and self.poses.camera_ids:
+            camera_id = match_name(self.poses.camera_ids, image)
+        if camera_id is None and len(cameras) == 1:
+            camera_id = next(iter(cameras))
+        if camera_id not in cameras:
+            raise PhotoMissing(f"{self.path}: no camera for {image.name} (camera ids {sorted(cameras)})")
+        try:
+            camera, lens = cameras[camera_id].to_lens_camera()
+        except CameraError as exc:
+            raise PhotoMissing(f"{self.path}: {exc}") from None
+        check_fits_photo(camera, str(self.path), photo)
+        _, width, height = photo
+        return (camera if camera.size == (width, height) else camera.scaled(width, height)), lens
 
 
 @dataclass
