@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 import numpy as np
 import pytest
 from scipy import ndimage
 
+from semcityloc.citymodel import read_pose_world
 from semcityloc.classes import IGNORE, SemanticClass
 from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, ColmapModel, write_model
-from semcityloc.errors import InputFileError, ParameterError, PoseError, RenderError
+from semcityloc.errors import CRSError, InputFileError, ParameterError, PoseError, RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.distortion import LensDistortion, distort_image
+from semcityloc.geometry.io import write_pose_json
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_rgb
 from semcityloc.perception.autolabel import auto_label, auto_label_render, label_overlay
@@ -297,6 +300,43 @@ def test_label_cli_reads_a_binary_colmap_model_as_its_text(city, tmp_path):
     assert (outputs["bin"][0] != outputs["bin"][1]).any()
     for form in ("bin", "folder"):
         assert all(np.array_equal(a, b) for a, b in zip(outputs[form], outputs["txt"], strict=True))
+
+
+def test_a_json_pose_of_another_crs_is_refused_by_label_and_by_read_pose_world(city, tmp_path, capsys):
+    """``label --poses`` read a JSON pose's numbers whatever CRS it declared (``localize`` and ``render``
+    checked it since stop 45): labels drawn from a WGS 84 pose taken as UTM metres. Now the single file is
+    refused naming both CRSs, a folder's file leaves that photo out naming it (as does a malformed one:
+    it stopped the batch), and ``citymodel.read_pose_world`` is the same check in Python."""
+    model, _ = city
+    photos, folder = tmp_path / "photos", tmp_path / "poses"
+    folder.mkdir()
+    cam = Camera(150.0, 150.0, 80.0, 60.0, 160, 120)
+    (tmp_path / "cam.json").write_text(json.dumps(cam.as_dict()))
+    pose = _world_pose(model, _centre(model, 100.0))
+    for stem, crs in (("utm", "EPSG:25832"), ("wgs84", "EPSG:4326")):
+        save_rgb(np.full((120, 160, 3), 100, np.uint8), photos / f"{stem}.png")
+        write_pose_json(pose, folder / f"{stem}_pose.txt")
+        data = json.loads((folder / f"{stem}_pose.txt").read_text())
+        (folder / f"{stem}_pose.txt").write_text(json.dumps({**data, "crs": crs}))
+    save_rgb(np.full((120, 160, 3), 100, np.uint8), photos / "broken.png")
+    (folder / "broken_pose.txt").write_text("1 2 3\n")  # one malformed file stopped the whole batch
+    model.save_npz(tmp_path / "c.npz")
+    common = ["label", "--city", str(tmp_path / "c.npz"), "--images", str(photos), "--intrinsics"]
+    common += [str(tmp_path / "cam.json"), "--boundary-px", "0"]
+    args = _label_parser().parse_args([*common, "--poses", str(folder), "--out", str(tmp_path / "out")])
+    assert args.func(args) == 0
+    err = capsys.readouterr().err
+    assert (tmp_path / "out" / "utm.png").is_file() and not (tmp_path / "out" / "wgs84.png").exists()
+    assert "wgs84_pose.txt: the pose is in EPSG:4326 but the model in EPSG:25832" in err
+    assert "broken_pose.txt" in err and not (tmp_path / "out" / "broken.png").exists()
+    single = folder / "wgs84_pose.txt"
+    args = _label_parser().parse_args([*common, "--poses", str(single), "--out", str(tmp_path / "o2")])
+    with pytest.raises(CRSError, match="the pose is in EPSG:4326 but the model in EPSG:25832"):
+        args.func(args)
+    with pytest.raises(CRSError, match="the prior is in EPSG:4326"):
+        read_pose_world(single, model.crs, "prior")
+    np.testing.assert_allclose(read_pose_world(folder / "utm_pose.txt", model.crs).center, pose.center)
+    assert read_pose_world(single, None).center.shape == (3,)  # a model without a CRS cannot check
 
 
 def test_label_cli_errors(tmp_path, city):

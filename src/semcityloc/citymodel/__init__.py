@@ -2,5 +2,6 @@
 
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, ParseStats
+from semcityloc.citymodel.pose_crs import read_pose_world
 
-__all__ = ["CityModel", "ParseStats", "load_city_model"]
+__all__ = ["CityModel", "ParseStats", "load_city_model", "read_pose_world"]

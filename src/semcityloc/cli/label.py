@@ -85,19 +85,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 # ---------------------------------------------------------------------------------------------- run
 def run(args: argparse.Namespace) -> int:
     images = list_images(Path(args.images))
-    poses = PoseFiles(args.poses)
-    intrinsics = IntrinsicsFiles(args.intrinsics, poses)
     model = load_model_from_args(args)
+    poses = PoseFiles(args.poses, model.crs)
+    intrinsics = IntrinsicsFiles(args.intrinsics, poses)
     renderer = Renderer(model, engine=args.engine)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     written, skipped, failed, no_overlay = 0, [], {}, {}
     for image in images:
-        pose = poses.pose(image)
-        if pose is None:
-            skipped.append(image.name)
-            continue
-        try:  # this photo's own files (its size, its intrinsics): its failure, not the run's end
+        try:  # this photo's own files (its pose, size, intrinsics): its failure, not the run's end
+            pose = poses.pose(image)
+            if pose is None:
+                skipped.append(image.name)
+                continue
             width, height = image_size(image)
             lens = intrinsics.photo_camera(image, width, height)
         except SemCityLocError as exc:

@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.citymodel.model import crs_label
+from semcityloc.citymodel.pose_crs import read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args, print_model_warnings
-from semcityloc.cli.pose_input import read_lens_for_photo, read_pose_in_model_crs
+from semcityloc.cli.pose_input import read_lens_for_photo
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
@@ -246,7 +247,7 @@ def run(args: argparse.Namespace) -> int:
         "takes an --offset that places it)",
     )
     print_model_warnings(model)
-    prior_world = read_pose_in_model_crs(args.prior, model, "prior")
+    prior_world = read_pose_world(args.prior, model.crs, "prior")
     labels, depth = _query_inputs(args, lens)
     localizer = Localizer(model, config)
     result = localizer.localize(

@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from semcityloc.citymodel.pose_crs import read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.cli.pose_input import read_lens_for_photo, read_pose_in_model_crs
+from semcityloc.cli.pose_input import read_lens_for_photo
 from semcityloc.geometry.distortion import distort_image
 from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     # With --image the intrinsics must describe that photo: edges drawn with another camera's are misaligned
     camera, lens = read_lens_for_photo(args.intrinsics, args.width, args.height, args.image)
     model = load_model_from_args(args)
-    pose_world = read_pose_in_model_crs(args.pose, model)
+    pose_world = read_pose_world(args.pose, model.crs)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(model, engine=args.engine)

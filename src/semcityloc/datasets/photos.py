@@ -35,6 +35,8 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
+from semcityloc.citymodel.crs import parse_crs_name
+from semcityloc.citymodel.pose_crs import check_pose_crs, read_pose_world
 from semcityloc.datasets.colmap import ColmapCamera, read_cameras_binary, read_images_binary
 from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, dji_prior, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
@@ -43,7 +45,7 @@ from semcityloc.datasets.geotags import read_geotags_csv
 from semcityloc.errors import CameraError, CRSError, InputFileError, IntrinsicsMismatchError, SemCityLocError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
-from semcityloc.geometry.io import check_fits_photo, read_colmap_camera_ids, read_lens, read_pose, read_poses
+from semcityloc.geometry.io import check_fits_photo, read_colmap_camera_ids, read_lens, read_poses
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
@@ -124,8 +126,11 @@ class PoseFiles:
     """Poses by image from a COLMAP model (``images.txt`` / ``images.bin`` or their folder), any file
     ``read_poses`` reads, or a LoD-Loc pose folder."""
 
-    def __init__(self, spec: str | os.PathLike):
+    def __init__(self, spec: str | os.PathLike, crs: pyproj.CRS | None = None):
+        """``crs``: the model's; a JSON pose file that declares another is refused (``CRSError``,
+        ``citymodel.pose_crs.check_pose_crs``), the whole batch for one file, the photo for a folder's."""
         self.path = Path(spec)
+        self.crs = crs
         if not self.path.exists():
             raise InputFileError(f"{self.path}: no such pose file or folder")
         colmap = colmap_file(self.path, "images")
@@ -138,13 +143,19 @@ class PoseFiles:
             self.entries = {image.name: image.pose for image in images}
             self.camera_ids = {image.name: str(image.camera_id) for image in images}
         elif self.folder is None:
+            check_pose_crs(self.source, crs)
             self.entries = read_poses(self.source)
             self.camera_ids = read_colmap_camera_ids(self.source)
 
     def pose(self, image: Path) -> Pose | None:
         if self.folder is not None:
             f = per_stem_file(self.folder, image.stem, "pose")
-            return read_pose(f) if f is not None else None
+            if f is None:
+                return None
+            try:
+                return read_pose_world(f, self.crs)
+            except CRSError as exc:
+                raise PhotoMissing(f"{f}: {exc}") from None
         if list(self.entries) == [""]:
             return self.entries[""]
         return match_name(self.entries, image)
@@ -317,7 +328,7 @@ class PriorFiles:
         if self.spec != EXIF and path.suffix.lower() == ".csv":
             self.geotags = read_geotags_csv(path)
         elif self.spec != EXIF:
-            self.files = PoseFiles(path)
+            self.files = PoseFiles(path, parse_crs_name(crs) if isinstance(crs, str) else crs)
         if self.files is None and crs is None:
             what = "the photos' DJI GPS priors" if self.spec == EXIF else f"WGS 84 priors ({path.name})"
             raise CRSError(
