@@ -46,6 +46,9 @@ def test_from_fov_round_trip():
     for bad in (0.0, 180.0, -5.0):
         with pytest.raises(CameraError):
             Camera.from_fov(640, 480, bad)
+    with pytest.raises(CameraError, match=r"looks like radians.*math.degrees\(1.2\) = 68.8"):
+        Camera.from_fov(640, 480, 1.2)  # math.radians(68.8): built a 1.2 degree camera silently
+    assert math.isclose(Camera.from_fov(640, 480, 3.2).hfov_deg, 3.2)
 
 
 @pytest.mark.parametrize(

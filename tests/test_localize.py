@@ -248,7 +248,7 @@ def test_intrinsics_no_photo_has_are_refused_before_the_search(city, localizer, 
 def test_wide_view_of_extreme_rotations_is_refused_not_allocated():
     """A 1 deg zoom searched over +-180 deg of yaw would need a wide view of 10^8 pixels: a typed error
     naming the fix, where it exhausted the memory; a 70 deg camera over +-9 deg stays a few thousand."""
-    zoom = Camera.from_fov(32, 24, 1.0)
+    zoom = Camera(1833.0, 1833.0, 16.0, 12.0, 32, 24)  # 1 deg across (from_fov refuses it as radians)
     tilt = Pose.from_xyz_rpy(np.zeros(3), 0.0, 45.0, 0.0).R
     with pytest.raises(CameraError, match="smaller yaw"):
         yaw_lookup(zoom, tilt, np.linspace(-180, 180, 91))

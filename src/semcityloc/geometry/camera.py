@@ -62,9 +62,18 @@ class Camera:
 
     @classmethod
     def from_fov(cls, width: int, height: int, hfov_deg: float) -> Camera:
-        """Square pixels, principal point at the image centre, horizontal field of view in degrees."""
+        """Square pixels, principal point at the image centre, horizontal field of view in degrees.
+
+        A field of view up to pi "degrees" is refused as radians (``math.radians(70)`` is 1.22: a 1.2 degree
+        camera would be built silently, whose views of a city hold one window); the narrowest drone zoom
+        lenses are a little below that, and no localizer of this package can use such a view."""
         if not 0 < hfov_deg < 180:
             raise CameraError(f"horizontal field of view must be in (0, 180) degrees, got {hfov_deg}")
+        if hfov_deg <= math.pi:
+            raise CameraError(
+                f"horizontal field of view {hfov_deg} looks like radians (at most pi): give degrees, "
+                f"e.g. math.degrees({hfov_deg}) = {math.degrees(hfov_deg):.1f}"
+            )
         f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
         return cls(f, f, width / 2, height / 2, width, height)
 
