@@ -206,6 +206,11 @@ def test_not_a_dataset_and_missing_model_are_clear_errors(tmp_path):
         read_lodloc(folder, frame="ned")
     with pytest.raises(InputFileError, match="only used with frame='ecef'"):
         read_lodloc(folder, ecef_origin_llh=(46.5, 6.5, 400.0))
+    # A z-up model said to be ECEF: every wall and camera was tilted by the rotation, without a word.
+    (folder / "city.obj").write_text(boxes_obj(lambda v: v))
+    with pytest.raises(InputFileError, match="vertical in its own frame already.*drop frame='ecef'"):
+        read_lodloc(folder, frame="ecef")
+    assert read_lodloc(folder).frame == "z-up"
 
 
 def test_shifted_ecef_frame_is_detected_and_rotated_back_into_enu(tmp_path):

@@ -405,6 +405,14 @@ def read_lodloc(
 
 def _decide_frame(ds: LodLocDataset, frame: str, ecef_origin_llh) -> None:
     if frame == FRAME_ECEF:
+        if ds.model_path is not None:
+            is_up, share = detect_vertical(load_city_model(ds.model_path))
+            if is_up:  # rotating a z-up model and its poses again tilts every wall and camera
+                raise InputFileError(
+                    f"{ds.model_path}: the model's walls are vertical in its own frame already ({share:.0%} "
+                    "of the steep area within 3 deg of vertical): its z is up, it is no shifted ECEF; drop "
+                    "frame='ecef' (--frame ecef)"
+                )
         llh = tuple(float(v) for v in (ecef_origin_llh or SWISS_EPFL_ECEF_ORIGIN_LLH))
         R = enu_from_ecef(*llh)
         for q in ds.queries:
