@@ -740,10 +740,11 @@ def test_a_full_disk_while_saving_details_leaves_no_temporary_file(sim, tmp_path
 
 def test_write_atomic_names_the_file_and_leaves_no_temporary_file(tmp_path, monkeypatch):
     from semcityloc.benchmark import runfiles
+    from semcityloc.io import files
 
-    monkeypatch.setattr(runfiles.os, "fsync", _enospc)
+    monkeypatch.setattr(files.os, "fsync", _enospc)
     with pytest.raises(OSError) as err:
-        runfiles.write_json_atomic(tmp_path / "P059.json", {"a": 1})
+        files.write_json_atomic(tmp_path / "P059.json", {"a": 1})
     assert err.value.errno == errno.ENOSPC and err.value.filename == str(tmp_path / "P059.json")
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(OutputPathError, match=r"P059.json: No space left on device; free space and run"):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import math
 
 import numpy as np
 import pytest
@@ -476,6 +478,31 @@ def test_write_pose_json_without_origin_and_errors(tmp_path):
         write_pose_json(pose, tmp_path / "b.json", extra={"x": object()})
     with pytest.raises(InputFileError, match="cannot write"):
         write_pose_json(pose, tmp_path / "no_dir" / "p.json")
+
+
+def test_a_pose_json_is_strict_json_and_written_whole(tmp_path, monkeypatch):
+    """``extra`` holding NaN (a refused pose's depth cost, a run without depth) was written as ``NaN``
+    tokens, which jq and JavaScript refuse; and a failed write left half a file."""
+    pose = Pose.from_xyz_rpy([1.0, 2.0, 3.0], 0, 10, 20)
+    data = write_pose_json(pose, tmp_path / "p.json", extra={"depth_cost": float("nan"), "a": [np.inf, 1.0]})
+    assert math.isnan(data["extra"]["depth_cost"])  # the returned dict keeps the value
+
+    def no_constants(name):
+        raise AssertionError(f"{name} in a pose file")
+
+    written = json.loads((tmp_path / "p.json").read_text(), parse_constant=no_constants)
+    assert written["extra"] == {"depth_cost": None, "a": [None, 1.0]}
+    assert_same_pose(read_pose(tmp_path / "p.json"), pose)
+    from semcityloc.io import files
+
+    def full_disk(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(files.os, "fsync", full_disk)
+    with pytest.raises(InputFileError, match="cannot write pose JSON: No space left"):
+        write_pose_json(Pose.from_xyz_rpy([9.0, 9.0, 9.0], 0, 0, 0), tmp_path / "p.json")
+    assert_same_pose(read_pose(tmp_path / "p.json"), pose)  # the old file whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json"]
 
 
 def test_inconsistent_json_matrices_are_rejected():

@@ -39,7 +39,6 @@ from semcityloc.benchmark.runfiles import (
     ODM_GEO_FILE,
     POSES_DIR,
     RESULTS_FILE,
-    json_safe,
 )
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES
@@ -52,7 +51,7 @@ from semcityloc.errors import InputFileError, counted
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
-from semcityloc.io.files import write_atomic
+from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 

@@ -40,7 +40,7 @@ from semcityloc.benchmark.results import (
     UNREADABLE_INPUT,
     is_unreadable,
 )
-from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, write_json_atomic, writing
+from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, writing
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore
 from semcityloc.classes import IGNORE
@@ -48,6 +48,7 @@ from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, sav
 from semcityloc.errors import InputFileError, ShapeError
 from semcityloc.geometry.distortion import unseen_by_photo
 from semcityloc.geometry.io import pose_to_dict
+from semcityloc.io.files import write_json_atomic
 from semcityloc.io.images import check_aspect, load_image, read_depth_file, read_mask_file
 from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult

@@ -61,11 +61,11 @@ from semcityloc.benchmark.report_runs import (
 )
 from semcityloc.benchmark.report_views import POSES, error_bins, query_camera, query_view
 from semcityloc.benchmark.results import row_pose
-from semcityloc.benchmark.runfiles import DETAILS_DIR, json_safe
+from semcityloc.benchmark.runfiles import DETAILS_DIR
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import BenchmarkError
 from semcityloc.geometry.camera import Camera
-from semcityloc.io.files import write_atomic
+from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.confidence import risk_coverage
 
 HTML_FILE = "report.html"

@@ -73,12 +73,12 @@ from semcityloc.benchmark.runfiles import (
     remove_stale_temps,
     run_entries,
     run_lock,
-    write_json_atomic,
     writing,
 )
 from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
 from semcityloc.errors import BenchmarkError, OutputPathError, unknown_choice
+from semcityloc.io.files import write_json_atomic
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import get_method
 from semcityloc.localization.result import LocalizationResult

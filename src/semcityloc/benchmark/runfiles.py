@@ -41,7 +41,6 @@ import contextlib
 import errno
 import fcntl
 import json
-import math
 import os
 import re
 import shutil
@@ -53,8 +52,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from semcityloc.errors import OutputPathError, ResumeMismatchError, RunFileError, RunLockedError, counted
-from semcityloc.geometry.io import json_default
-from semcityloc.io.files import write_atomic
+from semcityloc.io.files import json_default, write_atomic
 
 RUN_FILE = "run.json"
 LOCK_FILE = "run.lock"
@@ -106,17 +104,6 @@ FULL_CONFIGS = ("localizer", "query_config", "seg_preset")
 def plain(value: Any) -> Any:
     """JSON-normalised copy (tuples -> lists, numpy scalars -> Python) for storing and comparing."""
     return json.loads(json.dumps(value, default=json_default))
-
-
-def json_safe(value: Any) -> Any:
-    """Non-finite floats -> None (strict JSON), recursively."""
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_safe(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def write_all(fd: int, data: bytes) -> None:
@@ -239,11 +226,6 @@ def _alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
-
-
-def write_json_atomic(path: Path, value: Any) -> None:
-    """``value`` as strict, indented JSON (non-finite floats -> null), atomically."""
-    write_atomic(path, json.dumps(json_safe(value), indent=2) + "\n")
 
 
 @contextlib.contextmanager

@@ -27,6 +27,7 @@ from semcityloc.errors import InputFileError
 from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
 from semcityloc.geometry.io import write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.io.files import write_json_atomic
 from semcityloc.io.images import (
     check_aspect,
     check_aspect_of_photo,
@@ -300,6 +301,6 @@ def run(args: argparse.Namespace) -> int:
             summary["sigma"] = dict(zip(cov["order"], cov["sigma"], strict=True))
         print(json.dumps(summary))
         return 0
-    (out / "pose.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    write_json_atomic(out / "pose.json", record)  # strict JSON: a refused pose's NaN scores are null
     print(json.dumps({"status": result.status, "reason": result.reason}))
     return 1

@@ -56,6 +56,7 @@ from semcityloc.geometry.colmap_text import (
 from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.files import write_atomic
 
 # Models that are a pinhole once their distortion terms are zero: (fx, fy, cx, cy) from params.
 _PINHOLE_PARTS: dict[str, tuple[int, int, int, int]] = {
@@ -361,7 +362,7 @@ def write_points3D_text(points: Mapping[int, ColmapPoint3D], path: str | os.Path
 
 def _write_text(path: str | os.PathLike, lines: list[str]) -> None:
     try:
-        Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+        write_atomic(Path(path), "\n".join(lines) + "\n")
     except OSError as exc:
         raise InputFileError(f"{path}: cannot write COLMAP file: {exc.strerror or exc}") from exc
 
@@ -515,7 +516,7 @@ def write_points3D_binary(points: Mapping[int, ColmapPoint3D], path: str | os.Pa
 
 def _write_bytes(path: str | os.PathLike, data: bytes) -> None:
     try:
-        Path(path).write_bytes(data)
+        write_atomic(Path(path), data)
     except OSError as exc:
         raise InputFileError(f"{path}: cannot write COLMAP file: {exc.strerror or exc}") from exc
 

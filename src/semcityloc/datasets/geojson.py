@@ -23,9 +23,8 @@ import pyproj
 from semcityloc.citymodel.crs import horizontal_crs
 from semcityloc.errors import CRSError
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.io import json_default
 from semcityloc.geometry.pose import Pose
-from semcityloc.io.files import write_atomic
+from semcityloc.io.files import json_default, write_atomic
 
 FOOTPRINT_SAMPLES = 8  # points per image border
 MAX_RANGE_M = 1500.0

@@ -51,6 +51,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.io import read_intrinsics, read_pose, read_poses
 from semcityloc.geometry.pose import Pose
+from semcityloc.io.files import write_atomic
 from semcityloc.io.images import image_size
 
 IMAGE_DIR = "Query_image"
@@ -448,7 +449,7 @@ def _decide_frame(ds: LodLocDataset, frame: str, ecef_origin_llh) -> None:
 def _write(path: Path, text: str) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text, encoding="utf-8")
+        write_atomic(path, text)
     except OSError as exc:
         raise InputFileError(f"{path}: cannot write: {exc.strerror or exc}") from exc
 

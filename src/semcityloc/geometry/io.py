@@ -43,6 +43,7 @@ from semcityloc.geometry.colmap_text import (
 from semcityloc.geometry.conventions import colmap_qvec_tvec, pose_from_colmap, pose_from_lodloc_c2w
 from semcityloc.geometry.distortion import COEFFICIENTS, LensDistortion
 from semcityloc.geometry.pose import Pose, local_frame_problem
+from semcityloc.io.files import json_default, write_json_atomic
 
 # Pose and intrinsics files are a few lines long; refuse to slurp e.g. an image passed by mistake.
 MAX_SPEC_FILE_BYTES = 10_000_000
@@ -596,17 +597,6 @@ def _crs_name(crs: Any) -> str | None:
     return to_string() if callable(to_string) else str(crs)
 
 
-def json_default(value: Any) -> Any:
-    """``json.dumps(..., default=json_default)``: numpy arrays and scalars, paths -> plain JSON values."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
-
-
 def pose_to_dict(
     pose: Pose, origin: np.ndarray | None = None, crs: Any = None, extra: dict | None = None
 ) -> dict[str, Any]:
@@ -677,12 +667,14 @@ def write_pose_json(
     ``origin`` + ``position_local``, ``crs`` (name) and ``extra`` (any JSON-serialisable dict).
     With ``origin`` (the model's float64 origin) the pose is taken to be in the model's local frame and
     everything is written in the model CRS: ``position = local centre + origin`` in float64.
-    ``read_pose`` reads the file back (in the frame it was written in).
+    ``read_pose`` reads the file back (in the frame it was written in). The file is strict JSON (a NaN or
+    infinity in ``extra``, e.g. the depth cost of a run without depth, is written ``null``; the returned
+    dict keeps it) and written whole or not at all (``io.files.write_json_atomic``).
     """
     data = pose_to_dict(pose, origin=origin, crs=crs, extra=extra)
     target = Path(path)
     try:
-        target.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+        write_json_atomic(target, data)
     except OSError as exc:
         raise InputFileError(f"{target}: cannot write pose JSON: {exc.strerror or exc}") from exc
     return data
