@@ -18,6 +18,7 @@ from semcityloc.geometry.conventions import (
     dji_world_from_cam,
     lodloc_c2w,
     lodloc_euler,
+    odm_angles,
     pose_from_colmap,
     pose_from_dji,
     pose_from_lodloc_c2w,
@@ -677,3 +678,32 @@ def test_a_world_pose_written_with_the_origin_is_refused_not_shifted_twice():
     assert pose_to_dict(local, origin=origin)["position"] == pytest.approx([391010.25, 5816996.25, 156.5])
     with pytest.raises(PoseError, match=r"with an origin the pose must be in the local frame"):
         pose_to_dict(local.shift_world(-origin), origin=origin)
+
+
+def test_odm_angles_invert_opendronemaps_own_rotation():
+    """OpenDroneMap's ``Photo.compute_opk`` builds the body rotation from (yaw, pitch, roll) with
+    Baeumker's YPR matrix and maps its camera (x right, y image top, z backwards) into the body with
+    ``cbb`` (swap x / y, flip z). Written out here from those two matrices, not from our code:
+    ``odm_angles`` gives back the angles, and DJI's angles are ODM's with pitch + 90 (the geo.txt of a
+    run was written in DJI's convention, which ODM reads as a camera tilted by 90 degrees)."""
+    rng = np.random.default_rng(5)
+    angles = np.stack([rng.uniform(-179, 179, 50), rng.uniform(-80, 80, 50), rng.uniform(-60, 60, 50)], -1)
+    for y, p, r in angles:
+        cy, sy, cp, sp, cr, sr = (f(np.radians(a)) for a in (y, p, r) for f in (np.cos, np.sin))
+        cnb = np.array(
+            [
+                [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                [-sp, cp * sr, cp * cr],
+            ]
+        )
+        cbb = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+        ned_to_enu = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+        R_world_from_cam = ned_to_enu @ cnb @ cbb @ np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes
+        np.testing.assert_allclose(odm_angles(R_world_from_cam), [y, p, r], atol=1e-9)
+    for dji in [(0.0, -90.0, 0.0), (30.0, -60.0, 0.0), (-102.3, -88.0, 0.0), (170.0, -10.0, 0.0)]:
+        np.testing.assert_allclose(
+            odm_angles(dji_world_from_cam(*dji)), [dji[0], dji[1] + 90.0, 0.0], atol=1e-9
+        )
+    nadir = Pose.from_xyz_rpy([0.0, 0.0, 100.0], 0.0, 0.0, 0.0)  # our (0, 0, 0): down, image top north
+    np.testing.assert_allclose(odm_angles(nadir.R_world_from_cam), [0.0, 0.0, 0.0], atol=1e-12)

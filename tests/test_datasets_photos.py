@@ -87,7 +87,7 @@ def test_odm_geo_txt_is_in_the_horizontal_crs():
     assert lines[0] == "EPSG:25833"
     name, x, y, z, yaw, pitch, roll = lines[1].split()
     assert (name, float(x), float(y), float(z)) == ("a.JPG", 392000.1235, 5819000.5, 80.25)
-    assert (float(yaw), float(pitch), float(roll)) == (30.0, -60.0, 0.0)
+    assert (float(yaw), float(pitch), float(roll)) == (30.0, 30.0, 0.0)  # ODM's pitch: 0 = nadir
     with pytest.raises(InputFileError, match="spaces"):
         odm_geo_text("EPSG:25833", [("a b.JPG", (0.0, 0.0, 0.0), tag())])
     # With accuracies (one sigma, m): ODM's 8th and 9th columns, on the rows that have them.

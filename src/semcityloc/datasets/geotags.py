@@ -20,7 +20,8 @@ Reading accepts any column order and these names too: ``name`` / ``label`` / ``f
 ``lat`` / ``lon`` / ``long``, ``alt`` / ``altitude`` / ``height`` / ``height_ellipsoidal_m``, ``yaw`` /
 ``pitch`` / ``roll`` (always the DJI convention). ``geo.txt``: OpenDroneMap's image geolocation file, a
 projection line (the model's horizontal CRS, so no height conversion is involved) and one line per image:
-``image_name x y z yaw pitch roll``.
+``image_name x y z yaw pitch roll``, the angles in ODM's convention (pitch 0 = nadir, yaw the heading of
+the image top from true north, roll the sideways tilt: ``geometry.conventions.odm_angles``).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from semcityloc.citymodel.crs import horizontal_crs
 from semcityloc.datasets.dji import DjiGeotag
 from semcityloc.datasets.dji_metadata import finite_number
 from semcityloc.errors import CRSError, InputFileError
+from semcityloc.geometry.conventions import dji_world_from_cam, odm_angles
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
 GEOTAG_COLUMNS = (
@@ -202,7 +204,9 @@ def odm_geo_text(
     accuracies: list[tuple[float, float] | None] | None = None,
 ) -> str:
     """OpenDroneMap's ``geo.txt``: the projection of the model's horizontal CRS, then per image
-    ``name x y z yaw pitch roll`` (``rows``: (name, position in that CRS, geotag for the angles)),
+    ``name x y z yaw pitch roll`` (``rows``: (name, position in that CRS, geotag for the angles), the
+    angles in ODM's own convention, ``geometry.conventions.odm_angles``: pitch 0 = nadir; ODM reads
+    ``geo.txt`` angles as they are, adding DJI's 90 degrees only to angles from DJI's XMP),
     followed by ``horizontal_accuracy vertical_accuracy`` (m, one sigma; ODM weights the positions by
     them) where ``accuracies`` gives them for that row."""
     horizontal = horizontal_crs(crs)
@@ -214,7 +218,8 @@ def odm_geo_text(
     for (name, (x, y, z), g), accuracy in zip(rows, accuracies, strict=True):
         if any(c.isspace() for c in name):
             raise InputFileError(f"{name!r}: geo.txt cannot hold image names with spaces")
-        line = f"{name} {x:.4f} {y:.4f} {z:.4f} {g.yaw_deg:.6f} {g.pitch_deg:.6f} {g.roll_deg:.6f}"
+        yaw, pitch, roll = odm_angles(dji_world_from_cam(g.yaw_deg, g.pitch_deg, g.roll_deg))
+        line = f"{name} {x:.4f} {y:.4f} {z:.4f} {yaw:.6f} {pitch:.6f} {roll:.6f}"
         if accuracy is not None:
             line += f" {accuracy[0]:.3f} {accuracy[1]:.3f}"
         lines.append(line)

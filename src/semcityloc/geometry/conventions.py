@@ -27,6 +27,12 @@ ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 # z (optical axis) = gimbal forward (+x_g).
 GIMBAL_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
+# The OpenCV camera in OpenDroneMap's body frame (x forward, y right, z down); its columns are the camera
+# axes: x (image right) = body right, y (image down) = body backward, z (optical axis) = body down. That is
+# ODM ``Photo.compute_opk``'s ``cbb`` (its camera: x right, y image top, z out of the lens) times
+# diag(1, -1, -1): a nadir camera whose image top points forward.
+ODM_BODY_FROM_CAM = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
 # A quaternion whose norm is further than this from 1 is rejected rather than silently normalised.
 QUATERNION_NORM_TOLERANCE = 1e-2
 
@@ -169,3 +175,25 @@ def dji_gimbal_angles(pose: Pose) -> np.ndarray:
         ypr = Rotation.from_matrix(R_body.reshape(-1, 3, 3)).as_euler("ZYX", degrees=True)
     ypr[:, 0] = wrap_deg(ypr[:, 0])
     return ypr.reshape(pose.batch_shape + (3,))
+
+
+# ---------------------------------------------------------------------------------------------- ODM
+def odm_angles(R_world_from_cam: np.ndarray) -> np.ndarray:
+    """(..., 3) OpenDroneMap's ``(yaw, pitch, roll)`` in degrees of cameras ``R_world_from_cam`` (world
+    ENU, OpenCV camera axes): what its ``geo.txt`` holds.
+
+    ODM normalises every source to this (``opendm/photo.py``: "Yaw 0: top of image points north; Pitch 0:
+    nadir camera, 90: looking forward; Roll 0 (assuming gimbal)"; DJI's gimbal pitch gets + 90) and
+    builds ``R_ned_from_body = Rz(yaw) Ry(pitch) Rx(roll)`` with its camera as ``ODM_BODY_FROM_CAM``. So
+    ``Rz Ry Rx = ENU_FROM_NED^T @ R_world_from_cam @ ODM_BODY_FROM_CAM^T``, decomposed as intrinsic
+    'ZYX'. Unlike DJI's angles this is well-conditioned at nadir (pitch and roll are the two tilts, yaw
+    the heading of the image top); it is gimbal-locked for a camera looking at the horizon. Yaw is
+    wrapped to (-180, 180], measured from the world's y axis (true north when the world is a local ENU).
+    """
+    R = np.asarray(R_world_from_cam, dtype=np.float64)
+    R_body = ENU_FROM_NED.T @ R @ ODM_BODY_FROM_CAM.T
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected")
+        ypr = Rotation.from_matrix(R_body.reshape(-1, 3, 3)).as_euler("ZYX", degrees=True)
+    ypr[:, 0] = wrap_deg(ypr[:, 0])
+    return ypr.reshape(R.shape[:-2] + (3,))
