@@ -337,17 +337,15 @@ def test_geotag_of_a_prior_gives_the_photo_back(tmp_path, crs, gimbal):
     fields = dict(RTK, GimbalYawDegree=yaw, GimbalPitchDegree=pitch, GimbalRollDegree=roll)
     meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**fields)))
     off = np.array([690000.0, 5330000.0, 0.0])
-    prior = dji_prior(meta, crs, offset=off, geoid_separation_m=47.0 if "+" in crs else None)
-    tag = dji_geotag(prior.pose, crs, offset=off)
+    n = 47.0 if "+" in crs else None  # a geoid separation given: the geotag adds back what the prior took
+    prior = dji_prior(meta, crs, offset=off, geoid_separation_m=n)
+    tag = dji_geotag(prior.pose, crs, offset=off, geoid_separation_m=n)
     assert tag.latitude == pytest.approx(48.1, abs=1e-9) and tag.longitude == pytest.approx(11.5, abs=1e-9)
-    if "+" in crs and tag.vertical_flag is None:  # the grid is installed: back to the ellipsoid
-        assert "ellipsoidal" in tag.height_reference
-    elif "+" in crs:
-        assert tag.height_m == pytest.approx(612.5 - 47.0) and "NOT applied" in tag.height_reference
-    else:
-        assert tag.height_m == pytest.approx(612.5, abs=1e-3) and "as it is" in tag.height_reference
-    back = dji_prior(tag.metadata(), crs, offset=off, source_height="ellipsoidal", geoid_separation_m=0.0)
+    assert tag.height_m == pytest.approx(612.5, abs=1e-3) and tag.vertical_flag is None
+    assert ("N = 47 m given" if "+" in crs else "as it is") in tag.height_reference
+    back = dji_prior(tag.metadata(), crs, offset=off, source_height="ellipsoidal", geoid_separation_m=n)
     assert float(rotation_error_deg(back.pose, prior.pose)) < 1e-7
+    np.testing.assert_allclose(back.pose.center, prior.pose.center, atol=1e-3)
     if pitch > -89:
         assert (tag.yaw_deg, tag.pitch_deg, tag.roll_deg) == pytest.approx(gimbal, abs=1e-7)
 

@@ -115,6 +115,18 @@ def test_priors_from_exif_csv_and_pose_files_agree(tmp_path):
     assert center_error_m(from_csv.pose_world, prior.pose_world) < 1e-3
     assert rotation_error_deg(from_csv.pose_world, prior.pose_world) < 1e-5
     assert (from_csv.uncertainty.xy_m, from_csv.uncertainty.z_m) == (2.0, 3.0)
+    # A run whose pyproj had no geoid grid writes the model's heights, saying so in height_reference: read
+    # back (with a geoid separation given, as in that run) they are taken as they are, not as ellipsoidal
+    # heights to subtract N from (the priors came out N lower).
+    compound = pyproj.CRS("EPSG:25832+7837")
+    with_n = PriorFiles(EXIF, compound, geoid_separation_m=39.6).prior(images[0])
+    z = float(with_n.pose_world.center[2])
+    reference = "orthometric (DHHN2016; geoid NOT applied: not ellipsoidal)"
+    flagged = DjiGeotag(g.latitude, g.longitude, z, g.yaw_deg, g.pitch_deg, g.roll_deg, reference)
+    (tmp_path / "o.csv").write_text(geotags_csv_text([GeotagRow("a.JPG", flagged)]))
+    from_flagged = PriorFiles(tmp_path / "o.csv", compound, geoid_separation_m=39.6).prior(images[0])
+    assert from_flagged.pose_world.center[2] == pytest.approx(z, abs=1e-6)
+    assert with_n.pose_world.center[2] == pytest.approx(612.5 - 39.6, abs=0.01)  # RTK's ellipsoidal h - N
     from semcityloc.geometry.conventions import colmap_qvec_tvec
 
     qvec, tvec = colmap_qvec_tvec(prior.pose_world)

@@ -405,10 +405,17 @@ def camera_features(
 
 
 def write_exports(
-    out_dir: Path, model: CityModel, inputs: list, offset: np.ndarray | None, target_height: str
+    out_dir: Path,
+    model: CityModel,
+    inputs: list,
+    offset: np.ndarray | None,
+    target_height: str,
+    geoid_separation_m: float | None = None,
 ) -> dict[str, Any]:
     """Write the exports (module docstring) of ``inputs`` (``photo_inputs.PhotoInput``); returns
-    ``{output: path or None}``, and ``notes`` and ``warnings`` for the summary."""
+    ``{output: path or None}``, and ``notes`` and ``warnings`` for the summary. ``target_height`` and
+    ``geoid_separation_m``: what the priors were brought in with (the geotags' heights go back the same
+    way)."""
     out_dir = Path(out_dir)
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
     check_records(out_dir, inputs)
@@ -476,14 +483,14 @@ def write_exports(
     for inp in inputs:
         est = estimates.get(inp.name)
         if est is not None:
-            tag = dji_geotag(est, model.crs, shift, target_height)
+            tag = dji_geotag(est, model.crs, shift, target_height, geoid_separation_m)
             accuracy = position_accuracy(records[inp.name].get("extra", {}).get("covariance"))
             rows.append(GeotagRow(inp.name, tag, *(accuracy or (None, None)), source="semcityloc"))
             if inp.name not in split:
                 odm.append((inp.name, tuple((est.center + shift).tolist()), tag))
                 odm_accuracy.append(accuracy)
         else:
-            tag = dji_geotag(inp.prior.pose_world, model.crs, shift, target_height)
+            tag = dji_geotag(inp.prior.pose_world, model.crs, shift, target_height, geoid_separation_m)
             reason = records[inp.name].get("reason") or "no result"
             sigma = inp.uncertainty
             rows.append(GeotagRow(inp.name, tag, sigma.xy_m, sigma.z_m, f"prior (not localized: {reason})"))

@@ -204,4 +204,6 @@ class PhotoSpec:
         summary["skipped_photos"] = {**skipped, **failed}
         offset = None if self.offset is None else np.asarray(self.offset, dtype=np.float64)
         placed = [inp for inp in inputs if inp.camera is not None and inp.prior is not None]  # exports
-        summary["outputs"] = write_exports(out_dir, model, placed, offset, self.target_height)
+        summary["outputs"] = write_exports(
+            out_dir, model, placed, offset, self.target_height, self.geoid_separation_m
+        )

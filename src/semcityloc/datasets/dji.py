@@ -353,6 +353,7 @@ def dji_geotag(
     target_crs: str | pyproj.CRS,
     offset: np.ndarray | None = None,
     target_height: str = HEIGHT_AUTO,
+    geoid_separation_m: float | None = None,
 ) -> DjiGeotag:
     """The geotag of a camera pose in a model's CRS (minus ``offset``): the inverse of ``dji_prior``.
 
@@ -363,10 +364,13 @@ def dji_geotag(
     ``"auto"`` or ``"ellipsoidal"`` -> the model's z as it is (``dji_prior`` took DJI's height as z, so a
     prior read back gives the photo's own height). Angles: ``dji_gimbal_angles`` minus the grid
     convergence (grid north -> true north). ``dji_prior(geotag.metadata(), crs, offset, "ellipsoidal")``
-    gives the pose back.
+    gives the pose back. ``geoid_separation_m``: the N the priors were brought in with (h = H + N, the
+    inverse of ``dji_prior``'s H = h - N): a run's exports must give an unmoved photo its own EXIF height
+    back, with the same options.
     """
     if target_height not in TARGET_HEIGHTS:
         raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
+    check_geoid_separation(geoid_separation_m)
     crs = target_crs_of(target_crs)
     horizontal = check_projected(crs, "the model's CRS")
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
@@ -386,7 +390,10 @@ def dji_geotag(
         source_3d = crs if vertical is not None else EGM96
         vname = vertical.name if vertical is not None else "EGM96 height"
         heights = transformer_group(source_3d, WGS84_3D)
-        if is_ballpark(heights):
+        if geoid_separation_m is not None:
+            h = z + float(geoid_separation_m)
+            reference = f"ellipsoidal (WGS 84; {vname} + N = {float(geoid_separation_m):g} m given)"
+        elif is_ballpark(heights):
             h, reference = z, f"orthometric ({vname}; geoid NOT applied: not ellipsoidal)"
             flag = (
                 f"geoid not applied: pyproj has no geoid grid for {vname} -> WGS 84 (install one with "

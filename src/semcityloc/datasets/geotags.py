@@ -35,7 +35,7 @@ from pathlib import Path
 import pyproj
 
 from semcityloc.citymodel.crs import horizontal_crs
-from semcityloc.datasets.dji import DjiGeotag
+from semcityloc.datasets.dji import HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, DjiGeotag
 from semcityloc.datasets.dji_metadata import finite_number
 from semcityloc.errors import CRSError, InputFileError
 from semcityloc.geometry.conventions import dji_world_from_cam, odm_angles
@@ -65,6 +65,7 @@ _ALIASES = {
     "accuracy_xy_m": ("accuracy_xy_m", "accuracy_xy", "horizontal_accuracy"),
     "accuracy_z_m": ("accuracy_z_m", "accuracy_z", "vertical_accuracy"),
     "source": ("source",),
+    "height_reference": ("height_reference",),
 }
 _REQUIRED = ("image", "latitude", "longitude", "height_m", "yaw_deg", "pitch_deg")
 
@@ -78,6 +79,15 @@ class GeotagRow:
     accuracy_xy_m: float | None = None
     accuracy_z_m: float | None = None
     source: str = ""
+
+    def source_height(self) -> str:
+        """How ``dji_prior`` must read this row's height (``datasets.dji`` ``HEIGHT_*``): orthometric when
+        its ``height_reference`` says so (what a run writes when pyproj had no geoid grid: the model's
+        own heights), else ellipsoidal (WGS 84, the CSV's documented height; any other reference, e.g.
+        "the model's z as it is" of a 2D CRS, reads back unchanged that way too)."""
+        if self.geotag.height_reference.lower().startswith("orthometric"):
+            return HEIGHT_ORTHOMETRIC
+        return HEIGHT_ELLIPSOIDAL
 
     def uncertainty(self, base: PriorUncertainty | None = None) -> PriorUncertainty | None:
         """The row's accuracies as a prior uncertainty (orientation from ``base``); None without any."""
@@ -140,7 +150,11 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
             value = values[i] if i is not None and i < len(values) else ""
             return _number(value, key, line, optional=optional or i is None)
 
-        image = values[where["image"]].strip() if where["image"] < len(values) else ""
+        def text(key: str, values=values) -> str:
+            i = where.get(key)
+            return values[i].strip() if i is not None and i < len(values) else ""
+
+        image = text("image")
         if not image:
             raise InputFileError(f"{line}: no image name")
         lat, lon = get("latitude"), get("longitude")
@@ -154,15 +168,15 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
             yaw_deg=get("yaw_deg"),
             pitch_deg=get("pitch_deg"),
             roll_deg=0.0 if roll is None else roll,
-            height_reference="as given in the geotag file",
+            height_reference=text("height_reference") or "as given in the geotag file",
         )
-        source = values[where["source"]] if "source" in where and where["source"] < len(values) else ""
+        source = text("source")
         rows[image] = GeotagRow(
             image,
             tag,
             get("accuracy_xy_m", optional=True),
             get("accuracy_z_m", optional=True),
-            source.strip(),
+            source,
         )
     if not rows:
         raise InputFileError(f"{path}: no geotag rows")

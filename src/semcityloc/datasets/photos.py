@@ -38,7 +38,7 @@ import pyproj
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.pose_crs import check_pose_crs, read_pose_world
 from semcityloc.datasets.colmap import ColmapCamera, read_cameras_binary, read_images_binary
-from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, dji_prior, prior_uncertainty
+from semcityloc.datasets.dji import HEIGHT_AUTO, dji_prior, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geotags import read_geotags_csv
@@ -365,7 +365,7 @@ class PriorFiles:
             if row is None:
                 raise PhotoMissing(f"no row for {image.name} in {self.spec}")
             source = f"geotags {Path(self.spec).name}"
-            prior = self._from_dji(row.geotag.metadata(), source, HEIGHT_ELLIPSOIDAL)
+            prior = self._from_dji(row.geotag.metadata(), source, row.source_height())
             prior.uncertainty = row.uncertainty()
             return prior
         return self._from_dji(meta if meta is not None else photo_metadata(image), "exif", HEIGHT_AUTO)
