@@ -1225,6 +1225,14 @@ def test_a_photo_named_with_spaces_is_left_out_of_colmap_and_geo_txt_and_the_res
     features = json.loads((out / "cameras.geojson").read_text(encoding="utf-8"))["features"]
     assert {f["properties"]["image"] for f in features} >= {"my photo ü.JPG", "P1.JPG"}
     assert read_pose(out / "poses" / "my photo ü.json") is not None
+    # With --offset the pose files hold the CRS minus the offset: labelled EPSG:32649 they put the camera
+    # 3,153 km from its geo.txt line (frames audit, stop 51). Now no label; the offset and its CRS said.
+    pose_file = json.loads((out / "poses" / "P1.json").read_text())
+    assert "crs" not in pose_file and pose_file["extra"]["crs"] is None
+    assert pose_file["extra"]["crs_offset"] == [695672.0, 3131199.0, 0.0]
+    assert pose_file["extra"]["offset_crs"] == "EPSG:32649"
+    in_crs = np.add(pose_file["position"], pose_file["extra"]["crs_offset"])
+    np.testing.assert_allclose(in_crs, [float(v) for v in geo[1].split()[1:4]], atol=1e-3)
 
 
 def test_a_run_without_a_crs_writes_no_geojson_and_says_so(box_flight, tmp_path, capsys):

@@ -203,11 +203,19 @@ class PhotoSource:
     def prepare(self, method: Method) -> None:
         return None
 
+    def pose_crs(self) -> str | None:
+        """The CRS label of the pose files' numbers: the model's, but none with ``--offset``, where they are
+        the CRS minus the offset (a label would place the camera the offset away; the record states
+        ``crs_offset`` and ``offset_crs`` instead, as ``dataset dji-prior --offset`` writes no label)."""
+        return None if self.spec.offset is not None else crs_label(self.map_model.crs)
+
     def record(self, inp: PhotoInput, result: LocalizationResult) -> dict:
         """What ``poses/<stem>.json`` says besides the pose: the result, the prior, its uncertainty."""
         model = self.map_model
-        crs = crs_label(model.crs)
+        crs = self.pose_crs()
         record = result.to_dict(model.origin, crs)
+        if self.spec.offset is not None:  # the numbers + crs_offset are coordinates in offset_crs
+            record.update(crs_offset=[float(v) for v in self.spec.offset], offset_crs=crs_label(model.crs))
         prior = inp.prior  # None: an unreadable photo's (``PhotoInput.unreadable``), and its camera too
         record.update(
             image=inp.name,
@@ -232,7 +240,7 @@ class PhotoSource:
         folder.mkdir(exist_ok=True)
         estimate = result.pose_local if result.localized else None
         if estimate is not None:
-            data = pose_to_dict(estimate, origin=model.origin, crs=crs_label(model.crs), extra=record)
+            data = pose_to_dict(estimate, origin=model.origin, crs=self.pose_crs(), extra=record)
         else:
             data = record
         with writing(folder / f"{inp.stem}.json"):
