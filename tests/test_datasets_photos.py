@@ -213,6 +213,8 @@ def test_geojson_is_wgs84_when_the_crs_is_known():
     assert point["geometry"]["coordinates"] == pytest.approx([13.40, 52.52], abs=1e-9)
     ring = footprint["geometry"]["coordinates"][0]
     assert ring[0] == ring[-1] and len(ring) == 4 * 8 + 1
+    lon, lat = np.array(ring[:-1]).T  # an exterior ring winds counterclockwise (RFC 7946, 3.1.6)
+    assert np.dot(lon, np.roll(lat, -1)) - np.dot(np.roll(lon, -1), lat) > 0
     assert footprint["properties"]["image"] == "a.JPG" and "semcityloc_frame" not in doc
 
 

@@ -91,7 +91,11 @@ def cameras_geojson(
         centre = f.pose_world.center
         ring = footprint_xy(f.camera, f.pose_world, ground_z)
         xy = _to_output(np.vstack([centre[None, :2], ring]), crs, shift)
-        ring_out = np.vstack([xy[1:], xy[1:2]]).tolist()  # closed ring
+        border = xy[1:]
+        x, y = border[:, 0], border[:, 1]
+        if np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y) < 0:  # RFC 7946: counterclockwise
+            border = border[::-1]
+        ring_out = np.vstack([border, border[:1]]).tolist()  # closed ring
         props = {"image": f.name, **f.properties}
         out.append(
             {
