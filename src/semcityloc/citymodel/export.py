@@ -32,11 +32,11 @@ def export_model(model: CityModel, path: str | Path) -> Path:
 
 def _header_comment(model: CityModel) -> str:
     o = model.origin
-    origin = f"{o[0]:.3f} {o[1]:.3f} {o[2]:.3f}"
+    origin = " ".join(repr(float(v)) for v in o)  # float64 exactly (the shortest round-trip form)
     return f"semcityloc local frame: world = origin + vertex; origin {origin}; crs {crs_label(model.crs)}"
 
 
-def write_ply(model: CityModel, path: Path) -> Path:
+def write_ply(model: CityModel, path: str | Path) -> Path:
     """Binary PLY with face properties ``class`` (uchar) and ``building`` (int). Vertices are unshared per
     face so each carries its face's class colour."""
     tris = model.triangles
@@ -66,6 +66,7 @@ def write_ply(model: CityModel, path: Path) -> Path:
         "property list uchar int vertex_indices\nproperty uchar class\nproperty int building\n"
         "end_header\n"
     )
+    path = Path(path)
     with open(path, "wb") as fh:
         fh.write(header.encode("ascii"))
         fh.write(vertex.tobytes())
@@ -73,18 +74,23 @@ def write_ply(model: CityModel, path: Path) -> Path:
     return path
 
 
-def write_obj(model: CityModel, path: Path) -> Path:
-    """OBJ with a material per class and an MTL file beside it; faces grouped by class."""
+def write_obj(model: CityModel, path: str | Path) -> Path:
+    """OBJ with a material per class and an MTL file beside it; one ``o <building id>`` per building (what
+    ``obj.read_obj`` reads back as the buildings), its faces grouped by class."""
+    path = Path(path)
     mtl = path.with_suffix(".mtl")
     with open(mtl, "w", encoding="ascii") as fh:
         for i, name in enumerate(CLASS_NAMES):
             r, g, b = PALETTE[i] / 255.0
             fh.write(f"newmtl {name}\nKd {r:.4f} {g:.4f} {b:.4f}\n\n")
     lines = [f"# {_header_comment(model)}", f"mtllib {mtl.name}"]
-    lines.extend(f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in model.vertices)
-    for cls in np.unique(model.classes):
-        lines.append(f"usemtl {CLASS_NAMES[cls]}")
-        faces = model.triangles[model.classes == cls] + 1
-        lines.extend(f"f {a} {b} {c}" for a, b, c in faces)
+    lines.extend(f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in model.vertices)
+    for b, name in enumerate(model.building_ids):
+        mine = model.building_index == b
+        lines.append(f"o {name}")
+        for cls in np.unique(model.classes[mine]):
+            lines.append(f"usemtl {CLASS_NAMES[cls]}")
+            faces = model.triangles[mine & (model.classes == cls)] + 1
+            lines.extend(f"f {a} {c} {d}" for a, c, d in faces)
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
     return path

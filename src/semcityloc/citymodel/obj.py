@@ -24,8 +24,9 @@ building ids, so we derive both:
   normals by ``builder.classify_by_normals``: walls, roofs facing up, downward faces at the building's foot
   as ground.
 - semcityloc's own export: its header comment (``FRAME_HEADER``) gives the float64 origin its coordinates
-  are relative to, kept as the model's, and its CRS (``crs`` overrides it), so that ``city convert`` to OBJ
-  and back keeps the model in place.
+  are relative to, kept as the model's, and its CRS (``crs`` overrides it), and each building is an ``o``
+  object named by its id (the buildings, ids and all), so that ``city convert`` to OBJ and back keeps the
+  model in place and its buildings whole.
 - Frame: the coordinates are a local metric frame (``crs`` optional, must be projected/metric). With
   ``z_up=False`` (Y-up exports such as Blender's default) the axes map as
   ``(x, y, z)_world = (x, -z, y)_obj``: a +90 deg rotation about x, so the winding is kept.
@@ -99,7 +100,10 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     if not len(tris):
         raise EmptyModelError(f"{path}: no face of the OBJ has an area")
 
-    component = _components(verts, mesh)
+    own = mesh.origin is not None and all(mesh.group_objects[g] for g in np.unique(mesh.face_group))
+    # semcityloc's own export names each building's object: those are the buildings (touching ones, a
+    # block's shared walls, would merge by connectivity)
+    component = mesh.face_group if own else _components(verts, mesh)
     order, building = np.unique(component, return_inverse=True)
     first_face = np.full(len(order), len(component))
     np.minimum.at(first_face, building, np.arange(len(component)))
@@ -128,7 +132,8 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     present, tri_index = np.unique(tri_building, return_inverse=True)
     builder = MeshBuilder(stats)
     for n in range(len(present)):
-        builder.building(f"obj_{n}")
+        group = int(order[np.argsort(first_face, kind="stable")[present[n]]])
+        builder.building(mesh.group_objects[group] if own else f"obj_{n}")
     tri_class = mesh.face_class[tri_face]
     stats.classified_by_normal = int(len(np.unique(tri_face[tri_class < 0])))
     classes = np.where(tri_class >= 0, tri_class, UNLABELLED)
@@ -154,6 +159,7 @@ class _ObjMesh:
     face_class: np.ndarray  # (F,) int64 class of the face's material (MATERIAL_CLASSES), -1 for none
     origin: np.ndarray | None = None  # FRAME_HEADER's origin, the file's coordinates being relative to it
     header_crs: str | None = None  # FRAME_HEADER's CRS
+    group_objects: tuple[str, ...] = ()  # the ``o`` name of each group id
 
 
 def _metric_crs(crs: str | None) -> pyproj.CRS | None:
@@ -290,6 +296,7 @@ def _parse(text: str, path: Path) -> _ObjMesh:
         np.array(face_class, dtype=np.int64),
         origin,
         header_crs,
+        tuple(name for (name, _), _ in sorted(groups.items(), key=lambda kv: kv[1])),
     )
     out_of_range = mesh.face_index >= len(vertices)
     if out_of_range.any():
