@@ -13,6 +13,14 @@ from semcityloc.errors import unknown_choice
 
 
 class SemanticClass(IntEnum):
+    """The semantic classes of the whole pipeline, as fixed integer ids.
+
+    One enumeration for the city model's triangles, the rendered masks, the query masks and the perception
+    heads, so that a class means the same everywhere. The ids are written into files (label PNGs, npz caches,
+    trained heads), so they are never renumbered; ``IGNORE`` (255) is deliberately not a member: it is "no
+    label", not a class.
+    """
+
     BACKGROUND = 0  # sky, vegetation, anything the model does not describe
     GROUND = 1
     WALL = 2

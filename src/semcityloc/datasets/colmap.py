@@ -284,6 +284,7 @@ class ColmapModel:
 # ---------------------------------------------------------------------------------------------- text
 # Line layouts, the camera-model table and the line parsing live in ``geometry.colmap_text``.
 def read_cameras_text(path: str | os.PathLike) -> dict[int, ColmapCamera]:
+    """``cameras.txt`` -> {camera id: ``ColmapCamera``}; a bad line is an error naming the file and line."""
     path = Path(path)
     cameras: dict[int, ColmapCamera] = {}
     for lineno, cam_id, model, width, height, params in read_camera_lines(path):
@@ -295,6 +296,9 @@ def read_cameras_text(path: str | os.PathLike) -> dict[int, ColmapCamera]:
 
 
 def read_images_text(path: str | os.PathLike) -> dict[int, ColmapImage]:
+    """``images.txt`` -> {image id: ``ColmapImage``} (pose, camera id, name, 2D points); its line layout
+    and checks: ``geometry.colmap_text.read_image_lines``.
+    """
     images: dict[int, ColmapImage] = {}
     for _, image_id, qvec, tvec, camera_id, name, xys, ids in read_image_lines(path):
         images[image_id] = ColmapImage(image_id, qvec, tvec, camera_id, name, xys, ids)
@@ -302,6 +306,9 @@ def read_images_text(path: str | os.PathLike) -> dict[int, ColmapImage]:
 
 
 def read_points3D_text(path: str | os.PathLike) -> dict[int, ColmapPoint3D]:
+    """``points3D.txt`` -> {point id: ``ColmapPoint3D``}; every number checked (colours 0..255, whole tracks),
+    a bad line named by file and line.
+    """
     path = Path(path)
     points: dict[int, ColmapPoint3D] = {}
     for lineno, line in text_rows(path):
@@ -322,6 +329,9 @@ def read_points3D_text(path: str | os.PathLike) -> dict[int, ColmapPoint3D]:
 
 
 def write_cameras_text(cameras: Mapping[int, ColmapCamera], path: str | os.PathLike) -> None:
+    """Write ``cameras.txt`` with COLMAP's header comments, atomically (a failed write leaves no partial
+    file).
+    """
     lines = [
         "# Camera list with one line of data per camera:",
         "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
@@ -333,6 +343,9 @@ def write_cameras_text(cameras: Mapping[int, ColmapCamera], path: str | os.PathL
 
 
 def write_images_text(images: Mapping[int, ColmapImage], path: str | os.PathLike) -> None:
+    """Write ``images.txt`` (two lines per image, COLMAP's header comments), atomically; floats in round-trip
+    form, so reading it back gives the same model.
+    """
     mean_obs = np.mean([len(im.xys) for im in images.values()]) if images else 0.0
     lines = [
         "# Image list with two lines of data per image:",
@@ -348,6 +361,7 @@ def write_images_text(images: Mapping[int, ColmapImage], path: str | os.PathLike
 
 
 def write_points3D_text(points: Mapping[int, ColmapPoint3D], path: str | os.PathLike) -> None:
+    """Write ``points3D.txt`` (one line per point with its track), atomically."""
     lines = [
         "# 3D point list with one line of data per point:",
         "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
@@ -428,6 +442,9 @@ _TRACK = np.dtype([("image", "<u4"), ("idx", "<u4")])
 
 
 def read_cameras_binary(path: str | os.PathLike) -> dict[int, ColmapCamera]:
+    """``cameras.bin`` -> {camera id: ``ColmapCamera``}; an unknown model id, a truncated file or bytes after
+    the last record are ``InputFileError`` / ``UnsupportedFormatError``, never a silently short model.
+    """
     path = Path(path)
     r = _Reader(_read_bytes(path), path)
     cameras = {}
@@ -443,6 +460,9 @@ def read_cameras_binary(path: str | os.PathLike) -> dict[int, ColmapCamera]:
 
 
 def read_images_binary(path: str | os.PathLike) -> dict[int, ColmapImage]:
+    """``images.bin`` -> {image id: ``ColmapImage``}; truncation, implausible counts and non-UTF-8 names are
+    typed errors naming the file.
+    """
     path = Path(path)
     r = _Reader(_read_bytes(path), path)
     images = {}
@@ -459,6 +479,9 @@ def read_images_binary(path: str | os.PathLike) -> dict[int, ColmapImage]:
 
 
 def read_points3D_binary(path: str | os.PathLike) -> dict[int, ColmapPoint3D]:
+    """``points3D.bin`` -> {point id: ``ColmapPoint3D``}; truncation and implausible counts are typed
+    errors.
+    """
     path = Path(path)
     r = _Reader(_read_bytes(path), path)
     points = {}
@@ -478,6 +501,7 @@ def read_points3D_binary(path: str | os.PathLike) -> dict[int, ColmapPoint3D]:
 
 
 def write_cameras_binary(cameras: Mapping[int, ColmapCamera], path: str | os.PathLike) -> None:
+    """Write ``cameras.bin`` in COLMAP's little-endian layout, atomically."""
     out = io.BytesIO()
     out.write(struct.pack("<Q", len(cameras)))
     for c in cameras.values():
@@ -487,6 +511,9 @@ def write_cameras_binary(cameras: Mapping[int, ColmapCamera], path: str | os.Pat
 
 
 def write_images_binary(images: Mapping[int, ColmapImage], path: str | os.PathLike) -> None:
+    """Write ``images.bin`` in COLMAP's little-endian layout, atomically; a name with a NUL (which would end
+    the name in the file) is refused.
+    """
     out = io.BytesIO()
     out.write(struct.pack("<Q", len(images)))
     for im in images.values():
@@ -503,6 +530,7 @@ def write_images_binary(images: Mapping[int, ColmapImage], path: str | os.PathLi
 
 
 def write_points3D_binary(points: Mapping[int, ColmapPoint3D], path: str | os.PathLike) -> None:
+    """Write ``points3D.bin`` in COLMAP's little-endian layout, atomically."""
     out = io.BytesIO()
     out.write(struct.pack("<Q", len(points)))
     for p in points.values():

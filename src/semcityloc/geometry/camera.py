@@ -24,6 +24,18 @@ PRINCIPAL_POINT_TOLERANCE = 0.1
 
 @dataclass(frozen=True)
 class Camera:
+    """A pinhole camera: focal lengths and principal point in pixels, image size; no distortion.
+
+    The one camera model of the pipeline: renderers, masks, the search and the pose files all assume it,
+    and a photo with lens distortion is resampled to it first (``geometry.distortion``). Pixel centres sit
+    at half-integers: pixel (row i, column j) covers [j, j+1) x [i, i+1) and its centre is
+    (u, v) = (j + 0.5, i + 0.5), so the top-left pixel's centre is (0.5, 0.5) and ``cx = width / 2`` is the
+    image's middle (COLMAP / OpenCV calibration; docs/conventions.md). Camera axes are OpenCV's (x right,
+    y down, z forward): (x, y, z) projects to (fx x / z + cx, fy y / z + cy). Values are checked when made
+    (finite, positive focal lengths, whole positive sizes up to ``MAX_SIDE_PX``), so a typo in a
+    calibration file is a ``CameraError`` here rather than an empty render later.
+    """
+
     fx: float
     fy: float
     cx: float

@@ -123,6 +123,16 @@ class BeyondConfig:
 
 @dataclass(frozen=True)
 class CascadeConfig:
+    """The default search (``search="cascade"``): how large its volume is and how each stage samples it.
+
+    The volume's half-widths are ``n_sigma`` times the prior's stated uncertainty, with floors so that even an
+    RTK prior leaves room for the map's own errors, and a floor of the camera's height above the ground
+    (``min_clearance_m``). The stages' own settings are the nested configs: the low-resolution ``sweep`` of
+    the whole volume, the finer ``local`` grids around its best cells, and the ``beyond`` ring that hints a
+    prior further off than stated. Kept apart from ``CoarseConfig`` (the first design's fixed grid) so that
+    both searches can be run on the same queries.
+    """
+
     sweep: SweepConfig = field(default_factory=SweepConfig)
     local: LocalConfig = field(default_factory=LocalConfig)
     beyond: BeyondConfig = field(default_factory=BeyondConfig)
@@ -208,6 +218,16 @@ class RefineConfig:
 
 @dataclass(frozen=True)
 class LocalizerConfig:
+    """Everything that decides a localization's result: the search, the refinement, the acceptance, the map.
+
+    Frozen, and built from a preset (``LocalizerConfig.preset``, ``PRESETS``); change a field with
+    ``dataclasses.replace`` or the ``with_*`` helpers, which check values the same way. One typed object
+    because a benchmark run records it in ``run.json`` (what decides the numbers) and resumes only with an
+    equal one, and because the CLI, the benchmark and the library must localize with the same numbers. The
+    fields are checked when made (``ParameterError`` naming the field), so a bad value fails at once rather
+    than inside a search.
+    """
+
     search: str = "cascade"  # "cascade" or "grid" (module docstring)
     cascade: CascadeConfig = field(default_factory=CascadeConfig)
     # The prior's uncertainty when the caller states none (``Localizer.localize(prior_uncertainty=)``).
@@ -336,6 +356,9 @@ class LocalizerConfig:
         return replace(self, **changes) if changes else self
 
     def as_dict(self) -> dict:
+        """The config as nested plain dicts (``dataclasses.asdict``): what ``run.json`` records and
+        compares.
+        """
         return asdict(self)
 
 

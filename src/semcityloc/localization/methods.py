@@ -63,6 +63,9 @@ class LocalizerMethod:
         self.localizer = Localizer(map_model, self.config, scene=scene)
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
+        """The query localized by this method's ``Localizer`` with the query's own prior uncertainty when it
+        has one.
+        """
         return self.localizer.localize(
             q.camera,
             q.prior_pose_local,
@@ -103,10 +106,20 @@ def searched_map(name: str, config: LocalizerConfig) -> dict[str, Any]:
 
 
 def available_methods() -> tuple[str, ...]:
+    """The method names registered so far, in registration order.
+
+    SemCityLoc and its ablations are always there; the baselines only once ``semcityloc.baselines`` has been
+    imported (it registers them as a side effect), which is why the benchmark layer imports it before listing
+    or checking methods.
+    """
     return tuple(_REGISTRY)
 
 
 def check_method(name: str) -> str:
+    """``name`` if it is a registered method, else a ``BenchmarkError`` naming the known ones.
+
+    Called when a run is described (its spec made), so a typo in ``--method`` is refused before any work.
+    """
     if name not in _REGISTRY:
         raise unknown_choice("method", name, _REGISTRY, BenchmarkError)
     return name

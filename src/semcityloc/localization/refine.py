@@ -28,6 +28,15 @@ from semcityloc.render.scene import RenderScene
 
 @dataclass
 class RefineResult:
+    """What one particle-filter run returns: the best particle and the scores and spread behind it.
+
+    ``xyz_rpy`` is the best particle's state (local frame; m, deg), ``score`` its combined score and
+    ``semantic`` / ``depth_cost`` its two terms; ``spread_m`` / ``spread_deg`` are the final population's
+    weighted spread (an acceptance feature: a filter that did not converge is less likely right);
+    ``evaluations`` counts the poses scored (for timing). ``states`` / ``weights`` hold the final population
+    when kept, for the covariance and the refinement stage's choices.
+    """
+
     xyz_rpy: np.ndarray  # (6,) best particle
     score: float
     semantic: float

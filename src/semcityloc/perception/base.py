@@ -87,6 +87,14 @@ class DepthOutput:
 # ---------------------------------------------------------------------------------------------- protocols
 @runtime_checkable
 class SegmentationBackend(Protocol):
+    """What the localizer needs from any segmenter: ``predict(image)`` -> class probabilities and labels.
+
+    A protocol (not a base class) so that a backend from anywhere -- a trained head, a foundation model, masks
+    computed on another machine -- plugs in through the registry without importing this package's torch code.
+    ``classes`` names the classes it can predict (a subset of ``CLASS_NAMES``), so a caller knows which
+    classes the localizer may score.
+    """
+
     name: str
     classes: tuple[str, ...]  # the class names this backend predicts (a subset of CLASS_NAMES)
 
@@ -95,6 +103,12 @@ class SegmentationBackend(Protocol):
 
 @runtime_checkable
 class DepthBackend(Protocol):
+    """What the localizer needs from any depth estimator: ``predict(image)`` -> relative depth and validity.
+
+    A protocol for the same reason as ``SegmentationBackend``. The depth may be relative (unknown scale and
+    shift): the localizer's depth cost fits both per view.
+    """
+
     name: str
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput: ...
