@@ -96,6 +96,9 @@ EDGE_PRESETS: dict[str, EdgePreset] = {
 
 
 def edge_preset(quality: str | EdgePreset) -> EdgePreset:
+    """The ``EdgePreset`` of a quality name (``EDGE_PRESETS``) or the preset itself; an unknown name is a
+    ``ParameterError`` naming the known ones, so ``--edge-quality`` and library callers fail alike.
+    """
     if isinstance(quality, EdgePreset):
         return quality
     try:

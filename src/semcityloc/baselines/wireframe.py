@@ -116,6 +116,11 @@ class WireframeConfig:
 
 @dataclass
 class StageResult:
+    """One stage of the wireframe baseline's coarse-to-fine grid: its best state, the yaw / x / y / z
+    half-ranges it searched and its cost volume, kept so the next stage can centre on it and the report can
+    show the volumes.
+    """
+
     centre: np.ndarray  # (6,) best state of the stage
     half_ranges: np.ndarray  # (4,) yaw, x, y, z half-ranges it searched
     volume: CostVolume

@@ -37,6 +37,9 @@ FORMAT = 1
 
 
 def cache_file(key: str) -> Path:
+    """The file an estimate of key ``key`` is kept in, under ``cache.cache_root()`` so that one setting moves
+    every cache.
+    """
     return cache_root() / "focal" / f"{key}.json"
 
 

@@ -285,6 +285,9 @@ def stated_camera(
 
 
 def query_id(index: int) -> str:
+    """The id of query ``index`` (``q0007``): the name of its details and estimate files and its
+    ``results.csv`` key, zero-padded so that files sort in query order.
+    """
     return f"q{int(index):04d}"
 
 

@@ -89,6 +89,10 @@ RECALL_LINE = (
 
 @dataclass
 class ReportOutput:
+    """What ``make_report`` wrote: the output folder, each table's Markdown and CSV files, the figures,
+    ``report.md`` and the notes printed to the user (runs left out and why).
+    """
+
     out_dir: Path
     tables: dict[str, tuple[Path, Path]]  # name -> (markdown, csv)
     plots: list[Path]

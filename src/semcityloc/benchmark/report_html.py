@@ -74,6 +74,10 @@ NOMINAL_CAMERA = Camera.from_fov(640, 480, 70.0)  # frusta of photos whose camer
 
 @dataclass
 class HtmlReport:
+    """What the HTML report wrote: the page, how many queries its browser holds and how many of them have the
+    model drawn at their poses, and the notes printed to the user.
+    """
+
     path: Path
     queries: int  # queries in the browser
     rendered: int  # of them, with the model drawn at their poses

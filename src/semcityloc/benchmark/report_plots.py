@@ -67,6 +67,10 @@ def _errors(run: RunData, column: str) -> np.ndarray:
 
 
 def plot_cumulative(runs: list[RunData], column: str, xlabel: str, path: Path, x_max: float = 10.0) -> Path:
+    """The cumulative error curve of ``column`` (position or rotation error) for each run, with the recall
+    thresholds marked, saved as a PNG at ``path``; queries not localized never reach the curve, so a run's
+    curve ends at its share of localized queries.
+    """
     plt = _pyplot()
     grid = np.linspace(0.0, x_max, 401)
     fig, ax = plt.subplots(figsize=(6, 4))

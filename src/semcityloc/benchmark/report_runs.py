@@ -54,6 +54,11 @@ RIGHT_M, RIGHT_DEG = 5.0, 5.0  # "right" for the acceptance: the calibrated prob
 
 @dataclass
 class RunData:
+    """One run folder as the report reads it: its ``run.json`` config, its ``results.csv`` rows and summary,
+    whether every query has a row, the settings that describe it, its label and the rows left out. Read
+    once (``load_run``) and shared by the Markdown and HTML reports, so both read runs alike.
+    """
+
     path: Path
     config: dict
     rows: list[dict[str, str]]
@@ -261,6 +266,9 @@ def comparable_runs(runs: list[RunData], factor: str) -> list[RunData]:
 
 
 def noise_x(run: RunData) -> float:
+    """A run's place on the recall-versus-prior-noise axis: the middle of its extra prior error range in
+    metres (0 for a run without extra prior noise).
+    """
     extra = run.config.get("prior_extra_m")
     return 0.0 if not extra else 0.5 * (float(extra[0]) + float(extra[1]))
 

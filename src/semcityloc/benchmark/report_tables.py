@@ -78,12 +78,16 @@ def _num(v: Any, digits: int = 1) -> str:
 
 
 def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
+    """A Markdown table from headers and rows of cells (cells as given, turned into text)."""
     out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
     out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
     return "\n".join(out) + "\n"
 
 
 def metric_headers() -> list[str]:
+    """The column headers of the metrics table (counts, recall at each threshold under both conventions,
+    median errors, time), one list so that every table and its CSV name the columns alike.
+    """
     recall = [f"R@{m:g}m,{d:g}° (≤ / <)" for m, d in THRESHOLDS]
     return [
         "queries",

@@ -97,6 +97,7 @@ def error_bin(row: dict[str, str]) -> str:
 
 
 def threshold_label(max_m: float, max_deg: float) -> str:
+    """The label of a recall threshold (``≤5 m, 5°``), as the HTML page's error bins and filter name it."""
     return f"≤{max_m:g} m, {max_deg:g}°"
 
 

@@ -108,6 +108,11 @@ class RunSpec(Protocol):
 
 @dataclass
 class BenchmarkOutcome:
+    """What ``run_benchmark`` leaves: the run folder, whether every query has a row (then ``summary.json`` is
+    written), how many rows this call wrote, all rows, the summary and the run's config. A killed or
+    ``--stop-after`` run is incomplete, not an error.
+    """
+
     out_dir: Path
     complete: bool  # every query has a row (summary.json written)
     new_rows: int  # rows written by this call (a restored query's row replaces its old one)

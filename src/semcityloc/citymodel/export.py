@@ -18,6 +18,9 @@ from semcityloc.errors import UnsupportedFormatError
 
 
 def export_model(model: CityModel, path: str | Path) -> Path:
+    """Write ``model`` as ``.npz``, ``.ply`` or ``.obj`` (chosen by the suffix; the folder made) and return
+    the path; ``semcityloc city convert`` and library callers share it.
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     path.parent.mkdir(parents=True, exist_ok=True)

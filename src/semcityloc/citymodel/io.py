@@ -34,6 +34,9 @@ CACHE_VERSION = 6
 
 
 def default_cache_dir() -> Path:
+    """Where parsed models are cached: ``models/`` under ``cache.cache_root()``, so every cache moves with one
+    setting.
+    """
     return cache_root() / "models"
 
 

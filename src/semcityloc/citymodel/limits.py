@@ -26,6 +26,9 @@ MB = 1024 * 1024
 
 
 def env_name(kind: str) -> str:
+    """The environment variable that raises the size limit of ``kind`` (``SEMCITYLOC_MAX_CITYGML_MB``), named
+    in every refusal.
+    """
     return f"SEMCITYLOC_MAX_{kind.upper()}_MB"
 
 
@@ -50,6 +53,9 @@ def limit_bytes(kind: str) -> int:
 
 
 def too_large(path: Path, kind: str, size: int) -> InputFileError:
+    """The error for a file over its size limit, naming the size, the limit and the variable with a value that
+    would admit the file, so the user can raise it if the machine has the memory.
+    """
     limit = limit_bytes(kind)
     return InputFileError(
         f"{path}: {size / MB:.0f} MB of {kind} is over the size limit of {limit / MB:.0f} MB; "

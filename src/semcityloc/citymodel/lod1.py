@@ -185,6 +185,10 @@ def building_footprint(
 
 
 def convex_hull_polygon(xy: np.ndarray) -> FootprintPolygon | None:
+    """The convex hull of points as a footprint polygon, or None when the points are degenerate (collinear,
+    too few) or the hull is smaller than ``MIN_AREA_M2``; the fallback outline when a building's exact
+    outline cannot be traced.
+    """
     try:
         hull = ConvexHull(np.unique(np.round(xy, 6), axis=0))
     except (QhullError, ValueError):

@@ -26,6 +26,11 @@ DUPLICATE_TOLERANCE_M = 1e-6
 
 @dataclass
 class Triangulation:
+    """One polygon triangulated: its distinct points (exterior first, then holes), the triangles as indices
+    into them, the unit Newell normal of the exterior ring and how far the polygon is from planar, which
+    the builder uses to classify and to warn about warped surfaces.
+    """
+
     points: np.ndarray  # (n, 3) float64, the polygon's distinct points (exterior first, then holes)
     triangles: np.ndarray  # (m, 3) int64 indices into points
     normal: np.ndarray  # (3,) unit Newell normal of the exterior ring

@@ -32,6 +32,9 @@ from semcityloc.localization.methods import available_methods
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc benchmark`` and its options to the command's parser (called by
+    ``cli.main.build_parser``, once per sub-command module).
+    """
     p = sub.add_parser("benchmark", help="localize simulated drone queries over a city model and score them")
     add_simulation_arguments(p)
     add_executor_arguments(p)
@@ -175,6 +178,9 @@ def spec_from_args(
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc benchmark`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     if args.dataset:  # a real data set (LoD-Loc layout) instead of simulated queries
         return run_dataset_benchmark(args)
     spec = spec_from_args(args)

@@ -16,6 +16,9 @@ from semcityloc.errors import ParameterError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc city`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     city = sub.add_parser("city", help="inspect or convert a city model")
     city_sub = city.add_subparsers(dest="city_command", required=True, metavar="ACTION")
 
@@ -98,6 +101,9 @@ _load = load_model_from_args
 
 
 def run_info(args: argparse.Namespace) -> int:
+    """Run ``semcityloc city info`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     summary = _load(args).summary()
     if args.json:
         print(json.dumps(summary))
@@ -107,6 +113,9 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def format_summary(s: dict) -> str:
+    """``city info``'s text: a model summary (source, buildings, triangles, CRS, LoDs, extent, per-class
+    triangles and areas, skipped polygons, warnings) as aligned lines.
+    """
     dx, dy, dz = s["extent_m"]
     lines = [
         f"source:     {s['source']}",
@@ -131,6 +140,9 @@ def format_summary(s: dict) -> str:
 
 
 def run_convert(args: argparse.Namespace) -> int:
+    """Run ``semcityloc city convert`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     model = _load(args)
     out = export_model(model, args.out)
     print(f"wrote {out} ({model.num_triangles} triangles)")

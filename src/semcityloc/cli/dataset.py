@@ -38,6 +38,9 @@ from semcityloc.render import Renderer
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc dataset`` and its options to the command's parser (called by
+    ``cli.main.build_parser``, once per sub-command module).
+    """
     ds = sub.add_parser(
         "dataset",
         help="a LoD-Loc data set: info, overlay, benchmark, colmap export; dji-prior: a DJI photo's prior",
@@ -159,6 +162,9 @@ def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def parse_floats(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
+    """``n`` comma-separated finite numbers from an option's text (None: None); an ``InputFileError`` naming
+    ``what`` otherwise.
+    """
     if text is None:
         return None
     try:
@@ -182,6 +188,9 @@ def _dataset(args: argparse.Namespace):
 
 
 def run_info(args: argparse.Namespace) -> int:
+    """Run ``semcityloc dataset info`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     ds = _dataset(args)
     rows = []
     for q in ds.queries:
@@ -221,6 +230,9 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def run_overlay(args: argparse.Namespace) -> int:
+    """Run ``semcityloc dataset overlay`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     ds = _dataset(args)
     queries = [ds.query(args.name)] if args.name else ds.queries
     model = ds.load_model()
@@ -239,6 +251,9 @@ def run_overlay(args: argparse.Namespace) -> int:
 
 
 def run_colmap(args: argparse.Namespace) -> int:
+    """Run ``semcityloc dataset colmap`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     ds = _dataset(args)
     entries = {}
     for q in ds.queries:
@@ -253,6 +268,9 @@ def run_colmap(args: argparse.Namespace) -> int:
 
 
 def run_dji_prior(args: argparse.Namespace) -> int:
+    """Run ``semcityloc dataset dji-prior`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     offset = parse_floats(args.offset, 3, "--offset")
     prior = dji_prior(
         args.image,
@@ -315,6 +333,9 @@ def check_dataset_options(args: argparse.Namespace) -> None:
 
 
 def run_dataset_benchmark(args: argparse.Namespace) -> int:
+    """Run ``semcityloc dataset benchmark`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     check_dataset_options(args)
     if args.ecef_origin is not None and args.frame != "ecef":
         raise InputFileError("--ecef-origin needs --frame ecef")

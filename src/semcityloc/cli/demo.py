@@ -30,6 +30,9 @@ from semcityloc.localization.methods import available_methods, check_method
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc demo`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     p = sub.add_parser(
         "demo", help="generate a city, benchmark the localizer on it, write tables and figures"
     )
@@ -51,6 +54,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc demo`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     # Every method checked before the first one runs (a typo in the last one cost the others' minutes)
     methods = [check_method(m.strip()) for m in args.methods.split(",") if m.strip()]
     if not methods:

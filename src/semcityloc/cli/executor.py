@@ -12,6 +12,9 @@ from semcityloc.errors import BenchmarkError
 
 
 def add_executor_arguments(p: argparse.ArgumentParser) -> None:
+    """Add ``--executor`` and ``--ray-address`` to a sub-command, so ``run`` and ``benchmark`` offer the same
+    choices (``benchmark.run.EXECUTORS``).
+    """
     p.add_argument(
         "--executor",
         default="local",

@@ -41,6 +41,9 @@ SHOWN_PROBLEMS = 10  # photos named per problem on stderr; the rest counted
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc label`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     p = sub.add_parser("label", help="automatic label PNGs: project the city model into posed photos")
     add_model_arguments(p, positional=False)
     p.add_argument("--images", required=True, help="folder of photos")
@@ -84,6 +87,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 # ---------------------------------------------------------------------------------------------- run
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc label`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     images = list_images(Path(args.images))
     model = load_model_from_args(args)
     poses = PoseFiles(args.poses, model.crs)

@@ -102,6 +102,9 @@ def add_lossy_mask_argument(p: argparse.ArgumentParser, masks: str = "--masks") 
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc localize`` and its options to the command's parser (called by
+    ``cli.main.build_parser``, once per sub-command module).
+    """
     p = sub.add_parser("localize", help="estimate the 6DoF pose of one image against a city model")
     add_model_arguments(p, positional=False)
     p.add_argument(
@@ -229,6 +232,9 @@ def _pinhole_photo(path, lens: PhotoCamera, max_width: int | None = None) -> np.
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc localize`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     uncertainty = PriorUncertainty.parse(args.prior_sigma) if args.prior_sigma else None
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
     config = config.with_map_eaves(args.map_eaves, args.map_eaves_flat)  # checked here, before anything loads

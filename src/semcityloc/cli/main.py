@@ -83,6 +83,7 @@ def compile_notice(args: argparse.Namespace) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``semcityloc`` argument parser: ``--version`` and every sub-command of ``COMMANDS``."""
     parser = argparse.ArgumentParser(
         prog="semcityloc",
         description="6DoF UAV image localization against semantic 3D city models.",
@@ -95,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``semcityloc`` command: parse ``argv``, check ``--out`` before any work, run the sub-command; a
+    ``SemCityLocError`` is one line and exit 2, a Ctrl-C one line and exit 130, anything else a bug with
+    its traceback.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

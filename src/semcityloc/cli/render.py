@@ -27,6 +27,9 @@ from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc render`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     p = sub.add_parser("render", help="render the semantic mask and depth of a city model at a pose")
     add_model_arguments(p, positional=False)
     p.add_argument(
@@ -51,6 +54,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc render`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     # With --image the intrinsics must describe that photo: edges drawn with another camera's are misaligned
     camera, lens = read_lens_for_photo(args.intrinsics, args.width, args.height, args.image)
     model = load_model_from_args(args)

@@ -11,6 +11,9 @@ from semcityloc.benchmark.report_html import make_html_report
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc report`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     p = sub.add_parser("report", help="tables and plots from one or more benchmark output folders")
     p.add_argument("runs", nargs="+", metavar="DIR", help="folders written by 'semcityloc benchmark'")
     p.add_argument(
@@ -37,6 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc report`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     if args.out is None:
         args.out = str(Path(args.runs[0]) / "report") if len(args.runs) == 1 else "benchmark_report"
     report = make_report(args.runs, args.out, overlays=args.overlays)

@@ -32,6 +32,9 @@ SHOWN_PHOTOS = 10  # photos named per reason in the closing lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc run`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     p = sub.add_parser(
         "run",
         help="localize a folder of photos against a city model: pose per photo, COLMAP, geotags, GeoJSON",
@@ -144,6 +147,9 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc run`` from its parsed arguments; the exit code (typed errors are left to ``cli.main``,
+    which prints them as one line).
+    """
     spec = spec_from_args(args)
     out = Path(args.out)
     outcome = run_from_args(spec, out, args)

@@ -21,6 +21,9 @@ from semcityloc.errors import BenchmarkError, counted
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc sweep`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     p = sub.add_parser("sweep", help="one benchmark run per value of one simulation knob")
     p.add_argument("--knob", required=True, help="the knob to sweep (any name --set takes)")
     p.add_argument("--values", required=True, help="comma-separated values, e.g. 0,1,2 or 2-5,5-10 for pairs")
@@ -38,6 +41,9 @@ def sweep_values(text: str) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc sweep`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     knob = args.knob.strip()
     parse_settings([f"{knob}=0"])  # an unknown knob fails before anything runs
     values = sweep_values(args.values)

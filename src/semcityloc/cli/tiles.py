@@ -14,6 +14,9 @@ SHOWN_SKIPPED = 10  # tiles left out named one per line; the rest counted
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc tiles`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     tiles = sub.add_parser("tiles", help="index a folder of city-model tiles into a store for --city")
     tiles_sub = tiles.add_subparsers(dest="tiles_command", required=True, metavar="ACTION")
     build = tiles_sub.add_parser("build", help="index a folder of CityGML / CityJSON tiles into a store")
@@ -34,6 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    """Run ``semcityloc tiles build`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
+
     def progress(message: str) -> None:
         print(f"\r{message[:100]:<100}", end="", file=sys.stderr, flush=True)
 
@@ -65,6 +72,9 @@ def run_build(args: argparse.Namespace) -> int:
 
 
 def run_info(args: argparse.Namespace) -> int:
+    """Run ``semcityloc tiles info`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     summary = TileStore.open(args.store).summary()
     if args.json:
         print(json.dumps(summary))

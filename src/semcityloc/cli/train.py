@@ -16,6 +16,9 @@ from semcityloc.errors import ParameterError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc train-segmenter`` and its options to the command's parser (called by
+    ``cli.main.build_parser``, once per sub-command module).
+    """
     p = sub.add_parser("train-segmenter", help="train a segmentation head (frozen backbone) from label PNGs")
     p.add_argument("--images", required=True, help="folder of photos")
     p.add_argument(
@@ -63,6 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
+    """``--input-size`` text (``512x384``) as (width, height), None when not given; a ``ParameterError`` for
+    any other form.
+    """
     if text is None:
         return None
     try:
@@ -75,6 +81,9 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc train-segmenter`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     # needs torch (optional [perception] extra): imported only when training runs
     from semcityloc.perception.training import TrainConfig, load_samples, split_samples, train_segmenter
 

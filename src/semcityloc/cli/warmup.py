@@ -10,6 +10,9 @@ from semcityloc.benchmark.warmup import cached_kernels, kernels_cached, warm_up
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``semcityloc warmup`` and its options to the command's parser (called by ``cli.main.build_parser``,
+    once per sub-command module).
+    """
     p = sub.add_parser("warmup", help="compile the numba kernels once (about a minute), ahead of first use")
     p.add_argument(
         "--check", action="store_true", help="only say whether the kernels are compiled (exit 1 if not)"
@@ -18,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``semcityloc warmup`` from its parsed arguments; the exit code (typed errors are left to
+    ``cli.main``, which prints them as one line).
+    """
     n = len(cached_kernels())  # every group
     if args.check:
         cached = kernels_cached()

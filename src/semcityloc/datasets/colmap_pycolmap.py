@@ -29,6 +29,9 @@ def _pycolmap() -> Any:
 
 
 def pycolmap_available() -> bool:
+    """Whether the optional ``pycolmap`` imports; callers offer the bridge only then, without importing it
+    themselves.
+    """
     try:
         _pycolmap()
     except OptionalDependencyError:

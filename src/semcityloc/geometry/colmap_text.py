@@ -57,6 +57,9 @@ IMAGE_NAME = 9
 
 # ---------------------------------------------------------------------------------------------- tokens
 def is_number(token: str) -> bool:
+    """Whether a token parses as a float; how the readers tell an image line from a 2D-point line or a name
+    from a number.
+    """
     try:
         float(token)
     except ValueError:
@@ -182,6 +185,9 @@ def format_float(value: float) -> str:
 
 
 def camera_line(camera_id: int, model: str, width: int, height: int, params) -> str:
+    """One ``cameras.txt`` line (``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``), parameters in round-trip float
+    form so that a model written and read back is unchanged.
+    """
     return " ".join([str(camera_id), model, str(width), str(height), *map(format_float, params)])
 
 

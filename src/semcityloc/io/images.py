@@ -33,6 +33,10 @@ def _palette_bytes() -> list[int]:
 
 
 def save_labels_png(labels: np.ndarray, path: str | Path) -> Path:
+    """Write an (H, W) label mask as an 8-bit palette PNG whose index is the class id (``classes.PALETTE``;
+    255 = ignore, white): lossless, viewable in any image viewer, and read back exactly by
+    ``load_labels_png``.
+    """
     labels = np.asarray(labels)
     if labels.ndim != 2:
         raise ShapeError(f"label mask must be (H, W), got shape {labels.shape}")

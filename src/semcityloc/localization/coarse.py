@@ -88,6 +88,9 @@ class CostVolume:
 
 
 def axis_samples(centre: float, full_range: float, n: int) -> np.ndarray:
+    """``n`` evenly spaced samples over ``full_range`` centred on ``centre`` (ends included; the centre alone
+    when ``n`` <= 1): one axis of the grid search.
+    """
     if n <= 1:
         return np.array([centre], dtype=np.float64)
     return centre + np.linspace(-full_range / 2, full_range / 2, n)

@@ -199,6 +199,9 @@ def risk_coverage(p: np.ndarray, y: np.ndarray) -> list[tuple[float, float, floa
 
 
 def save_models(models: list[ConfidenceModel], path: Path = MODELS_PATH) -> None:
+    """Write the fitted acceptance models to ``path`` (the package's ``confidence_models.json`` by default;
+    ``calibrate_confidence.py --write``) and drop the loaded copy, so the next localization uses them.
+    """
     data = {"models": [m.as_dict() for m in models]}
     path.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     _load.cache_clear()

@@ -206,6 +206,9 @@ class CovarianceModel:
 
 
 def model_key(kind: str, with_depth: bool, narrow: bool = False) -> str:
+    """The key of a covariance model in ``covariance_model.json``: the localizer kind, with or without depth,
+    and ``/narrow`` for cameras under 50 degrees across, which have a model of their own.
+    """
     key = f"{kind}/{'depth' if with_depth else 'no-depth'}"
     return f"{key}/narrow" if narrow else key
 

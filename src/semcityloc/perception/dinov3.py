@@ -34,6 +34,9 @@ DOWNLOAD_HINT = (
 
 
 def default_backbone_dir() -> Path:
+    """Where the DINOv3 checkpoint is looked for when none is given: its folder under the weights directory
+    (``perception.base.weights_dir``: ``$SEMCITYLOC_WEIGHTS`` or the user's cache).
+    """
     return weights_dir() / DEFAULT_DINOV3_DIR
 
 

@@ -191,6 +191,9 @@ class FilesDepth:
 
 
 def files_segmentation_backend(masks=None, allow_lossy=False) -> FilesSegmentation:
+    """The registry's factory of the ``files`` segmentation backend (options ``masks=DIR`` and
+    ``allow_lossy``, as given on the command line).
+    """
     return FilesSegmentation(masks, allow_lossy)
 
 
@@ -215,4 +218,5 @@ def with_lossy_masks(options: dict, seg_backend: str | None, allow_lossy_mask: b
 
 
 def files_depth_backend(depth=None) -> FilesDepth:
+    """The registry's factory of the ``files`` depth backend (option ``depth=DIR``)."""
     return FilesDepth(depth)

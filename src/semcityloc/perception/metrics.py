@@ -65,6 +65,9 @@ def mean_iou(
 
 
 def pixel_accuracy(conf: np.ndarray) -> float:
+    """The share of correctly labelled pixels in a confusion matrix, in percent (NaN for an empty one);
+    reported beside mIoU in training logs.
+    """
     conf = np.asarray(conf, dtype=np.float64)
     total = conf.sum()
     return float(100.0 * np.trace(conf) / total) if total else float("nan")

@@ -48,6 +48,10 @@ def _conv_bn_relu(inp: int, oup: int, kernel: int = 3, stride: int = 1, groups: 
 
 
 class InvertedResidual(nn.Module):
+    """MobileNetV2's inverted residual block (1x1 expansion, 3x3 depthwise, 1x1 projection; a skip connection
+    when shape allows), written out so torchvision's ImageNet weights load by name without torchvision.
+    """
+
     def __init__(self, inp: int, oup: int, stride: int, expand: int):
         super().__init__()
         hidden = int(round(inp * expand))

@@ -49,6 +49,7 @@ DOWNLOAD_HINT = (
 
 
 def default_model_path() -> Path:
+    """Where the MoGe-2 ``model.pt`` is looked for when none is given: under the weights directory."""
     return weights_dir() / DEFAULT_MOGE_DIR / "model.pt"
 
 

@@ -39,6 +39,10 @@ def parse_backend_options(pairs: list[str] | tuple[str, ...]) -> tuple[tuple[str
 
 @dataclass(frozen=True)
 class BackendEntry:
+    """One registered backend: its kind (segmentation or depth), name, factory, the options it accepts and a
+    one-line summary for ``--help`` and error messages.
+    """
+
     kind: str  # "segmentation" | "depth"
     name: str
     factory: Callable[..., Any]
@@ -59,10 +63,14 @@ def register_backend(
 
 
 def available_backends(kind: str) -> tuple[str, ...]:
+    """The names of the registered backends of ``kind``, sorted; what ``--backend`` accepts and what an
+    unknown name's error lists.
+    """
     return tuple(sorted(n for k, n in _REGISTRY if k == kind))
 
 
 def backend_entry(kind: str, name: str) -> BackendEntry:
+    """The registered backend ``name`` of ``kind``; a ``ParameterError`` listing the known names otherwise."""
     entry = _REGISTRY.get((kind, str(name)))
     if entry is None:
         raise unknown_choice(f"{kind} backend", name, available_backends(kind))

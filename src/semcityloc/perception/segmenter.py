@@ -71,6 +71,9 @@ def parse_backbone_spec(spec: str) -> tuple[str, str | None]:
 
 
 def build_backbone(kind: str, path: str | None, out_indices: list[int] | None = None) -> nn.Module:
+    """The frozen backbone of ``kind`` (``mobilenetv2`` or DINOv3) from its weights at ``path``; a head's
+    saved spec names both, so a head is rebuilt on the backbone it was trained on.
+    """
     if kind == "mobilenetv2":
         return MobileNetV2Backbone(weights=path)
     return DINOv3Backbone(path, out_indices)
@@ -196,6 +199,10 @@ def save_head(segmenter: Segmenter, out_dir: str | Path, metrics: dict | None = 
 
 
 def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
+    """The spec (``head.json``) of a trained head folder, checked: a ``MissingWeightsError`` saying how to
+    train one when the folder lacks its two files, an ``InputFileError`` when the spec is unreadable, not
+    ours, of a newer version or incomplete.
+    """
     head_dir = Path(head_dir)
     path = head_dir / HEAD_JSON
     if not path.is_file() or not (head_dir / HEAD_WEIGHTS).is_file():

@@ -41,6 +41,10 @@ SKY_TOP, SKY_HORIZON = np.array([0.45, 0.62, 0.90]), np.array([0.80, 0.86, 0.95]
 
 @dataclass
 class SyntheticView:
+    """One synthetic training photo: its name, the textured RGB image, its labels (255 = ignore), the world
+    pose and the camera it was rendered with.
+    """
+
     name: str
     image: np.ndarray  # (H, W, 3) uint8
     labels: np.ndarray  # (H, W) uint8 class ids, 255 = ignore

@@ -66,6 +66,9 @@ def device_of(spec: str | None):
 
 
 def parse_threads(threads) -> int | None:
+    """A torch thread count from an option's text (None or empty: torch's default); a ``ParameterError`` for
+    anything but a whole number >= 1.
+    """
     if threads in (None, ""):
         return None
     try:

@@ -52,6 +52,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 @dataclass
 class Sample:
+    """One training pair: a photo's name, its RGB image and its label mask (class ids, 255 = ignore)."""
+
     name: str
     image: np.ndarray  # (H, W, 3) uint8
     labels: np.ndarray  # (H, W) uint8 class ids, 255 = ignore
@@ -59,6 +61,11 @@ class Sample:
 
 @dataclass
 class TrainConfig:
+    """How a head is trained: epochs, batch size, learning rate and weight decay, mirrored copies, the feature
+    cache's memory, the seed, the classes and the network input size. Checked before a training starts
+    (``check``) and kept in its resume checkpoint.
+    """
+
     epochs: int = 20
     batch_size: int = 8
     lr: float = 2e-3
@@ -85,6 +92,10 @@ class TrainConfig:
 
 @dataclass
 class TrainResult:
+    """What a training left: the output folder, the per-epoch history (loss, mIoU), the best epoch and its
+    mIoU, and the segmenter with the best head loaded.
+    """
+
     out_dir: Path
     history: list[dict]
     best_epoch: int
@@ -134,6 +145,9 @@ def split_samples(
 
 
 def default_classes(samples: list[Sample]) -> tuple[str, ...]:
+    """The classes to train when none are given: those present in the labels, plus background; a
+    ``ParameterError`` when fewer than two, since there is nothing to learn.
+    """
     present = set()
     for s in samples:
         present.update(int(v) for v in np.unique(s.labels) if v < len(CLASS_NAMES))

@@ -22,6 +22,7 @@ RAYS_PER_CALL = 1 << 20
 
 
 def embree_available() -> bool:
+    """Whether the optional ``embreex`` imports; the reference engine and its tests are offered only then."""
     try:
         # optional [reference] extra: only probed here, never imported with the package
         import embreex.mesh_construction  # noqa: F401

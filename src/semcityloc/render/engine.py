@@ -49,6 +49,9 @@ def pose_arrays(poses: Pose) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_camera(camera: Camera) -> Camera:
+    """``camera`` if it is a ``Camera``, else an ``ArgumentTypeError`` saying how to make one; library callers
+    passing a K matrix get a clear error, not a numpy one deep in a kernel.
+    """
     if not isinstance(camera, Camera):
         raise ArgumentTypeError(
             f"camera must be a semcityloc Camera (Camera.from_K(K, width, height), read_lens(...)), got "

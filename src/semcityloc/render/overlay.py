@@ -111,6 +111,9 @@ def blend_labels(image: np.ndarray, labels: np.ndarray, alpha: float = 0.45) -> 
 
 
 def resize_nearest(a: np.ndarray, width: int, height: int) -> np.ndarray:
+    """An image or mask resized to ``width`` x ``height`` by nearest neighbour, sampled at pixel centres;
+    class ids must not be blended, so masks are never interpolated.
+    """
     a = np.asarray(a)
     h, w = a.shape[:2]
     if (h, w) == (height, width):
