@@ -90,10 +90,12 @@ class CityModel:
     # ------------------------------------------------------------------ geometry
     @property
     def num_triangles(self) -> int:
+        """How many triangles the mesh has."""
         return int(len(self.triangles))
 
     @property
     def num_buildings(self) -> int:
+        """How many distinct buildings the triangles belong to (0 for an empty model)."""
         return len(np.unique(self.building_index)) if self.num_triangles else 0
 
     @property
@@ -120,17 +122,25 @@ class CityModel:
         return np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
 
     def triangle_areas(self) -> np.ndarray:
+        """Each triangle's area in square metres (half its normal's length)."""
         return 0.5 * np.linalg.norm(self.triangle_normals(), axis=1)
 
     def class_triangle_counts(self) -> dict[str, int]:
+        """Triangles per semantic class, by class name (every class listed, zeros included): ``city info``'s
+        table.
+        """
         counts = np.bincount(self.classes, minlength=NUM_CLASSES)
         return {CLASS_NAMES[i]: int(counts[i]) for i in range(NUM_CLASSES)}
 
     def class_areas(self) -> dict[str, float]:
+        """Surface area per semantic class in square metres, by class name: how much wall, roof and opening
+        the model really has, which triangle counts do not tell.
+        """
         areas = np.bincount(self.classes, weights=self.triangle_areas(), minlength=NUM_CLASSES)
         return {CLASS_NAMES[i]: float(areas[i]) for i in range(NUM_CLASSES)}
 
     def lods_present(self) -> list[int]:
+        """The levels of detail the triangles come from, sorted (a file may mix them)."""
         return sorted(int(v) for v in np.unique(self.lods))
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
@@ -210,6 +220,9 @@ class CityModel:
 
     # ------------------------------------------------------------------ npz round trip
     def save_npz(self, path: str | Path) -> Path:
+        """Write the model as our ``.npz`` (arrays plus JSON metadata, no pickled objects): the parse cache's
+        format and ``city convert``'s; ``load_npz`` reads it back unchanged.
+        """
         path = Path(path)
         meta = {
             "building_ids": self.building_ids,
@@ -234,6 +247,9 @@ class CityModel:
 
     @classmethod
     def load_npz(cls, path: str | Path) -> CityModel:
+        """A model written by ``save_npz``; a damaged or foreign file is an ``InputFileError``, and pickled
+        content is never loaded (``allow_pickle=False``).
+        """
         try:
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(bytes(z["meta"]).decode("utf-8"))

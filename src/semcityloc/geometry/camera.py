@@ -92,6 +92,9 @@ class Camera:
     # ------------------------------------------------------------------ properties
     @property
     def K(self) -> np.ndarray:
+        """The 3x3 intrinsic matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (float64), in the pixel-centre
+        convention of the class.
+        """
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
 
     @property
@@ -101,10 +104,12 @@ class Camera:
 
     @property
     def hfov_deg(self) -> float:
+        """The horizontal field of view in degrees, from the width and fx (edge to edge of the image)."""
         return math.degrees(2 * math.atan(0.5 * self.width / self.fx))
 
     @property
     def vfov_deg(self) -> float:
+        """The vertical field of view in degrees, from the height and fy (edge to edge of the image)."""
         return math.degrees(2 * math.atan(0.5 * self.height / self.fy))
 
     def principal_point_offset(self) -> float:
@@ -160,10 +165,16 @@ class Camera:
         return np.stack([x * d, y * d, np.ones_like(x) * d], axis=-1)
 
     def in_image(self, uv: np.ndarray) -> np.ndarray:
+        """Whether image coordinates (..., 2) lie in the image, u in [0, width) and v in [0, height): pixel
+        edges, not centres, bound it.
+        """
         uv = np.asarray(uv)
         return (uv[..., 0] >= 0) & (uv[..., 0] < self.width) & (uv[..., 1] >= 0) & (uv[..., 1] < self.height)
 
     def as_dict(self) -> dict:
+        """The camera as a JSON-ready dict in COLMAP's ``PINHOLE`` terms (model, size, fx, fy, cx, cy): how
+        pose files and run records state the intrinsics used.
+        """
         return {
             "model": "PINHOLE",
             "width": self.width,

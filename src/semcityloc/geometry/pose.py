@@ -122,6 +122,9 @@ class Pose:
     # ------------------------------------------------------------------ constructors
     @classmethod
     def from_cam_from_world(cls, T: np.ndarray) -> Pose:
+        """From world-to-camera matrices (4x4 or 3x4, batches too), checked to be rigid: ``x_cam = R x_world +
+        t``, the form ``Pose`` stores.
+        """
         T = _rigid(T, "cam_from_world")
         return cls(T[..., :3, :3], T[..., :3, 3])
 
@@ -169,11 +172,13 @@ class Pose:
 
     @classmethod
     def stack(cls, poses: list[Pose]) -> Pose:
+        """One batched ``Pose`` of single poses, in order: the renderer and the scores take batches."""
         return cls(np.stack([p.R for p in poses]), np.stack([p.t for p in poses]))
 
     # ------------------------------------------------------------------ views
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """The leading dimensions of a batch of poses (``()`` for a single pose)."""
         return self.R.shape[:-2]
 
     def __len__(self) -> int:
@@ -196,6 +201,9 @@ class Pose:
 
     @property
     def R_world_from_cam(self) -> np.ndarray:
+        """The camera-to-world rotation ``R^T``: the camera's axes as world directions (column 2 is the
+        viewing direction).
+        """
         return np.swapaxes(self.R, -1, -2)
 
     @property
@@ -205,6 +213,7 @@ class Pose:
 
     @property
     def cam_from_world(self) -> np.ndarray:
+        """The 4x4 world-to-camera matrix(es) [R | t; 0 0 0 1]."""
         T = np.zeros(self.batch_shape + (4, 4))
         T[..., :3, :3] = self.R
         T[..., :3, 3] = self.t
@@ -213,6 +222,7 @@ class Pose:
 
     @property
     def world_from_cam(self) -> np.ndarray:
+        """The 4x4 camera-to-world matrix(es) [R^T | centre; 0 0 0 1] (LoD-Loc's ``*_pose.txt`` form)."""
         T = np.zeros(self.batch_shape + (4, 4))
         T[..., :3, :3] = self.R_world_from_cam
         T[..., :3, 3] = self.center

@@ -88,6 +88,9 @@ class LocalizationResult:
 
     @property
     def localized(self) -> bool:
+        """Whether a pose was accepted (``status == LOCALIZED``); otherwise ``pose_local`` is None and the
+        found pose, if any, is ``rejected_pose_local``.
+        """
         return self.status == LOCALIZED
 
     def to_dict(self, origin: np.ndarray, crs: str | None = None) -> dict:
