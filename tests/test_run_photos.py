@@ -1064,12 +1064,26 @@ def test_a_finished_run_whose_pose_files_were_deleted_refuses_to_export_naming_t
     argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
     code, _, err = run(capsys, *argv)
     assert code == 0, err
+    p0 = (out / "poses" / "P0.json").read_text()
     (out / "poses" / "P0.json").unlink()
     code, _, err = run(capsys, *argv)
-    assert code == 2 and "P0.json" in err and "results.csv" in err and err.count("\n") == 1, err
+    assert code == 2 and "P0.json: no pose file" in err and "delete its row from" in err, err
+    assert "results.csv" in err and err.count("\n") == 1, err
+    # A record that is JSON but no result, another photo's record copied over it, one cut short (batch
+    # audit, stop 51): the first two passed (COLMAP lacked the photo or held one pose twice, exit 0), the
+    # third was told to run everything again with --overwrite.
+    for damaged, why in (
+        ("{}", "P0.json: holds no result record"),
+        ((out / "poses" / "P1.json").read_text(), "P0.json: is the record of 'P1.JPG'"),
+        (p0[: len(p0) // 2], "P0.json: unreadable"),
+    ):
+        (out / "poses" / "P0.json").write_text(damaged)
+        code, _, err = run(capsys, *argv)
+        assert code == 2 and why in err and "delete its row from" in err and "redoes every photo" in err, err
     shutil.rmtree(out / "poses")
     code, _, err = run(capsys, *argv)
-    assert code == 2 and "3 finished photos have no pose file" in err and "P0.json, P1.json" in err, err
+    assert code == 2 and "3 finished photos have no usable pose file" in err, err
+    assert "P0.json: no pose file, P1.json: no pose file" in err and "delete their rows" in err, err
     lines = (out / "results.csv").read_text().splitlines(keepends=True)
     (out / "results.csv").write_text("".join(lines[:1]))  # the remedy: their rows deleted, they run again
     code, _, err = run(capsys, *argv)

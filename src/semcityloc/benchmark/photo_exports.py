@@ -47,7 +47,7 @@ from semcityloc.datasets.dji import HEIGHT_AS_IS_NOTE, dji_geotag
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
-from semcityloc.errors import InputFileError, counted
+from semcityloc.errors import InputFileError, SemCityLocError, counted
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
@@ -80,11 +80,35 @@ def ground_z(model: CityModel) -> float:
 
 
 def _read_record(path: Path) -> dict:
-    """A finished photo's ``poses/<stem>.json`` record (``write_exports`` checked that it exists)."""
+    """A finished photo's ``poses/<stem>.json`` record (``check_records`` checked it)."""
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def _record_status(record: dict) -> object:
+    """The status a record states (at its top level when not localized, in ``extra`` with a pose)."""
+    return record.get("status", record.get("extra", {}).get("status"))
+
+
+def record_problem(path: Path, name: str) -> str | None:
+    """Why ``path`` is no usable ``poses/<stem>.json`` of photo ``name`` (None when it is): missing, not
+    JSON, no status, another photo's (a copied file), or localized without a pose that reads."""
+    if not path.is_file():
+        return "no pose file"
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        record = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
-        raise InputFileError(f"{path}: unreadable pose file ({exc}); run again with --overwrite") from exc
+        return f"unreadable ({exc})"
+    if not isinstance(record, dict) or _record_status(record) is None:
+        return "holds no result record"
+    image = record.get("image", record.get("extra", {}).get("image"))
+    if image != name:
+        return f"is the record of {image!r}"
+    if _record_status(record) == LOCALIZED:
+        try:
+            read_pose(path)
+        except SemCityLocError as exc:
+            return f"localized without a pose that reads ({exc})"
+    return None
 
 
 # A flight's priors share an offset when its localized photos moved from them alike (``prior_offset_notes``).
@@ -370,15 +394,20 @@ def check_records(out_dir: Path, inputs: list) -> None:
     when the exports are written) has no ``poses/<stem>.json``: its record (covariance, search, prior) is
     not in the row, so the exports would lack it (COLMAP without it, the GeoJSON and geotags at its prior
     as "no result") while the summary counts it. Deleting its row redoes it."""
-    missing = [
-        f"{inp.stem}.json" for inp in inputs if not (out_dir / POSES_DIR / f"{inp.stem}.json").is_file()
-    ]
-    if missing:
-        shown = shown_names(missing)
-        count = f"{len(missing)} finished {'photo has' if len(missing) == 1 else 'photos have'}"
+    problems = {
+        f"{inp.stem}.json": why
+        for inp in inputs
+        if (why := record_problem(out_dir / POSES_DIR / f"{inp.stem}.json", inp.name)) is not None
+    }
+    if problems:
+        one = len(problems) == 1
+        shown = shown_names([f"{name}: {why}" for name, why in problems.items()])
+        count = f"{len(problems)} finished {'photo has' if one else 'photos have'}"
+        its = "its row" if one else "their rows"
         raise InputFileError(
-            f"{out_dir / POSES_DIR}: {count} no pose file ({shown}), so no exports were written; delete "
-            f"their rows from {out_dir / RESULTS_FILE} and run again to redo them (or --overwrite)"
+            f"{out_dir / POSES_DIR}: {count} no usable pose file ({shown}), so no exports were written; "
+            f"delete {its} from {out_dir / RESULTS_FILE} and run again to redo {'it' if one else 'them'} "
+            "(or --overwrite, which redoes every photo)"
         )
 
 
@@ -423,8 +452,7 @@ def write_exports(
     for inp in inputs:
         path = out_dir / POSES_DIR / f"{inp.stem}.json"
         records[inp.name] = _read_record(path)
-        status = records[inp.name].get("status", records[inp.name].get("extra", {}).get("status"))
-        if status == LOCALIZED:
+        if _record_status(records[inp.name]) == LOCALIZED:
             estimates[inp.name] = read_pose(path)
     outputs: dict[str, Any] = {"poses": str(out_dir / POSES_DIR), "notes": []}
     for inp in inputs:  # how the priors' heights were treated, said once for the run
