@@ -23,6 +23,7 @@ import pytest
 
 from helpers import deny_reading
 from semcityloc.benchmark.code_version import code_fingerprint
+from semcityloc.benchmark.methods import available_methods, get_method
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.results import (
@@ -48,7 +49,6 @@ from semcityloc.errors import (
 )
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
-from semcityloc.localization.methods import available_methods, get_method
 from semcityloc.localization.result import LocalizationResult
 
 QUERIES = 3

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from semcityloc.benchmark.found_map import FLAT_EAVES_MAP, FoundMaps, row_look
+from semcityloc.benchmark.methods import searched_map
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.localization.config import LocalizerConfig
@@ -130,8 +131,6 @@ def test_which_map_a_run_searched(pitched, config, eaves):
 
 
 def test_a_run_records_the_map_its_method_searches():
-    from semcityloc.localization.methods import searched_map
-
     cfg = LocalizerConfig()
     assert searched_map("semcityloc", cfg) == {"eaves_m": 0.5, "flat_roofs": "auto"}
     assert searched_map("no-depth", cfg) == {"eaves_m": 0.5, "flat_roofs": "auto"}

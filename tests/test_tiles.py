@@ -12,6 +12,7 @@ import pytest
 from lxml import etree
 
 from conftest import shared_file
+from semcityloc.benchmark.methods import get_method
 from semcityloc.benchmark.queries import QueryConfig, QuerySimulator, zenmuse_l2_camera
 from semcityloc.benchmark.results import TIMING_COLUMNS, make_row, read_results
 from semcityloc.citymodel.generator import generate_city
@@ -30,7 +31,6 @@ from semcityloc.cli.main import main
 from semcityloc.errors import CRSError, OutputPathError
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import get_method
 from semcityloc.localization.tiled import TiledMethod
 from test_benchmark_reference import same
 

@@ -1,8 +1,9 @@
-"""The baselines as localization methods, registered in ``localization.methods`` when imported.
+"""The baselines as localization methods: ``BASELINE_METHODS``, joined with SemCityLoc's in the benchmark's
+method table (``benchmark.methods.METHODS``).
 
 Why here: the method table only needs a factory per name; keeping the baselines' wiring (edge-map
 simulation per query, seeds, quality mapping) next to the baselines keeps the table free of baseline
-details, and importing ``semcityloc.baselines`` is all it takes to make ``--method silhouette`` work.
+details. Nothing is registered when this module is imported: the benchmark layer lists this table.
 
 - ``silhouette``: ``SilhouetteLocalizer`` with the run's localizer preset (depth is never used).
 - ``lodloc-wireframe``: ``WireframeLocalizer`` on an edge map simulated for each query from its TRUE
@@ -16,6 +17,9 @@ details, and importing ``semcityloc.baselines`` is all it takes to make ``--meth
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
+
 import numpy as np
 
 from semcityloc.baselines.edge_sim import EDGE_PRESETS, EdgeMapSimulator
@@ -26,7 +30,7 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import ParameterError, unknown_choice
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import QueryRecord, register_method
+from semcityloc.localization.methods import MethodEntry, QueryRecord
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.render.scene import RenderScene
 
@@ -131,5 +135,10 @@ def make_baseline_method(
     raise unknown_choice("baseline", name, BASELINES)
 
 
-for _name in BASELINES:
-    register_method(_name, make_baseline_method, map_eaves=_name != WIREFRAME)
+# The baselines by name; the wireframe aligns the model's own edges, so it searches the model as it is.
+BASELINE_METHODS: Mapping[str, MethodEntry] = MappingProxyType(
+    {
+        SILHOUETTE: MethodEntry(make_baseline_method),
+        WIREFRAME: MethodEntry(make_baseline_method, map_eaves=False),
+    }
+)

@@ -8,6 +8,7 @@
 - a folder of photos (``semcityloc run``): ``photo_spec`` (the run), ``photo_inputs`` (each photo's inputs
   checked before it), ``photo_focal`` (a camera's focal length from its flight; ``focal_cache``),
   ``photo_source`` (the photos as queries), ``photo_exports`` (COLMAP, geotags, GeoJSON);
+- ``methods``: the one table of methods by name (SemCityLoc, its ablations, the baselines);
 - ``spec``: ``BenchmarkSpec`` (a simulated run) and the models it loads;
 - ``run``: ``run_queries`` / ``run_benchmark``, the one loop (resume, workers, progress);
 - ``results``: ``results.csv`` rows, details, summary; ``runfiles``: the run folder, atomic writes;

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from semcityloc import __version__
+from semcityloc.benchmark.methods import searched_map
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
@@ -76,7 +77,7 @@ from semcityloc.io.files import removed_on_error
 from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, scaled_size
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
-from semcityloc.localization.methods import Method, searched_map
+from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
 from semcityloc.perception.files import DEPTH_SUFFIXES, LOSSY_MASK_SUFFIXES, first_file, mask_suffixes

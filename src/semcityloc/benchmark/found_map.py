@@ -11,7 +11,7 @@ estimate found on the flat-eaves map on that one, built by the localizer's own c
 (``map_scenes.flat_eaves_scene``, once per run, on the first estimate that needs it); their captions name
 it (``FLAT_EAVES_MAP``).
 
-Which map a run searched comes from its ``run.json``: ``searched_map`` (``localization.methods
+Which map a run searched comes from its ``run.json``: ``searched_map`` (``benchmark.methods
 .searched_map``: the wireframe baseline searches the model as it is), or for a run from before that key
 its method and ``localizer`` config. Which map a pose was found on comes from what the result recorded,
 ``search["flat_roof_eaves"]``: live in a run, saved in a details file's ``meta["flat_roof_eaves"]`` and a
@@ -23,12 +23,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import semcityloc.baselines  # noqa: F401  (registers the baselines: which map each searches)
+from semcityloc.benchmark.methods import searched_map
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import BenchmarkError
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.map_scenes import eaves_scene, flat_eaves_scene, found_on_flat_eaves
-from semcityloc.localization.methods import searched_map
 from semcityloc.render import Renderer
 
 FLAT_EAVES_MAP = "the map with eaves on its flat roofs"
@@ -86,7 +85,7 @@ class FoundMaps:
     def of_method(
         cls, model: CityModel, renderer: Renderer, method: str, config: LocalizerConfig
     ) -> FoundMaps:
-        """The maps of method ``method`` run with ``config`` (``methods.searched_map``)."""
+        """The maps of method ``method`` run with ``config`` (``benchmark.methods.searched_map``)."""
         searched = searched_map(method, config)
         return cls(model, renderer, searched["eaves_m"], searched["flat_roofs"])
 

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc import __version__
+from semcityloc.benchmark.methods import searched_map
 from semcityloc.benchmark.photo_exports import write_exports
 from semcityloc.benchmark.photo_focal import calibrated_inputs
 from semcityloc.benchmark.photo_inputs import Resolved
@@ -38,7 +39,7 @@ from semcityloc.datasets.photos import EXIF
 from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import ABLATIONS, searched_map
+from semcityloc.localization.methods import ABLATIONS
 from semcityloc.perception.registry import backend_entry
 
 RUN_FORMAT = 1

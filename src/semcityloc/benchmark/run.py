@@ -34,8 +34,8 @@ from typing import Protocol, TextIO
 
 import numba
 
-import semcityloc.baselines  # noqa: F401  (registers the baselines' methods)
 from semcityloc.benchmark.code_version import code_fingerprint
+from semcityloc.benchmark.methods import get_method, method_factory
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.ray_executor import import_ray, run_ray
 from semcityloc.benchmark.results import (
@@ -80,7 +80,6 @@ from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
 from semcityloc.errors import BenchmarkError, OutputPathError, unknown_choice
 from semcityloc.io.files import write_json_atomic
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import get_method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.localization.tiled import TiledMethod
 
@@ -128,7 +127,9 @@ class _Worker:
         self.source = source
         store = getattr(source, "tile_store", None)
         if store is not None:  # the parts of the store each query can see (localization.tiled)
-            self.method = TiledMethod(spec.method, store, spec.localizer_config())
+            self.method = TiledMethod(
+                spec.method, store, spec.localizer_config(), factory=method_factory(spec.method)
+            )
         else:
             self.method = get_method(spec.method, source.map_model, spec.localizer_config())
         source.prepare(self.method)

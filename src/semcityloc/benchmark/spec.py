@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from semcityloc import __version__
+from semcityloc.benchmark.methods import check_method, searched_map
 from semcityloc.benchmark.queries import QueryConfig
 from semcityloc.benchmark.runfiles import plain
 from semcityloc.benchmark.sources import SimulatedSource, SimulatorFactory
@@ -29,7 +30,6 @@ from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.errors import BenchmarkError, InputFileError
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import check_method, searched_map
 
 RUN_FORMAT = 1
 GENERATED = "generated"  # --city value meaning the embedded generated district

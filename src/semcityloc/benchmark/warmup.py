@@ -36,14 +36,13 @@ from typing import TextIO
 import numpy as np
 from numba.core.registry import CPUDispatcher
 
-import semcityloc.baselines  # noqa: F401  (registers the baselines' methods, whose kernels are warmed)
+from semcityloc.benchmark.methods import get_method
 from semcityloc.benchmark.queries import BenchmarkQuery
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.classes import NUM_CLASSES
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
-from semcityloc.localization.methods import get_method
 from semcityloc.render import Renderer
 
 KERNEL_GROUPS = {

@@ -14,6 +14,7 @@ import argparse
 import math
 from pathlib import Path
 
+from semcityloc.benchmark.methods import available_methods
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO, SCENARIOS, parse_settings, query_config
@@ -28,7 +29,6 @@ from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_prior_sigma_argument
 from semcityloc.errors import BenchmarkError, counted
 from semcityloc.localization.config import PRESETS
-from semcityloc.localization.methods import available_methods
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
+from semcityloc.benchmark.methods import available_methods
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import unreadable_row
@@ -33,7 +34,6 @@ from semcityloc.errors import InputFileError, ParameterError, counted
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.localization.config import PRESETS
-from semcityloc.localization.methods import available_methods
 from semcityloc.render import Renderer
 
 

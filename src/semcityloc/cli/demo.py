@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from semcityloc.benchmark.methods import available_methods, check_method
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.report_html import make_html_report
 from semcityloc.benchmark.report_tables import summary_markdown
@@ -26,7 +27,6 @@ from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.errors import BenchmarkError
-from semcityloc.localization.methods import available_methods, check_method
 
 
 def register(sub: argparse._SubParsersAction) -> None:

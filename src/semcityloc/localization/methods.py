@@ -1,9 +1,12 @@
-"""The table of localization methods by name: SemCityLoc, its ablations, and the baselines.
+"""SemCityLoc and its ablations as methods, and what a method is (the full table by name is
+``benchmark.methods``).
 
 Why a table: the benchmark, the CLI and the report name methods by string (``--method no-depth``). A
-method is built once per process for one map (``get_method(name, map_model, config)``) and then localizes
-many queries. SemCityLoc and its ablations are registered here; ``semcityloc.baselines`` registers its own
-methods when it is imported (the benchmark imports it), so this module knows nothing of them.
+method is built once per process for one map (a ``MethodEntry``'s factory: ``factory(name, map_model,
+config)``) and then localizes many queries. This module lists SemCityLoc and its ablations
+(``LOCALIZER_METHODS``); ``baselines.methods.BASELINE_METHODS`` lists the baselines; the benchmark layer,
+above both, joins them into the one table every caller asks (``benchmark.methods.METHODS``). Nothing is
+registered as a side effect of an import, so what a name means never depends on what was imported first.
 
 A method localizes a query record (``QueryRecord``): the camera, the prior in the map model's LOCAL
 frame, the query mask and optional depth; simulated queries also carry their true pose, which only
@@ -12,13 +15,14 @@ baselines that simulate their own input (the wireframe's edge map) read.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any, Protocol
 
 import numpy as np
 
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import BenchmarkError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -75,68 +79,28 @@ class LocalizerMethod:
         )
 
 
-_REGISTRY: dict[str, MethodFactory] = {}
-# Methods that search the map model as it is, without the localizer's eaves (``register_method``).
-_AS_IS: set[str] = set()
+@dataclass(frozen=True)
+class MethodEntry:
+    """A method of the table: how to build it (``factory(name, map_model, localizer_config) -> Method``)
+    and which map it searches. ``map_eaves``: the localizer config's map (the model with ``map_eaves_m`` of
+    eaves, ``localizer_scene``) rather than the model as it is (the wireframe baseline, whose edges are the
+    model's own)."""
+
+    factory: MethodFactory
+    map_eaves: bool = True
+
+    def searched_map(self, config: LocalizerConfig) -> dict[str, Any]:
+        """The map this method searches with ``config``, as a run records it (``run.json``'s
+        ``searched_map``) and its drawings read it (``benchmark.found_map``): ``eaves_m``, the eaves on its
+        pitched roofs, and ``flat_roofs``, ``config.map_eaves_flat_roofs`` (``"off"`` without eaves)."""
+        if not self.map_eaves or not config.map_eaves_m > 0.0:
+            return {"eaves_m": 0.0, "flat_roofs": "off"}
+        return {"eaves_m": float(config.map_eaves_m), "flat_roofs": str(config.map_eaves_flat_roofs)}
+
 
 # Order of the paper's main table: the full method first, then the ablations.
 ABLATIONS: tuple[str, ...] = tuple(ABLATION_FLAGS)
-
-
-def register_method(name: str, factory: MethodFactory, replace: bool = False, map_eaves: bool = True) -> None:
-    """Add a method: ``factory(name, map_model, localizer_config) -> Method``. ``map_eaves``: whether it
-    searches the localizer config's map (the model with ``map_eaves_m`` of eaves, ``localizer_scene``)
-    rather than the model as it is (the wireframe baseline, whose edges are the model's own)."""
-    if not name or not isinstance(name, str):
-        raise BenchmarkError(f"a method name must be a non-empty string, got {name!r}")
-    if name in _REGISTRY and not replace:
-        raise BenchmarkError(f"method {name!r} is already registered")
-    _REGISTRY[name] = factory
-    (_AS_IS.discard if map_eaves else _AS_IS.add)(name)
-
-
-def searched_map(name: str, config: LocalizerConfig) -> dict[str, Any]:
-    """The map method ``name`` searches with ``config``, as a run records it (``run.json``'s
-    ``searched_map``) and its drawings read it (``benchmark.found_map``): ``eaves_m``, the eaves on its
-    pitched roofs, and ``flat_roofs``, ``config.map_eaves_flat_roofs`` (``"off"`` without eaves)."""
-    check_method(name)
-    if name in _AS_IS or not config.map_eaves_m > 0.0:
-        return {"eaves_m": 0.0, "flat_roofs": "off"}
-    return {"eaves_m": float(config.map_eaves_m), "flat_roofs": str(config.map_eaves_flat_roofs)}
-
-
-def available_methods() -> tuple[str, ...]:
-    """The method names registered so far, in registration order.
-
-    SemCityLoc and its ablations are always there; the baselines only once ``semcityloc.baselines`` has been
-    imported (it registers them as a side effect), which is why the benchmark layer imports it before listing
-    or checking methods.
-    """
-    return tuple(_REGISTRY)
-
-
-def check_method(name: str) -> str:
-    """``name`` if it is a registered method, else a ``BenchmarkError`` naming the known ones.
-
-    Called when a run is described (its spec made), so a typo in ``--method`` is refused before any work.
-    """
-    if name not in _REGISTRY:
-        raise unknown_choice("method", name, _REGISTRY, BenchmarkError)
-    return name
-
-
-def method_factory(name: str) -> MethodFactory:
-    """The factory registered as ``name``."""
-    return _REGISTRY[check_method(name)]
-
-
-def get_method(name: str, map_model: CityModel, config: LocalizerConfig | None = None) -> Method:
-    """Build method ``name`` for ``map_model`` (``config``: the localizer preset, default ``default``)."""
-    check_method(name)
-    return _REGISTRY[name](
-        name, map_model, config if config is not None else LocalizerConfig.preset("default")
-    )
-
-
-for _name in ABLATIONS:
-    register_method(_name, LocalizerMethod)
+# SemCityLoc and its ablations by name (read-only; the whole table: ``benchmark.methods.METHODS``).
+LOCALIZER_METHODS: Mapping[str, MethodEntry] = MappingProxyType(
+    {name: MethodEntry(LocalizerMethod) for name in ABLATIONS}
+)

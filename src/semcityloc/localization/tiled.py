@@ -27,14 +27,20 @@ from collections import OrderedDict
 import numpy as np
 
 from semcityloc.citymodel.tiles import TileStore
-from semcityloc.errors import ParameterError
+from semcityloc.errors import ParameterError, unknown_choice
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.map_scenes import localizer_scene
-from semcityloc.localization.methods import LocalizerMethod, Method, QueryRecord, get_method, method_factory
+from semcityloc.localization.methods import (
+    LOCALIZER_METHODS,
+    LocalizerMethod,
+    Method,
+    MethodFactory,
+    QueryRecord,
+)
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M, search_half_xy
 
@@ -72,7 +78,11 @@ def reach_radius(
 
 
 class TiledMethod:
-    """Method ``name`` over a tile store: the tiles in reach of each query (module docstring)."""
+    """Method ``name`` over a tile store: the tiles in reach of each query (module docstring).
+
+    ``factory`` builds the method on a part of the store (``benchmark.methods.method_factory(name)``, for
+    any method of the benchmark's table); without it, ``name`` must be SemCityLoc or one of its ablations
+    (``localization.methods.LOCALIZER_METHODS``)."""
 
     def __init__(
         self,
@@ -81,12 +91,18 @@ class TiledMethod:
         config: LocalizerConfig | None = None,
         camera_range_m: float = MAX_VIEW_RANGE_M,
         keep_models: int = 2,
+        factory: MethodFactory | None = None,
     ):
+        if factory is None:
+            if name not in LOCALIZER_METHODS:
+                raise unknown_choice("localizer method", name, LOCALIZER_METHODS)
+            factory = LOCALIZER_METHODS[name].factory
         if not (math.isfinite(camera_range_m) and camera_range_m > 0):
             raise ParameterError(f"camera_range_m must be a positive number of metres, got {camera_range_m}")
         if int(keep_models) < 1:
             raise ParameterError(f"keep_models must be >= 1, got {keep_models}")
         self.name = name
+        self.factory = factory
         self.store = store
         self.config = config if config is not None else LocalizerConfig.preset("default")
         self.camera_range_m = float(camera_range_m)
@@ -116,11 +132,11 @@ class TiledMethod:
         while len(self._methods) >= self.keep_models:
             self._methods.popitem(last=False)
         model = self.store.load(tiles)
-        if method_factory(self.name) is LocalizerMethod:  # the whole city's terrain border (docstring)
+        if self.factory is LocalizerMethod:  # the whole city's terrain border (docstring)
             scene = localizer_scene(model, self.config, terrain_ring=self.store.terrain_ring)
             method = LocalizerMethod(self.name, model, self.config, scene=scene)
         else:
-            method = get_method(self.name, model, self.config)
+            method = self.factory(self.name, model, self.config)
         self._methods[tiles] = method
         self.used_tiles = tiles
         return method
