@@ -11,6 +11,8 @@ from semcityloc.errors import RenderError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.render import Renderer
+from semcityloc.render import engine as render_engine
+from semcityloc.render import gpu as render_gpu
 from semcityloc.render.gpu import gpu_status
 
 GPU_OK, GPU_WHY = gpu_status()
@@ -28,11 +30,32 @@ def test_without_a_gpu_auto_is_numba_and_gpu_is_a_clear_error(city):
         Renderer(city, engine="gpu")
 
 
+class _FakeGpuEngine:
+    """Stands in for ``GpuEngine`` where the GPU stack "loads" (no GPU is needed to see who picks it)."""
+
+    name = "gpu"
+
+    def __init__(self, scene):
+        self.scene = scene
+
+
+def test_auto_never_picks_the_unexecuted_gpu_engine_even_where_it_would_load(city, monkeypatch):
+    """Audit s51, finding 2: ``render/gpu.py`` has never run, so ``"auto"`` (the default, and automatic
+    labels') must not choose it where torch with CUDA and nvdiffrast are present; ``"gpu"`` by name does."""
+    monkeypatch.setattr(render_gpu, "gpu_status", lambda: (True, ""))
+    monkeypatch.setattr(render_engine, "gpu_status", lambda: (True, ""), raising=False)  # where engine looked
+    monkeypatch.setattr(render_engine, "GpuEngine", _FakeGpuEngine)
+    assert Renderer(city).engine_name == "numba"
+    assert Renderer(city, engine="auto").engine_name == "numba"
+    asked = Renderer(city, engine="gpu")
+    assert asked.engine_name == "gpu" and asked.with_scene(asked.scene).engine_name == "gpu"
+
+
 @pytest.mark.skipif(not GPU_OK, reason=f"no GPU engine here: {GPU_WHY}")
 def test_gpu_engine_agrees_with_numba(city):  # pragma: no cover - needs an NVIDIA GPU
     gpu = Renderer(city, engine="gpu")
     cpu = Renderer(city, engine="numba")
-    assert gpu.engine_name == "gpu" and Renderer(city).engine_name == "gpu"
+    assert gpu.engine_name == "gpu" and Renderer(city).engine_name == "numba"  # "auto": not yet
     rng = np.random.default_rng(0)
     lo, hi = city.bounds_local
     n = 32

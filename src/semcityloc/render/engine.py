@@ -5,8 +5,9 @@ poses to an engine:
 
 - ``"numba"``: the CPU z-buffer rasteriser (``raster_numba``), the default;
 - ``"embree"``: the Embree ray-casting reference (``embree_ref``; optional ``embreex``);
-- ``"gpu"``: nvdiffrast (``gpu``; optional, untested without a GPU);
-- ``"auto"``: ``"gpu"`` when it is usable, else ``"numba"``.
+- ``"gpu"``: nvdiffrast (``gpu``; optional, never executed yet: only when asked for by name);
+- ``"auto"``: ``"numba"``. Never the GPU engine, even where it would load: it has not run anywhere, so
+  labels and overlays must not come from it unless a caller asks for ``"gpu"`` (``render/gpu.py``).
 
 Poses are ``cam_from_world`` in the model's LOCAL frame (world = ``model.origin`` + local): bring a
 world pose over with ``model.pose_to_local(pose_world)``.
@@ -23,7 +24,7 @@ from semcityloc.errors import ArgumentTypeError, PoseError, RenderError, ShapeEr
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose, local_frame_problem
 from semcityloc.render.embree_ref import EmbreeEngine
-from semcityloc.render.gpu import GpuEngine, gpu_status
+from semcityloc.render.gpu import GpuEngine
 from semcityloc.render.output import RenderOutput
 from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene, build_scene
@@ -64,10 +65,8 @@ def make_engine(name: str, scene: RenderScene):
     """The engine object for ``name`` (see module docstring)."""
     if name not in ENGINES:
         raise unknown_choice("render engine", name, ENGINES, RenderError)
-    if name in ("auto", "gpu"):
-        ok, _ = gpu_status()
-        if ok or name == "gpu":
-            return GpuEngine(scene)  # raises RenderError with an install hint when unavailable
+    if name == "gpu":  # only by name: "auto" never picks the unexecuted GPU engine (module docstring)
+        return GpuEngine(scene)  # raises RenderError with an install hint when unavailable
     if name == "embree":
         return EmbreeEngine(scene)
 
@@ -79,7 +78,7 @@ class Renderer:
 
     Args:
         model: the city model; ``EmptyModelError`` if it has nothing to draw.
-        engine: ``"auto"`` | ``"numba"`` | ``"embree"`` | ``"gpu"``.
+        engine: ``"auto"`` (``"numba"``) | ``"numba"`` | ``"embree"`` | ``"gpu"`` (module docstring).
         ground: add the terrain TIN of class GROUND between the buildings (``terrain.py``).
         tile_size_m: edge of the square ground tiles used for view culling.
     """

@@ -1,8 +1,9 @@
 """Optional GPU engine: nvdiffrast (CUDA rasteriser) over the same ``RenderScene``.
 
-Chosen by ``engine="gpu"``, or by ``engine="auto"`` when ``torch`` with CUDA and ``nvdiffrast`` import
-and a GPU is present. Without them an explicit ``"gpu"`` raises ``RenderError`` with an install hint and
-``"auto"`` falls back to the numba engine.
+Chosen only by ``engine="gpu"``, never by ``engine="auto"`` (the numba engine), because of its STATUS
+below: a user who asks for it by name knows it is unexecuted. Without ``torch`` with CUDA, ``nvdiffrast``
+and a GPU, ``"gpu"`` raises ``RenderError`` with an install hint. Once ``tests/test_render_gpu.py`` has
+passed on a GPU, ``"auto"`` may choose it again (``render.engine.make_engine``).
 
 STATUS: written without a GPU to run it on (none on the development machines); it has NOT been executed.
 The conventions it relies on, so that whoever first runs it can check them against the numba engine
@@ -36,8 +37,8 @@ INSTALL_HINT = "pip install torch nvdiffrast (needs an NVIDIA GPU with CUDA); or
 def gpu_status() -> tuple[bool, str]:
     """(available, reason it is not) for the nvdiffrast engine; never raises.
 
-    Looks for the packages before importing anything, so that ``engine="auto"`` on a machine without
-    nvdiffrast does not pay for importing torch.
+    Looks for the packages before importing anything, so that asking on a machine without nvdiffrast
+    does not pay for importing torch.
     """
     for package in ("nvdiffrast", "torch"):
         try:
@@ -52,7 +53,7 @@ def gpu_status() -> tuple[bool, str]:
             return False, "torch finds no CUDA GPU"
         # optional (nvdiffrast): imported only to probe the GPU engine, never with the package
         import nvdiffrast.torch  # noqa: F401
-    except Exception as exc:  # a broken CUDA install must not break engine='auto'
+    except Exception as exc:  # a broken CUDA install is a reason, not a traceback
         return False, f"the GPU stack failed to load: {exc}"
     return True, ""
 
