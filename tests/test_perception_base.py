@@ -18,7 +18,13 @@ from semcityloc.perception import (
     get_depth_backend,
     get_segmentation_backend,
 )
-from semcityloc.perception.base import check_classes, check_image, class_probs_to_output, looks_like_hub_id
+from semcityloc.perception.base import (
+    check_classes,
+    check_image,
+    class_probs_to_output,
+    looks_like_hub_id,
+    weights_dir,
+)
 
 IMG = np.zeros((12, 16, 3), dtype=np.uint8)
 
@@ -88,6 +94,22 @@ def test_dinov3_backbone_missing_names_what_to_download(empty_weights, tmp_path)
         load_dinov3_backbone(tmp_path)
     with pytest.raises(MissingWeightsError, match="HF_HUB_OFFLINE is set"):
         load_dinov3_backbone("facebook/dinov3-vits16-pretrain-lvd1689m")
+
+
+def test_the_weights_folder_follows_the_cache_root_unless_named(tmp_path, monkeypatch):
+    """Audit s51, finding 8: the default weights folder is ``weights`` under the one cache root
+    (``cache.cache_root``: ``SEMCITYLOC_CACHE``, else ``XDG_CACHE_HOME``, else ``~/.cache``), not a
+    hard-coded ``~/.cache``; ``SEMCITYLOC_WEIGHTS`` still names another."""
+    for name in ("SEMCITYLOC_WEIGHTS", "SEMCITYLOC_CACHE", "XDG_CACHE_HOME"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert weights_dir() == tmp_path / "home" / ".cache" / "semcityloc" / "weights"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert weights_dir() == tmp_path / "xdg" / "semcityloc" / "weights"
+    monkeypatch.setenv("SEMCITYLOC_CACHE", str(tmp_path / "cache"))
+    assert weights_dir() == tmp_path / "cache" / "semcityloc" / "weights"
+    monkeypatch.setenv("SEMCITYLOC_WEIGHTS", str(tmp_path / "mine"))
+    assert weights_dir() == tmp_path / "mine"
 
 
 def test_hub_id_heuristic():

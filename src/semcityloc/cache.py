@@ -1,8 +1,10 @@
 """Where semcityloc keeps what it computed once and may need again: one root for every cache.
 
-Why one place: parsed city models (``citymodel.io``), the generated district (``citymodel.generator``) and
-photo runs' focal-length estimates (``benchmark.focal_cache``) all live under the same folder, so a user
-who sets ``SEMCITYLOC_CACHE`` (or ``XDG_CACHE_HOME``) moves them all, and deleting it clears them all.
+Why one place: parsed city models (``citymodel.io``), the generated district (``citymodel.generator``),
+photo runs' focal-length estimates (``benchmark.focal_cache``) and the default folder of perception weights
+(``perception.base.weights_dir``, unless ``SEMCITYLOC_WEIGHTS`` names another) all live under the same
+folder, so a user who sets ``SEMCITYLOC_CACHE`` (or ``XDG_CACHE_HOME``) moves them all, and deleting it
+clears them all.
 """
 
 from __future__ import annotations

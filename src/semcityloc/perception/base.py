@@ -33,6 +33,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from semcityloc.cache import cache_root
 from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
 from semcityloc.errors import ParameterError, ShapeError, unknown_choice
 
@@ -128,9 +129,11 @@ def check_image(image: np.ndarray) -> np.ndarray:
 
 
 def weights_dir() -> Path:
-    """Where weights are looked for by default: ``$SEMCITYLOC_WEIGHTS`` or ``~/.cache/semcityloc/weights``."""
+    """Where weights are looked for by default: ``$SEMCITYLOC_WEIGHTS``, else ``weights`` under the one
+    cache root (``cache.cache_root()``: ``$SEMCITYLOC_CACHE`` or ``$XDG_CACHE_HOME`` or ``~/.cache``, then
+    ``semcityloc``), read at call time."""
     env = os.environ.get("SEMCITYLOC_WEIGHTS")
-    return Path(env) if env else Path.home() / ".cache" / "semcityloc" / "weights"
+    return Path(env) if env else cache_root() / "weights"
 
 
 TRUE_WORDS = ("1", "true", "yes", "on")  # what a yes/no setting given as text accepts as yes
