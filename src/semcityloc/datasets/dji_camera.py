@@ -18,6 +18,15 @@ from semcityloc.geometry.camera import PRINCIPAL_POINT_TOLERANCE, Camera
 from semcityloc.geometry.distortion import LensDistortion
 
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)  # the "35 mm equivalent" is defined on the diagonal
+# How far ``DewarpData``'s focal length may lie from the 35 mm-equivalent one (a share of the latter,
+# ``|fx / f35_px - 1|``) before the tag is taken to describe another image than the photo (a resized copy:
+# its focal length in pixels scales with the size, so half the size is 50 % off). Not a measured bound: the
+# 35 mm value is approximate (a whole number of millimetres in EXIF, ±2 % for a 24 mm lens; 2.4 % short of
+# the calibration on the real H20T image, ``camera_from_exif``), so it must allow a few %, while a copy
+# shrunk by 10 % or more (or enlarged by more than about 11 %) is caught. Its value, 0.1, is the one this
+# check shared with ``geometry.camera.PRINCIPAL_POINT_TOLERANCE`` (a principal point's offset as a share of
+# the image size, another quantity) until it got its own name.
+FOCAL_35MM_TOLERANCE = 0.1
 
 
 def camera_from_exif(meta: DjiMetadata) -> Camera:
@@ -47,8 +56,8 @@ def dewarp_lens(meta: DjiMetadata) -> tuple[Camera, LensDistortion] | None:
 
     The tag is in pixels of the image the camera wrote; its principal point is an offset from that image's
     centre. A resized or cropped copy is recognised as in ``calibrated_intrinsics`` when the photo also
-    has the calibration tags; without them, by a focal length more than ``PRINCIPAL_POINT_TOLERANCE``
-    (``geometry.camera``) off the 35 mm-equivalent one."""
+    has the calibration tags; without them, by a focal length more than ``FOCAL_35MM_TOLERANCE`` off the
+    35 mm-equivalent one."""
     if meta.dewarp is None or meta.dewarp_flag == 1 or meta.width is None or meta.height is None:
         return None
     fx, fy, dx, dy, k1, k2, p1, p2, k3 = meta.dewarp
@@ -58,7 +67,7 @@ def dewarp_lens(meta: DjiMetadata) -> tuple[Camera, LensDistortion] | None:
         return None  # the calibration tags say the photo is not the image the camera wrote
     if meta.focal_length_35mm is not None:
         approximate = meta.focal_length_35mm / FULL_FRAME_DIAGONAL_MM * math.hypot(meta.width, meta.height)
-        if abs(fx / approximate - 1.0) > PRINCIPAL_POINT_TOLERANCE:
+        if abs(fx / approximate - 1.0) > FOCAL_35MM_TOLERANCE:
             return None
     camera = Camera(fx, fy, meta.width / 2.0 + dx, meta.height / 2.0 + dy, meta.width, meta.height)
     distortion = LensDistortion(k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
