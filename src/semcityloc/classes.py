@@ -89,7 +89,7 @@ def class_id(name: str) -> int:
     try:
         return int(SemanticClass[name.upper()])
     except KeyError as exc:
-        raise unknown_choice("semantic class", name, CLASS_NAMES, ValueError) from exc
+        raise unknown_choice("semantic class", name, CLASS_NAMES) from exc
 
 
 def _has_invalid_ids(labels: np.ndarray) -> bool:

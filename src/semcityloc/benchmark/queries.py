@@ -66,6 +66,7 @@ from semcityloc.benchmark.seg_errors import (
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
 from semcityloc.errors import (
+    ArgumentTypeError,
     BenchmarkConfigError,
     CameraError,
     EmptyModelError,
@@ -372,9 +373,14 @@ class QuerySimulator:
 
     def __init__(self, map_model: CityModel, config: QueryConfig, reality_model: CityModel | None = None):
         if not isinstance(config, QueryConfig):
-            raise TypeError(f"config must be a QueryConfig, got {type(config).__name__}")
+            raise ArgumentTypeError(
+                f"config must be a QueryConfig (QueryConfig(...) or scenario.query_config(...)), got "
+                f"{type(config).__name__}"
+            )
         if not isinstance(map_model, CityModel):
-            raise TypeError(f"map_model must be a CityModel, got {type(map_model).__name__}")
+            raise ArgumentTypeError(
+                f"map_model must be a CityModel (load_city_model(path)), got {type(map_model).__name__}"
+            )
         self.map_model = map_model
         self.config = config
         self.camera = zenmuse_l2_camera(config.width, config.height, config.focal_mm)  # renders the query

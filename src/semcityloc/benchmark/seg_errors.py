@@ -76,7 +76,7 @@ from scipy.special import ndtr
 from semcityloc.benchmark.perception_sim import SegPreset, smooth_field
 from semcityloc.benchmark.shadows import shadow_mask, sun_direction
 from semcityloc.classes import NUM_CLASSES, SemanticClass
-from semcityloc.errors import ShapeError
+from semcityloc.errors import ArgumentTypeError, ShapeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.render import Renderer
@@ -243,7 +243,10 @@ def view_truth(reality, camera: Camera, pose_local: Pose, sun_dir: np.ndarray | 
 # ------------------------------------------------------------------------------------------ errors
 def _check_truth(clean: np.ndarray, truth: ViewTruth) -> None:
     if not isinstance(truth, ViewTruth):
-        raise TypeError(f"truth must be a ViewTruth, got {type(truth).__name__}")
+        raise ArgumentTypeError(
+            f"truth must be a ViewTruth (view_truth(...) or ViewTruth.plain(labels)), got "
+            f"{type(truth).__name__}"
+        )
     if truth.labels.shape != clean.shape:
         raise ShapeError(f"truth {truth.labels.shape} and clean labels {clean.shape} differ in shape")
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcityloc.errors import ShapeError
+from semcityloc.errors import ParameterError, ShapeError, unknown_choice
 
 # Probabilities are clipped away from 0 and 1 before the logarithm (one certain miss would be infinite).
 LOG_LOSS_CLIP = 1e-9
@@ -81,11 +81,11 @@ def paired_difference(
     Deterministic for a seed."""
     terms = {"log-loss": log_loss_terms, "brier": brier_terms}
     if rule not in terms:
-        raise ValueError(f"unknown scoring rule {rule!r}; one of {', '.join(terms)}")
+        raise unknown_choice("scoring rule", rule, terms)
     if not 0.0 < level < 1.0:
-        raise ValueError(f"level must be within (0, 1), not {level}")
+        raise ParameterError(f"level must be within (0, 1), not {level}: pass a confidence level, e.g. 0.95")
     if not isinstance(resamples, int) or resamples < 1:
-        raise ValueError(f"resamples must be a positive integer, not {resamples!r}")
+        raise ParameterError(f"resamples must be a positive integer, not {resamples!r}: pass e.g. 2000")
     d = terms[rule](p_a, y) - terms[rule](p_b, y)
     if d.size == 0:
         raise ShapeError("no results to compare")

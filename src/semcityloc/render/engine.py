@@ -105,7 +105,10 @@ class Renderer:
         one's scene with some model triangles moved (``render.scene.with_model_triangles``: the map with
         eaves the localizer searched), so that a drawing of the map shows the map a pose was found on."""
         if not isinstance(scene, RenderScene):
-            raise TypeError(f"scene must be a RenderScene, got {type(scene).__name__}")
+            raise ArgumentTypeError(
+                "scene must be a RenderScene (a variant of this renderer's scene: "
+                f"render.scene.with_model_triangles), got {type(scene).__name__}"
+            )
         other = copy.copy(self)
         other.scene = scene
         other.engine = make_engine(self.engine_name, scene)
