@@ -279,6 +279,29 @@ def test_an_unreadable_photo_is_a_miss_with_a_true_pose_else_skipped(box_flight,
     assert code == 0 and "6 photos: 1 localized, 2 not localized, 3 skipped" in stdout
 
 
+def test_a_true_pose_file_that_cannot_be_read_skips_its_photo_saying_so(box_flight):
+    """Audit s51, finding 11: a ``--truth`` entry that is there but cannot be read (here bytes that are no
+    UTF-8 text) was taken as "no ground truth": the photo ran, left out of the recall without a word. Now
+    it is skipped with the reason naming the file and what to do; a photo the truth does not list still
+    runs without ground truth, and an unreadable photo's reason keeps its own file's too."""
+    root = box_flight["root"]
+    truth = sorted((root / "GT_pose").glob("P1*.txt"))[0]
+    truth.write_bytes(b"\xff\xfe\x00 not a pose")
+    data = _noisy_jpeg(root / "images" / "P0.JPG")  # P0: its photo truncated, its truth broken too
+    (root / "images" / "P0.JPG").write_bytes(data[: len(data) * 2 // 3])
+    (sorted((root / "GT_pose").glob("P0*.txt"))[0]).write_bytes(b"\xff\xfe")
+    (sorted((root / "GT_pose").glob("P2*.txt"))[0]).unlink()  # P2: not in the truth at all
+    (root / "masks" / "P2.png").unlink()
+    save_labels_png(np.zeros((CAM.height, CAM.width), np.uint8), root / "masks" / "P2.png")
+    _, inputs, skipped, _ = _box_spec(root, truth=str(root / "GT_pose")).resolved()
+    assert [(i.name, i.truth_world) for i in inputs] == [("P2.JPG", None)]
+    assert set(skipped) == {"P0.JPG", "P1.JPG", "P9.JPG"}
+    why = skipped["P1.JPG"]
+    assert why.startswith("its true pose cannot be used (") and str(truth) in why and "UTF-8" in why
+    assert why.endswith("fix its --truth entry, or remove it to run the photo without ground truth")
+    assert "truncated" in skipped["P0.JPG"] and "its true pose cannot be used" in skipped["P0.JPG"]
+
+
 def test_a_mask_unreadable_only_when_read_in_full_is_that_photos_result_not_the_runs_end(
     box_flight, tmp_path, capsys
 ):
@@ -836,15 +859,22 @@ def test_thermal_real_image_within_2_5m_1deg_from_its_gps_prior(real_run):
     assert err_m < 2.5 and err_deg < 1.0
 
 
-def _box_source(root: Path):
-    """The ``PhotoSource`` of ``box_flight``'s photos, their masks and priors (no truth given)."""
-    spec = PhotoSpec(
+def _box_spec(root: Path, **options) -> PhotoSpec:
+    """The ``PhotoSpec`` of ``box_flight``'s photos, their masks and priors (``options``: the others, e.g.
+    ``truth``)."""
+    return PhotoSpec(
         images=str(root / "images"),
         city=str(root / "city.obj"),
         priors=str(root / "GPS_pose"),
         intrinsics=str(root / "intrinsic"),
         masks=str(root / "masks"),
+        **options,
     )
+
+
+def _box_source(root: Path):
+    """The ``PhotoSource`` of ``box_flight``'s photos, their masks and priors (no truth given)."""
+    spec = _box_spec(root)
     return spec.open_source(spec.run_config())
 
 

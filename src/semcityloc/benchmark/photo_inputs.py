@@ -23,7 +23,8 @@ Per photo (``datasets.photos`` matches files to photos by name):
   also named ``<photo name>.png``, e.g. ``P0.JPG.png``; any resolution with the photo's aspect),
   or a segmentation backend run on the photo (shrunk to ``PHOTO_MAX_WIDTH``); optional depth likewise;
 - optional ground truth (``truth``, same forms as the priors): rows then carry errors and the summary
-  recall.
+  recall. A photo the truth does not list runs without; one whose entry cannot be used (a file that does
+  not read, of another CRS) is skipped with the reason (``_true_pose``), not run without a word.
 
 A photo that lacks any of these, or whose file cannot be read (not a file, empty, truncated, corrupt, a
 format Pillow does not read: its pixels are decoded once here, ``_readable_photo``), or whose mask's header
@@ -59,6 +60,7 @@ from semcityloc.datasets.photos import (
     IntrinsicsFiles,
     PhotoCamera,
     PhotoMissing,
+    PhotoNotListed,
     PhotoPrior,
     PriorFiles,
     list_images,
@@ -149,10 +151,16 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
             prior = priors.prior(path, meta)
             mask = _mask_file(spec, path, camera, orientation)
             depth = _input_file(spec.depth, path, _find_depth, "depth", camera, orientation)
+            true_pose = _true_pose(truth, path, meta)
         except PhotoMissing as exc:
-            true_pose = _true_pose(truth, path, meta) if isinstance(exc, PhotoUnreadable) else None
+            reason, true_pose = str(exc), None
+            if isinstance(exc, PhotoUnreadable):
+                try:
+                    true_pose = _true_pose(truth, path, meta)
+                except PhotoMissing as unusable:
+                    reason = f"{reason}; {unusable}"
             if true_pose is None:
-                skipped[path.name] = str(exc)
+                skipped[path.name] = reason
                 continue
             # A photo of the truth whose own file cannot be read: a miss of the run (module docstring),
             # with its prior when that is not in the photo itself (a pose file, a geotag CSV).
@@ -164,7 +172,6 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
                 PhotoInput(path.name, path, camera, prior, sigma, true_pose, unreadable=str(exc), **known)
             )
             continue
-        true_pose = _true_pose(truth, path, meta)
         sigma = fixed or prior.uncertainty or PriorUncertainty()
         inputs.append(
             PhotoInput(
@@ -204,21 +211,31 @@ def _photo_camera(intrinsics: IntrinsicsFiles, path: Path, width: int, height: i
         raise PhotoUnreadable(str(exc)) from None
 
 
-def _prior_or_none(priors: PriorFiles | None, path: Path, meta=None) -> PhotoPrior | None:
-    """``priors.prior`` of the photo ``path``, None when there is none it can give (ground truth is optional
-    per photo; an unreadable photo's prior may be in the photo itself)."""
-    if priors is None:
-        return None
+def _prior_or_none(priors: PriorFiles, path: Path) -> PhotoPrior | None:
+    """``priors.prior`` of the unreadable photo ``path``, a miss of the run, None when there is none it can
+    give (its prior may be in the photo itself); the miss's reason names the photo's own file."""
     try:
-        return priors.prior(path, meta)
+        return priors.prior(path)
     except InputFileError:  # PhotoMissing among them
         return None
 
 
 def _true_pose(truth: PriorFiles | None, path: Path, meta) -> Pose | None:
-    """The true pose of the photo ``path`` (world frame), None without one."""
-    given = _prior_or_none(truth, path, meta)
-    return given.pose_world if given is not None else None
+    """The true pose of the photo ``path`` (world frame), None when the truth has none for it (ground truth
+    is optional per photo); ``PhotoMissing`` saying so when it has one that cannot be used (a file that
+    cannot be read, of another CRS, a geotag row without a usable position): that photo is skipped with the
+    reason, not run as one without ground truth, which would leave it out of the recall unsaid."""
+    if truth is None:
+        return None
+    try:
+        return truth.prior(path, meta).pose_world
+    except PhotoNotListed:
+        return None
+    except InputFileError as exc:
+        raise PhotoMissing(
+            f"its true pose cannot be used ({exc}): fix its --truth entry, or remove it to run the photo "
+            "without ground truth"
+        ) from None
 
 
 def _readable_photo(path: Path) -> tuple[int, int, int]:

@@ -57,6 +57,12 @@ class PhotoMissing(InputFileError):
     """One photo lacks something (a prior, intrinsics, a mask); the batch goes on without it."""
 
 
+class PhotoNotListed(PhotoMissing):
+    """A pose file or folder, or a geotag CSV, that has nothing for the photo (no entry, row or file of its
+    name), as opposed to one whose entry cannot be used: ground truth is optional per photo, a broken
+    entry of it is not (``benchmark.photo_inputs``)."""
+
+
 def photo_metadata(image: Path) -> DjiMetadata:
     """``dji_metadata.read_dji_metadata`` of a photo; ``PhotoMissing`` with its message when it cannot be
     read (a malformed tag, say): that photo is skipped, not the run."""
@@ -352,18 +358,18 @@ class PriorFiles:
         return PhotoPrior(prior.pose, prior_uncertainty(prior), source, details)
 
     def prior(self, image: Path, meta: DjiMetadata | None = None) -> PhotoPrior:
-        """The prior of ``image``; ``PhotoMissing`` when it has none (``SemCityLocError`` for a CRS that
-        cannot hold it). ``meta``: the photo's ``photo_metadata`` when the caller has read it already (used
-        by ``exif`` priors only)."""
+        """The prior of ``image``; ``PhotoNotListed`` when the files have none for it, ``PhotoMissing`` when
+        the one they have cannot be used (``SemCityLocError`` for a CRS that cannot hold it). ``meta``: the
+        photo's ``photo_metadata`` when the caller has read it already (used by ``exif`` priors only)."""
         if self.files is not None:
             pose = self.files.pose(image)
             if pose is None:
-                raise PhotoMissing(f"no prior pose for {image.name} in {self.files.path}")
+                raise PhotoNotListed(f"no prior pose for {image.name} in {self.files.path}")
             return PhotoPrior(pose, None, f"pose file {self.files.path.name}")
         if self.geotags is not None:
             row = match_name(self.geotags, image)
             if row is None:
-                raise PhotoMissing(f"no row for {image.name} in {self.spec}")
+                raise PhotoNotListed(f"no row for {image.name} in {self.spec}")
             source = f"geotags {Path(self.spec).name}"
             prior = self._from_dji(row.geotag.metadata(), source, row.source_height())
             prior.uncertainty = row.uncertainty()
