@@ -23,7 +23,7 @@ from PIL import Image
 
 from conftest import shared_file
 from dji_photo import dji_jpeg, xmp_packet
-from semcityloc.benchmark import photo_focal, photo_source
+from semcityloc.benchmark import photo_focal, photo_inputs, photo_source
 from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
 from semcityloc.benchmark.perception_sim import simulate_segmentation
 from semcityloc.benchmark.photo_spec import PhotoSpec
@@ -1310,3 +1310,34 @@ def test_a_one_photo_run_counts_one_photo(box_flight, tmp_path, capsys):
     code, stdout, err = run(capsys, *argv)
     assert code == 0 and "1 photo: 1 localized, 0 not localized, 0 skipped" in stdout, stdout + err
     assert "1 photos" not in stdout + err and "1/1 query done" in err
+
+
+def test_a_truth_or_prior_changed_after_a_photo_finished_is_told_not_kept(box_flight, tmp_path, capsys):
+    """A corrected ``--truth`` file (or a replaced prior) for a finished photo: the run again kept the
+    old row, its error 14.6 m and the summary's recall from the wrong truth, exit 0 (batch audit, stop 51).
+    Rows carry the prior and truth they were made from: a changed one is refused naming the photo and the
+    remedy; deleting that row redoes the photo with the new truth."""
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    truth_file = box_flight["root"] / "GT_pose" / "P1_pose.txt"
+    original = truth_file.read_text()
+    c2w = np.loadtxt(truth_file)
+    c2w[0, 3] += 3.0  # the truth moved 3 m east
+    np.savetxt(truth_file, c2w)
+    photo_focal.calibrated_inputs.cache_clear()  # as a new process would: the files read again
+    photo_inputs.resolve_inputs.cache_clear()
+    try:
+        code, _, err = run(capsys, *argv)
+        assert code == 2 and "1 finished photo no longer matches its row" in err, err
+        assert "P1.JPG: its truth moved 3 m" in err and "delete its row" in err, err
+        rows = (out / "results.csv").read_text().splitlines(keepends=True)
+        (out / "results.csv").write_text("".join(r for r in rows if not r.startswith("q0001,")))
+        code, _, err = run(capsys, *argv)
+        assert code == 0, err
+        with open(out / "results.csv", encoding="utf-8", newline="") as fh:
+            row = next(r for r in csv.DictReader(fh) if r["index"] == "1")
+        assert float(row["true_world_x"]) == pytest.approx(c2w[0, 3])
+    finally:
+        truth_file.write_text(original)

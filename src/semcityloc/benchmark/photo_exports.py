@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from semcityloc.benchmark.results import SKIPPED, row_pose
 from semcityloc.benchmark.runfiles import (
     COLMAP_DIR,
     GEOJSON_FILE,
@@ -48,7 +49,7 @@ from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_ge
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
 from semcityloc.errors import InputFileError, SemCityLocError, counted
-from semcityloc.geometry.errors import center_error_m
+from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import json_safe, write_atomic
@@ -409,6 +410,38 @@ def check_records(out_dir: Path, inputs: list) -> None:
             f"delete {its} from {out_dir / RESULTS_FILE} and run again to redo {'it' if one else 'them'} "
             "(or --overwrite, which redoes every photo)"
         )
+
+
+# A finished row's prior or truth this far from the current file's (m, deg) was made from another file.
+CHANGED_INPUT_M, CHANGED_INPUT_DEG = 1e-3, 1e-3
+
+
+def changed_inputs(rows: list[dict[str, str]], inputs: list, model: CityModel) -> dict[str, str]:
+    """``{photo: what changed}`` for finished rows whose prior or ground truth is no longer what the
+    current files say (``inputs``: ``photo_inputs.PhotoInput`` by row index). Why: a resume keeps finished
+    rows, so a corrected ``--truth`` (or a replaced prior) would leave the old errors in the rows and the
+    summary, silently; what a row was made from is in its own columns, so it is compared, not trusted."""
+    changed = {}
+    for row in rows:
+        index = int(row["index"])
+        if row.get("status") == SKIPPED or index >= len(inputs):
+            continue
+        inp = inputs[index]
+        prior = inp.prior.pose_world if inp.prior is not None else None
+        for what, now_world, prefix in (("prior", prior, "prior"), ("truth", inp.truth_world, "true")):
+            then = row_pose(row, prefix)
+            now = model.pose_to_local(now_world) if now_world is not None else None
+            if then is None and now is None:
+                continue
+            if then is None or now is None:
+                changed[inp.name] = f"its {what} was {'added' if then is None else 'removed'}"
+                break
+            moved = float(center_error_m(now, then))
+            turned = float(rotation_error_deg(now, then))
+            if moved > CHANGED_INPUT_M or turned > CHANGED_INPUT_DEG:
+                changed[inp.name] = f"its {what} moved {moved:.3g} m, turned {turned:.3g} deg"
+                break
+    return changed
 
 
 def camera_features(

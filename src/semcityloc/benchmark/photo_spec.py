@@ -24,19 +24,19 @@ import numpy as np
 
 from semcityloc import __version__
 from semcityloc.benchmark.methods import searched_map
-from semcityloc.benchmark.photo_exports import write_exports
+from semcityloc.benchmark.photo_exports import changed_inputs, shown_names, write_exports
 from semcityloc.benchmark.photo_focal import calibrated_inputs
 from semcityloc.benchmark.photo_inputs import Resolved
 from semcityloc.benchmark.photo_source import PhotoSource
 from semcityloc.benchmark.results import SKIPPED
-from semcityloc.benchmark.runfiles import plain
+from semcityloc.benchmark.runfiles import RESULTS_FILE, plain
 from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
 from semcityloc.datasets.geodesy import check_geoid_separation
 from semcityloc.datasets.photos import EXIF
-from semcityloc.errors import BenchmarkError, InputFileError, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, counted, unknown_choice
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import ABLATIONS
@@ -203,6 +203,16 @@ class PhotoSpec:
         summary["photos"] = len(inputs) + len(skipped)
         failed = {inputs[int(r["index"])].name: r["reason"] for r in rows if r["status"] == SKIPPED}
         summary["skipped_photos"] = {**skipped, **failed}
+        changed = changed_inputs(rows, inputs, model)
+        if changed:
+            one = len(changed) == 1
+            raise InputFileError(
+                f"{counted(len(changed), 'finished photo')} no longer "
+                f"{'matches its row' if one else 'match their rows'} in {out_dir / RESULTS_FILE} "
+                f"({shown_names([f'{n}: {why}' for n, why in changed.items()])}): the files changed since; "
+                f"delete {'its row' if one else 'their rows'} and run again to redo "
+                f"{'it' if one else 'them'} (or --overwrite, which redoes every photo)"
+            )
         offset = None if self.offset is None else np.asarray(self.offset, dtype=np.float64)
         placed = [inp for inp in inputs if inp.camera is not None and inp.prior is not None]  # exports
         summary["outputs"] = write_exports(
