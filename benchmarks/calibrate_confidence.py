@@ -52,6 +52,7 @@ from semcityloc.benchmark.calibration import ACCEPTANCE_CONDITIONS, calibration_
 from semcityloc.benchmark.calibration import condition_rows as calibration_rows
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.evaluation.metrics import is_right
 from semcityloc.evaluation.scoring_rules import paired_difference
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.confidence import (
@@ -78,7 +79,6 @@ VARIANTS = {
     ("semantic", False): "no-depth",
     ("silhouette", False): "silhouette",
 }
-RIGHT_M, RIGHT_DEG = 5.0, 5.0
 
 _WORKER: dict = {}
 
@@ -129,7 +129,7 @@ def _one(index: int) -> list[dict]:
         if pose is not None:
             e_m = float(center_error_m(pose, q.true_pose_local))
             e_deg = float(rotation_error_deg(pose, q.true_pose_local))
-            row.update(error_m=e_m, error_deg=e_deg, right=bool(e_m <= RIGHT_M and e_deg <= RIGHT_DEG))
+            row.update(error_m=e_m, error_deg=e_deg, right=is_right(e_m, e_deg))
             names = FEATURES_DEPTH if variant == "semcityloc" else FEATURES_NO_DEPTH
             row["features"] = dict(zip(names, features_of(r, names).tolist(), strict=True))
         out.append(row)

@@ -41,6 +41,7 @@ from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.calibration import condition_rows as calibration_rows
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.evaluation.metrics import is_right
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import STATE_NAMES, CovarianceModel, save_models, state_error
@@ -54,7 +55,6 @@ BERLIN = SHARED / "berlin_lod2_citygml2" / "3910_5817.gml"
 CONDITIONS = {"trained": ("trained", {}), "medium": ("medium", {})}
 NARROW_CONDITIONS = {"narrow": ("trained", {"focal_mm": 28.0})}
 VARIANTS = {"semantic/depth": False, "semantic/no-depth": True}  # model key -> the config's no_depth
-RIGHT_M, RIGHT_DEG = 5.0, 5.0
 LEVELS = (0.5, 0.68, 0.9, 0.95, 0.99)
 TAIL = 0.95  # the ellipsoid probability the fitted covariance is widened to hold (``fit_model``)
 
@@ -93,7 +93,7 @@ def _one(index: int) -> list[dict]:
                 "query": q.query_id,
                 "model": key,
                 "accepted": r.localized,
-                "right": bool(e_m <= RIGHT_M and e_deg <= RIGHT_DEG),
+                "right": is_right(e_m, e_deg),
                 "error": e.tolist(),
                 "curvature": r.score_curvature.tolist(),
             }

@@ -33,6 +33,7 @@ from semcityloc.benchmark.calibration import ACCEPTANCE_CONDITIONS, require_cali
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.errors import ParameterError
+from semcityloc.evaluation.metrics import is_right
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
@@ -40,7 +41,6 @@ from semcityloc.localization.query import Query
 from semcityloc.localization.result import LOCALIZED
 
 CONDITIONS = ACCEPTANCE_CONDITIONS
-RIGHT_M, RIGHT_DEG = 5.0, 5.0
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 _WORKER: dict = {}
@@ -77,7 +77,7 @@ def _one(index: int) -> dict | None:
     row.update(
         error_m=e_m,
         error_deg=e_deg,
-        right=bool(e_m <= RIGHT_M and e_deg <= RIGHT_DEG),
+        right=is_right(e_m, e_deg),
         sweep_best=r.search["sweep_best"],
         ring_best=None if ring is None else ring.score,
         ring_offset_m=None if ring is None else ring.offset_xy_m,

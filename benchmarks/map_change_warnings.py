@@ -25,6 +25,7 @@ from pathlib import Path
 from semcityloc.benchmark.calibration import calibration_cities
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.evaluation.metrics import is_right
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.agreement import WARN_SHARE, building_agreement
 from semcityloc.localization.localize import Localizer
@@ -58,8 +59,8 @@ def _one(index: int) -> dict | None:
     reality = source.simulator.reality.renderer.render(fine, q.true_pose_local).labels[0]
     truth = building_agreement(reality, map_labels)
     return {
-        "right": bool(
-            center_error_m(pose, q.true_pose_local) <= 5 and rotation_error_deg(pose, q.true_pose_local) <= 5
+        "right": is_right(
+            center_error_m(pose, q.true_pose_local), rotation_error_deg(pose, q.true_pose_local)
         ),
         "warned": [
             result.confidence["unmapped_building_share"] >= WARN_SHARE,

@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from semcityloc.benchmark.results import cell_float, parse_results, summarize_rows
+from semcityloc.evaluation.metrics import RIGHT_DEG, RIGHT_M
 
 THRESHOLDS = ((2.0, 2.0), (3.0, 3.0), (5.0, 5.0))
 
@@ -51,7 +52,7 @@ def draw_cell(rows: list[dict[str, str]]) -> str:
     n = len(rows)
     hits = [100.0 * sum(right(r, m, d) for r in rows) / n for m, d in THRESHOLDS]
     accepted = [r for r in rows if r["status"] == "localized"]
-    precision = 100.0 * sum(right(r, 5.0, 5.0) for r in accepted) / max(len(accepted), 1)
+    precision = 100.0 * sum(right(r, RIGHT_M, RIGHT_DEG) for r in accepted) / max(len(accepted), 1)
     return f"{hits[0]:.0f} / {hits[1]:.0f} / {hits[2]:.0f} ({len(accepted)}, {precision:.1f} %)"
 
 

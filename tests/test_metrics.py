@@ -10,8 +10,11 @@ import pytest
 from semcityloc.errors import ShapeError
 from semcityloc.evaluation.metrics import (
     CONVENTION,
+    RIGHT_DEG,
+    RIGHT_M,
     THRESHOLDS,
     cumulative_curve,
+    is_right,
     pose_errors,
     recall,
     recalls,
@@ -42,6 +45,18 @@ def test_le_and_strict_differ_exactly_at_ties():
     # Just above the threshold never counts, just below always does.
     assert recall([np.nextafter(2.0, 3.0)], [0.0], 2, 2) == 0.0
     assert recall([np.nextafter(2.0, 0.0)], [0.0], 2, 2, strict=True) == 100.0
+
+
+def test_right_is_within_5_m_and_5_deg_inclusive_one_definition():
+    """``is_right``: the event the acceptance probability is fitted to, the acceptance precision, the report's
+    reliability and the kinds of miss (stop 51: five copies and two literals before)."""
+    assert (RIGHT_M, RIGHT_DEG) == (5.0, 5.0)
+    assert is_right(5.0, 5.0) is True and is_right(0.0, 0.0) is True
+    assert not is_right(np.nextafter(5.0, 6.0), 0.0) and not is_right(0.0, np.nextafter(5.0, 6.0))
+    assert not is_right(math.nan, 0.0) and not is_right(0.0, math.inf)
+    np.testing.assert_array_equal(is_right([1.0, 6.0, 1.0, math.nan], [1.0, 1.0, 6.0, 1.0]), [1, 0, 0, 0])
+    s = summarize_errors([1.0, 5.0, 6.0, 1.0], [1.0, 5.0, 1.0, 5.5], [0, 0, 0, 0])
+    assert s["acceptance_precision"] == pytest.approx(50.0)
 
 
 def test_both_position_and_rotation_must_pass():

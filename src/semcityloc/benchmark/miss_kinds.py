@@ -31,10 +31,10 @@ import numpy as np
 
 from semcityloc.benchmark.results import FAILED, cell_float, unreadable_row
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
+from semcityloc.evaluation.metrics import is_right
 from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
 from semcityloc.localization.result import LOCALIZED
 
-NEAR_M, NEAR_DEG = 5.0, 5.0  # "near": the calibrated probability's own event
 UNREADABLE_KIND = "unreadable-input"
 MISS_KINDS = ("near", "refused-near", "refused-wrong", "wrong", UNREADABLE_KIND, FAILED)
 # Bins of the map's building IoU at the truth for the hits-per-bin figure; from MAP_AGREES up the map
@@ -82,7 +82,7 @@ def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> st
     found_m, found_deg = cell_float(row.get("found_err_xyz_m")), cell_float(row.get("found_err_rot_deg"))
     if localized and math.isnan(found_m):  # a results file without the found-pose columns
         found_m, found_deg = cell_float(row["err_xyz_m"]), cell_float(row["err_rot_deg"])
-    near = found_m <= NEAR_M and found_deg <= NEAR_DEG
+    near = is_right(found_m, found_deg)  # "near": the calibrated probability's own event
     if not localized:
         return "refused-near" if near else "refused-wrong"
     return "near" if near else "wrong"

@@ -42,6 +42,7 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
 from semcityloc.datasets.lodloc import FRAME_ECEF, IMAGE_DIR, enu_from_ecef, rotate_model
 from semcityloc.errors import BenchmarkError, SemCityLocError, counted
+from semcityloc.evaluation.metrics import is_right
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
@@ -49,7 +50,6 @@ from semcityloc.render import Renderer
 REAL_MODES = ("dataset", "photos")  # runs over real images (``mode`` in run.json); others are simulated
 # Query-config fields already shown under their own name.
 _SHOWN_QUERY_FIELDS = {"seg_quality", "prior_extra_m", "seed", "queries", "scenario"}
-RIGHT_M, RIGHT_DEG = 5.0, 5.0  # "right" for the acceptance: the calibrated probability's own event
 
 
 @dataclass
@@ -297,7 +297,7 @@ def acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
             continue
         if np.isfinite(prob_f) and np.isfinite(e_m_f) and np.isfinite(e_deg_f):
             p.append(prob_f)
-            right.append(e_m_f <= RIGHT_M and e_deg_f <= RIGHT_DEG)
+            right.append(is_right(e_m_f, e_deg_f))
     return (np.array(p), np.array(right, dtype=float)) if p else None
 
 

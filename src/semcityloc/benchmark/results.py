@@ -62,7 +62,7 @@ from semcityloc.benchmark.runfiles import (
 )
 from semcityloc.classes import NUM_CLASSES
 from semcityloc.errors import BenchmarkError
-from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall, summarize_errors
+from semcityloc.evaluation.metrics import THRESHOLDS, is_right, pose_errors, recall, summarize_errors
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import removed_on_error, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
@@ -170,7 +170,7 @@ def recall_summary(results: list[LocalizationResult], queries: list[BenchmarkQue
         err_deg.append(d)
         if r.status == LOCALIZED:
             accepted += 1
-            accepted_right += m <= 5.0 and d <= 5.0
+            accepted_right += is_right(m, d)
     return {
         "recall": [round(recall(err_m, err_deg, m, d), 1) for m, d in THRESHOLDS],
         "localized": accepted,
