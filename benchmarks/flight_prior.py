@@ -33,6 +33,7 @@ from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.results import recall_summary
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.geometry.conventions import state_difference
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.localize import Localizer
@@ -87,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     for i in subset:
         if stated[i].status == LOCALIZED:
             found, prior = stated[i].pose_local.to_xyz_rpy(), priors[i].to_xyz_rpy()
-            moves.append([*(found[:3] - prior[:3]), (found[5] - prior[5] + 180) % 360 - 180])
+            moves.append(state_difference(found, prior)[[0, 1, 2, 5]].tolist())
     out = {
         "city": Path(args.city).stem,
         "seed": args.seed,

@@ -22,6 +22,7 @@ from semcityloc.geometry.conventions import (
     pose_from_colmap,
     pose_from_dji,
     pose_from_lodloc_c2w,
+    state_difference,
     wrap_deg,
 )
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg, yaw_error_deg
@@ -85,6 +86,31 @@ def test_wrap_deg():
     assert np.all((w > -180) & (w <= 180))
     np.testing.assert_allclose(np.cos(np.radians(w)), np.cos(np.radians(x)), atol=1e-9)
     np.testing.assert_allclose(np.sin(np.radians(w)), np.sin(np.radians(x)), atol=1e-9)
+
+
+def test_state_difference_wraps_the_angles_as_wrap_deg_and_every_copy_agrees():
+    """Stop 51: four inline copies wrapped to [-180, 180), ``wrap_deg`` to (-180, 180]: a difference of
+    exactly 180 deg came out with opposite signs depending on which copy ran. One rule now."""
+    from semcityloc.benchmark.photo_exports import yaw_moves_deg
+    from semcityloc.localization.covariance import state_error
+    from semcityloc.localization.refine import top_mean
+
+    a = np.array([[1.0, 2.0, 3.0, 10.0, -20.0, 179.0], [0.0, 0.0, 0.0, 90.0, 0.0, 180.0]])
+    b = np.array([0.5, 0.0, 1.0, -10.0, 20.0, -179.0])
+    d = state_difference(a, b)
+    np.testing.assert_allclose(d[0], [0.5, 2.0, 2.0, 20.0, -40.0, -2.0], atol=1e-12)
+    np.testing.assert_array_equal(d[:, 3:], wrap_deg(a[:, 3:] - b[3:]))
+    np.testing.assert_allclose(d[1, 3:], [100.0, -20.0, -1.0], atol=1e-12)  # 359 deg: -1
+    with pytest.raises(ShapeError, match=r"\(\.\.\., 6\)"):
+        state_difference(np.zeros(5), np.zeros(5))
+    # Exactly 180 deg apart: +180 everywhere (wrap_deg's interval), whichever user asks.
+    centre = np.array([0.0, 0.0, 80.0])
+    yaw_0, yaw_180 = Pose.from_xyz_rpy(centre, 0.0, 30.0, 0.0), Pose.from_xyz_rpy(centre, 0.0, 30.0, 180.0)
+    assert state_difference([0, 0, 0, 0, 0, 180.0], np.zeros(6))[5] == 180.0
+    assert state_error(yaw_180, yaw_0)[5] == pytest.approx(180.0)
+    assert yaw_moves_deg([yaw_180], [yaw_0])[0] == pytest.approx(180.0)
+    states = np.array([[0.0, 0, 0, 0, 0, 0], [0.0, 0, 0, 0, 0, 180.0]])
+    assert top_mean(states, np.array([0.9, 0.8]), 2)[5] == pytest.approx(90.0)  # [-180, 180): -90
 
 
 def test_rotation_about_world_z():

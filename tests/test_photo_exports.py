@@ -8,6 +8,7 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from semcityloc.benchmark.photo_exports import (
     OFFSET_MIN_PHOTOS,
@@ -104,6 +105,9 @@ def test_yaw_moves_wrap_and_edges_are_counted_per_axis():
     prior = [Pose.from_xyz_rpy(centre, 0.5, 29.0, -179.0), Pose.from_xyz_rpy(centre, 0.0, 0.0, 4.0)]
     np.testing.assert_allclose(yaw_moves_deg(found, prior), [-2.0, 6.0], atol=0.05)
     assert yaw_moves_deg([], []).shape == (0,)
+    # Exactly half a turn is +180, as ``wrap_deg`` says it (stop 51: this copy said -180).
+    half = [Pose.from_xyz_rpy(centre, 0.0, 0.0, 100.0)], [Pose.from_xyz_rpy(centre, 0.0, 0.0, -80.0)]
+    assert yaw_moves_deg(*half)[0] == pytest.approx(180.0)
     records = [
         {"reason": REASON_AT_EDGE, "search": {"at_edge": ["yaw+"]}},
         {"reason": REASON_AT_EDGE, "search": {"at_edge": ["z-", "yaw-"]}},

@@ -49,6 +49,7 @@ from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_ge
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
 from semcityloc.errors import InputFileError, SemCityLocError, counted
+from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
@@ -215,13 +216,14 @@ def prior_offset_notes(
 
 
 def yaw_moves_deg(estimates: list[Pose], priors: list[Pose]) -> np.ndarray:
-    """(n,) estimate minus prior yaw of each photo in degrees, wrapped to [-180, 180): the turn about the
-    vertical (counter-clockwise seen from above) that took each prior's heading to the found one."""
+    """(n,) estimate minus prior yaw of each photo in degrees, wrapped to (-180, 180] (``wrap_deg``): the
+    turn about the vertical (counter-clockwise seen from above) that took each prior's heading to the found
+    one."""
     if not estimates:
         return np.zeros(0)
     found = Pose.stack(estimates).to_xyz_rpy()[:, 5]
     prior = Pose.stack(priors).to_xyz_rpy()[:, 5]
-    return (found - prior + 180.0) % 360.0 - 180.0
+    return wrap_deg(found - prior)
 
 
 def shared_yaw_offset(moves_deg: np.ndarray) -> tuple[float, float] | None:

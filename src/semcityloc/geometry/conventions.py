@@ -45,6 +45,17 @@ def wrap_deg(angle: np.ndarray | float) -> np.ndarray | float:
     return float(out) if out.ndim == 0 else out
 
 
+def state_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a - b`` of search states (..., 6) (x, y, z m; roll, pitch, yaw deg: ``Pose.to_xyz_rpy``) with the
+    three angle differences wrapped to (-180, 180] (``wrap_deg``), so that 179 deg minus -179 deg is -2 deg,
+    not 358. Float64; ``a`` and ``b`` broadcast (N states minus one centre)."""
+    d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    if d.shape[-1:] != (6,):
+        raise ShapeError(f"search states must have shape (..., 6), got {d.shape}")
+    d[..., 3:] = wrap_deg(d[..., 3:])
+    return d
+
+
 def _matrices(T: np.ndarray, what: str) -> np.ndarray:
     T = np.asarray(T, dtype=np.float64)
     if T.ndim < 2 or T.shape[-2:] not in ((4, 4), (3, 4)):

@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from semcityloc.errors import ParameterError
+from semcityloc.geometry.conventions import state_difference
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.confidence import CALIBRATED_MIN_HFOV_DEG
 
@@ -50,7 +51,6 @@ MIN_SAMPLES_PER_COEFFICIENT = 2
 # A direction the samples say nothing about gets at most this many times the sigma of the best-constrained
 # one, in standardised units (the curvature's eigenvalues are floored at the largest / MAX_SIGMA_RATIO**2).
 MAX_SIGMA_RATIO = 100.0
-_ANGLES = slice(3, 6)
 _IU = np.triu_indices(6)
 N_COEFFICIENTS = 1 + 6 + len(_IU[0])
 PROBES = 1 + 2 * 6 + 4 * 15  # states of ``probe_states``
@@ -77,13 +77,6 @@ def probe_states(center: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return np.asarray(center, dtype=np.float64) + np.array(offsets)
 
 
-def _offsets(states: np.ndarray, center: np.ndarray) -> np.ndarray:
-    """(N, 6) ``states - center`` with the angles wrapped to +-180 deg."""
-    d = np.asarray(states, dtype=np.float64) - np.asarray(center, dtype=np.float64)
-    d[:, _ANGLES] = (d[:, _ANGLES] + 180.0) % 360.0 - 180.0
-    return d
-
-
 def score_curvature(states: np.ndarray, scores: np.ndarray, center: np.ndarray) -> np.ndarray | None:
     """(6, 6) symmetric positive definite curvature ``A = -H`` of the score at ``center`` (state units:
     m and deg), from a quadratic fitted to ``scores`` (N,) of ``states`` (N, 6); None when there are too
@@ -96,7 +89,7 @@ def score_curvature(states: np.ndarray, scores: np.ndarray, center: np.ndarray) 
     states, scores = states[keep], scores[keep]
     if len(scores) < MIN_SAMPLES_PER_COEFFICIENT * N_COEFFICIENTS:
         return None
-    d = _offsets(states, center)
+    d = state_difference(states, center)
     scale = d.std(axis=0)
     if not np.all(scale > 1e-9):
         return None
@@ -130,7 +123,7 @@ def pose_covariance(
 
 def state_error(pose: Pose, truth: Pose) -> np.ndarray:
     """(6,) ``pose - truth`` in state units (m, deg; angles wrapped to +-180): what a covariance describes."""
-    return _offsets(pose.to_xyz_rpy()[None], truth.to_xyz_rpy())[0]
+    return state_difference(pose.to_xyz_rpy(), truth.to_xyz_rpy())
 
 
 def horizontal_sigma(sigma_x: float, sigma_y: float) -> float:
@@ -141,7 +134,7 @@ def horizontal_sigma(sigma_x: float, sigma_y: float) -> float:
 
 def mahalanobis_sq(error: np.ndarray, covariance: np.ndarray) -> float:
     """``e' C^-1 e`` of a (6,) state error (angles wrapped) under a (6, 6) covariance."""
-    e = _offsets(np.atleast_2d(error), np.zeros(6))[0]
+    e = state_difference(error, np.zeros(6))
     return float(e @ np.linalg.solve(covariance, e))
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from semcityloc.geometry.conventions import state_difference
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
@@ -31,8 +32,7 @@ def prior_term(prior_state: np.ndarray, cfg: LocalizerConfig, unc: PriorUncertai
 def prior_distance(pose_local: Pose, prior_state: np.ndarray, unc: PriorUncertainty) -> float:
     """How many sigmas of the prior's uncertainty the pose is from the prior (Mahalanobis distance over
     x, y, z and yaw): a pose found far out in the search volume is a priori less likely to be right."""
-    d = pose_local.to_xyz_rpy() - np.asarray(prior_state, dtype=np.float64)
-    d[5] = (d[5] + 180.0) % 360.0 - 180.0
+    d = state_difference(pose_local.to_xyz_rpy(), prior_state)
     sig = np.array([unc.xy_m, unc.xy_m, unc.z_m, unc.yaw_deg])
     v = d[[0, 1, 2, 5]] / np.maximum(sig, 1e-6)
     return float(np.sqrt(np.sum(v * v)))

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import state_difference
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.coarse import _slots
 from semcityloc.localization.config import RefineConfig
@@ -285,8 +286,7 @@ def particle_filter(
 
 def top_mean(states: np.ndarray, scores: np.ndarray, k: int) -> np.ndarray:
     """(6,) mean of the ``k`` best-scoring states (N, 6); angles averaged as offsets from the best one's,
-    wrapped to +-180 deg, so a yaw near +-180 does not average to 0."""
+    wrapped (``state_difference``), so a yaw near +-180 does not average to 0."""
     top = states[np.argsort(-scores, kind="stable")[:k]]
-    offsets = top - top[0]
-    offsets[:, 3:] = (offsets[:, 3:] + 180.0) % 360.0 - 180.0
+    offsets = state_difference(top, top[0])
     return top[0] + offsets.mean(axis=0)
