@@ -16,7 +16,14 @@ import pytest
 
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.citygml import CityGMLReader, iter_citygml_polygons, read_citygml
-from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
+from semcityloc.citymodel.crs import (
+    check_projected,
+    horizontal_crs,
+    metric_crs,
+    parse_crs_name,
+    same_crs,
+    same_horizontal_crs,
+)
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.triangulate import polygon_area, triangulate_polygon
@@ -244,6 +251,25 @@ def test_parse_compound_crs_name():
     crs = parse_crs_name("urn:ogc:def:crs,crs:EPSG::25832,crs:EPSG::5783")
     assert crs.is_compound
     assert [c.to_epsg() for c in crs.sub_crs_list] == [25832, 5783]
+
+
+def test_one_rule_for_same_crs_and_for_a_metric_crs():
+    """``crs.same_crs`` / ``same_horizontal_crs`` / ``check_projected`` / ``metric_crs``: the one answer to
+    "same CRS?" (a CityGML file's srsNames, a store's ``--crs``, a pose file's) and to "metric?" (OBJ, the
+    generated city, a DJI prior's target)."""
+    assert same_crs("EPSG:25833", "urn:ogc:def:crs:EPSG::25833")  # spellings differ
+    assert not same_crs("EPSG:25833", "EPSG:25832")
+    assert not same_crs("EPSG:4326", "OGC:CRS84")  # latitude first or not: the file's numbers differ
+    assert same_crs("EPSG:4326", "OGC:CRS84", ignore_axis_order=True)
+    assert not same_crs("EPSG:25832", "EPSG:25832+5783")  # the height system counts
+    assert same_horizontal_crs("EPSG:25832", "urn:ogc:def:crs,crs:EPSG::25832,crs:EPSG::5783")
+    assert check_projected("EPSG:25832+5783", "x").to_epsg() == 25832  # the horizontal part
+    assert metric_crs("EPSG:25832+5783", "x").is_compound  # whole
+    for name, kind in (("EPSG:4326", "geographic"), ("EPSG:4978", "geocentric")):
+        with pytest.raises(CRSError, match=rf"^the thing must be metric \(projected\), got .* \({kind}\)$"):
+            check_projected(name, "the thing")
+        with pytest.raises(CRSError, match=kind):
+            metric_crs(name, "the thing")
 
 
 @pytest.mark.parametrize(

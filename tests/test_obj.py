@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from semcityloc.citymodel.crs import check_projected, parse_crs_name
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import CRSError, EmptyModelError, InputFileError
@@ -173,6 +174,26 @@ def test_crs_option(tmp_path):
         read_obj(path, crs="EPSG:4326")
     with pytest.raises(CRSError):
         read_obj(path, crs="EPSG:999999999")
+
+
+def test_an_earth_centred_crs_is_refused_as_check_projected_refuses_it(tmp_path):
+    """Stop 51: OBJ reading refused only geographic CRSs, so ``crs='EPSG:4978'`` (geocentric) loaded while a
+    prior for the same CRS was refused; one rule now (``crs.check_projected``), for the option and the
+    export header's CRS alike."""
+    path = write(tmp_path, cube_text(offset=(500000.0, 5400000.0, 300.0)))
+    with pytest.raises(
+        CRSError, match=r"the OBJ's CRS 'EPSG:4978' must be metric \(projected\), got WGS 84 \(geocentric\)"
+    ):
+        read_obj(path, crs="EPSG:4978")
+    with pytest.raises(CRSError) as projected:
+        check_projected(parse_crs_name("EPSG:4978"), "the OBJ's CRS 'EPSG:4978'")
+    with pytest.raises(CRSError) as obj:
+        read_obj(path, crs="EPSG:4978")
+    assert str(obj.value) == str(projected.value)
+    header = "# semcityloc local frame: world = origin + vertex; origin 0 0 0; crs EPSG:4978\n"
+    with pytest.raises(CRSError, match="geocentric"):
+        read_obj(write(tmp_path, header + cube_text(), "h.obj"))
+    assert read_obj(path, crs="EPSG:25832+5783").crs.is_compound  # a height system is kept
 
 
 def test_ignored_and_unknown_keywords(tmp_path):

@@ -21,7 +21,14 @@ import pyproj
 
 from semcityloc.citymodel.builder import usable_points
 from semcityloc.citymodel.citygml_names import local_name
-from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, overridden_warning, parse_crs_name
+from semcityloc.citymodel.crs import (
+    CRS_HINT,
+    MetricFrame,
+    check_degrees,
+    overridden_warning,
+    parse_crs_name,
+    same_crs,
+)
 from semcityloc.citymodel.model import ParseStats, crs_label
 from semcityloc.errors import CRSError
 
@@ -143,9 +150,10 @@ class CRSChoice:
 
 
 def _same_crs(a: str, b: str) -> bool:
-    """Whether two srsName strings name the same CRS (spellings differ: EPSG:25833 vs its URN)."""
+    """Whether two srsName strings name the same CRS (``crs.same_crs``: spellings differ, EPSG:25833 vs its
+    URN; the axis order counts); not when either cannot be read."""
     try:
-        return parse_crs_name(a) == parse_crs_name(b)
+        return same_crs(a, b)
     except CRSError:
         return False
 

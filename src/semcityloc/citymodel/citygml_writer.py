@@ -15,13 +15,13 @@ footprints: lxml, ids numbered per building, every coordinate printed with three
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 from lxml import etree
 
-from semcityloc.citymodel.generator_footprints import DEFAULT_CRS, Footprint, metric_crs
+from semcityloc.citymodel.crs import metric_crs
+from semcityloc.citymodel.generator_footprints import DEFAULT_CRS, Footprint, generated_crs_what
 from semcityloc.citymodel.generator_surfaces import Surface, check_lod, city_surfaces
 from semcityloc.errors import ParameterError
 
@@ -40,11 +40,10 @@ SCHEMA_LOCATION = (
 
 
 def srs_name(crs: str) -> str:
-    """OGC URN for a CRS string: ``EPSG:25832`` -> ``urn:ogc:def:crs:EPSG::25832``."""
-    parsed = metric_crs(crs)
-    m = re.fullmatch(r"\s*EPSG:(\d+)\s*", crs, re.IGNORECASE)
-    if m:
-        return f"urn:ogc:def:crs:EPSG::{m.group(1)}"
+    """OGC URN for a CRS string (any of ``crs.parse_crs_name``'s forms) with an EPSG code: ``EPSG:25832``
+    -> ``urn:ogc:def:crs:EPSG::25832``; the string as given otherwise. Refused unless projected
+    (``crs.metric_crs``)."""
+    parsed = metric_crs(crs, generated_crs_what(crs))
     auth = parsed.to_authority(min_confidence=90)
     if auth and auth[0] == "EPSG":
         return f"urn:ogc:def:crs:EPSG::{auth[1]}"

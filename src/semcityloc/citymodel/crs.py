@@ -170,7 +170,7 @@ def overridden_warning(given: str, stated: str) -> str | None:
     states (a typo's zone, 25832 for 25833, moves every coordinate hundreds of kilometres, silently); None
     when both agree there (a height system added or dropped) or the file's cannot be read."""
     try:
-        if same_horizontal_crs(parse_crs_name(given), parse_crs_name(stated)):
+        if same_horizontal_crs(given, stated):
             return None
     except CRSError:
         return None
@@ -200,7 +200,46 @@ def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None, where
         )
 
 
-def same_horizontal_crs(a: pyproj.CRS, b: pyproj.CRS) -> bool:
-    """Whether two CRSs put x, y in the same place: their horizontal parts equal (axis order aside; a
-    compound CRS's height system does not move a pose sideways)."""
-    return horizontal_crs(a).equals(horizontal_crs(b), ignore_axis_order=True)
+def check_projected(crs: pyproj.CRS | str, what: str) -> pyproj.CRS:
+    """The horizontal part of ``crs`` (a CRS or a name, ``parse_crs_name``) if it is projected (metric,
+    z up once a height is added), else a ``CRSError`` naming its kind. The one rule of "is this CRS
+    metric?": for a model's coordinates (OBJ, the generated city) and a prior's target CRS alike. Why not
+    only "not geographic": an Earth-centred CRS (EPSG:4978) or a local engineering one passes that test,
+    and coordinates or a prior put in it are nonsense (x, y geocentric, z the height, a grid convergence
+    of -100 degrees) rather than an error."""
+    parsed = parse_crs_name(crs) if isinstance(crs, str) else crs
+    horizontal = horizontal_crs(parsed)
+    if horizontal.is_projected:
+        return horizontal
+    kind = (
+        "geographic"
+        if horizontal.is_geographic
+        else "geocentric"
+        if horizontal.is_geocentric
+        else horizontal.type_name.lower()
+    )
+    raise CRSError(f"{what} must be metric (projected), got {parsed.name} ({kind})")
+
+
+def metric_crs(name: str, what: str) -> pyproj.CRS:
+    """``parse_crs_name(name)``, whole (a height system kept), if it is projected (``check_projected``
+    with ``what`` naming it); for coordinates in metres: an OBJ's, the generated city's."""
+    parsed = parse_crs_name(name)
+    check_projected(parsed, what)
+    return parsed
+
+
+def same_crs(a: pyproj.CRS | str, b: pyproj.CRS | str, ignore_axis_order: bool = False) -> bool:
+    """Whether two CRSs (or names, ``parse_crs_name``: spellings differ, EPSG:25833 vs its URN) are the
+    same CRS, height system included; their axis order too unless ``ignore_axis_order`` (a geographic
+    CRS's latitude-first order changes what the coordinates of a file mean). The one rule of "same CRS?"
+    (``same_horizontal_crs`` is it on the horizontal parts). A name that cannot be read is a ``CRSError``."""
+    a = parse_crs_name(a) if isinstance(a, str) else a
+    b = parse_crs_name(b) if isinstance(b, str) else b
+    return a.equals(b, ignore_axis_order=ignore_axis_order)
+
+
+def same_horizontal_crs(a: pyproj.CRS | str, b: pyproj.CRS | str) -> bool:
+    """Whether two CRSs put x, y in the same place: their horizontal parts the same CRS (``same_crs``, axis
+    order aside; a compound CRS's height system does not move a pose sideways)."""
+    return same_crs(horizontal_crs(a), horizontal_crs(b), ignore_axis_order=True)

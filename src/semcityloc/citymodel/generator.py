@@ -30,6 +30,7 @@ import numpy as np
 from semcityloc.cache import cache_root
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.citygml_writer import srs_name, write_citygml
+from semcityloc.citymodel.crs import metric_crs
 from semcityloc.citymodel.generator_footprints import (
     DEFAULT_BLOCKS,
     DEFAULT_CRS,
@@ -38,7 +39,7 @@ from semcityloc.citymodel.generator_footprints import (
     Footprint,
     check_blocks,
     generate_footprints,
-    metric_crs,
+    generated_crs_what,
 )
 from semcityloc.citymodel.generator_surfaces import check_lod, city_surfaces
 from semcityloc.citymodel.model import CityModel
@@ -53,7 +54,7 @@ def footprints_to_model(footprints: list[Footprint], lod: int = 2, crs: str = DE
     """The generated surfaces straight into a ``CityModel`` (no XML). LoD1 surfaces go in unlabelled
     (classified by normals, as a reader of the LoD1 file would), LoD2/3 with their CityGML semantics."""
     lod = check_lod(lod)
-    metric = metric_crs(crs)
+    metric = metric_crs(crs, generated_crs_what(crs))
     builder = MeshBuilder()
     for fp, surfaces in city_surfaces(footprints, lod):
         for s in surfaces:

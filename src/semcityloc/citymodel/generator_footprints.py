@@ -18,7 +18,7 @@ The district (``generate_footprints``):
   centre; a building's ground floor lies at the lowest terrain height under its footprint, so a
   flat-ground assumption is wrong by up to several metres across the district.
 The layout is in metres: ``origin`` is in a projected CRS (``DEFAULT_CRS`` by default), which
-``metric_crs`` checks for every output of the district.
+``citymodel.crs.metric_crs`` checks for every output of the district.
 """
 
 from __future__ import annotations
@@ -28,8 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcityloc.citymodel.crs import parse_crs_name
-from semcityloc.errors import CRSError, ParameterError
+from semcityloc.errors import ParameterError
 
 DEFAULT_SEED = 0
 DEFAULT_BLOCKS = (4, 3)
@@ -386,9 +385,7 @@ def generate_footprints(
     return footprints
 
 
-def metric_crs(crs: str):
-    """``crs`` parsed if it is projected (or compound over a projected one): the layout is in metres."""
-    parsed = parse_crs_name(crs)
-    if not parsed.is_projected and not (parsed.is_compound and parsed.sub_crs_list[0].is_projected):
-        raise CRSError(f"the generator lays out metres: {crs!r} is not a projected CRS")
-    return parsed
+def generated_crs_what(crs: str) -> str:
+    """How a message names the CRS given for the generated city (``crs.metric_crs``'s ``what``): its layout
+    is in metres."""
+    return f"the generated city's CRS {crs!r} (its layout is in metres)"

@@ -41,18 +41,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pyproj
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, UNLABELLED, MeshBuilder, usable_points
-from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
+from semcityloc.citymodel.crs import metric_crs
 from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import DUPLICATE_TOLERANCE_M, NONPLANAR_TOLERANCE_M, triangulate_polygon
 from semcityloc.classes import CLASS_NAMES
-from semcityloc.errors import CRSError, EmptyModelError, InputFileError, counted
+from semcityloc.errors import EmptyModelError, InputFileError, counted
 
 # Vertices closer than this are the same vertex when finding connected buildings (metres).
 WELD_TOLERANCE_M = 1e-3
@@ -84,13 +83,14 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
 
     Raises:
         InputFileError: unreadable file, or a line that is not valid OBJ (the message names the line).
-        CRSError: a CRS that cannot be parsed or is geographic.
+        CRSError: a CRS that cannot be parsed or is not projected (geographic, Earth-centred, ...).
         EmptyModelError: no face with area.
     """
     path = Path(path)
     stats = ParseStats()
     mesh = _parse(_read_text(path), path)
-    source_crs = _metric_crs(crs if crs is not None else mesh.header_crs)
+    crs_name = crs if crs is not None else mesh.header_crs
+    source_crs = None if crs_name is None else metric_crs(crs_name, f"the OBJ's CRS {crs_name!r}")
     verts = mesh.vertices if z_up else mesh.vertices @ Y_UP_TO_Z_UP.T
     if not len(mesh.face_len):
         raise EmptyModelError(f"{path}: the OBJ has no faces")
@@ -160,15 +160,6 @@ class _ObjMesh:
     origin: np.ndarray | None = None  # FRAME_HEADER's origin, the file's coordinates being relative to it
     header_crs: str | None = None  # FRAME_HEADER's CRS
     group_objects: tuple[str, ...] = ()  # the ``o`` name of each group id
-
-
-def _metric_crs(crs: str | None) -> pyproj.CRS | None:
-    if crs is None:
-        return None
-    parsed = parse_crs_name(crs)
-    if horizontal_crs(parsed).is_geographic:
-        raise CRSError(f"OBJ coordinates are metric; the CRS {crs!r} is geographic ({parsed.name})")
-    return parsed
 
 
 def _read_text(path: Path) -> str:

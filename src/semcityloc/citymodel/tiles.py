@@ -36,7 +36,7 @@ import pyproj
 import shapely
 
 from semcityloc.citymodel.builder import choose_origin
-from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name
+from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name, same_crs
 from semcityloc.citymodel.ground import base_points, store_ring
 from semcityloc.citymodel.io import MODEL_SUFFIXES, file_sha256, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
@@ -529,11 +529,12 @@ def _built_with(path: str | Path, name: str, built: object, given: object) -> In
 
 
 def _same_crs(given: str, store_crs: pyproj.CRS | None) -> bool:
-    """Does the user's ``--crs`` name the store's CRS (or its horizontal part)? Then it changes nothing."""
+    """Does the user's ``--crs`` name the store's CRS (or its horizontal part; ``crs.same_crs``, axis order
+    aside)? Then it changes nothing."""
     if store_crs is None:
         return False
     wanted = parse_crs_name(given)
-    return any(wanted.equals(c, ignore_axis_order=True) for c in (store_crs, horizontal_crs(store_crs)))
+    return any(same_crs(wanted, c, ignore_axis_order=True) for c in (store_crs, horizontal_crs(store_crs)))
 
 
 def load_city(

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pyproj
 
-from semcityloc.citymodel.crs import horizontal_crs
+from semcityloc.citymodel.crs import check_projected, horizontal_crs
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geodesy import (
     EGM96,
@@ -50,7 +50,6 @@ from semcityloc.datasets.geodesy import (
     WGS84_3D,
     check_area_of_use,
     check_geoid_separation,
-    check_projected,
     geoid_separation,
     grid_convergence_deg,
     is_ballpark,

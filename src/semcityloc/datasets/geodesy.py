@@ -10,7 +10,7 @@ at all; these helpers do it once, for ``datasets.dji`` (priors and geotags), ``d
   compound's vertical part: ``vertical_datum`` (its horizontal part: ``citymodel.crs.horizontal_crs``).
   A position more than ``AREA_MARGIN_DEG`` outside the CRS's area of use is a wrong CRS
   (``check_area_of_use``; a model's own coordinates likewise, ``model_outside_crs``: a local frame given a
-  CRS without its offset); a CRS that is not projected is refused (``check_projected``).
+  CRS without its offset); a CRS that is not projected is refused (``citymodel.crs.check_projected``).
 - Heights: city models store orthometric heights (above a geoid: NAP, DHHN2016, EGM96 "MSL", ...), which
   differ from WGS 84 ellipsoidal heights by the local geoid undulation N (-107 m .. +86 m worldwide;
   ``H = h - N``). pyproj applies a geoid only when its grid file is installed (``projsync`` or
@@ -56,24 +56,6 @@ def target_crs_of(name: str | pyproj.CRS) -> pyproj.CRS:
 
 
 _crs_of_name = functools.lru_cache(maxsize=_CACHED)(parse_crs_name)
-
-
-def check_projected(crs: pyproj.CRS, what: str) -> pyproj.CRS:
-    """The horizontal part of ``crs`` if it is projected (metric, z up once a height is added), else a
-    ``CRSError`` naming its kind. Why not only "not geographic": an Earth-centred CRS (EPSG:4978) or a
-    local engineering one passes that test, and a prior put in it is nonsense (x, y geocentric, z the
-    height, a grid convergence of -100 degrees) rather than an error."""
-    horizontal = horizontal_crs(crs)
-    if horizontal.is_projected:
-        return horizontal
-    kind = (
-        "geographic"
-        if horizontal.is_geographic
-        else "geocentric"
-        if horizontal.is_geocentric
-        else horizontal.type_name.lower()
-    )
-    raise CRSError(f"{what} must be metric (projected), got {crs.name} ({kind})")
 
 
 def vertical_datum(crs: pyproj.CRS) -> pyproj.CRS | None:
