@@ -6,7 +6,77 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from semcityloc.io.images import resize_nearest
 from semcityloc.localization.query import Query, downsample_depth, downsample_labels
+
+
+def old_resize_last_two(a, width, height):
+    """The copy ``perception/files.py`` and ``perception/torch_utils.py`` had before stop 51."""
+    h, w = a.shape[-2:]
+    if (h, w) == (height, width):
+        return a
+    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
+    return a[..., rows[:, None], cols[None, :]]
+
+
+def old_resize_first_two(a, width, height):
+    """The copy ``render/overlay.py``, ``localization/query.py`` and ``baselines/methods.py`` had."""
+    a = np.asarray(a)
+    h, w = a.shape[:2]
+    if (h, w) == (height, width):
+        return a
+    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
+    return a[rows[:, None], cols[None, :]]
+
+
+@pytest.mark.parametrize(
+    ("src", "dst"),
+    [
+        ((6, 8), (12, 16)),
+        ((6, 8), (3, 4)),
+        ((7, 9), (12, 16)),
+        ((97, 131), (24, 32)),
+        ((5, 3), (11, 7)),
+        ((480, 640), (333, 500)),
+        ((50, 70), (49, 3)),
+        ((4, 4), (4, 4)),
+        ((1, 1), (3, 5)),
+    ],
+)
+def test_resize_nearest_is_the_old_pixel_centre_rule(src, dst):
+    """Stop 51: one ``io.images.resize_nearest`` for the five copies, the same pixels at every ratio
+    (integer or not, up or down); (H, W), (H, W, C) and (C, H, W) arrays; the array itself at its own
+    size."""
+    rng = np.random.default_rng(sum(src) + sum(dst))
+    height, width = dst
+    plain = rng.integers(0, 256, size=src).astype(np.uint8)
+    image = rng.integers(0, 256, size=(*src, 3)).astype(np.uint8)
+    stack = rng.uniform(0.0, 1.0, size=(6, *src)).astype(np.float32)
+    np.testing.assert_array_equal(
+        resize_nearest(plain, width, height), old_resize_first_two(plain, width, height)
+    )
+    np.testing.assert_array_equal(
+        resize_nearest(plain, width, height), old_resize_last_two(plain, width, height)
+    )
+    np.testing.assert_array_equal(
+        resize_nearest(image, width, height), old_resize_first_two(image, width, height)
+    )
+    np.testing.assert_array_equal(
+        resize_nearest(stack, width, height, channels_first=True), old_resize_last_two(stack, width, height)
+    )
+    assert resize_nearest(plain, width, height).shape == (height, width)
+    if src == dst:
+        assert resize_nearest(plain, width, height) is plain
+    if height >= src[0] and width >= src[1]:  # the query's upsampling is the same rule
+        depth = rng.uniform(1.0, 100.0, size=src)
+        np.testing.assert_array_equal(
+            downsample_labels(plain, width, height), old_resize_first_two(plain, width, height)
+        )
+        np.testing.assert_array_equal(
+            downsample_depth(depth, width, height), old_resize_first_two(depth, width, height)
+        )
 
 
 def _blocks(h, w, dst_h, dst_w):

@@ -29,6 +29,7 @@ from semcityloc.baselines.wireframe import WireframeConfig, WireframeLocalizer
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import ParameterError, unknown_choice
+from semcityloc.io.images import resize_nearest
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import MethodEntry, QueryRecord
 from semcityloc.localization.result import LocalizationResult
@@ -51,9 +52,7 @@ def occluder_mask(labels: np.ndarray, depth: np.ndarray | None, height: int, wid
     if depth is not None and np.shape(depth) == lab.shape:
         occ &= np.isfinite(np.asarray(depth, dtype=np.float64))
     if occ.shape != (height, width):
-        rows = np.minimum(((np.arange(height) + 0.5) * occ.shape[0] / height).astype(int), occ.shape[0] - 1)
-        cols = np.minimum(((np.arange(width) + 0.5) * occ.shape[1] / width).astype(int), occ.shape[1] - 1)
-        occ = occ[rows[:, None], cols[None, :]]
+        occ = resize_nearest(occ, width, height)
     return occ
 
 

@@ -34,7 +34,7 @@ from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshol
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
-from semcityloc.io.images import load_image, scaled_size
+from semcityloc.io.images import load_image, resize_nearest, scaled_size
 from semcityloc.localization.confidence import risk_coverage
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
@@ -42,7 +42,6 @@ from semcityloc.render.overlay import (
     class_boundaries,
     draw_edges,
     label_colors,
-    resize_nearest,
     visible_edges,
 )
 

@@ -40,10 +40,10 @@ from semcityloc.evaluation.metrics import THRESHOLDS
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
-from semcityloc.io.images import load_image, scaled_size
+from semcityloc.io.images import load_image, resize_nearest, scaled_size
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
-from semcityloc.render.overlay import label_colors, resize_nearest, visible_edges
+from semcityloc.render.overlay import label_colors, visible_edges
 
 VIEW_WIDTH = 320  # query images are drawn this wide (height in proportion)
 JPEG_QUALITY = 80

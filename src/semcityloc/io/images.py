@@ -309,6 +309,22 @@ def read_mask_file(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
     return labels.astype(np.uint8)
 
 
+def resize_nearest(a: np.ndarray, width: int, height: int, channels_first: bool = False) -> np.ndarray:
+    """``a`` resized to ``height`` x ``width`` by nearest neighbour at pixel centres: target row ``i`` takes
+    source row ``floor((i + 0.5) * h / height)`` (clipped to ``h - 1``), columns alike; the one rule for
+    labels, probabilities, depth and overlays, whatever the ratio. Axes 0 and 1 are resized ((H, W) or
+    (H, W, C)), the last two with ``channels_first`` ((C, H, W)). ``a`` itself when it has that size."""
+    a = np.asarray(a)
+    h, w = a.shape[-2:] if channels_first else a.shape[:2]
+    if (h, w) == (height, width):
+        return a
+    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
+    if channels_first:
+        return a[..., rows[:, None], cols[None, :]]
+    return a[rows[:, None], cols[None, :]]
+
+
 def read_depth_file(path: str | Path) -> np.ndarray:
     """(H, W) float64 relative depth from a ``.npy`` or a 16-bit depth PNG (``load_depth``);
     NaN / <= 0 = invalid."""

@@ -16,6 +16,7 @@ from scipy.stats import rankdata
 
 from semcityloc.classes import BUILDING_CLASSES, IGNORE, NUM_CLASSES
 from semcityloc.errors import ShapeError
+from semcityloc.io.images import resize_nearest
 from semcityloc.localization.resample import majority_labels, mean_depth
 from semcityloc.localization.scoring import merge_openings_lut
 
@@ -27,10 +28,7 @@ def downsample_labels(labels: np.ndarray, width: int, height: int) -> np.ndarray
     if (h, w) == (height, width):
         return labels.astype(np.uint8, copy=True)
     if h < height or w < width:
-        # Upsampling: nearest neighbour at pixel centres.
-        rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
-        cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
-        return labels[rows[:, None], cols[None, :]].astype(np.uint8)
+        return resize_nearest(labels, width, height).astype(np.uint8)  # upsampling
     return majority_labels(np.ascontiguousarray(labels, dtype=np.uint8), height, width)
 
 
@@ -41,9 +39,7 @@ def downsample_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
     if (h, w) == (height, width):
         return np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
     if h < height or w < width:
-        rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
-        cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
-        d = depth[rows[:, None], cols[None, :]]
+        d = resize_nearest(depth, width, height)
         return np.where(np.isfinite(d) & (d > 0), d, np.nan)
     return mean_depth(np.ascontiguousarray(depth), height, width)
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from semcityloc.classes import IGNORE, NUM_CLASSES
 from semcityloc.errors import InputFileError, LossyMaskError, ParameterError, ShapeError
-from semcityloc.io.images import load_depth, load_labels_png, load_npy
+from semcityloc.io.images import load_depth, load_labels_png, load_npy, resize_nearest
 from semcityloc.perception.base import TRUE_WORDS, DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
@@ -30,15 +30,6 @@ DEPTH_SUFFIXES = (".npy", ".png")
 # Masks in a lossy format, looked for only when forced (``--allow-lossy-mask``, ``find_mask``): their
 # compression changes class ids along every edge (``io.images.LOSSY_FORMATS``).
 LOSSY_MASK_SUFFIXES = (".jpg", ".jpeg")
-
-
-def _resize_nearest(a: np.ndarray, width: int, height: int) -> np.ndarray:
-    h, w = a.shape[-2:]
-    if (h, w) == (height, width):
-        return a
-    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
-    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
-    return a[..., rows[:, None], cols[None, :]]
 
 
 def first_file(where: Path, base: str, suffixes: tuple[str, ...]) -> Path | None:
@@ -144,13 +135,13 @@ class FilesSegmentation:
         H, W = img.shape[:2]
         path = find_mask(self.where, name, self.allow_lossy)
         if path.suffix.lower() != ".npy":  # a label image: PNG, or JPEG when forced
-            return _from_labels(_resize_nearest(load_labels_png(path, self.allow_lossy), W, H))
+            return _from_labels(resize_nearest(load_labels_png(path, self.allow_lossy), W, H))
         arr = load_npy(path, "mask array")
         if arr.ndim == 3 and arr.shape[0] == NUM_CLASSES and np.issubdtype(arr.dtype, np.floating):
-            probs = _resize_nearest(np.nan_to_num(arr.astype(np.float32)), W, H)
+            probs = resize_nearest(np.nan_to_num(arr.astype(np.float32)), W, H, channels_first=True)
             return SegmentationOutput(probs, np.argmax(probs, axis=0).astype(np.uint8))
         if arr.ndim == 2 and np.issubdtype(arr.dtype, np.integer):
-            return _from_labels(_resize_nearest(arr, W, H))
+            return _from_labels(resize_nearest(arr, W, H))
         raise ShapeError(
             f"{path}: expected an (H, W) integer label map or a ({NUM_CLASSES}, H, W) float probability "
             "stack, "
@@ -185,7 +176,7 @@ class FilesDepth:
         img = check_image(image)
         H, W = img.shape[:2]
         path = find_file(self.where, name, DEPTH_SUFFIXES, "depth")
-        d = _resize_nearest(load_depth(path), W, H)
+        d = resize_nearest(load_depth(path), W, H)
         valid = np.isfinite(d) & (d > 0)
         return DepthOutput(np.where(valid, d, np.inf).astype(np.float32), valid, None)
 

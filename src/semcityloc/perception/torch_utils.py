@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from semcityloc.errors import OptionalDependencyError, ParameterError
+from semcityloc.io.images import resize_nearest
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -117,11 +118,8 @@ def labels_tensor(labels: np.ndarray | list[np.ndarray], size: tuple[int, int] |
     arr = np.stack(labels) if isinstance(labels, list) else np.asarray(labels)
     if arr.ndim == 2:
         arr = arr[None]
-    if size is not None and (arr.shape[2], arr.shape[1]) != tuple(size):
-        w, h = size
-        rows = np.minimum(((np.arange(h) + 0.5) * arr.shape[1] / h).astype(int), arr.shape[1] - 1)
-        cols = np.minimum(((np.arange(w) + 0.5) * arr.shape[2] / w).astype(int), arr.shape[2] - 1)
-        arr = arr[:, rows[:, None], cols[None, :]]
+    if size is not None:
+        arr = resize_nearest(arr, size[0], size[1], channels_first=True)
     return torch.from_numpy(np.ascontiguousarray(arr).astype(np.int64))
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from semcityloc.classes import PALETTE
+from semcityloc.io.images import resize_nearest
 from semcityloc.render.scene import RenderScene
 
 
@@ -108,16 +109,3 @@ def blend_labels(image: np.ndarray, labels: np.ndarray, alpha: float = 0.45) -> 
     out = img.astype(np.float64)
     out[known] = (1 - alpha) * out[known] + alpha * colour[known]
     return out.astype(np.uint8)
-
-
-def resize_nearest(a: np.ndarray, width: int, height: int) -> np.ndarray:
-    """An image or mask resized to ``width`` x ``height`` by nearest neighbour, sampled at pixel centres;
-    class ids must not be blended, so masks are never interpolated.
-    """
-    a = np.asarray(a)
-    h, w = a.shape[:2]
-    if (h, w) == (height, width):
-        return a
-    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
-    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(int), w - 1)
-    return a[rows[:, None], cols[None, :]]
