@@ -7,7 +7,7 @@ import pytest
 
 from semcityloc.classes import NUM_CLASSES
 from semcityloc.errors import InputFileError, MissingWeightsError, ParameterError, SemCityLocError, ShapeError
-from semcityloc.io.images import save_depth, save_labels_png
+from semcityloc.io.images import read_mask_file, save_depth, save_labels_png
 from semcityloc.perception import (
     IGNORE,
     DepthBackend,
@@ -166,12 +166,38 @@ def test_files_segmentation_rejects_bad_values(tmp_path):
     np.save(tmp_path / "a.npy", np.full((6, 8), 9, np.int32))
     np.save(tmp_path / "b.npy", np.zeros((2, 6, 8), np.float32))
     seg = get_segmentation_backend("files", masks=str(tmp_path))
-    with pytest.raises(ShapeError, match="outside the class ids"):
+    with pytest.raises(InputFileError, match=r"a\.npy: invalid class ids 9 in 48 pixels"):
         seg.predict(np.zeros((6, 8, 3), np.uint8), name="a")
     with pytest.raises(ShapeError, match="label map or a"):
         seg.predict(np.zeros((6, 8, 3), np.uint8), name="b")
     with pytest.raises(ParameterError, match="masks=DIR"):
         get_segmentation_backend("files")
+
+
+def test_files_segmentation_names_the_bad_class_ids_as_every_mask_reader_does(tmp_path):
+    """Stop 51: the ``files`` backend had a mask reader of its own whose error named no id ("values outside
+    the class ids"); it reads masks with ``io.images.read_mask_file`` / ``mask_labels`` now, so the file and
+    the ids are named, as for ``--mask`` (a PNG and a .npy alike; ids beyond the classes, negative ones)."""
+    grey = np.zeros((6, 8), np.uint8)
+    grey[0, :3] = 7
+    grey[5, 7] = 42
+    save_labels_png(grey, tmp_path / "p.png")
+    labels = np.zeros((6, 8), np.int64)
+    labels[1, 1] = -1
+    np.save(tmp_path / "n.npy", labels)
+    seg = get_segmentation_backend("files", masks=str(tmp_path))
+    image = np.zeros((12, 16, 3), np.uint8)  # another size: the ids are checked all the same
+    with pytest.raises(
+        InputFileError, match=r"p\.png: invalid class ids 7, 42 in 4 pixels; class ids must be"
+    ):
+        seg.predict(image, name="p")
+    with pytest.raises(InputFileError, match=r"n\.npy: invalid class ids -1 in 1 pixels"):
+        seg.predict(image, name="n")
+    with pytest.raises(InputFileError) as shared:
+        read_mask_file(tmp_path / "p.png")
+    with pytest.raises(InputFileError) as files:
+        seg.predict(image, name="p")
+    assert str(files.value) == str(shared.value)
 
 
 def test_files_depth_reads_npy_and_png(tmp_path):

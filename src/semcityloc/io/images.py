@@ -292,12 +292,19 @@ def save_rgb(image: np.ndarray, path: str | Path, optimize: bool = False) -> Pat
 def read_mask_file(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
     """(H, W) uint8 class ids (0..5, 255 = ignore) from a ``.npy`` or a label PNG (palette or grey image
     whose values are class ids, ``load_labels_png``; lossy formats only with ``allow_lossy``); ids
-    outside the classes are refused, naming them."""
+    outside the classes are refused, naming them (``mask_labels``)."""
     path = Path(path)
     if path.suffix.lower() == ".npy":
         labels = load_npy(path, "mask")
     else:
         labels = load_labels_png(path, allow_lossy)
+    return mask_labels(labels, path)
+
+
+def mask_labels(labels: np.ndarray, path: str | Path) -> np.ndarray:
+    """(H, W) uint8 class ids of a label map read from file ``path``: an (H, W) integer array whose ids are
+    classes or ``IGNORE`` (``classes.invalid_class_ids``), else a ``ShapeError`` / an ``InputFileError``
+    naming the file and the bad ids."""
     labels = np.asarray(labels)
     if labels.ndim != 2 or not np.issubdtype(labels.dtype, np.integer):
         raise ShapeError(

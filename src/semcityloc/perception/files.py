@@ -22,7 +22,7 @@ import numpy as np
 
 from semcityloc.classes import IGNORE, NUM_CLASSES
 from semcityloc.errors import InputFileError, LossyMaskError, ParameterError, ShapeError
-from semcityloc.io.images import load_depth, load_labels_png, load_npy, resize_nearest
+from semcityloc.io.images import load_depth, load_npy, mask_labels, read_mask_file, resize_nearest
 from semcityloc.perception.base import TRUE_WORDS, DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
@@ -135,13 +135,14 @@ class FilesSegmentation:
         H, W = img.shape[:2]
         path = find_mask(self.where, name, self.allow_lossy)
         if path.suffix.lower() != ".npy":  # a label image: PNG, or JPEG when forced
-            return _from_labels(resize_nearest(load_labels_png(path, self.allow_lossy), W, H))
+            return _from_labels(resize_nearest(read_mask_file(path, self.allow_lossy), W, H))
+        # A .npy may also be what only this backend reads: a float probability stack.
         arr = load_npy(path, "mask array")
         if arr.ndim == 3 and arr.shape[0] == NUM_CLASSES and np.issubdtype(arr.dtype, np.floating):
             probs = resize_nearest(np.nan_to_num(arr.astype(np.float32)), W, H, channels_first=True)
             return SegmentationOutput(probs, np.argmax(probs, axis=0).astype(np.uint8))
         if arr.ndim == 2 and np.issubdtype(arr.dtype, np.integer):
-            return _from_labels(resize_nearest(arr, W, H))
+            return _from_labels(resize_nearest(mask_labels(arr, path), W, H))
         raise ShapeError(
             f"{path}: expected an (H, W) integer label map or a ({NUM_CLASSES}, H, W) float probability "
             "stack, "
@@ -150,11 +151,7 @@ class FilesSegmentation:
 
 
 def _from_labels(labels: np.ndarray) -> SegmentationOutput:
-    labels = np.asarray(labels)
-    bad = (labels < 0) | ((labels >= NUM_CLASSES) & (labels != IGNORE))
-    if np.any(bad):
-        raise ShapeError(f"mask holds values outside the class ids 0..{NUM_CLASSES - 1} and {IGNORE}")
-    labels = labels.astype(np.uint8)
+    """One-hot probabilities of (H, W) uint8 class ids already checked (``io.images.mask_labels``)."""
     probs = np.zeros((NUM_CLASSES,) + labels.shape, dtype=np.float32)
     known = labels != IGNORE
     rows, cols = np.nonzero(known)
