@@ -30,7 +30,7 @@ map), ``semantic`` and ``depth_cost`` are NaN (not measured), ``cost_volume`` is
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -41,7 +41,7 @@ from semcityloc.baselines.gauss_newton import gauss_newton
 from semcityloc.citymodel.model import CityModel
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, yaw_fan_rotations
 from semcityloc.localization.coarse import CostVolume, axis_samples
 from semcityloc.localization.input_checks import check_camera_and_prior
 from semcityloc.localization.result import (
@@ -106,10 +106,6 @@ class WireframeConfig:
         if any(not (0 < s <= 1) for s in self.stage_scales):
             raise ParameterError(f"stage_scales must lie in (0, 1], got {self.stage_scales}")
 
-    @property
-    def hypotheses_per_stage(self) -> int:
-        return self.n_yaw * self.n_xy * self.n_xy * self.n_z
-
     def as_dict(self) -> dict:
         return asdict(self)
 
@@ -124,11 +120,6 @@ class StageResult:
     centre: np.ndarray  # (6,) best state of the stage
     half_ranges: np.ndarray  # (4,) yaw, x, y, z half-ranges it searched
     volume: CostVolume
-
-
-def _yaw_rotations(roll: float, pitch: float, yaws: np.ndarray) -> np.ndarray:
-    """(Y, 3, 3) cam_from_world rotations at (roll, pitch, yaw_k)."""
-    return Pose.from_xyz_rpy(np.zeros((len(yaws), 3)), roll, pitch, yaws).R
 
 
 class WireframeLocalizer:
@@ -195,7 +186,7 @@ class WireframeLocalizer:
         xs = axis_samples(x0, 2 * half[1], cfg.n_xy)
         ys = axis_samples(y0, 2 * half[2], cfg.n_xy)
         zs = axis_samples(z0, 2 * half[3], cfg.n_z)
-        M = _yaw_rotations(roll, pitch, yaws)  # (Y, 3, 3)
+        M = yaw_fan_rotations(roll, pitch, yaws)  # (Y, 3, 3)
         Q = np.einsum("yij,nj->iyn", M, points)  # (3, Y, N)
         gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
         centres = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], 1)
@@ -255,12 +246,12 @@ class WireframeLocalizer:
             edge_map, camera, cfg.width, cfg.stage_scales, cfg.stage_blur_px, cfg.refine_blur_px
         )
         if pyramid.edge_fraction() < cfg.min_edge_fraction:
-            return _finish(result, REASON_NO_EDGES, t0)
+            return result.finish(REASON_NO_EDGES, t0)
         points = self.visible_points(camera, prior_local, cfg)
         result.counts["edge_points"] = int(len(points))
         result.timings["prep_s"] = time.perf_counter() - t0
         if len(points) < cfg.min_points:
-            return _finish(result, REASON_NO_GEOMETRY, t0)
+            return result.finish(REASON_NO_GEOMETRY, t0)
 
         t1 = time.perf_counter()
         half = np.array(
@@ -307,18 +298,6 @@ class WireframeLocalizer:
         result.confidence["contrast"] = result.score / max(chance, 1e-9)
         if not (result.score >= cfg.min_score and result.confidence["contrast"] >= cfg.min_contrast):
             result.pose_local = None
-            return _finish(result, REASON_LOW_SCORE, t0)
+            return result.finish(REASON_LOW_SCORE, t0)
         result.status = LOCALIZED
-        return _finish(result, None, t0)
-
-    def with_config(self, **changes) -> WireframeLocalizer:
-        """A localizer sharing this one's scene and edges, with some config values changed."""
-        return WireframeLocalizer(self.model, replace(self.config, **changes), self.scene, self.edges)
-
-
-def _finish(result: LocalizationResult, reason: str | None, t0: float) -> LocalizationResult:
-    result.reason = reason
-    if reason is not None:
-        result.status = NOT_LOCALIZED
-    result.timings["total_s"] = time.perf_counter() - t0
-    return result
+        return result.finish(None, t0)

@@ -264,3 +264,10 @@ class Pose:
         return Pose.from_rotation_center(
             Rz @ self.R_world_from_cam, np.broadcast_to(self.center, batch + (3,))
         )
+
+
+def yaw_fan_rotations(roll: float, pitch: float, yaws: np.ndarray) -> np.ndarray:
+    """(Y, 3, 3) cam_from_world rotations at ``(roll, pitch, yaws[k])`` (degrees): the rotations a search
+    tries about one camera centre (the cascade's sweeps, the wireframe baseline's grid)."""
+    n = len(yaws)
+    return Pose.from_xyz_rpy(np.zeros((n, 3)), np.full(n, roll), np.full(n, pitch), yaws).R

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, yaw_fan_rotations
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.coarse import CostVolume, rotation_offsets, score_rotations
 from semcityloc.localization.config import BeyondConfig, CascadeConfig, LocalConfig, SweepConfig
@@ -177,11 +177,6 @@ def _floor_index(volume: SearchVolume, step_z: float) -> float:
     return int(math.ceil((volume.floor_z - volume.centre[2]) / step_z - 1e-9))
 
 
-def _rotations(roll: float, pitch: float, yaws: np.ndarray) -> np.ndarray:
-    n = len(yaws)
-    return Pose.from_xyz_rpy(np.zeros((n, 3)), np.full(n, roll), np.full(n, pitch), yaws).R
-
-
 class _SweepScorer:
     """Scores lattice cells of a sweep; keeps the base rotation and query fixed."""
 
@@ -198,7 +193,7 @@ class _SweepScorer:
         yaws = o[3] + iyaw * s[3]
         gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
         centres = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
-        offsets = rotation_offsets(self.R_base, _rotations(self.roll, self.pitch, yaws))
+        offsets = rotation_offsets(self.R_base, yaw_fan_rotations(self.roll, self.pitch, yaws))
         out = score_rotations(
             self.scene, self.camera, centres, self.R_base, offsets, self.query, self.class_on
         )

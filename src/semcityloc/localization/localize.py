@@ -165,20 +165,20 @@ class Localizer:
         result.search = {"search": cfg.search, "prior_uncertainty": unc.as_dict()}
         building_fraction = query.building_fraction()
         if building_fraction < cfg.min_building_fraction:
-            return self._finish(result, REASON_NO_BUILDINGS_IN_QUERY, t0)
+            return result.finish(REASON_NO_BUILDINGS_IN_QUERY, t0)
         problem = self.layout.prior_problem(camera, prior_local, cfg, unc)
         if problem is not None:
-            return self._finish(result, problem, t0)
+            return result.finish(problem, t0)
         if not self.layout.buildings_in_reach(camera, prior_local, cfg, unc):
             if (far := self.layout.distance_warning(prior_local)) is not None:
                 result.warnings.append(far)
-            return self._finish(result, REASON_NO_GEOMETRY, t0)
+            return result.finish(REASON_NO_GEOMETRY, t0)
         if cfg.search == "grid":
             fine = self._localize_grid(result, camera, query, prior_state, cfg)
         else:
             fine = self._localize_cascade(result, camera, query, prior_state, cfg, unc)
         if result.reason is not None:
-            return self._finish(result, result.reason, t0)
+            return result.finish(result.reason, t0)
 
         accepted, reason = self._decide(result, camera, fine, prior_state, cfg, unc, building_fraction)
         if not accepted and "sweep_best" in result.search and cfg.cascade.beyond.enabled:
@@ -188,12 +188,12 @@ class Localizer:
         if not accepted:
             result.rejected_pose_local = result.pose_local
             result.pose_local = None
-            return self._finish(result, reason, t0)
+            return result.finish(reason, t0)
         result.status = LOCALIZED
         conflict = prior_conflict_warning(result.pose_local, prior_state, unc)
         if conflict is not None:
             result.warnings.append(conflict)
-        return self._finish(result, None, t0)
+        return result.finish(None, t0)
 
     # ------------------------------------------------------------------ searches
     # Each search fills ``result`` and returns the fine scoring level (camera and query at the refinement's
@@ -487,13 +487,6 @@ class Localizer:
         return out.labels.reshape(shape), out.depth.reshape(shape)
 
     # ------------------------------------------------------------------ helpers
-    def _finish(self, result: LocalizationResult, reason: str | None, t0: float) -> LocalizationResult:
-        result.reason = reason
-        if reason is not None:
-            result.status = NOT_LOCALIZED
-        result.timings["total_s"] = time.perf_counter() - t0
-        return result
-
     def _render_one(self, camera: Camera, pose_local: Pose, depth: bool = False):
         """One view of the scene (a ``RenderOutput`` of batch 1): for the few single renders of a search."""
         return NumbaEngine(self.scene).render(camera, pose_local.R[None], pose_local.t[None], depth=depth)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +93,16 @@ class LocalizationResult:
         found pose, if any, is ``rejected_pose_local``.
         """
         return self.status == LOCALIZED
+
+    def finish(self, reason: str | None, t0: float) -> LocalizationResult:
+        """This result closed with ``reason`` (not None: ``NOT_LOCALIZED`` for that reason) and its
+        ``timings["total_s"]`` since ``t0`` (``time.perf_counter()``); returned, so a localizer ends with
+        ``return result.finish(...)``."""
+        self.reason = reason
+        if reason is not None:
+            self.status = NOT_LOCALIZED
+        self.timings["total_s"] = time.perf_counter() - t0
+        return self
 
     def to_dict(self, origin: np.ndarray, crs: str | None = None) -> dict:
         """JSON-ready record: status, reason, scores, confidence, timings, counts and, when localized,
