@@ -122,7 +122,7 @@ def test_box_edges_are_its_twelve_edges_plus_the_door_frame():
     assert not on_roof_seam.any()
     diagonal = np.count_nonzero(np.abs(seg[:, 1] - seg[:, 0]) > 1e-9, axis=1) > 1
     assert not diagonal.any()
-    assert edges.physical().total_length_m == pytest.approx(80.0, abs=1e-6)
+    assert edges.physical().lengths.sum() == pytest.approx(80.0, abs=1e-6)
 
 
 def test_edge_samples_lie_on_the_edges_at_the_spacing():

@@ -271,26 +271,6 @@ def test_bad_inputs_are_rejected_with_typed_errors(city_renderer):
     assert (lab == SemanticClass.GROUND).sum() > 0
 
 
-def test_confusion_kernel_counts_rendered_against_query(city_renderer, city):
-    cam = Camera.from_fov(48, 36, 60.0)
-    poses = random_views(city, 6, (0.0, 50.0), seed=11)
-    labels = city_renderer.render(cam, poses).labels
-    query = labels[0]
-    R = np.ascontiguousarray(poses.R)
-    t = np.ascontiguousarray(poses.t)
-    counts = city_renderer.engine.confusion(cam, R, t, query, 6)
-    assert counts.shape == (6, 6, 6)
-    for k in range(6):
-        expect = np.zeros((6, 6), dtype=np.int64)
-        np.add.at(expect, (labels[k].ravel(), query.ravel()), 1)
-        np.testing.assert_array_equal(counts[k], expect)
-    assert np.trace(counts[0]) == 48 * 36
-    with pytest.raises(ShapeError, match="pixels"):
-        city_renderer.engine.confusion(cam, R, t, query[:10], 6)
-    with pytest.raises(ShapeError, match="n_classes"):
-        city_renderer.engine.confusion(cam, R, t, query, 2)
-
-
 # ------------------------------------------------------------------------------------------ vs Embree
 @needs_embree
 @pytest.mark.parametrize("pitch", [(0.0, 10.0), (30.0, 60.0)], ids=["nadir", "oblique"])

@@ -23,7 +23,7 @@ from semcityloc.benchmark.scenario import (
     parse_settings,
     parse_value,
     query_config,
-    set_knob,
+    set_knobs,
 )
 from semcityloc.errors import BenchmarkConfigError
 from semcityloc.geometry.pose import Pose
@@ -92,7 +92,7 @@ def test_settings_reach_every_knob_and_are_checked():
     )
     assert cfg.prior_height_m == 10.0 and cfg.reality.shift_xy_max_m == 0.5
     assert cfg.depth_model.distortion == 0.2 and cfg.prior_translation_m == (2.0, 5.0)
-    clean = set_knob(query_config("clean", queries=1), "depth_model.noise", [0.05, 0.08])
+    clean = set_knobs(query_config("clean", queries=1), {"depth_model.noise": [0.05, 0.08]})
     assert clean.depth_model == DepthParams(noise=(0.05, 0.08))  # starts from the realistic depth
     assert parse_value("zero-shot") == "zero-shot" and parse_value("null") is None
     assert "reality.shift_xy_max_m" in knob_names() and "prior_height_m" in knob_names()
@@ -109,8 +109,8 @@ def test_settings_reach_every_knob_and_are_checked():
     # Beyond any map's error: a 1e9 m shift or a tree per 0.001 m2 ran one query to 18 GB (stop 50's audit)
     for knob, value in (("shift_xy_max_m", 1e9), ("tree_m2", 0.001), ("overhang_m", [0.3, 1e6])):
         with pytest.raises(BenchmarkConfigError, match=f"RealityParams.{knob} must be"):
-            set_knob(query_config("realistic", queries=1), f"reality.{knob}", value)
-    assert set_knob(query_config("realistic", queries=1), "reality.tree_m2", 0).reality.tree_m2 == 0
+            set_knobs(query_config("realistic", queries=1), {f"reality.{knob}": value})
+    assert set_knobs(query_config("realistic", queries=1), {"reality.tree_m2": 0}).reality.tree_m2 == 0
 
 
 def test_knobs_valid_only_together_are_set_together():

@@ -11,7 +11,6 @@ from semcityloc.benchmark.queries import QueryConfig, QuerySimulator
 from semcityloc.benchmark.seg_errors import structured_errors
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
-from semcityloc.classes import SemanticClass, class_id
 from semcityloc.errors import ArgumentTypeError, ParameterError
 from semcityloc.evaluation.scoring_rules import paired_difference
 from semcityloc.render import Renderer
@@ -37,15 +36,6 @@ def test_a_scoring_rule_comparison_with_a_bad_option_is_a_parameter_error(option
     with pytest.raises(ParameterError) as info:
         paired_difference(*ONE, **options)
     assert isinstance(info.value, ValueError) and _one_line(info) == words
-
-
-def test_an_unknown_class_name_is_a_parameter_error():
-    assert class_id("Roof") == SemanticClass.ROOF
-    with pytest.raises(
-        ParameterError, match="^unknown semantic class 'chimney'; known: background, gr"
-    ) as info:
-        class_id("chimney")
-    assert isinstance(info.value, ValueError) and _one_line(info)
 
 
 def test_the_simulator_and_a_renderer_refuse_arguments_of_the_wrong_kind(tmp_path):

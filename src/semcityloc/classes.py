@@ -9,8 +9,6 @@ from enum import IntEnum
 
 import numpy as np
 
-from semcityloc.errors import unknown_choice
-
 
 class SemanticClass(IntEnum):
     """The semantic classes of the whole pipeline, as fixed integer ids.
@@ -82,14 +80,6 @@ SURFACE_CLASS: dict[str, SemanticClass] = {
     "TrafficArea": SemanticClass.GROUND,
     "AuxiliaryTrafficArea": SemanticClass.GROUND,
 }
-
-
-def class_id(name: str) -> int:
-    """Class id for a class name such as ``"roof"`` (case-insensitive)."""
-    try:
-        return int(SemanticClass[name.upper()])
-    except KeyError as exc:
-        raise unknown_choice("semantic class", name, CLASS_NAMES) from exc
 
 
 def _has_invalid_ids(labels: np.ndarray) -> bool:

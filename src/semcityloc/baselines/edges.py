@@ -62,10 +62,6 @@ class ModelEdges:
     def lengths(self) -> np.ndarray:
         return np.linalg.norm(self.segments[:, 1] - self.segments[:, 0], axis=1)
 
-    @property
-    def total_length_m(self) -> float:
-        return float(self.lengths.sum())
-
     def subset(self, mask: np.ndarray) -> ModelEdges:
         """The edges where ``mask`` (E,) is true."""
         keep = np.asarray(mask, dtype=bool)

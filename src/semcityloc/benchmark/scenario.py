@@ -120,11 +120,6 @@ def _coerce(value: Any, current: Any) -> Any:
     return value
 
 
-def set_knob(cfg: QueryConfig, name: str, value: Any) -> QueryConfig:
-    """``cfg`` with knob ``name`` set to ``value`` (checked by the dataclasses' own range checks)."""
-    return set_knobs(cfg, {name: value})
-
-
 def set_knobs(cfg: QueryConfig, settings: dict[str, Any]) -> QueryConfig:
     """``cfg`` with every knob of ``settings`` set at once, then checked: knobs that are only valid
     together (``height_range_m`` and ``nominal_height_m``) can move together."""

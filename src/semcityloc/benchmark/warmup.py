@@ -39,7 +39,6 @@ from numba.core.registry import CPUDispatcher
 from semcityloc.benchmark.methods import get_method
 from semcityloc.benchmark.queries import BenchmarkQuery
 from semcityloc.citymodel.io import load_city_model
-from semcityloc.classes import NUM_CLASSES
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
@@ -53,8 +52,6 @@ KERNEL_GROUPS = {
 # Modules whose code or constants the kernels compile in, besides KERNEL_GROUPS' own.
 BAKED_IN_MODULES = ("semcityloc.classes",)
 STAMP_NAME = "semcityloc-kernels.stamp"
-# Warmed, but used by no command (a worked example of a fused render-and-score kernel, and its tests).
-NOT_USED_BY_COMMANDS = frozenset({"render_confusion"})
 COMPILE_NOTICE = (
     "compiling the numba kernels this command needs: about a minute, once per install for each kind of "
     "command ('semcityloc warmup' compiles all of them ahead of time)"
@@ -131,8 +128,7 @@ def kernels_cached(groups: tuple[str, ...] | None = None) -> bool:
     using it will compile."""
     if sources_match_cache() is False:
         return False
-    kernels = [k for k in cached_kernels(groups) if k.__name__ not in NOT_USED_BY_COMMANDS]
-    return all(_has_cache_entry(k) is not False for k in kernels)
+    return all(_has_cache_entry(k) is not False for k in cached_kernels(groups))
 
 
 def ensure_compiled(groups: tuple[str, ...] | None, stream: TextIO | None = None) -> float | None:
@@ -187,7 +183,6 @@ def warm_up(say: Callable[[str], None] | None = None) -> dict[str, float]:
     renderer = Renderer(model, engine="numba")
     view = renderer.render(camera, truth, depth=True, face_ids=True)
     labels, depth = view.labels[0], np.where(np.isfinite(view.depth[0]), view.depth[0], np.nan)
-    renderer.engine.confusion(camera, truth.R[None], truth.t[None], labels, NUM_CLASSES)  # the fused example
     times["render_s"] = time.perf_counter() - t0
     config = LocalizerConfig.preset("fast")
     for name in WARMUP_METHODS:

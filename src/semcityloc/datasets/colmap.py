@@ -67,7 +67,6 @@ _PINHOLE_PARTS: dict[str, tuple[int, int, int, int]] = {
     "OPENCV": (0, 1, 2, 3),
     "FULL_OPENCV": (0, 1, 2, 3),
 }
-NO_POINT3D = -1  # POINT3D_ID of a 2D point without a 3D point
 # A count read from a binary file above this is corruption, not a model (refuse before allocating).
 MAX_BINARY_COUNT = 1 << 32
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, ColmapModel, read_model, write_model
+from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, ColmapModel, read_model
 from semcityloc.errors import OptionalDependencyError
 
 
@@ -74,14 +74,6 @@ def read_with_pycolmap(path: str | os.PathLike) -> ColmapModel:
     """Read a model folder through ``pycolmap.Reconstruction`` (any format pycolmap reads)."""
     pycolmap = _pycolmap()
     return from_reconstruction(pycolmap.Reconstruction(str(Path(path))))
-
-
-def to_reconstruction(model: ColmapModel, scratch_dir: str | os.PathLike) -> Any:
-    """A ``pycolmap.Reconstruction`` of ``model``, built by writing the binary files to ``scratch_dir``
-    and reading them with pycolmap: the file format is the one interface all pycolmap versions share."""
-    pycolmap = _pycolmap()
-    folder = write_model(model, scratch_dir, ext=".bin")
-    return pycolmap.Reconstruction(str(folder))
 
 
 def roundtrip_check(path: str | os.PathLike) -> bool:

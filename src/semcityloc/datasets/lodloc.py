@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pyproj
 
 from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
 from semcityloc.citymodel.io import load_city_model
@@ -141,12 +140,6 @@ def enu_from_ecef(lat_deg: float, lon_deg: float, height_m: float = 0.0) -> np.n
     north = [-math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)]
     up = [math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)]
     return np.array([east, north, up])
-
-
-def ecef_of(lat_deg: float, lon_deg: float, height_m: float) -> np.ndarray:
-    """ECEF (EPSG:4978) coordinates of a WGS 84 point (EPSG:4979)."""
-    t = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
-    return np.array(t.transform(lon_deg, lat_deg, height_m), dtype=np.float64)
 
 
 def rotate_pose(pose: Pose, R: np.ndarray) -> Pose:

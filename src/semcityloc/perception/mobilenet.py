@@ -36,7 +36,6 @@ SETTINGS = (
 )
 TAPS = (3, 6, 13, 17)  # features[i] whose outputs form the pyramid
 TAP_CHANNELS = (24, 32, 96, 320)
-TAP_STRIDES = (4, 8, 16, 32)
 
 
 def _conv_bn_relu(inp: int, oup: int, kernel: int = 3, stride: int = 1, groups: int = 1) -> nn.Sequential:

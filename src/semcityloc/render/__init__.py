@@ -2,9 +2,9 @@
 
 ``Renderer(model).render(camera, poses)`` gives (N, H, W) class masks (and z-depth / face ids on request).
 Lower-level pieces for fused scoring: ``RenderScene`` (the triangle, class and tile arrays) and the numba
-kernels in ``semcityloc.render.raster_numba`` (``render_view`` per view; ``render_confusion`` shows
-where to hook a per-view reduction). Many yaws about one camera centre: the coarse search's wide views and
-lookup tables (``semcityloc.localization.coarse.yaw_lookup``).
+kernels in ``semcityloc.render.raster_numba`` (``render_view`` per view, which the fused scoring kernels
+of ``semcityloc.localization.kernels`` call). Many yaws about one camera centre: the coarse search's wide
+views and lookup tables (``semcityloc.localization.coarse.yaw_lookup``).
 """
 
 from semcityloc.render.engine import Renderer

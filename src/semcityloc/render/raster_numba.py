@@ -7,7 +7,7 @@ share it (a consistent tie rule, see ``_raster_triangle``). Depth is z-depth alo
 reciprocal is linear in screen space, so the kernel evaluates ``1/z`` from the triangle's 3D plane at each
 pixel centre (the same number a ray caster finds, up to rounding) and keeps the largest ``1/z``.
 
-Structure (reuse it for fused scoring):
+Structure (reused by the fused render-and-score kernels: ``localization.kernels``, ``baselines.edge_score``):
 
 - ``render_view(...)`` rasterises ONE view into two flat per-view buffers: ``inv_z`` (float64, 0 = empty)
   and ``tri_id`` (int32, -1 = empty). It culls blocks and tiles whose bounding box misses the view
@@ -15,11 +15,9 @@ Structure (reuse it for fused scoring):
   clips them against the near plane ``z = near`` (one triangle becomes up to two), and rasterises.
 - ``render_batch(...)`` is the parallel driver: ``prange`` over chunks of views; each chunk allocates its
   buffers once, renders its views one after the other and writes labels / depth / face ids.
-- ``render_confusion(...)`` is a worked example of a FUSED reduction: the same driver, but instead of
-  writing masks it counts, per view, (rendered class, query class) pixel pairs; nothing of size
-  (N, H, W) is ever allocated. To fuse your own score, copy ``render_confusion`` and replace the block
-  marked ``# ---- per-view reduction hook ----`` (it sees the finished ``tri_id`` / ``inv_z`` buffers of
-  one view and ``classes``; write one row of your per-view output array).
+- A fused score calls ``render_view`` inside its own ``prange`` over views and reduces each view's
+  ``tri_id`` / ``inv_z`` buffers on the spot, so nothing of size (N, H, W) is ever allocated: see
+  ``localization.kernels.refine_scores`` (semantic IoU and depth cost per view).
 
 All kernels are ``cache=True`` (compiled once per machine, ~10-30 s) and ``fastmath=False`` (the tie rule
 needs exact IEEE arithmetic).
@@ -33,7 +31,6 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from semcityloc.errors import ShapeError
 from semcityloc.render.output import RenderOutput
 
 # Geometry closer to the camera than this (metres, along the optical axis) is clipped away.
@@ -452,66 +449,6 @@ def render_batch(
                     face_ids[v, k] = f
 
 
-@njit(parallel=True, cache=True)
-def render_confusion(
-    tri_xyz,
-    classes,
-    tile_start,
-    tile_bbox,
-    block_start,
-    block_bbox,
-    Rs,
-    ts,
-    fx,
-    fy,
-    cx,
-    cy,
-    width,
-    height,
-    near,
-    query,
-    n_classes,
-    n_chunks,
-):
-    """Fused example: per view, counts[v, r, q] = #pixels rendered as class r where ``query`` has class q.
-
-    ``query`` is a flat uint8 (H*W) label image of the same size (values < n_classes). Class IoU,
-    accuracy or any histogram score follow from these (N, C, C) counts without storing a single mask.
-    """
-    n_views = Rs.shape[0]
-    npx = width * height
-    counts = np.zeros((n_views, n_classes, n_classes), dtype=np.int32)
-    for c in prange(n_chunks):
-        inv_z = np.empty(npx)
-        tri_id = np.empty(npx, dtype=np.int32)
-        for v in range(c, n_views, n_chunks):
-            render_view(
-                tri_xyz,
-                tile_start,
-                tile_bbox,
-                block_start,
-                block_bbox,
-                Rs[v],
-                ts[v],
-                fx,
-                fy,
-                cx,
-                cy,
-                width,
-                height,
-                near,
-                inv_z,
-                tri_id,
-            )
-            # ---- per-view reduction hook: tri_id / inv_z hold view v; write row v of your output ----
-            for k in range(npx):
-                f = tri_id[k]
-                r = classes[f] if f >= 0 else 0
-                counts[v, r, query[k]] += 1
-            # ---- end of hook ----
-    return counts
-
-
 # ---------------------------------------------------------------------------------------------- engine
 class NumbaEngine:
     """The default CPU engine: ``render_batch`` over a ``RenderScene``."""
@@ -555,37 +492,4 @@ class NumbaEngine:
             labels=labels.reshape(n, h, w),
             depth=dep.reshape(n, h, w) if depth else None,
             face_ids=ids.reshape(n, h, w) if face_ids else None,
-        )
-
-    def confusion(
-        self, camera, Rs: np.ndarray, ts: np.ndarray, query: np.ndarray, n_classes: int
-    ) -> np.ndarray:
-        """(N, C, C) int32 counts of (rendered class, query class) per view; see ``render_confusion``."""
-        q = np.ascontiguousarray(query, dtype=np.uint8).reshape(-1)
-        if q.size != camera.width * camera.height:
-            raise ShapeError(f"query has {q.size} pixels, the camera {camera.width} x {camera.height}")
-        if q.size and int(q.max()) >= n_classes:
-            raise ShapeError(f"query holds class ids >= n_classes = {n_classes}")
-        if int(self.scene.classes.max()) >= n_classes:
-            raise ShapeError(f"the scene holds class ids >= n_classes = {n_classes}")
-        s = self.scene
-        return render_confusion(
-            s.tri_xyz,
-            s.classes,
-            s.tile_start,
-            s.tile_bbox,
-            s.block_start,
-            s.block_bbox,
-            Rs,
-            ts,
-            camera.fx,
-            camera.fy,
-            camera.cx,
-            camera.cy,
-            camera.width,
-            camera.height,
-            self.near,
-            q,
-            n_classes,
-            work_chunks(len(Rs)),
         )
