@@ -17,7 +17,6 @@ from semcityloc.geometry.conventions import (
     dji_gimbal_angles,
     dji_world_from_cam,
     lodloc_c2w,
-    lodloc_euler,
     odm_angles,
     pose_from_colmap,
     pose_from_dji,
@@ -148,15 +147,27 @@ def test_lodloc_c2w_round_trip_batched_and_single():
     assert_same_pose(pose_from_lodloc_c2w(T[:, :3]), pose)  # 3x4
 
 
-def test_lodloc_euler_equals_our_angles():
-    pose = random_poses(3, 1000)
-    pitch_roll_yaw = lodloc_euler(pose)
-    ours = pose.to_xyz_rpy()
-    np.testing.assert_allclose(pitch_roll_yaw, ours[:, [4, 3, 5]], atol=1e-9)
-    # And literally LoD-Loc's line, on one matrix.
-    c2w = lodloc_c2w(pose[0])
+def _hand_rotation(axis: str, deg: float) -> np.ndarray:
+    """The elementary rotation about x, y or z, written out (no scipy)."""
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return {
+        "x": np.array([[1, 0, 0], [0, c, -s], [0, s, c]]),
+        "y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]),
+        "z": np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]),
+    }[axis]
+
+
+@pytest.mark.parametrize("roll, pitch, yaw", [(0.0, 30.0, 90.0), (0.8, 62.5, -140.0), (-12.0, 3.0, 17.0)])
+def test_lodloc_euler_is_our_pitch_roll_yaw_on_hand_built_matrices(roll, pitch, yaw):
+    # The module docstring's R_world_from_cam = Rz(yaw) Ry(roll) Rx(pitch) diag(1, -1, -1), multiplied out by
+    # hand: LoD-Loc's line on its camera-to-world matrix gives (pitch, roll, yaw), and to_xyz_rpy the same.
+    Rwc = _hand_rotation("z", yaw) @ _hand_rotation("y", roll) @ _hand_rotation("x", pitch)
+    Rwc = Rwc @ np.diag([1.0, -1.0, -1.0])
+    pose = Pose.from_rotation_center(Rwc, [10.0, -20.0, 150.0])
+    c2w = lodloc_c2w(pose)
     literal = Rotation.from_matrix(c2w[:3, :3] @ np.diag([1, -1, -1])).as_euler("xyz", degrees=True)
-    np.testing.assert_allclose(lodloc_euler(pose[0]), literal, atol=1e-12)
+    np.testing.assert_allclose(literal, [pitch, roll, yaw], atol=1e-9)
+    np.testing.assert_allclose(pose.to_xyz_rpy(), [10.0, -20.0, 150.0, roll, pitch, yaw], atol=1e-9)
 
 
 def test_lodloc_bad_matrices():
@@ -664,10 +675,17 @@ def test_real_gt_pose_reads_and_lodloc_euler_equals_ours(shared):
     c2w = np.loadtxt(shared(GT_POSE))
     np.testing.assert_allclose(pose.world_from_cam, c2w, atol=1e-12)
     literal = Rotation.from_matrix(c2w[:3, :3] @ np.diag([1, -1, -1])).as_euler("xyz", degrees=True)
-    np.testing.assert_allclose(lodloc_euler(pose), literal, atol=1e-12)
     x, y, z, roll, pitch, yaw = pose.to_xyz_rpy()
     np.testing.assert_allclose(literal, [pitch, roll, yaw], atol=1e-9)
-    # Measured: camera about 225 m up, nearly nadir (pitch 0.33, roll 0.82), image-up heading -102.5.
+    # The angles by hand from the file's matrix R: R = Rz(yaw) Ry(roll) Rx(pitch) diag(1, -1, -1) has the
+    # first column (cos roll cos yaw, cos roll sin yaw, -sin roll) and the bottom row (-sin roll,
+    # -cos roll sin pitch, -cos roll cos pitch).
+    R = c2w[:3, :3]
+    assert roll == pytest.approx(math.degrees(-math.asin(R[2, 0])), abs=1e-9)  # 0.817
+    assert pitch == pytest.approx(math.degrees(math.atan2(-R[2, 1], -R[2, 2])), abs=1e-9)  # 0.333
+    assert yaw == pytest.approx(math.degrees(math.atan2(R[1, 0], R[0, 0])), abs=1e-9)  # 102.497
+    np.testing.assert_allclose([x, y, z], c2w[:3, 3], atol=1e-9)  # the centre is the file's last column
+    # So: 224.568 m up (the file's z), nearly nadir, image-up turned 102.5 deg counterclockwise from north.
     assert z == pytest.approx(224.568, abs=1e-3)
     assert abs(pitch) < 1 and abs(roll) < 1 and yaw == pytest.approx(102.497, abs=1e-3)
 
@@ -680,7 +698,9 @@ def test_real_gt_points_project_into_image(shared):
     assert points.ndim == 2 and points.shape[1] == 3 and len(points) > 1000
     uv, in_front = camera.project(pose.transform(points))
     inside = in_front & camera.in_image(uv)
-    assert inside.mean() > 0.95  # measured: all 5154 points land inside 640 x 512
+    # Points_GT are the model points LoD-Loc's authors took as seen in this very image: at the true pose
+    # every one of them lands inside the 640 x 512 frame.
+    assert inside.all()
     # The points spread over the image, not a corner of it.
     assert np.ptp(uv[inside, 0]) > 300 and np.ptp(uv[inside, 1]) > 300
 

@@ -82,20 +82,6 @@ def lodloc_c2w(pose: Pose) -> np.ndarray:
     return pose.world_from_cam
 
 
-def lodloc_euler(pose: Pose) -> np.ndarray:
-    """(..., 3) Euler angles ``(pitch, roll, yaw)`` in degrees, computed exactly as LoD-Loc does:
-
-    ``Rotation.from_matrix(c2w[:3, :3] @ diag(1, -1, -1)).as_euler('xyz', degrees=True)``.
-
-    The three numbers are our ``(pitch, roll, yaw)`` (``Pose.to_xyz_rpy`` reports them as roll, pitch,
-    yaw): LoD-Loc's convention and ours are the same, only the printed order differs.
-    """
-    c2w = lodloc_c2w(pose)
-    R = c2w[..., :3, :3] @ np.diag([1.0, -1.0, -1.0])
-    euler = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler("xyz", degrees=True)
-    return euler.reshape(pose.batch_shape + (3,))
-
-
 # ---------------------------------------------------------------------------------------------- COLMAP
 def pose_from_colmap(qw, qx, qy, qz, tx, ty, tz) -> Pose:
     """From a COLMAP image pose: world-to-camera ``x_cam = R(q) x_world + t``.
