@@ -28,7 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from semcityloc.citymodel.triangulate import ring_area_xy
 from semcityloc.errors import ParameterError
+from semcityloc.geometry.pose import rotation_about_world_z
 
 DEFAULT_SEED = 0
 DEFAULT_BLOCKS = (4, 3)
@@ -76,13 +78,9 @@ class Footprint:
         return round(self.eaves_z + 0.5 * (self.ridge_z - self.eaves_z), 3)
 
     @property
-    def is_rectangle(self) -> bool:
-        return len(self.polygon) == 4
-
-    @property
     def area(self) -> float:
-        x, y = self.polygon[:, 0], self.polygon[:, 1]
-        return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+        """Signed area seen from above (positive: counter-clockwise), ``ring_area_xy``."""
+        return ring_area_xy(self.polygon)
 
     @property
     def storeys(self) -> int:
@@ -101,9 +99,7 @@ def _rect(cx: float, cy: float, sx: float, sy: float, angle_deg: float = 0.0) ->
         pts = np.array([(-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)])
     else:
         pts = np.array([(hx, -hy), (hx, hy), (-hx, hy), (-hx, -hy)])
-    a = math.radians(angle_deg)
-    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-    return pts @ rot.T + (cx, cy)
+    return pts @ rotation_about_world_z(angle_deg)[:2, :2].T + (cx, cy)
 
 
 def _l_shape(a: float, b: float, wa: float, wb: float) -> np.ndarray:

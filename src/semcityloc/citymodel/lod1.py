@@ -43,6 +43,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from semcityloc.citymodel.builder import MeshBuilder
 from semcityloc.citymodel.model import CityModel, ParseStats
+from semcityloc.citymodel.triangulate import ring_area_xy
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import EmptyModelError, ParameterError, unknown_choice
 
@@ -67,7 +68,7 @@ class FootprintPolygon:
 
     @property
     def area(self) -> float:
-        return _ring_area(self.outer) + sum(_ring_area(h) for h in self.holes)
+        return ring_area_xy(self.outer) + sum(ring_area_xy(h) for h in self.holes)
 
     @property
     def perimeter(self) -> float:
@@ -194,7 +195,7 @@ def convex_hull_polygon(xy: np.ndarray) -> FootprintPolygon | None:
     except (QhullError, ValueError):
         return None
     ring = hull.points[hull.vertices]  # counter-clockwise for 2D input
-    return FootprintPolygon(ring, []) if _ring_area(ring) > MIN_AREA_M2 else None
+    return FootprintPolygon(ring, []) if ring_area_xy(ring) > MIN_AREA_M2 else None
 
 
 def outline_of_triangles(tri_xy: np.ndarray, exact: bool = True) -> list[FootprintPolygon] | None:
@@ -228,7 +229,7 @@ def outline_of_triangles(tri_xy: np.ndarray, exact: bool = True) -> list[Footpri
     rings = []
     for ring in _chain(boundary):
         ring_xy = _drop_collinear(pts[ring])
-        if len(ring_xy) >= 3 and abs(_ring_area(ring_xy)) > MIN_AREA_M2:
+        if len(ring_xy) >= 3 and abs(ring_area_xy(ring_xy)) > MIN_AREA_M2:
             rings.append(ring_xy)
     return _assemble(rings) or None
 
@@ -433,21 +434,15 @@ def _drop_collinear(ring: np.ndarray) -> np.ndarray:
     return ring
 
 
-def _ring_area(ring: np.ndarray) -> float:
-    c = ring - ring.mean(0)
-    x, y = c[:, 0], c[:, 1]
-    return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
-
-
 def _ring_length(ring: np.ndarray) -> float:
     return float(np.sum(np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1)))
 
 
 def _assemble(rings: list[np.ndarray]) -> list[FootprintPolygon]:
     """Counter-clockwise rings are outlines, clockwise ones holes of the smallest outline around them."""
-    outers = [FootprintPolygon(r, []) for r in rings if _ring_area(r) > 0]
-    outers.sort(key=lambda p: _ring_area(p.outer))
-    for hole in (r for r in rings if _ring_area(r) < 0):
+    outers = [FootprintPolygon(r, []) for r in rings if ring_area_xy(r) > 0]
+    outers.sort(key=lambda p: ring_area_xy(p.outer))
+    for hole in (r for r in rings if ring_area_xy(r) < 0):
         a, b = hole[0], hole[1]
         d = b - a
         probe = (

@@ -125,8 +125,19 @@ def triangulate_polygon(
     return Triangulation(pts, tris, n, planarity)
 
 
+def ring_area_xy(ring: np.ndarray) -> float:
+    """Signed area of a ring (N, 2+) seen from above: the shoelace formula on its x, y about the ring's mean
+    (so CRS-sized coordinates lose no digits); positive when counter-clockwise. The one 2-D shoelace of the
+    library (LoD1 footprints, the generated city's footprints)."""
+    c = ring[:, :2] - ring[:, :2].mean(0)
+    x, y = c[:, 0], c[:, 1]
+    return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
 def polygon_area(exterior: np.ndarray, interiors: list[np.ndarray] | tuple = ()) -> float:
-    """Area of a planar polygon with holes (shoelace on its own plane), for checks and statistics."""
+    """Area of a planar polygon with holes in any orientation in 3D (the Newell normal's length on its own
+    plane), for checks and statistics. Public API: the tests measure a model's surface areas with it (a
+    wall's area minus its openings); the library itself needs only ``ring_area_xy``."""
     ext = clean_ring(exterior)
     if len(ext) < 3:
         return 0.0

@@ -27,7 +27,8 @@ def rotation_about_world_z(angle_deg: np.ndarray | float) -> np.ndarray:
     """(..., 3, 3) float64 rotation(s) ``Rz(a) = [[cos a, -sin a, 0], [sin a, cos a, 0], [0, 0, 1]]``.
 
     Counter-clockwise seen from above (+z up): it turns +x (east) toward +y (north). The one z rotation of
-    the library (``Pose.rotate_world_z``, the coarse search's yaw fans, rotation reuse).
+    the library (``Pose.rotate_world_z``, the coarse search's yaw fans, rotation reuse, the generated
+    city's turned rectangles).
     """
     a = np.radians(np.asarray(angle_deg, dtype=np.float64))
     if not np.all(np.isfinite(a)):
