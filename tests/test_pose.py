@@ -134,6 +134,18 @@ def test_transform_shapes_single_and_batched():
     assert batch[2].transform(pts).shape == (7, 3)
 
 
+def test_points_to_world_inverts_transform_and_directions_only_rotate():
+    pts = np.random.default_rng(4).normal(size=(7, 3)) * 50.0
+    pose = random_poses(5, 1)[0]
+    np.testing.assert_allclose(pose.points_to_world(pose.transform(pts)), pts, atol=1e-9)
+    # A camera 10 m up looking straight down (nadir, image-up north): its optical axis points to -z, and
+    # the point 10 m along it is on the ground below the camera.
+    nadir = Pose.from_xyz_rpy(np.array([3.0, 4.0, 10.0]), 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(nadir.directions_to_world([0.0, 0.0, 1.0]), [0.0, 0.0, -1.0], atol=1e-12)
+    np.testing.assert_allclose(nadir.points_to_world([[0.0, 0.0, 10.0]]), [[3.0, 4.0, 0.0]], atol=1e-12)
+    assert nadir.points_to_world(np.zeros((2, 5, 3))).shape == (2, 5, 3)  # any leading shape
+
+
 def test_stack_index_len():
     batch = random_poses(4, 5)
     again = Pose.stack([batch[i] for i in range(5)])

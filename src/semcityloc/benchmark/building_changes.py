@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from semcityloc.benchmark.footprints import FootprintGrid, open_ground_samples
-from semcityloc.benchmark.meshes import box_mesh
+from semcityloc.benchmark.meshes import box_corners, box_mesh
 from semcityloc.benchmark.terrain_relief import TerrainHeight
 from semcityloc.citymodel.eaves import FLAT_NZ
 from semcityloc.citymodel.eaves import area_normal as _area_normal
@@ -150,11 +150,7 @@ def _roof_boxes(
     is kept only if its four corners lie on ``host``'s cells. (vertices, triangles, classes, building)."""
     empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.uint8), np.zeros(0, np.int64))
     n = len(pt)
-    ca, sa = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    sx, sy = np.array([-1, 1, 1, -1.0]), np.array([-1, -1, 1, 1.0])
-    lx, ly = sx[None] * half[:, :1], sy[None] * half[:, 1:2]
-    cx = pt[:, :1] + ca * lx - sa * ly
-    cy = pt[:, 1:2] + sa * lx + ca * ly
+    cx, cy = box_corners(pt, half, angle)
     ok = np.ones(n, dtype=bool)
     for k in range(4):
         rows, cols, inside = grid.cells(np.stack([cx[:, k], cy[:, k]], 1))

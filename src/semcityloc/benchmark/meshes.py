@@ -10,16 +10,21 @@ from __future__ import annotations
 import numpy as np
 
 
-def box_mesh(centre: np.ndarray, half: np.ndarray, angle: np.ndarray, z0: np.ndarray, z1: np.ndarray):
-    """N oriented boxes without bottoms: vertices (8N, 3), triangles (10N, 3), is_top (10N,) bool."""
-    n = len(centre)
+def box_corners(centre: np.ndarray, half: np.ndarray, angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x, y (N, 4) of the corners of N rectangles centred at ``centre`` (N, 2+), half sizes ``half`` (N, 2),
+    turned counter-clockwise by ``angle`` (N,) radians; counter-clockwise from the (-x, -y) corner."""
     sx = np.array([-1, 1, 1, -1], dtype=np.float64)
     sy = np.array([-1, -1, 1, 1], dtype=np.float64)
     c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
     lx, ly = sx[None] * half[:, :1], sy[None] * half[:, 1:2]
-    x = centre[:, :1] + c * lx - s * ly
-    y = centre[:, 1:2] + s * lx + c * ly
-    ring = np.stack([x, y], -1)  # (N, 4, 2)
+    return centre[:, :1] + c * lx - s * ly, centre[:, 1:2] + s * lx + c * ly
+
+
+def box_mesh(centre: np.ndarray, half: np.ndarray, angle: np.ndarray, z0: np.ndarray, z1: np.ndarray):
+    """N oriented boxes without bottoms (corners: ``box_corners``): vertices (8N, 3), triangles (10N, 3),
+    is_top (10N,) bool."""
+    n = len(centre)
+    ring = np.stack(box_corners(centre, half, angle), -1)  # (N, 4, 2)
     bottom = np.concatenate([ring, np.broadcast_to(z0[:, None, None], (n, 4, 1))], -1)
     top = np.concatenate([ring, np.broadcast_to(z1[:, None, None], (n, 4, 1))], -1)
     verts = np.concatenate([bottom, top], 1)  # (N, 8, 3): 0-3 bottom, 4-7 top (counter-clockwise)

@@ -46,9 +46,8 @@ SHADOW_BIAS_M = 0.15
 def sun_direction(rng: np.random.Generator) -> np.ndarray:
     """(3,) float64 unit vector toward the sun (module docstring): elevation uniform in 25-65 deg,
     azimuth uniform, clockwise from north."""
-    elev = math.radians(float(rng.uniform(*SUN_ELEVATION_DEG)))
-    az = math.radians(float(rng.uniform(0.0, 360.0)))
-    return np.array([math.cos(elev) * math.sin(az), math.cos(elev) * math.cos(az), math.sin(elev)])
+    elevation = float(rng.uniform(*SUN_ELEVATION_DEG))
+    return sun_from_angles(elevation, float(rng.uniform(0.0, 360.0)))
 
 
 def sun_from_angles(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
@@ -78,10 +77,8 @@ def world_points(camera: Camera, pose_local: Pose, depth: np.ndarray) -> tuple[n
         raise ShapeError(f"depth {d.shape} does not match the camera ({camera.height}, {camera.width})")
     valid = np.isfinite(d) & (d > 0)
     rows, cols = np.nonzero(valid)
-    z = d[valid]
-    x = (cols + 0.5 - camera.cx) / camera.fx * z
-    y = (rows + 0.5 - camera.cy) / camera.fy * z
-    return valid, _apply(pose_local.R.T, np.stack([x, y, z], 1)) + pose_local.center
+    uv = np.stack([cols + 0.5, rows + 0.5], 1)  # pixel centres
+    return valid, pose_local.points_to_world(camera.unproject(uv, d[valid]))
 
 
 def _apply(M: np.ndarray, p: np.ndarray) -> np.ndarray:

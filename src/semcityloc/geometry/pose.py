@@ -249,6 +249,20 @@ class Pose:
         p = np.asarray(points_world, dtype=np.float64)
         return np.einsum("...ij,mj->...mi", self.R, p) + self.t[..., None, :]
 
+    def directions_to_world(self, vectors_cam: np.ndarray) -> np.ndarray:
+        """Camera-frame vectors (..., 3) -> world frame (``R^T v``; no translation) for a single pose.
+
+        Elementwise, no BLAS: the same bits on every machine, and not slowed by a busy multi-threaded BLAS.
+        A pixel's ray in the world: ``directions_to_world(camera.ray_directions())``."""
+        v = np.asarray(vectors_cam, dtype=np.float64)
+        R = self.R
+        return v[..., :1] * R[0] + v[..., 1:2] * R[1] + v[..., 2:3] * R[2]
+
+    def points_to_world(self, points_cam: np.ndarray) -> np.ndarray:
+        """Camera-frame points (..., 3) -> world points (``R^T p + C``) for a single pose; the inverse of
+        ``transform``. A pixel and its z-depth: ``points_to_world(camera.unproject(uv, depth))``."""
+        return self.directions_to_world(points_cam) + self.center
+
     def shift_world(self, offset: np.ndarray) -> Pose:
         """The same camera in a world frame whose origin moved by ``offset`` (new = old - offset).
 

@@ -106,7 +106,7 @@ def auto_label_render(
     scene = renderer.scene
 
     rays_cam = camera.ray_directions()  # (H, W, 3), z = 1
-    rays_world = rays_cam @ pose_local.R  # R_world_from_cam applied: (R^T r) as row vectors
+    rays_world = pose_local.directions_to_world(rays_cam)
     ray_len = np.linalg.norm(rays_cam, axis=-1)
     hit = faces >= 0
     rng = np.where(hit, depth * ray_len, np.inf)

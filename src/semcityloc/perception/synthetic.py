@@ -105,8 +105,8 @@ def texture_view(
     hit = faces >= 0
     safe = np.where(hit, faces, 0)
     rays_cam = camera.ray_directions()
-    rays_world = rays_cam @ pose_local.R
-    pts = pose_local.center + rays_world * np.where(hit, depth, 0.0)[..., None]
+    rays_world = pose_local.directions_to_world(rays_cam)
+    pts = pose_local.points_to_world(rays_cam * np.where(hit, depth, 0.0)[..., None])
     x, y, z = pts[..., 0], pts[..., 1], pts[..., 2]
     c = scene.corners[safe].astype(np.float64)
     normals = np.cross(c[..., 1, :] - c[..., 0, :], c[..., 2, :] - c[..., 0, :])
