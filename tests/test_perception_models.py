@@ -136,6 +136,18 @@ def test_head_files_that_do_not_fit_are_rejected(tiny_dinov3, tmp_path):
         get_segmentation_backend("mobilenetv2", head=str(tmp_path / "ok"), backbone="mobilenetv2:x.pth")
 
 
+def test_a_default_head_of_another_backbone_is_refused_by_its_path(tiny_dinov3, tmp_path, monkeypatch):
+    # The default head (no head=) trained on the other backbone: the message names the folder it read, not
+    # "head None", and the backbone is not loaded first.
+    path, _ = tiny_dinov3
+    seg = new_segmenter(f"dinov3:{path}", ["ground", "wall", "roof"], (64, 48), SMALL_DPT)
+    head_dir = save_head(seg, tmp_path / "mobilenetv2-head")
+    monkeypatch.setenv("SEMCITYLOC_WEIGHTS", str(tmp_path))
+    with pytest.raises(ParameterError, match="trained on dinov3, not mobilenetv2") as exc:
+        get_segmentation_backend("mobilenetv2")
+    assert str(head_dir) in str(exc.value) and "None" not in str(exc.value)
+
+
 def test_mobilenetv2_loads_packaged_imagenet_weights_strictly():
     from semcityloc.perception.mobilenet import MobileNetV2Backbone, load_imagenet_state
 

@@ -238,25 +238,26 @@ class ColmapModel:
 
     def poses(self) -> dict[str, tuple[Camera, Pose]]:
         """``{image name: (pinhole Camera, cam_from_world Pose)}`` of every image."""
-        out = {}
-        for image in self.images.values():
-            if image.camera_id not in self.cameras:
-                raise InputFileError(
-                    f"COLMAP image {image.name!r} refers to missing camera {image.camera_id}"
-                )
-            out[image.name] = (self.cameras[image.camera_id].to_camera(), image.pose)
-        return out
+        return {name: (camera.to_camera(), pose) for name, (camera, pose) in self._image_cameras().items()}
 
     def lens_poses(self) -> dict[str, tuple[Camera, LensDistortion, Pose]]:
-        """``{image name: (Camera, its lens, cam_from_world Pose)}`` of every image: ``poses`` for
-        cameras with distortion (``ColmapCamera.to_lens_camera``), e.g. a photo run's export."""
+        """``{image name: (Camera, its lens, cam_from_world Pose)}`` of every image: ``poses`` for cameras
+        with distortion (``ColmapCamera.to_lens_camera``; ``poses`` refuses them). Public API for reading
+        any COLMAP model with its lenses (``docs/data-formats.md``); nothing in the library calls it."""
+        return {
+            name: (*camera.to_lens_camera(), pose) for name, (camera, pose) in self._image_cameras().items()
+        }
+
+    def _image_cameras(self) -> dict[str, tuple[ColmapCamera, Pose]]:
+        """``{image name: (its COLMAP camera, cam_from_world Pose)}``; an image naming a camera the model
+        does not hold is an ``InputFileError``."""
         out = {}
         for image in self.images.values():
             if image.camera_id not in self.cameras:
                 raise InputFileError(
                     f"COLMAP image {image.name!r} refers to missing camera {image.camera_id}"
                 )
-            out[image.name] = (*self.cameras[image.camera_id].to_lens_camera(), image.pose)
+            out[image.name] = (self.cameras[image.camera_id], image.pose)
         return out
 
     @classmethod

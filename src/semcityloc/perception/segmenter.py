@@ -285,24 +285,23 @@ class SegmenterBackend:
         return class_probs_to_output(self.segmenter.predict_probs(image), self.classes)
 
 
-def _default_head(kind: str) -> Path:
-    return weights_dir() / DEFAULT_HEAD_DIRS[kind]
+def _segmenter_backend(name: str, kind: str, head, backbone, device, threads) -> SegmenterBackend:
+    """The backend ``name`` of a head trained on a ``kind`` backbone: ``head`` (default
+    ``weights_dir()/DEFAULT_HEAD_DIRS[kind]``), refused before loading when it was trained on another."""
+    n = parse_threads(threads)
+    head_dir = Path(head) if head else weights_dir() / DEFAULT_HEAD_DIRS[kind]
+    trained_on = read_head_spec(head_dir)["backbone"].get("kind")
+    if trained_on != kind:
+        raise ParameterError(f"head {head_dir} was trained on {trained_on}, not {kind} (backend {name})")
+    return SegmenterBackend(name, load_segmenter(head_dir, backbone=backbone, device=device), n)
 
 
 def dinov3_dpt_backend(head=None, backbone=None, device=None, threads=None) -> SegmenterBackend:
     """``dinov3-dpt``: head=DIR (default ``weights_dir()/dinov3-dpt-head``), backbone=DIR (default: the
     folder stored in head.json)."""
-    n = parse_threads(threads)
-    seg = load_segmenter(head if head else _default_head("dinov3"), backbone=backbone, device=device)
-    if seg.spec["backbone"]["kind"] != "dinov3":
-        raise ParameterError(f"head {head} was trained on {seg.spec['backbone']['kind']}, not DINOv3")
-    return SegmenterBackend("dinov3-dpt", seg, n)
+    return _segmenter_backend("dinov3-dpt", "dinov3", head, backbone, device, threads)
 
 
 def mobilenetv2_backend(head=None, backbone=None, device=None, threads=None) -> SegmenterBackend:
     """``mobilenetv2``: head=DIR (default ``weights_dir()/mobilenetv2-head``)."""
-    n = parse_threads(threads)
-    seg = load_segmenter(head if head else _default_head("mobilenetv2"), backbone=backbone, device=device)
-    if seg.spec["backbone"]["kind"] != "mobilenetv2":
-        raise ParameterError(f"head {head} was trained on {seg.spec['backbone']['kind']}, not MobileNetV2")
-    return SegmenterBackend("mobilenetv2", seg, n)
+    return _segmenter_backend("mobilenetv2", "mobilenetv2", head, backbone, device, threads)
