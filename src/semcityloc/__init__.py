@@ -25,7 +25,7 @@ __version__ = "0.1.0"
 def __getattr__(name: str) -> Any:
     """``semcityloc.SemanticClass``, imported when first asked for (module docstring)."""
     if name == "SemanticClass":
-        # numpy (via semcityloc.classes): not on `import semcityloc`, which the console script does first
+        # lazy: numpy (via semcityloc.classes) not on `import semcityloc`, which the console script does first
         from semcityloc.classes import SemanticClass
 
         return SemanticClass

@@ -24,7 +24,7 @@ def entry() -> int:
     Ctrl-C wherever it lands (the imports, the arguments, the work) is one line and exit 130, never a
     traceback."""
     try:
-        # the whole CLI (numba, every command): over a second to import, so inside the try
+        # lazy: the whole CLI (numba, every command) takes over a second to import, so inside the try
         from semcityloc.cli.main import main
 
         return main()

@@ -12,7 +12,7 @@ import argparse
 import sys
 
 if __name__ == "__main__":
-    # ``python -m semcityloc.cli.main``: handed to ``entry`` before the slow imports below (a Ctrl-C in them)
+    # lazy, ``python -m semcityloc.cli.main`` only: handed to ``entry`` before the slow imports below
     from semcityloc.cli import entry
 
     sys.exit(entry())
