@@ -9,8 +9,13 @@ LoD2 house (roof, walls, ground: 7 polygons) with its own ids on a grid; the Cit
 ``--cityjson-vertices`` vertices of which ``--cityjson-buildings`` box buildings use 8 each (the rest are
 parsed and dropped: the hostile part is the vertex list).
 
+``--bombs``: instead, the speed goal of the entity-bomb refusal (``tests/test_hostile_xml.py`` checks only
+that nothing is expanded): a billion-laughs and a quadratic-blowup CityGML (2 GB if expanded), each read
+in a fresh process; the goal is a refusal within ``BOMB_GOAL_S`` of CPU time.
+
     python benchmarks/hostile_scale.py [--citygml-mb 1024] [--parse-citygml-mb 100]
         [--cityjson-vertices 10000000]
+    python benchmarks/hostile_scale.py --bombs
 """
 
 from __future__ import annotations
@@ -116,6 +121,45 @@ READ = (
     "except SemCityLocError as exc:\n    out = {'outcome': 'refused', 'error': str(exc)}\n"
     "out['seconds'] = round(time.perf_counter() - t0, 1)\nprint(json.dumps(out))\n"
 )
+BOMB_GOAL_S = 0.5  # CPU seconds to refuse an entity bomb (it was a unit test's bound before)
+READ_BOMB = (
+    "import json, sys, time\nfrom semcityloc.citymodel.citygml import read_citygml\n"
+    "from semcityloc.errors import MalformedXMLError\n"
+    "t0 = time.process_time()\ntry:\n    read_citygml(sys.argv[1])\n    out = {'outcome': 'read'}\n"
+    "except MalformedXMLError as exc:\n    out = {'outcome': 'refused', 'error': str(exc)[:80]}\n"
+    "out['cpu_s'] = round(time.process_time() - t0, 4)\nprint(json.dumps(out))\n"
+)
+
+
+def write_bombs(folder: Path) -> dict[str, Path]:
+    """A billion-laughs (10 levels of 10) and a quadratic-blowup (20,000 x a 100 kB entity) CityGML."""
+    levels = ['<!ENTITY lol0 "lol">'] + [f'<!ENTITY lol{i} "{f"&lol{i - 1};" * 10}">' for i in range(1, 10)]
+    bombs = {
+        "billion_laughs": ("<!DOCTYPE CityModel [\n" + "\n".join(levels) + "\n]>", "&lol9;"),
+        "quadratic_blowup": (f'<!DOCTYPE CityModel [<!ENTITY a "{"x" * 100_000}">]>', "&a;" * 20_000),
+    }
+    out = {}
+    for name, (doctype, body) in bombs.items():
+        out[name] = folder / f"{name}.gml"
+        out[name].write_text(
+            f'<?xml version="1.0" encoding="UTF-8"?>\n{doctype}\n'
+            f'<CityModel xmlns="http://www.opengis.net/citygml/2.0">{body}</CityModel>\n',
+            encoding="utf-8",
+        )
+    return out
+
+
+def bomb_reads(folder: Path) -> None:
+    """One JSON line per bomb: the outcome, the child's CPU seconds and whether it met ``BOMB_GOAL_S``."""
+    for name, path in write_bombs(folder).items():
+        proc = subprocess.run([sys.executable, "-c", READ_BOMB, str(path)], capture_output=True, text=True)
+        try:
+            out = json.loads(proc.stdout.strip().splitlines()[-1])
+        except (IndexError, ValueError):
+            out = {"outcome": f"exit {proc.returncode}", "stderr": proc.stderr[-500:]}
+        out["bomb"] = name
+        out["goal_met"] = out.get("outcome") == "refused" and out.get("cpu_s", 1e9) < BOMB_GOAL_S
+        print(json.dumps(out), flush=True)
 
 
 def read_in_child(path: Path, env: dict[str, str]) -> dict:
@@ -147,8 +191,12 @@ def main() -> None:
     parser.add_argument("--cityjson-vertices", type=int, default=10_000_000)
     parser.add_argument("--cityjson-buildings", type=int, default=1000)
     parser.add_argument("--skip", default="", help="citygml and/or cityjson to skip")
+    parser.add_argument("--bombs", action="store_true", help="only time the entity-bomb refusals")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="semcityloc-hostile-") as tmp:
+        if args.bombs:
+            bomb_reads(Path(tmp))
+            return
         if "citygml" not in args.skip:
             path = Path(tmp) / "big.gml"
             t0 = time.perf_counter()

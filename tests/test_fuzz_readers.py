@@ -39,7 +39,10 @@ SLICE = settings(
     deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
-SLOW_INPUT_S = 10.0
+# A hang guard, not a speed goal: the slowest mutated input takes about 0.35 s (a CityGML, on the shared
+# 2-core machine), so only a hang or an exponential blow-up reaches 10 s (30x that). The readers' speed on
+# fuzzed input is measured by ``make fuzz`` (``tests/fuzz_run.py``), not here.
+HANG_GUARD_S = 10.0
 # Corrupt inputs make Pillow warn (broken EXIF): a warning is an answer too. A numpy RuntimeWarning is not:
 # it means a corrupt value reached arithmetic (NaN coordinates, a signalling NaN cast), so it fails the test.
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning", "ignore::UserWarning")
@@ -66,7 +69,7 @@ def _no_crash(fuzzer: Fuzzer, seed: int) -> None:
     t0 = time.perf_counter()
     outcome, exc = fuzzer.run(name, data)
     assert outcome != CRASH, f"{fuzzer.target.name} crashed on a mutated {name}: {exc!r}"
-    assert time.perf_counter() - t0 < SLOW_INPUT_S
+    assert time.perf_counter() - t0 < HANG_GUARD_S, f"{fuzzer.target.name} hung on a mutated {name}"
 
 
 @pytest.mark.parametrize("target", list(TARGETS))

@@ -1,7 +1,10 @@
 """Hostile CityGML: XXE, entity bombs, external DTDs, XInclude, absurd nesting.
 
-The reader must never read a local file or touch the network because a document asked it to, must fail fast
-(``MalformedXMLError``) on entity bombs, and must never raise anything but the library's typed errors.
+The reader must never read a local file or touch the network because a document asked it to, must refuse
+entity bombs (``MalformedXMLError``) without expanding them, and must never raise anything but the
+library's typed errors. How fast a bomb is refused is a speed goal, measured by
+``benchmarks/hostile_scale.py --bombs`` (house rule: speed goals live in benchmarks/, not in timed unit
+tests); here an expansion shows as the test process's peak memory growing.
 """
 
 from __future__ import annotations
@@ -11,7 +14,6 @@ import resource
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import pytest
@@ -114,26 +116,24 @@ def _lol_doctype(levels: int = 10) -> str:
     return "<!DOCTYPE CityModel [\n" + "\n".join(lines) + "\n]>"
 
 
-def _cpu_and_peak(fn) -> tuple[float, float, BaseException | None]:
+def _peak_growth(fn) -> tuple[float, BaseException | None]:
+    """(MB the test process's peak RSS grew by while running ``fn``, the exception it raised or None)."""
     peak0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    t0 = time.process_time()
     err = None
     try:
         fn()
     except BaseException as exc:  # noqa: BLE001 - returned to the test, which checks its type
         err = exc
-    cpu = time.process_time() - t0
     grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak0) / 1024.0
-    return cpu, grown_mb, err
+    return grown_mb, err
 
 
 def test_billion_laughs_fails_fast(tmp_path):
     path = tmp_path / "lol.gml"
     path.write_text(_doc(_lol_doctype(10), "&lol9;"))
-    cpu, grown_mb, err = _cpu_and_peak(lambda: read_citygml(path))
+    grown_mb, err = _peak_growth(lambda: read_citygml(path))
     assert isinstance(err, MalformedXMLError), err
     assert "entities that expand without bound (a 'billion laughs'" in str(err)  # not "not well-formed"
-    assert cpu < 0.5
     assert grown_mb < 50  # the peak RSS of the test process did not grow: nothing was expanded
 
 
@@ -141,10 +141,9 @@ def test_quadratic_blowup_fails_fast(tmp_path):
     path = tmp_path / "quad.gml"
     doctype = f'<!DOCTYPE CityModel [<!ENTITY a "{"x" * 100_000}">]>'
     path.write_text(_doc(doctype, "&a;" * 20_000))  # 2 GB if expanded
-    cpu, grown_mb, err = _cpu_and_peak(lambda: read_citygml(path))
+    grown_mb, err = _peak_growth(lambda: read_citygml(path))
     assert isinstance(err, MalformedXMLError), err
     assert "entities that expand without bound" in str(err)
-    assert cpu < 0.5
     assert grown_mb < 50
 
 
@@ -157,13 +156,14 @@ def test_billion_laughs_with_the_parser_settings_alone(tmp_path):
         for _ in etree.iterparse(str(path), events=("end",), **PARSER_OPTIONS):
             pass
 
-    cpu, grown_mb, _ = _cpu_and_peak(parse)
-    assert cpu < 0.5 and grown_mb < 50
+    grown_mb, _ = _peak_growth(parse)
+    assert grown_mb < 50
 
 
 def test_external_http_dtd_is_never_fetched(tmp_path):
-    # 10.255.255.1 is unroutable: a fetch would hang until the TCP connect timeout. The read runs in a child
-    # process so that a regression fails this test instead of hanging the suite.
+    # 10.255.255.1 is unroutable: a fetch would hang until the TCP connect timeout (over a minute). The read
+    # runs in a child process whose timeout is the hang guard, not a speed goal: the child takes about 3 s
+    # here (its imports), so only a fetch reaches 60 s, and a regression fails instead of hanging the suite.
     path = tmp_path / "http_dtd.gml"
     path.write_text(
         _doc(
@@ -173,22 +173,19 @@ def test_external_http_dtd_is_never_fetched(tmp_path):
     )
     code = textwrap.dedent(
         f"""
-        import json, time
+        import json
         from semcityloc.citymodel.citygml import read_citygml
-        t = time.perf_counter()
         try:
             m = read_citygml({str(path)!r})
             out = {{"ok": True, "roof": m.class_areas()["roof"], "warnings": m.stats.warnings}}
         except Exception as exc:
             out = {{"ok": False, "error": type(exc).__name__, "msg": str(exc)}}
-        out["seconds"] = time.perf_counter() - t
         print(json.dumps(out))
         """
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert out["seconds"] < 5.0
     if out["ok"]:
         assert out["roof"] == pytest.approx(100.0)
         assert any("not loaded" in w for w in out["warnings"])
