@@ -833,3 +833,21 @@ def test_a_whole_lod_is_taken_in_the_forms_cityjson_takes(tmp_path, lod):
     body = _bounded_box("b", X0, Y0) + _solid_inline(X0, Y0, lod=1)
     model = read_citygml(_write(tmp_path, _city([_building("B", body)])), lod=lod)
     assert model.lods_present() == [2] and model.num_triangles == 12
+
+
+def test_a_crs_whose_metres_are_not_ground_metres_is_refused(shared):
+    """Berlin read into Web Mercator (EPSG:3857) loaded without a word: `city info` said 1609 x 557 m for
+    984 x 334 m, and a point 200 m along the gimbal's direction projected 188 px off the image centre
+    (frames audit, stop 51). Its point scale factor at 52.5 N is 1.64: refused naming it; UTM, a Gauss-
+    Krueger zone and the Dutch grid pass."""
+    from semcityloc.citymodel.crs import ground_scale_problem
+    from semcityloc.citymodel.io import load_city_model
+
+    berlin = shared("berlin_lod2_citygml2/3910_5817.gml")
+    with pytest.raises(CRSError, match=r"Pseudo-Mercator is no metric frame here: .* is 1\.643, so its"):
+        load_city_model(berlin, target_crs="EPSG:3857", cache=False)
+    for code, lon, lat in (("EPSG:25833", 13.4, 52.5), ("EPSG:31468", 11.0, 49.5), ("EPSG:28992", 4.3, 52.0)):
+        crs = pyproj.CRS(code)
+        x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+        assert ground_scale_problem(crs, x, y) is None
+    assert ground_scale_problem(None, 0.0, 0.0) is None  # a local frame: nothing to tell

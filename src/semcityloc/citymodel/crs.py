@@ -200,6 +200,39 @@ def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None, where
         )
 
 
+# A projected CRS whose map metres differ from metres on the ground by more than this share at a model
+# (its point scale factor) is no metric frame for a camera: Web Mercator's is 1.64 at 52 degrees north,
+# a transverse Mercator's (UTM, Gauss-Krueger) or a national grid's stays within 0.2 % where it is used.
+MAX_SCALE_ERROR = 0.01
+
+
+def ground_scale_problem(crs: pyproj.CRS | None, x: float, y: float) -> str | None:
+    """Why ``crs`` cannot be a camera's metric frame at its point (``x``, ``y``): its point scale factor
+    there is more than ``MAX_SCALE_ERROR`` from 1 (a camera would see every distance that much off: the
+    height above the roofs, the building sizes). None when it can (or is no projected CRS, or pyproj
+    cannot tell)."""
+    if crs is None:
+        return None
+    horizontal = horizontal_crs(crs)
+    if not horizontal.is_projected:
+        return None
+    try:
+        to_geographic = pyproj.Transformer.from_crs(horizontal, horizontal.geodetic_crs, always_xy=True)
+        lon, lat = to_geographic.transform(x, y)
+        factors = pyproj.Proj(horizontal).get_factors(lon, lat)
+    except (PyprojCRSError, pyproj.exceptions.ProjError):
+        return None
+    scale = max(factors.meridional_scale, factors.parallel_scale, key=lambda k: abs(k - 1.0))
+    if not np.isfinite(scale) or abs(scale - 1.0) <= MAX_SCALE_ERROR:
+        return None
+    return (
+        f"{horizontal.name} is no metric frame here: its point scale factor at the model "
+        f"(lon {lon:.3f}, lat {lat:.3f}) is {scale:.3f}, so its metres are {1.0 / scale:.3f} m on the ground "
+        "and a camera would see every distance that much off; reproject the model to the UTM zone or the "
+        "national grid it lies in"
+    )
+
+
 def check_projected(crs: pyproj.CRS | str, what: str) -> pyproj.CRS:
     """The horizontal part of ``crs`` (a CRS or a name, ``parse_crs_name``) if it is projected (metric,
     z up once a height is added), else a ``CRSError`` naming its kind. The one rule of "is this CRS

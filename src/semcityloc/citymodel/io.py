@@ -20,10 +20,10 @@ import numpy as np
 from semcityloc.cache import cache_root
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
-from semcityloc.citymodel.crs import parse_crs_name
+from semcityloc.citymodel.crs import ground_scale_problem, parse_crs_name
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.obj import read_obj
-from semcityloc.errors import InputFileError, UnsupportedFormatError
+from semcityloc.errors import CRSError, InputFileError, UnsupportedFormatError
 
 # Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
 # before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope; 3: the stats
@@ -151,7 +151,7 @@ def load_city_model(
     if fmt == "zip":
         raise UnsupportedFormatError(zip_message(path))
     if fmt == "npz":
-        return CityModel.load_npz(path)
+        return _checked_scale(CityModel.load_npz(path), path)
 
     cache_file = None
     if cache:
@@ -165,17 +165,27 @@ def load_city_model(
             try:
                 model = CityModel.load_npz(cache_file)
                 model.source = str(path)
-                return model
+                return _checked_scale(model, path)
             except InputFileError:
                 cache_file.unlink(missing_ok=True)
 
-    model = _read(path, fmt, lod, crs, target_crs, origin)
+    model = _checked_scale(_read(path, fmt, lod, crs, target_crs, origin), path)
     if cache_file is not None:
         try:
             cache_file.parent.mkdir(parents=True, exist_ok=True)
             model.save_npz(cache_file)
         except OSError:
             pass  # a read-only cache never stops a parse
+    return model
+
+
+def _checked_scale(model: CityModel, path: Path) -> CityModel:
+    """``model``, unless its CRS is no metric frame at the model (``crs.ground_scale_problem``: Web
+    Mercator, whose metres are 0.61 m in Berlin): then a ``CRSError`` naming the file."""
+    centre = model.origin[:2] + model.bounds_local.mean(axis=0)[:2]
+    problem = ground_scale_problem(model.crs, float(centre[0]), float(centre[1]))
+    if problem is not None:
+        raise CRSError(f"{path}: {problem}")
     return model
 
 
