@@ -262,3 +262,33 @@ def test_files_masks_in_jpeg_or_named_after_the_whole_photo_name_are_found(tmp_p
         seg.predict(photo, name="P4.JPG")
     with pytest.raises(InputFileError, match=r"looked for P5\.png/\.npy or P5\.JPG\.png/\.npy\)$"):
         seg.predict(photo, name="P5.JPG")
+
+
+def test_label_maps_overlays_and_depth_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """``semcityloc label`` killed while writing left ``O3.png`` of 0 bytes under its final name (batch
+    audit, stop 51), which a later ``run --masks`` read as that photo's broken mask. Now every image file
+    goes through a temporary file and a rename: a failed write leaves the old file whole and nothing else."""
+    import errno
+
+    from semcityloc.io import files
+    from semcityloc.io.images import save_rgb
+
+    labels = np.arange(12, dtype=np.uint8).reshape(3, 4) % NUM_CLASSES
+    save_labels_png(labels, tmp_path / "O3.png")
+    save_rgb(np.zeros((3, 4, 3), np.uint8), tmp_path / "overlay.png")
+    save_depth(np.ones((3, 4), np.float32), tmp_path / "d.png")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+
+    def killed(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(files.os, "fsync", killed)
+    for write in (
+        lambda: save_labels_png(labels[::-1], tmp_path / "O3.png"),
+        lambda: save_rgb(np.full((3, 4, 3), 9, np.uint8), tmp_path / "overlay.png"),
+        lambda: save_depth(np.full((3, 4), 2.0, np.float32), tmp_path / "d.png"),
+    ):
+        with pytest.raises(OSError):
+            write()
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    np.testing.assert_array_equal(read_mask_file(tmp_path / "O3.png"), labels)

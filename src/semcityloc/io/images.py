@@ -9,6 +9,7 @@ chunk (``load_depth`` reads it); the exact float32 metres always go to a ``.npy`
 
 from __future__ import annotations
 
+import io
 import math
 import struct
 import tokenize
@@ -19,6 +20,7 @@ from PIL import Image, PngImagePlugin
 
 from semcityloc.classes import IGNORE, NUM_CLASSES, PALETTE, invalid_class_ids
 from semcityloc.errors import InputFileError, LossyMaskError, ShapeError
+from semcityloc.io.files import write_atomic
 
 # What Pillow raises on a corrupt or hostile image file (a broken chunk is a SyntaxError, a header naming
 # billions of pixels a DecompressionBombError): each becomes an ``InputFileError`` naming the file.
@@ -30,6 +32,19 @@ def _palette_bytes() -> list[int]:
     pal[:NUM_CLASSES] = PALETTE
     pal[IGNORE] = (255, 255, 255)
     return pal.reshape(-1).tolist()
+
+
+def _save_image(img: Image.Image, path: Path, **options) -> None:
+    """``img`` written whole or not at all (``files.write_atomic``): a kill or a Ctrl-C while a label map
+    or overlay is written must not leave a truncated PNG under its final name, which a later run would
+    read as that photo's mask. The format follows the suffix, as ``Image.save`` chooses it."""
+    fmt = Image.registered_extensions().get(path.suffix.lower())
+    if fmt is None:  # PIL's own error for a suffix it does not know
+        img.save(path, **options)
+        return
+    buffer = io.BytesIO()
+    img.save(buffer, format=fmt, **options)
+    write_atomic(path, buffer.getvalue())
 
 
 def save_labels_png(labels: np.ndarray, path: str | Path) -> Path:
@@ -44,7 +59,7 @@ def save_labels_png(labels: np.ndarray, path: str | Path) -> Path:
     img.putpalette(_palette_bytes())
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    img.save(path)
+    _save_image(img, path)
     return path
 
 
@@ -101,9 +116,11 @@ def save_depth(depth: np.ndarray, path_png: str | Path) -> tuple[Path, Path]:
     q = np.where(finite, np.clip(np.round(depth / unit), 0, 65535), 0).astype(np.uint16)
     info = PngImagePlugin.PngInfo()
     info.add_text("depth_unit_m", repr(unit))
-    Image.fromarray(q).save(path_png, pnginfo=info)
+    _save_image(Image.fromarray(q), path_png, pnginfo=info)
     npy = path_png.with_suffix(".npy")
-    np.save(npy, depth)
+    buffer = io.BytesIO()
+    np.save(buffer, depth)
+    write_atomic(npy, buffer.getvalue())
     return path_png, npy
 
 
@@ -285,7 +302,7 @@ def save_rgb(image: np.ndarray, path: str | Path, optimize: bool = False) -> Pat
     """An RGB (or grey) uint8 image as a file (format from the suffix); ``optimize``: smallest PNG."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path, optimize=optimize)
+    _save_image(Image.fromarray(np.asarray(image, dtype=np.uint8)), path, optimize=optimize)
     return path
 
 
