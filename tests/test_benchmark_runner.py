@@ -845,3 +845,30 @@ def test_a_failed_query_with_a_true_pose_is_a_miss_of_every_recall(baseline):
     assert kind_of(failed_row(1, "", has_truth=True)) == FAILED
     misses = summarize_misses([*rows, failed_row(1, "", has_truth=True)])
     assert misses["count"][FAILED] == 1
+
+
+def test_an_interrupted_run_says_what_it_keeps_and_how_to_go_on(sim, tmp_path, monkeypatch, capsys):
+    """Ctrl-C (or SIGTERM, which the console script turns into the same unwinding) mid-run ended with
+    ``semcityloc: interrupted`` and nothing on the finished rows (batch audit, stop 51), where
+    ``--stop-after`` says "run again to continue": now the rows kept and the way on are said."""
+    from semcityloc.benchmark import run as run_module
+    from semcityloc.cli import Terminated
+
+    out = tmp_path / "stopped"
+    real = run_module._Worker.run
+    calls = []
+
+    def stop_at_the_third(self, index):
+        calls.append(index)
+        if len(calls) == 3:
+            raise Terminated
+        return real(self, index)
+
+    monkeypatch.setattr(run_module._Worker, "run", stop_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        run_benchmark(make_spec(sim), out, progress=True)
+    err = capsys.readouterr().err
+    assert f"semcityloc: note: 2/{QUERIES} done and kept in {out}; the same command again goes on" in err
+    monkeypatch.setattr(run_module._Worker, "run", real)
+    again = run_benchmark(make_spec(sim), out, progress=False)
+    assert again.complete and again.new_rows == QUERIES - 2

@@ -821,3 +821,19 @@ def test_a_real_ctrl_c_during_the_imports_is_one_line_and_exit_130():
     finally:
         proc.kill()
     assert (proc.returncode, err, out) == (130, "semcityloc: interrupted\n", "")
+
+
+def test_a_sigterm_is_one_line_and_exit_143():
+    """SIGTERM (``timeout``, a scheduler) ended a command silently with -15, locks and temporary files as
+    they were (batch audit, stop 51): it now unwinds as a Ctrl-C does and says so."""
+    code = _SLOW_IMPORT + console_script()
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "--version"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout.readline() == "importing\n"
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert (proc.returncode, err, out) == (143, "semcityloc: terminated (SIGTERM)\n", "")

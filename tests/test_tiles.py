@@ -248,7 +248,8 @@ def test_a_broken_or_empty_tile_is_left_out_naming_it_and_the_rest_is_built(tmp_
     (tiles / "a.gml").unlink()
     assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store2")]) == 2
     err = capsys.readouterr().err
-    assert "no tile can be read (3 tried" in err and err.count("\n") == 1
+    last = err.splitlines()[-1]  # the error on its own line, after the progress line (was appended to it)
+    assert last.startswith("semcityloc: error:") and "no tile can be read (3 tried" in last
 
 
 def test_a_zip_archive_in_the_folder_is_named_not_passed_over(tmp_path, capsys):
@@ -362,3 +363,6 @@ def test_a_store_is_not_replaced_without_overwrite_and_a_rebuild_leaves_no_old_t
     (store / "store.json").unlink()  # a build stopped before its index: still refused, said so
     assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 2
     assert "part of a tile store (a build stopped?)" in capsys.readouterr().err
+    # ... and given as --city it says so, not "no such city model file or tile store" (batch audit, stop 51)
+    assert main(["benchmark", "--city", str(store), "--queries", "1", "--out", str(tmp_path / "b")]) == 2
+    assert "a tile store whose build stopped before its store.json" in capsys.readouterr().err

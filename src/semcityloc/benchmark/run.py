@@ -77,7 +77,7 @@ from semcityloc.benchmark.runfiles import (
 )
 from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
-from semcityloc.errors import BenchmarkError, OutputPathError, unknown_choice
+from semcityloc.errors import BenchmarkError, OutputPathError, SemCityLocError, unknown_choice
 from semcityloc.io.files import write_json_atomic
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.result import LocalizationResult
@@ -243,11 +243,22 @@ def run_queries(
             return _run_locked(
                 source, spec, out, config, workers, overwrite, limit, progress, executor, ray_address
             )
-    except BaseException:
+    except BaseException as exc:
         if made:  # a folder this call made and left empty (a run that failed at setup): not kept
             with contextlib.suppress(OSError):
                 out.rmdir()
+        if isinstance(exc, KeyboardInterrupt):  # Ctrl-C or SIGTERM: what is kept, and how to go on
+            _say_kept(out, int(config["queries"]), progress)
         raise
+
+
+def _say_kept(out: Path, total: int, progress: bool | TextIO) -> None:
+    """After an interruption: how many finished rows ``out`` keeps and that the same command continues."""
+    with contextlib.suppress(SemCityLocError, OSError):  # the interruption is the news, not a damaged file
+        done = len(read_results(out / RESULTS_FILE)) if (out / RESULTS_FILE).is_file() else 0
+        if done:
+            note = f"semcityloc: note: {done}/{total} done and kept in {out}; the same command again goes on"
+            print(note, file=sys.stderr if isinstance(progress, bool) else progress, flush=True)
 
 
 def _run_locked(

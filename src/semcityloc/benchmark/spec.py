@@ -42,6 +42,8 @@ def resolve_city(city: str | Path) -> Path:
     if str(city) == GENERATED:
         return default_city_path(lod=2).resolve()
     path = Path(city).expanduser()
+    if path.is_dir() and not is_store(path):
+        TileStore.open(path)  # its own one line: a folder of tiles, or a build that stopped
     if not path.is_file() and not is_store(path):
         raise InputFileError(f"{path}: no such city model file or tile store")
     return path.resolve()

@@ -229,8 +229,8 @@ def _clear_old_store(root: Path, overwrite: bool) -> None:
     if not overwrite:
         what = "a tile store" if (root / INDEX_FILE).is_file() else "part of a tile store (a build stopped?)"
         raise OutputPathError(
-            f"{root}: holds {what} already; build it again with --overwrite (overwrite=True) or into "
-            "another folder"
+            f"{root}: holds {what} already; build it again with --overwrite (in Python: overwrite=True) or "
+            "into another folder"
         )
     (root / INDEX_FILE).unlink(missing_ok=True)
     (root / BUILDINGS_FILE).unlink(missing_ok=True)
@@ -356,6 +356,11 @@ class TileStore:
         """The store at ``path``; ``budget_mb``: the tile cache's budget (None: ``tile_budget_mb()``)."""
         budget_mb = tile_budget_mb() if budget_mb is None else budget_mb
         root = _root(path)
+        if not is_store(root) and (root / TILES_DIR).is_dir():
+            raise InputFileError(
+                f"{path}: a tile store whose build stopped before its {INDEX_FILE}: build it again with "
+                "'semcityloc tiles build TILES --out STORE --overwrite'"
+            )
         if not is_store(root):
             raise InputFileError(
                 f"{path}: not a tile store (no {INDEX_FILE}; make one with 'semcityloc tiles build')"

@@ -8,13 +8,28 @@ module imports next to nothing, and ``entry`` imports the CLI inside its ``try``
 
 from __future__ import annotations
 
+import signal
 import sys
 
 INTERRUPTED = 130  # the exit status of a command ended by Ctrl-C (128 + SIGINT), as a shell reports it
+TERMINATED = 143  # ended by SIGTERM (128 + 15): ``timeout``, a scheduler, ``kill``
 
 
-def interrupted() -> int:
-    """Say in one line on stderr that the command was interrupted (Ctrl-C); returns ``INTERRUPTED``."""
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is so that it unwinds as a Ctrl-C does (locks released, temporary
+    files removed, the kept work said) instead of dying silently mid-write."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+def interrupted(exc: BaseException | None = None) -> int:
+    """Say in one line on stderr that the command was interrupted (Ctrl-C) or terminated (SIGTERM);
+    returns ``INTERRUPTED`` or ``TERMINATED``."""
+    if isinstance(exc, Terminated):
+        print("semcityloc: terminated (SIGTERM)", file=sys.stderr)
+        return TERMINATED
     print("semcityloc: interrupted", file=sys.stderr)
     return INTERRUPTED
 
@@ -22,11 +37,12 @@ def interrupted() -> int:
 def entry() -> int:
     """The ``semcityloc`` console script: ``cli.main.main`` with the CLI imported inside the ``try``, so a
     Ctrl-C wherever it lands (the imports, the arguments, the work) is one line and exit 130, never a
-    traceback."""
+    traceback; a SIGTERM likewise (``Terminated``), exit 143."""
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         # lazy: the whole CLI (numba, every command) takes over a second to import, so inside the try
         from semcityloc.cli.main import main
 
         return main()
-    except KeyboardInterrupt:
-        return interrupted()
+    except KeyboardInterrupt as exc:
+        return interrupted(exc)

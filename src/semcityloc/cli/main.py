@@ -109,5 +109,5 @@ def main(argv: list[str] | None = None) -> int:
     except SemCityLocError as exc:
         print(f"semcityloc: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        return interrupted()
+    except KeyboardInterrupt as exc:
+        return interrupted(exc)

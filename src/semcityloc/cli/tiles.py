@@ -41,13 +41,19 @@ def run_build(args: argparse.Namespace) -> int:
     ``cli.main``, which prints them as one line).
     """
 
+    shown = []
+
     def progress(message: str) -> None:
+        shown.append(True)
         print(f"\r{message[:100]:<100}", end="", file=sys.stderr, flush=True)
 
-    report = build_store(
-        args.folder, args.out, lod=args.lod, crs=args.crs, progress=progress, overwrite=args.overwrite
-    )
-    print(file=sys.stderr)
+    try:
+        report = build_store(
+            args.folder, args.out, lod=args.lod, crs=args.crs, progress=progress, overwrite=args.overwrite
+        )
+    finally:  # the progress line ends, whatever ends the build (an error, a Ctrl-C: their line follows)
+        if shown:
+            print(file=sys.stderr)
     for why in list(report.skipped.values())[:SHOWN_SKIPPED]:
         print(f"semcityloc: warning: tile left out: {why}", file=sys.stderr)
     if len(report.skipped) > SHOWN_SKIPPED:
