@@ -807,33 +807,27 @@ sys.meta_path.insert(0, Slow())
 """
 
 
-def test_a_real_ctrl_c_during_the_imports_is_one_line_and_exit_130():
-    """A real SIGINT sent while the console script imports the CLI (held open by ``_SLOW_IMPORT`` until
-    the signal comes, so the test does not depend on how long the import takes)."""
-    code = _SLOW_IMPORT + console_script()
+@pytest.mark.parametrize(
+    "sig, code, said",
+    [
+        (signal.SIGINT, 130, "semcityloc: interrupted\n"),
+        (signal.SIGTERM, 143, "semcityloc: terminated (SIGTERM)\n"),
+    ],
+    ids=["ctrl-c", "sigterm"],
+)
+def test_a_real_signal_during_the_imports_is_one_line_and_its_exit_status(sig, code, said):
+    """A real SIGINT (or SIGTERM) sent while the console script imports the CLI (held open by
+    ``_SLOW_IMPORT`` until the signal comes, so the test does not depend on how long the import takes).
+    SIGTERM (``timeout``, a scheduler) ended a command silently with -15, locks and temporary files as they
+    were (batch audit, stop 51): it now unwinds as a Ctrl-C does and says so, exit 143."""
+    script = _SLOW_IMPORT + console_script()
     proc = subprocess.Popen(
-        [sys.executable, "-c", code, "--version"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-c", script, "--version"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
         assert proc.stdout.readline() == "importing\n"
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         out, err = proc.communicate(timeout=120)
     finally:
         proc.kill()
-    assert (proc.returncode, err, out) == (130, "semcityloc: interrupted\n", "")
-
-
-def test_a_sigterm_is_one_line_and_exit_143():
-    """SIGTERM (``timeout``, a scheduler) ended a command silently with -15, locks and temporary files as
-    they were (batch audit, stop 51): it now unwinds as a Ctrl-C does and says so."""
-    code = _SLOW_IMPORT + console_script()
-    proc = subprocess.Popen(
-        [sys.executable, "-c", code, "--version"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-    try:
-        assert proc.stdout.readline() == "importing\n"
-        proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()
-    assert (proc.returncode, err, out) == (143, "semcityloc: terminated (SIGTERM)\n", "")
+    assert (proc.returncode, err, out) == (code, said, "")
