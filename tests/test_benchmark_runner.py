@@ -378,6 +378,17 @@ def test_torn_header_and_bad_files(tmp_path):
         read_results(path)
 
 
+
+def test_a_blank_line_in_the_results_is_no_row(baseline, tmp_path):
+    """A blank line added to ``results.csv`` (an editor's, a concatenation's) stopped both resume and report
+    with "line 14 has 0 fields, not 67: delete that line" (batch audit, stop 51): it holds no row."""
+    text = (baseline.out_dir / RESULTS_FILE).read_text()
+    lines = text.splitlines(keepends=True)
+    path = tmp_path / RESULTS_FILE
+    path.write_text("".join(lines[:2]) + "\n" + "".join(lines[2:]) + "\n")
+    assert differences(read_results(path), csv_rows(baseline.out_dir / RESULTS_FILE)) == []
+
+
 def test_method_registry_and_bad_specs(sim, tmp_path):
     assert set(available_methods()) >= {"semcityloc", "no-coarse", "no-refine", "no-depth"}
     with pytest.raises(BenchmarkError, match="unknown method"):
