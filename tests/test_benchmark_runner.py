@@ -378,7 +378,6 @@ def test_torn_header_and_bad_files(tmp_path):
         read_results(path)
 
 
-
 def test_a_blank_line_in_the_results_is_no_row(baseline, tmp_path):
     """A blank line added to ``results.csv`` (an editor's, a concatenation's) stopped both resume and report
     with "line 14 has 0 fields, not 67: delete that line" (batch audit, stop 51): it holds no row."""
