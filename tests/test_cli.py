@@ -52,6 +52,8 @@ def test_city_info_json_has_the_documented_keys(city_paths, capsys, tmp_path):
 def test_city_info_text_and_convert(city_paths, capsys, tmp_path):
     code, out, _ = run(capsys, "city", "info", city_paths[3], "--no-cache")
     assert code == 0 and "window" in out and "buildings:  80" in out
+    origin = load_city_model(city_paths[3], cache=False).origin  # the frame results.csv's poses are in
+    assert "origin:     " + " ".join(f"{v:.3f}" for v in origin) + "  (world = origin + local)" in out
     code, out, _ = run(capsys, "city", "convert", city_paths[2], tmp_path / "m.ply", "--no-cache")
     assert code == 0 and (tmp_path / "m.ply").stat().st_size > 1000
 

@@ -113,8 +113,8 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def format_summary(s: dict) -> str:
-    """``city info``'s text: a model summary (source, buildings, triangles, CRS, LoDs, extent, per-class
-    triangles and areas, skipped polygons, warnings) as aligned lines.
+    """``city info``'s text: a model summary (source, buildings, triangles, CRS, LoDs, extent, the local
+    frame's origin, per-class triangles and areas, skipped polygons, warnings) as aligned lines.
     """
     dx, dy, dz = s["extent_m"]
     lines = [
@@ -125,6 +125,7 @@ def format_summary(s: dict) -> str:
         + (f"  (file: {s['source_crs']})" if s["source_crs"] != s["crs"] else ""),
         f"LoDs:       {', '.join(map(str, s['lods']))}",
         f"extent:     {dx:.1f} x {dy:.1f} x {dz:.1f} m",
+        "origin:     " + " ".join(f"{v:.3f}" for v in s["origin"]) + "  (world = origin + local)",
         "classes:    name        triangles       area m2",
     ]
     for name, count in s["class_triangles"].items():
