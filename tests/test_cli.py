@@ -17,6 +17,7 @@ from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.cli.main import main
+from semcityloc.errors import IntrinsicsMismatchError
 from semcityloc.io.images import load_depth, load_image, load_labels_png, save_depth, save_labels_png
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
@@ -660,6 +661,12 @@ def test_localize_refuses_intrinsics_of_another_image_than_its_photo(exif_view, 
     np.savetxt(half, np.array([[200.0, 0, 128, 0], [0, 200, 96, 0], [0, 0, 1, 0]]))
     args = argparse.Namespace(intrinsics=str(half), image=str(exif_view["photo"]), width=None, height=None)
     assert _camera(args).camera.size == (256, 192)  # the photo resized: the mask may be of any size
+    # Without --image (stop 51): nothing to hold the K against but the size it is given at
+    no_photo = argparse.Namespace(intrinsics=str(other), image=None, width=512, height=384)
+    with pytest.raises(IntrinsicsMismatchError, match=r"lies 17 % .* \(no --image: the intrinsics' own"):
+        _camera(no_photo)
+    own_size = argparse.Namespace(intrinsics=str(other), image=None, width=None, height=None)
+    assert _camera(own_size).camera.size == (640, 512)
 
 
 def test_render_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tmp_path, capsys):

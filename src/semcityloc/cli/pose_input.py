@@ -11,7 +11,7 @@ from pathlib import Path
 
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
-from semcityloc.geometry.io import read_lens
+from semcityloc.geometry.io import check_fits_photo, read_lens
 from semcityloc.io.images import check_aspect, image_size
 
 
@@ -20,9 +20,13 @@ def read_lens_for_photo(
 ) -> tuple[Camera, LensDistortion]:
     """``read_lens`` of ``--intrinsics`` (at ``--width`` x ``--height`` when given); with ``--image`` the
     intrinsics must describe that photo (``geometry.io.check_fits_photo``: its size or resized, a principal
-    point near the centre) and, resampled, keep its aspect."""
+    point near the centre) and, resampled, keep its aspect; without one, their principal point must lie
+    near the centre of the size they state (a K of another image size, given at a ``--width`` it never
+    had, was taken as it is)."""
     photo = (Path(image).name, *image_size(image, "photo")) if image else None
     camera, distortion = read_lens(intrinsics, width=width, height=height, photo=photo)
     if photo is not None:  # resampled to a --width x --height of another aspect than the photo
         check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", image)
+    else:  # no photo to hold it against: its principal point must still be near its own image's centre
+        check_fits_photo(camera, str(intrinsics), ("(no --image: the intrinsics' own size)", *camera.size))
     return camera, distortion
