@@ -436,3 +436,29 @@ def test_simulation_options_given_to_a_data_set_run_are_refused(dataset_dir, tmp
     err = capsys.readouterr().err
     assert named in err and "options of a simulated benchmark" in err and err.count("\n") == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_dataset_colmap_leaves_names_with_spaces_out_of_text_and_says_so(tmp_path, capsys):
+    """``dataset colmap`` wrote ``DJI 0001.JPG`` into images.txt, which COLMAP reads back as ``DJI`` (its
+    text reader cuts a name at the first space): now left out with one warning; ``--binary`` keeps it."""
+    import argparse
+
+    from semcityloc.cli import dataset as cli
+
+    root = tmp_path / "scene"
+    pose = Pose.from_xyz_rpy([5.0, -3.0, 90.0], 0.5, 1.0, 20.0)
+    qs = [LodLocQuery(name, "scene", CAM, gt_pose_world=pose) for name in ("DJI 0001.JPG", "DJI_0002.JPG")]
+    write_lodloc_scene(root, qs)
+    (root / "Query_image").mkdir()
+    for q in qs:
+        Image.new("RGB", (CAM.width, CAM.height)).save(root / "Query_image" / q.name)
+    (root / "city.obj").write_text(city_obj())
+    parser = argparse.ArgumentParser()
+    cli.register(parser.add_subparsers(dest="command"))
+    for form, kept in (("text", {"DJI_0002.JPG"}), ("binary", {"DJI 0001.JPG", "DJI_0002.JPG"})):
+        argv = ["dataset", "colmap", str(root), "--out", str(tmp_path / form)]
+        args = parser.parse_args(argv + (["--binary"] if form == "binary" else []))
+        assert args.func(args) == 0
+        err = capsys.readouterr().err
+        assert {image.name for image in read_model(tmp_path / form).images.values()} == kept
+        assert ("1 image left out of images.txt" in err and "DJI 0001.JPG" in err) == (form == "text")

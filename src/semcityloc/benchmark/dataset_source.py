@@ -38,6 +38,7 @@ covers LoD-Loc's priors).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -60,7 +61,7 @@ from semcityloc.benchmark.spec import check_run_options
 from semcityloc.citymodel.io import file_sha256
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE
-from semcityloc.datasets.colmap import ColmapModel, write_model
+from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write_model
 from semcityloc.datasets.lodloc import FRAME_AUTO, LodLocDataset, LodLocQuery, read_lodloc
 from semcityloc.errors import (
     BenchmarkError,
@@ -307,7 +308,16 @@ def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Pa
         path = out_dir / ESTIMATES_DIR / f"{query_id(index)}.json"
         if path.is_file():
             entries[q.name] = (q.camera, read_pose(path))
-    return write_model(ColmapModel.from_poses(entries), folder, ext=".txt")
+    unreadable = text_unreadable_names(entries)
+    if unreadable:  # COLMAP's text reader would cut them at their first space; estimates/ holds them
+        print(
+            f"semcityloc: warning: {counted(len(unreadable), 'estimate')} left out of "
+            f"{folder.name}/images.txt (a name with a space): {', '.join(unreadable[:5])}; {ESTIMATES_DIR}/ "
+            "holds every estimate",
+            file=sys.stderr,
+        )
+    kept = {name: entry for name, entry in entries.items() if name not in unreadable}
+    return write_model(ColmapModel.from_poses(kept), folder, ext=".txt")
 
 
 # ---------------------------------------------------------------------------------------------- queries

@@ -43,7 +43,7 @@ from semcityloc.benchmark.runfiles import (
 )
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES
-from semcityloc.datasets.colmap import ColmapModel, write_model
+from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write_model
 from semcityloc.datasets.dji import HEIGHT_AS_IS_NOTE, dji_geotag
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
@@ -373,11 +373,11 @@ def shown_names(names: list[str], shown: int = SHOWN_NAMES) -> str:
 
 def space_split_names(names: list[str]) -> list[str]:
     """The ``names`` that COLMAP's ``images.txt`` and OpenDroneMap's ``geo.txt`` cannot hold: both split a
-    line on white space (COLMAP's ``ReadImagesText`` takes a name up to its first space, so ``my photo.JPG``
-    reads back as ``my``; ODM takes the first token as the name), so a name holding any would read back as
-    another photo's, or as none. Why a list: ``write_exports`` leaves them out of those two files with one
-    warning instead of losing the run's exports to one legal file name."""
-    return [n for n in names if not n or any(c.isspace() for c in n)]
+    line on white space (``datasets.colmap.text_unreadable_names``; ODM takes the first token as the name),
+    so a name holding any would read back as another photo's, or as none. Why a list: ``write_exports``
+    leaves them out of those two files with one warning instead of losing the run's exports to one legal
+    file name."""
+    return text_unreadable_names(names)
 
 
 def left_out_warning(names: list[str], files: list[str]) -> list[str]:

@@ -21,12 +21,13 @@ import numpy as np
 from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
 from semcityloc.benchmark.methods import available_methods
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
+from semcityloc.benchmark.photo_exports import shown_names
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import unreadable_row
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
-from semcityloc.datasets.colmap import ColmapModel, write_model
+from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
 from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
@@ -262,6 +263,14 @@ def run_colmap(args: argparse.Namespace) -> int:
             entries[q.name] = (q.camera, pose)
     if not entries:
         raise InputFileError(f"{ds.root}: no query has a {args.poses} pose")
+    unreadable = [] if args.binary else text_unreadable_names(entries)
+    if unreadable:  # COLMAP would read them back as other names (up to their first space)
+        print(
+            f"semcityloc: warning: {counted(len(unreadable), 'image')} left out of images.txt (COLMAP's text "
+            f"reader cuts a name at its first space): {shown_names(unreadable)}; --binary keeps them",
+            file=sys.stderr,
+        )
+        entries = {name: entry for name, entry in entries.items() if name not in unreadable}
     folder = write_model(ColmapModel.from_poses(entries), args.out, ext=".bin" if args.binary else ".txt")
     print(f"wrote {len(entries)} {args.poses} poses to {folder}")
     return 0

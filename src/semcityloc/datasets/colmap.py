@@ -71,6 +71,13 @@ _PINHOLE_PARTS: dict[str, tuple[int, int, int, int]] = {
 MAX_BINARY_COUNT = 1 << 32
 
 
+def text_unreadable_names(names) -> list[str]:
+    """The ``names`` COLMAP's text reader cannot read back from ``images.txt``: empty, or holding white
+    space (``ReadImagesText`` takes a name up to its first space, so ``my photo.JPG`` reads back as ``my``).
+    The binary format holds any name."""
+    return [n for n in names if not n or any(c.isspace() for c in n)]
+
+
 # ---------------------------------------------------------------------------------------------- records
 @dataclass
 class ColmapCamera:
