@@ -323,6 +323,13 @@ def test_other_arguments_in_the_same_folder_are_refused_unless_overwrite(sim, ba
     assert (out / RESULTS_FILE).read_text() == ",".join(COLUMNS) + "\n"
     # keep_details does not change the numbers: not a mismatch.
     run_benchmark(dataclasses.replace(make_spec(sim, seed=9), keep_details=0), out, progress=False, limit=0)
+    # A run of other arguments holding no row (here seed 9, started and stopped before its first query; the
+    # folders an old version left after a failed setup): nothing to keep, so it is started again, not
+    # refused as "another run" (stop 50's weak list, fixed stop 51).
+    again = run_benchmark(make_spec(sim), out, progress=False, limit=1)
+    assert len(again.rows) == 1 and json.loads((out / "run.json").read_text())["seed"] == 3
+    with pytest.raises(ResumeMismatchError, match="seed"):  # now it holds a row: refused as before
+        run_benchmark(make_spec(sim, seed=9), out, progress=False, limit=0)
 
 
 def test_details_hold_the_query_poses_and_cost_volume(baseline):
