@@ -312,9 +312,9 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
     A ``run.json`` that is there but cannot be read (no permission, a folder, no UTF-8 text) is
     ``read_error`` ("cannot read"), not another run; ``overwrite`` does not read it but replaces it (a
     folder of that name is removed, as ``overwrite`` removes one named like an output). One that reads but
-    is no JSON object is another run's, refused unless ``overwrite``. A run of other arguments that holds no
-    result row (its setup failed, e.g. under a version that left such folders) is started again: nothing of
-    it is lost."""
+    is no JSON object is another run's, refused unless ``overwrite``. A run of other arguments whose
+    ``results.csv`` holds no row (its setup failed, e.g. under a version that left such folders) is started
+    again: nothing of it is lost."""
     out_dir.mkdir(parents=True, exist_ok=True)
     run_file, results = out_dir / RUN_FILE, out_dir / RESULTS_FILE
     mismatch = None
@@ -342,7 +342,7 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
                     "query_names" in changed or changed == {"skipped_photos"}
                 )
                 mismatch = (PHOTOS_DIFFER if folder else "arguments differ: ") + shown
-                if not holds_rows(results):  # it finished no query (a setup that failed): nothing to keep
+                if results.is_file() and not holds_rows(results):  # begun, no query finished: nothing to keep
                     overwrite = True
     elif results.exists() and not run_file.exists():
         mismatch = f"it has a {RESULTS_FILE} but no {RUN_FILE}"
