@@ -718,6 +718,20 @@ def console_script() -> str:
     return f"import sys\nfrom {module} import {func}\nsys.exit({func}())\n"
 
 
+
+def test_output_read_by_a_reader_that_goes_away_ends_quietly(city_paths):
+    """``semcityloc city info ... | head -1`` (or a report piped to a pager closed early) ended in a
+    ``BrokenPipeError`` traceback (docs audit, stop 51): now quietly, exit 141 as other tools end
+    (128 + SIGPIPE)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", console_script(), "city", "info", str(city_paths[2]), "--no-cache"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # the reader is gone before the first line
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141 and "Traceback" not in err and "BrokenPipeError" not in err, err
+
 # Makes the import of the module named by the first argument raise KeyboardInterrupt: a Ctrl-C that lands
 # while the command imports it.
 _CTRL_C_IN_IMPORT = """

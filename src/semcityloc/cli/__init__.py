@@ -8,11 +8,13 @@ module imports next to nothing, and ``entry`` imports the CLI inside its ``try``
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
 INTERRUPTED = 130  # the exit status of a command ended by Ctrl-C (128 + SIGINT), as a shell reports it
 TERMINATED = 143  # ended by SIGTERM (128 + 15): ``timeout``, a scheduler, ``kill``
+READER_GONE = 141  # stdout's reader closed it (``semcityloc ... | head``): 128 + SIGPIPE, as other tools end
 
 
 class Terminated(KeyboardInterrupt):
@@ -37,7 +39,8 @@ def interrupted(exc: BaseException | None = None) -> int:
 def entry() -> int:
     """The ``semcityloc`` console script: ``cli.main.main`` with the CLI imported inside the ``try``, so a
     Ctrl-C wherever it lands (the imports, the arguments, the work) is one line and exit 130, never a
-    traceback; a SIGTERM likewise (``Terminated``), exit 143."""
+    traceback; a SIGTERM likewise (``Terminated``), exit 143; stdout closed by its reader (``| head``) ends
+    quietly with 141, not a ``BrokenPipeError`` traceback."""
     signal.signal(signal.SIGTERM, _terminate)
     try:
         # lazy: the whole CLI (numba, every command) takes over a second to import, so inside the try
@@ -46,3 +49,6 @@ def entry() -> int:
         return main()
     except KeyboardInterrupt as exc:
         return interrupted(exc)
+    except BrokenPipeError:  # the reader of stdout went away (``| head``): end quietly, as ``cat`` does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's flush must not raise
+        return READER_GONE
