@@ -718,7 +718,6 @@ def console_script() -> str:
     return f"import sys\nfrom {module} import {func}\nsys.exit({func}())\n"
 
 
-
 def test_output_read_by_a_reader_that_goes_away_ends_quietly(city_paths):
     """``semcityloc city info ... | head -1`` (or a report piped to a pager closed early) ended in a
     ``BrokenPipeError`` traceback (docs audit, stop 51): now quietly, exit 141 as other tools end
@@ -731,6 +730,7 @@ def test_output_read_by_a_reader_that_goes_away_ends_quietly(city_paths):
     proc.stdout.close()  # the reader is gone before the first line
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141 and "Traceback" not in err and "BrokenPipeError" not in err, err
+
 
 # Makes the import of the module named by the first argument raise KeyboardInterrupt: a Ctrl-C that lands
 # while the command imports it.
