@@ -46,7 +46,13 @@ def main() -> None:
         import ray  # optional extra [ray]: the Ray rows need it
 
         t0 = time.perf_counter()
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, object_store_memory=512 * 1024**2)
+        ray.init(  # a runtime of its own, as the CLI starts one: never a stale or running cluster's
+            address="local",
+            num_cpus=2,
+            include_dashboard=False,
+            log_to_driver=False,
+            object_store_memory=512 * 1024**2,
+        )
         ray.get(ray.remote(lambda: 0).remote())
         ray_startup = time.perf_counter() - t0
         runs += [("ray, 1 worker", "ray", 1), ("ray, 2 workers", "ray", 2)]
