@@ -112,10 +112,14 @@ def test_the_weights_folder_follows_the_cache_root_unless_named(tmp_path, monkey
     assert weights_dir() == tmp_path / "mine"
 
 
-def test_hub_id_heuristic():
+def test_hub_id_heuristic(tmp_path, monkeypatch):
     assert looks_like_hub_id("facebook/dinov3-vits16-pretrain-lvd1689m")
     assert not looks_like_hub_id("/abs/path/model.pt") and not looks_like_hub_id("./a/b")
     assert not looks_like_hub_id("weights")
+    # An owner that is a folder here is a local path (missing), not a hub id to try on the network (stop 51)
+    (tmp_path / "weights").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert not looks_like_hub_id("weights/dinov3-vits16") and looks_like_hub_id("facebook/dinov3-vits16")
 
 
 def test_check_image_and_outputs_validate_shapes():

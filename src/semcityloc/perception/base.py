@@ -145,9 +145,13 @@ def hub_offline() -> bool:
 
 
 def looks_like_hub_id(spec: str) -> bool:
-    """``owner/name`` with no path separators beyond the one slash and no file suffix."""
+    """``owner/name`` with no path separators beyond the one slash, not starting like a path, and whose
+    ``owner`` is no folder here: ``weights/dinov3-vits16`` beside a ``weights/`` folder is a local path that
+    is missing (said at once), not a hub id to try on the network for half a minute."""
     parts = str(spec).split("/")
-    return len(parts) == 2 and all(parts) and not str(spec).startswith((".", "~")) and "\\" not in spec
+    if not (len(parts) == 2 and all(parts) and not str(spec).startswith((".", "~")) and "\\" not in spec):
+        return False
+    return not Path(parts[0]).is_dir()
 
 
 def class_probs_to_output(probs: np.ndarray, classes: tuple[str, ...]) -> SegmentationOutput:

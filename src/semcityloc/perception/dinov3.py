@@ -82,8 +82,9 @@ def load_dinov3_backbone(spec: str | Path | None, out_indices: list[int] | None 
     try:
         config = DINOv3ViTConfig.from_pretrained(where, local_files_only=local or hub_offline())
     except Exception as exc:  # hub client / JSON errors of many types: one line, no hub traceback
+        what = "" if local else "no such folder here, and as a Hugging Face hub id: "
         raise MissingWeightsError(
-            f"{where}: cannot read the DINOv3 config ({_first_line(exc)}); {hint}"
+            f"{where}: {what}cannot read the DINOv3 config ({_first_line(exc)}); {hint}"
         ) from None
     if getattr(config, "model_type", None) != "dinov3_vit":
         raise MissingWeightsError(f"{where}: model_type {config.model_type!r} is not a DINOv3 ViT; {hint}")
