@@ -272,7 +272,7 @@ def test_one_rule_for_same_crs_and_for_a_metric_crs():
     assert check_projected("EPSG:25832+5783", "x").to_epsg() == 25832  # the horizontal part
     assert metric_crs("EPSG:25832+5783", "x").is_compound  # whole
     for name, kind in (("EPSG:4326", "geographic"), ("EPSG:4978", "geocentric")):
-        with pytest.raises(CRSError, match=rf"^the thing must be metric \(projected\), got .* \({kind}\)$"):
+        with pytest.raises(CRSError, match=rf"^the thing must be metric \(projected\), got .* \({kind}\); give"):
             check_projected(name, "the thing")
         with pytest.raises(CRSError, match=kind):
             metric_crs(name, "the thing")
@@ -851,3 +851,25 @@ def test_a_crs_whose_metres_are_not_ground_metres_is_refused(shared):
         x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
         assert ground_scale_problem(crs, x, y) is None
     assert ground_scale_problem(None, 0.0, 0.0) is None  # a local frame: nothing to tell
+
+
+@pytest.mark.parametrize(
+    "crs, said",
+    [
+        ("EPSG:2263", r"must be in metres, got NAD83 / New York Long Island \(ftUS\) in US survey foot"),
+        ("EPSG:4978", r"must be metric \(projected\), got WGS 84 \(geocentric\)"),
+        ("EPSG:5783", r"must be metric \(projected\), got DHHN92 height \(vertical crs\)"),
+    ],
+    ids=["us-feet", "earth-centred", "vertical-only"],
+)
+def test_a_model_crs_in_feet_earth_centred_or_vertical_only_is_refused(tmp_path, crs, said):
+    """NYC's buildings in EPSG:2263 (US survey feet) read as metres: every distance 3.28 times too large;
+    a CityGML or CityJSON given an Earth-centred or a vertical-only CRS rendered (adversarial test, stop 51).
+    One rule for every reader: ``crs.check_projected`` on the model's CRS, naming the file."""
+    from semcityloc.citymodel.io import load_city_model
+
+    from semcityloc.citymodel.generator import generate_city
+
+    path = generate_city(tmp_path, seed=0, lods=(2,))[2]
+    with pytest.raises(CRSError, match=rf"{re.escape(str(path))}: the model's CRS {said}"):
+        load_city_model(path, crs=crs, cache=False)

@@ -239,10 +239,18 @@ def check_projected(crs: pyproj.CRS | str, what: str) -> pyproj.CRS:
     metric?": for a model's coordinates (OBJ, the generated city) and a prior's target CRS alike. Why not
     only "not geographic": an Earth-centred CRS (EPSG:4978) or a local engineering one passes that test,
     and coordinates or a prior put in it are nonsense (x, y geocentric, z the height, a grid convergence
-    of -100 degrees) rather than an error."""
+    of -100 degrees) rather than an error. Its axes must be in metres too: a CRS in US survey feet is
+    projected, and read as metres every distance is 3.28 times too large."""
     parsed = parse_crs_name(crs) if isinstance(crs, str) else crs
     horizontal = horizontal_crs(parsed)
     if horizontal.is_projected:
+        units = {(a.unit_name, a.unit_conversion_factor) for a in horizontal.axis_info}
+        if any(factor != 1.0 for _, factor in units):  # US survey feet (NYC's EPSG:2263): 0.3048... m
+            unit = ", ".join(sorted({name for name, _ in units}))
+            raise CRSError(
+                f"{what} must be in metres, got {parsed.name} in {unit}: every distance would be off by "
+                "that unit; reproject the data to a metric CRS (its UTM zone or national grid in metres)"
+            )
         return horizontal
     kind = (
         "geographic"
@@ -251,7 +259,10 @@ def check_projected(crs: pyproj.CRS | str, what: str) -> pyproj.CRS:
         if horizontal.is_geocentric
         else horizontal.type_name.lower()
     )
-    raise CRSError(f"{what} must be metric (projected), got {parsed.name} ({kind})")
+    raise CRSError(
+        f"{what} must be metric (projected), got {parsed.name} ({kind}); give the projected CRS the "
+        "coordinates are in (--crs EPSG:<code>)"
+    )
 
 
 def metric_crs(name: str, what: str) -> pyproj.CRS:

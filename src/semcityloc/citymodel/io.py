@@ -20,7 +20,7 @@ import numpy as np
 from semcityloc.cache import cache_root
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
-from semcityloc.citymodel.crs import ground_scale_problem, parse_crs_name
+from semcityloc.citymodel.crs import check_projected, ground_scale_problem, parse_crs_name
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.errors import CRSError, InputFileError, UnsupportedFormatError
@@ -180,8 +180,12 @@ def load_city_model(
 
 
 def _checked_scale(model: CityModel, path: Path) -> CityModel:
-    """``model``, unless its CRS is no metric frame at the model (``crs.ground_scale_problem``: Web
-    Mercator, whose metres are 0.61 m in Berlin): then a ``CRSError`` naming the file."""
+    """``model``, unless its CRS is no metric frame at the model: not projected (an Earth-centred or a
+    vertical-only CRS), not in metres (``crs.check_projected``), or with a point scale factor far from 1
+    (``crs.ground_scale_problem``: Web Mercator, whose metres are 0.61 m in Berlin); then a ``CRSError``
+    naming the file."""
+    if model.crs is not None:
+        check_projected(model.crs, f"{path}: the model's CRS")
     centre = model.origin[:2] + model.bounds_local.mean(axis=0)[:2]
     problem = ground_scale_problem(model.crs, float(centre[0]), float(centre[1]))
     if problem is not None:
