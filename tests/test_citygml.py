@@ -272,7 +272,8 @@ def test_one_rule_for_same_crs_and_for_a_metric_crs():
     assert check_projected("EPSG:25832+5783", "x").to_epsg() == 25832  # the horizontal part
     assert metric_crs("EPSG:25832+5783", "x").is_compound  # whole
     for name, kind in (("EPSG:4326", "geographic"), ("EPSG:4978", "geocentric")):
-        with pytest.raises(CRSError, match=rf"^the thing must be metric \(projected\), got .* \({kind}\); give"):
+        message = rf"^the thing must be metric \(projected\), got .* \({kind}\); give"
+        with pytest.raises(CRSError, match=message):
             check_projected(name, "the thing")
         with pytest.raises(CRSError, match=kind):
             metric_crs(name, "the thing")
@@ -866,9 +867,8 @@ def test_a_model_crs_in_feet_earth_centred_or_vertical_only_is_refused(tmp_path,
     """NYC's buildings in EPSG:2263 (US survey feet) read as metres: every distance 3.28 times too large;
     a CityGML or CityJSON given an Earth-centred or a vertical-only CRS rendered (adversarial test, stop 51).
     One rule for every reader: ``crs.check_projected`` on the model's CRS, naming the file."""
-    from semcityloc.citymodel.io import load_city_model
-
     from semcityloc.citymodel.generator import generate_city
+    from semcityloc.citymodel.io import load_city_model
 
     path = generate_city(tmp_path, seed=0, lods=(2,))[2]
     with pytest.raises(CRSError, match=rf"{re.escape(str(path))}: the model's CRS {said}"):
