@@ -360,9 +360,14 @@ def test_a_store_is_not_replaced_without_overwrite_and_a_rebuild_leaves_no_old_t
     assert main(["tiles", "build", str(tiles), "--out", str(store), "--overwrite"]) == 0
     assert [t.name for t in TileStore.open(store).tiles] == ["a.gml"]
     assert sorted(p.name for p in (store / "tiles").iterdir()) == ["00000.npz"]
+    for inside in (tiles, tmp_path):  # --out the tiles' own folder or one above: "no files in it" before
+        assert main(["tiles", "build", str(tiles), "--out", str(inside)]) == 2
+        assert "would hold the tiles it is built from" in capsys.readouterr().err
     (store / "store.json").unlink()  # a build stopped before its index: still refused, said so
     assert main(["tiles", "build", str(tiles), "--out", str(store)]) == 2
     assert "part of a tile store (a build stopped?)" in capsys.readouterr().err
     # ... and given as --city it says so, not "no such city model file or tile store" (batch audit, stop 51)
-    assert main(["benchmark", "--city", str(store), "--queries", "1", "--out", str(tmp_path / "b")]) == 2
-    assert "a tile store whose build stopped before its store.json" in capsys.readouterr().err
+    for argv in (["benchmark", "--city", str(store), "--queries", "1", "--out", str(tmp_path / "b")],
+                 ["city", "info", str(store)]):  # fmt: skip
+        assert main(argv) == 2
+        assert "a tile store whose build stopped before its store.json" in capsys.readouterr().err

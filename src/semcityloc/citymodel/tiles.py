@@ -142,6 +142,11 @@ def build_store(
     folder, root = Path(folder), Path(out)
     if not folder.is_dir():
         raise InputFileError(f"{folder}: no such folder of tiles")
+    if root.resolve() == folder.resolve() or root.resolve() in folder.resolve().parents:
+        raise OutputPathError(
+            f"{root}: the store's folder would hold the tiles it is built from ({folder}); give --out a "
+            "folder beside the tiles"
+        )
     _clear_old_store(root, overwrite)
     inside = root.resolve()
     files = [f for f in tile_files(folder) if inside not in f.resolve().parents]  # not an old store's files
@@ -546,7 +551,10 @@ def load_city(
     path: str | Path, lod: int | str | None = None, crs: str | None = None, cache: bool = True
 ) -> CityModel:
     """A city model file (``citymodel.io.load_city_model``) or a whole store, merged (``lod`` / ``crs``
-    must then be the store's own or unset: ``open_store``)."""
+    must then be the store's own or unset: ``open_store``). A store whose build stopped before its index is
+    named as such (``TileStore.open``), not as "a folder"."""
+    if Path(path).is_dir() and (Path(path) / TILES_DIR).is_dir() and not is_store(path):
+        TileStore.open(path)  # raises, saying the build stopped and how to finish it
     if not is_store(path):
         return load_city_model(path, lod=lod, crs=crs, cache=cache)
     return open_store(path, lod=lod, crs=crs).load_all()
