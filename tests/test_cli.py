@@ -6,6 +6,7 @@ import json
 import signal
 import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 
@@ -854,3 +855,48 @@ def test_a_real_signal_during_the_imports_is_one_line_and_its_exit_status(sig, c
     finally:
         proc.kill()
     assert (proc.returncode, err, out) == (code, said, "")
+
+
+# A command whose work (here a sleep) is interrupted and whose exit then waits for a thread (numba's,
+# Ray's, a pool's): the second Ctrl-C lands in ``threading._shutdown``, after the command said its line.
+_SECOND_CTRL_C_AT_EXIT = """
+import signal, sys, threading, time
+
+signal.signal(signal.SIGINT, signal.default_int_handler)
+import semcityloc.cli
+import semcityloc.cli.main as command
+
+
+def work(argv=None):
+    threading.Thread(target=time.sleep, args=(1.5,)).start()  # not a daemon: the exit waits for it
+    print("working", flush=True)
+    try:
+        time.sleep(60)
+    except KeyboardInterrupt as exc:
+        return semcityloc.cli.interrupted(exc)
+
+
+command.main = work
+sys.exit(semcityloc.cli.entry())
+"""
+
+
+def test_a_second_ctrl_c_while_the_command_exits_is_ignored():
+    """Ctrl-C twice within 20 ms during ``tiles build`` printed ``Exception ignored in: <module
+    'threading'> ... KeyboardInterrupt`` after ``semcityloc: interrupted`` in 5 of 8 tries (adversarial
+    test, stop 51): once the console script has said it, further signals are ignored."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SECOND_CTRL_C_AT_EXIT],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout.readline() == "working\n"
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.5)  # the command has returned; the interpreter waits for the thread
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert (proc.returncode, err) == (130, "semcityloc: interrupted\n")

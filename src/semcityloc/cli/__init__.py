@@ -17,6 +17,9 @@ TERMINATED = 143  # ended by SIGTERM (128 + 15): ``timeout``, a scheduler, ``kil
 READER_GONE = 141  # stdout's reader closed it (``semcityloc ... | head``): 128 + SIGPIPE, as other tools end
 
 
+_CONSOLE = False  # set by ``entry``: this process is the ``semcityloc`` command, its signals are its own
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the command is so that it unwinds as a Ctrl-C does (locks released, temporary
     files removed, the kept work said) instead of dying silently mid-write."""
@@ -28,7 +31,12 @@ def _terminate(signum: int, frame: object) -> None:
 
 def interrupted(exc: BaseException | None = None) -> int:
     """Say in one line on stderr that the command was interrupted (Ctrl-C) or terminated (SIGTERM);
-    returns ``INTERRUPTED`` or ``TERMINATED``."""
+    returns ``INTERRUPTED`` or ``TERMINATED``. In the console script, further signals are ignored from here
+    on: a second Ctrl-C while the interpreter exits printed a ``KeyboardInterrupt`` traceback from
+    ``threading._shutdown`` (a test calling ``main`` in-process keeps its own signals)."""
+    if _CONSOLE:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
     if isinstance(exc, Terminated):
         print("semcityloc: terminated (SIGTERM)", file=sys.stderr)
         return TERMINATED
@@ -41,6 +49,8 @@ def entry() -> int:
     Ctrl-C wherever it lands (the imports, the arguments, the work) is one line and exit 130, never a
     traceback; a SIGTERM likewise (``Terminated``), exit 143; stdout closed by its reader (``| head``) ends
     quietly with 141, not a ``BrokenPipeError`` traceback."""
+    global _CONSOLE
+    _CONSOLE = True
     signal.signal(signal.SIGTERM, _terminate)
     try:
         # lazy: the whole CLI (numba, every command) takes over a second to import, so inside the try
