@@ -270,7 +270,7 @@ def test_label_cli_with_colmap_images_and_cameras(city, tmp_path):
         assert (written != pinhole).mean() > 0.02 and written[0, 0] == IGNORE  # barrel: corners unseen
 
 
-def test_label_cli_reads_a_binary_colmap_model_as_its_text(city, tmp_path):
+def test_label_cli_reads_a_binary_colmap_model_as_its_text(city, tmp_path, capsys):
     """``--poses sparse/0/images.bin`` (what COLMAP and hloc write by default) was read as text: "cannot
     read". Now a binary model, its ``images.bin`` or its folder, labels exactly as the same model in text,
     the camera of each photo taken from ``cameras.bin`` by the image's camera id."""
@@ -300,6 +300,28 @@ def test_label_cli_reads_a_binary_colmap_model_as_its_text(city, tmp_path):
     assert (outputs["bin"][0] != outputs["bin"][1]).any()
     for form in ("bin", "folder"):
         assert all(np.array_equal(a, b) for a, b in zip(outputs[form], outputs["txt"], strict=True))
+    # images.txt beside cameras.bin (a model converted in part) finds its cameras; one image whose pose is
+    # NaN in images.bin leaves its photo out, naming it, where it stopped the batch (adversarial test)
+    (tmp_path / "bin" / "images.txt").write_bytes((tmp_path / "txt" / "images.txt").read_bytes())
+    (tmp_path / "bin" / "images.bin").unlink()
+    args = _label_parser().parse_args(
+        ["label", "--city", str(gml), "--images", str(photos), "--poses",
+         str(tmp_path / "bin" / "images.txt"), "--out", str(tmp_path / "mixed"), "--boundary-px", "0"]
+    )  # fmt: skip
+    assert args.func(args) == 0
+    assert np.array_equal(load_labels_png(tmp_path / "mixed" / "view_0.png"), outputs["txt"][0])
+    sfm.images[2].tvec[:] = np.nan
+    write_model(sfm, tmp_path / "nan", ext=".bin")
+    args = _label_parser().parse_args(
+        ["label", "--city", str(gml), "--images", str(photos), "--poses", str(tmp_path / "nan"),
+         "--out", str(tmp_path / "nan_out"), "--boundary-px", "0"]
+    )  # fmt: skip
+    assert args.func(args) == 0
+    err = capsys.readouterr().err
+    assert "images.bin: image 'view_1.png':" in err and "non-finite" in err
+    assert (tmp_path / "nan_out" / "view_0.png").is_file() and not (
+        tmp_path / "nan_out" / "view_1.png"
+    ).exists()
 
 
 def test_a_json_pose_of_another_crs_is_refused_by_label_and_by_read_pose_world(city, tmp_path, capsys):

@@ -37,7 +37,7 @@ import pyproj
 
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.pose_crs import check_pose_crs, read_pose_world
-from semcityloc.datasets.colmap import ColmapCamera, read_cameras_binary, read_images_binary
+from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, read_cameras_binary, read_images_binary
 from semcityloc.datasets.dji import HEIGHT_AUTO, dji_prior, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
@@ -143,10 +143,11 @@ class PoseFiles:
         self.source = colmap or self.path  # the file the poses are read from (or the LoD-Loc folder)
         self.folder = self.path if colmap is None and self.path.is_dir() else None
         self.entries: dict[str, Pose] = {}
+        self.binary_images: dict[str, ColmapImage] = {}
         self.camera_ids: dict[str, str] = {}
         if colmap is not None and colmap.suffix.lower() == ".bin":
             images = read_images_binary(colmap).values()
-            self.entries = {image.name: image.pose for image in images}
+            self.binary_images = {image.name: image for image in images}  # posed when asked
             self.camera_ids = {image.name: str(image.camera_id) for image in images}
         elif self.folder is None:
             check_pose_crs(self.source, crs)
@@ -162,6 +163,14 @@ class PoseFiles:
                 return read_pose_world(f, self.crs)
             except CRSError as exc:
                 raise PhotoMissing(f"{f}: {exc}") from None
+        if self.binary_images:
+            entry = match_name(self.binary_images, image)
+            if entry is None:
+                return None
+            try:
+                return entry.pose
+            except SemCityLocError as exc:
+                raise PhotoMissing(f"{self.source}: image {entry.name!r}: {exc}") from None
         if list(self.entries) == [""]:
             return self.entries[""]
         return match_name(self.entries, image)
@@ -214,12 +223,11 @@ class IntrinsicsFiles:
             sibling = poses.folder.parent / "intrinsic"
             if sibling.is_dir():
                 return str(sibling)
-        elif poses is not None:
-            sibling = poses.source.parent / f"cameras{poses.source.suffix.lower()}"
-            if sibling.is_file():
-                return str(sibling)
-            if (poses.source.parent / "cameras.txt").is_file():
-                return str(poses.source.parent / "cameras.txt")
+        elif poses is not None:  # the cameras file of the images file's format first, then the other
+            suffixes = dict.fromkeys([poses.source.suffix.lower(), ".bin", ".txt"])
+            for suffix in suffixes:
+                if (poses.source.parent / f"cameras{suffix}").is_file():
+                    return str(poses.source.parent / f"cameras{suffix}")
         raise InputFileError(
             "no --intrinsics given and none found beside the poses (expected cameras.txt or cameras.bin "
             "beside images.txt / images.bin, or an intrinsic/ folder beside the pose folder)"
