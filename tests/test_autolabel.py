@@ -359,6 +359,16 @@ def test_a_json_pose_of_another_crs_is_refused_by_label_and_by_read_pose_world(c
         read_pose_world(single, model.crs, "prior")
     np.testing.assert_allclose(read_pose_world(folder / "utm_pose.txt", model.crs).center, pose.center)
     assert read_pose_world(single, None).center.shape == (3,)  # a model without a CRS cannot check
+    # A crs that is no name, a garbage one, a file with a BOM (adversarial test, stop 51): the first passed
+    # unchecked, the second was refused naming no file, the third was read as a matrix ("non-numeric")
+    data = json.loads(single.read_text())
+    for crs, error, said in ((4326, PoseError, "is no CRS name"), ("garbage!!", CRSError, "the prior's crs")):
+        (tmp_path / "odd.json").write_text(json.dumps({**data, "crs": crs}))
+        with pytest.raises(error, match=f"odd.json: .*{said}"):
+            read_pose_world(tmp_path / "odd.json", model.crs, "prior")
+    (tmp_path / "bom.json").write_bytes(b"\xef\xbb\xbf" + single.read_bytes())
+    with pytest.raises(CRSError, match="the prior is in EPSG:4326"):
+        read_pose_world(tmp_path / "bom.json", model.crs, "prior")
 
 
 def test_label_cli_errors(tmp_path, city):

@@ -27,7 +27,13 @@ def check_pose_crs(spec: str | os.PathLike, model_crs: pyproj.CRS | None, what: 
     _, declared = declared_pose_frame(spec)
     if declared is None or model_crs is None:
         return
-    if not same_horizontal_crs(parse_crs_name(declared), model_crs):
+    try:
+        declared_crs = parse_crs_name(declared)
+    except CRSError as exc:
+        raise CRSError(
+            f"{spec}: the {what}'s crs: {exc}; write the CRS its numbers are in, or leave it out"
+        ) from None
+    if not same_horizontal_crs(declared_crs, model_crs):
         raise CRSError(
             f"the {what} is in {declared} but the model in {crs_label(model_crs)}: convert the {what} "
             "to the model's CRS (pyproj), or give the model the CRS its coordinates are in (--crs)"

@@ -102,7 +102,7 @@ def _load(spec: str | os.PathLike, error: type[SemCityLocError], what: str) -> t
     try:
         if path.stat().st_size > MAX_SPEC_FILE_BYTES:
             raise InputFileError(f"{label}: {path.stat().st_size} bytes is too large for a {what} file")
-        return path.read_text(encoding="utf-8"), label
+        return path.read_text(encoding="utf-8-sig"), label  # a BOM (Windows editors) is no content
     except FileNotFoundError as exc:
         raise InputFileError(f"{label}: no such {what} file") from exc
     except UnicodeDecodeError as exc:
@@ -303,7 +303,9 @@ def declared_pose_frame(spec: str | os.PathLike) -> tuple[str | None, str | None
     if not isinstance(obj, dict):
         return None, None
     frame, crs = obj.get("frame"), obj.get("crs")
-    return (frame if isinstance(frame, str) else None), (crs if isinstance(crs, str) else None)
+    if crs is not None and not isinstance(crs, str):  # {"epsg": 4326}, 4326: a CRS, just not a name
+        raise PoseError(f'{label}: its crs {crs!r} is no CRS name; write it as a string, e.g. "EPSG:25832"')
+    return (frame if isinstance(frame, str) else None), crs
 
 
 def read_poses(spec: str | os.PathLike) -> dict[str, Pose]:
