@@ -391,7 +391,7 @@ def test_a_blank_line_in_the_results_is_no_row(baseline, tmp_path):
     text = (baseline.out_dir / RESULTS_FILE).read_text()
     lines = text.splitlines(keepends=True)
     path = tmp_path / RESULTS_FILE
-    path.write_text("".join(lines[:2]) + "\n" + "".join(lines[2:]) + "\n")
+    path.write_text("".join(lines[:2]) + "\n" + "".join(lines[2:]) + "  \t\n" + "\n")
     assert differences(read_results(path), csv_rows(baseline.out_dir / RESULTS_FILE)) == []
 
 

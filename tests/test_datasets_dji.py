@@ -385,3 +385,15 @@ def test_a_models_coordinates_outside_its_crs_are_told(crs, centre, inside):
     assert (reason is None) == inside, reason
     if not inside:
         assert "its area of use spans x" in reason and "a local frame?" in reason
+
+
+def test_a_geoid_separation_no_conversion_uses_is_said(tmp_path):
+    """``--geoid-separation -15`` with a 2D ``--crs`` left the heights as they were, and the run's only
+    note was that the CRS names no vertical datum (adversarial test, stop 51): the N given is now said
+    unused, with the two ways to apply it; with a compound CRS it applies and nothing is said."""
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
+    plain = dji_prior(meta, "EPSG:25832", geoid_separation_m=47.0)
+    assert dji.GEOID_UNUSED_NOTE in plain.notes and plain.pose.center[2] == pytest.approx(612.5)
+    compound = dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=47.0)
+    assert dji.GEOID_UNUSED_NOTE not in compound.notes
+    assert compound.pose.center[2] == pytest.approx(612.5 - 47.0)

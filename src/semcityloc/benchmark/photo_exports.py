@@ -44,7 +44,7 @@ from semcityloc.benchmark.runfiles import (
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES
 from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write_model
-from semcityloc.datasets.dji import HEIGHT_AS_IS_NOTE, dji_geotag
+from semcityloc.datasets.dji import GEOID_UNUSED_NOTE, HEIGHT_AS_IS_NOTE, dji_geotag
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
@@ -494,7 +494,7 @@ def write_exports(
         details = inp.prior.details
         said = [
             details.get("vertical_flag"),
-            *(n for n in details.get("notes", []) if n == HEIGHT_AS_IS_NOTE),
+            *(n for n in details.get("notes", []) if n in (HEIGHT_AS_IS_NOTE, GEOID_UNUSED_NOTE)),
         ]
         outputs["notes"] += [n for n in said if n and n not in outputs["notes"]]
 

@@ -393,7 +393,7 @@ def _parse_results(data: bytes, path: Path | str, strict: bool) -> tuple[list[di
     repeated = 0
     for values in reader:
         n = reader.line_num  # the file's line (a quoted field may hold a newline)
-        if not values:  # a blank line (an editor's, a concatenation's): no row, nothing lost
+        if not "".join(values).strip():  # a blank line (an editor's, a concatenation's): no row, nothing lost
             continue
         if len(values) != len(header):
             raise BenchmarkError(

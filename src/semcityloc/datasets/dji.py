@@ -120,6 +120,14 @@ class DjiPrior:
             "notes": list(self.notes),
         }
 
+# Said when a geoid separation was given but no height conversion asked for it (a 2D CRS, ``auto``): the
+# user meant it to apply; nothing would show that it did not.
+GEOID_UNUSED_NOTE = (
+    "the geoid separation given (--geoid-separation; in Python: geoid_separation_m) was not used: no height "
+    "conversion was asked for (the model's CRS names no vertical datum); pass a compound CRS (--crs "
+    "EPSG:xxxx+vvvv) or --target-height orthometric to apply it"
+)
+
 
 def source_height_reference(meta: DjiMetadata) -> tuple[str, str]:
     """(reference, why) of ``meta.absolute_altitude_m`` (module docstring)."""
@@ -224,6 +232,8 @@ def dji_prior(
             n_used, applied = float(geoid_separation_m), True
         if applied:
             z, z_reference = h + n_used, "ellipsoidal"
+    if geoid_separation_m is not None and not applied:
+        notes.append(GEOID_UNUSED_NOTE)
 
     horizontal = horizontal_crs(crs)
     group = transformer_group("EPSG:4326", horizontal)
