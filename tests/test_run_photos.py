@@ -1341,3 +1341,18 @@ def test_a_truth_or_prior_changed_after_a_photo_finished_is_told_not_kept(box_fl
         assert float(row["true_world_x"]) == pytest.approx(c2w[0, 3])
     finally:
         truth_file.write_text(original)
+
+
+def test_a_photo_named_with_a_leading_hash_is_left_out_of_geo_txt_only(box_flight, tmp_path, capsys):
+    """``#one.JPG`` went into geo.txt as a line OpenDroneMap reads as a comment: that photo's position
+    silently dropped (adversarial test, stop 51). Now left out of geo.txt with a warning; COLMAP's
+    images.txt (whose lines start with the image id) holds it."""
+    root = box_flight["root"]
+    _rename_photo(root, "P1", "#one")
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], *UTM_49N, "--out", out, "--no-overlays")
+    assert code == 0, err
+    assert "1 localized photo left out of geo.txt (OpenDroneMap reads a line starting with '#'" in err
+    geo = (out / "geo.txt").read_text().splitlines()
+    assert [line.split()[0] for line in geo[1:]] == ["P0.JPG"]
+    assert "#one.JPG" in read_model(out / "colmap").poses()

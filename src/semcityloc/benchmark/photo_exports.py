@@ -533,6 +533,14 @@ def write_exports(
     outputs["colmap"] = str(write_model(colmap, out_dir / COLMAP_DIR, ext=".txt"))
     files = [f"{COLMAP_DIR}/images.txt"] + ([ODM_GEO_FILE] if model.crs is not None else [])
     outputs["warnings"] = left_out_warning(split, files)
+    # ODM reads a geo.txt line that starts with '#' as a comment: a photo so named would lose its place there
+    hashed = [inp.name for inp in found if inp.name.startswith("#") and inp.name not in split]
+    if hashed and model.crs is not None:
+        outputs["warnings"].append(
+            f"{counted(len(hashed), 'localized photo')} left out of {ODM_GEO_FILE} (OpenDroneMap reads a "
+            f"line starting with '#' as a comment): {shown_names(hashed)}; the other exports hold them"
+        )
+    split = split + hashed
 
     if model.crs is None:
         outputs["geotags"] = outputs["geo_txt"] = outputs["geojson"] = None
