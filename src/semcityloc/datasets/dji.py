@@ -120,6 +120,7 @@ class DjiPrior:
             "notes": list(self.notes),
         }
 
+
 # Said when a geoid separation was given but no height conversion asked for it (a 2D CRS, ``auto``): the
 # user meant it to apply; nothing would show that it did not.
 GEOID_UNUSED_NOTE = (
