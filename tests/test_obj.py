@@ -332,3 +332,18 @@ def test_an_exported_obj_keeps_every_building_of_a_block_and_its_exact_origin(sh
         return rows[np.lexsort(rows.T[::-1])]
 
     np.testing.assert_allclose(triangles(back), triangles(model), atol=5e-6)
+
+
+def test_an_exported_obj_whose_object_names_repeat_falls_back_to_connectivity(generated_lod2, tmp_path):
+    """A hand-edited export whose ``o`` lines all say ``BLDG`` came back as one building (every face in one
+    group), without a word (adversarial test, stop 51): repeated names are no building ids, so the
+    buildings come from connectivity, as any OBJ's, and a warning says so."""
+    from semcityloc.citymodel.export import write_obj
+
+    path = write_obj(generated_lod2, tmp_path / "city.obj")
+    lines = path.read_text().splitlines()
+    (tmp_path / "same.obj").write_text("\n".join("o BLDG" if ln.startswith("o ") else ln for ln in lines))
+    same = read_obj(tmp_path / "same.obj")
+    assert "object names repeat in the file: its buildings are taken by connectivity" in same.stats.warnings
+    assert len(same.building_ids) > 1 and same.building_ids[0].startswith("obj_")
+    assert read_obj(path).building_ids == generated_lod2.building_ids

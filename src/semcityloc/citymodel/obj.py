@@ -100,7 +100,10 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     if not len(tris):
         raise EmptyModelError(f"{path}: no face of the OBJ has an area")
 
-    own = mesh.origin is not None and all(mesh.group_objects[g] for g in np.unique(mesh.face_group))
+    named = mesh.origin is not None and all(mesh.group_objects[g] for g in np.unique(mesh.face_group))
+    own = named and not mesh.objects_repeat
+    if named and mesh.objects_repeat:  # hand-edited: two objects of one name would be one building
+        stats.warnings.append("object names repeat in the file: its buildings are taken by connectivity")
     # semcityloc's own export names each building's object: those are the buildings (touching ones, a
     # block's shared walls, would merge by connectivity)
     component = mesh.face_group if own else _components(verts, mesh)
@@ -160,6 +163,7 @@ class _ObjMesh:
     origin: np.ndarray | None = None  # FRAME_HEADER's origin, the file's coordinates being relative to it
     header_crs: str | None = None  # FRAME_HEADER's CRS
     group_objects: tuple[str, ...] = ()  # the ``o`` name of each group id
+    objects_repeat: bool = False  # an ``o`` name given to two objects (their faces joined in one group)
 
 
 def _read_text(path: Path) -> str:
@@ -214,6 +218,8 @@ def _parse(text: str, path: Path) -> _ObjMesh:
     groups: dict[tuple[str, str], int] = {}
     obj_name, group_name = "", ""
     group_id = groups.setdefault((obj_name, group_name), 0)
+    object_names: set[str] = set()
+    objects_repeat = False
     unknown: Counter = Counter()
     face_class: list[int] = []
     material = -1
@@ -263,6 +269,8 @@ def _parse(text: str, path: Path) -> _ObjMesh:
         elif kw in ("o", "g"):
             name = " ".join(parts[1:])
             if kw == "o":
+                objects_repeat = objects_repeat or name in object_names
+                object_names.add(name)
                 obj_name, group_name = name, ""
             else:
                 group_name = name
@@ -288,6 +296,7 @@ def _parse(text: str, path: Path) -> _ObjMesh:
         origin,
         header_crs,
         tuple(name for (name, _), _ in sorted(groups.items(), key=lambda kv: kv[1])),
+        objects_repeat,
     )
     out_of_range = mesh.face_index >= len(vertices)
     if out_of_range.any():
