@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from semcityloc.errors import CameraError, ShapeError
+from semcityloc.errors import ArgumentTypeError, CameraError, ShapeError
 from semcityloc.geometry.camera import Camera
 
 LODLOC_K34 = np.array([[1125.0, 0.0, 320.0, 0.0], [0.0, 1125.0, 256.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
@@ -49,6 +49,10 @@ def test_from_fov_round_trip():
     with pytest.raises(CameraError, match=r"looks like radians.*math.degrees\(1.2\) = 68.8"):
         Camera.from_fov(640, 480, 1.2)  # math.radians(68.8): built a 1.2 degree camera silently
     assert math.isclose(Camera.from_fov(640, 480, 3.2).hfov_deg, 3.2)
+    with pytest.raises(CameraError, match=r"looks like radians \(at most pi\): give degrees in \(0, 180\)$"):
+        Camera.from_fov(640, 480, math.pi)  # suggested math.degrees(pi) = 180.0, itself refused
+    with pytest.raises(ArgumentTypeError, match="must be a number of degrees, got '70'"):
+        Camera.from_fov(640, 480, "70")  # a bare TypeError from the comparison
 
 
 @pytest.mark.parametrize(

@@ -664,7 +664,7 @@ def test_localize_refuses_intrinsics_of_another_image_than_its_photo(exif_view, 
     assert _camera(args).camera.size == (256, 192)  # the photo resized: the mask may be of any size
     # Without --image (stop 51): nothing to hold the K against but the size it is given at
     no_photo = argparse.Namespace(intrinsics=str(other), image=None, width=512, height=384)
-    with pytest.raises(IntrinsicsMismatchError, match=r"lies 17 % .* \(no --image: the intrinsics' own"):
+    with pytest.raises(IntrinsicsMismatchError, match=r"lies 17 % .* \(no --image: the size they are used"):
         _camera(no_photo)
     own_size = argparse.Namespace(intrinsics=str(other), image=None, width=None, height=None)
     assert _camera(own_size).camera.size == (640, 512)

@@ -28,5 +28,5 @@ def read_lens_for_photo(
     if photo is not None:  # resampled to a --width x --height of another aspect than the photo
         check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", image)
     else:  # no photo to hold it against: its principal point must still be near its own image's centre
-        check_fits_photo(camera, str(intrinsics), ("(no --image: the intrinsics' own size)", *camera.size))
+        check_fits_photo(camera, str(intrinsics), ("(no --image: the size they are used at)", *camera.size))
     return camera, distortion

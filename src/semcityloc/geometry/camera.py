@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcityloc.errors import CameraError, ShapeError
+from semcityloc.errors import ArgumentTypeError, CameraError, ShapeError
 
 MAX_SIDE_PX = 100_000  # wider or taller than any camera's sensor: a calibration file's typo or garbage
 # How far a principal point may lie from the image centre, as a share of the image's width / height, before
@@ -79,12 +79,15 @@ class Camera:
         A field of view up to pi "degrees" is refused as radians (``math.radians(70)`` is 1.22: a 1.2 degree
         camera would be built silently, whose views of a city hold one window); the narrowest drone zoom
         lenses are a little below that, and no localizer of this package can use such a view."""
+        if isinstance(hfov_deg, bool) or not isinstance(hfov_deg, (int, float, np.integer, np.floating)):
+            raise ArgumentTypeError(f"horizontal field of view must be a number of degrees, got {hfov_deg!r}")
         if not 0 < hfov_deg < 180:
             raise CameraError(f"horizontal field of view must be in (0, 180) degrees, got {hfov_deg}")
         if hfov_deg <= math.pi:
+            meant = math.degrees(hfov_deg)
             raise CameraError(
-                f"horizontal field of view {hfov_deg} looks like radians (at most pi): give degrees, "
-                f"e.g. math.degrees({hfov_deg}) = {math.degrees(hfov_deg):.1f}"
+                f"horizontal field of view {hfov_deg} looks like radians (at most pi): give degrees"
+                + (f", e.g. math.degrees({hfov_deg}) = {meant:.1f}" if meant < 180 else " in (0, 180)")
             )
         f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
         return cls(f, f, width / 2, height / 2, width, height)
