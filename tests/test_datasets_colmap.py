@@ -159,6 +159,12 @@ def test_broken_files_raise_typed_errors(tmp_path):
         read_cameras_binary(tmp_path / "m" / "cameras.bin")
 
     write_model(sample_model(), tmp_path / "t", ".txt")
+    text_images = (tmp_path / "t" / "images.txt").read_bytes()  # text under a binary name (stop 51): it was
+    (tmp_path / "m" / "images.bin").write_bytes(text_images)  # "implausible number of images (2334385650...)"
+    with pytest.raises(
+        InputFileError, match=r"images.bin: COLMAP text under a binary file's name .* images.txt"
+    ):
+        read_images_binary(tmp_path / "m" / "images.bin")
     (tmp_path / "t" / "cameras.txt").write_text("1 PINHOLE 640 512 1125 1125 320 abc\n")
     with pytest.raises(InputFileError, match="line 1"):
         read_model(tmp_path / "t")

@@ -436,8 +436,16 @@ class _Reader:
 
 
 def _read_bytes(path: Path) -> bytes:
+    """A binary COLMAP file's bytes; one that starts as COLMAP's text files do (``# Camera list``, ``# Image
+    list``, ``# 3D point list``) is named as text under a binary name, not read as a count of billions."""
     try:
-        return path.read_bytes()
+        data = path.read_bytes()
+        if data.startswith((b"# Camera list", b"# Image list", b"# 3D point list")):  # a count never is
+            raise InputFileError(
+                f"{path}: COLMAP text under a binary file's name (it starts with {data[:14].decode()!r}); "
+                f"name it {path.stem}.txt"
+            )
+        return data
     except FileNotFoundError as exc:
         raise InputFileError(f"{path}: no such COLMAP file") from exc
     except OSError as exc:
