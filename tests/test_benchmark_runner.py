@@ -318,8 +318,11 @@ def test_other_arguments_in_the_same_folder_are_refused_unless_overwrite(sim, ba
         run_benchmark(make_spec(sim, seed=9), out, progress=False, limit=0)
     with pytest.raises(ResumeMismatchError, match="method"):
         run_benchmark(dataclasses.replace(make_spec(sim), method="no-depth"), out, progress=False, limit=0)
+    (out / "report").mkdir()  # `semcityloc report OUT`'s default: a report of the rows --overwrite deletes
+    (out / "report" / "report.md").write_text("# old results\n")
     fresh = run_benchmark(make_spec(sim, seed=9), out, overwrite=True, progress=False, limit=0)
     assert fresh.rows == [] and json.loads((out / "run.json").read_text())["seed"] == 9
+    assert not (out / "report").exists()  # it stayed, reporting deleted rows (batch audit, stop 51)
     assert (out / RESULTS_FILE).read_text() == ",".join(COLUMNS) + "\n"
     # keep_details does not change the numbers: not a mismatch.
     run_benchmark(dataclasses.replace(make_spec(sim, seed=9), keep_details=0), out, progress=False, limit=0)

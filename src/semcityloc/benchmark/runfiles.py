@@ -22,6 +22,7 @@ Folder ``DIR`` of a run:
 - a photo run (``semcityloc run``, ``benchmark.photo_spec``): ``poses/<stem>.json`` per photo,
   ``overlays/<stem>.png``, and when every photo is done ``colmap/``, ``geotags.csv``, ``geo.txt``,
   ``cameras.geojson``.
+- ``report/``: not the run's own, but ``semcityloc report RUN``'s default output, a report of these rows.
 
 A run started again with ``overwrite`` deletes all of these (``RUN_OUTPUTS``) before it starts. A write that
 fails mid-run (a full disk) is ``write_error``: one line naming the file; it leaves no temporary file, and a
@@ -63,6 +64,8 @@ ESTIMATES_DIR = "estimates"
 ESTIMATES_COLMAP_DIR = "estimates_colmap"
 POSES_DIR, OVERLAYS_DIR, COLMAP_DIR = "poses", "overlays", "colmap"
 GEOTAGS_FILE, ODM_GEO_FILE, GEOJSON_FILE = "geotags.csv", "geo.txt", "cameras.geojson"
+# ``semcityloc report RUN``'s default output (inside the run): a report of the results --overwrite deletes
+REPORT_DIR = "report"
 # Everything a run writes besides run.json (removed by ``overwrite``).
 RUN_OUTPUTS = (
     RESULTS_FILE,
@@ -76,6 +79,7 @@ RUN_OUTPUTS = (
     GEOTAGS_FILE,
     ODM_GEO_FILE,
     GEOJSON_FILE,
+    REPORT_DIR,
 )
 
 # The key of run.json naming the package source that started the run (``code_fingerprint``).

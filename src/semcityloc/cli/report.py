@@ -8,6 +8,7 @@ from pathlib import Path
 
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.report_html import make_html_report
+from semcityloc.benchmark.runfiles import REPORT_DIR
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     ``cli.main``, which prints them as one line).
     """
     if args.out is None:
-        args.out = str(Path(args.runs[0]) / "report") if len(args.runs) == 1 else "benchmark_report"
+        args.out = str(Path(args.runs[0]) / REPORT_DIR) if len(args.runs) == 1 else "benchmark_report"
     report = make_report(args.runs, args.out, overlays=args.overlays)
     for name, (md, csv_path) in report.tables.items():
         print(f"table {name}: {md} {csv_path}")
