@@ -49,6 +49,7 @@ from semcityloc import __version__
 from semcityloc.benchmark.methods import searched_map
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
+from semcityloc.benchmark.photo_exports import shown_names
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
 from semcityloc.benchmark.results import UNFIT_INPUT, UNREADABLE_INPUT
 from semcityloc.benchmark.runfiles import (
@@ -312,7 +313,7 @@ def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Pa
     if unreadable:  # COLMAP's text reader would cut them at their first space; estimates/ holds them
         print(
             f"semcityloc: warning: {counted(len(unreadable), 'estimate')} left out of "
-            f"{folder.name}/images.txt (a name with a space): {', '.join(unreadable[:5])}; {ESTIMATES_DIR}/ "
+            f"{folder.name}/images.txt (a name with a space): {shown_names(unreadable)}; {ESTIMATES_DIR}/ "
             "holds every estimate",
             file=sys.stderr,
         )

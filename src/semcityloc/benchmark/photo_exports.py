@@ -81,19 +81,15 @@ def ground_z(model: CityModel) -> float:
     return float(np.median(z) + model.origin[2]) if z.size else float(model.origin[2])
 
 
-def _read_record(path: Path) -> dict:
-    """A finished photo's ``poses/<stem>.json`` record (``check_records`` checked it)."""
-    return json.loads(path.read_text(encoding="utf-8"))
-
-
 def _record_status(record: dict) -> object:
     """The status a record states (at its top level when not localized, in ``extra`` with a pose)."""
     return record.get("status", record.get("extra", {}).get("status"))
 
 
-def record_problem(path: Path, name: str) -> str | None:
-    """Why ``path`` is no usable ``poses/<stem>.json`` of photo ``name`` (None when it is): missing, not
-    JSON, no status, another photo's (a copied file), or localized without a pose that reads."""
+def read_record(path: Path, name: str) -> tuple[dict, Pose | None] | str:
+    """Photo ``name``'s ``poses/<stem>.json``: its record and, when localized, its pose; else why it is no
+    usable record (a string): missing, not JSON, no status, another photo's (a copied file), or localized
+    without a pose that reads."""
     if not path.is_file():
         return "no pose file"
     try:
@@ -105,12 +101,21 @@ def record_problem(path: Path, name: str) -> str | None:
     image = record.get("image", record.get("extra", {}).get("image"))
     if image != name:
         return f"is the record of {image!r}"
-    if _record_status(record) == LOCALIZED:
-        try:
-            read_pose(path)
-        except SemCityLocError as exc:
-            return f"localized without a pose that reads ({exc})"
-    return None
+    if _record_status(record) != LOCALIZED:
+        return record, None
+    try:
+        return record, read_pose(path)
+    except SemCityLocError as exc:
+        return f"localized without a pose that reads ({exc})"
+
+
+def redo_remedy(count: int, results: Path) -> str:
+    """How to redo ``count`` finished photos whose rows no longer stand: delete the rows and run again."""
+    one = count == 1
+    return (
+        f"delete {'its row' if one else 'their rows'} from {results} and run again to redo "
+        f"{'it' if one else 'them'} (or --overwrite, which redoes every photo)"
+    )
 
 
 # A flight's priors share an offset when its localized photos moved from them alike (``prior_offset_notes``).
@@ -392,26 +397,29 @@ def left_out_warning(names: list[str], files: list[str]) -> list[str]:
     ]
 
 
-def check_records(out_dir: Path, inputs: list) -> None:
-    """Refuse in one line when a finished photo (every one of ``inputs`` has its row in ``results.csv``
-    when the exports are written) has no ``poses/<stem>.json``: its record (covariance, search, prior) is
-    not in the row, so the exports would lack it (COLMAP without it, the GeoJSON and geotags at its prior
-    as "no result") while the summary counts it. Deleting its row redoes it."""
-    problems = {
-        f"{inp.stem}.json": why
-        for inp in inputs
-        if (why := record_problem(out_dir / POSES_DIR / f"{inp.stem}.json", inp.name)) is not None
-    }
+def check_records(out_dir: Path, inputs: list) -> tuple[dict[str, dict], dict[str, Pose]]:
+    """Every finished photo's record and, of the localized, its pose (``read_record``); refused in one line
+    when one has no usable ``poses/<stem>.json`` (every one of ``inputs`` has its row in ``results.csv``
+    when the exports are written): its record (covariance, search, prior) is not in the row, so the exports
+    would lack it (COLMAP without it, the GeoJSON and geotags at its prior as "no result") while the summary
+    counts it. Deleting its row redoes it."""
+    records, estimates, problems = {}, {}, {}
+    for inp in inputs:
+        got = read_record(out_dir / POSES_DIR / f"{inp.stem}.json", inp.name)
+        if isinstance(got, str):
+            problems[f"{inp.stem}.json"] = got
+            continue
+        records[inp.name], pose = got
+        if pose is not None:
+            estimates[inp.name] = pose
     if problems:
-        one = len(problems) == 1
         shown = shown_names([f"{name}: {why}" for name, why in problems.items()])
-        count = f"{len(problems)} finished {'photo has' if one else 'photos have'}"
-        its = "its row" if one else "their rows"
+        count = f"{len(problems)} finished {'photo has' if len(problems) == 1 else 'photos have'}"
         raise InputFileError(
             f"{out_dir / POSES_DIR}: {count} no usable pose file ({shown}), so no exports were written; "
-            f"delete {its} from {out_dir / RESULTS_FILE} and run again to redo {'it' if one else 'them'} "
-            "(or --overwrite, which redoes every photo)"
+            + redo_remedy(len(problems), out_dir / RESULTS_FILE)
         )
+    return records, estimates
 
 
 # A finished row's prior or truth this far from the current file's (m, deg) was made from another file.
@@ -482,13 +490,7 @@ def write_exports(
     way)."""
     out_dir = Path(out_dir)
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
-    check_records(out_dir, inputs)
-    records, estimates = {}, {}
-    for inp in inputs:
-        path = out_dir / POSES_DIR / f"{inp.stem}.json"
-        records[inp.name] = _read_record(path)
-        if _record_status(records[inp.name]) == LOCALIZED:
-            estimates[inp.name] = read_pose(path)
+    records, estimates = check_records(out_dir, inputs)
     outputs: dict[str, Any] = {"poses": str(out_dir / POSES_DIR), "notes": []}
     for inp in inputs:  # how the priors' heights were treated, said once for the run
         details = inp.prior.details
@@ -540,7 +542,7 @@ def write_exports(
             f"{counted(len(hashed), 'localized photo')} left out of {ODM_GEO_FILE} (OpenDroneMap reads a "
             f"line starting with '#' as a comment): {shown_names(hashed)}; the other exports hold them"
         )
-    split = split + hashed
+    not_in_geo_txt = set(split + hashed)
 
     if model.crs is None:
         outputs["geotags"] = outputs["geo_txt"] = outputs["geojson"] = None
@@ -557,7 +559,7 @@ def write_exports(
             tag = dji_geotag(est, model.crs, shift, target_height, geoid_separation_m)
             accuracy = position_accuracy(records[inp.name].get("extra", {}).get("covariance"))
             rows.append(GeotagRow(inp.name, tag, *(accuracy or (None, None)), source="semcityloc"))
-            if inp.name not in split:
+            if inp.name not in not_in_geo_txt:
                 odm.append((inp.name, tuple((est.center + shift).tolist()), tag))
                 odm_accuracy.append(accuracy)
         else:

@@ -24,7 +24,7 @@ import numpy as np
 
 from semcityloc import __version__
 from semcityloc.benchmark.methods import searched_map
-from semcityloc.benchmark.photo_exports import changed_inputs, shown_names, write_exports
+from semcityloc.benchmark.photo_exports import changed_inputs, redo_remedy, shown_names, write_exports
 from semcityloc.benchmark.photo_focal import calibrated_inputs
 from semcityloc.benchmark.photo_inputs import Resolved
 from semcityloc.benchmark.photo_source import PhotoSource
@@ -208,10 +208,9 @@ class PhotoSpec:
             one = len(changed) == 1
             raise InputFileError(
                 f"{counted(len(changed), 'finished photo')} no longer "
-                f"{'matches its row' if one else 'match their rows'} in {out_dir / RESULTS_FILE} "
+                f"{'matches its row' if one else 'match their rows'} "
                 f"({shown_names([f'{n}: {why}' for n, why in changed.items()])}): the files changed since; "
-                f"delete {'its row' if one else 'their rows'} and run again to redo "
-                f"{'it' if one else 'them'} (or --overwrite, which redoes every photo)"
+                + redo_remedy(len(changed), out_dir / RESULTS_FILE)
             )
         offset = None if self.offset is None else np.asarray(self.offset, dtype=np.float64)
         placed = [inp for inp in inputs if inp.camera is not None and inp.prior is not None]  # exports

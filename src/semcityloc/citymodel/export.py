@@ -88,12 +88,14 @@ def write_obj(model: CityModel, path: str | Path) -> Path:
             fh.write(f"newmtl {name}\nKd {r:.4f} {g:.4f} {b:.4f}\n\n")
     lines = [f"# {_header_comment(model)}", f"mtllib {mtl.name}"]
     lines.extend(f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in model.vertices)
-    for b, name in enumerate(model.building_ids):
-        mine = model.building_index == b
-        lines.append(f"o {name}")
-        for cls in np.unique(model.classes[mine]):
-            lines.append(f"usemtl {CLASS_NAMES[cls]}")
-            faces = model.triangles[mine & (model.classes == cls)] + 1
-            lines.extend(f"f {a} {c} {d}" for a, c, d in faces)
+    order = np.lexsort((model.classes, model.building_index))  # one sort, not a mask per building
+    building, classes, faces = model.building_index[order], model.classes[order], model.triangles[order] + 1
+    for i in range(len(order)):
+        if i == 0 or building[i] != building[i - 1]:
+            lines.append(f"o {model.building_ids[building[i]]}")
+        if i == 0 or building[i] != building[i - 1] or classes[i] != classes[i - 1]:
+            lines.append(f"usemtl {CLASS_NAMES[classes[i]]}")
+        a, c, d = faces[i]
+        lines.append(f"f {a} {c} {d}")
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
     return path

@@ -151,7 +151,7 @@ def load_city_model(
     if fmt == "zip":
         raise UnsupportedFormatError(zip_message(path))
     if fmt == "npz":
-        return _checked_scale(CityModel.load_npz(path), path)
+        return _checked_frame(CityModel.load_npz(path), path)
 
     cache_file = None
     if cache:
@@ -165,11 +165,11 @@ def load_city_model(
             try:
                 model = CityModel.load_npz(cache_file)
                 model.source = str(path)
-                return _checked_scale(model, path)
+                return _checked_frame(model, path)
             except InputFileError:
                 cache_file.unlink(missing_ok=True)
 
-    model = _checked_scale(_read(path, fmt, lod, crs, target_crs, origin), path)
+    model = _checked_frame(_read(path, fmt, lod, crs, target_crs, origin), path)
     if cache_file is not None:
         try:
             cache_file.parent.mkdir(parents=True, exist_ok=True)
@@ -179,7 +179,7 @@ def load_city_model(
     return model
 
 
-def _checked_scale(model: CityModel, path: Path) -> CityModel:
+def _checked_frame(model: CityModel, path: Path) -> CityModel:
     """``model``, unless its CRS is no metric frame at the model: not projected (an Earth-centred or a
     vertical-only CRS), not in metres (``crs.check_projected``), or with a point scale factor far from 1
     (``crs.ground_scale_problem``: Web Mercator, whose metres are 0.61 m in Berlin); then a ``CRSError``

@@ -110,8 +110,9 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     order, building = np.unique(component, return_inverse=True)
     first_face = np.full(len(order), len(component))
     np.minimum.at(first_face, building, np.arange(len(component)))
+    in_file_order = np.argsort(first_face, kind="stable")  # component (index into ``order``) of each rank
     rank = np.empty(len(order), dtype=np.int64)
-    rank[np.argsort(first_face, kind="stable")] = np.arange(len(order))
+    rank[in_file_order] = np.arange(len(order))
     face_building = rank[building]  # numbered in file order
     tri_building = face_building[tri_face]
 
@@ -135,7 +136,7 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     present, tri_index = np.unique(tri_building, return_inverse=True)
     builder = MeshBuilder(stats)
     for n in range(len(present)):
-        group = int(order[np.argsort(first_face, kind="stable")[present[n]]])
+        group = int(order[in_file_order[present[n]]])  # with ``own``, a component is an ``o`` group
         builder.building(mesh.group_objects[group] if own else f"obj_{n}")
     tri_class = mesh.face_class[tri_face]
     stats.classified_by_normal = int(len(np.unique(tri_face[tri_class < 0])))

@@ -21,6 +21,7 @@ import numpy as np
 import pyproj
 
 from semcityloc.citymodel.crs import horizontal_crs
+from semcityloc.citymodel.triangulate import ring_area_xy
 from semcityloc.errors import CRSError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -92,8 +93,7 @@ def cameras_geojson(
         ring = footprint_xy(f.camera, f.pose_world, ground_z)
         xy = _to_output(np.vstack([centre[None, :2], ring]), crs, shift)
         border = xy[1:]
-        x, y = border[:, 0], border[:, 1]
-        if np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y) < 0:  # RFC 7946: counterclockwise
+        if ring_area_xy(border) < 0:  # RFC 7946: an exterior ring winds counterclockwise
             border = border[::-1]
         ring_out = np.vstack([border, border[:1]]).tolist()  # closed ring
         props = {"image": f.name, **f.properties}

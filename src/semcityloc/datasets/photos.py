@@ -302,7 +302,7 @@ class IntrinsicsFiles:
             raise PhotoMissing(f"{self.path}: {exc}") from None
         check_fits_photo(camera, str(self.path), photo)
         _, width, height = photo
-        return (camera if camera.size == (width, height) else camera.scaled(width, height)), lens
+        return camera.scaled(width, height), lens  # at the photo's size (the same camera when it is)
 
 
 @dataclass

@@ -166,12 +166,21 @@ def dji_gimbal_angles(pose: Pose) -> np.ndarray:
     intrinsic 'ZYX'. DJI's parametrisation is gimbal-locked at pitch = ±90 (nadir / zenith): there only
     yaw + roll (nadir) is defined; we return it all as yaw with roll 0. Yaw is wrapped to (-180, 180].
     """
-    R_body = ENU_FROM_NED.T @ pose.R_world_from_cam @ GIMBAL_FROM_CAM.T
+    return _ned_yaw_pitch_roll(pose.R_world_from_cam, GIMBAL_FROM_CAM)
+
+
+def _ned_yaw_pitch_roll(R_world_from_cam: np.ndarray, body_from_cam: np.ndarray) -> np.ndarray:
+    """(..., 3) ``(yaw, pitch, roll)`` in degrees of a body carrying the camera as ``body_from_cam``:
+    ``Rz Ry Rx = ENU_FROM_NED^T @ R_world_from_cam @ body_from_cam^T`` as intrinsic 'ZYX', yaw wrapped to
+    (-180, 180]; at a gimbal lock the whole turn about the vertical is yaw (SciPy's choice, its warning
+    silenced). DJI's and OpenDroneMap's angles differ only in ``body_from_cam``."""
+    R = np.asarray(R_world_from_cam, dtype=np.float64)
+    R_body = ENU_FROM_NED.T @ R @ body_from_cam.T
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Gimbal lock detected")
         ypr = Rotation.from_matrix(R_body.reshape(-1, 3, 3)).as_euler("ZYX", degrees=True)
     ypr[:, 0] = wrap_deg(ypr[:, 0])
-    return ypr.reshape(pose.batch_shape + (3,))
+    return ypr.reshape(R.shape[:-2] + (3,))
 
 
 # ---------------------------------------------------------------------------------------------- ODM
@@ -187,10 +196,4 @@ def odm_angles(R_world_from_cam: np.ndarray) -> np.ndarray:
     the heading of the image top); it is gimbal-locked for a camera looking at the horizon. Yaw is
     wrapped to (-180, 180], measured from the world's y axis (true north when the world is a local ENU).
     """
-    R = np.asarray(R_world_from_cam, dtype=np.float64)
-    R_body = ENU_FROM_NED.T @ R @ ODM_BODY_FROM_CAM.T
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Gimbal lock detected")
-        ypr = Rotation.from_matrix(R_body.reshape(-1, 3, 3)).as_euler("ZYX", degrees=True)
-    ypr[:, 0] = wrap_deg(ypr[:, 0])
-    return ypr.reshape(R.shape[:-2] + (3,))
+    return _ned_yaw_pitch_roll(R_world_from_cam, ODM_BODY_FROM_CAM)
