@@ -165,12 +165,34 @@ def load_depth(path: str | Path) -> np.ndarray:
     return d
 
 
+# Pillow modes of one channel wider than 8 bits (16-bit PNG/TIFF, 32-bit integer, float): a radiometric
+# thermal or multispectral frame. Pillow's own convert("RGB") clips them to 0 or 255.
+WIDE_GREY_MODES = frozenset({"I;16", "I;16L", "I;16B", "I;16N", "I", "F"})
+# The share of the darkest and brightest pixels a wide grey frame's stretch to 8 bits lets saturate.
+STRETCH_PERCENTILES = (0.5, 99.5)
+
+
+def _stretched_rgb(img: Image.Image) -> Image.Image:
+    """An 8-bit RGB image of a one-channel frame wider than 8 bits, stretched between its 0.5th and 99.5th
+    percentiles: a thermal frame's values span a few hundred of 65,536 levels, which a fixed /257 turns
+    into one flat grey; a NaN or infinite pixel becomes black."""
+    values = np.asarray(img, dtype=np.float64)
+    finite = np.isfinite(values)
+    if not finite.any():
+        return Image.new("RGB", img.size)
+    lo, hi = np.percentile(values[finite], STRETCH_PERCENTILES)
+    scaled = (np.where(finite, values, lo) - lo) / max(hi - lo, 1e-12)
+    grey = np.round(np.clip(scaled, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return Image.fromarray(grey, mode="L").convert("RGB")
+
+
 def load_image(path: str | Path, max_width: int | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB; with ``max_width``, a wider photo is shrunk (area filter) to that width, its
-    height in proportion (``scaled_size``)."""
+    height in proportion (``scaled_size``). A one-channel frame of more than 8 bits (16-bit PNG or TIFF,
+    float TIFF) is stretched to 8 bits between its 0.5th and 99.5th percentiles (``_stretched_rgb``)."""
     try:
         with Image.open(path) as img:
-            rgb = img.convert("RGB")
+            rgb = _stretched_rgb(img) if img.mode in WIDE_GREY_MODES else img.convert("RGB")
             if max_width is not None and rgb.width > max_width:
                 rgb = rgb.resize(scaled_size(rgb.width, rgb.height, max_width), Image.Resampling.BOX)
             return np.array(rgb)
