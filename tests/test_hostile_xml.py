@@ -19,7 +19,8 @@ from pathlib import Path
 import pytest
 from lxml import etree
 
-from semcityloc.citymodel.citygml import PARSER_OPTIONS, read_citygml
+from semcityloc.citymodel.citygml import read_citygml
+from semcityloc.citymodel.citygml_xml import PARSER_OPTIONS
 from semcityloc.errors import MalformedXMLError
 
 SECRET = "TOP-SECRET-7f3a9c-DO-NOT-LEAK"

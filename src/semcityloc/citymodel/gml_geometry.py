@@ -2,8 +2,8 @@
 
 Why a module of its own: this is the one place that turns GML coordinate text into numbers, and every
 encoding CityGML writers use (``posList`` with ``srsDimension``, a list of ``pos`` or ``pointProperty``,
-GML2 ``coordinates`` with their own separators) is decoded here to (n, 3) points. The CityGML reader
-(``citymodel.citygml``) walks the city objects and calls ``polygon_rings`` on each Polygon-like element.
+GML2 ``coordinates`` with their own separators) is decoded here to (n, 3) points. The CityGML reader's walk
+(``citymodel.citygml_walk``) calls ``polygon_rings`` on each Polygon-like element of a city object.
 
 Points with two coordinates are refused (``CoordError(two_d=True)``: no heights, the reader counts and skips
 such polygons), as is anything unreadable: a ring missing, a token that is no number, a count of numbers that

@@ -62,7 +62,7 @@ def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
 
 def parse_lod(text: str | None) -> int | str | None:
     """``--lod``'s value for the readers: None, a whole number as an int (``"2"`` -> 2), or a CityJSON
-    refinement as written (``"2.2"``: the CityGML reader refuses it, ``citygml.citygml_lod``).
+    refinement as written (``"2.2"``: the CityGML reader refuses it, ``citygml_lod_choice.citygml_lod``).
 
     Anything that is no LoD (``foo``, ``-1``, ``7``) is a ``ParameterError`` here, for every format, before
     a file is read (it was a ``TypeError`` traceback from the CityGML reader)."""
