@@ -60,6 +60,7 @@ class ModelEdges:
 
     @property
     def lengths(self) -> np.ndarray:
+        """(E,) length of each edge in metres, by which edge points are spread along them."""
         return np.linalg.norm(self.segments[:, 1] - self.segments[:, 0], axis=1)
 
     def subset(self, mask: np.ndarray) -> ModelEdges:

@@ -64,6 +64,7 @@ class SilhouetteMethod:
         self.localizer = SilhouetteLocalizer(map_model, config)
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
+        """The silhouette search on the query's labels alone (its depth is never used)."""
         return self.localizer.localize(
             q.camera,
             q.prior_pose_local,
@@ -105,6 +106,7 @@ class WireframeMethod:
         self.edge_source = "reality"
 
     def quality_for(self, q: QueryRecord) -> str:
+        """The edge-map quality preset: the fixed one, else the one matching the query's seg_quality."""
         if self.edge_quality is not None:
             return self.edge_quality
         return EDGE_QUALITY_FOR_SEG.get(str(q.meta.get("seg_quality", "trained")), "trained")
@@ -119,6 +121,7 @@ class WireframeMethod:
         return self.simulator.simulate(cam, q.true_pose_local, self.quality_for(q), rng, occ)
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
+        """LoD-Loc's wireframe search on the query's simulated edge map (``edge_map``)."""
         return self.localizer.localize(q.camera, q.prior_pose_local, self.edge_map(q))
 
 

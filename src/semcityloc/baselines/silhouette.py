@@ -81,6 +81,7 @@ class SilhouetteLocalizer(Localizer):
         config: LocalizerConfig | None = None,
         prior_uncertainty: PriorUncertainty | None = None,
     ) -> LocalizationResult:
+        """``Localizer.localize`` on the building/background split of ``semantic``, without depth."""
         cfg = replace(config or self.config, no_depth=True)
         return super().localize(
             camera,

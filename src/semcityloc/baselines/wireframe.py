@@ -107,6 +107,7 @@ class WireframeConfig:
             raise ParameterError(f"stage_scales must lie in (0, 1], got {self.stage_scales}")
 
     def as_dict(self) -> dict:
+        """The settings as plain values, for run.json (a changed setting is another run)."""
         return asdict(self)
 
 

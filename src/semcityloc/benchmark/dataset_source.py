@@ -232,9 +232,11 @@ class DatasetSpec:
         self.localizer_config()  # a malformed prior_sigma fails here, before anything loads
 
     def localizer_config(self) -> LocalizerConfig:
+        """The preset with this run's prior sigma; built early so a bad sigma fails before loading."""
         return LocalizerConfig.preset(self.preset).with_prior_sigma(self.prior_sigma)
 
     def load_dataset(self) -> LodLocDataset:
+        """The LoD-Loc data set this spec names (split, stage, frame), read but its model not loaded."""
         return read_lodloc(
             self.dataset,
             city=self.city,
@@ -289,6 +291,7 @@ class DatasetSpec:
         )
 
     def open_source(self, config: dict) -> DatasetSource:
+        """The query source of this run: the data set with its city model loaded."""
         dataset = self.load_dataset()
         return DatasetSource(self, dataset, dataset.load_model())
 
@@ -338,6 +341,7 @@ class DatasetSource:
 
     @property
     def renderer(self) -> Renderer:
+        """The map's renderer, built on first use (and anew in each worker process)."""
         if self._renderer is None:
             self._renderer = Renderer(self.map_model, engine="numba")
         return self._renderer
@@ -350,6 +354,7 @@ class DatasetSource:
         return True
 
     def query(self, index: int) -> BenchmarkQuery:
+        """Query ``index``: given masks, or oracle labels (degraded on request), with its prior."""
         q = self.queries[index]
         spec = self.spec
         camera = working_camera(q.camera)
@@ -417,6 +422,7 @@ class DatasetSource:
         )
 
     def prepare(self, method: Method) -> None:
+        """Nothing to give: a data set's inputs come from its files, not from a simulated reality."""
         return None
 
     def save_estimate(self, out_dir: Path, q: BenchmarkQuery, result: LocalizationResult) -> None:

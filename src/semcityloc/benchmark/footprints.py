@@ -34,6 +34,7 @@ class FootprintGrid:
         return np.clip(ij[:, 1], 0, ny - 1), np.clip(ij[:, 0], 0, nx - 1), ok
 
     def centres(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(N, 2) world x, y of the centres of cells (rows, cols), the inverse of ``cells``."""
         return self.lo + (np.stack([cols, rows], -1) + 0.5) * self.cell
 
 

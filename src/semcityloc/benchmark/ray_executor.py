@@ -78,9 +78,11 @@ class _RayWorker:
         self.worker = make_worker(*worker_args)
 
     def pid(self) -> int:
+        """The actor's process id: which worker process runs its queries (checks, debugging)."""
         return os.getpid()
 
     def run(self, index: int) -> dict[str, str]:
+        """Run query ``index`` in this actor's worker; its result row as the local executor's."""
         return self.worker.run(index)
 
 

@@ -95,11 +95,14 @@ class RunSpec(Protocol):
     keep_details: int
     label: str
 
-    def localizer_config(self) -> LocalizerConfig: ...
+    def localizer_config(self) -> LocalizerConfig:
+        """The localizer settings every query of the run uses."""
 
-    def run_config(self) -> dict: ...
+    def run_config(self) -> dict:
+        """The ``run.json`` content: what makes the run what it is, compared on resume."""
 
-    def open_source(self, config: dict) -> QuerySource: ...
+    def open_source(self, config: dict) -> QuerySource:
+        """The run's query source, from the ``run.json`` content (``config``)."""
 
     def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
         """Add to ``summary`` and write the run's exports once every query has a row."""

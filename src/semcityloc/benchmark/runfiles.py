@@ -436,6 +436,7 @@ class Progress:
             self._draw()
 
     def update(self, n: int = 1) -> None:
+        """Count ``n`` more queries done; the bar is redrawn at most every 0.2 s on a TTY."""
         self.done += n
         now = time.monotonic()
         if self.tty and (now - self._last > 0.2 or self.done >= self.total):
@@ -453,6 +454,7 @@ class Progress:
         self.stream.flush()
 
     def close(self) -> None:
+        """End the bar with one line of what was done, how long it took and the time per query."""
         new = self.done - self.start_done
         elapsed = time.monotonic() - self.t0
         rate = f", {elapsed / new:.2f} s/query" if new else ""

@@ -31,7 +31,8 @@ class QuerySource(Protocol):
 
     def __len__(self) -> int: ...
 
-    def query(self, index: int) -> BenchmarkQuery: ...
+    def query(self, index: int) -> BenchmarkQuery:
+        """Query ``index`` (camera, prior, labels, depth, truth), made when the loop needs it."""
 
     def has_truth(self, index: int) -> bool:
         """Does query ``index`` have a true pose, known without making the query (a query that could not be
@@ -75,6 +76,7 @@ class SimulatedSource:
 
     @property
     def simulator(self):
+        """The query simulator, made on first use (so a source pickles small for workers)."""
         if self._simulator is None:
             self._simulator = self.simulator_factory(self.map_model, self.query_config, self.reality_model)
         return self._simulator
@@ -87,9 +89,11 @@ class SimulatedSource:
         return True
 
     def query(self, index: int) -> BenchmarkQuery:
+        """Query ``index`` as the simulator makes it (deterministic per index and seed)."""
         return self.simulator.query(index)
 
     def prepare(self, method: Method) -> None:
+        """Give a baseline that simulates its own input the perturbed reality the labels show."""
         # Baselines that simulate their own query input (the wireframe's edge map) draw it from the same
         # perturbed reality the query labels come from, not from the exact map.
         attach = getattr(method, "attach_reality", None)
@@ -98,4 +102,5 @@ class SimulatedSource:
             attach(reality.model, reality.renderer.scene)
 
     def save_estimate(self, out_dir: Path, q: BenchmarkQuery, result: LocalizationResult) -> None:
+        """Nothing kept: a simulated query's estimate is in its row and details."""
         return None

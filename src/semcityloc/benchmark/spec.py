@@ -105,6 +105,7 @@ class BenchmarkSpec:
         self.localizer_config()  # a malformed prior_sigma fails here, before anything loads
 
     def localizer_config(self) -> LocalizerConfig:
+        """The preset with this run's prior sigma; built early so a bad sigma fails before loading."""
         return LocalizerConfig.preset(self.preset).with_prior_sigma(self.prior_sigma)
 
     def run_config(self) -> dict:
@@ -150,6 +151,7 @@ class BenchmarkSpec:
         return SimulatedSource(map_model, reality, self.query, self.simulator_factory, tile_store=store)
 
     def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
+        """Nothing to export: a simulated run's results are its rows and summary."""
         return None
 
 

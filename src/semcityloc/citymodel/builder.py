@@ -99,6 +99,7 @@ class MeshBuilder:
 
     @property
     def building_ids(self) -> list[str]:
+        """The building ids in index order (``building`` registers them as polygons arrive)."""
         return list(self._building_index)
 
     def add_polygon(
@@ -164,6 +165,7 @@ class MeshBuilder:
         source: str = "",
         origin: np.ndarray | None = None,
     ) -> CityModel:
+        """The ``CityModel`` of every polygon added: local frame, normals classify unlabelled ones."""
         invalid = self.stats.invalid_coordinate_polygons
         if invalid:
             self.stats.warnings.append(invalid_coordinates_note(invalid))

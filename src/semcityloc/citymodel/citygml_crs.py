@@ -77,6 +77,7 @@ class CRSChoice:
                     self._envelope_sample = np.stack(pts)
 
     def note_srs(self, name: str) -> None:
+        """Record an srsName met in the file; the first one names the CRS, a different later one warns."""
         if name in self._srs_seen:
             return
         self._srs_seen.add(name)

@@ -73,17 +73,20 @@ class _Writer:
         self.hi = np.full(3, -np.inf)
 
     def el(self, parent, ns: str, tag: str, **attrs) -> etree._Element:
+        """A child element ``tag`` in namespace ``ns`` with the given attributes."""
         e = etree.SubElement(parent, f"{{{ns}}}{tag}")
         for k, v in attrs.items():
             e.set(k, v)
         return e
 
     def envelope(self, parent, lo: np.ndarray, hi: np.ndarray) -> None:
+        """A 3D ``gml:Envelope`` of corners ``lo``, ``hi`` in the file's srsName."""
         env = self.el(parent, GML_NS, "Envelope", srsName=self.srs, srsDimension="3")
         self.el(env, GML_NS, "lowerCorner").text = " ".join(_q3(v) for v in lo)
         self.el(env, GML_NS, "upperCorner").text = " ".join(_q3(v) for v in hi)
 
     def polygon(self, parent, pid: str, s: Surface) -> None:
+        """A ``gml:Polygon`` with id ``pid``: exterior and interior rings as 3D posLists."""
         poly = self.el(parent, GML_NS, "Polygon", **{f"{{{GML_NS}}}id": pid})
         ring = self.el(self.el(poly, GML_NS, "exterior"), GML_NS, "LinearRing")
         self.el(ring, GML_NS, "posList", srsDimension="3").text = _pos_list(s.exterior)
@@ -92,10 +95,12 @@ class _Writer:
             self.el(ring, GML_NS, "posList", srsDimension="3").text = _pos_list(hole)
 
     def multi_surface(self, parent, lod: int, pid: str, s: Surface) -> None:
+        """The surface as an ``lodNMultiSurface`` of one polygon (a boundary surface's or an opening's)."""
         ms = self.el(self.el(parent, BLDG_NS, f"lod{lod}MultiSurface"), GML_NS, "MultiSurface")
         self.polygon(self.el(ms, GML_NS, "surfaceMember"), pid, s)
 
     def solid(self, parent, lod: int, bid: str) -> etree._Element:
+        """An ``lodNSolid`` of building ``bid``; returns its exterior shell for surface members."""
         solid = self.el(
             self.el(parent, BLDG_NS, f"lod{lod}Solid"), GML_NS, "Solid", **{f"{{{GML_NS}}}id": f"{bid}_solid"}
         )
@@ -107,9 +112,11 @@ class _Writer:
         )
 
     def xlink(self, shell, pid: str) -> None:
+        """A shell member pointing at polygon ``pid``: the LoD2 solid shares the boundary surfaces'."""
         self.el(shell, GML_NS, "surfaceMember", **{f"{{{XLINK_NS}}}href": f"#{pid}"})
 
     def building(self, fp: Footprint, lod: int, surfaces: list[Surface]) -> None:
+        """One Building at ``lod``: attributes, then LoD1 inline polygons or classed surfaces."""
         member = self.el(self.root, CORE_NS, "cityObjectMember")
         b = self.el(member, BLDG_NS, "Building", **{f"{{{GML_NS}}}id": fp.id})
         pts = np.concatenate([s.exterior for s in surfaces])
@@ -148,6 +155,7 @@ class _Writer:
             self.xlink(shell, pid)
 
     def write(self, path: Path) -> Path:
+        """Write the document to ``path`` atomically (through a .tmp), root Envelope filled in."""
         self.envelope(self.root_env, self.lo, self.hi)
         tmp = path.with_name(path.name + ".tmp")
         etree.ElementTree(self.root).write(

@@ -504,6 +504,7 @@ class _CityJSONReader:
 
     # ------------------------------------------------------------------ driver
     def read(self, target_crs, crs_override, origin=None) -> CityModel:
+        """The document's buildings meshed into a ``CityModel``; an empty result says which LoDs exist."""
         scale, translate = _transform(self.doc, self.path)
         raw = _vertex_array(self.doc["vertices"], "vertices", self.path) * scale + translate
         frame = self._frame(raw, target_crs, crs_override)

@@ -84,6 +84,7 @@ class Footprint:
 
     @property
     def storeys(self) -> int:
+        """Storeys above ground from the eaves height (at least one), for the CityGML attribute."""
         return max(1, int((self.eaves_z - self.ground_z) // STOREY_M))
 
 

@@ -68,10 +68,12 @@ class FootprintPolygon:
 
     @property
     def area(self) -> float:
+        """Area in m² seen from above: the outline's minus its holes' (they wind clockwise)."""
         return ring_area_xy(self.outer) + sum(ring_area_xy(h) for h in self.holes)
 
     @property
     def perimeter(self) -> float:
+        """Length in metres of the outline and every hole's ring."""
         return sum(_ring_length(r) for r in (self.outer, *self.holes))
 
 

@@ -36,6 +36,7 @@ class ParseStats:
     warnings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
+        """The counts and warnings as a plain dict (an npz file's metadata, a tile store's totals)."""
         return {k: v for k, v in self.__dict__.items()}
 
 

@@ -80,6 +80,7 @@ class BuildReport:
 
     @property
     def mb_per_s(self) -> float:
+        """Input MB parsed per second of the build (reported by ``tiles build``)."""
         return self.input_bytes / 1e6 / max(self.seconds, 1e-9)
 
 
@@ -304,6 +305,7 @@ class TileCache:
         self.loads = 0  # tiles read from disk (misses)
 
     def get(self, index: int, load: Callable[[int], CityModel]) -> CityModel:
+        """Tile ``index`` from the cache, else ``load``-ed and kept, evicting the least recently used."""
         if index in self._models:
             self._models.move_to_end(index)
             return self._models[index]
@@ -396,10 +398,12 @@ class TileStore:
 
     @property
     def num_buildings(self) -> int:
+        """How many buildings the store holds, over all its tiles."""
         return len(self.tile_of)
 
     @property
     def tree(self) -> shapely.STRtree:
+        """STRtree of the buildings' xy boxes, built on first use, to find tiles near a point."""
         if self._tree is None:
             b = self.bbox
             boxes = np.full(len(b), None, dtype=object)  # None: a building without triangles, never found
@@ -465,9 +469,11 @@ class TileStore:
         return merge_models(models, source=str(self.root))
 
     def load_all(self) -> CityModel:
+        """Every tile merged into one model (the whole city, in the store's origin)."""
         return self.load(range(len(self.tiles)))
 
     def summary(self) -> dict:
+        """Tiles, buildings, CRS, origin, extent and input size, for ``tiles info`` and ``city info``."""
         lo = np.array([t.extent[:3] for t in self.tiles]).min(0)
         hi = np.array([t.extent[3:] for t in self.tiles]).max(0)
         return {

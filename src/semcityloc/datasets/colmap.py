@@ -199,6 +199,7 @@ class ColmapImage:
 
     @classmethod
     def from_pose(cls, image_id: int, name: str, camera_id: int, pose: Pose) -> ColmapImage:
+        """The image record of ``pose`` (cam_from_world) as COLMAP's qvec (qw >= 0) and tvec."""
         qvec, tvec = colmap_qvec_tvec(pose)
         return cls(image_id, qvec, tvec, camera_id, name)
 
@@ -398,6 +399,7 @@ class _Reader:
         self.path = path
 
     def take(self, fmt: str):
+        """Unpack ``fmt`` at the cursor and advance; a file ending too soon is an InputFileError."""
         size = struct.calcsize(fmt)
         if self.pos + size > len(self.buf):
             raise InputFileError(f"{self.path}: truncated COLMAP binary file (ends at byte {len(self.buf)})")
@@ -406,6 +408,7 @@ class _Reader:
         return values
 
     def array(self, dtype: np.dtype, count: int) -> np.ndarray:
+        """``count`` values of ``dtype`` at the cursor (a copy), refused if the file ends first."""
         size = np.dtype(dtype).itemsize * count
         if self.pos + size > len(self.buf):
             raise InputFileError(f"{self.path}: truncated COLMAP binary file (ends at byte {len(self.buf)})")
@@ -414,12 +417,14 @@ class _Reader:
         return out
 
     def count(self, what: str) -> int:
+        """A uint64 record count, refused when implausibly large (a corrupt file, not an allocation)."""
         (n,) = self.take("<Q")
         if n > MAX_BINARY_COUNT:
             raise InputFileError(f"{self.path}: implausible number of {what} ({n}): corrupt COLMAP file")
         return n
 
     def cstring(self) -> str:
+        """A NUL-terminated UTF-8 string (an image name) at the cursor."""
         end = bytes(self.buf[self.pos :]).find(b"\x00")
         if end < 0:
             raise InputFileError(f"{self.path}: truncated COLMAP binary file (image name without its NUL)")
@@ -431,6 +436,7 @@ class _Reader:
             raise InputFileError(f"{self.path}: image name is not UTF-8: {raw[:40]!r}") from exc
 
     def finish(self) -> None:
+        """Refuse bytes left after the last record (a file of another layout or version)."""
         if self.pos != len(self.buf):
             raise InputFileError(f"{self.path}: {len(self.buf) - self.pos} bytes after the last record")
 

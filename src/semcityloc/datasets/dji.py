@@ -105,6 +105,7 @@ class DjiPrior:
     meta: DjiMetadata | None = None  # what the prior was made from (``prior_uncertainty`` reads its RTK tags)
 
     def as_dict(self) -> dict:
+        """How the prior was derived (CRS, heights, geoid, convergence, notes), for pose files."""
         return {
             "position_crs": self.position_crs.tolist(),
             "crs": self.crs.to_string(),

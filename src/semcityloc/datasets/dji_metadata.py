@@ -73,6 +73,7 @@ class DjiMetadata:
     xmp: dict[str, str] = field(default_factory=dict)
 
     def require(self, *names: str) -> None:
+        """InputFileError naming the fields among ``names`` the photo's metadata lacks."""
         missing = [n for n in names if getattr(self, n) is None]
         if missing:
             raise InputFileError(

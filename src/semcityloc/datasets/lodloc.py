@@ -87,6 +87,7 @@ class LodLocQuery:
 
     @property
     def stem(self) -> str:
+        """The image name without folder and suffix: how masks and depth files are matched to it."""
         return Path(self.name).stem
 
 

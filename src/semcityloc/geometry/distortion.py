@@ -80,9 +80,11 @@ class LensDistortion:
 
     @property
     def is_zero(self) -> bool:
+        """Whether every coefficient is 0, so images need no undistortion."""
         return not any(getattr(self, name) for name in COEFFICIENTS)
 
     def as_dict(self) -> dict[str, float]:
+        """The coefficients under COLMAP's model name ``OPENCV``, for records and exports."""
         return {"model": "OPENCV", **asdict(self)}
 
     # ------------------------------------------------------------------ points

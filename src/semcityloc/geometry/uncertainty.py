@@ -133,9 +133,11 @@ class PriorUncertainty:
         )
 
     def as_dict(self) -> dict:
+        """The sigmas and their source as a plain dict, for run records."""
         return asdict(self)
 
     def describe(self) -> str:
+        """One line for messages: each 1-sigma with its unit, and where it came from."""
         return (
             f"xy {self.xy_m:g} m, z {self.z_m:g} m, yaw {self.yaw_deg:g} deg, roll/pitch "
             f"{self.roll_pitch_deg:g} deg (1 sigma; {self.source})"

@@ -64,6 +64,7 @@ class SearchVolume:
     floor_z: float = -math.inf
 
     def as_dict(self) -> dict:
+        """The half-widths (and a floor, when set) for a result's search record."""
         out = {
             "half_xy_m": self.half_xy_m,
             "half_z_m": self.half_z_m,
@@ -113,6 +114,7 @@ class Sweep:
     hypotheses: int = 0  # cells scored (the lattice plus any extension)
 
     def values(self, axis: int) -> np.ndarray:
+        """The lattice values on ``axis`` (x, y, z, yaw) over the scored index box."""
         return self.origin[axis] + np.arange(self.lo[axis], self.hi[axis] + 1) * self.step[axis]
 
     def state(self, index: np.ndarray) -> np.ndarray:
@@ -127,6 +129,7 @@ class Sweep:
         )
 
     def best(self) -> np.ndarray:
+        """Index in ``scores`` of the best-scoring cell."""
         return np.array(np.unravel_index(int(np.argmax(self.scores)), self.scores.shape))
 
     def score_margin(self) -> float:
@@ -286,6 +289,7 @@ class Beyond:
     hypotheses: int  # ring cells scored
 
     def as_dict(self) -> dict:
+        """Score, state and xy offset of the best cell beyond the volume, for the search record."""
         return {"score": self.score, "state": self.state.tolist(), "offset_xy_m": self.offset_xy_m}
 
 

@@ -76,6 +76,7 @@ class CostVolume:
         )
 
     def as_dict(self) -> dict:
+        """The axes' values and the shape (not the scores), for a query's details file."""
         return {
             "shape": list(self.scores.shape),
             "x": self.x_values.tolist(),

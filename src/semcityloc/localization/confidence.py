@@ -102,6 +102,7 @@ class ConfidenceModel:
     samples: int = 0
 
     def standardise(self, X: np.ndarray) -> np.ndarray:
+        """Features scaled as at fitting, NaN and inf as the mean, clipped at ±CLIP."""
         Z = (np.asarray(X, dtype=np.float64) - np.array(self.mean)) / np.array(self.scale)
         return np.clip(np.where(np.isfinite(Z), Z, 0.0), -CLIP, CLIP)
 
@@ -111,9 +112,11 @@ class ConfidenceModel:
         return 1.0 / (1.0 + np.exp(-z))
 
     def probability(self, result) -> float:
+        """The probability that ``result`` is right, from its features."""
         return float(self.probability_of(features_of(result, self.features)[None])[0])
 
     def as_dict(self) -> dict:
+        """The fitted model as plain values, for the confidence-models JSON file."""
         return asdict(self)
 
 

@@ -53,6 +53,7 @@ class CoarseConfig:
 
     @property
     def hypotheses(self) -> int:
+        """Cells of the coarse lattice (x, y, z, yaw): the poses one coarse sweep scores."""
         return self.n_xy * self.n_xy * self.n_z * self.n_yaw
 
 

@@ -195,6 +195,7 @@ class CovarianceModel:
     floor_sigma: tuple[float, ...]  # (6,) state units
 
     def covariance(self, curvature: np.ndarray) -> np.ndarray:
+        """(6, 6) pose covariance from the score's curvature, scaled and floored as fitted."""
         return pose_covariance(curvature, self.temperature, np.array(self.floor_sigma))
 
 

@@ -63,6 +63,7 @@ class FocalEstimate:
     reason: str | None = None
 
     def as_dict(self) -> dict:
+        """The estimate and its score curve as plain values, for the focal cache and records."""
         return {
             "scale": self.scale,
             "images": self.images,

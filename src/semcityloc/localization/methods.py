@@ -50,7 +50,8 @@ class Method(Protocol):
 
     name: str
 
-    def localize(self, q: QueryRecord) -> LocalizationResult: ...
+    def localize(self, q: QueryRecord) -> LocalizationResult:
+        """The pose of one query (its camera, prior and inputs) as a ``LocalizationResult``."""
 
 
 MethodFactory = Callable[[str, CityModel, LocalizerConfig], Method]

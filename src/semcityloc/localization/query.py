@@ -53,6 +53,7 @@ class Query:
 
     @classmethod
     def from_arrays(cls, labels: np.ndarray, depth: np.ndarray | None, has_openings: bool) -> Query:
+        """A query from a label mask and optional depth, checked; out-of-range labels are IGNORE."""
         labels = np.asarray(labels)
         if labels.ndim != 2 or labels.size == 0:
             raise ShapeError(f"semantic mask must be a non-empty (H, W) array, got shape {labels.shape}")

@@ -127,6 +127,7 @@ class PriorTerm:
     weight: float
 
     def penalty(self, states: np.ndarray) -> np.ndarray:
+        """(N,) penalty of each state (N, 6); components with an infinite sigma add nothing."""
         d = (np.atleast_2d(states) - self.state) / self.sigma
         return self.weight * 0.5 * np.sum(np.where(np.isfinite(d), d * d, 0.0), axis=1)
 

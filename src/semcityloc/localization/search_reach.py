@@ -108,6 +108,7 @@ class MapLayout:
 
     @classmethod
     def of(cls, model: CityModel) -> MapLayout:
+        """The model's building centres, ground and top heights and base points (the reach's checks)."""
         building = np.isin(model.classes, BUILDING_CLASSES)
         corners = model.vertices[model.triangles[building]].astype(np.float64)
         ground_z = float(np.median(corners[:, :, 2].min(1))) if len(corners) else 0.0

@@ -142,6 +142,7 @@ class TiledMethod:
         return method
 
     def localize(self, q: QueryRecord) -> LocalizationResult:
+        """The query localized on the tiles its search can see (``tiles_for``), loaded as needed."""
         unc = getattr(q, "prior_uncertainty", None) or self.config.prior_uncertainty
         self.last_tiles = self.tiles_for(q.camera, q.prior_pose_local, unc)
         return self.method_for(self.last_tiles).localize(q)

@@ -99,7 +99,8 @@ class SegmentationBackend(Protocol):
     name: str
     classes: tuple[str, ...]  # the class names this backend predicts (a subset of CLASS_NAMES)
 
-    def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput: ...
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
+        """Class probabilities and labels of an RGB ``image`` (``name``: the photo's file name)."""
 
 
 @runtime_checkable
@@ -112,7 +113,8 @@ class DepthBackend(Protocol):
 
     name: str
 
-    def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput: ...
+    def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput:
+        """Relative depth and its validity for an RGB ``image`` (``name``: the photo's file name)."""
 
 
 # ---------------------------------------------------------------------------------------------- helpers

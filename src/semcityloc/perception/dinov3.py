@@ -138,6 +138,7 @@ class DINOv3Backbone(nn.Module):
 
     @property
     def backbone_id(self) -> str:
+        """``dinov3:<model>``: which weights the head was trained on, kept in its checkpoint."""
         name = getattr(self.vit.config, "_name_or_path", "") or self.source
         return f"dinov3:{name}"
 
@@ -146,6 +147,7 @@ class DINOv3Backbone(nn.Module):
         return super().train(False)
 
     def forward(self, x):
+        """Tokens (class token first) of the tapped layers and the patch grid (h, w) of ``x``."""
         h, w = x.shape[-2:]
         if h % self.stride or w % self.stride:
             raise ParameterError(f"DINOv3 input sides must be multiples of {self.stride}, got {w}x{h}")

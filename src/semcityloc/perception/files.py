@@ -131,6 +131,7 @@ class FilesSegmentation:
         self.allow_lossy = _flag(allow_lossy, "allow_lossy")
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
+        """The mask file of photo ``name``, resized to the image, as probabilities and labels."""
         img = check_image(image)
         H, W = img.shape[:2]
         path = find_mask(self.where, name, self.allow_lossy)
@@ -170,6 +171,7 @@ class FilesDepth:
         self.where = Path(depth).expanduser()
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput:
+        """The depth file of photo ``name``, resized to the image; non-finite or <= 0 is invalid."""
         img = check_image(image)
         H, W = img.shape[:2]
         path = find_file(self.where, name, DEPTH_SUFFIXES, "depth")

@@ -65,6 +65,7 @@ class DPTSegHead(nn.Module):
         self.head = DPTSemanticSegmentationHead(config)
 
     def forward(self, features, grid):
+        """Class logits from the ViT tokens reassembled on their patch grid (DPT neck, then head)."""
         if grid is None:
             raise ParameterError("a DPT head needs ViT tokens and their patch grid (use a DINOv3 backbone)")
         fused = self.neck(list(features), grid[0], grid[1])
@@ -101,6 +102,7 @@ class FPNSegHead(nn.Module):
         )
 
     def forward(self, features, grid=None):
+        """Class logits at the finest feature's resolution: every level added there, then fused."""
         size = features[0].shape[-2:]
         x = self.lateral[0](features[0])
         for lateral, f in zip(self.lateral[1:], features[1:], strict=True):

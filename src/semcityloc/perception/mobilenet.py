@@ -66,6 +66,7 @@ class InvertedResidual(nn.Module):
         self.conv = nn.Sequential(*layers)
 
     def forward(self, x):
+        """The block's output, with the input added when the shapes allow (stride 1, same width)."""
         return x + self.conv(x) if self.use_res_connect else self.conv(x)
 
 
@@ -148,6 +149,7 @@ class MobileNetV2Backbone(nn.Module):
         return super().train(False)
 
     def forward(self, x):
+        """Feature maps at the tapped layers (``TAPS``), and no patch grid (a CNN has none)."""
         outs = []
         for i, layer in enumerate(self.features):
             x = layer(x)

@@ -159,6 +159,7 @@ class MoGe2Backend:
         self.model = module if module is not None else load_moge2(model, device)
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> DepthOutput:
+        """MoGe-2's depth of ``image`` with the pixels it found valid, and its intrinsics if sane."""
         img = check_image(image)
         H, W = img.shape[:2]
         if self.threads is not None:

@@ -91,14 +91,17 @@ class Segmenter(nn.Module):
 
     @property
     def classes(self) -> tuple[str, ...]:
+        """The class names the head predicts, in logit order (from its checkpoint spec)."""
         return tuple(self.spec["classes"])
 
     @property
     def stride(self) -> int:
+        """The backbone's pixels per feature cell; input sides are multiples of it."""
         return int(self.spec["stride"])
 
     @property
     def input_size(self) -> tuple[int, int]:
+        """The (w, h) training input size, whose pixel count photos are scaled to."""
         w, h = self.spec["input_size"]
         return int(w), int(h)
 
@@ -120,6 +123,7 @@ class Segmenter(nn.Module):
         return out
 
     def forward(self, x):
+        """Logits at the input's size for a normalised batch (frozen backbone, trained head)."""
         feats, grid = self.features(x)
         return self.logits(feats, grid, x.shape[-2:])
 
@@ -280,6 +284,7 @@ class SegmenterBackend:
         self.threads = threads
 
     def predict(self, image: np.ndarray, *, name: str | None = None) -> SegmentationOutput:
+        """The trained segmenter's probabilities of ``image`` mapped to the package's classes."""
         if self.threads is not None:
             torch.set_num_threads(self.threads)
         return class_probs_to_output(self.segmenter.predict_probs(image), self.classes)

@@ -80,6 +80,7 @@ class TrainConfig:
     threads: int | None = None  # torch CPU threads, set when training starts (see module docstring)
 
     def check(self) -> None:
+        """ParameterError naming a setting out of range, before any data is loaded or trained on."""
         if int(self.epochs) < 1 or int(self.batch_size) < 1:
             raise ParameterError(f"epochs and batch_size must be >= 1, got {self.epochs}, {self.batch_size}")
         if not (self.lr > 0 and math.isfinite(self.lr)) or self.weight_decay < 0:
