@@ -11,6 +11,7 @@ import pytest
 from semcityloc.citymodel import io
 from semcityloc.citymodel.generator import generate_city
 from semcityloc.errors import InputFileError, UnsupportedFormatError
+from semcityloc.io import stamps
 
 
 @pytest.fixture(scope="module")
@@ -98,6 +99,8 @@ def test_a_zip_archive_is_refused_naming_the_city_models_inside(lod2, tmp_path):
 
 
 def test_a_file_is_hashed_once_until_it_changes(tmp_path, monkeypatch):
+    # as a file written a while ago: one written within ``RACY_S`` is read each time (test_io_stamps)
+    monkeypatch.setattr(stamps, "RACY_S", 0.0)
     path = tmp_path / "city.gml"
     path.write_bytes(b"<CityModel/>\n")
     first = io.file_sha256(path)

@@ -11,9 +11,11 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import pickle
 import re
 import shutil
+from hashlib import sha256
 from pathlib import Path
 
 import numpy as np
@@ -23,13 +25,13 @@ from PIL import Image
 
 from conftest import shared_file
 from dji_photo import dji_jpeg, xmp_packet
-from semcityloc.benchmark import photo_focal, photo_inputs, photo_source
+from semcityloc.benchmark import photo_focal, photo_source
 from semcityloc.benchmark.dataset_source import oracle_labels, working_camera
 from semcityloc.benchmark.perception_sim import simulate_segmentation
 from semcityloc.benchmark.photo_spec import PhotoSpec
 from semcityloc.benchmark.queries import STREAM_SEG
 from semcityloc.benchmark.report import make_report
-from semcityloc.benchmark.results import COLUMNS, REASON_UNREADABLE, read_results
+from semcityloc.benchmark.results import COLUMNS, REASON_UNREADABLE, read_results, write_rows
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.tiles import TileStore, build_store
@@ -1017,7 +1019,7 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
         raise AssertionError("the focal length was estimated again")
 
     monkeypatch.setattr(photo_focal, "estimate_focal_scale", no_estimate)
-    photo_focal.calibrated_inputs.cache_clear()  # as a new process would: only the disk cache is left
+    photo_focal._calibrated.cache_clear()  # as a new process would: only the disk cache is left
     again = tmp_path / "again"
     code, _, err = run(capsys, *argv, "--masks", root / "masks", "--no-overlays", "--out", again)
     assert code == 0, err
@@ -1037,7 +1039,7 @@ def test_a_flight_of_uncalibrated_photos_gets_its_focal_length(tmp_path, capsys,
     original_backend = photo_source.get_segmentation_backend
     monkeypatch.setattr(photo_source, "get_segmentation_backend", counted)
     monkeypatch.setattr(photo_focal, "estimate_focal_scale", estimate_focal_scale)
-    photo_focal.calibrated_inputs.cache_clear()
+    photo_focal._calibrated.cache_clear()
     backend = ["--seg-backend", "files", "--backend-option", f"masks={root / 'masks'}"]
     code, _, err = run(capsys, *argv, *backend, "--no-cache", "--no-overlays", "--out", tmp_path / "backend")
     assert code == 0, err
@@ -1325,9 +1327,7 @@ def test_a_truth_or_prior_changed_after_a_photo_finished_is_told_not_kept(box_fl
     original = truth_file.read_text()
     c2w = np.loadtxt(truth_file)
     c2w[0, 3] += 3.0  # the truth moved 3 m east
-    np.savetxt(truth_file, c2w)
-    photo_focal.calibrated_inputs.cache_clear()  # as a new process would: the files read again
-    photo_inputs.resolve_inputs.cache_clear()
+    np.savetxt(truth_file, c2w)  # read again in this process too (stop 52: no cache to clear first)
     try:
         code, _, err = run(capsys, *argv)
         assert code == 2 and "1 finished photo no longer matches its row" in err, err
@@ -1341,6 +1341,139 @@ def test_a_truth_or_prior_changed_after_a_photo_finished_is_told_not_kept(box_fl
         assert float(row["true_world_x"]) == pytest.approx(c2w[0, 3])
     finally:
         truth_file.write_text(original)
+
+
+def _drop_rows(out: Path, *names: str) -> None:
+    """``results.csv`` without the rows of photos ``names``: what the remedy of a changed input asks."""
+    write_rows(out / "results.csv", [r for n, r in _rows_by_name(out).items() if n not in names])
+
+
+def _edit_keeping_times(path: Path, edit) -> None:
+    """``edit(path)``, then the file's modification time put back, as ``cp -p`` or an archive restore leave
+    it: a check by modification time alone would take the new file for the old."""
+    before = path.stat()
+    edit(path)
+    os.utime(path, ns=(before.st_atime_ns, before.st_mtime_ns))
+
+
+def test_a_photo_or_mask_changed_after_it_finished_is_told_not_kept(box_flight, tmp_path, capsys):
+    """A mask fixed (or a photo replaced) after its photo finished: the run again kept the old row and pose
+    and exited 0, the fixed file never read (only the prior and truth were compared; fixer, stop 52).
+    Each row keeps the size and SHA-256 of the photo, mask and depth it was made from (``meta_json``, and
+    the pose record): a changed one is refused naming the photo and the file, with the one-row remedy, also
+    when the new file keeps the old one's modification time; deleting those rows redoes them."""
+    root, out = box_flight["root"], tmp_path / "out"
+    argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    kept = json.loads(_rows_by_name(out)["P1.JPG"]["meta_json"])["input_fingerprints"]
+    mask_bytes = (root / "masks" / "P1.png").read_bytes()
+    assert kept["mask"] == {
+        "file": "P1.png",
+        "bytes": len(mask_bytes),
+        "sha256": sha256(mask_bytes).hexdigest(),
+    }
+    assert kept["photo"]["file"] == "P1.JPG" and "depth" not in kept
+    record = json.loads((out / "poses" / "P1.json").read_text())["extra"]
+    assert record["input_fingerprints"] == kept
+    # Nothing changed: the finished run is summarised again, nothing refused.
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+
+    def fix_mask(path: Path) -> None:
+        labels = load_labels_png(path)
+        labels[:40, :40] = IGNORE
+        save_labels_png(labels, path)
+
+    _edit_keeping_times(root / "masks" / "P1.png", fix_mask)
+    _edit_keeping_times(
+        root / "images" / "P0.JPG",
+        lambda p: Image.new("RGB", (CAM.width, CAM.height), (90, 90, 90)).save(p),
+    )
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and "2 finished photos no longer match their rows" in err, err
+    assert "P0.JPG: its photo P0.JPG changed (" in err and "P1.JPG: its mask P1.png changed (" in err
+    assert f"delete their rows from {out / 'results.csv'} and run again" in err and err.count("\n") == 1
+    _drop_rows(out, "P0.JPG", "P1.JPG")
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    now = json.loads(_rows_by_name(out)["P1.JPG"]["meta_json"])["input_fingerprints"]["mask"]
+    assert (
+        now["sha256"]
+        == sha256((root / "masks" / "P1.png").read_bytes()).hexdigest()
+        != kept["mask"]["sha256"]
+    )
+
+
+def test_a_skipped_photo_whose_mask_was_fixed_is_told_not_kept(box_flight, tmp_path, capsys):
+    """A photo skipped because its mask did not read in full, the mask then fixed: the run again kept the
+    ``skipped`` row (the fixed mask never ran) and exited 0. Now refused naming the mask."""
+    masks, out = box_flight["root"] / "masks", tmp_path / "out"
+    data = (masks / "P0.png").read_bytes()  # the photos' aspect: P2's own mask has another
+    (masks / "P2.png").write_bytes(data[: len(data) * 2 // 3])
+    argv = [*box_flight["argv"][: box_flight["argv"].index("--truth")], "--out", out, "--no-overlays"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0 and _rows_by_name(out)["P2.JPG"]["status"] == "skipped", err
+    (masks / "P2.png").write_bytes(data)
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and "1 finished photo no longer matches its row" in err, err
+    assert f"P2.JPG: its mask P2.png changed ({len(data) * 2 // 3} -> {len(data)} bytes)" in err
+    _drop_rows(out, "P2.JPG")
+    code, _, err = run(capsys, *argv)
+    assert code == 0 and _rows_by_name(out)["P2.JPG"]["status"] != "skipped", err
+
+
+def test_rows_of_an_earlier_version_without_fingerprints_resume_and_say_so(box_flight, tmp_path, capsys):
+    """A run folder of a version before stop 52 (no fingerprints in its rows) is not refused for them: its
+    rows are kept, a changed file cannot be noticed for them, and the run says so with the remedy."""
+    out = tmp_path / "out"
+    argv = [*box_flight["argv"], "--out", out, "--no-overlays"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    rows = read_results(out / "results.csv")
+    for row in rows:
+        meta = json.loads(row["meta_json"])
+        meta.pop("input_fingerprints", None)
+        row["meta_json"] = json.dumps(meta, sort_keys=True)
+    write_rows(out / "results.csv", rows)
+    (box_flight["root"] / "masks" / "P1.png").unlink()
+    save_labels_png(np.zeros((CAM.height, CAM.width), np.uint8), box_flight["root"] / "masks" / "P1.png")
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    assert "3 finished photos were run by an earlier version that kept no fingerprints" in err
+    assert f"delete their rows from {out / 'results.csv'} and run again to redo them" in err
+
+
+def test_a_spec_reads_its_files_again_when_they_change_in_one_process(box_flight):
+    """``PhotoSpec.resolved`` was cached per process by the spec alone: a caller that corrected a truth or
+    prior file between two runs in one process got the old one (fixer, stop 52). Now cached while the
+    files it names have the same stamp (``io.stamps``): an edit of the same size, at once, is read."""
+    root = box_flight["root"]
+    spec = _box_spec(root, truth=str(root / "GT_pose"))
+    first = spec.resolved()
+    assert spec.resolved() is first  # unchanged: not read again
+    truth_file = root / "GT_pose" / "P1_pose.txt"
+    c2w = np.loadtxt(truth_file)
+    size = truth_file.stat().st_size
+    c2w[0, 3] += 3.0
+    np.savetxt(truth_file, c2w)
+    assert truth_file.stat().st_size == size
+    again = spec.resolved()
+    moved = center_error_m(again.inputs[1].truth_world, first.inputs[1].truth_world)
+    assert moved == pytest.approx(3.0)
+    (root / "images" / "P1.JPG").unlink()  # a photo gone: the list of photos read again too
+    assert [i.name for i in spec.resolved().inputs] == ["P0.JPG", "P2.JPG"]
+
+
+def test_photos_that_change_while_a_run_starts_are_refused_not_given_other_rows(box_flight):
+    """The inputs are read again when their files change: a photo removed between ``run.json`` and the
+    source's opening would shift every later photo onto another's row; refused in one line instead."""
+    root = box_flight["root"]
+    spec = _box_spec(root, truth=str(root / "GT_pose"))
+    config = spec.run_config()
+    (root / "images" / "P0.JPG").unlink()
+    with pytest.raises(InputFileError, match="changed while this run was starting or running"):
+        spec.open_source(config)
 
 
 def test_a_photo_named_with_a_leading_hash_is_left_out_of_geo_txt_only(box_flight, tmp_path, capsys):

@@ -59,7 +59,6 @@ from semcityloc.benchmark.runfiles import (
     writing,
 )
 from semcityloc.benchmark.spec import check_run_options
-from semcityloc.citymodel.io import file_sha256
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import IGNORE
 from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write_model
@@ -77,6 +76,7 @@ from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import removed_on_error
 from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, scaled_size
+from semcityloc.io.stamps import file_sha256
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
 from semcityloc.localization.methods import Method

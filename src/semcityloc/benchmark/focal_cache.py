@@ -28,9 +28,9 @@ import numpy as np
 
 from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.cache import cache_root
-from semcityloc.citymodel.io import file_sha256
 from semcityloc.errors import ParameterError
 from semcityloc.io.files import write_json_atomic
+from semcityloc.io.stamps import file_sha256
 from semcityloc.localization.focal import FocalEstimate
 
 FORMAT = 1

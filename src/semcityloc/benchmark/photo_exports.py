@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from semcityloc.benchmark.photo_inputs import INPUT_FINGERPRINTS
 from semcityloc.benchmark.results import SKIPPED, row_pose
 from semcityloc.benchmark.runfiles import (
     COLMAP_DIR,
@@ -428,30 +429,93 @@ CHANGED_INPUT_M, CHANGED_INPUT_DEG = 1e-3, 1e-3
 
 def changed_inputs(rows: list[dict[str, str]], inputs: list, model: CityModel) -> dict[str, str]:
     """``{photo: what changed}`` for finished rows whose prior or ground truth is no longer what the
-    current files say (``inputs``: ``photo_inputs.PhotoInput`` by row index). Why: a resume keeps finished
+    current files say, or whose photo, mask or depth file is no longer the one the row was made from
+    (``changed_files``) (``inputs``: ``photo_inputs.PhotoInput`` by row index). Why: a resume keeps finished
     rows, so a corrected ``--truth`` (or a replaced prior) would leave the old errors in the rows and the
-    summary, silently; what a row was made from is in its own columns, so it is compared, not trusted."""
+    summary, and a corrected mask the old pose (or a ``skipped`` row the fixed file never ran), silently;
+    what a row was made from is in its own columns, so it is compared, not trusted."""
     changed = {}
     for row in rows:
         index = int(row["index"])
-        if row.get("status") == SKIPPED or index >= len(inputs):
+        if index >= len(inputs):
             continue
         inp = inputs[index]
-        prior = inp.prior.pose_world if inp.prior is not None else None
-        for what, now_world, prefix in (("prior", prior, "prior"), ("truth", inp.truth_world, "true")):
-            then = row_pose(row, prefix)
-            now = model.pose_to_local(now_world) if now_world is not None else None
-            if then is None and now is None:
-                continue
-            if then is None or now is None:
-                changed[inp.name] = f"its {what} was {'added' if then is None else 'removed'}"
-                break
-            moved = float(center_error_m(now, then))
-            turned = float(rotation_error_deg(now, then))
-            if moved > CHANGED_INPUT_M or turned > CHANGED_INPUT_DEG:
-                changed[inp.name] = f"its {what} moved {moved:.3g} m, turned {turned:.3g} deg"
-                break
+        why = _moved_pose(row, inp, model) if row.get("status") != SKIPPED else None
+        why = why or changed_files(row, inp)
+        if why:
+            changed[inp.name] = why
     return changed
+
+
+def _moved_pose(row: dict[str, str], inp, model: CityModel) -> str | None:
+    """How the photo's prior or truth differs from the one its row was made from; None when neither does."""
+    prior = inp.prior.pose_world if inp.prior is not None else None
+    for what, now_world, prefix in (("prior", prior, "prior"), ("truth", inp.truth_world, "true")):
+        then = row_pose(row, prefix)
+        now = model.pose_to_local(now_world) if now_world is not None else None
+        if then is None and now is None:
+            continue
+        if then is None or now is None:
+            return f"its {what} was {'added' if then is None else 'removed'}"
+        moved = float(center_error_m(now, then))
+        turned = float(rotation_error_deg(now, then))
+        if moved > CHANGED_INPUT_M or turned > CHANGED_INPUT_DEG:
+            return f"its {what} moved {moved:.3g} m, turned {turned:.3g} deg"
+    return None
+
+
+def row_fingerprints(row: dict[str, str]) -> dict | None:
+    """The fingerprints of the files a row was made from (``PhotoInput.fingerprints``, in its
+    ``meta_json``); None for a row written before they were kept (stop 52), which is not compared."""
+    try:
+        meta = json.loads(row.get("meta_json") or "{}")
+    except ValueError:
+        return None
+    found = meta.get(INPUT_FINGERPRINTS) if isinstance(meta, dict) else None
+    return found if isinstance(found, dict) else None
+
+
+def _file_name(*fingerprints: object) -> str:
+    """`` <file name>`` of the first of ``fingerprints`` that names one, for a message; else empty."""
+    names = [f["file"] for f in fingerprints if isinstance(f, dict) and f.get("file")]
+    return f" {names[0]}" if names else ""
+
+
+def _content(fingerprint: object) -> tuple | None:
+    """(size, SHA-256) of a fingerprint; None for a file that did not read."""
+    return (fingerprint.get("bytes"), fingerprint.get("sha256")) if isinstance(fingerprint, dict) else None
+
+
+def changed_files(row: dict[str, str], inp) -> str | None:
+    """How the photo's own files (photo, mask, depth: ``PhotoInput.fingerprints``, size and SHA-256 of the
+    bytes) differ from those its row was made from; None when they are the same, or when the row kept no
+    fingerprints (``row_fingerprints``). By content, not by modification time: a file copied or checked out
+    with the same bytes is the same, one restored with ``cp -p`` or ``git checkout`` with other bytes is
+    not."""
+    then = row_fingerprints(row)
+    if then is None:
+        return None
+    now = inp.fingerprints()
+    for kind in ("photo", "mask", "depth"):
+        if kind not in then and kind not in now:
+            continue
+        name = _file_name(now.get(kind), then.get(kind))
+        if kind not in then or kind not in now:
+            return f"its {kind}{name} was {'added' if kind not in then else 'removed'}"
+        before, after = _content(then[kind]), _content(now[kind])
+        if before == after:
+            continue
+        if before is None or after is None:
+            return f"its {kind}{name} {'reads now' if before is None else 'no longer reads'}"
+        sizes = "same size" if before[0] == after[0] else f"{before[0]} -> {after[0]} bytes"
+        return f"its {kind}{name} changed ({sizes})"
+    return None
+
+
+def unfingerprinted(rows: list[dict[str, str]]) -> int:
+    """How many of ``rows`` kept no fingerprints of their files (``row_fingerprints``: written before
+    stop 52): a file changed since is not noticed for them."""
+    return sum(row_fingerprints(row) is None for row in rows)
 
 
 def camera_features(

@@ -53,10 +53,12 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from semcityloc.benchmark.spec import resolve_city
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import TileStore
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
+    EXIF,
     IntrinsicsFiles,
     PhotoCamera,
     PhotoMissing,
@@ -77,12 +79,17 @@ from semcityloc.io.images import (
     decoded_size_and_orientation,
     image_size,
 )
+from semcityloc.io.stamps import file_fingerprint, paths_stamp
 from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M
 from semcityloc.perception.files import DEPTH_SUFFIXES, find_file, find_mask
 
 if TYPE_CHECKING:
     # for annotations only: ``photo_spec`` imports this module, so importing it back would be a cycle
     from semcityloc.benchmark.photo_spec import PhotoSpec
+
+
+# The key of ``PhotoInput.fingerprints`` in a query's meta (so in its row's ``meta_json``) and its record.
+INPUT_FINGERPRINTS = "input_fingerprints"
 
 
 @dataclass
@@ -110,6 +117,14 @@ class PhotoInput:
     def stem(self) -> str:
         return self.path.stem
 
+    def fingerprints(self) -> dict[str, dict | None]:
+        """``{"photo": fingerprint, "mask": ..., "depth": ...}`` of the photo's own files (those it has;
+        ``io.stamps.file_fingerprint``: name, size and SHA-256, None for one that is no file that reads):
+        what its row was made from, kept in the row (``meta_json``) and compared when the run finishes
+        (``photo_exports.changed_inputs``)."""
+        files = {"photo": self.path, "mask": self.mask, "depth": self.depth}
+        return {kind: file_fingerprint(path) for kind, path in files.items() if path is not None}
+
     def pinhole(self, image: np.ndarray, fill: float, nearest: bool) -> np.ndarray:
         """An array in the photo's geometry (the photo, a mask, a depth map; any resolution) resampled
         onto the pinhole ``camera`` (``geometry.distortion.undistort_image``)."""
@@ -125,11 +140,21 @@ class Resolved(NamedTuple):
     store: TileStore | None  # the ``--city`` tile store, opened once: the localizer's parts per photo
 
 
-@functools.lru_cache(maxsize=2)
+def inputs_stamp(spec: PhotoSpec) -> tuple:
+    """The stamp of every file and folder ``spec`` names (``io.stamps.paths_stamp``: the photos, masks,
+    depth, priors, truth and intrinsics, the city file or store, a backend option that is a path), taken
+    before they are read: the key of the resolved inputs' cache in a process
+    (``photo_focal.calibrated_inputs``), so that a file changed between two runs is read again."""
+    named = [spec.images, spec.masks, spec.depth, spec.truth, *(v for _, v in spec.backend_options)]
+    named += [p for p in (spec.priors, spec.intrinsics) if p != EXIF]
+    return paths_stamp([*named, resolve_city(spec.city)])
+
+
 def resolve_inputs(spec: PhotoSpec) -> Resolved:
     """``spec``'s model and every photo of its folder found and checked (module docstring): the photos that
     run (with a miss of the truth among them, ``PhotoInput.unreadable``), ``{name: why not}`` of the others,
-    and the tile store (None for a file); the focal lengths as the intrinsics state them (``photo_focal``)."""
+    and the tile store (None for a file); the focal lengths as the intrinsics state them (``photo_focal``).
+    Read anew at each call (``photo_focal.calibrated_inputs`` keeps it while the files are unchanged)."""
     model, store = spec.load_model()
     offset = None if spec.offset is None else np.asarray(spec.offset, dtype=np.float64)
     priors = PriorFiles(spec.priors, model.crs, offset, spec.target_height, spec.geoid_separation_m)

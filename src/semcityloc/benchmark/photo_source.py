@@ -10,9 +10,11 @@ the run's segmentation and depth backends (built once per process), on the pinho
 file that fails only when read in full (a truncated body, class ids a lossy format made) is found when its
 photo's turn comes: ``PhotoSource.query`` returns that photo not accepted, with the reason, and the run loop
 records it as ``skipped`` (its row, its ``poses/<stem>.json`` record, the summary's ``skipped_photos``) and
-goes on with the others; its row stays on resume (the file fixed, deleting that line of ``results.csv``
-redoes the photo). A photo with a true pose is a miss of the run instead, as is one whose own input was
-found unreadable before the run (``PhotoInput.unreadable``).
+goes on with the others; its row stays on resume (the file fixed, the run refuses that row when it
+finishes, ``photo_exports.changed_inputs``; deleting that line of ``results.csv`` redoes the photo). A
+photo with a true pose is a miss of the run instead, as is one whose own input was found unreadable before
+the run (``PhotoInput.unreadable``). Every query's meta holds the fingerprints of the photo's files, taken
+before they are read (``PhotoInput.fingerprints``): its row's ``meta_json`` and its record keep them.
 
 Outputs (``runfiles``): ``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level
 when localized, in ``geometry.io.pose_to_dict``'s layout, and the result record, prior, uncertainty and
@@ -31,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from semcityloc.benchmark.found_map import FoundMaps
-from semcityloc.benchmark.photo_inputs import PhotoInput
+from semcityloc.benchmark.photo_inputs import INPUT_FINGERPRINTS, PhotoInput
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.results import (
     SKIP_REASON,
@@ -124,8 +126,11 @@ class PhotoSource:
         full, so that the run records it and goes on (module docstring)."""
         inp = self.inputs[index]
         cam = inp.camera
+        # What the row is made from, fingerprinted before it is read (a file changed while it is read is
+        # then one that changed since: refused when the run finishes, ``photo_exports.changed_inputs``).
+        files = {INPUT_FINGERPRINTS: inp.fingerprints()}
         if inp.unreadable is not None:  # checked before the run: a miss of the truth (module docstring)
-            return self._query(index, None, None, {UNREADABLE_INPUT: inp.unreadable})
+            return self._query(index, None, None, {**files, UNREADABLE_INPUT: inp.unreadable})
         seg, dep = self.backends()
         try:
             photo, labels, depth = self._read_files(inp, seg is not None or dep is not None)
@@ -134,8 +139,10 @@ class PhotoSource:
             # unreadable or unfit with a true pose: a miss of the run, else skipped (module docstring)
             if inp.truth_world is not None:
                 unfit = isinstance(exc, ShapeError)
-                return self._query(index, blank, None, {UNREADABLE_INPUT: str(exc), UNFIT_INPUT: unfit})
-            return self._query(index, blank, None, {"accepted": False, SKIP_REASON: str(exc)})
+                return self._query(
+                    index, blank, None, {**files, UNREADABLE_INPUT: str(exc), UNFIT_INPUT: unfit}
+                )
+            return self._query(index, blank, None, {**files, "accepted": False, SKIP_REASON: str(exc)})
         if photo is not None:
             photo = inp.pinhole(photo, fill=0, nearest=False)
         if labels is not None:
@@ -150,7 +157,7 @@ class PhotoSource:
             depth = dep.predict(photo, name=inp.name).masked()
             check_aspect(depth.shape, cam.width, cam.height, "depth", inp.name)
             depth = np.where(unseen_by_photo(depth.shape, cam, inp.distortion), np.nan, depth)
-        return self._query(index, labels, depth)
+        return self._query(index, labels, depth, files)
 
     def _read_files(
         self, inp: PhotoInput, need_photo: bool
@@ -209,8 +216,9 @@ class PhotoSource:
         ``crs_offset`` and ``offset_crs`` instead, as ``dataset dji-prior --offset`` writes no label)."""
         return None if self.spec.offset is not None else crs_label(self.map_model.crs)
 
-    def record(self, inp: PhotoInput, result: LocalizationResult) -> dict:
-        """What ``poses/<stem>.json`` says besides the pose: the result, the prior, its uncertainty."""
+    def record(self, inp: PhotoInput, result: LocalizationResult, files: dict | None = None) -> dict:
+        """What ``poses/<stem>.json`` says besides the pose: the result, the prior, its uncertainty, and the
+        fingerprints of the photo's files it was made from (``files``: ``PhotoInput.fingerprints``)."""
         model = self.map_model
         crs = self.pose_crs()
         record = result.to_dict(model.origin, crs)
@@ -227,6 +235,7 @@ class PhotoSource:
             prior=pose_to_dict(prior.pose_world, crs=crs, extra=prior.details) if prior is not None else None,
             prior_source=prior.source if prior is not None else None,
             prior_uncertainty=inp.uncertainty.as_dict(),  # what the localizer searched
+            input_fingerprints=files,
         )
         return record
 
@@ -235,7 +244,7 @@ class PhotoSource:
         one (its files could not be read) gets its record alone."""
         inp = self.inputs[q.index]
         model = self.map_model
-        record = self.record(inp, result)
+        record = self.record(inp, result, (q.meta or {}).get(INPUT_FINGERPRINTS))
         folder = out_dir / POSES_DIR
         folder.mkdir(exist_ok=True)
         estimate = result.pose_local if result.localized else None

@@ -12,7 +12,11 @@ photos (``benchmark.photo_focal``), and the photos are the queries of ``benchmar
 for ``benchmark.run.run_queries``. When no photo is left that can be localized, the run stops in one line
 ("no photo can be localized") with the first reasons. When every photo is done, the summary counts the
 photos and says why any were skipped, and the exports of ``benchmark.photo_exports`` are written (COLMAP
-model, geotag CSV, OpenDroneMap ``geo.txt``, GeoJSON).
+model, geotag CSV, OpenDroneMap ``geo.txt``, GeoJSON), once the finished rows are checked against the files
+as they are now (``photo_exports.changed_inputs``: a changed prior, truth, photo, mask or depth is refused
+naming the photo, with the one-row remedy). ``resolved`` is read again when a file the spec names changed
+(``photo_focal.calibrated_inputs``), and a run whose photos changed while it ran is refused
+(``same_photos``), not given another photo's rows.
 """
 
 from __future__ import annotations
@@ -24,7 +28,13 @@ import numpy as np
 
 from semcityloc import __version__
 from semcityloc.benchmark.methods import searched_map
-from semcityloc.benchmark.photo_exports import changed_inputs, redo_remedy, shown_names, write_exports
+from semcityloc.benchmark.photo_exports import (
+    changed_inputs,
+    redo_remedy,
+    shown_names,
+    unfingerprinted,
+    write_exports,
+)
 from semcityloc.benchmark.photo_focal import calibrated_inputs
 from semcityloc.benchmark.photo_inputs import Resolved
 from semcityloc.benchmark.photo_source import PhotoSource
@@ -187,8 +197,21 @@ class PhotoSpec:
             }
         )
 
+    def same_photos(self, inputs: list, config: dict) -> None:
+        """Refuse, in one line, inputs that are not the photos of ``config`` (``run.json``'s
+        ``query_names``): the folder changed while the run ran (the inputs are read again when their files
+        change, ``photo_focal.calibrated_inputs``), so a row's index would name another photo."""
+        names = config.get("query_names")
+        if names is not None and [inp.name for inp in inputs] != list(names):
+            raise InputFileError(
+                f"{self.images}: the photos (or the files that decide which can run) changed while this "
+                f"run was starting or running ({len(names)} photos to run then, {len(inputs)} now): run "
+                "the command again"
+            )
+
     def open_source(self, config: dict) -> PhotoSource:
         model, inputs, _, store = self.resolved()
+        self.same_photos(inputs, config)
         source = PhotoSource(self, model, inputs)
         source.tile_store = store
         source.backends()  # weights missing or wrong: said now, before the first photo
@@ -198,6 +221,7 @@ class PhotoSpec:
         """The photo counts and reasons in the summary (``skipped_photos``: those skipped before the run
         and those whose files failed when read, ``skipped`` rows); the exports (``photo_exports``)."""
         model, inputs, skipped, _ = self.resolved()
+        self.same_photos(inputs, summary.get("config", {}))
         summary["mode"] = "photos"
         summary["perception"] = self.perception()
         summary["photos"] = len(inputs) + len(skipped)
@@ -217,3 +241,10 @@ class PhotoSpec:
         summary["outputs"] = write_exports(
             out_dir, model, placed, offset, self.target_height, self.geoid_separation_m
         )
+        if old := unfingerprinted(rows):  # rows of an earlier version: said, not refused
+            summary["outputs"]["notes"].append(
+                f"{counted(old, 'finished photo')} {'was' if old == 1 else 'were'} run by an earlier "
+                "version that kept no fingerprints of their photo, mask and depth files, so a file changed "
+                f"since is not noticed for {'it' if old == 1 else 'them'} (a changed prior or truth is): "
+                + redo_remedy(old, out_dir / RESULTS_FILE)
+            )

@@ -11,7 +11,6 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
-import os
 import zipfile
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from semcityloc.citymodel.crs import check_projected, ground_scale_problem, pars
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.obj import read_obj
 from semcityloc.errors import CRSError, InputFileError, UnsupportedFormatError
+from semcityloc.io.stamps import file_sha256
 
 # Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
 # before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope; 3: the stats
@@ -97,27 +97,6 @@ def sniff_format(path: Path) -> str:
             "source to .npz (exact) or .obj instead"
         )
     raise UnsupportedFormatError(f"{path}: not CityGML, CityJSON or OBJ (starts with {head[:40]!r})")
-
-
-# (resolved path, device, inode, size, mtime in ns) -> the file's hex SHA-256, so that the several users of
-# a city's identity in one process (the parsed-model cache, run.json, the focal cache) read it once.
-_SHA256_SEEN: dict[tuple, str] = {}
-
-
-def file_sha256(path: str | Path) -> str:
-    """Hex SHA-256 of a file's bytes, read in 1 MiB chunks (cache keys, run provenance); a file hashed
-    before in this process and unchanged since (same inode, size and modification time) is not read
-    again."""
-    st = os.stat(path)
-    key = (str(Path(path).resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
-    if key in _SHA256_SEEN:
-        return _SHA256_SEEN[key]
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    _SHA256_SEEN[key] = h.hexdigest()
-    return _SHA256_SEEN[key]
 
 
 def load_city_model(

@@ -38,10 +38,11 @@ import shapely
 from semcityloc.citymodel.builder import choose_origin
 from semcityloc.citymodel.crs import horizontal_crs, parse_crs_name, same_crs
 from semcityloc.citymodel.ground import base_points, store_ring
-from semcityloc.citymodel.io import MODEL_SUFFIXES, file_sha256, load_city_model, sniff_format
+from semcityloc.citymodel.io import MODEL_SUFFIXES, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
 from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
 from semcityloc.errors import CRSError, EmptyModelError, InputFileError, OutputPathError
+from semcityloc.io.stamps import file_sha256
 
 STORE_FORMAT = 1
 INDEX_FILE = "store.json"
