@@ -123,7 +123,8 @@ def test_best_on_the_edge_at_the_bound_is_refused(city, localizer, renderer):
     # The warning says which edge, how far was searched and what to state: a volume from twice that bound.
     (said,) = [w for w in result.warnings if "edge at its largest extent" in w]
     assert "z- edge" in said and "z +-12 m" in said
-    assert said.endswith("--prior-sigma z=8 or correct the prior") and result.search["edge_sigma"] == {"z": 8}
+    assert said.endswith("prior_uncertainty=PriorUncertainty.parse('z=8') or correct the prior")
+    assert result.search["edge_sigma"] == {"z": 8}
     again = localizer.localize(CAMERA, prior, labels, depth, prior_uncertainty=PriorUncertainty(z_m=8.0))
     assert again.status == LOCALIZED, again.reason
     assert center_error_m(again.pose_local, true) < 1.0
@@ -177,7 +178,8 @@ def test_a_refusal_says_when_a_view_beyond_the_volume_scores_higher(city, locali
     assert hinted.reason == REASON_LOW_CONFIDENCE and hinted.search["beyond"]["higher"]
     assert center_error_m(hinted.found_pose_local, true) < 1.0  # the refused pose is kept
     (said,) = [w for w in hinted.warnings if w.startswith(BEYOND_WARNING)]
-    assert "beyond the searched +-30 m" in said and "run again with --prior-sigma xy=20" in said
+    assert "beyond the searched +-30 m" in said
+    assert "run again with prior_uncertainty=PriorUncertainty.parse('xy=20')" in said
     assert hinted.search["beyond"]["sigma"] == {"xy": 20}
     off = replace(cfg, cascade=replace(cfg.cascade, beyond=replace(cfg.cascade.beyond, enabled=False)))
     assert "beyond" not in localizer.localize(CAMERA, prior, labels, depth, config=off).search

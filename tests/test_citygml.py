@@ -584,8 +584,8 @@ def test_unparseable_srsname_is_a_crs_error_naming_it(tmp_path):
     )
     with pytest.raises(CRSError, match="urn:example:crs:nonsense") as err:
         read_citygml(path)
-    # The hint names the option users have (load_city_model's crs=, the CLI's --crs), not an internal one.
-    assert "--crs" in str(err.value) and "crs_override" not in str(err.value)
+    # The hint names the option users have (crs=; the CLI prints --crs), not an internal one.
+    assert "pass crs='EPSG:....'" in str(err.value) and "crs_override" not in str(err.value)
     assert read_citygml(path, crs_override="EPSG:25833").num_triangles == 12
 
 
@@ -750,7 +750,9 @@ def test_a_geographic_crs_for_metre_coordinates_is_refused_naming_them(tmp_path)
     file. A file in degrees under the same CRS reads."""
     metres = _polygon_member(f"{X0} {Y0} 10 {X0 + 9} {Y0} 10 {X0 + 9} {Y0 + 7} 10")
     path = _write(tmp_path, _city([_building("B", metres)]))
-    with pytest.raises(CRSError, match=r"no degrees, but 'WGS 84' is geographic.*\(--crs: 'EPSG:4326'\)"):
+    with pytest.raises(
+        CRSError, match=r"no degrees, but 'WGS 84' is geographic.*\(given as crs='EPSG:4326'\)"
+    ):
         read_citygml(path, crs_override="EPSG:4326")
     wrong = _write(tmp_path, _city([_building("B", metres)], srs="EPSG:4326"), "wrong.gml")
     with pytest.raises(CRSError, match=r"\(the file's srsName: 'EPSG:4326'\)"):
@@ -767,7 +769,7 @@ def test_a_crs_override_that_moves_the_files_coordinates_is_said(tmp_path):
     metres = _polygon_member(f"{X0} {Y0} 10 {X0 + 9} {Y0} 10 {X0 + 9} {Y0 + 7} 10")
     path = _write(tmp_path, _city([_building("B", metres)]))  # urn:ogc:def:crs:EPSG::25833
     moved = read_citygml(path, crs_override="EPSG:25832")
-    assert any("--crs EPSG:25832 overrides the CRS the file states" in w for w in moved.stats.warnings)
+    assert any("crs='EPSG:25832' overrides the CRS the file states" in w for w in moved.stats.warnings)
     for same in ("EPSG:25833", "EPSG:25833+7837"):
         assert not any("overrides" in w for w in read_citygml(path, crs_override=same).stats.warnings)
 

@@ -551,8 +551,8 @@ def test_localize_help_names_the_backend_options_that_exist():
 def test_backend_options_are_key_value_pairs_each_given_once():
     """``--backend-option``: ``localize`` dropped one without ``=`` silently and both commands let a key
     given twice win last; one parser now refuses both, for ``localize`` and ``run`` alike."""
+    from semcityloc.cli.localize import parse_backend_options
     from semcityloc.errors import ParameterError
-    from semcityloc.perception.registry import parse_backend_options
 
     assert parse_backend_options(["head=a=b", "threads=2"]) == (("head", "a=b"), ("threads", "2"))
     with pytest.raises(ParameterError, match="KEY=VALUE, got 'threads'"):

@@ -24,7 +24,7 @@ from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_ex
 from semcityloc.datasets.dji_metadata import parse_xmp_fields, read_dji_metadata
 from semcityloc.datasets.geodesy import GEOID_UNDULATION_BOUND_M, grid_convergence_deg
 from semcityloc.datasets.lodloc import read_lodloc
-from semcityloc.errors import CRSError, InputFileError, ParameterError
+from semcityloc.errors import CRSError, InputFileError, ParameterError, as_flags
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.errors import rotation_error_deg
 from semcityloc.geometry.uncertainty import RTK_FLOOR_M, PriorUncertainty
@@ -107,14 +107,16 @@ def test_orthometric_target_applies_the_geoid_or_says_it_did_not(tmp_path):
             dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=bad)
 
 
-def test_the_geoid_not_applied_flag_names_the_cli_flag_and_the_python_keyword(tmp_path, monkeypatch):
-    """The flag told CLI users to "pass geoid_separation_m", a keyword they cannot type: it names
-    ``--geoid-separation`` (``run``, ``dataset dji-prior``) and the keyword for the Python API."""
+def test_the_geoid_not_applied_flag_names_the_python_keyword_the_cli_its_flag(tmp_path, monkeypatch):
+    """The flag told CLI users to "pass geoid_separation_m", a keyword they cannot type: it names the
+    keyword for the Python API, which the command line prints as ``--geoid-separation`` (``run``,
+    ``dataset dji-prior``: ``errors.as_flags``)."""
     monkeypatch.setattr(dji, "geoid_separation", lambda *args: (None, "no geoid grid here"))
     meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
     flag = dji_prior(meta, "EPSG:25832", target_height="orthometric").vertical_flag
     assert "geoid not applied: no geoid grid here" in flag
-    assert "--geoid-separation N" in flag and "geoid_separation_m=N" in flag
+    assert "geoid_separation_m=N" in flag and "--" not in flag
+    assert "--geoid-separation N" in as_flags(flag)
 
 
 @pytest.mark.parametrize("crs", ["EPSG:25832+7837", "CRS object"])

@@ -178,12 +178,14 @@ def test_a_photo_without_what_it_needs_is_missing_not_a_crash(tmp_path):
     photo = dji_jpeg(tmp_path / "plain.jpg", None, size=(40, 30))
     with pytest.raises(PhotoMissing, match="no latitude"):
         PriorFiles(EXIF, pyproj.CRS("EPSG:25832")).prior(photo)
-    with pytest.raises(PhotoMissing, match="FocalLengthIn35mmFilm.*pass --intrinsics"):
+    with pytest.raises(
+        PhotoMissing, match=r"FocalLengthIn35mmFilm.*pass intrinsics=\.\.\. \(a calibration file"
+    ):
         IntrinsicsFiles(EXIF).photo_camera(photo, 40, 30)
     (tmp_path / "poses").mkdir()
     with pytest.raises(PhotoMissing, match="no prior pose for plain.jpg"):
         PriorFiles(tmp_path / "poses", None).prior(photo)
-    with pytest.raises(CRSError, match="need the city model's CRS.*--crs"):
+    with pytest.raises(CRSError, match="need the city model's CRS.*crs='EPSG:25832'"):
         PriorFiles(EXIF, None)
     with pytest.raises(InputFileError, match="no such pose file"):
         PriorFiles(tmp_path / "absent", None)

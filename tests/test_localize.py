@@ -130,10 +130,10 @@ def test_prior_far_outside_the_model_is_not_localized(city, localizer, renderer)
     far = perturbed(true, np.array([5000.0, 0.0, 0.0]), 0, 0, 0)
     result = localizer.localize(CAMERA, far, labels)
     assert result.status == NOT_LOCALIZED and result.reason == REASON_NO_GEOMETRY
-    # How far, so that a wrong CRS or --offset (kilometres) is told from a prior beside a tile's edge
+    # How far, so that a wrong CRS or offset (kilometres) is told from a prior beside a tile's edge
     (said,) = [w for w in result.warnings if w.startswith("the prior lies")]
     metres = float(said.split()[3])
-    assert 4700 < metres < 5000 and "kilometres point at a wrong CRS or --offset" in said
+    assert 4700 < metres < 5000 and "kilometres point at a wrong CRS or offset=..." in said
 
 
 def test_a_prior_near_the_ground_looks_for_buildings_from_the_highest_camera(city, localizer, renderer):

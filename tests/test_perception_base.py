@@ -60,7 +60,12 @@ def test_options_meant_for_the_other_backend_are_ignored(tmp_path):
 @pytest.mark.parametrize(
     "kind, name, options, words",
     [
-        ("segmentation", "dinov3-dpt", {}, ["no trained segmentation head", "train-segmenter", "head=DIR"]),
+        (
+            "segmentation",
+            "dinov3-dpt",
+            {},
+            ["no trained segmentation head", "train_segmenter(...)", "head=DIR"],
+        ),
         ("segmentation", "mobilenetv2", {}, ["no trained segmentation head", "head=DIR"]),
         (
             "depth",
@@ -254,7 +259,9 @@ def test_files_masks_in_jpeg_or_named_after_the_whole_photo_name_are_found(tmp_p
     mask[2:5, 1:6] = 3
     Image.fromarray(mask, mode="L").save(tmp_path / "P3.jpg", quality=95)
     photo = np.zeros((6, 8, 3), np.uint8)
-    with pytest.raises(LossyMaskError, match=r"no mask for image 'P3' .* but P3\.jpg, .*--allow-lossy-mask"):
+    with pytest.raises(
+        LossyMaskError, match=r"no mask for image 'P3' .* but P3\.jpg, .*allow_lossy=True uses it"
+    ):
         get_segmentation_backend("files", masks=str(tmp_path)).predict(photo, name="P3.JPG")
     forced = get_segmentation_backend("files", masks=str(tmp_path), allow_lossy=True)
     assert forced.predict(photo, name="P3.JPG").labels.shape == (6, 8)

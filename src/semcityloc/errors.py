@@ -2,12 +2,20 @@
 
 Each is a ``SemCityLocError`` so that callers (and the CLI, which turns them into a one-line message and
 exit code 2) can tell bad input from a bug.
+
+A message that asks its reader to pass something names it through ``parameter``: as a Python caller passes
+it (``crs='EPSG:25832'``, ``prior_uncertainty=PriorUncertainty.parse('z=8')``), since the library's caller
+passed no command-line flag. The command line turns each such spelling into its flag when it prints
+(``as_flags``: ``--crs EPSG:25832``, ``--prior-sigma z=8``), and so does a run folder's every file
+(``benchmark``). ``PARAMETERS`` holds both spellings of each, once.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from typing import TypeVar
+import re
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
 
 class SemCityLocError(Exception):
@@ -150,3 +158,115 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
     if plural is None:
         plural = noun[:-1] + "ies" if noun.endswith("y") and noun[-2:-1] not in "aeiou" else noun + "s"
     return f"{n} {plural}"
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """Something a message asks its reader to pass, spelled twice: ``python`` as a Python caller passes it
+    (the keyword of the function that said it: ``"crs='{}'"``) and ``flag`` as the command line's option
+    (``"--crs {}"``); ``{}`` stands for the value, in both or in neither (then a value given is not
+    shown)."""
+
+    python: str
+    flag: str
+
+
+# Each parameter a message of the library names (``parameter``), with its flag (``as_flags``). An entry
+# whose Python spelling holds another's comes first, as ``as_flags`` turns them in this order.
+PARAMETERS: dict[str, Parameter] = {
+    "store_lod": Parameter("build_store(..., lod={})", "'semcityloc tiles build ... --lod {}'"),
+    "store_crs": Parameter("build_store(..., crs='{}')", "'semcityloc tiles build ... --crs {}'"),
+    "store_again": Parameter(
+        "build_store(TILES, STORE, overwrite=True)", "'semcityloc tiles build TILES --out STORE --overwrite'"
+    ),
+    "train_segmenter": Parameter(
+        "train_segmenter(...)",
+        "'semcityloc train-segmenter --images DIR --labels DIR --backbone ... --out DIR'",
+    ),
+    "train_backbone": Parameter("train_segmenter(backbone='{}')", "train-segmenter --backbone {}"),
+    "backbone": Parameter("get_segmentation_backend(..., backbone={})", "--backend-option backbone={}"),
+    "head": Parameter("get_segmentation_backend(..., head={})", "--backend-option head={}"),
+    "crs": Parameter("crs='{}'", "--crs {}"),
+    "target_crs": Parameter("target_crs='{}'", "--crs {}"),
+    "prior_sigma": Parameter("prior_uncertainty=PriorUncertainty.parse('{}')", "--prior-sigma {}"),
+    "offset": Parameter("offset=...", "--offset"),  # named, never given: "offset=3" is no message's
+    "target_height": Parameter("target_height='{}'", "--target-height {}"),
+    "geoid_separation": Parameter("geoid_separation_m={}", "--geoid-separation {}"),
+    "city": Parameter("city='{}'", "--city {}"),
+    "frame": Parameter("frame='{}'", "--frame {}"),
+    "intrinsics": Parameter("intrinsics='{}'", "--intrinsics {}"),
+    "priors": Parameter("priors='{}'", "--priors {}"),
+    "allow_lossy": Parameter("allow_lossy=True", "--allow-lossy-mask"),
+    "out": Parameter("out='{}'", "--out {}"),
+    "overwrite": Parameter("overwrite=True", "--overwrite"),
+}
+
+
+def _python_bare(entry: Parameter) -> str:
+    """``entry`` named without a value: ``crs=...``, ``prior_uncertainty=...``, ``build_store(..., lod=...)``
+    (a keyword's name alone when the spelling starts with it)."""
+    keyword = re.match(r"\w+=", entry.python)
+    if keyword and "{}" in entry.python:
+        return keyword.group() + "..."
+    return entry.python.replace("'{}'", "...").replace("{}", "...")
+
+
+def parameter(name: str, value: object = None) -> str:
+    """How a message names the parameter ``name`` of ``PARAMETERS``: as a Python caller passes it, with
+    ``value`` (``parameter("crs", "EPSG:25832")`` is ``crs='EPSG:25832'``) or without one (``crs=...``).
+    What the command line prints has the flag instead (``as_flags``). Why: a library caller passed no
+    flag, and a command-line user no keyword; the words of the message are the same for both."""
+    entry = PARAMETERS[name]
+    return _python_bare(entry) if value is None else entry.python.replace("{}", str(value))
+
+
+def _flag_bare(entry: Parameter) -> str:
+    return entry.flag.replace(" {}", "").replace("{}", "...")
+
+
+def _value_pattern(tail: str) -> str:
+    """What a value may hold before ``tail``, the template's rest: a quoted one anything but the quote, one
+    before a closing parenthesis anything but that, a last one no space or punctuation."""
+    if tail.startswith("'"):
+        return r"[^']*"
+    if tail.startswith(")"):
+        return r"[^)]*"
+    return r"[^\s,;()]+"
+
+
+def _flag_patterns() -> list[tuple[re.Pattern[str], Callable[[re.Match[str]], str]]]:
+    """(pattern, replacement) per spelling of ``PARAMETERS``: without a value, then with one."""
+    out: list[tuple[re.Pattern[str], Callable[[re.Match[str]], str]]] = []
+    start = r"(?<![\w.-])"  # a whole spelling: not the end of a longer name (``target_crs=`` is no ``crs=``)
+    for entry in PARAMETERS.values():
+        bare = _flag_bare(entry)  # first: ``geoid_separation_m=...`` is no value "..."
+        out.append((re.compile(start + re.escape(_python_bare(entry))), lambda m, flag=bare: flag))
+        if "{}" in entry.python:
+            head, _, tail = entry.python.partition("{}")
+            pattern = re.compile(start + re.escape(head) + f"({_value_pattern(tail)})" + re.escape(tail))
+            out.append((pattern, lambda m, flag=entry.flag: flag.replace("{}", m.group(1))))
+    return out
+
+
+_FLAG_PATTERNS = _flag_patterns()
+_T = TypeVar("_T")
+
+
+def as_flags(text: _T) -> _T:
+    """``text`` with each parameter a message names (``parameter``) spelled as the command line's flag:
+    ``crs='EPSG:25832'`` becomes ``--crs EPSG:25832``, ``prior_uncertainty=...`` ``--prior-sigma``. A dict,
+    list or tuple is turned through (keys too); anything but text is returned as it is, and text turned
+    already stays as it is. What ``cli.main`` prints goes through it, and a run folder's files
+    (``benchmark.results.make_row``, ``benchmark.run``)."""
+    if isinstance(text, str):
+        for pattern, flag in _FLAG_PATTERNS:
+            text = pattern.sub(flag, text)  # type: ignore[assignment]
+        return text
+    if isinstance(text, dict):
+        said: dict[Any, Any] = {as_flags(k): as_flags(v) for k, v in text.items()}
+        return said  # type: ignore[return-value]
+    if isinstance(text, list):
+        return [as_flags(v) for v in text]  # type: ignore[return-value]
+    if isinstance(text, tuple):
+        return tuple(as_flags(v) for v in text)  # type: ignore[return-value]
+    return text

@@ -47,7 +47,7 @@ from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore
 from semcityloc.classes import IGNORE
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
-from semcityloc.errors import InputFileError, ShapeError
+from semcityloc.errors import InputFileError, ShapeError, as_flags
 from semcityloc.geometry.distortion import unseen_by_photo
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.io.files import write_json_atomic
@@ -237,7 +237,7 @@ class PhotoSource:
             prior_uncertainty=inp.uncertainty.as_dict(),  # what the localizer searched
             input_fingerprints=files,
         )
-        return record
+        return as_flags(record)  # a run folder's words (``results``): its reason, warnings, notes name flags
 
     def save_estimate(self, out_dir: Path, q: BenchmarkQuery, result: LocalizationResult) -> None:
         """``poses/<stem>.json`` and ``overlays/<stem>.png`` of a finished photo (module docstring); a skipped

@@ -46,7 +46,7 @@ from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_ci
 from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
 from semcityloc.datasets.geodesy import check_geoid_separation
 from semcityloc.datasets.photos import EXIF
-from semcityloc.errors import BenchmarkError, InputFileError, counted, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, as_flags, counted, unknown_choice
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import ABLATIONS
@@ -189,7 +189,7 @@ class PhotoSpec:
                 "calibrate_focal": self.calibrate_focal,
                 "queries": len(inputs),
                 "query_names": [i.name for i in inputs],
-                "skipped_photos": skipped,
+                "skipped_photos": as_flags(skipped),  # a run folder's words (``results``)
                 "keep_details": int(self.keep_details),
                 "semcityloc_version": __version__,
                 # only when set, so that runs made before the flag existed still resume

@@ -33,6 +33,12 @@ query its source did not accept (a view the simulator could not make acceptable,
 depth cannot be read in full) gets a ``skipped`` row with the reason, is not localized and is only counted
 under ``skipped``. A data-set query whose mask or depth cannot be read is not skipped but a miss
 (``unreadable_result``): a ``not_localized`` row in every recall.
+
+A run folder speaks the command line's words, whoever started the run: a reason or warning the library
+worded with a Python parameter (``errors.parameter``: ``prior_uncertainty=PriorUncertainty.parse('z=8')``)
+is kept with its flag (``errors.as_flags``: ``--prior-sigma z=8``) in ``results.csv``, the details, the
+photo records and ``summary.json``, as the benchmark's own notes name flags. Why: the folder is what the
+command's user reads and acts on, and a resumed run (whose old rows name flags) keeps one wording per reason.
 """
 
 from __future__ import annotations
@@ -61,7 +67,7 @@ from semcityloc.benchmark.runfiles import (
     writing,
 )
 from semcityloc.classes import NUM_CLASSES
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, as_flags
 from semcityloc.evaluation.metrics import THRESHOLDS, is_right, pose_errors, recall, summarize_errors
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import removed_on_error, write_atomic
@@ -250,8 +256,8 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "query_id": query_id(q.index),
         "index": q.index,
         "status": result.status,
-        "reason": result.reason,
-        "warnings": WARNING_SEPARATOR.join(result.warnings),
+        "reason": as_flags(result.reason),
+        "warnings": as_flags(WARNING_SEPARATOR.join(result.warnings)),
         "view": meta.get("view"),
         "height_m": meta.get("height_m"),
         "query_miou": q.query_miou,
@@ -431,9 +437,9 @@ def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, orig
     meta = {
         "query_id": path.stem,
         "status": result.status,
-        "reason": result.reason,
+        "reason": as_flags(result.reason),
         "query_miou": q.query_miou,
-        "query_meta": q.meta,
+        "query_meta": as_flags(q.meta),
         "cost_volume": volume.as_dict() if volume is not None else None,
         "camera": cam.as_dict(),
         "flat_roof_eaves": result.search.get("flat_roof_eaves"),  # the map the pose was found on

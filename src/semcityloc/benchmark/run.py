@@ -77,7 +77,7 @@ from semcityloc.benchmark.runfiles import (
 )
 from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
-from semcityloc.errors import BenchmarkError, OutputPathError, SemCityLocError, unknown_choice
+from semcityloc.errors import BenchmarkError, OutputPathError, SemCityLocError, as_flags, unknown_choice
 from semcityloc.io.files import write_json_atomic
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.result import LocalizationResult
@@ -343,6 +343,7 @@ def _run_rows(
         try:
             with writing(folder=out):  # the exports and summary.json (names the file that failed)
                 spec.finish(out, rows, summary)
+                summary = as_flags(summary)  # its notes, skip reasons: a run folder's words (``results``)
                 write_json_atomic(out / SUMMARY_FILE, summary)
         except OutputPathError as exc:
             raise OutputPathError(f"{exc}: all {total} rows are kept") from exc

@@ -93,7 +93,8 @@ NOT_IDENTITY = ("city", "keep_details", "semcityloc_version", CODE_KEY, "searche
 # run and those skipped (a simulated run's "queries" is its --queries). When only they differ, the refusal
 # says so: the same command on a changed folder, or a newer version that skips other photos (since stop 48
 # a photo of the truth whose mask is missing or of another aspect is a miss, no longer skipped).
-PHOTO_SET_KEYS = ("queries", "query_names", "skipped_photos")
+SKIPPED_KEY = "skipped_photos"
+PHOTO_SET_KEYS = ("queries", "query_names", SKIPPED_KEY)
 PHOTOS_DIFFER = (
     "the photos to run differ (photos added, removed or repaired since, or this version skips other photos "
     "than the one that started the run did: a photo of the truth whose mask is missing or does not fit is "
@@ -335,7 +336,10 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         if mismatch is None and not isinstance(old, dict):  # JSON null too: None means "starts here"
             old, mismatch = None, f"its {RUN_FILE} is not a JSON object"
         if isinstance(old, dict):
-            differ = differing_settings(old, config)
+            differ = differing_settings(_reasons_aside(old), _reasons_aside(config))
+            if not differ and old.get(SKIPPED_KEY) != config.get(SKIPPED_KEY):  # the same photos, reworded
+                old = {**old, SKIPPED_KEY: config.get(SKIPPED_KEY)}
+                write_atomic(run_file, json.dumps(old, indent=2) + "\n")
             if differ and _only_the_query_count(old, differ):
                 write_atomic(run_file, json.dumps(config, indent=2) + "\n")  # the run grows or shrinks
                 return old
@@ -343,7 +347,7 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
                 shown = "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
                 changed = {d.split(":")[0].split(".")[0] for d in differ}
                 folder = changed <= set(PHOTO_SET_KEYS) and (
-                    "query_names" in changed or changed == {"skipped_photos"}
+                    "query_names" in changed or changed == {SKIPPED_KEY}
                 )
                 mismatch = (PHOTOS_DIFFER if folder else "arguments differ: ") + shown
                 if results.is_file() and not holds_rows(results):  # begun, no query finished: nothing to keep
@@ -362,6 +366,15 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
         return None
     return old
+
+
+def _reasons_aside(config: dict) -> dict:
+    """``config`` with its skipped photos' names and not their reasons, for the resume's comparison: which
+    photos were skipped decides the numbers, not the words a version says why in (a reason reworded, a
+    parameter named otherwise: ``errors.as_flags``). The reasons are kept in ``run.json`` as this version
+    words them (``prepare_output``)."""
+    skipped = config.get(SKIPPED_KEY)
+    return {**config, SKIPPED_KEY: sorted(skipped)} if isinstance(skipped, dict) else config
 
 
 # The settings that count a simulated run's queries: a difference a resume may have (``prepare_output``).

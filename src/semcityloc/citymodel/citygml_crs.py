@@ -25,6 +25,7 @@ from semcityloc.citymodel.crs import (
     CRS_HINT,
     MetricFrame,
     check_degrees,
+    named_by,
     overridden_warning,
     parse_crs_name,
     same_crs,
@@ -113,10 +114,8 @@ class CRSChoice:
                 hint = "" if self.crs_override is not None else f"; {CRS_HINT} to read the file anyway"
                 raise CRSError(f"{self.path}: {exc}{hint}") from exc
         target = self.target_crs if source is not None else None
-        said = "--crs" if self.crs_override is not None else "the file's srsName"
-        check_degrees(
-            source, np.concatenate([e[:, :2] for e in exteriors]), str(self.path), f"{said}: {name!r}"
-        )
+        said = named_by(self.crs_override, name, "the file's srsName")
+        check_degrees(source, np.concatenate([e[:, :2] for e in exteriors]), str(self.path), said)
         frame = MetricFrame.for_source(source, self._zone_sample(exteriors), target)
         envelope = self._envelope_sample
         if target is None and envelope is not None and not _holds(envelope, exteriors):

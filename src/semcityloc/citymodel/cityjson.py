@@ -49,7 +49,14 @@ import pyproj
 
 from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, MeshBuilder, usable_points
 from semcityloc.citymodel.cityjson_seq import looks_like_sequence, merge_sequence
-from semcityloc.citymodel.crs import CRS_HINT, MetricFrame, check_degrees, overridden_warning, parse_crs_name
+from semcityloc.citymodel.crs import (
+    CRS_HINT,
+    MetricFrame,
+    check_degrees,
+    named_by,
+    overridden_warning,
+    parse_crs_name,
+)
 from semcityloc.citymodel.limits import check_file_size, gunzip_bounded
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.classes import SURFACE_CLASS
@@ -315,8 +322,9 @@ class _CityJSONReader:
                 )
         finite = usable_points(raw)
         sample = raw[finite, :2] if finite.any() else None
-        said = "--crs" if crs_override else "the file's referenceSystem"
-        check_degrees(source, sample, str(self.path), f"{said}: {name!r}")
+        check_degrees(
+            source, sample, str(self.path), named_by(crs_override, name, "the file's referenceSystem")
+        )
         return MetricFrame.for_source(source, sample, target)
 
     def _templates(self) -> tuple[list, np.ndarray]:

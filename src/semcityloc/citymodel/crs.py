@@ -15,13 +15,13 @@ import numpy as np
 import pyproj
 from pyproj.exceptions import CRSError as PyprojCRSError
 
-from semcityloc.errors import CRSError, unknown_choice
+from semcityloc.errors import CRSError, parameter, unknown_choice
 
 # AdV (German surveying authorities) names of horizontal CRSs, as written in state CityGML products, and
 # of the height systems after the "*" (``ADV_VERTICAL``): a known one makes a compound CRS, so that a GNSS
 # height is converted to it (its geoid); an unknown one leaves the horizontal CRS alone.
-# What an error about a file's CRS tells the user to do: the option of load_city_model and of every command.
-CRS_HINT = "pass crs='EPSG:....' to load_city_model (--crs EPSG:.... on the command line)"
+# What an error about a file's CRS tells the user to do: load_city_model's crs (every command's --crs).
+CRS_HINT = f"pass {parameter('crs', 'EPSG:....')}"
 
 ADV_HORIZONTAL = {
     "ETRS89_UTM32": 25832,
@@ -166,15 +166,26 @@ class MetricFrame:
 
 
 def overridden_warning(given: str, stated: str) -> str | None:
-    """What a reader says when ``crs_override`` (``--crs``) puts x, y in another place than the CRS the file
-    states (a typo's zone, 25832 for 25833, moves every coordinate hundreds of kilometres, silently); None
-    when both agree there (a height system added or dropped) or the file's cannot be read."""
+    """What a reader says when ``crs_override`` (``crs=``; ``--crs``) puts x, y in another place than the
+    CRS the file states (a typo's zone, 25832 for 25833, moves every coordinate hundreds of kilometres,
+    silently); None when both agree there (a height system added or dropped) or the file's cannot be read."""
     try:
         if same_horizontal_crs(given, stated):
             return None
     except CRSError:
         return None
-    return f"--crs {given} overrides the CRS the file states ({stated}): the coordinates are read as {given}"
+    return (
+        f"{parameter('crs', given)} overrides the CRS the file states ({stated}): the coordinates are read "
+        f"as {given}"
+    )
+
+
+def named_by(crs_override: str | None, name: object, stated_in: str) -> str:
+    """Who named the CRS ``name`` a reader took, for ``check_degrees``: the caller (``crs_override``:
+    ``given as crs='EPSG:4326'``) or the file (``stated_in``: ``the file's srsName: 'EPSG:4326'``)."""
+    if crs_override:
+        return f"given as {parameter('crs', crs_override)}"
+    return f"{stated_in}: {name!r}"
 
 
 def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None, where: str, named_by: str) -> None:
@@ -183,7 +194,7 @@ def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None, where
     as absurd and the error would blame the file. ``sample_xy``: (n, 2) of the geometry itself (not an
     Envelope, which may be stale); most of its points must be beyond, so a stray absurd one is not taken
     for the file's unit. The message starts with ``where`` (the file) and ends with ``named_by`` (who named
-    the CRS: ``--crs: 'EPSG:4326'``, the file's own)."""
+    the CRS: ``named_by``)."""
     if source is None or sample_xy is None or not horizontal_crs(source).is_geographic:
         return
     sample = np.asarray(sample_xy, dtype=np.float64).reshape(-1, 2)
@@ -195,8 +206,8 @@ def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None, where
         x, y = sample[np.argmax(beyond)]
         raise CRSError(
             f"{where}: coordinates such as ({x:.1f}, {y:.1f}) are no degrees, but {source.name!r} is "
-            f"geographic: they look like metres of a projected CRS: pass that one with --crs EPSG:<code> "
-            f"({named_by})"
+            f"geographic: they look like metres of a projected CRS: pass that one with "
+            f"{parameter('crs', 'EPSG:<code>')} ({named_by})"
         )
 
 
@@ -233,14 +244,15 @@ def ground_scale_problem(crs: pyproj.CRS | None, x: float, y: float) -> str | No
     )
 
 
-def check_projected(crs: pyproj.CRS | str, what: str) -> pyproj.CRS:
+def check_projected(crs: pyproj.CRS | str, what: str, given_as: str = "crs") -> pyproj.CRS:
     """The horizontal part of ``crs`` (a CRS or a name, ``parse_crs_name``) if it is projected (metric,
     z up once a height is added), else a ``CRSError`` naming its kind. The one rule of "is this CRS
     metric?": for a model's coordinates (OBJ, the generated city) and a prior's target CRS alike. Why not
     only "not geographic": an Earth-centred CRS (EPSG:4978) or a local engineering one passes that test,
     and coordinates or a prior put in it are nonsense (x, y geocentric, z the height, a grid convergence
     of -100 degrees) rather than an error. Its axes must be in metres too: a CRS in US survey feet is
-    projected, and read as metres every distance is 3.28 times too large."""
+    projected, and read as metres every distance is 3.28 times too large. ``given_as``: the parameter
+    (``errors.PARAMETERS``) that gave the CRS, named in the message (``dji_prior``'s ``target_crs``)."""
     parsed = parse_crs_name(crs) if isinstance(crs, str) else crs
     horizontal = horizontal_crs(parsed)
     if horizontal.is_projected:
@@ -261,7 +273,7 @@ def check_projected(crs: pyproj.CRS | str, what: str) -> pyproj.CRS:
     )
     raise CRSError(
         f"{what} must be metric (projected), got {parsed.name} ({kind}); give the projected CRS the "
-        "coordinates are in (--crs EPSG:<code>)"
+        f"coordinates are in ({parameter(given_as, 'EPSG:<code>')})"
     )
 
 

@@ -15,7 +15,7 @@ import pyproj
 
 from semcityloc.citymodel.crs import parse_crs_name, same_horizontal_crs
 from semcityloc.citymodel.model import crs_label
-from semcityloc.errors import CRSError
+from semcityloc.errors import CRSError, parameter
 from semcityloc.geometry.io import declared_pose_frame, read_pose
 from semcityloc.geometry.pose import Pose
 
@@ -36,7 +36,8 @@ def check_pose_crs(spec: str | os.PathLike, model_crs: pyproj.CRS | None, what: 
     if not same_horizontal_crs(declared_crs, model_crs):
         raise CRSError(
             f"the {what} is in {declared} but the model in {crs_label(model_crs)}: convert the {what} "
-            "to the model's CRS (pyproj), or give the model the CRS its coordinates are in (--crs)"
+            f"to the model's CRS (pyproj), or give the model the CRS its coordinates are in "
+            f"({parameter('crs')})"
         )
 
 

@@ -41,7 +41,7 @@ from semcityloc.citymodel.ground import base_points, store_ring
 from semcityloc.citymodel.io import MODEL_SUFFIXES, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
 from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
-from semcityloc.errors import CRSError, EmptyModelError, InputFileError, OutputPathError
+from semcityloc.errors import CRSError, EmptyModelError, InputFileError, OutputPathError, parameter
 from semcityloc.io.stamps import file_sha256
 
 STORE_FORMAT = 1
@@ -146,8 +146,8 @@ def build_store(
         raise InputFileError(f"{folder}: no such folder of tiles")
     if root.resolve() == folder.resolve() or root.resolve() in folder.resolve().parents:
         raise OutputPathError(
-            f"{root}: the store's folder would hold the tiles it is built from ({folder}); give --out a "
-            "folder beside the tiles"
+            f"{root}: the store's folder would hold the tiles it is built from ({folder}); build it in a "
+            f"folder beside the tiles ({parameter('out')})"
         )
     _clear_old_store(root, overwrite)
     inside = root.resolve()
@@ -236,8 +236,8 @@ def _clear_old_store(root: Path, overwrite: bool) -> None:
     if not overwrite:
         what = "a tile store" if (root / INDEX_FILE).is_file() else "part of a tile store (a build stopped?)"
         raise OutputPathError(
-            f"{root}: holds {what} already; build it again with --overwrite (in Python: overwrite=True) or "
-            "into another folder"
+            f"{root}: holds {what} already; build it again with {parameter('overwrite')} or into another "
+            "folder"
         )
     (root / INDEX_FILE).unlink(missing_ok=True)
     (root / BUILDINGS_FILE).unlink(missing_ok=True)
@@ -287,7 +287,7 @@ def _check_one_crs(files: list[Path], crss: list[pyproj.CRS | None], folder: Pat
             raise CRSError(
                 f"{folder}: tiles in different CRSs ({files[0].name}: {crs_label(first) or 'none'}, "
                 f"{path.name}: {crs_label(crs) or 'none'}); a store holds one CRS: reproject the tiles "
-                "first, or give --crs when the files name a wrong one"
+                f"first, or give {parameter('crs')} when the files name a wrong one"
             )
 
 
@@ -367,7 +367,7 @@ class TileStore:
         if not is_store(root) and (root / TILES_DIR).is_dir():
             raise InputFileError(
                 f"{path}: a tile store whose build stopped before its {INDEX_FILE}: build it again with "
-                "'semcityloc tiles build TILES --out STORE --overwrite'"
+                f"{parameter('store_again')}"
             )
         if not is_store(root):
             raise InputFileError(
@@ -531,18 +531,15 @@ def open_store(path: str | Path, lod: int | str | None = None, crs: str | None =
     silently be ignored."""
     store = TileStore.open(path)
     if lod is not None and str(lod) != str(store.lod):
-        raise _built_with(path, "lod", store.lod, lod)
+        raise _built_with(path, "lod", store.lod, parameter("store_lod", lod))
     if crs is not None and not _same_crs(crs, store.crs):
         built = store.index.get("crs_override") or (store.crs.name if store.crs is not None else None)
-        raise _built_with(path, "crs", built, crs)
+        raise _built_with(path, "crs", built, parameter("store_crs", crs))
     return store
 
 
-def _built_with(path: str | Path, name: str, built: object, given: object) -> InputFileError:
-    return InputFileError(
-        f"{path}: the store was built with {name}={built}; build it again with "
-        f"'semcityloc tiles build ... --{name} {given}'"
-    )
+def _built_with(path: str | Path, name: str, built: object, again: str) -> InputFileError:
+    return InputFileError(f"{path}: the store was built with {name}={built}; build it again with {again}")
 
 
 def _same_crs(given: str, store_crs: pyproj.CRS | None) -> bool:

@@ -31,7 +31,7 @@ from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
 from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
-from semcityloc.errors import InputFileError, ParameterError, counted
+from semcityloc.errors import InputFileError, ParameterError, as_flags, counted
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.localization.config import PRESETS
@@ -292,7 +292,7 @@ def run_dji_prior(args: argparse.Namespace) -> int:
     # With an offset the position is the CRS's minus it: no CRS coordinates, so no CRS label on them (a
     # reader would take them for CRS coordinates); extra says both.
     shifted = offset is not None and any(offset)
-    data = pose_to_dict(prior.pose, crs=None if shifted else prior.crs, extra=prior.as_dict())
+    data = as_flags(pose_to_dict(prior.pose, crs=None if shifted else prior.crs, extra=prior.as_dict()))
     text = json.dumps(data, indent=2)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

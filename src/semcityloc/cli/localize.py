@@ -23,7 +23,7 @@ from semcityloc.datasets.photos import (
     IntrinsicsFiles,
     PhotoCamera,
 )
-from semcityloc.errors import InputFileError
+from semcityloc.errors import InputFileError, ParameterError, as_flags
 from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
 from semcityloc.geometry.io import write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -48,10 +48,24 @@ from semcityloc.perception.registry import (
     available_backends,
     get_depth_backend,
     get_segmentation_backend,
-    parse_backend_options,
 )
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
 from semcityloc.render.raster_numba import NumbaEngine
+
+
+def parse_backend_options(pairs: list[str] | tuple[str, ...]) -> tuple[tuple[str, str], ...]:
+    """``--backend-option`` values (``["head=DIR", "threads=2"]``) as (key, value) pairs, in order;
+    ``ParameterError`` naming the first one without ``=`` or with a key given twice. Here, not in
+    ``perception.registry``: it parses the flag, and its messages name it."""
+    out: list[tuple[str, str]] = []
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise ParameterError(f"--backend-option must be KEY=VALUE, got {pair!r}")
+        if any(k == key.strip() for k, _ in out):
+            raise ParameterError(f"--backend-option {key.strip()} is given twice; give each option once")
+        out.append((key.strip(), value))
+    return tuple(out)
 
 
 def add_prior_sigma_argument(p: argparse.ArgumentParser, default_text: str | None = None) -> None:
@@ -276,6 +290,7 @@ def run(args: argparse.Namespace) -> int:
     }
     if not lens.distortion.is_zero:
         record["lens_distortion"] = lens.distortion.as_dict()  # the inputs were undistorted with it
+    record = as_flags(record)  # its reason and warnings in the command line's words, as printed
     if result.pose_local is not None:
         # pose.json: the pose at the top level (read_pose reads it), the whole result record in "extra".
         data = write_pose_json(

@@ -1,7 +1,10 @@
 """The ``semcityloc`` command: one sub-command module per job, typed errors become one-line messages.
 
 Every ``SemCityLocError`` (bad input) is printed as ``semcityloc: error: <message>`` with exit code 2;
-anything else is a bug and keeps its traceback. An unwritable ``--out`` is refused so before any work
+anything else is a bug and keeps its traceback. What a command prints names the flags its user types: the
+library's messages name a parameter as a Python caller passes it (``crs='EPSG:25832'``), and ``main``
+prints through ``FlagStream``, which turns each such spelling into its flag (``--crs EPSG:25832``,
+``errors.as_flags``). An unwritable ``--out`` is refused so before any work
 (``cli.outputs``). A Ctrl-C is one line and exit 130; the console script is ``cli.entry``, which imports
 this module inside its own ``try`` (a Ctrl-C during these imports is one line too).
 """
@@ -9,7 +12,10 @@ this module inside its own ``try`` (a Ctrl-C during these imports is one line to
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from collections.abc import Iterator
+from typing import TextIO
 
 if __name__ == "__main__":
     # lazy, ``python -m semcityloc.cli.main`` only: handed to ``entry`` before the slow imports below
@@ -37,7 +43,7 @@ from semcityloc.cli import (
     warmup,
 )
 from semcityloc.cli.outputs import check_output_args
-from semcityloc.errors import SemCityLocError
+from semcityloc.errors import SemCityLocError, as_flags
 
 COMMANDS = (city, tiles, render, localize, run, benchmark, sweep, report, dataset, label, train, demo, warmup)
 # Commands that run numba kernels, and which (``benchmark.warmup.KERNEL_GROUPS``): each says so once when it
@@ -57,6 +63,34 @@ KERNELS_OF = {
     "demo": None,  # every group: the demo runs the wireframe baseline too
 }
 TIMED = {"run", "dataset benchmark", "benchmark", "sweep", "demo"}
+
+
+class FlagStream:
+    """``stream`` (stdout or stderr) with what is written to it in the command line's words: each parameter a
+    library message names as a Python caller passes it becomes its flag (``errors.as_flags``). Why here and
+    not at each ``print``: every message the command prints (an error, a reader's or the localizer's warning,
+    a note) reaches the user through these two streams, whichever layer worded it."""
+
+    def __init__(self, stream: TextIO):
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        self.stream.write(as_flags(text))
+        return len(text)
+
+    def __getattr__(self, name: str):  # flush, isatty, fileno, encoding: the stream's own
+        return getattr(self.stream, name)
+
+
+@contextlib.contextmanager
+def flag_streams() -> Iterator[None]:
+    """stdout and stderr as ``FlagStream`` while the command runs, the originals back after it."""
+    stdout, stderr = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = FlagStream(stdout), FlagStream(stderr)
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = stdout, stderr
 
 
 def _command(args: argparse.Namespace) -> str:
@@ -98,16 +132,17 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """The ``semcityloc`` command: parse ``argv``, check ``--out`` before any work, run the sub-command; a
     ``SemCityLocError`` is one line and exit 2, a Ctrl-C one line and exit 130, anything else a bug with
-    its traceback.
+    its traceback. What it prints names flags, not Python parameters (``flag_streams``).
     """
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        check_output_args(args)  # before any work: an unwritable --out would lose it
-        compile_notice(args)
-        return int(args.func(args) or 0)
-    except SemCityLocError as exc:
-        print(f"semcityloc: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as exc:
-        return interrupted(exc)
+    with flag_streams():
+        try:
+            check_output_args(args)  # before any work: an unwritable --out would lose it
+            compile_notice(args)
+            return int(args.func(args) or 0)
+        except SemCityLocError as exc:
+            print(f"semcityloc: error: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt as exc:
+            return interrupted(exc)

@@ -19,14 +19,19 @@ from semcityloc.benchmark.results import SKIPPED
 from semcityloc.cli.city import add_model_arguments, parse_lod, print_model_warnings
 from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
-from semcityloc.cli.localize import add_lossy_mask_argument, add_map_eaves_arguments, add_prior_sigma_argument
+from semcityloc.cli.localize import (
+    add_lossy_mask_argument,
+    add_map_eaves_arguments,
+    add_prior_sigma_argument,
+    parse_backend_options,
+)
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF, check_images_folder
 from semcityloc.errors import counted
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
-from semcityloc.perception.registry import available_backends, parse_backend_options
+from semcityloc.perception.registry import available_backends
 
 SHOWN_PHOTOS = 10  # photos named per reason in the closing lines
 

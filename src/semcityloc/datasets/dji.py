@@ -57,7 +57,7 @@ from semcityloc.datasets.geodesy import (
     transformer_group,
     vertical_datum,
 )
-from semcityloc.errors import CRSError, InputFileError, PoseError, unknown_choice
+from semcityloc.errors import CRSError, InputFileError, PoseError, parameter, unknown_choice
 from semcityloc.geometry.conventions import dji_gimbal_angles, pose_from_dji, wrap_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -80,8 +80,8 @@ GPS_DEFAULT_UNCERTAINTY_M = 5.0
 # UAVD4L-like frames, ~40 m wrong for a German LoD2 tile whose heights are DHHN2016.
 HEIGHT_AS_IS_NOTE = (
     "the model's CRS names no vertical datum: the photos' WGS 84 ellipsoidal heights are used as its z "
-    "unchanged; if the model's heights are orthometric (most city models), pass a compound CRS (--crs "
-    "EPSG:xxxx+vvvv) or --target-height orthometric"
+    "unchanged; if the model's heights are orthometric (most city models), pass a compound CRS "
+    f"({parameter('target_crs', 'EPSG:xxxx+vvvv')}) or {parameter('target_height', 'orthometric')}"
 )
 
 
@@ -125,9 +125,10 @@ class DjiPrior:
 # Said when a geoid separation was given but no height conversion asked for it (a 2D CRS, ``auto``): the
 # user meant it to apply; nothing would show that it did not.
 GEOID_UNUSED_NOTE = (
-    "the geoid separation given (--geoid-separation; in Python: geoid_separation_m) was not used: no height "
-    "conversion was asked for (the model's CRS names no vertical datum); pass a compound CRS (--crs "
-    "EPSG:xxxx+vvvv) or --target-height orthometric to apply it"
+    f"the geoid separation given ({parameter('geoid_separation')}) was not used: no height conversion was "
+    "asked for (the model's CRS names no vertical datum); pass a compound CRS "
+    f"({parameter('target_crs', 'EPSG:xxxx+vvvv')}) or {parameter('target_height', 'orthometric')} to "
+    "apply it"
 )
 
 
@@ -171,7 +172,7 @@ def dji_prior(
         raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
     check_geoid_separation(geoid_separation_m)
     crs = target_crs_of(target_crs)
-    check_projected(crs, "the target CRS")
+    check_projected(crs, "the target CRS", "target_crs")
     lat, lon, h = float(meta.latitude), float(meta.longitude), float(meta.absolute_altitude_m)
     notes: list[str] = []
 
@@ -215,7 +216,7 @@ def dji_prior(
                 flag = (
                     f"geoid not applied: {how}; z is the WGS 84 ellipsoidal height, not {vname}. They differ "
                     f"by the local geoid undulation (up to {GEOID_UNDULATION_BOUND_M:g} m); or give N at the "
-                    "site: --geoid-separation N (in Python: geoid_separation_m=N)"
+                    f"site: {parameter('geoid_separation', 'N')}"
                 )
                 uncertainty = max(uncertainty, GEOID_UNDULATION_BOUND_M)
         else:
@@ -383,7 +384,7 @@ def dji_geotag(
         raise unknown_choice("target_height", target_height, TARGET_HEIGHTS, InputFileError)
     check_geoid_separation(geoid_separation_m)
     crs = target_crs_of(target_crs)
-    horizontal = check_projected(crs, "the model's CRS")
+    horizontal = check_projected(crs, "the model's CRS", "target_crs")
     shift = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64)
     if shift.shape != (3,) or not np.all(np.isfinite(shift)):
         raise InputFileError(f"offset must be 3 finite numbers, got {shift.tolist()}")

@@ -45,7 +45,13 @@ import numpy as np
 from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, ParseStats
-from semcityloc.errors import InputFileError, IntrinsicsMismatchError, SemCityLocError, unknown_choice
+from semcityloc.errors import (
+    InputFileError,
+    IntrinsicsMismatchError,
+    SemCityLocError,
+    parameter,
+    unknown_choice,
+)
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.io import read_intrinsics, read_pose, read_poses
@@ -119,7 +125,8 @@ class LodLocDataset:
         """The LoD model in the queries' frame (rotated into ENU for ``frame="ecef"``)."""
         if self.model_path is None:
             raise InputFileError(
-                f"{self.root}: no LoD model found beside the data set; pass the model file (--city)"
+                f"{self.root}: no LoD model found beside the data set; pass the model file "
+                f"({parameter('city')})"
             )
 
         model = load_city_model(self.model_path, cache=cache)
@@ -338,7 +345,8 @@ def _find_model(root: Path, scene_dirs: list[Path]) -> Path | None:
             return objs[0]
         if len(objs) > 1:
             raise InputFileError(
-                f"{folder}: several OBJ models ({', '.join(p.name for p in objs[:3])}); pass one (--city)"
+                f"{folder}: several OBJ models ({', '.join(p.name for p in objs[:3])}); pass one "
+                f"({parameter('city')})"
             )
     return None
 
@@ -406,7 +414,7 @@ def _decide_frame(ds: LodLocDataset, frame: str, ecef_origin_llh) -> None:
                 raise InputFileError(
                     f"{ds.model_path}: the model's walls are vertical in its own frame already ({share:.0%} "
                     "of the steep area within 3 deg of vertical): its z is up, it is no shifted ECEF; drop "
-                    "frame='ecef' (--frame ecef)"
+                    f"{parameter('frame', FRAME_ECEF)}"
                 )
         llh = tuple(float(v) for v in (ecef_origin_llh or SWISS_EPFL_ECEF_ORIGIN_LLH))
         R = enu_from_ecef(*llh)
@@ -433,7 +441,7 @@ def _decide_frame(ds: LodLocDataset, frame: str, ecef_origin_llh) -> None:
         raise InputFileError(
             f"{ds.model_path}: the model's walls are not vertical in its frame (only {share:.0%} of the "
             "steep area is within 3 deg of vertical): z is not up. Swiss-EPFL's frame is ECEF minus an "
-            "origin: pass frame='ecef' (--frame ecef) and, for another data set, its ECEF origin "
+            f"origin: pass {parameter('frame', FRAME_ECEF)} and, for another data set, its ECEF origin "
             "(latitude, longitude, h)"
         )
     ds.frame_note = f"z up (detected: {share:.0%} of the model's steep area is vertical)"

@@ -42,7 +42,14 @@ from semcityloc.datasets.dji import HEIGHT_AUTO, dji_prior, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geotags import read_geotags_csv
-from semcityloc.errors import CameraError, CRSError, InputFileError, IntrinsicsMismatchError, SemCityLocError
+from semcityloc.errors import (
+    CameraError,
+    CRSError,
+    InputFileError,
+    IntrinsicsMismatchError,
+    SemCityLocError,
+    parameter,
+)
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.io import check_fits_photo, read_colmap_camera_ids, read_lens, read_poses
@@ -183,8 +190,8 @@ INTRINSICS_35MM = "exif: 35 mm-equivalent focal length (approximate)"
 # What a user hears when a camera is ``INTRINSICS_35MM`` (``semcityloc localize``, once per photo run).
 APPROXIMATE_INTRINSICS_NOTE = (
     "the camera is the EXIF's 35 mm-equivalent focal length (no calibration tags), which can be a few % off "
-    "(2.4 % short on the real H20T thermal image) and moves the camera up or down by as much; pass "
-    "--intrinsics a calibration (docs/your-data.md, section 4)"
+    "(2.4 % short on the real H20T thermal image) and moves the camera up or down by as much; pass a "
+    f"calibration ({parameter('intrinsics', 'FILE')}; docs/your-data.md, section 4)"
 )
 
 
@@ -229,7 +236,8 @@ class IntrinsicsFiles:
                 if (poses.source.parent / f"cameras{suffix}").is_file():
                     return str(poses.source.parent / f"cameras{suffix}")
         raise InputFileError(
-            "no --intrinsics given and none found beside the poses (expected cameras.txt or cameras.bin "
+            f"no intrinsics given ({parameter('intrinsics')}) and none found beside the poses (expected "
+            "cameras.txt or cameras.bin "
             "beside images.txt / images.bin, or an intrinsic/ folder beside the pose folder)"
         )
 
@@ -248,7 +256,9 @@ class IntrinsicsFiles:
                 try:
                     camera, distortion = camera_from_exif(meta), LensDistortion()
                 except CameraError as exc:
-                    raise PhotoMissing(f"{exc}: pass --intrinsics (a calibration file or folder)") from None
+                    raise PhotoMissing(
+                        f"{exc}: pass {parameter('intrinsics')} (a calibration file or folder)"
+                    ) from None
                 calibrated = calibrated_intrinsics(meta) is not None
                 source = INTRINSICS_DJI_CALIBRATION if calibrated else INTRINSICS_35MM
             camera = camera if camera.size == (width, height) else camera.scaled(width, height)
@@ -346,8 +356,9 @@ class PriorFiles:
         if self.files is None and crs is None:
             what = "the photos' DJI GPS priors" if self.spec == EXIF else f"WGS 84 priors ({path.name})"
             raise CRSError(
-                f"{what} need the city model's CRS, and the model names none: pass --crs (e.g. EPSG:25832), "
-                "or priors already in the model's frame (--priors GPS_pose/ or a COLMAP images.txt)"
+                f"{what} need the city model's CRS, and the model names none: pass it "
+                f"({parameter('crs', 'EPSG:25832')}, say), or priors already in the model's frame "
+                f"({parameter('priors', 'GPS_pose/')} or a COLMAP images.txt)"
             )
 
     def _from_dji(self, meta, source: str, source_height: str) -> PhotoPrior:

@@ -19,7 +19,7 @@ import numpy as np
 from PIL import Image, PngImagePlugin
 
 from semcityloc.classes import IGNORE, NUM_CLASSES, PALETTE, invalid_class_ids
-from semcityloc.errors import InputFileError, LossyMaskError, ShapeError
+from semcityloc.errors import InputFileError, LossyMaskError, ShapeError, parameter
 from semcityloc.io.files import write_atomic
 
 # What Pillow raises on a corrupt or hostile image file (a broken chunk is a SyntaxError, a header naming
@@ -96,8 +96,7 @@ def _check_label_image(img: Image.Image, path: str | Path, allow_lossy: bool) ->
     if img.format in LOSSY_FORMATS and not allow_lossy:
         raise LossyMaskError(
             f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
-            "class ids along every edge; save masks as PNG (--allow-lossy-mask of semcityloc "
-            "localize, run and the data-set benchmark forces it)"
+            f"class ids along every edge; save masks as PNG ({parameter('allow_lossy')} forces it)"
         )
     if img.mode not in ("P", "L"):
         raise InputFileError(

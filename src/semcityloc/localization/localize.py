@@ -35,7 +35,7 @@ import numpy as np
 
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import NUM_CLASSES, SemanticClass
-from semcityloc.errors import ParameterError
+from semcityloc.errors import ParameterError, parameter
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -399,9 +399,9 @@ class Localizer:
     def _look_beyond(self, result, camera, query, prior_state, cfg: LocalizerConfig, unc) -> None:
         """For a refused result: does a view beyond the search's reach, distinct from the refused pose,
         score higher than the sweep's best (``ring_beyond``)? Recorded in ``result.search["beyond"]``; if
-        so, a warning names the ``--prior-sigma`` that would search there. A hint, not a verdict: a prior
-        further off than stated does this, and so does a view whose map differs from the world (Berlin
-        seed 0: one of its three such refusals had a wrong prior)."""
+        so, a warning names the prior uncertainty that would search there (``errors.parameter``). A hint,
+        not a verdict: a prior further off than stated does this, and so does a view whose map differs from
+        the world (Berlin seed 0: one of its three such refusals had a wrong prior)."""
         cc = cfg.cascade
         ring, volume = self.ring_beyond(
             camera, query, prior_state, result.pose_local.to_xyz_rpy()[:2], cfg, unc
@@ -418,8 +418,9 @@ class Localizer:
             result.warnings.append(
                 f"{BEYOND_WARNING}: a view {ring.offset_xy_m:.0f} m from the prior, beyond the searched "
                 f"+-{reach:.0f} m, scores {ring.score:.2f} against the best inside's {sweep_best:.2f}; if "
-                "the prior may be further off than its stated uncertainty, run again with --prior-sigma "
-                f"xy={sigma['xy']} (a map that differs from the world in view can do the same)"
+                "the prior may be further off than its stated uncertainty, run again with "
+                f"{parameter('prior_sigma', 'xy=' + str(sigma['xy']))} (a map that differs from the world in "
+                "view can do the same)"
             )
 
     # ------------------------------------------------------------------ diagnostics

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from semcityloc.errors import parameter
 from semcityloc.geometry.conventions import state_difference
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -59,5 +60,5 @@ def prior_conflict_warning(pose_local: Pose, prior_state: np.ndarray, unc: Prior
         f"the pose lies {metres:.1f} m from the prior, {sigmas:.1f} sigma of its stated uncertainty (xy "
         f"{unc.xy_m:g} m, z {unc.z_m:g} m; {unc.source}): if the prior is right, the image's geometry "
         "is off (a focal length a few percent off, e.g. a 35 mm-equivalent EXIF value: calibrate it; a lens "
-        "left out; the map), else state the prior's real uncertainty (--prior-sigma)"
+        f"left out; the map), else state the prior's real uncertainty ({parameter('prior_sigma')})"
     )

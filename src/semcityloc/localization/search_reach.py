@@ -24,6 +24,7 @@ import numpy as np
 from semcityloc.citymodel.ground import base_points
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES
+from semcityloc.errors import parameter
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
@@ -84,14 +85,16 @@ def edge_sigma(edges: list[str], volume: SearchVolume, config: CascadeConfig) ->
 
 def edge_warning(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> str:
     """What a user should do when the best hypothesis stayed on the search volume's ``edges``: state the
-    ``edge_sigma``, or correct the prior."""
+    ``edge_sigma`` (``prior_uncertainty=PriorUncertainty.parse('z=8')``; the command line's ``--prior-sigma
+    z=8``: ``errors.as_flags``), or correct the prior."""
     half = reached_half(volume, config)
     sigma = edge_sigma(edges, volume, config)
+    asked = parameter("prior_sigma", ",".join(f"{a}={v}" for a, v in sigma.items()))
     reached = ", ".join(f"{a} +-{half[a]:.0f} {'deg' if a == 'yaw' else 'm'}" for a in sigma)
     return (
         f"the best hypothesis stayed on the search volume's {' '.join(edges)} edge at its largest extent "
         f"({reached} around the prior): the prior is further off than its stated uncertainty; run again "
-        f"with --prior-sigma {','.join(f'{a}={v}' for a, v in sigma.items())} or correct the prior"
+        f"with {asked} or correct the prior"
     )
 
 
@@ -152,7 +155,8 @@ class MapLayout:
         lo, hi = self.building_xy.min(0), self.building_xy.max(0)
         return (
             f"the prior lies {nearest:.0f} m from the model's nearest building (the buildings span "
-            f"{hi[0] - lo[0]:.0f} x {hi[1] - lo[1]:.0f} m); kilometres point at a wrong CRS or --offset"
+            f"{hi[0] - lo[0]:.0f} x {hi[1] - lo[1]:.0f} m); kilometres point at a wrong CRS or "
+            f"{parameter('offset')}"
         )
 
     def buildings_in_reach(

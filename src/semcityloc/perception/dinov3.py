@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from semcityloc.errors import MissingWeightsError, ParameterError
+from semcityloc.errors import MissingWeightsError, ParameterError, parameter
 from semcityloc.perception.base import hub_offline, looks_like_hub_id, weights_dir
 from semcityloc.perception.torch_utils import quiet_transformers, require, require_torch
 
@@ -29,7 +29,8 @@ DEFAULT_DINOV3_DIR = "dinov3-vits16"
 DOWNLOAD_HINT = (
     "download a DINOv3 ViT checkpoint in Hugging Face format (config.json + model.safetensors), e.g. "
     "facebook/dinov3-vits16-pretrain-lvd1689m (gated: accept its licence on huggingface.co), and pass its "
-    "folder as backbone=DIR / --backbone dinov3:DIR (default folder: {default})"
+    f"folder as {parameter('backbone', 'DIR')} or {parameter('train_backbone', 'dinov3:DIR')} (default "
+    "folder: {default})"
 )
 
 

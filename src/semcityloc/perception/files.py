@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.classes import IGNORE, NUM_CLASSES
-from semcityloc.errors import InputFileError, LossyMaskError, ParameterError, ShapeError
+from semcityloc.errors import InputFileError, LossyMaskError, ParameterError, ShapeError, parameter
 from semcityloc.io.images import load_depth, load_npy, mask_labels, read_mask_file, resize_nearest
 from semcityloc.perception.base import TRUE_WORDS, DepthOutput, SegmentationOutput, check_image
 
@@ -114,7 +114,7 @@ def _refuse_lossy_mask(where: Path, name: str, suffixes: tuple[str, ...]) -> Non
         raise LossyMaskError(
             f"{where}: no mask for image {Path(str(name)).stem!r} (looked for {_looked_for(name, suffixes)}) "
             f"but {lossy.name}, a lossy format (JPEG) whose compression changes class ids along every edge: "
-            "save masks as PNG, or --allow-lossy-mask uses it"
+            f"save masks as PNG, or {parameter('allow_lossy')} uses it"
         )
 
 

