@@ -122,17 +122,17 @@ class Pose:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_cam_from_world(cls, T: np.ndarray) -> Pose:
+    def from_cam_from_world(cls, T_cam_from_world: np.ndarray) -> Pose:
         """From world-to-camera matrices (4x4 or 3x4, batches too), checked to be rigid: ``x_cam = R x_world +
         t``, the form ``Pose`` stores.
         """
-        T = _rigid(T, "cam_from_world")
+        T = _rigid(T_cam_from_world, "cam_from_world")
         return cls(T[..., :3, :3], T[..., :3, 3])
 
     @classmethod
-    def from_world_from_cam(cls, T: np.ndarray) -> Pose:
+    def from_world_from_cam(cls, T_world_from_cam: np.ndarray) -> Pose:
         """From camera-to-world matrices (LoD-Loc's ``*_pose.txt``, OpenCV camera axes)."""
-        T = _rigid(T, "world_from_cam")
+        T = _rigid(T_world_from_cam, "world_from_cam")
         return cls.from_rotation_center(T[..., :3, :3], T[..., :3, 3])
 
     @classmethod

@@ -50,16 +50,21 @@ class EmbreeEngine:
         TriangleMesh(self._embree, self._corners)
 
     def render(
-        self, camera: Camera, Rs: np.ndarray, ts: np.ndarray, depth: bool = False, face_ids: bool = False
+        self,
+        camera: Camera,
+        R_cams_from_local: np.ndarray,
+        t_cams_from_local: np.ndarray,
+        depth: bool = False,
+        face_ids: bool = False,
     ) -> RenderOutput:
-        n, h, w = len(Rs), camera.height, camera.width
+        n, h, w = len(R_cams_from_local), camera.height, camera.width
         rays_cam = camera.ray_directions(normalize=False).reshape(-1, 3)  # z = 1
         npx = h * w
         ids = np.empty((n, npx), dtype=np.int32)
         dep = np.empty((n, npx), dtype=np.float32) if depth else None
         views_per_call = max(1, RAYS_PER_CALL // npx)
         for s in range(0, n, views_per_call):
-            R, t = Rs[s : s + views_per_call], ts[s : s + views_per_call]
+            R, t = R_cams_from_local[s : s + views_per_call], t_cams_from_local[s : s + views_per_call]
             centres = -np.einsum("nji,nj->ni", R, t)  # (m, 3)
             dirs = np.einsum("nji,pj->npi", R, rays_cam)  # R^T ray, (m, P, 3)
             origins = np.broadcast_to(centres[:, None, :], dirs.shape)

@@ -9,8 +9,10 @@ poses to an engine:
 - ``"auto"``: ``"numba"``. Never the GPU engine, even where it would load: it has not run anywhere, so
   labels and overlays must not come from it unless a caller asks for ``"gpu"`` (``render/gpu.py``).
 
-Poses are ``cam_from_world`` in the model's LOCAL frame (world = ``model.origin`` + local): bring a
-world pose over with ``model.pose_to_local(pose_world)``.
+Poses are ``cam_from_local``: ``cam_from_world`` with the model's LOCAL frame as the world (world =
+``model.origin`` + local), ``Renderer.render(camera, cams_from_local)``; bring a world pose over with
+``model.pose_to_local(pose_world)``. The engines take the same transforms as arrays,
+``render(camera, R_cams_from_local (N, 3, 3), t_cams_from_local (N, 3))``.
 """
 
 from __future__ import annotations
@@ -35,17 +37,21 @@ ENGINES = ("auto", "numba", "embree", "gpu")
 MAX_RENDER_PIXELS = 1_000_000_000
 
 
-def pose_arrays(poses: Pose) -> tuple[np.ndarray, np.ndarray]:
-    """(R (N, 3, 3), t (N, 3)) contiguous float64 from a single pose or a (N,) batch."""
-    if not isinstance(poses, Pose):
+def pose_arrays(cams_from_local: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """(R (N, 3, 3), t (N, 3)) contiguous float64 of the ``cam_from_local`` transforms of a single pose or
+    a (N,) batch (``x_cam = R @ x_local + t``)."""
+    if not isinstance(cams_from_local, Pose):
         raise ArgumentTypeError(
-            f"poses must be a semcityloc Pose (single, or a batch: Pose.stack), got {type(poses).__name__}"
+            "cams_from_local must be a semcityloc Pose (single, or a batch: Pose.stack), got "
+            f"{type(cams_from_local).__name__}"
         )
-    shape = poses.batch_shape
+    shape = cams_from_local.batch_shape
     if len(shape) > 1:
-        raise ShapeError(f"poses must be a single pose or a 1-D batch (N,), got batch shape {shape}")
-    R = np.ascontiguousarray(poses.R.reshape(-1, 3, 3), dtype=np.float64)
-    t = np.ascontiguousarray(poses.t.reshape(-1, 3), dtype=np.float64)
+        raise ShapeError(
+            f"cams_from_local must be a single pose or a 1-D batch (N,), got batch shape {shape}"
+        )
+    R = np.ascontiguousarray(cams_from_local.R.reshape(-1, 3, 3), dtype=np.float64)
+    t = np.ascontiguousarray(cams_from_local.t.reshape(-1, 3), dtype=np.float64)
     return R, t
 
 
@@ -115,12 +121,14 @@ class Renderer:
         return other
 
     def render(
-        self, camera: Camera, poses: Pose, depth: bool = False, face_ids: bool = False
+        self, camera: Camera, cams_from_local: Pose, depth: bool = False, face_ids: bool = False
     ) -> RenderOutput:
-        """Labels (N, H, W) uint8, and z-depth / face ids when asked, for N poses (N = 1 for one pose)."""
+        """Labels (N, H, W) uint8, and z-depth / face ids when asked, for N poses (N = 1 for one pose):
+        ``cams_from_local``, a ``Pose`` (or ``Pose.stack``) in the model's local frame
+        (``model.pose_to_local(pose_world)``)."""
         check_camera(camera)
-        R, t = pose_arrays(poses)
-        problem = local_frame_problem(poses.center)  # a world pose draws nothing, silently
+        R, t = pose_arrays(cams_from_local)
+        problem = local_frame_problem(cams_from_local.center)  # a world pose draws nothing, silently
         if problem is not None:
             raise PoseError(f"Renderer.render takes poses in the model's local frame: {problem}")
         pixels = len(R) * camera.width * camera.height

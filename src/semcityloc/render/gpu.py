@@ -81,17 +81,23 @@ class GpuEngine:
         self._classes = torch.from_numpy(scene.classes.astype(np.int64)).to(self._dev)
 
     def render(
-        self, camera: Camera, Rs: np.ndarray, ts: np.ndarray, depth: bool = False, face_ids: bool = False
+        self,
+        camera: Camera,
+        R_cams_from_local: np.ndarray,
+        t_cams_from_local: np.ndarray,
+        depth: bool = False,
+        face_ids: bool = False,
     ) -> RenderOutput:
         torch, dr = self._torch, self._dr
-        n, h, w = len(Rs), camera.height, camera.width
+        n, h, w = len(R_cams_from_local), camera.height, camera.width
         labels = np.empty((n, h, w), dtype=np.uint8)
         dep = np.empty((n, h, w), dtype=np.float32) if depth else None
         ids_out = np.empty((n, h, w), dtype=np.int32) if face_ids else None
         n_, f_ = GPU_NEAR_M, GPU_FAR_M
         for s in range(0, n, self.views_per_call):
-            R = torch.from_numpy(Rs[s : s + self.views_per_call].astype(np.float32)).to(self._dev)
-            t = torch.from_numpy(ts[s : s + self.views_per_call].astype(np.float32)).to(self._dev)
+            batch = slice(s, s + self.views_per_call)
+            R = torch.from_numpy(R_cams_from_local[batch].astype(np.float32)).to(self._dev)
+            t = torch.from_numpy(t_cams_from_local[batch].astype(np.float32)).to(self._dev)
             cam = torch.einsum("bij,vj->bvi", R, self._verts) + t[:, None, :]  # (B, V, 3)
             x, y, z = cam[..., 0], cam[..., 1], cam[..., 2]
             clip = torch.stack(

@@ -464,16 +464,25 @@ class NumbaEngine:
         s = self.scene
         return s.tri_xyz, s.classes, s.tile_start, s.tile_bbox, s.block_start, s.block_bbox
 
-    def render(self, camera, Rs: np.ndarray, ts: np.ndarray, depth: bool = False, face_ids: bool = False):
-        n, h, w = len(Rs), camera.height, camera.width
+    def render(
+        self,
+        camera,
+        R_cams_from_local: np.ndarray,
+        t_cams_from_local: np.ndarray,
+        depth: bool = False,
+        face_ids: bool = False,
+    ):
+        """``RenderOutput`` of the views ``x_cam = R_cams_from_local[v] @ x_local + t_cams_from_local[v]``
+        ((N, 3, 3), (N, 3) float64, the scene's local frame)."""
+        n, h, w = len(R_cams_from_local), camera.height, camera.width
         labels = np.empty((n, h * w), dtype=np.uint8)
         dep = np.empty((n, h * w), dtype=np.float32) if depth else np.empty((1, 1), dtype=np.float32)
         ids = np.empty((n, h * w), dtype=np.int32) if face_ids else np.empty((1, 1), dtype=np.int32)
         if n:
             render_batch(
                 *self.args(),
-                Rs,
-                ts,
+                R_cams_from_local,
+                t_cams_from_local,
                 camera.fx,
                 camera.fy,
                 camera.cx,
