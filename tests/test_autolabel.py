@@ -337,9 +337,7 @@ def test_a_json_pose_of_another_crs_is_refused_by_label_and_by_read_pose_world(c
     pose = _world_pose(model, _centre(model, 100.0))
     for stem, crs in (("utm", "EPSG:25832"), ("wgs84", "EPSG:4326")):
         save_rgb(np.full((120, 160, 3), 100, np.uint8), photos / f"{stem}.png")
-        write_pose_json(pose, folder / f"{stem}_pose.txt")
-        data = json.loads((folder / f"{stem}_pose.txt").read_text())
-        (folder / f"{stem}_pose.txt").write_text(json.dumps({**data, "crs": crs}))
+        write_pose_json(folder / f"{stem}_pose.txt", pose_world=pose, crs=crs)
     save_rgb(np.full((120, 160, 3), 100, np.uint8), photos / "broken.png")
     (folder / "broken_pose.txt").write_text("1 2 3\n")  # one malformed file stopped the whole batch
     model.save_npz(tmp_path / "c.npz")

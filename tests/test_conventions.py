@@ -488,7 +488,9 @@ def test_write_pose_json_round_trip_with_origin(tmp_path):
     origin = np.array([391234.0, 5817456.0, 0.0])
     local = Pose.from_xyz_rpy([12.25, -40.5, 180.0], 1.5, 35.0, -120.0)
     path = tmp_path / "pose.json"
-    data = write_pose_json(local, path, origin=origin, crs="EPSG:25833", extra={"score": np.float32(0.5)})
+    data = write_pose_json(
+        path, pose_local=local, origin_world=origin, crs="EPSG:25833", extra={"score": np.float32(0.5)}
+    )
     on_disk = json.loads(path.read_text())
     assert on_disk == data
     assert data["frame"] == "crs" and data["crs"] == "EPSG:25833" and data["extra"] == {"score": 0.5}
@@ -505,24 +507,26 @@ def test_write_pose_json_round_trip_with_origin(tmp_path):
 
 def test_write_pose_json_without_origin_and_errors(tmp_path):
     pose = Pose.from_xyz_rpy([1.0, 2.0, 3.0], 0, 10, 20)
-    data = write_pose_json(pose, tmp_path / "p.json")
-    assert data["frame"] == "world" and "origin" not in data and "crs" not in data
+    data = write_pose_json(tmp_path / "p.json", pose_world=pose)
+    assert data["frame"] == "model" and "origin" not in data and "crs" not in data
     assert_same_pose(read_pose(tmp_path / "p.json"), pose)
     with pytest.raises(ShapeError, match="one pose"):
-        write_pose_json(random_poses(17, 2), tmp_path / "b.json")
-    with pytest.raises(ShapeError, match="origin"):
-        write_pose_json(pose, tmp_path / "b.json", origin=[1.0, 2.0])
+        write_pose_json(tmp_path / "b.json", pose_world=random_poses(17, 2))
+    with pytest.raises(ShapeError, match="origin_world"):
+        write_pose_json(tmp_path / "b.json", pose_local=pose, origin_world=[1.0, 2.0])
     with pytest.raises(ShapeError, match="JSON-serialisable"):
-        write_pose_json(pose, tmp_path / "b.json", extra={"x": object()})
+        write_pose_json(tmp_path / "b.json", pose_world=pose, extra={"x": object()})
     with pytest.raises(InputFileError, match="cannot write"):
-        write_pose_json(pose, tmp_path / "no_dir" / "p.json")
+        write_pose_json(tmp_path / "no_dir" / "p.json", pose_world=pose)
 
 
 def test_a_pose_json_is_strict_json_and_written_whole(tmp_path, monkeypatch):
     """``extra`` holding NaN (a refused pose's depth cost, a run without depth) was written as ``NaN``
     tokens, which jq and JavaScript refuse; and a failed write left half a file."""
     pose = Pose.from_xyz_rpy([1.0, 2.0, 3.0], 0, 10, 20)
-    data = write_pose_json(pose, tmp_path / "p.json", extra={"depth_cost": float("nan"), "a": [np.inf, 1.0]})
+    data = write_pose_json(
+        tmp_path / "p.json", pose_world=pose, extra={"depth_cost": float("nan"), "a": [np.inf, 1.0]}
+    )
     assert math.isnan(data["extra"]["depth_cost"])  # the returned dict keeps the value
 
     def no_constants(name):
@@ -538,7 +542,7 @@ def test_a_pose_json_is_strict_json_and_written_whole(tmp_path, monkeypatch):
 
     monkeypatch.setattr(files.os, "fsync", full_disk)
     with pytest.raises(InputFileError, match="cannot write pose JSON: No space left"):
-        write_pose_json(Pose.from_xyz_rpy([9.0, 9.0, 9.0], 0, 0, 0), tmp_path / "p.json")
+        write_pose_json(tmp_path / "p.json", pose_world=Pose.from_xyz_rpy([9.0, 9.0, 9.0], 0, 0, 0))
     assert_same_pose(read_pose(tmp_path / "p.json"), pose)  # the old file whole
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json"]
 
@@ -716,14 +720,75 @@ def test_real_prior_is_about_21m_and_4deg_off(shared):
 
 def test_a_world_pose_written_with_the_origin_is_refused_not_shifted_twice():
     """``write_pose_json(pose_world, origin=model.origin)`` added the origin a second time (a Berlin
-    northing of 11.6e6 written as CRS coordinates); with an origin the pose must be the local one."""
+    northing of 11.6e6 written as CRS coordinates); with an origin the pose must be the local one (since
+    stop 52 the parameters say so: ``pose_local=``, ``origin_world=``)."""
     from semcityloc.geometry.io import pose_to_dict
 
     origin = np.array([391000.0, 5817000.0, 0.0])
     local = Pose.from_xyz_rpy([10.25, -3.75, 156.5], 0.5, 29.0, 22.0)
-    assert pose_to_dict(local, origin=origin)["position"] == pytest.approx([391010.25, 5816996.25, 156.5])
+    written = pose_to_dict(pose_local=local, origin_world=origin)
+    assert written["position"] == pytest.approx([391010.25, 5816996.25, 156.5])
     with pytest.raises(PoseError, match=r"with an origin the pose must be in the local frame"):
-        pose_to_dict(local.shift_world(-origin), origin=origin)
+        pose_to_dict(pose_local=local.shift_world(-origin), origin_world=origin)
+
+
+def test_a_pose_file_names_the_frame_its_numbers_are_in_and_old_files_read_as_they_were(tmp_path):
+    """A pose written by ``run --offset`` (the model's frame: the CRS minus an offset), or of a model
+    without a CRS, said ``"frame": "crs"`` over numbers that were no CRS coordinates (stop 52). Now the frame
+    says what they are: "crs", "crs_offset" (with ``offset_crs`` and ``crs_offset``, no ``crs`` label) or
+    "model"; ``declared_pose_frame`` reads it, and the layouts written before read as what they were."""
+    from semcityloc.geometry.io import PoseFrame, declared_pose_frame, pose_to_dict
+
+    origin = np.array([100.0, -50.0, 0.0])
+    local = Pose.from_xyz_rpy([12.25, -40.5, 180.0], 1.5, 35.0, -120.0)
+    offset = [695672.0, 3131199.0, 0.0]
+    shifted = write_pose_json(
+        tmp_path / "o.json", pose_local=local, origin_world=origin, crs="EPSG:32649", crs_offset=offset
+    )
+    assert shifted["frame"] == "crs_offset" and "crs" not in shifted
+    assert shifted["offset_crs"] == "EPSG:32649" and shifted["crs_offset"] == offset
+    assert shifted["position"] == pytest.approx((local.center + origin).tolist())  # the numbers: CRS - offset
+    assert declared_pose_frame(tmp_path / "o.json") == PoseFrame("crs_offset", "EPSG:32649", tuple(offset))
+    assert declared_pose_frame(tmp_path / "o.json").describe() == "EPSG:32649 minus (695672, 3131199, 0)"
+    in_crs = pose_to_dict(pose_local=local, origin_world=origin, crs="EPSG:32649", crs_offset=np.zeros(3))
+    assert in_crs["frame"] == "crs" and in_crs["crs"] == "EPSG:32649"  # a zero offset is none
+    unnamed = pose_to_dict(pose_world=local)
+    assert unnamed["frame"] == "model" and "crs" not in unnamed
+    with pytest.raises(PoseError, match="crs_offset needs crs"):
+        pose_to_dict(pose_world=local, crs_offset=offset)
+    for wrong in ({}, {"pose_local": local}, {"pose_world": local, "origin_world": origin}):
+        with pytest.raises(TypeError, match="pose_local|origin_world"):
+            pose_to_dict(**wrong)
+
+    def frame_of(data: dict) -> PoseFrame:
+        (tmp_path / "x.json").write_text(json.dumps(data))
+        return declared_pose_frame(tmp_path / "x.json")
+
+    pose = {k: shifted[k] for k in ("position", "roll", "pitch", "yaw")}
+    # Written before stop 52: run --offset, a model without a CRS, dataset dji-prior with and without --offset
+    old_run = {
+        **pose,
+        "frame": "crs",
+        "extra": {"crs": None, "crs_offset": offset, "offset_crs": "EPSG:32649"},
+    }
+    assert frame_of(old_run) == PoseFrame("crs_offset", "EPSG:32649", tuple(offset))
+    assert frame_of({**pose, "frame": "crs", "extra": {"crs_offset": offset, "offset_crs": None}}).crs is None
+    assert frame_of({**pose, "frame": "crs"}) == PoseFrame("model")
+    old_dji = {**pose, "frame": "world", "extra": {"offset": offset, "crs": "EPSG:32649"}}
+    assert frame_of(old_dji) == PoseFrame("crs_offset", "EPSG:32649", tuple(offset))
+    old_dji_crs = {**pose, "frame": "world", "crs": "EPSG:32649", "extra": {"offset": [0, 0, 0]}}
+    assert frame_of(old_dji_crs) == PoseFrame("crs", "EPSG:32649")
+    assert frame_of({**pose, "crs": "EPSG:25832"}) == PoseFrame("crs", "EPSG:25832")  # a hand-written one
+    assert frame_of(pose) == PoseFrame(None) and declared_pose_frame("1,2,3,0,0,0") == PoseFrame(None)
+    for bad, said in (
+        ({**pose, "frame": "local"}, "its frame 'local' is none of crs, crs_offset, model"),
+        ({**pose, "frame": "model", "crs": "EPSG:25832"}, "names a crs"),
+        ({**pose, "frame": "crs_offset", "offset_crs": "EPSG:32649"}, "it has no 'crs_offset'"),
+        ({**pose, "frame": "crs_offset", "offset_crs": "EPSG:32649", "crs_offset": [1, 2]}, "a list of 3"),
+        ({**pose, "frame": "crs_offset", "crs_offset": offset}, "'crs_offset' needs 'offset_crs'"),
+    ):
+        with pytest.raises(PoseError, match=f"x.json: .*{said}"):
+            frame_of(bad)
 
 
 def test_odm_angles_invert_opendronemaps_own_rotation():

@@ -286,6 +286,9 @@ def test_dji_prior_cli_writes_a_pose_json_with_the_height_treatment(tmp_path, ca
     assert data["extra"]["offset"] == [690000.0, 5330000.0, 0.0]
     # Shifted coordinates are no EPSG:25832 ones: no CRS label on them (a reader took them for such)
     assert "crs" not in data and data["extra"]["crs"] == "EPSG:25832"
+    # ... and since stop 52 its frame says what they are (it said "world")
+    assert data["frame"] == "crs_offset" and data["offset_crs"] == "EPSG:25832"
+    assert data["crs_offset"] == [690000.0, 5330000.0, 0.0]
     assert data["extra"]["source_height"] == "ellipsoidal"
     assert data["extra"]["geoid_applied"] or "geoid not applied" in capsys.readouterr().err
     pose = read_pose(tmp_path / "p.json")

@@ -4,6 +4,7 @@ camera footprints as GeoJSON."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pyproj
@@ -189,6 +190,36 @@ def test_a_photo_without_what_it_needs_is_missing_not_a_crash(tmp_path):
         PriorFiles(EXIF, None)
     with pytest.raises(InputFileError, match="no such pose file"):
         PriorFiles(tmp_path / "absent", None)
+
+
+def test_a_crs_pose_file_is_no_prior_of_a_model_whose_frame_is_the_crs_minus_an_offset(tmp_path):
+    """``run --crs EPSG:32649 --offset X,Y,Z --priors poses/`` took JSON priors labelled EPSG:32649 (true
+    UTM coordinates) as coordinates of the model's frame, the CRS minus the offset: each camera 3,208 km
+    away (stop 52). Now refused naming both frames: the whole batch for one file, the photo for a
+    folder's; the same file without the offset, or with its numbers in the model's frame, is taken."""
+    from semcityloc.geometry.io import write_pose_json
+
+    photo = dji_jpeg(tmp_path / "a.jpg", None, size=(40, 30))
+    utm, offset = pyproj.CRS("EPSG:32649"), np.array([695672.0, 3131199.0, 0.0])
+    model_frame = Pose.from_xyz_rpy([5.0, -4.0, 90.0], 0.5, 20.0, 30.0)
+    in_crs = model_frame.shift_world(-offset)  # its centre + offset
+    (tmp_path / "poses").mkdir()
+    x, y, z, roll, pitch, yaw = in_crs.to_xyz_rpy().tolist()  # as a user writes one, or localize does
+    labelled = {"position": [x, y, z], "roll": roll, "pitch": pitch, "yaw": yaw, "crs": "EPSG:32649"}
+    (tmp_path / "poses" / "a_pose.txt").write_text(json.dumps(labelled))
+    said = "the pose is in EPSG:32649 but the model's frame is EPSG:32649 minus (695672, 3131199, 0)"
+    with pytest.raises(PhotoMissing, match=re.escape(said) + ".*subtract the model's offset"):
+        PriorFiles(tmp_path / "poses", utm, offset).prior(photo)
+    with pytest.raises(CRSError, match=re.escape(said)):
+        PriorFiles(tmp_path / "poses" / "a_pose.txt", utm, offset)
+    taken = PriorFiles(tmp_path / "poses", utm).prior(photo).pose_world
+    np.testing.assert_allclose(taken.center, in_crs.center)
+    write_pose_json(
+        tmp_path / "poses" / "a_pose.txt", pose_world=model_frame, crs="EPSG:32649", crs_offset=offset
+    )
+    np.testing.assert_allclose(
+        PriorFiles(tmp_path / "poses", utm, offset).prior(photo).pose_world.center, [5, -4, 90]
+    )
 
 
 # ------------------------------------------------------------------------------------------ GeoJSON

@@ -327,7 +327,7 @@ def test_result_to_dict_writes_the_world_pose_in_the_pose_json_layout():
     done = LocalizationResult(status=LOCALIZED, pose_local=local, score=0.9, counts={"coarse_hypotheses": 3})
     d = done.to_dict(origin, "EPSG:25832")
     assert (d["status"], d["score"], d["counts"]) == (LOCALIZED, 0.9, {"coarse_hypotheses": 3})
-    pose = pose_to_dict(local, origin=origin, crs="EPSG:25832")
+    pose = pose_to_dict(pose_local=local, origin_world=origin, crs="EPSG:25832")
     assert {k: d[k] for k in pose} == pose  # the one pose layout, in CRS coordinates
     np.testing.assert_allclose(d["position"], local.center + origin, rtol=0, atol=1e-9)
     assert d["frame"] == "crs" and d["crs"] == "EPSG:25832"

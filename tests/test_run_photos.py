@@ -1281,6 +1281,61 @@ def test_a_photo_named_with_spaces_is_left_out_of_colmap_and_geo_txt_and_the_res
     np.testing.assert_allclose(in_crs, [float(v) for v in geo[1].split()[1:4]], atol=1e-3)
 
 
+def test_run_offset_pose_files_say_their_frame_and_a_model_of_another_offset_refuses_them(
+    box_flight, tmp_path, capsys
+):
+    """``run --offset`` wrote its pose files with ``"frame": "crs"`` over the CRS minus the offset (only
+    ``extra`` said so): read with a model in that CRS they were taken as its coordinates, the camera 3,208 km
+    away, and a run with another offset took them as its own frame (stop 52). Now ``"frame": "crs_offset"``
+    with ``offset_crs`` / ``crs_offset``; read with the frame they were written in they pass, with another
+    (the CRS itself, another offset) they are refused naming both, the old layout as well."""
+    from semcityloc.citymodel import read_pose_world
+    from semcityloc.errors import CRSError
+
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], *UTM_49N, "--out", out, "--no-overlays")
+    assert code == 0, err
+    pose_file = out / "poses" / "P1.json"
+    data = json.loads(pose_file.read_text())
+    offset = [695672.0, 3131199.0, 0.0]
+    assert data["frame"] == "crs_offset" and "crs" not in data
+    assert data["offset_crs"] == "EPSG:32649" and data["crs_offset"] == offset
+    assert data["extra"]["prior"]["frame"] == "crs_offset" and data["extra"]["prior"]["crs_offset"] == offset
+    utm = pyproj.CRS("EPSG:32649")
+    refused = r"the prior is in EPSG:32649 minus \(695672, 3131199, 0\) but the model's frame is EPSG:32649: "
+    with pytest.raises(CRSError, match=refused + r"taken as the model's, its numbers would be 3,208 km off"):
+        read_pose_world(pose_file, utm, "prior")
+    same_frame = read_pose_world(pose_file, utm, crs_offset=offset)
+    np.testing.assert_allclose(same_frame.center, data["position"], rtol=0, atol=1e-9)
+    assert read_pose_world(pose_file, None).center.shape == (3,)  # a model without a CRS: nothing to check
+    # The same file in the layout written before stop 52: read as what it was.
+    old = {k: v for k, v in data.items() if k not in ("offset_crs", "crs_offset")}
+    (tmp_path / "old.json").write_text(json.dumps({**old, "frame": "crs"}))
+    with pytest.raises(CRSError, match=refused):
+        read_pose_world(tmp_path / "old.json", utm, "prior")
+    np.testing.assert_allclose(
+        read_pose_world(tmp_path / "old.json", utm, crs_offset=offset).center, data["position"]
+    )
+    # The run's estimates as the priors of another run: its own offset takes them, another is refused.
+    priors = tmp_path / "priors"
+    priors.mkdir()
+    for stem in ("P0", "P1"):
+        shutil.copy(out / "poses" / f"{stem}.json", priors / f"{stem}_pose.txt")
+    argv = [str(a) for a in box_flight["argv"]]
+    argv[argv.index("--priors") + 1] = str(priors)
+    code, _, err = run(capsys, *argv, *UTM_49N, "--out", tmp_path / "again", "--no-overlays")
+    summary = json.loads((tmp_path / "again" / "summary.json").read_text())
+    assert code == 0 and summary["localized"] == 2, err
+    moved = ["--crs", "EPSG:32649", "--offset", "695670,3131199,0"]
+    code, _, err = run(capsys, *argv, *moved, "--out", tmp_path / "moved", "--no-overlays")
+    assert code == 2 and "no photo can be localized" in err and "P2.JPG: no prior pose" in err
+    assert (
+        "priors/P1_pose.txt: the pose is in EPSG:32649 minus (695672, 3131199, 0) but the model's frame is "
+        "EPSG:32649 minus (695670, 3131199, 0): taken as the model's, its numbers would be 2.0 m off; give "
+        "the model the offset its numbers are by (semcityloc run --offset 695672,3131199,0); P2.JPG" in err
+    )
+
+
 def test_a_run_without_a_crs_writes_no_geojson_and_says_so(box_flight, tmp_path, capsys):
     """A model in a local frame gave a cameras.geojson of local metres (only a non-standard
     ``semcityloc_frame`` member said so), which QGIS placed at longitude -466: GeoJSON coordinates are WGS 84

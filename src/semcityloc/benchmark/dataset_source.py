@@ -437,5 +437,7 @@ class DatasetSource:
             if result.covariance is not None:
                 extra["covariance"] = covariance_dict(result.covariance)
             with writing(path), removed_on_error(tmp):
-                write_pose_json(result.pose_local, tmp, origin=self.map_model.origin, extra=extra)
+                write_pose_json(
+                    tmp, pose_local=result.pose_local, origin_world=self.map_model.origin, extra=extra
+                )
                 tmp.replace(path)

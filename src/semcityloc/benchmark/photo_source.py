@@ -210,18 +210,19 @@ class PhotoSource:
     def prepare(self, method: Method) -> None:
         return None
 
-    def pose_crs(self) -> str | None:
-        """The CRS label of the pose files' numbers: the model's, but none with ``--offset``, where they are
-        the CRS minus the offset (a label would place the camera the offset away; the record states
-        ``crs_offset`` and ``offset_crs`` instead, as ``dataset dji-prior --offset`` writes no label)."""
-        return None if self.spec.offset is not None else crs_label(self.map_model.crs)
+    def pose_frame(self) -> dict:
+        """The world frame of the pose files' numbers as ``geometry.io.pose_to_dict`` takes it: the model's
+        CRS, minus ``--offset`` when one is given (frame ``crs_offset``: no ``crs`` label, which would place
+        the camera the offset away); a model without a CRS: none (frame ``model``)."""
+        crs = crs_label(self.map_model.crs)
+        return {"crs": crs, "crs_offset": self.spec.offset if crs is not None else None}
 
     def record(self, inp: PhotoInput, result: LocalizationResult, files: dict | None = None) -> dict:
         """What ``poses/<stem>.json`` says besides the pose: the result, the prior, its uncertainty, and the
         fingerprints of the photo's files it was made from (``files``: ``PhotoInput.fingerprints``)."""
         model = self.map_model
-        crs = self.pose_crs()
-        record = result.to_dict(model.origin, crs)
+        frame = self.pose_frame()
+        record = result.to_dict(model.origin, **frame)
         if self.spec.offset is not None:  # the numbers + crs_offset are coordinates in offset_crs
             record.update(crs_offset=[float(v) for v in self.spec.offset], offset_crs=crs_label(model.crs))
         prior = inp.prior  # None: an unreadable photo's (``PhotoInput.unreadable``), and its camera too
@@ -232,7 +233,11 @@ class PhotoSource:
             intrinsics_source=inp.intrinsics_source,
             focal_estimate=inp.focal_estimate,
             lens_distortion=None if inp.distortion.is_zero else inp.distortion.as_dict(),
-            prior=pose_to_dict(prior.pose_world, crs=crs, extra=prior.details) if prior is not None else None,
+            prior=(
+                pose_to_dict(pose_world=prior.pose_world, **frame, extra=prior.details)
+                if prior is not None
+                else None
+            ),
             prior_source=prior.source if prior is not None else None,
             prior_uncertainty=inp.uncertainty.as_dict(),  # what the localizer searched
             input_fingerprints=files,
@@ -249,7 +254,9 @@ class PhotoSource:
         folder.mkdir(exist_ok=True)
         estimate = result.pose_local if result.localized else None
         if estimate is not None:
-            data = pose_to_dict(estimate, origin=model.origin, crs=self.pose_crs(), extra=record)
+            data = pose_to_dict(
+                pose_local=estimate, origin_world=model.origin, **self.pose_frame(), extra=record
+            )
         else:
             data = record
         with writing(folder / f"{inp.stem}.json"):

@@ -289,10 +289,11 @@ def run_dji_prior(args: argparse.Namespace) -> int:
         target_height=args.target_height,
         geoid_separation_m=args.geoid_separation,
     )
-    # With an offset the position is the CRS's minus it: no CRS coordinates, so no CRS label on them (a
-    # reader would take them for CRS coordinates); extra says both.
-    shifted = offset is not None and any(offset)
-    data = as_flags(pose_to_dict(prior.pose, crs=None if shifted else prior.crs, extra=prior.as_dict()))
+    # With an offset the position is the CRS's minus it: frame crs_offset, no CRS label on the numbers (a
+    # reader would take them for CRS coordinates).
+    data = as_flags(
+        pose_to_dict(pose_world=prior.pose, crs=prior.crs, crs_offset=prior.offset, extra=prior.as_dict())
+    )
     text = json.dumps(data, indent=2)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

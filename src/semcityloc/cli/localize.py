@@ -294,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
     if result.pose_local is not None:
         # pose.json: the pose at the top level (read_pose reads it), the whole result record in "extra".
         data = write_pose_json(
-            result.pose_local, out / "pose.json", origin=model.origin, crs=crs, extra=record
+            out / "pose.json", pose_local=result.pose_local, origin_world=model.origin, crs=crs, extra=record
         )
 
         scene = localizer.map_of(result).scene  # the map the pose was found on (flat roofs' eaves too?)

@@ -139,11 +139,14 @@ class PoseFiles:
     """Poses by image from a COLMAP model (``images.txt`` / ``images.bin`` or their folder), any file
     ``read_poses`` reads, or a LoD-Loc pose folder."""
 
-    def __init__(self, spec: str | os.PathLike, crs: pyproj.CRS | None = None):
-        """``crs``: the model's; a JSON pose file that declares another is refused (``CRSError``,
+    def __init__(
+        self, spec: str | os.PathLike, crs: pyproj.CRS | None = None, crs_offset: np.ndarray | None = None
+    ):
+        """``crs``: the model's; ``crs_offset``: the model's frame is ``crs`` minus this (``run --offset``).
+        A JSON pose file that declares another frame is refused (``CRSError``,
         ``citymodel.pose_crs.check_pose_crs``), the whole batch for one file, the photo for a folder's."""
         self.path = Path(spec)
-        self.crs = crs
+        self.crs, self.crs_offset = crs, crs_offset
         if not self.path.exists():
             raise InputFileError(f"{self.path}: no such pose file or folder")
         colmap = colmap_file(self.path, "images")
@@ -157,7 +160,7 @@ class PoseFiles:
             self.binary_images = {image.name: image for image in images}  # posed when asked
             self.camera_ids = {image.name: str(image.camera_id) for image in images}
         elif self.folder is None:
-            check_pose_crs(self.source, crs)
+            check_pose_crs(self.source, crs, crs_offset=crs_offset)
             self.entries = read_poses(self.source)
             self.camera_ids = read_colmap_camera_ids(self.source)
 
@@ -167,7 +170,7 @@ class PoseFiles:
             if f is None:
                 return None
             try:
-                return read_pose_world(f, self.crs)
+                return read_pose_world(f, self.crs, crs_offset=self.crs_offset)
             except CRSError as exc:
                 raise PhotoMissing(f"{f}: {exc}") from None
         if self.binary_images:
@@ -352,7 +355,7 @@ class PriorFiles:
         if self.spec != EXIF and path.suffix.lower() == ".csv":
             self.geotags = read_geotags_csv(path)
         elif self.spec != EXIF:
-            self.files = PoseFiles(path, parse_crs_name(crs) if isinstance(crs, str) else crs)
+            self.files = PoseFiles(path, parse_crs_name(crs) if isinstance(crs, str) else crs, offset)
         if self.files is None and crs is None:
             what = "the photos' DJI GPS priors" if self.spec == EXIF else f"WGS 84 priors ({path.name})"
             raise CRSError(

@@ -6,8 +6,10 @@ wrong with an input, the error is one of ``PoseError`` / ``CameraError`` / ``Sha
 ``InputFileError`` with a one-line message that starts with the file name or the inline text.
 
 Frames: a pose is read exactly as written (in whatever world frame the file uses, usually the model's
-CRS); bring it to a model's local frame with ``model.pose_to_local(pose)``. ``write_pose_json`` with
-``origin`` writes the pose in the CRS frame again (local + origin, float64), so its output reads back.
+CRS); bring it to a model's local frame with ``model.pose_to_local(pose)``. A JSON pose also declares its
+world frame (``frame``: ``POSE_FRAMES``), which ``declared_pose_frame`` reads for the caller to check
+(``citymodel.pose_crs.read_pose_world``). ``write_pose_json(path, pose_local=..., origin_world=...)``
+writes a local pose in the world frame again (local + origin, float64), so its output reads back.
 """
 
 from __future__ import annotations
@@ -16,12 +18,14 @@ import json
 import math
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from semcityloc.errors import (
+    ArgumentTypeError,
     CameraError,
     InputFileError,
     IntrinsicsMismatchError,
@@ -292,20 +296,122 @@ def _read_pose_entries(spec: str | os.PathLike) -> tuple[dict[str, Pose], str]:
     return _labelled(label, parse), label
 
 
-def declared_pose_frame(spec: str | os.PathLike) -> tuple[str | None, str | None]:
-    """(``frame``, ``crs``) that a JSON pose (file or inline) declares, each None when absent or not JSON:
-    what ``pose_to_dict`` writes beside the pose, for the caller to check against the model it is used
-    with (a pose file of another CRS is not a pose in this one)."""
+# The ``frame`` a pose JSON declares its numbers in (``pose_to_dict`` writes it, ``declared_pose_frame``
+# reads it). Never "local": a pose file is never in a model's local frame (its ``position_local`` is).
+POSE_FRAME_CRS = "crs"  # coordinates of the CRS named by ``crs``
+POSE_FRAME_CRS_OFFSET = "crs_offset"  # coordinates of the CRS named by ``offset_crs`` minus ``crs_offset``
+POSE_FRAME_MODEL = "model"  # a city model's own coordinates, which name no CRS: nothing to check them by
+POSE_FRAMES = (POSE_FRAME_CRS, POSE_FRAME_CRS_OFFSET, POSE_FRAME_MODEL)
+# Written before stop 52: "world" (no origin given) and "crs" without a ``crs`` (offset or unnamed frame).
+LEGACY_POSE_FRAME_WORLD = "world"
+# Where such a file kept its offset: frame -> (offset key, CRS key) of its ``extra``.
+_LEGACY_OFFSET_KEYS = {
+    POSE_FRAME_CRS: ("crs_offset", "offset_crs"),
+    LEGACY_POSE_FRAME_WORLD: ("offset", "crs"),
+}
+
+
+@dataclass(frozen=True)
+class PoseFrame:
+    """The world frame a JSON pose declares its numbers in (``declared_pose_frame``)."""
+
+    frame: str | None  # one of ``POSE_FRAMES``; None: the pose declares none (every non-JSON form)
+    crs: str | None = None  # the CRS named: the numbers' (crs), the one they are offset in (crs_offset)
+    crs_offset: tuple[float, float, float] | None = None  # crs_offset: CRS coordinates = numbers + this
+
+    def describe(self) -> str:
+        """The frame in words: "EPSG:32649", "EPSG:32649 minus (695672, 3131199, 0)", "no CRS"."""
+        if self.crs is None:
+            return "no CRS"
+        return self.crs if self.crs_offset is None else f"{self.crs} minus {format_offset(self.crs_offset)}"
+
+
+def format_offset(offset) -> str:
+    """``(695672, 3131199, 0.5)``: an offset as its numbers read back (no rounding, no trailing zeros)."""
+    return "(" + ", ".join(np.format_float_positional(float(v), trim="-") for v in offset) + ")"
+
+
+def _crs_string(obj: dict, key: str) -> str | None:
+    value = obj.get(key)
+    if value is not None and not isinstance(value, str):  # {"epsg": 4326}, 4326: a CRS, just not a name
+        raise PoseError(f'its {key} {value!r} is no CRS name; write it as a string, e.g. "EPSG:25832"')
+    return value
+
+
+def _offset_frame(obj: dict, offset_key: str, crs_key: str) -> PoseFrame:
+    """A crs_offset frame from ``obj[offset_key]`` (3 numbers) and ``obj[crs_key]`` (the CRS's name)."""
+    if offset_key not in obj:
+        raise PoseError(
+            f"its frame is crs_offset but it has no {offset_key!r}: the offset its numbers are by"
+        )
+    offset = _vector(obj, offset_key, 3, PoseError)
+    crs = _crs_string(obj, crs_key)
+    if crs is None:
+        raise PoseError(f"{offset_key!r} needs {crs_key!r}: the CRS the numbers plus the offset are in")
+    return PoseFrame(POSE_FRAME_CRS_OFFSET, crs, (offset[0], offset[1], offset[2]))
+
+
+def _legacy_offset_frame(obj: dict, frame: str | None) -> PoseFrame | None:
+    """The crs_offset frame of a file written before stop 52, or None: ``run --offset`` wrote "frame":
+    "crs", no ``crs``, and ``extra.crs_offset`` + ``extra.offset_crs`` (None without a CRS: frame model);
+    ``dataset dji-prior --offset`` wrote "frame": "world", no ``crs``, and ``extra.offset`` (not all zero)
+    + ``extra.crs``."""
+    extra = obj.get("extra")
+    if not isinstance(extra, dict):
+        return None
+    keys = _LEGACY_OFFSET_KEYS.get(frame)
+    if keys is None or extra.get(keys[0]) is None or extra.get(keys[1]) is None:
+        return None
+    found = _offset_frame(extra, *keys)
+    return found if any(found.crs_offset) else PoseFrame(POSE_FRAME_CRS, found.crs)
+
+
+def _pose_frame(obj: dict) -> PoseFrame:
+    """The frame a pose JSON object declares (``declared_pose_frame``), old files' too."""
+    frame, crs = obj.get("frame"), _crs_string(obj, "crs")
+    if frame is not None and frame not in (*POSE_FRAMES, LEGACY_POSE_FRAME_WORLD):
+        raise PoseError(
+            f"its frame {frame!r} is none of {', '.join(POSE_FRAMES)} (docs/data-formats.md): write the "
+            "frame its numbers are in, or leave it out"
+        )
+    if frame == POSE_FRAME_CRS_OFFSET:
+        if crs is not None:
+            raise PoseError(
+                f"its frame is crs_offset but it also names a crs ({crs}): say one frame its numbers are in"
+            )
+        return _offset_frame(obj, "crs_offset", "offset_crs")
+    if frame == POSE_FRAME_MODEL:
+        if crs is not None:
+            raise PoseError(
+                f"its frame is model (no CRS) but it names a crs ({crs}): say one frame its numbers are in"
+            )
+        return PoseFrame(POSE_FRAME_MODEL)
+    if crs is not None:  # "crs", and an old "world" or a file without a frame that names its CRS
+        return PoseFrame(POSE_FRAME_CRS, crs)
+    legacy = _legacy_offset_frame(obj, frame)
+    if legacy is not None:
+        return legacy
+    # An old "crs" / "world" without a crs: a model's frame without a CRS; no frame at all: none declared.
+    return PoseFrame(POSE_FRAME_MODEL if frame is not None else None)
+
+
+def declared_pose_frame(spec: str | os.PathLike) -> PoseFrame:
+    """The frame a JSON pose (file or inline) declares its numbers in, ``PoseFrame(None)`` when it declares
+    none (every non-JSON form, a JSON pose without ``frame`` or ``crs``): what ``pose_to_dict`` writes
+    beside the pose, for the caller to check against the model it is used with (a pose file of another CRS,
+    or of the CRS minus another offset, is not a pose in this one; ``citymodel.pose_crs``).
+
+    Files written before stop 52 are read as what they were: "frame": "crs" with a ``crs`` and "world" with
+    one are ``crs``; "crs" without one but with ``extra.crs_offset`` / ``extra.offset_crs`` (``run
+    --offset``), and "world" with ``extra.offset`` / ``extra.crs`` (``dataset dji-prior --offset``), are
+    ``crs_offset``; any other "crs" / "world" without a ``crs`` is ``model``."""
     text, label = _load(spec, PoseError, "pose")
     if not text.lstrip().startswith("{"):
-        return None, None
+        return PoseFrame(None)
     obj = _labelled(label, _json, text)
     if not isinstance(obj, dict):
-        return None, None
-    frame, crs = obj.get("frame"), obj.get("crs")
-    if crs is not None and not isinstance(crs, str):  # {"epsg": 4326}, 4326: a CRS, just not a name
-        raise PoseError(f'{label}: its crs {crs!r} is no CRS name; write it as a string, e.g. "EPSG:25832"')
-    return (frame if isinstance(frame, str) else None), crs
+        return PoseFrame(None)
+    return _labelled(label, _pose_frame, obj)
 
 
 def read_poses(spec: str | os.PathLike) -> dict[str, Pose]:
@@ -599,32 +705,62 @@ def _crs_name(crs: Any) -> str | None:
     return to_string() if callable(to_string) else str(crs)
 
 
+def _finite_xyz(value: Any, name: str) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,):
+        raise ShapeError(f"{name} must have shape (3,), got {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise PoseError(f"{name} has non-finite entries")
+    return v
+
+
 def pose_to_dict(
-    pose: Pose, origin: np.ndarray | None = None, crs: Any = None, extra: dict | None = None
+    *,
+    pose_local: Pose | None = None,
+    origin_world: np.ndarray | None = None,
+    pose_world: Pose | None = None,
+    crs: Any = None,
+    crs_offset: np.ndarray | None = None,
+    extra: dict | None = None,
 ) -> dict[str, Any]:
     """The JSON-ready description of one pose written by ``write_pose_json`` (see there)."""
+    if (pose_local is None) == (pose_world is None):
+        raise ArgumentTypeError(
+            "give one pose: pose_local (a model's local frame, with origin_world: model.origin) or "
+            "pose_world (the world frame it is written in)"
+        )
+    if pose_local is not None and origin_world is None:
+        raise ArgumentTypeError(
+            "a pose_local needs origin_world (model.origin) to be written in the world frame"
+        )
+    if pose_world is not None and origin_world is not None:
+        raise ArgumentTypeError("origin_world goes with pose_local; a pose_world is written as it is")
+    pose = pose_local if pose_local is not None else pose_world
     if not isinstance(pose, Pose):
         raise PoseError(f"expected a Pose, got {type(pose).__name__}")
     if pose.batch_shape:
         raise ShapeError(f"write one pose at a time, got a batch of shape {pose.batch_shape}")
-    out: dict[str, Any] = {"frame": "world"}
-    local_center = pose.center
-    if origin is not None and (problem := local_frame_problem(pose.center)) is not None:
-        raise PoseError(
-            f"with an origin the pose must be in the local frame (world = local + origin): {problem}"
-        )
-    if origin is not None:
-        o = np.asarray(origin, dtype=np.float64)
-        if o.shape != (3,):
-            raise ShapeError(f"origin must have shape (3,), got {o.shape}")
-        if not np.all(np.isfinite(o)):
-            raise PoseError("origin has non-finite entries")
-        pose = pose.shift_world(-o)  # local -> CRS: world = local + origin, in float64
-        out["frame"] = "crs"
+    out: dict[str, Any] = {}
+    offset = None if crs_offset is None else _finite_xyz(crs_offset, "crs_offset")
+    if offset is not None and crs is None:
+        raise PoseError("crs_offset needs crs: the CRS the world frame is that CRS minus the offset of")
+    if offset is not None and any(offset):
+        out.update(frame=POSE_FRAME_CRS_OFFSET, offset_crs=_crs_name(crs), crs_offset=offset.tolist())
+    elif crs is not None:
+        out.update(frame=POSE_FRAME_CRS, crs=_crs_name(crs))
+    else:
+        out["frame"] = POSE_FRAME_MODEL
+    if pose_local is not None:
+        local_center = pose_local.center
+        if (problem := local_frame_problem(local_center)) is not None:
+            raise PoseError(
+                f"with an origin the pose must be in the local frame (pose_local; world = local + "
+                f"origin_world): {problem}"
+            )
+        o = _finite_xyz(origin_world, "origin_world")
+        pose = pose_local.shift_world(-o)  # local -> world: world = local + origin, in float64
         out["origin"] = o.tolist()
         out["position_local"] = local_center.tolist()
-    if crs is not None:
-        out["crs"] = _crs_name(crs)
     x, y, z, roll, pitch, yaw = pose.to_xyz_rpy().tolist()
     qvec, tvec = colmap_qvec_tvec(pose)
     out.update(
@@ -654,26 +790,26 @@ def pose_to_dict(
     return out
 
 
-def write_pose_json(
-    pose: Pose,
-    path: str | os.PathLike,
-    origin: np.ndarray | None = None,
-    crs: Any = None,
-    extra: dict | None = None,
-) -> dict[str, Any]:
+def write_pose_json(path: str | os.PathLike, **pose_keywords: Any) -> dict[str, Any]:
     """Write one pose as JSON and return what was written.
 
-    Keys: ``frame`` ("world", or "crs" when ``origin`` is given), ``position`` (camera centre),
+    ``pose_keywords``: those of ``pose_to_dict``. The pose: ``pose_local`` (a model's local frame) with
+    ``origin_world`` (the model's float64 origin), written in the world frame, ``position = local centre +
+    origin`` in float64, with ``origin`` and ``position_local``; or ``pose_world``, written as it is.
+    ``crs``: the CRS the world frame is in (a name or a ``pyproj.CRS``); ``crs_offset``: with ``crs``, the
+    world frame is that CRS minus this (``run --offset``); ``extra``: any JSON-serialisable dict.
+
+    Keys: ``frame`` (``POSE_FRAMES``: "crs", the numbers are coordinates of ``crs``; "crs_offset", of
+    ``offset_crs`` minus ``crs_offset``, and no ``crs`` key, so that no reader takes them for CRS
+    coordinates; "model", a model's own coordinates without a CRS), ``position`` (camera centre),
     ``roll`` / ``pitch`` / ``yaw`` (degrees, our convention), ``world_from_cam`` and ``cam_from_world``
-    (4x4), ``qvec_wxyz`` / ``tvec`` (COLMAP), ``convention`` (a reminder string), and when given
-    ``origin`` + ``position_local``, ``crs`` (name) and ``extra`` (any JSON-serialisable dict).
-    With ``origin`` (the model's float64 origin) the pose is taken to be in the model's local frame and
-    everything is written in the model CRS: ``position = local centre + origin`` in float64.
-    ``read_pose`` reads the file back (in the frame it was written in). The file is strict JSON (a NaN or
+    (4x4), ``qvec_wxyz`` / ``tvec`` (COLMAP), ``convention`` (a reminder string), and ``extra`` (any
+    JSON-serialisable dict) when given. ``read_pose`` reads the file back (in the frame it was written in;
+    ``citymodel.read_pose_world`` checks that frame against a model's). The file is strict JSON (a NaN or
     infinity in ``extra``, e.g. the depth cost of a run without depth, is written ``null``; the returned
     dict keeps it) and written whole or not at all (``io.files.write_json_atomic``).
     """
-    data = pose_to_dict(pose, origin=origin, crs=crs, extra=extra)
+    data = pose_to_dict(**pose_keywords)
     target = Path(path)
     try:
         write_json_atomic(target, data)

@@ -104,7 +104,9 @@ class LocalizationResult:
         self.timings["total_s"] = time.perf_counter() - t0
         return self
 
-    def to_dict(self, origin: np.ndarray, crs: str | None = None) -> dict:
+    def to_dict(
+        self, origin_world: np.ndarray, crs: str | None = None, crs_offset: np.ndarray | None = None
+    ) -> dict:
         """JSON-ready record: status, reason, scores, confidence, timings, counts and, when localized,
         the pose in world (CRS) coordinates, ``world = origin + local`` in float64, written in the one
         layout of ``geometry.io.pose_to_dict`` (``frame``, ``origin``, ``position_local``, ``crs``,
@@ -112,8 +114,10 @@ class LocalizationResult:
         ``qvec_wxyz`` / ``tvec``, ``convention``).
 
         Args:
-            origin: float64 (3,) origin of the model the result's local poses are in (``model.origin``).
+            origin_world: float64 (3,) origin of the model the result's local poses are in
+                (``model.origin``).
             crs: the name of the model's CRS, or None.
+            crs_offset: the model's world frame is ``crs`` minus this (``run --offset``), or None.
         """
         out = {
             "status": self.status,
@@ -128,7 +132,11 @@ class LocalizationResult:
             "warnings": self.warnings,
         }
         if self.pose_local is not None:
-            out.update(pose_to_dict(self.pose_local, origin=origin, crs=crs))
+            out.update(
+                pose_to_dict(
+                    pose_local=self.pose_local, origin_world=origin_world, crs=crs, crs_offset=crs_offset
+                )
+            )
             out.setdefault("crs", None)  # always present for a pose, as in earlier versions
             if self.covariance is not None:
                 out["covariance"] = covariance_dict(self.covariance)
