@@ -1332,7 +1332,7 @@ def test_run_offset_pose_files_say_their_frame_and_a_model_of_another_offset_ref
     assert (
         "priors/P1_pose.txt: the pose is in EPSG:32649 minus (695672, 3131199, 0) but the model's frame is "
         "EPSG:32649 minus (695670, 3131199, 0): taken as the model's, its numbers would be 2.0 m off; give "
-        "the model the offset its numbers are by (semcityloc run --offset 695672,3131199,0); P2.JPG" in err
+        "the model the offset its numbers are by (--offset 695672,3131199,0); P2.JPG" in err
     )
 
 

@@ -189,7 +189,7 @@ PARAMETERS: dict[str, Parameter] = {
     "crs": Parameter("crs='{}'", "--crs {}"),
     "target_crs": Parameter("target_crs='{}'", "--crs {}"),
     "prior_sigma": Parameter("prior_uncertainty=PriorUncertainty.parse('{}')", "--prior-sigma {}"),
-    "offset": Parameter("offset=...", "--offset"),  # named, never given: "offset=3" is no message's
+    "offset": Parameter("offset=({})", "--offset {}"),  # PhotoSpec(offset=(x, y, z))
     "target_height": Parameter("target_height='{}'", "--target-height {}"),
     "geoid_separation": Parameter("geoid_separation_m={}", "--geoid-separation {}"),
     "city": Parameter("city='{}'", "--city {}"),

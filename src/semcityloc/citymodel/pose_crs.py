@@ -77,7 +77,7 @@ def check_pose_crs(
         )
     else:
         given = ",".join(np.format_float_positional(float(v), trim="-") for v in pose_offset)
-        remedy = f"give the model the offset its numbers are by, {given} ({parameter('offset')})"
+        remedy = f"give the model the offset its numbers are by ({parameter('offset', given)})"
         if not model_offset.any():
             remedy += f", or add its crs_offset to them (a pose in {declared.crs})"
     raise CRSError(
