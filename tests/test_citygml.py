@@ -23,18 +23,19 @@ from semcityloc.citymodel.crs import (
     parse_crs_name,
     same_crs,
     same_horizontal_crs,
+    vertical_datum,
 )
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.triangulate import polygon_area, triangulate_polygon
 from semcityloc.classes import SemanticClass
-from semcityloc.datasets.geodesy import vertical_datum
 from semcityloc.errors import (
     CRSError,
     EmptyModelError,
     InputFileError,
     MalformedXMLError,
     ParameterError,
+    as_flags,
     UnsupportedFormatError,
 )
 
@@ -135,7 +136,8 @@ def test_plateau_citygml2_and_3_give_the_same_mesh(shared):
         assert a2[cls] > 0
         assert a3[cls] == pytest.approx(a2[cls], rel=1e-3)
     for m in (m2, m3):
-        assert crs_label(m.crs) == "EPSG:32654"  # latitude-first EPSG:6697 projected to UTM 54N
+        # latitude-first EPSG:6697 projected to UTM 54N, its JGD2011 height system kept (since stop 52)
+        assert crs_label(m.crs) == "EPSG:32654+6695"
         assert crs_label(m.source_crs) == "EPSG:6697"
         assert m.lods_present() == [2]
         ext = m.extent_m
@@ -854,6 +856,29 @@ def test_a_crs_whose_metres_are_not_ground_metres_is_refused(shared):
         x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
         assert ground_scale_problem(crs, x, y) is None
     assert ground_scale_problem(None, 0.0, 0.0) is None  # a local frame: nothing to tell
+
+
+def test_a_wrong_crs_that_is_no_metric_frame_there_is_asked_about(shared):
+    """Fuerth's Gauss-Krueger coordinates given ``--crs EPSG:25832`` (UTM 32N) put the model at lon 54.18,
+    lat 39.49, where UTM 32's scale factor is 1.195: the only advice was "reproject the model" (user audit,
+    stop 52). Outside the CRS's area of use the likelier cause comes first, the option that named the CRS
+    is asked about, and reprojecting is still named; inside it (Web Mercator over Berlin) both, too."""
+    from semcityloc.citymodel.crs import ground_scale_problem
+
+    with pytest.raises(CRSError) as caught:
+        load_city_model(shared(FUERTH), crs="EPSG:25832", cache=False)
+    said = str(caught.value)
+    assert (
+        "(lon 54.181, lat 39.489)" in said
+        and "outside the CRS's area of use (Europe between 6°E and 12°E)" in said
+    )
+    assert "the coordinates are not in ETRS89 / UTM zone 32N (is crs='EPSG:25832' right?)" in said
+    assert said.index("is crs='EPSG:25832' right?") < said.index("reproject the model")
+    assert "(is --crs EPSG:25832 right?)" in as_flags(said) and "(--crs EPSG:<code>)" in as_flags(said)
+    crs = pyproj.CRS("EPSG:3857")
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(13.4, 52.5)
+    web = ground_scale_problem(crs, x, y)
+    assert web.index("reproject the model") < web.index("(is the file's CRS right?)")
 
 
 @pytest.mark.parametrize(

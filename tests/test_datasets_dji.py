@@ -9,6 +9,8 @@ import pyproj
 import pytest
 
 from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
+from semcityloc.citymodel.crs import MetricFrame, parse_crs_name
+from semcityloc.citymodel.model import crs_label
 from semcityloc.datasets import dji, geodesy
 from semcityloc.datasets.dji import (
     BAROMETRIC_UNCERTAINTY_M,
@@ -392,13 +394,51 @@ def test_a_models_coordinates_outside_its_crs_are_told(crs, centre, inside):
         assert "its area of use spans x" in reason and "a local frame?" in reason
 
 
-def test_a_geoid_separation_no_conversion_uses_is_said(tmp_path):
-    """``--geoid-separation -15`` with a 2D ``--crs`` left the heights as they were, and the run's only
-    note was that the CRS names no vertical datum (adversarial test, stop 51): the N given is now said
-    unused, with the two ways to apply it; with a compound CRS it applies and nothing is said."""
+def test_a_geoid_separation_applies_with_auto_heights(tmp_path):
+    """``--geoid-separation 36.7`` with the default ``--target-height auto`` over a model whose CRS names no
+    vertical datum was not applied, only said unused (stop 51), and a PLATEAU photo 36.7 m above the
+    model's z was refused at the search volume's edge (user audit, stop 52): a stated N now says the
+    model's z is orthometric, for a 2D CRS too (``model_heights_orthometric``), and ``dji_geotag`` adds it
+    back; only where no conversion needs it (``target_height="ellipsoidal"`` with an RTK photo) is it
+    said unused."""
     meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK)))
     plain = dji_prior(meta, "EPSG:25832", geoid_separation_m=47.0)
-    assert dji.GEOID_UNUSED_NOTE in plain.notes and plain.pose.center[2] == pytest.approx(612.5)
+    assert plain.pose.center[2] == pytest.approx(612.5 - 47.0) and plain.geoid_applied
+    assert dji.GEOID_UNUSED_NOTE not in plain.notes and dji.HEIGHT_AS_IS_NOTE not in plain.notes
+    assert plain.z_reference == "orthometric (the model's heights, N = 47 m given)"
+    back = dji.dji_geotag(plain.pose, "EPSG:25832", geoid_separation_m=47.0)
+    assert back.height_m == pytest.approx(612.5) and back.height_reference.startswith("ellipsoidal")
     compound = dji_prior(meta, "EPSG:25832+7837", geoid_separation_m=47.0)
     assert dji.GEOID_UNUSED_NOTE not in compound.notes
     assert compound.pose.center[2] == pytest.approx(612.5 - 47.0)
+    unused = dji_prior(meta, "EPSG:25832", target_height="ellipsoidal", geoid_separation_m=47.0)
+    assert dji.GEOID_UNUSED_NOTE in unused.notes and unused.pose.center[2] == pytest.approx(612.5)
+
+
+def test_a_geographic_compound_model_crs_keeps_its_height_system(tmp_path):
+    """PLATEAU's CityGML declares EPSG:6697 (JGD2011 latitude / longitude + JGD2011 vertical height). It was
+    projected to plain EPSG:32654, and a run over it said "the model's CRS names no vertical datum" and took
+    an RTK photo's ellipsoidal height, 36.7 m above the model's z, as z: refused at the search volume's
+    edge (user audit, stop 52). The metric CRS now keeps the height system (``with_heights_of``), so the
+    height is converted, or said not to be and searched over the geoid's range; a given N applies."""
+    source = parse_crs_name("http://www.opengis.net/def/crs/EPSG/0/6697")
+    sample = np.array([[35.6746, 139.7118], [35.6836, 139.7250]])  # latitude first, as the file writes it
+    frame = MetricFrame.for_source(source, sample)
+    assert crs_label(frame.target) == "EPSG:32654+6695"
+    assert frame.to_metric(np.array([[35.678, 139.718, 40.0]]))[0, 2] == 40.0  # heights as they are
+    fields = dict(RTK, GpsLatitude="+35.678", GpsLongitude="+139.718", AbsoluteAltitude="+186.700")
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "t.jpg", xmp_packet(**fields)))
+    prior = dji_prior(meta, frame.target)
+    assert HEIGHT_AS_IS_NOTE not in prior.notes
+    if not prior.geoid_applied:  # no jp_gsi_gsigeo2011 grid installed: said, and the whole range searched
+        assert (
+            "JGD2011 (vertical) height" in prior.vertical_flag and "jp_gsi_gsigeo2011" in prior.vertical_flag
+        )
+        assert prior_uncertainty(prior).z_m == pytest.approx(GEOID_UNDULATION_BOUND_M / 3.0)
+    given = dji_prior(meta, frame.target, geoid_separation_m=36.7)
+    assert given.pose.center[2] == pytest.approx(150.0) and prior_uncertainty(given).z_m == RTK_FLOOR_M
+    # A target of its own with another height system would name heights that are not converted: refused.
+    with pytest.raises(CRSError, match="height system"):
+        MetricFrame.for_source(source, sample, parse_crs_name("EPSG:32654+5773"))
+    plain = MetricFrame.for_source(source, sample, parse_crs_name("EPSG:6691"))  # JGD2011 / UTM 54N
+    assert crs_label(plain.target) == "EPSG:6691+6695"

@@ -32,6 +32,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import CRSError, InputFileError
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import dji_gimbal_angles, dji_world_from_cam, odm_world_from_cam
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
@@ -258,3 +259,64 @@ def test_geojson_of_a_model_without_a_crs_is_refused_not_written_in_local_metres
     pose = Pose.from_xyz_rpy(np.array([-466.0, 285.0, 150.0]), 0.0, 0.0, 0.0)
     with pytest.raises(CRSError, match="needs the model's CRS"):
         cameras_geojson([CameraFeature("a.JPG", camera, pose)], None, 0.0)
+
+
+def test_geotag_priors_whose_height_is_not_converted_search_the_geoids_range(tmp_path):
+    """Priors from a geotag CSV (ellipsoidal heights) over a model with a vertical datum and no geoid grid
+    were marked "geoid NOT applied" but kept the default 10 m height sigma, while the same photo's EXIF
+    prior got it widened to 110 m / 3: one photo not localized (p 0.47) that EXIF priors put 0.13 m off
+    (user audit, stop 52). One rule now for every source (``dji.height_widened``): the row's accuracy
+    columns, or the defaults, with the height sigma widened; an N given converts it, and nothing widens."""
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    image = dji_jpeg(folder / "a.JPG", xmp_packet(**RTK), size=(80, 60))
+    compound = pyproj.CRS("EPSG:25832+7837")
+    exif = PriorFiles(EXIF, compound).prior(image)
+    if exif.details["geoid_applied"]:
+        pytest.skip("pyproj has the DHHN2016 geoid grid here: every height is converted")
+    g = tag(ypr=(30.0, -60.0, 0.0))
+    (tmp_path / "plain.csv").write_text(geotags_csv_text([GeotagRow("a.JPG", g)]))
+    (tmp_path / "acc.csv").write_text(geotags_csv_text([GeotagRow("a.JPG", g, 0.05, 0.08)]))
+    plain = PriorFiles(tmp_path / "plain.csv", compound).prior(image)
+    stated = PriorFiles(tmp_path / "acc.csv", compound).prior(image)
+    bound = exif.uncertainty.z_m
+    assert bound == pytest.approx(110.0 / 3.0) and "height reference not converted" in exif.uncertainty.source
+    assert plain.uncertainty.z_m == bound and plain.uncertainty.xy_m == 5.0  # the defaults, widened
+    assert "height reference not converted" in plain.uncertainty.source
+    assert (stated.uncertainty.xy_m, stated.uncertainty.z_m) == (0.05, bound)
+    converted = PriorFiles(tmp_path / "plain.csv", compound, geoid_separation_m=47.0).prior(image)
+    assert converted.uncertainty is None  # the caller's defaults: nothing to widen
+
+
+def test_geotag_csv_angles_are_the_reference_import_convention(tmp_path):
+    """``geotags.csv`` held DJI's gimbal angles, documented for Metashape / Pix4D reference import: those
+    tools' pitch is 0 at nadir (DJI's -90), and near nadir DJI's split between yaw and roll is arbitrary (the
+    real thermal photo, EXIF -102.3 / -90 / 0, came out yaw -177.9, pitch -89.3, roll 76.4; user audit,
+    stop 52). Now the columns are Pix4D's yaw, pitch, roll (``pix4d_*``, what Metashape's reference and
+    ODM's geo.txt use, geo.txt's numbers): a camera 0.7 deg off nadir is a heading and two small tilts,
+    and it reads back as the same camera. A file of DJI angles (the old columns, exiftool's) reads as DJI's;
+    one with both sets is refused."""
+    R = odm_world_from_cam(-102.3, 0.5, -0.5)  # image top at -102.3 deg, 0.7 deg off nadir
+    camera = Pose.from_rotation_center(R, np.zeros(3))
+    dji_angles = dji_gimbal_angles(camera)
+    assert abs(dji_angles[2]) > 30.0  # DJI's roll of this camera: the arbitrary split
+    text = geotags_csv_text([GeotagRow("a.JPG", tag(ypr=tuple(dji_angles)))])
+    header, row = (line.split(",") for line in text.splitlines())
+    angles = [float(row[header.index(k)]) for k in ("pix4d_yaw_deg", "pix4d_pitch_deg", "pix4d_roll_deg")]
+    np.testing.assert_allclose(angles, [-102.3, 0.5, -0.5], atol=1e-5)
+    assert "yaw_deg" not in header and "pitch_deg" not in header
+    (tmp_path / "g.csv").write_text(text)
+    back = read_geotags_csv(tmp_path / "g.csv")["a.JPG"].geotag
+    again = Pose.from_rotation_center(odm_world_from_cam(*angles), np.zeros(3))
+    read = Pose.from_rotation_center(
+        dji_world_from_cam(back.yaw_deg, back.pitch_deg, back.roll_deg), np.zeros(3)
+    )
+    assert rotation_error_deg(read, camera) < 1e-4 and rotation_error_deg(again, camera) < 1e-4
+    (tmp_path / "dji.csv").write_text("image,lat,lon,alt,yaw,pitch,roll\na.JPG,48.1,11.5,600,-102.3,-90,0\n")
+    legacy = read_geotags_csv(tmp_path / "dji.csv")["a.JPG"].geotag
+    assert (legacy.yaw_deg, legacy.pitch_deg, legacy.roll_deg) == (-102.3, -90.0, 0.0)
+    (tmp_path / "both.csv").write_text(
+        "image,lat,lon,alt,yaw,pitch,pix4d_yaw_deg,pix4d_pitch_deg\na.JPG,48.1,11.5,600,0,-90,0,0\n"
+    )
+    with pytest.raises(InputFileError, match="keep one set"):
+        read_geotags_csv(tmp_path / "both.csv")

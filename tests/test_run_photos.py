@@ -43,9 +43,9 @@ from semcityloc.datasets.dji_camera import camera_from_exif
 from semcityloc.datasets.dji_metadata import read_dji_metadata
 from semcityloc.datasets.lodloc import LodLocQuery, read_lodloc, write_lodloc_scene
 from semcityloc.datasets.photos import INTRINSICS_35MM
-from semcityloc.errors import InputFileError, MissingWeightsError
+from semcityloc.errors import BenchmarkError, InputFileError, MissingWeightsError
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.conventions import pose_from_dji
+from semcityloc.geometry.conventions import odm_world_from_cam, pose_from_dji
 from semcityloc.geometry.distortion import LensDistortion, distort_image, unseen_by_photo
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.io import read_lens, read_pose
@@ -739,6 +739,7 @@ def test_berlin_geotags_go_back_to_the_model_crs_within_a_centimetre(berlin_run)
         rows = {r["image"]: r for r in csv.DictReader(fh)}
     assert set(rows) == {"DJI_0001.JPG", "DJI_0002.JPG", "DJI_0003.JPG"}
     to_crs = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    angles = {}
     for name, r in rows.items():
         record = json.loads((out / "poses" / f"{Path(name).stem}.json").read_text())
         lon, lat, h = float(r["longitude"]), float(r["latitude"]), float(r["height_m"])
@@ -756,17 +757,21 @@ def test_berlin_geotags_go_back_to_the_model_crs_within_a_centimetre(berlin_run)
             assert r["source"].startswith("prior (not localized") and float(r["accuracy_xy_m"]) == 5.0
             expected, pose = np.array(record["prior"]["position"]), read_pose(json.dumps(record["prior"]))
         assert np.abs(np.array([x, y, h]) - expected).max() < 0.01, name
-        # The angles, DJI's convention (yaw from true north): the same rotation back.
+        # The angles, Pix4D's / Metashape's / ODM's yaw, pitch, roll (yaw from true north, pitch 0 = nadir;
+        # DJI's before stop 52): the same rotation back, and geo.txt's numbers.
         convergence = pyproj.Proj(crs).get_factors(lon, lat).meridian_convergence
-        yaw, pitch, roll = (float(r[k]) for k in ("yaw_deg", "pitch_deg", "roll_deg"))
-        back = pose_from_dji(np.array([x, y, h]), yaw - convergence, pitch, roll)
+        yaw, pitch, roll = (float(r[k]) for k in ("pix4d_yaw_deg", "pix4d_pitch_deg", "pix4d_roll_deg"))
+        R = odm_world_from_cam(yaw - convergence, pitch, roll)
+        back = Pose.from_rotation_center(R, np.array([x, y, h]))
         assert float(rotation_error_deg(back, pose)) < 1e-4, name
+        angles[name] = (yaw, pitch, roll)
     lines = (out / "geo.txt").read_text().splitlines()
     assert lines[0] == "EPSG:25833" and len(lines) == 3
     for line in lines[1:]:
         name, x, y, z = line.split()[:4]
         position = read_pose(out / "poses" / f"{Path(name).stem}.json").center
         np.testing.assert_allclose([float(x), float(y), float(z)], position, atol=1e-3)
+        np.testing.assert_allclose([float(v) for v in line.split()[4:7]], angles[name], atol=1e-5)
         horizontal, vertical = (float(v) for v in line.split()[7:9])  # ODM's accuracy columns
         assert horizontal == pytest.approx(float(rows[name]["accuracy_xy_m"]), abs=1e-3)
         assert vertical == pytest.approx(float(rows[name]["accuracy_z_m"]), abs=1e-3)
@@ -1222,6 +1227,20 @@ def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_
         with pytest.raises(ParameterError, match="geoid separation N must be"):
             PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=bad)
     assert PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=47.2)
+
+
+def test_a_geoid_separation_with_ellipsoidal_model_heights_is_refused(tmp_path):
+    """``--geoid-separation`` was used only with ``--target-height orthometric`` (or a compound CRS) and said
+    unused otherwise (user audit, stop 52): with ``auto`` it now applies (``dji.model_heights_orthometric``);
+    with ``ellipsoidal``, which says the model's heights need no N, the run is refused naming both."""
+    with pytest.raises(BenchmarkError, match="--geoid-separation 36.7 converts .* give one or the other"):
+        PhotoSpec(
+            str(tmp_path),
+            "city.obj",
+            masks=str(tmp_path),
+            target_height="ellipsoidal",
+            geoid_separation_m=36.7,
+        )
 
 
 def _rename_photo(root: Path, stem: str, new_stem: str) -> None:

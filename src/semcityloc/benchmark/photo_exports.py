@@ -5,10 +5,11 @@ the same), in the formats users import elsewhere:
 
 - ``colmap/``: ``cameras.txt``, ``images.txt``, ``points3D.txt`` (empty): the localized photos' poses in
   the model's frame, named by image (``datasets.colmap.write_model``, the one COLMAP writer);
-- ``geotags.csv`` (model CRS known): every photo's WGS 84 position and DJI angles
-  (``datasets.geotags``; ``source`` = ``semcityloc`` for a corrected pose, with its covariance's sigmas
-  as accuracy, ``prior (not localized: ...)`` for a photo that keeps its prior, with the prior's
-  uncertainty as accuracy), what Metashape and Pix4D import as reference positions;
+- ``geotags.csv`` (model CRS known): every photo's WGS 84 position and yaw, pitch, roll as Pix4D,
+  Metashape and OpenDroneMap define them (``datasets.geotags``; ``source`` = ``semcityloc`` for a
+  corrected pose, with its covariance's sigmas as accuracy, ``prior (not localized: ...)`` for a photo
+  that keeps its prior, with the prior's uncertainty as accuracy), what Metashape and Pix4D import as
+  reference positions and orientations;
 - ``geo.txt`` (model CRS known): OpenDroneMap's image geolocation file of the localized photos, in the
   model's horizontal CRS (its own coordinates: no height conversion), with the covariance's horizontal and
   vertical accuracy;

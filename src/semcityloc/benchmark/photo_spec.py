@@ -43,7 +43,7 @@ from semcityloc.benchmark.runfiles import RESULTS_FILE, plain
 from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
-from semcityloc.datasets.dji import HEIGHT_AUTO, TARGET_HEIGHTS
+from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, TARGET_HEIGHTS
 from semcityloc.datasets.geodesy import check_geoid_separation
 from semcityloc.datasets.photos import EXIF
 from semcityloc.errors import BenchmarkError, InputFileError, as_flags, counted, unknown_choice
@@ -115,6 +115,12 @@ class PhotoSpec:
         if self.calibrate_focal not in CALIBRATE_FOCAL:
             raise unknown_choice("calibrate_focal", self.calibrate_focal, CALIBRATE_FOCAL, BenchmarkError)
         check_geoid_separation(self.geoid_separation_m)  # refused now, not only once a photo's EXIF needs it
+        if self.geoid_separation_m is not None and self.target_height == HEIGHT_ELLIPSOIDAL:
+            raise BenchmarkError(
+                f"--geoid-separation {self.geoid_separation_m:g} converts the photos' ellipsoidal heights to "
+                "the model's orthometric ones, but --target-height ellipsoidal says the model's heights are "
+                "ellipsoidal: give one or the other"
+            )
         self.fixed_uncertainty()
         check_run_options(self.method, self.preset, self.keep_details)
         self.localizer_config()  # a bad eaves value fails here, before anything loads

@@ -103,6 +103,37 @@ def horizontal_crs(crs: pyproj.CRS | str) -> pyproj.CRS:
     return crs
 
 
+def vertical_datum(crs: pyproj.CRS) -> pyproj.CRS | None:
+    """The vertical part (height system) of a compound CRS; None for a CRS without one."""
+    if crs.is_compound:
+        for sub in crs.sub_crs_list:
+            if sub.is_vertical:
+                return sub
+    return None
+
+
+def with_heights_of(target: pyproj.CRS, source: pyproj.CRS) -> pyproj.CRS:
+    """``target`` with ``source``'s height system: the metric CRS of coordinates converted from ``source``
+    horizontally only (``MetricFrame.to_metric`` keeps the heights). A compound source (PLATEAU's EPSG:6697,
+    JGD2011 + JGD2011 vertical height) gives ``target`` + its vertical CRS (``EPSG:32654+6695``), so that a
+    GNSS height is converted to it (its geoid) rather than taken as z unchanged; a target that has the same
+    height system, or a source without one, gives ``target`` as it is. A target with another height system
+    is a ``CRSError``: the heights stay the source's, and naming them otherwise would be silently wrong."""
+    vertical = vertical_datum(source)
+    if vertical is None:
+        return target
+    own = vertical_datum(target)
+    if own is None:
+        return _compound(horizontal_crs(target), vertical)
+    if own.equals(vertical, ignore_axis_order=True):
+        return target
+    raise CRSError(
+        f"the target CRS {target.name!r} names the height system {own.name!r}, but the coordinates' heights "
+        f"are in {vertical.name!r} and are not converted: give a target without a height system (or with "
+        "that one)"
+    )
+
+
 def utm_crs_for(lon: float, lat: float) -> pyproj.CRS:
     """The WGS 84 / UTM zone CRS that contains (lon, lat)."""
     zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
@@ -114,7 +145,10 @@ class MetricFrame:
     """How source coordinates become metric x (east), y (north), z (up) coordinates.
 
     ``source``: the CRS the file is in (None: unknown, coordinates are taken as metric as they are).
-    ``target``: the metric CRS of the mesh; equals ``source`` unless the source is geographic.
+    ``target``: the metric CRS of the mesh; equals ``source`` unless the source is geographic. Heights are
+    never converted, so a source's height system stays the target's (``with_heights_of``: a compound
+    geographic source becomes its UTM zone + its vertical CRS). A geographic 3D source's heights
+    (EPSG:4979) are ellipsoidal: its target is the 2D UTM zone, whose z then is that ellipsoidal height.
     ``lat_first``: the source's first coordinate is latitude (EPSG axis order of e.g. EPSG:6697, 4326).
     """
 
@@ -149,6 +183,7 @@ class MetricFrame:
                 target = utm_crs_for(float(np.mean(lon)), float(np.mean(lat)))
         if target is None or target == source:
             return cls(source, source, lat_first)
+        target = with_heights_of(target, source)
         transformer = pyproj.Transformer.from_crs(horiz, horizontal_crs(target), always_xy=True)
         return cls(source, target, lat_first, transformer)
 
@@ -217,11 +252,16 @@ def check_degrees(source: pyproj.CRS | None, sample_xy: np.ndarray | None, where
 MAX_SCALE_ERROR = 0.01
 
 
-def ground_scale_problem(crs: pyproj.CRS | None, x: float, y: float) -> str | None:
+def ground_scale_problem(
+    crs: pyproj.CRS | None, x: float, y: float, named_by: str = "the file's CRS"
+) -> str | None:
     """Why ``crs`` cannot be a camera's metric frame at its point (``x``, ``y``): its point scale factor
     there is more than ``MAX_SCALE_ERROR`` from 1 (a camera would see every distance that much off: the
     height above the roofs, the building sizes). None when it can (or is no projected CRS, or pyproj
-    cannot tell)."""
+    cannot tell). Two causes, both named: the coordinates are not in ``crs`` at all (who named it:
+    ``named_by``, e.g. ``--crs EPSG:25832``; Gauss-Krueger metres read as UTM put a Bavarian model at lon
+    54, lat 39), said first when that point lies outside the CRS's area of use; or they are, and the CRS
+    is no metric frame (Web Mercator), so the model must be reprojected."""
     if crs is None:
         return None
     horizontal = horizontal_crs(crs)
@@ -236,12 +276,25 @@ def ground_scale_problem(crs: pyproj.CRS | None, x: float, y: float) -> str | No
     scale = max(factors.meridional_scale, factors.parallel_scale, key=lambda k: abs(k - 1.0))
     if not np.isfinite(scale) or abs(scale - 1.0) <= MAX_SCALE_ERROR:
         return None
-    return (
+    problem = (
         f"{horizontal.name} is no metric frame here: its point scale factor at the model "
         f"(lon {lon:.3f}, lat {lat:.3f}) is {scale:.3f}, so its metres are {1.0 / scale:.3f} m on the ground "
-        "and a camera would see every distance that much off; reproject the model to the UTM zone or the "
-        "national grid it lies in"
+        "and a camera would see every distance that much off"
     )
+    not_in = f"the coordinates are not in {horizontal.name} (is {named_by} right?)"
+    give = f"give the CRS they are in ({parameter('crs', 'EPSG:<code>')})"
+    reproject = "reproject the model to the UTM zone or the national grid it lies in"
+    area = crs.area_of_use or horizontal.area_of_use
+    if (
+        area is not None
+        and area.west <= area.east
+        and not (area.west <= lon <= area.east and area.south <= lat <= area.north)
+    ):
+        return (
+            f"{problem}. The model would lie outside the CRS's area of use ({area.name.split(':')[0]}), so "
+            f"most likely {not_in}: {give}; else {reproject}"
+        )
+    return f"{problem}: {reproject}; or, if {not_in}, {give}"
 
 
 def check_projected(crs: pyproj.CRS | str, what: str, given_as: str = "crs") -> pyproj.CRS:

@@ -22,15 +22,16 @@ from semcityloc.citymodel.cityjson import read_cityjson
 from semcityloc.citymodel.crs import check_projected, ground_scale_problem, parse_crs_name
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.obj import read_obj
-from semcityloc.errors import CRSError, InputFileError, UnsupportedFormatError
+from semcityloc.errors import CRSError, InputFileError, UnsupportedFormatError, parameter
 from semcityloc.io.stamps import file_sha256
 
 # Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
 # before is returned (2: a geographic CityGML's UTM zone no longer comes from a stale Envelope; 3: the stats
 # count every skipped polygon, with a warning each; 4: CityJSON's JSON-true vertex indices and non-list
 # semantic values no longer pass silently; 5: an AdV srsName's height system kept, a compound CRS; 6: an
-# OBJ's class-named materials and semcityloc's own frame header read).
-CACHE_VERSION = 6
+# OBJ's class-named materials and semcityloc's own frame header read; 7: a geographic compound CRS's height
+# system kept in the metric CRS, PLATEAU's EPSG:6697 -> EPSG:32654+6695).
+CACHE_VERSION = 7
 
 
 def default_cache_dir() -> Path:
@@ -130,7 +131,7 @@ def load_city_model(
     if fmt == "zip":
         raise UnsupportedFormatError(zip_message(path))
     if fmt == "npz":
-        return _checked_frame(CityModel.load_npz(path), path)
+        return _checked_frame(CityModel.load_npz(path), path, crs)
 
     cache_file = None
     if cache:
@@ -144,11 +145,11 @@ def load_city_model(
             try:
                 model = CityModel.load_npz(cache_file)
                 model.source = str(path)
-                return _checked_frame(model, path)
+                return _checked_frame(model, path, crs)
             except InputFileError:
                 cache_file.unlink(missing_ok=True)
 
-    model = _checked_frame(_read(path, fmt, lod, crs, target_crs, origin), path)
+    model = _checked_frame(_read(path, fmt, lod, crs, target_crs, origin), path, crs)
     if cache_file is not None:
         try:
             cache_file.parent.mkdir(parents=True, exist_ok=True)
@@ -158,15 +159,16 @@ def load_city_model(
     return model
 
 
-def _checked_frame(model: CityModel, path: Path) -> CityModel:
+def _checked_frame(model: CityModel, path: Path, crs_given: str | None = None) -> CityModel:
     """``model``, unless its CRS is no metric frame at the model: not projected (an Earth-centred or a
     vertical-only CRS), not in metres (``crs.check_projected``), or with a point scale factor far from 1
     (``crs.ground_scale_problem``: Web Mercator, whose metres are 0.61 m in Berlin); then a ``CRSError``
-    naming the file."""
+    naming the file and who named the CRS (``crs_given``: the ``crs`` option, --crs)."""
     if model.crs is not None:
         check_projected(model.crs, f"{path}: the model's CRS")
     centre = model.origin[:2] + model.bounds_local.mean(axis=0)[:2]
-    problem = ground_scale_problem(model.crs, float(centre[0]), float(centre[1]))
+    named_by = parameter("crs", crs_given) if crs_given else "the CRS the file states"
+    problem = ground_scale_problem(model.crs, float(centre[0]), float(centre[1]), named_by)
     if problem is not None:
         raise CRSError(f"{path}: {problem}")
     return model

@@ -90,10 +90,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--target-height",
         default="auto",
         choices=TARGET_HEIGHTS,
-        help="what the model's z is (auto: orthometric when its CRS has a vertical datum, else DJI's height "
-        "as it is; orthometric: EGM96 for a 2D CRS)",
+        help="what the model's z is (auto: orthometric when its CRS has a vertical datum or "
+        "--geoid-separation is given, else DJI's height as it is; orthometric: EGM96 for a 2D CRS)",
     )
-    p.add_argument("--geoid-separation", type=float, default=None, help="known geoid undulation N (m)")
+    p.add_argument(
+        "--geoid-separation",
+        type=float,
+        default=None,
+        help="known geoid undulation N (m) at the site: the model's z = the photos' ellipsoidal height - N",
+    )
     p.add_argument("--method", default="semcityloc", choices=ABLATIONS, help="the method or an ablation")
     p.add_argument("--preset", default="default", choices=tuple(PRESETS), help="localizer preset")
     add_map_eaves_arguments(p)

@@ -25,9 +25,11 @@ runs through pyproj. pyproj applies a geoid only when its grid file is installed
 ``PROJ_NETWORK=ON``); otherwise its "ballpark" operation leaves the height unchanged. That case is never
 silent: ``DjiPrior.geoid_applied`` is False, ``vertical_flag`` says what was not done and which grid
 would do it, and ``vertical_uncertainty_m`` grows to ``GEOID_UNDULATION_BOUND_M``. A known N can be
-given as ``geoid_separation_m``. A 2D target CRS with ``target_height="auto"`` keeps the DJI height as
-it is (z of the result = DJI's height reference, stated in ``z_reference``): UAVD4L-LoD's frame is such a
-case (its z is DJI's RTK height: measured on the real demo image, GT z - AbsoluteAltitude = 0.68 m).
+given as ``geoid_separation_m`` (with ``target_height="auto"`` it says the model's z is orthometric, for a
+2D CRS too: ``model_heights_orthometric``). A 2D target CRS with ``target_height="auto"`` and no N keeps
+the DJI height as it is (z of the result = DJI's height reference, stated in ``z_reference``):
+UAVD4L-LoD's frame is such a case (its z is DJI's RTK height: measured on the real demo image, GT z -
+AbsoluteAltitude = 0.68 m).
 
 Frames: ``offset`` is subtracted from the CRS coordinates (in float64) for data sets whose frame is a CRS
 minus an offset; bring the result into a ``CityModel``'s local frame with ``model.pose_to_local(pose)``.
@@ -42,7 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pyproj
 
-from semcityloc.citymodel.crs import check_projected, horizontal_crs
+from semcityloc.citymodel.crs import check_projected, horizontal_crs, vertical_datum
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geodesy import (
     EGM96,
@@ -55,7 +57,6 @@ from semcityloc.datasets.geodesy import (
     is_ballpark,
     target_crs_of,
     transformer_group,
-    vertical_datum,
 )
 from semcityloc.errors import CRSError, InputFileError, PoseError, parameter, unknown_choice
 from semcityloc.geometry.conventions import dji_gimbal_angles, pose_from_dji, wrap_deg
@@ -104,6 +105,12 @@ class DjiPrior:
     notes: list[str] = field(default_factory=list)
     meta: DjiMetadata | None = None  # what the prior was made from (``prior_uncertainty`` reads its RTK tags)
 
+    @property
+    def height_unconverted(self) -> bool:
+        """Whether the height could not be brought into the model's reference (a geoid needed and not
+        applied: ``vertical_uncertainty_m`` grown to ``GEOID_UNDULATION_BOUND_M``); ``height_widened``."""
+        return self.vertical_uncertainty_m >= GEOID_UNDULATION_BOUND_M
+
     def as_dict(self) -> dict:
         """How the prior was derived (CRS, heights, geoid, convergence, notes), for pose files."""
         return {
@@ -122,14 +129,37 @@ class DjiPrior:
         }
 
 
-# Said when a geoid separation was given but no height conversion asked for it (a 2D CRS, ``auto``): the
-# user meant it to apply; nothing would show that it did not.
+# Said when a geoid separation was given but no height conversion needed it: the heights were of one kind
+# on both sides (``target_height="ellipsoidal"`` with ellipsoidal photo heights, orthometric ones for an
+# orthometric model); nothing else would show that it did not apply. (With ``"auto"`` a given N is always
+# applied: ``model_heights_orthometric``.)
 GEOID_UNUSED_NOTE = (
-    f"the geoid separation given ({parameter('geoid_separation')}) was not used: no height conversion was "
-    "asked for (the model's CRS names no vertical datum); pass a compound CRS "
-    f"({parameter('target_crs', 'EPSG:xxxx+vvvv')}) or {parameter('target_height', 'orthometric')} to "
-    "apply it"
+    f"the geoid separation given ({parameter('geoid_separation')}) was not used: the heights needed no "
+    "conversion between ellipsoidal and orthometric "
+    f"({parameter('target_height', 'ellipsoidal')} with ellipsoidal photo heights, or orthometric photo "
+    "heights for an orthometric model)"
 )
+
+
+def model_heights_orthometric(
+    crs: pyproj.CRS, target_height: str, geoid_separation_m: float | None = None
+) -> bool:
+    """Whether the model's z is taken as orthometric (so that a GNSS ellipsoidal height is converted to it,
+    ``H = h - N``, and back in ``dji_geotag``): ``target_height="orthometric"``; with ``"auto"`` when its CRS
+    has a vertical datum, or when a geoid separation N is given (a stated N says the model's heights are
+    the geoid's; before stop 52 it was ignored for a 2D CRS); never with ``"ellipsoidal"``."""
+    if target_height == HEIGHT_AUTO:
+        return vertical_datum(crs) is not None or geoid_separation_m is not None
+    return target_height == HEIGHT_ORTHOMETRIC
+
+
+def _height_system_name(crs: pyproj.CRS, geoid_separation_m: float | None) -> str:
+    """What the model's orthometric heights are called in a height reference: its CRS's vertical datum,
+    else "the model's heights" for a stated N (any geoid), else EGM96 (DJI's "MSL")."""
+    vertical = vertical_datum(crs)
+    if vertical is not None:
+        return vertical.name
+    return "the model's heights" if geoid_separation_m is not None else "EGM96 height"
 
 
 def source_height_reference(meta: DjiMetadata) -> tuple[str, str]:
@@ -180,9 +210,11 @@ def dji_prior(
         source_height, why = source_height_reference(meta)
         notes.append(why)
     vertical = vertical_datum(crs)
-    if target_height == HEIGHT_AUTO:
-        wanted = HEIGHT_ORTHOMETRIC if vertical is not None else None
-        if wanted is None and source_height == HEIGHT_ELLIPSOIDAL:
+    if model_heights_orthometric(crs, target_height, geoid_separation_m):
+        wanted = HEIGHT_ORTHOMETRIC
+    elif target_height == HEIGHT_AUTO:
+        wanted = None
+        if source_height == HEIGHT_ELLIPSOIDAL:
             notes.append(HEIGHT_AS_IS_NOTE)
     else:
         wanted = target_height
@@ -199,9 +231,8 @@ def dji_prior(
             "prefer RelativeAltitude + the take-off point's height when known"
         )
     z, z_reference, applied, n_used = h, source_height, False, None
-    target_vertical = vertical if vertical is not None else target_crs_of(EGM96)
     if wanted == HEIGHT_ORTHOMETRIC and source_height in (HEIGHT_ELLIPSOIDAL, HEIGHT_BAROMETRIC):
-        vname = target_vertical.name if vertical is not None else "EGM96 height"
+        vname = _height_system_name(crs, geoid_separation_m)
         if geoid_separation_m is not None:
             n_used, applied = float(geoid_separation_m), True
             z, z_reference = h - n_used, f"orthometric ({vname}, N = {n_used:g} m given)"
@@ -293,9 +324,7 @@ def prior_uncertainty(
       whose numbers are those of a DJI drone on plain GNSS).
 
     Orientation (yaw, roll / pitch) always comes from ``base``: DJI writes no accuracy for the gimbal. Given
-    a ``DjiPrior`` whose height could not be brought into the model's reference (``geoid_applied`` False
-    where a geoid was needed: ``vertical_uncertainty_m`` = ``GEOID_UNDULATION_BOUND_M``), the height
-    uncertainty grows to a third of that bound (the search covers 3 sigma).
+    a ``DjiPrior`` whose height could not be brought into the model's reference, ``height_widened``.
     """
     meta = prior.meta if isinstance(prior, DjiPrior) else prior
     if not isinstance(meta, DjiMetadata):
@@ -319,13 +348,24 @@ def prior_uncertainty(
         )
     else:
         out = replace(base, source=f"no RTK fix (RtkFlag={flag}): {base.source}")
-    if isinstance(prior, DjiPrior) and prior.vertical_uncertainty_m >= GEOID_UNDULATION_BOUND_M:
-        out = replace(
-            out,
-            z_m=max(out.z_m, GEOID_UNDULATION_BOUND_M / 3.0),
-            source=f"{out.source}; height reference not converted ({prior.z_reference})",
-        )
-    return out
+    return height_widened(out, prior) if isinstance(prior, DjiPrior) else out
+
+
+def height_widened(uncertainty: PriorUncertainty, prior: DjiPrior) -> PriorUncertainty:
+    """``uncertainty`` of a prior made by ``dji_prior`` (from a photo's EXIF, a geotag file's row: any
+    source), its height sigma grown to a third of ``GEOID_UNDULATION_BOUND_M`` (the search covers 3 sigma:
+    +-110 m) when the height could not be brought into the model's reference
+    (``DjiPrior.height_unconverted``: no geoid grid, no N given), and the reason added to its ``source``;
+    ``uncertainty`` as it is otherwise. The one rule of "height not converted: search the whole geoid
+    range", whatever gave the prior or its other sigmas (RTK tags, a geotag file's accuracy columns, the
+    defaults)."""
+    if not prior.height_unconverted:
+        return uncertainty
+    return replace(
+        uncertainty,
+        z_m=max(uncertainty.z_m, GEOID_UNDULATION_BOUND_M / 3.0),
+        source=f"{uncertainty.source}; height reference not converted ({prior.z_reference})",
+    )
 
 
 # ---------------------------------------------------------------------------------------------- geotags
@@ -370,10 +410,11 @@ def dji_geotag(
     """The geotag of a camera pose in a model's CRS (minus ``offset``): the inverse of ``dji_prior``.
 
     Position: the CRS's horizontal part -> WGS 84 latitude / longitude with pyproj (``always_xy``).
-    Height, as ``dji_prior`` brought heights in: a CRS with a vertical datum (or ``target_height=
-    "orthometric"``: EGM96 for a 2D CRS) -> WGS 84 ellipsoidal height through pyproj (``vertical_flag``
-    set and the height left as it is when pyproj has no geoid grid); a 2D CRS with ``target_height``
-    ``"auto"`` or ``"ellipsoidal"`` -> the model's z as it is (``dji_prior`` took DJI's height as z, so a
+    Height, as ``dji_prior`` brought heights in: an orthometric model (``model_heights_orthometric``: a CRS
+    with a vertical datum, ``target_height="orthometric"``, EGM96 for a 2D CRS, or a given N) -> WGS 84
+    ellipsoidal height through pyproj or N (``vertical_flag`` set and the height left as it is when
+    pyproj has no geoid grid); a 2D CRS with ``target_height`` ``"auto"`` (no N) or ``"ellipsoidal"`` ->
+    the model's z as it is (``dji_prior`` took DJI's height as z, so a
     prior read back gives the photo's own height). Angles: ``dji_gimbal_angles`` minus the grid
     convergence (grid north -> true north). ``dji_prior(geotag.metadata(), crs, offset, "ellipsoidal")``
     gives the pose back. ``geoid_separation_m``: the N the priors were brought in with (h = H + N, the
@@ -398,9 +439,9 @@ def dji_geotag(
 
     vertical = vertical_datum(crs)
     flag = None
-    if vertical is not None or target_height == HEIGHT_ORTHOMETRIC:
+    if model_heights_orthometric(crs, target_height, geoid_separation_m):
         source_3d = crs if vertical is not None else EGM96
-        vname = vertical.name if vertical is not None else "EGM96 height"
+        vname = _height_system_name(crs, geoid_separation_m)
         heights = transformer_group(source_3d, WGS84_3D)
         if geoid_separation_m is not None:
             h = z + float(geoid_separation_m)

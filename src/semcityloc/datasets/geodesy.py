@@ -7,7 +7,7 @@ at all; these helpers do it once, for ``datasets.dji`` (priors and geotags), ``d
 ``datasets.geojson``.
 
 - CRS names (``target_crs_of``): ``parse_crs_name``'s forms, ``EPSG:h+v`` compounds kept whole; a
-  compound's vertical part: ``vertical_datum`` (its horizontal part: ``citymodel.crs.horizontal_crs``).
+  compound's parts: ``citymodel.crs.vertical_datum`` and ``horizontal_crs``.
   A position more than ``AREA_MARGIN_DEG`` outside the CRS's area of use is a wrong CRS
   (``check_area_of_use``; a model's own coordinates likewise, ``model_outside_crs``: a local frame given a
   CRS without its offset); a CRS that is not projected is refused (``citymodel.crs.check_projected``).
@@ -56,15 +56,6 @@ def target_crs_of(name: str | pyproj.CRS) -> pyproj.CRS:
 
 
 _crs_of_name = functools.lru_cache(maxsize=_CACHED)(parse_crs_name)
-
-
-def vertical_datum(crs: pyproj.CRS) -> pyproj.CRS | None:
-    """The vertical part (height system) of a compound CRS; None for a CRS without one."""
-    if crs.is_compound:
-        for sub in crs.sub_crs_list:
-            if sub.is_vertical:
-                return sub
-    return None
 
 
 def _crs_key(crs: str | pyproj.CRS) -> str:

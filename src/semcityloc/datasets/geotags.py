@@ -1,27 +1,35 @@
-"""Geotag files: per-photo WGS 84 positions and DJI angles (CSV), OpenDroneMap's ``geo.txt``.
+"""Geotag files: per-photo WGS 84 positions and camera angles (CSV), OpenDroneMap's ``geo.txt``.
 
 Why: photogrammetry tools take a table of camera positions as "reference" or "geolocation" input in
 place of the photos' EXIF, and users bring priors in such tables. One CSV layout is read and written here:
 
 ``geotags.csv`` (``GEOTAG_COLUMNS``)::
 
-    image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg,accuracy_xy_m,accuracy_z_m,source,height_reference
+    image,latitude,longitude,height_m,pix4d_yaw_deg,pix4d_pitch_deg,pix4d_roll_deg,accuracy_xy_m,accuracy_z_m,source,height_reference
 
 - ``latitude`` / ``longitude``: WGS 84 degrees; ``height_m``: in ``height_reference`` (WGS 84 ellipsoidal
   when the model's heights could be converted, else the model's own z: ``datasets.dji.dji_geotag``);
-- ``yaw_deg`` / ``pitch_deg`` / ``roll_deg``: DJI's gimbal convention (yaw clockwise from true north,
-  pitch -90 = straight down, roll about the optical axis), as DJI writes them into the photos;
+- ``pix4d_yaw_deg`` / ``pix4d_pitch_deg`` / ``pix4d_roll_deg``: the yaw, pitch, roll that Pix4D defines
+  and Metashape's reference and OpenDroneMap's ``geo.txt`` use (``pix4d_angles``, the same numbers as
+  ``geo.txt``'s: pitch 0 = nadir, 90 = looking at the horizon, yaw the heading of the image top from true
+  north, roll the sideways tilt; ``geometry.conventions.odm_angles``), so that a tool's reference import
+  takes them as they are. Not DJI's gimbal angles (pitch -90 = nadir): a reference import would read
+  those 90 degrees off, and near nadir DJI's split between yaw and roll is arbitrary (a camera 0.7 deg
+  off nadir has roll 76 deg), where these stay two small tilts and a heading. Before stop 52 the file held
+  DJI's angles as ``yaw_deg`` / ``pitch_deg`` / ``roll_deg``; such files read as they were;
 - ``accuracy_xy_m`` / ``accuracy_z_m``: one-sigma accuracy where known (empty otherwise); read back as a
   prior's ``PriorUncertainty``;
 - ``source``: what the row is (``semcityloc`` for a corrected pose, ``prior`` for a photo that was not
   localized and keeps its prior).
 
 Reading accepts any column order and these names too: ``name`` / ``label`` / ``filename`` for the image,
-``lat`` / ``lon`` / ``long``, ``alt`` / ``altitude`` / ``height`` / ``height_ellipsoidal_m``, ``yaw`` /
-``pitch`` / ``roll`` (always the DJI convention). ``geo.txt``: OpenDroneMap's image geolocation file, a
-projection line (the model's horizontal CRS, so no height conversion is involved) and one line per image:
-``image_name x y z yaw pitch roll``, the angles in ODM's convention (pitch 0 = nadir, yaw the heading of
-the image top from true north, roll the sideways tilt: ``geometry.conventions.odm_angles``).
+``lat`` / ``lon`` / ``long``, ``alt`` / ``altitude`` / ``height`` / ``height_ellipsoidal_m``, and angles
+either as the ``pix4d_*`` columns or as DJI gimbal angles: ``yaw_deg`` / ``pitch_deg`` / ``roll_deg`` or
+``yaw`` / ``pitch`` / ``roll`` (always DJI's convention, as a DJI photo's XMP holds them: what users export
+with exiftool); a file with both is refused (which would be meant?). ``geo.txt``: OpenDroneMap's image
+geolocation file, a projection line (the model's horizontal CRS, so no height conversion is involved)
+and one line per image: ``image_name x y z yaw pitch roll``, the angles those of ``geotags.csv``
+(``pix4d_angles``), which is ODM's convention.
 """
 
 from __future__ import annotations
@@ -32,13 +40,20 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pyproj
 
 from semcityloc.citymodel.crs import horizontal_crs
 from semcityloc.datasets.dji import HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, DjiGeotag
 from semcityloc.datasets.dji_metadata import finite_number
 from semcityloc.errors import CRSError, InputFileError
-from semcityloc.geometry.conventions import dji_world_from_cam, odm_angles
+from semcityloc.geometry.conventions import (
+    dji_gimbal_angles,
+    dji_world_from_cam,
+    odm_angles,
+    odm_world_from_cam,
+)
+from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
 GEOTAG_COLUMNS = (
@@ -46,9 +61,9 @@ GEOTAG_COLUMNS = (
     "latitude",
     "longitude",
     "height_m",
-    "yaw_deg",
-    "pitch_deg",
-    "roll_deg",
+    "pix4d_yaw_deg",
+    "pix4d_pitch_deg",
+    "pix4d_roll_deg",
     "accuracy_xy_m",
     "accuracy_z_m",
     "source",
@@ -62,12 +77,33 @@ _ALIASES = {
     "yaw_deg": ("yaw_deg", "yaw", "gimbal_yaw"),
     "pitch_deg": ("pitch_deg", "pitch", "gimbal_pitch"),
     "roll_deg": ("roll_deg", "roll", "gimbal_roll"),
+    "pix4d_yaw_deg": ("pix4d_yaw_deg",),
+    "pix4d_pitch_deg": ("pix4d_pitch_deg",),
+    "pix4d_roll_deg": ("pix4d_roll_deg",),
     "accuracy_xy_m": ("accuracy_xy_m", "accuracy_xy", "horizontal_accuracy"),
     "accuracy_z_m": ("accuracy_z_m", "accuracy_z", "vertical_accuracy"),
     "source": ("source",),
     "height_reference": ("height_reference",),
 }
-_REQUIRED = ("image", "latitude", "longitude", "height_m", "yaw_deg", "pitch_deg")
+_REQUIRED = ("image", "latitude", "longitude", "height_m")
+DJI_ANGLES = ("yaw_deg", "pitch_deg", "roll_deg")  # ``_ALIASES`` keys of the two angle sets a file may hold
+PIX4D_ANGLES = ("pix4d_yaw_deg", "pix4d_pitch_deg", "pix4d_roll_deg")
+
+
+def pix4d_angles(tag: DjiGeotag) -> tuple[float, float, float]:
+    """(yaw, pitch, roll) in degrees of a geotag's camera as Pix4D, Metashape's reference and OpenDroneMap
+    define them (``geometry.conventions.odm_angles``; module docstring): what ``geotags.csv`` and
+    ``geo.txt`` hold."""
+    yaw, pitch, roll = odm_angles(dji_world_from_cam(tag.yaw_deg, tag.pitch_deg, tag.roll_deg)).tolist()
+    return float(yaw), float(pitch), float(roll)
+
+
+def dji_angles_of_pix4d(yaw_deg: float, pitch_deg: float, roll_deg: float) -> tuple[float, float, float]:
+    """DJI gimbal (yaw, pitch, roll) of the camera whose ``pix4d_angles`` are these: the inverse, through
+    the rotation (near nadir DJI's yaw / roll split is arbitrary; the camera is the same)."""
+    R = odm_world_from_cam(yaw_deg, pitch_deg, roll_deg)
+    yaw, pitch, roll = dji_gimbal_angles(Pose.from_rotation_center(R, np.zeros(3))).tolist()
+    return float(yaw), float(pitch), float(roll)
 
 
 @dataclass(frozen=True)
@@ -133,11 +169,19 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
             if name in header:
                 where[key] = header.index(name)
                 break
-    missing = [k for k in _REQUIRED if k not in where]
+    pix4d = any(k in where for k in PIX4D_ANGLES)
+    if pix4d and any(k in where for k in DJI_ANGLES):
+        raise InputFileError(
+            f"{path}: the header {header} holds both DJI gimbal angles (yaw/pitch/roll) and Pix4D ones "
+            "(pix4d_*): keep one set"
+        )
+    angles = PIX4D_ANGLES if pix4d else DJI_ANGLES
+    missing = [k for k in (*_REQUIRED, *angles[:2]) if k not in where]
     if missing:
         raise InputFileError(
-            f"{path}: a geotag CSV needs the columns {', '.join(_REQUIRED)} (+ roll_deg, accuracy_xy_m, "
-            f"accuracy_z_m); missing {', '.join(missing)} in the header {header}"
+            f"{path}: a geotag CSV needs the columns {', '.join(_REQUIRED)} and angles: yaw_deg, pitch_deg "
+            "(DJI's) or pix4d_yaw_deg, pix4d_pitch_deg (+ the roll, accuracy_xy_m, accuracy_z_m); missing "
+            f"{', '.join(missing)} in the header {header}"
         )
     rows: dict[str, GeotagRow] = {}
     for n, values in enumerate(reader, start=2):
@@ -160,14 +204,17 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
         lat, lon = get("latitude"), get("longitude")
         if not (-90 <= lat <= 90 and -180 <= lon <= 360):
             raise InputFileError(f"{line}: latitude {lat} / longitude {lon} out of range")
-        roll = get("roll_deg", optional=True)
+        roll = get(angles[2], optional=True)
+        yaw, pitch, roll = get(angles[0]), get(angles[1]), 0.0 if roll is None else roll
+        if pix4d:
+            yaw, pitch, roll = dji_angles_of_pix4d(yaw, pitch, roll)
         tag = DjiGeotag(
             latitude=lat,
             longitude=lon,
             height_m=get("height_m"),
-            yaw_deg=get("yaw_deg"),
-            pitch_deg=get("pitch_deg"),
-            roll_deg=0.0 if roll is None else roll,
+            yaw_deg=yaw,
+            pitch_deg=pitch,
+            roll_deg=roll,
             height_reference=text("height_reference") or "as given in the geotag file",
         )
         source = text("source")
@@ -194,15 +241,16 @@ def geotags_csv_text(rows: list[GeotagRow]) -> str:
     writer.writerow(GEOTAG_COLUMNS)
     for r in rows:
         g = r.geotag
+        yaw, pitch, roll = pix4d_angles(g)
         writer.writerow(
             [
                 r.image,
                 f"{g.latitude:.10f}",
                 f"{g.longitude:.10f}",
                 f"{g.height_m:.4f}",
-                f"{g.yaw_deg:.6f}",
-                f"{g.pitch_deg:.6f}",
-                f"{g.roll_deg:.6f}",
+                f"{yaw:.6f}",
+                f"{pitch:.6f}",
+                f"{roll:.6f}",
                 _cell(r.accuracy_xy_m, 3),
                 _cell(r.accuracy_z_m, 3),
                 r.source,
@@ -232,7 +280,7 @@ def odm_geo_text(
     for (name, (x, y, z), g), accuracy in zip(rows, accuracies, strict=True):
         if any(c.isspace() for c in name):
             raise InputFileError(f"{name!r}: geo.txt cannot hold image names with spaces")
-        yaw, pitch, roll = odm_angles(dji_world_from_cam(g.yaw_deg, g.pitch_deg, g.roll_deg))
+        yaw, pitch, roll = pix4d_angles(g)
         line = f"{name} {x:.4f} {y:.4f} {z:.4f} {yaw:.6f} {pitch:.6f} {roll:.6f}"
         if accuracy is not None:
             line += f" {accuracy[0]:.3f} {accuracy[1]:.3f}"

@@ -20,7 +20,8 @@ per-photo information in whatever form they come with. This module matches each 
   resampled onto the pinhole camera (``geometry.distortion``);
 - priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
   uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
-  + DJI angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above.
+  + angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above;
+  a height that could not be converted widens the height sigma either way (``dji.height_widened``).
 
 A photo lacking something is not an error of the whole batch: ``PhotoMissing`` names what is missing and
 the caller skips that photo with the reason.
@@ -38,7 +39,7 @@ import pyproj
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.pose_crs import check_pose_crs, read_pose_world
 from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, read_cameras_binary, read_images_binary
-from semcityloc.datasets.dji import HEIGHT_AUTO, dji_prior, prior_uncertainty
+from semcityloc.datasets.dji import HEIGHT_AUTO, dji_prior, height_widened, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geotags import read_geotags_csv
@@ -364,7 +365,13 @@ class PriorFiles:
                 f"({parameter('priors', 'GPS_pose/')} or a COLMAP images.txt)"
             )
 
-    def _from_dji(self, meta, source: str, source_height: str) -> PhotoPrior:
+    def _from_dji(
+        self, meta, source: str, source_height: str, stated: PriorUncertainty | None = None
+    ) -> PhotoPrior:
+        """The prior of ``meta`` (a photo's DJI metadata, a geotag row's) with its uncertainty: ``stated``
+        (a geotag row's accuracies, else the defaults) or, for a photo's own metadata (``stated`` None and
+        ``source`` exif), its RTK tags; either way widened when its height was not converted
+        (``dji.height_widened``, one rule for every source)."""
         try:
             prior = dji_prior(
                 meta,
@@ -377,7 +384,13 @@ class PriorFiles:
         except InputFileError as exc:
             raise PhotoMissing(f"no usable GPS prior: {exc}") from None
         details = prior.as_dict()
-        return PhotoPrior(prior.pose, prior_uncertainty(prior), source, details)
+        if source == EXIF:
+            sigma = prior_uncertainty(prior)
+        elif stated is None and not prior.height_unconverted:
+            sigma = None  # the caller's default
+        else:
+            sigma = height_widened(stated or PriorUncertainty(), prior)
+        return PhotoPrior(prior.pose, sigma, source, details)
 
     def prior(self, image: Path, meta: DjiMetadata | None = None) -> PhotoPrior:
         """The prior of ``image``; ``PhotoNotListed`` when the files have none for it, ``PhotoMissing`` when
@@ -393,7 +406,5 @@ class PriorFiles:
             if row is None:
                 raise PhotoNotListed(f"no row for {image.name} in {self.spec}")
             source = f"geotags {Path(self.spec).name}"
-            prior = self._from_dji(row.geotag.metadata(), source, row.source_height())
-            prior.uncertainty = row.uncertainty()
-            return prior
-        return self._from_dji(meta if meta is not None else photo_metadata(image), "exif", HEIGHT_AUTO)
+            return self._from_dji(row.geotag.metadata(), source, row.source_height(), row.uncertainty())
+        return self._from_dji(meta if meta is not None else photo_metadata(image), EXIF, HEIGHT_AUTO)

@@ -129,14 +129,20 @@ def dji_world_from_cam(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
     right side down positive). Equivalently ``R = Rz(-yaw) @ Rx(90 + pitch) @ diag(1, -1, -1) @ Rz(roll)``
     in ENU: DJI roll turns the image about the optical axis (camera frame), unlike our roll.
     """
+    return _world_from_ned_angles(yaw_deg, pitch_deg, roll_deg, GIMBAL_FROM_CAM, "DJI gimbal angles")
+
+
+def _world_from_ned_angles(yaw_deg, pitch_deg, roll_deg, body_from_cam: np.ndarray, what: str) -> np.ndarray:
+    """(..., 3, 3) ``ENU_FROM_NED @ Rz(yaw) Ry(pitch) Rx(roll) @ body_from_cam``: the inverse of
+    ``_ned_yaw_pitch_roll``; ``what`` names the angles in the error for a non-finite one."""
     angles = np.stack(
         np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (yaw_deg, pitch_deg, roll_deg))), -1
     )
     if not np.all(np.isfinite(angles)):
-        raise PoseError("DJI gimbal angles have non-finite entries")
+        raise PoseError(f"{what} have non-finite entries")
     # Intrinsic 'ZYX' (yaw, pitch, roll) = Rz(yaw) @ Ry(pitch) @ Rx(roll).
     R_ned_from_body = Rotation.from_euler("ZYX", angles.reshape(-1, 3), degrees=True).as_matrix()
-    R = ENU_FROM_NED @ R_ned_from_body @ GIMBAL_FROM_CAM
+    R = ENU_FROM_NED @ R_ned_from_body @ body_from_cam
     return R.reshape(angles.shape[:-1] + (3, 3))
 
 
@@ -195,5 +201,15 @@ def odm_angles(R_world_from_cam: np.ndarray) -> np.ndarray:
     'ZYX'. Unlike DJI's angles this is well-conditioned at nadir (pitch and roll are the two tilts, yaw
     the heading of the image top); it is gimbal-locked for a camera looking at the horizon. Yaw is
     wrapped to (-180, 180], measured from the world's y axis (true north when the world is a local ENU).
+    The same definition as Pix4D's yaw, pitch, roll (its image geolocation import) and Metashape's
+    reference rotation (rest pose looking down): a run's ``geotags.csv`` writes these too
+    (``docs/data-formats.md``).
     """
     return _ned_yaw_pitch_roll(R_world_from_cam, ODM_BODY_FROM_CAM)
+
+
+def odm_world_from_cam(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
+    """(..., 3, 3) ``R_world_from_cam`` (world ENU, OpenCV camera axes) of OpenDroneMap / Pix4D angles
+    (degrees): the inverse of ``odm_angles``, ``ENU_FROM_NED @ Rz(yaw) Ry(pitch) Rx(roll) @
+    ODM_BODY_FROM_CAM``."""
+    return _world_from_ned_angles(yaw_deg, pitch_deg, roll_deg, ODM_BODY_FROM_CAM, "yaw / pitch / roll")
