@@ -35,8 +35,8 @@ from semcityloc.errors import (
     InputFileError,
     MalformedXMLError,
     ParameterError,
-    as_flags,
     UnsupportedFormatError,
+    as_flags,
 )
 
 BERLIN = "berlin_lod2_citygml2/3910_5817.gml"

@@ -77,13 +77,15 @@ def test_library_messages_name_the_python_parameter_and_no_flag(tmp_path):
         "prior_uncertainty=PriorUncertainty.parse('z=": edge_warning(["z-"], volume, cascade),
         "build_store(TILES, STORE, overwrite=True)": _said(lambda: TileStore.open(tmp_path / "store")),
         "allow_lossy=True": _said(lambda: load_labels_png(jpeg_mask)),
-        "target_height='orthometric'": " ".join(dji_prior(meta, "EPSG:25832", geoid_separation_m=47.0).notes),
+        "target_height='ellipsoidal'": " ".join(
+            dji_prior(meta, "EPSG:25832", target_height="ellipsoidal", geoid_separation_m=47.0).notes
+        ),
         "target_crs='EPSG:<code>'": _said(lambda: dji_prior(meta, "EPSG:4326")),
     }
     for python, text in said.items():
         assert python in text and not FLAG.search(text), text
         assert FLAG.search(as_flags(text)) and python not in as_flags(text)
-    assert "geoid_separation_m=..." in said["target_height='orthometric'"]
+    assert "geoid_separation_m=..." in said["target_height='ellipsoidal'"]
     # The uncertainty a refusal asks for is one a Python caller can pass as it is written.
     asked = re.search(
         r"PriorUncertainty\.parse\('([^']*)'\)", said["prior_uncertainty=PriorUncertainty.parse('z="]
@@ -124,10 +126,11 @@ def test_the_command_line_prints_the_flags(tmp_path, capsys):
     image = dji_jpeg(tmp_path / "a.jpg", xmp_packet(**RTK_FIELDS))
     out = tmp_path / "prior.json"
     argv = ["dataset", "dji-prior", str(image), "--crs", "EPSG:25832", "--geoid-separation", "47"]
+    argv += ["--target-height", "ellipsoidal"]
     assert main([*argv, "--out", str(out)]) == 0
     notes = " ".join(json.loads(out.read_text())["extra"]["notes"])
     assert "the geoid separation given (--geoid-separation) was not used" in notes
-    assert "(--crs EPSG:xxxx+vvvv) or --target-height orthometric" in notes and "target_crs=" not in notes
+    assert "(--target-height ellipsoidal with ellipsoidal photo heights" in notes and "target_height=" not in notes
 
 
 def test_a_resume_is_not_refused_for_a_skipped_photos_reworded_reason(tmp_path):
