@@ -435,6 +435,33 @@ def test_label_cli_goes_on_past_a_photo_it_cannot_read(city, tmp_path, capsys):
     )
 
 
+def test_label_reads_a_runs_pose_records_and_names_the_photo_it_could_not_label(city, tmp_path, capsys):
+    """Stop 52's audit: ``label --poses run/poses`` (a run's own pose records, ``<stem>.json``) was refused,
+    and a photo it could not label was said without its name ("not labelled: the image has no 35
+    mm-equivalent focal length ..."). Both photos' records are read now; the one without EXIF focal length
+    is named."""
+    from dji_photo import dji_jpeg
+
+    model, _ = city
+    photos, poses = tmp_path / "photos", tmp_path / "poses"
+    photos.mkdir()
+    poses.mkdir()
+    dji_jpeg(photos / "A.JPG", None, size=(160, 120), focal_35mm=24)
+    dji_jpeg(photos / "NOEXIF.JPG", None, size=(160, 120))
+    for stem in ("A", "NOEXIF"):
+        pose = _world_pose(model, _centre(model, 90.0), pitch=20.0)
+        write_pose_json(pose, poses / f"{stem}.json", extra={"status": "localized"})
+    model.save_npz(tmp_path / "city.npz")
+    args = _label_parser().parse_args(
+        ["label", "--city", str(tmp_path / "city.npz"), "--images", str(photos), "--poses", str(poses),
+         "--intrinsics", "exif", "--out", str(tmp_path / "out")]
+    )  # fmt: skip
+    assert args.func(args) == 0
+    out, err = capsys.readouterr()
+    assert "wrote 1 label map(s)" in out
+    assert "not labelled: NOEXIF.JPG: the image has no 35 mm-equivalent focal length" in err
+
+
 @pytest.mark.parametrize("margin", [-50.0, float("nan"), float("inf")])
 def test_an_extent_margin_that_is_no_distance_is_refused(city, margin):
     """``--extent-margin -50`` / nan / inf were taken, all giving the same labels (stop 50's audit)."""

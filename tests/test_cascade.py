@@ -220,6 +220,14 @@ def test_the_search_stays_above_the_ground(city, localizer, renderer):
     assert below.cost_volume.z_values.min() < ground
 
 
+def test_the_looking_up_reason_names_the_pitch_convention_of_each_source():
+    """Stop 52's audit: the hint "is its pitch in our convention (0 = straight down; ...)?" read backwards
+    for a geotag CSV or a DJI photo, whose gimbal pitch is -90 straight down: each source's convention is
+    named now."""
+    assert "a DJI photo's or a geotag CSV's gimbal pitch: -90 = straight down" in REASON_PRIOR_LOOKS_UP
+    assert "semcityloc's x,y,z,roll,pitch,yaw and ODM's geo.txt: 0 = straight down" in REASON_PRIOR_LOOKS_UP
+
+
 @pytest.mark.parametrize(
     "dz, pitch, reason",
     [

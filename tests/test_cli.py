@@ -670,6 +670,34 @@ def test_localize_refuses_intrinsics_of_another_image_than_its_photo(exif_view, 
     assert _camera(own_size).camera.size == (640, 512)
 
 
+def test_localize_takes_an_off_centre_k_at_its_photos_size_and_names_the_photo(exif_view, tmp_path, capsys):
+    """Stop 52's audit: ``localize --intrinsics K --image photo`` with a K whose principal point is a little
+    off the centre failed "cannot infer the image width from cx=...: pass the image width" though the photo
+    gives the size; now taken at the photo's size, and without ``--image`` the message names
+    ``--width`` / ``--height``. A photo whose EXIF gives no camera ("the image has no 35 mm-equivalent
+    focal length") is named in the message."""
+    import argparse
+
+    from semcityloc.cli.localize import _camera
+    from semcityloc.errors import UnknownImageSizeError
+
+    k = tmp_path / "K_intrinsic.txt"
+    np.savetxt(k, np.array([[364.0, 0, 259.3, 0], [0, 364.0, 190.6, 0], [0, 0, 1, 0]]))  # 2cx = 518.6
+    args = argparse.Namespace(intrinsics=str(k), image=str(exif_view["photo"]), width=None, height=None)
+    camera = _camera(args).camera
+    assert camera.size == (512, 384) and (camera.cx, camera.cy) == (259.3, 190.6)
+    no_photo = argparse.Namespace(intrinsics=str(k), image=None, width=None, height=None)
+    with pytest.raises(UnknownImageSizeError, match=r"cx=259\.3 .*: --width W --height H, or --image PHOTO"):
+        _camera(no_photo)
+    from dji_photo import dji_jpeg
+
+    plain = dji_jpeg(tmp_path / "NOEXIF.JPG", None, size=(512, 384))
+    r = exif_view["root"]
+    argv = ["--intrinsics", "exif", "--image", plain, "--semantic", r / "r" / "labels.png"]
+    code, _, err = _localize(capsys, exif_view, tmp_path / "o", *argv)
+    assert code == 2 and f"{plain}: the image has no 35 mm-equivalent focal length" in err, err
+
+
 def test_render_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tmp_path, capsys):
     """``render --image`` checked only the photo's aspect, and only when the intrinsics' own: another
     camera's K (640x512) at --width 512 --height 384 drew the edges shifted on the photo (principal point

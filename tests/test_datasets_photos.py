@@ -320,3 +320,79 @@ def test_geotag_csv_angles_are_the_reference_import_convention(tmp_path):
     )
     with pytest.raises(InputFileError, match="keep one set"):
         read_geotags_csv(tmp_path / "both.csv")
+
+
+# ------------------------------------------------------------------------------ stop 52: unusable priors
+def test_a_prior_without_a_gnss_fix_or_outside_the_crs_is_that_photos_reason_not_the_runs_end(tmp_path):
+    """Stop 52's audit: a DJI photo taken before its GNSS fix (latitude and longitude 0) and a geotag CSV with
+    latitude and longitude swapped raised a ``CRSError`` ("outside the area of use ... wrong target CRS?")
+    that stopped the whole run, naming neither photo nor row. Now ``PhotoMissing`` (that photo skipped)
+    saying what is wrong: no GNSS fix; the CSV's file and line, and whether swapping the two fits."""
+    crs = pyproj.CRS("EPSG:25832")
+    nofix = dict(RTK, GpsLatitude="+0.0000000", GpsLongitude="+0.0000000")
+    photo = dji_jpeg(tmp_path / "NOFIX.JPG", xmp_packet(**nofix), focal_35mm=24, size=(80, 60))
+    with pytest.raises(PhotoMissing, match=r"no usable GPS prior: no GNSS fix \(latitude 0, longitude 0"):
+        PriorFiles(EXIF, crs).prior(photo)
+    rows = [GeotagRow("a.JPG", tag(lat=11.5, lon=48.1)), GeotagRow("b.JPG", tag(lat=-33.9, lon=151.2))]
+    (tmp_path / "g.csv").write_text(geotags_csv_text(rows))
+    priors = PriorFiles(tmp_path / "g.csv", crs)
+    swapped = r"g\.csv line 2\): the position \(lat 11\.5.*latitude and longitude swapped\? \(lat 48\.1"
+    with pytest.raises(PhotoMissing, match=swapped):
+        priors.prior(tmp_path / "a.JPG")
+    with pytest.raises(PhotoMissing, match=r"g\.csv line 3\): .*wrong target CRS\?"):  # Sydney: not swapped
+        priors.prior(tmp_path / "b.JPG")
+
+
+def test_a_runs_pose_records_are_priors_and_truth(tmp_path):
+    """Stop 52's audit: a run's own ``poses/`` fed back as ``--priors`` / ``--truth`` (or ``label --poses``)
+    was refused ("no prior pose for F001.JPG in run1/poses"). Its ``<stem>.json`` records are read now; a
+    photo that run did not localize has none, said so; a folder with nothing for a photo names the files
+    it looks for."""
+    from semcityloc.datasets.photos import PhotoNotListed
+    from semcityloc.geometry.io import write_pose_json
+
+    poses = tmp_path / "poses"
+    poses.mkdir()
+    pose = Pose.from_xyz_rpy([500100.0, 5400200.0, 300.0], 1.0, 40.0, 120.0)
+    write_pose_json(pose, poses / "a.json", crs="EPSG:25832", extra={"status": "localized"})
+    record = {"status": "not_localized", "reason": "confidence below the acceptance probability"}
+    (poses / "b.json").write_text(json.dumps(record))
+    priors = PriorFiles(poses, pyproj.CRS("EPSG:25832"))
+    assert center_error_m(priors.prior(tmp_path / "a.JPG").pose_world, pose) < 1e-6
+    with pytest.raises(
+        PhotoNotListed, match=r"b\.JPG has no pose there: that run did not localize it \(conf"
+    ):
+        priors.prior(tmp_path / "b.JPG")
+    with pytest.raises(
+        PhotoNotListed, match=r"no prior pose for c\.JPG .*expected c_pose\.txt, c\.txt or c\.json"
+    ):
+        priors.prior(tmp_path / "c.JPG")
+
+
+def test_photos_in_subfolders_are_listed_with_recursive_and_named_without(tmp_path):
+    """Stop 52's audit: photos in subfolders were ignored without a word (a DJI card's
+    ``DCIM/100MEDIA/``: "no images"). ``recursive`` reads them (not hidden folders, nor those ``skip_dir``
+    names), refusing two of one stem (a photo's outputs are named by it); without it a folder whose
+    photos are all in subfolders says how many and what to do."""
+    from semcityloc.datasets.photos import subfolder_images
+
+    for name in ("a.JPG", "sub/b.JPG", "sub/deeper/c.jpg", ".thumbs/t.jpg", "masks/a.png"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(b"")
+    masks = lambda folder: folder.name == "masks"  # noqa: E731
+    assert [p.name for p in list_images(tmp_path)] == ["a.JPG"]
+    listed = list_images(tmp_path, recursive=True, skip_dir=masks)
+    assert [str(p.relative_to(tmp_path)) for p in listed] == ["a.JPG", "sub/b.JPG", "sub/deeper/c.jpg"]
+    assert [p.name for p in subfolder_images(tmp_path, masks)] == ["b.JPG", "c.jpg"]
+    (tmp_path / "sub2").mkdir()
+    (tmp_path / "sub2" / "b.JPG").write_bytes(b"")
+    with pytest.raises(InputFileError, match=r"sub/b\.JPG and sub2/b\.JPG share the name b.*its own"):
+        list_images(tmp_path, recursive=True, skip_dir=masks)
+    card = tmp_path / "card"
+    (card / "DCIM" / "100MEDIA").mkdir(parents=True)
+    (card / "DCIM" / "100MEDIA" / "DJI_0001.JPG").write_bytes(b"")
+    with pytest.raises(
+        InputFileError, match=r"at its top level; 1 in its subfolders \(DCIM/100MEDIA/DJI_0001"
+    ):
+        list_images(card)
+    assert [p.name for p in list_images(card, recursive=True)] == ["DJI_0001.JPG"]

@@ -130,7 +130,10 @@ def test_the_command_line_prints_the_flags(tmp_path, capsys):
     assert main([*argv, "--out", str(out)]) == 0
     notes = " ".join(json.loads(out.read_text())["extra"]["notes"])
     assert "the geoid separation given (--geoid-separation) was not used" in notes
-    assert "(--target-height ellipsoidal with ellipsoidal photo heights" in notes and "target_height=" not in notes
+    assert (
+        "(--target-height ellipsoidal with ellipsoidal photo heights" in notes
+        and "target_height=" not in notes
+    )
 
 
 def test_a_resume_is_not_refused_for_a_skipped_photos_reworded_reason(tmp_path):

@@ -432,7 +432,7 @@ def test_lossy_masks_are_refused_unless_forced(box_flight, tmp_path, capsys):
     )
     # Forced, the masks are read; the ids the compression made along the edges are then named per photo.
     code, stdout, err = run(capsys, *argv, "--out", tmp_path / "forced", "--allow-lossy-mask")
-    assert code == 0 and "a lossy format" not in err and "Traceback" not in err
+    assert code == 1 and "a lossy format" not in err and "Traceback" not in err  # none localized
     rows = _rows_by_name(tmp_path / "forced")
     for name in ("P0", "P1"):
         reason = rows[f"{name}.JPG"]["reason"]
@@ -638,7 +638,7 @@ def test_a_photo_run_refuses_a_store_built_with_another_lod_or_crs(
 def test_a_photo_run_takes_a_crs_that_names_the_stores_own(store_flight, tmp_path, capsys, crs):
     """--crs naming the CRS the store's tiles are in changes nothing: it is not refused."""
     code, _, err = run(capsys, *store_flight["argv"], "--crs", crs, "--out", tmp_path / "o", "--no-overlays")
-    assert code == 0, err
+    assert code == 1, err  # it ran: its empty masks localize nothing (exit 1 since stop 52)
     assert (tmp_path / "o" / "results.csv").exists()
 
 
@@ -1067,7 +1067,7 @@ def test_the_checks_before_a_run_open_each_photo_once_and_read_its_metadata_once
     data = _noisy_jpeg(root / "images" / "D2.JPG")
     (root / "images" / "D2.JPG").write_bytes(data[: len(data) * 2 // 3])
     images, masks = str(root / "images"), str(root / "masks")
-    offset = (691_000.0, 5_330_000.0, 0.0)  # the box (a local frame) placed near the photos (48.1 N, 11.5 E)
+    offset = (686_100.0, 5_330_400.0, 0.0)  # the box (a local frame) placed under the photos (48.1 N, 11.5 E)
     spec = PhotoSpec(images, str(root / "city.obj"), crs="EPSG:25832", masks=masks, offset=offset)
     opened, read = [], []
     pillow_open, read_metadata = Image.open, photos.read_dji_metadata
@@ -1563,3 +1563,123 @@ def test_a_photo_named_with_a_leading_hash_is_left_out_of_geo_txt_only(box_fligh
     geo = (out / "geo.txt").read_text().splitlines()
     assert [line.split()[0] for line in geo[1:]] == ["P0.JPG"]
     assert "#one.JPG" in read_model(out / "colmap").poses()
+
+
+# ------------------------------------------------------------------------------ stop 52: priors, folders
+def test_a_photo_whose_prior_lies_hundreds_of_km_away_is_skipped_not_the_runs_end(
+    box_flight, tmp_path, capsys
+):
+    """Stop 52's audit: a photo whose prior lies more than 100 km from the model (a photo of another place,
+    a COLMAP quaternion in another order) stopped the whole run with the renderer's "Renderer.render takes
+    poses in the model's local frame ..." when its overlay was drawn, and again on every resume: the flight
+    could never finish. Now it is skipped before anything is searched or drawn, with the distance and where
+    the prior came from (``MapLayout.off_map``, the localizer's own bound); the others run."""
+    root = box_flight["root"]
+    prior = read_pose(root / "GPS_pose" / "P0_pose.txt")
+    far = Pose.from_rotation_center(prior.R_world_from_cam, prior.center + [300_000.0, 0.0, 0.0])
+    np.savetxt(root / "GPS_pose" / "P0_pose.txt", far.world_from_cam)
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", out)
+    assert code == 0 and "Traceback" not in err, err
+    summary = json.loads((out / "summary.json").read_text())
+    why = summary["skipped_photos"]["P0.JPG"]
+    assert why.startswith("the prior lies 300 km from the model's nearest building") and "GPS_pose" in why
+    assert summary["localized"] == 1 and "4 photos: 1 localized, 1 not localized, 2 skipped" in stdout
+    assert not (out / "overlays" / "P0.png").exists() and (out / "overlays" / "P1.png").is_file()
+    code, stdout, _ = run(capsys, *box_flight["argv"], "--out", out)  # and the finished run resumes
+    assert code == 0 and "4 photos: 1 localized" in stdout
+
+
+def test_a_runs_poses_folder_is_the_priors_and_truth_of_the_next_run(box_flight, tmp_path, capsys):
+    """Stop 52's audit: a run's own ``poses/`` given back as ``--priors`` / ``--truth`` was refused ("no
+    prior pose for P0.JPG in .../poses"): the tool's own output format. Now read; a photo that run did not
+    localize has no pose there and is skipped saying so."""
+    first = tmp_path / "first"
+    code, _, err = run(capsys, *box_flight["argv"], "--out", first, "--no-overlays")
+    assert code == 0, err
+    given = (box_flight["root"] / "GPS_pose", box_flight["root"] / "GT_pose")
+    argv = [first / "poses" if a in given else a for a in box_flight["argv"]]
+    code, stdout, err = run(capsys, *argv, "--out", tmp_path / "second", "--no-overlays")
+    assert code == 0, err
+    summary = json.loads((tmp_path / "second" / "summary.json").read_text())
+    assert summary["localized"] == 2 and summary["with_ground_truth"] == 2
+    assert "P2.JPG has no pose there: that run did not localize it" in summary["skipped_photos"]["P2.JPG"]
+
+
+def test_photos_in_subfolders_are_said_and_read_with_recursive(box_flight, tmp_path, capsys):
+    """Stop 52's audit: photos in subfolders were ignored without a word ("6 photos" with one of the truth in
+    ``sub/``; a DJI card's ``DCIM/100MEDIA/``: "no images"). The run says how many it did not read and
+    ``--recursive`` reads them; two photos of one name in two subfolders are refused (their outputs would
+    overwrite each other's); the run's own folder placed inside is not read as photos on resume."""
+    images = box_flight["root"] / "images"
+    (images / "sub").mkdir()
+    (images / "P1.JPG").rename(images / "sub" / "P1.JPG")
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", tmp_path / "top", "--no-overlays")
+    assert code == 0, err
+    assert f"note: 1 photo in subfolders of {images} is not read (sub/P1.JPG)" in err and "--recursive" in err
+    assert "3 photos: 1 localized" in stdout
+    out = images / "run"  # inside the photos' folder: not read as photos when the run is resumed
+    for _ in range(2):
+        code, stdout, err = run(capsys, *box_flight["argv"], "--recursive", "--out", out)
+        assert code == 0, err
+        assert "4 photos: 2 localized" in stdout and "not read" not in err
+    (images / "sub2").mkdir()
+    shutil.copy(images / "sub" / "P1.JPG", images / "sub2" / "P1.JPG")
+    code, _, err = run(capsys, *box_flight["argv"], "--recursive", "--out", tmp_path / "dup")
+    assert code == 2 and "sub/P1.JPG and sub2/P1.JPG share the name P1" in err
+
+
+def test_a_run_that_localizes_none_of_its_photos_exits_1_saying_so(box_flight, tmp_path, capsys):
+    """Stop 52's audit: ``run`` exited 0 when 0 of N photos were localized; a script went on as if it had
+    worked. Its files are written as before, and it exits 1 (as ``localize`` does for its photo) with a
+    line saying so."""
+    for name in ("P0", "P1"):  # masks that see no building
+        save_labels_png(
+            np.zeros((CAM.height, CAM.width), np.uint8), box_flight["root"] / "masks" / f"{name}.png"
+        )
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
+    assert code == 1 and "4 photos: 0 localized" in stdout
+    assert "warning: 0 of 4 photos localized (the reasons above): exit status 1" in err
+    assert (out / "summary.json").is_file() and (out / "poses" / "P0.json").is_file()
+
+
+def test_a_run_skips_a_photo_without_a_gnss_fix_and_names_swapped_coordinates(tmp_path, capsys):
+    """Stop 52's audit: a DJI photo taken before its GNSS fix (GPS 0, 0) stopped the whole run with "the
+    image (lat 0, lon 0) is outside the area of use of ...: wrong target CRS?", exit 2, nothing localized.
+    Now that photo is skipped with "no GNSS fix" and the others run; a geotag CSV with latitude and
+    longitude swapped names its file, line and the swap."""
+    root = tmp_path / "flight"
+    (root / "photos").mkdir(parents=True)
+    city = root / "city.obj"
+    city.write_text(box_city_obj())
+    model = load_city_model(city, cache=False)
+    crs, offset = pyproj.CRS("EPSG:25832"), np.array([500_000.0, 5_400_000.0, 0.0])
+    to_wgs = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    truth = Pose.from_xyz_rpy([5.0, -4.0, 90.0], 0.5, 20.0, 30.0)
+    world = Pose.from_rotation_center(truth.R_world_from_cam, truth.center + offset)
+    prior = world.center + [3.0, 2.0, 2.0]
+    lon, lat = to_wgs.transform(prior[0], prior[1])
+    yaw, pitch, roll = _dji_angles_true_north(crs, lon, lat, world)
+    fields = dict(AbsoluteAltitude=f"{prior[2]:+.3f}", GimbalYawDegree=f"{yaw:+.6f}", RtkFlag="16")
+    fields.update(
+        GimbalPitchDegree=f"{pitch:+.6f}", GimbalRollDegree=f"{roll:+.6f}", AltitudeType="GpsFusionAlt"
+    )
+    for name, (la, lo) in {"F001.JPG": (lat, lon), "NOFIX.JPG": (0.0, 0.0)}.items():
+        xmp = xmp_packet(GpsLatitude=f"{la:+.10f}", GpsLongitude=f"{lo:+.10f}", **fields)
+        dji_jpeg(root / "photos" / name, xmp, size=(CAM.width, CAM.height))
+        save_labels_png(oracle_labels(model, CAM, truth), root / "masks" / f"{Path(name).stem}.png")
+    cam = root / "K.txt"
+    cam.write_text(f"{CAM.fx},{CAM.fy},{CAM.cx},{CAM.cy},{CAM.width},{CAM.height}\n")
+    argv = ["run", root / "photos", "--city", city, "--crs", "EPSG:25832", "--offset", "500000,5400000,0"]
+    argv += ["--intrinsics", cam, "--masks", root / "masks", "--no-overlays"]
+    code, stdout, err = run(capsys, *argv, "--out", tmp_path / "exif")
+    assert code == 0, err
+    assert "2 photos: 1 localized, 0 not localized, 1 skipped" in stdout
+    assert "skipped (1): no usable GPS prior: no GNSS fix (latitude 0, longitude 0" in stdout
+    rows = "image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg\n"
+    rows += f"F001.JPG,{lon},{lat},{prior[2]},0,-45,0\n"  # longitude in the latitude column
+    (root / "swapped.csv").write_text(rows)
+    code, _, err = run(capsys, *argv, "--priors", root / "swapped.csv", "--out", tmp_path / "csv")
+    assert code == 2 and "no photo can be localized (F001.JPG: no usable GPS prior" in err
+    assert "swapped.csv line 2): the position" in err and "latitude and longitude swapped?" in err

@@ -62,6 +62,12 @@ class IntrinsicsMismatchError(CameraError):
     and both sizes. ``semcityloc run`` skips that photo (with a true pose: a miss), ``localize`` stops."""
 
 
+class UnknownImageSizeError(CameraError):
+    """Intrinsics that state no image size and whose principal point does not give one (not at the centre of
+    a whole-pixel image): the caller says how to give the size (``semcityloc localize``: ``--image``, or
+    ``--width`` / ``--height``)."""
+
+
 class PoseError(SemCityLocError, ValueError):
     """Invalid pose: non-finite values, not a rotation, wrong shape."""
 

@@ -26,9 +26,12 @@ Per photo (``datasets.photos`` matches files to photos by name):
   recall. A photo the truth does not list runs without; one whose entry cannot be used (a file that does
   not read, of another CRS) is skipped with the reason (``_true_pose``), not run without a word.
 
-A photo that lacks any of these, or whose file cannot be read (not a file, empty, truncated, corrupt, a
+The photos are those of the folder's top level (with ``recursive`` its subfolders' too: ``photo_paths``).
+A photo that lacks any of these (a prior without a GNSS fix, or outside the CRS's area of use, is none:
+``PriorFiles``), or whose file cannot be read (not a file, empty, truncated, corrupt, a
 format Pillow does not read: its pixels are decoded once here, ``_readable_photo``), or whose mask's header
-says it cannot be used (a lossy format without ``allow_lossy_mask``, not class ids: ``_mask_file``), is
+says it cannot be used (a lossy format without ``allow_lossy_mask``, not class ids: ``_mask_file``), or whose
+prior lies so far from every building that no view of its search could see one (``_on_the_map``), is
 skipped before anything is localized, with the reason naming the file (``run.json`` ``skipped_photos``, the
 summary, the CLI's closing lines); the others run. With ground truth (``truth``), a photo that has a true
 pose and whose own input (the photo, its mask or depth) is missing, cannot be read (not a file, empty,
@@ -53,12 +56,14 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from semcityloc.benchmark.runfiles import RUN_FILE
 from semcityloc.benchmark.spec import resolve_city
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import TileStore
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
     EXIF,
+    IMAGE_SUFFIXES,
     IntrinsicsFiles,
     PhotoCamera,
     PhotoMissing,
@@ -67,6 +72,7 @@ from semcityloc.datasets.photos import (
     PriorFiles,
     list_images,
     photo_metadata,
+    subfolder_images,
 )
 from semcityloc.errors import InputFileError, IntrinsicsMismatchError, LossyMaskError
 from semcityloc.geometry.camera import Camera
@@ -80,7 +86,7 @@ from semcityloc.io.images import (
     image_size,
 )
 from semcityloc.io.stamps import file_fingerprint, paths_stamp
-from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M
+from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M, MapLayout
 from semcityloc.perception.files import DEPTH_SUFFIXES, find_file, find_mask
 
 if TYPE_CHECKING:
@@ -165,7 +171,7 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
     fixed = spec.fixed_uncertainty()
     inputs: list[PhotoInput] = []
     skipped: dict[str, str] = {}
-    for path in list_images(spec.images, every_entry=True):
+    for path in photo_paths(spec):
         lens = prior = meta = None
         try:
             width, height, orientation = _readable_photo(path)
@@ -218,7 +224,64 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
         model = flight_area(store, model, placed)
     remedy = "pass --offset X,Y,Z (where the model's frame has its origin in that CRS), or leave out --crs"
     check_model_in_crs(model, offset, remedy)  # before its poses are written as CRS coordinates
+    inputs = _on_the_map(spec, model, inputs, skipped)
     return Resolved(model, inputs, skipped, store)
+
+
+def _on_the_map(
+    spec: PhotoSpec, model: CityModel, inputs: list[PhotoInput], skipped: dict[str, str]
+) -> list[PhotoInput]:
+    """``inputs`` without the photos whose prior lies so far from every building that no view of their
+    search can see one (``search_reach.MapLayout.off_map``, the localizer's own bound); those are added to
+    ``skipped`` with the distance and where the prior came from: a prior hundreds of kilometres off (a
+    photo of another place, a COLMAP quaternion in another order) is that photo's problem, said before
+    anything is searched or drawn, not the run's end."""
+    if not any(inp.prior is not None for inp in inputs):
+        return inputs
+    layout, cfg = MapLayout.of(model), spec.localizer_config()
+    kept = []
+    for inp in inputs:
+        far = None
+        if inp.prior is not None and inp.unreadable is None:  # a miss of the truth stays one
+            far = layout.off_map(model.pose_to_local(inp.prior.pose_world), cfg, inp.uncertainty)
+        if far is None:
+            kept.append(inp)
+        else:
+            skipped[inp.name] = f"{far} (its prior: {inp.prior.source})"
+    return kept
+
+
+RECURSIVE_REMEDY = "pass --recursive to read them (in Python: PhotoSpec(recursive=True))"
+
+
+def photo_paths(spec: PhotoSpec) -> list[Path]:
+    """The photos of ``spec``'s folder (``datasets.photos.list_images``; with ``spec.recursive`` its
+    subfolders too, but not the run's own ``_run_folders``)."""
+    return list_images(
+        spec.images,
+        every_entry=True,
+        recursive=spec.recursive,
+        skip_dir=_run_folders(spec),
+        remedy=RECURSIVE_REMEDY,
+    )
+
+
+def unread_subfolder_photos(spec: PhotoSpec) -> list[Path]:
+    """The photos in subfolders of ``spec``'s folder that a run without ``recursive`` does not read (none
+    with it): said before the run, so that a card's ``DCIM/100MEDIA/`` or a ``sub/`` of a flight is not
+    left out without a word. None when its top level holds none either: ``photo_paths`` refuses that folder
+    saying so."""
+    top = Path(spec.images)
+    if spec.recursive or not any(p.suffix.lower() in IMAGE_SUFFIXES for p in top.iterdir()):
+        return []
+    return subfolder_images(top, _run_folders(spec))
+
+
+def _run_folders(spec: PhotoSpec) -> Callable[[Path], bool]:
+    """Which subfolders of the photos' folder hold no photos of the run: its masks and depth folders and
+    any run folder (one holding a ``run.json``: this run's own ``--out`` placed inside, on resume)."""
+    inputs = {Path(f).resolve() for f in (spec.masks, spec.depth) if f}
+    return lambda folder: folder.resolve() in inputs or (folder / RUN_FILE).is_file()
 
 
 class PhotoUnreadable(PhotoMissing):

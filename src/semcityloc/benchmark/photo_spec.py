@@ -95,6 +95,7 @@ class PhotoSpec:
     # "auto" when the intrinsics are the approximate 35 mm-equivalent ones, "on" for every camera, "off".
     calibrate_focal: str = "auto"
     cache: bool = True  # parse cache of the city model (not part of the run's identity)
+    recursive: bool = False  # read the photos of the folder's subfolders too (``photo_inputs.photo_paths``)
 
     label = "photos"  # the progress bar's label
 
@@ -200,6 +201,7 @@ class PhotoSpec:
                 "semcityloc_version": __version__,
                 # only when set, so that runs made before the flag existed still resume
                 **({"allow_lossy_mask": True} if self.allow_lossy_mask else {}),
+                **({"recursive": True} if self.recursive else {}),
             }
         )
 

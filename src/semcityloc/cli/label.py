@@ -86,6 +86,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- run
+def named(name: str, why: str) -> str:
+    """``why`` a photo was not labelled, led by its ``name`` unless it names it already (a file's path)."""
+    return why if name in why else f"{name}: {why}"
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``semcityloc label`` from its parsed arguments; the exit code (typed errors are left to
     ``cli.main``, which prints them as one line).
@@ -137,13 +142,13 @@ def run(args: argparse.Namespace) -> int:
             + (" ..." if len(skipped) > 5 else "")
         )
     for what, problems in (("not labelled", failed), ("labelled, no overlay", no_overlay)):
-        for why in list(problems.values())[:SHOWN_PROBLEMS]:
-            print(f"semcityloc: warning: {what}: {why}", file=sys.stderr)
+        for name, why in list(problems.items())[:SHOWN_PROBLEMS]:
+            print(f"semcityloc: warning: {what}: {named(name, why)}", file=sys.stderr)
         if len(problems) > SHOWN_PROBLEMS:
             print(f"semcityloc: warning: {len(problems) - SHOWN_PROBLEMS} more {what}", file=sys.stderr)
     if written == 0:
         if failed:
-            first = "; ".join(list(failed.values())[:3])
+            first = "; ".join(named(name, why) for name, why in list(failed.items())[:3])
             raise InputFileError(
                 f"none of the {len(images)} images in {args.images} could be labelled: {first}"
             )

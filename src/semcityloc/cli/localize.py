@@ -22,6 +22,7 @@ from semcityloc.datasets.photos import (
     INTRINSICS_35MM,
     IntrinsicsFiles,
     PhotoCamera,
+    PhotoMissing,
 )
 from semcityloc.errors import InputFileError, ParameterError, as_flags
 from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
@@ -199,7 +200,10 @@ def _camera(args) -> PhotoCamera:
     (``geometry.io.check_fits_photo``: its size or resized, a principal point near the centre): another
     camera's intrinsics, or an overlay on another photo's pixels, would be wrong silently."""
     if args.intrinsics == EXIF:
-        lens = IntrinsicsFiles(EXIF).photo_camera(Path(args.image), *image_size(args.image))
+        try:
+            lens = IntrinsicsFiles(EXIF).photo_camera(Path(args.image), *image_size(args.image))
+        except PhotoMissing as exc:  # "the image has no 35 mm-equivalent focal length": which image
+            raise PhotoMissing(str(exc) if str(args.image) in str(exc) else f"{args.image}: {exc}") from None
         if lens.source == INTRINSICS_35MM:
             print(f"semcityloc: note: {APPROXIMATE_INTRINSICS_NOTE}", file=sys.stderr)
         return lens

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from semcityloc.errors import UnknownImageSizeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.io import check_fits_photo, read_lens
@@ -18,13 +19,20 @@ from semcityloc.io.images import check_aspect, image_size
 def read_lens_for_photo(
     intrinsics: str, width: int | None, height: int | None, image: str | None
 ) -> tuple[Camera, LensDistortion]:
-    """``read_lens`` of ``--intrinsics`` (at ``--width`` x ``--height`` when given); with ``--image`` the
+    """``read_lens`` of ``--intrinsics`` (at ``--width`` x ``--height`` when given; a LoD-Loc K states no
+    size, and one whose principal point is not at the centre of a whole-pixel image gives none: then at
+    ``--image``'s size, without one the message names ``--width`` / ``--height``); with ``--image`` the
     intrinsics must describe that photo (``geometry.io.check_fits_photo``: its size or resized, a principal
     point near the centre) and, resampled, keep its aspect; without one, their principal point must lie
     near the centre of the size they state (a K of another image size, given at a ``--width`` it never
     had, was taken as it is)."""
     photo = (Path(image).name, *image_size(image, "photo")) if image else None
-    camera, distortion = read_lens(intrinsics, width=width, height=height, photo=photo)
+    try:
+        camera, distortion = read_lens(intrinsics, width=width, height=height, photo=photo)
+    except UnknownImageSizeError as exc:  # a K off the centre of any whole-pixel image: it is the photo's
+        if photo is None or width is not None or height is not None:
+            raise UnknownImageSizeError(f"{exc}: --width W --height H, or --image PHOTO (its size)") from None
+        camera, distortion = read_lens(intrinsics, width=photo[1], height=photo[2], photo=photo)
     if photo is not None:  # resampled to a --width x --height of another aspect than the photo
         check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", image)
     else:  # no photo to hold it against: its principal point must still be near its own image's centre

@@ -3,6 +3,8 @@ photogrammetry tools and GIS read (``benchmark.photo_spec`` / ``photo_exports``;
 
 Resumable like the benchmark: run the same command again after an interruption and it continues; other
 arguments on the same ``--out`` are refused unless ``--overwrite`` (which always starts the run again).
+Exit status: 0, or ``NONE_LOCALIZED`` (1) for a finished run that localized none of its photos; a run that
+cannot be made is one line and 2 (``cli.main``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from collections import Counter
 from pathlib import Path
 
 from semcityloc.benchmark.photo_exports import shown_names
+from semcityloc.benchmark.photo_inputs import unread_subfolder_photos
 from semcityloc.benchmark.photo_spec import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import SKIPPED
@@ -34,6 +37,9 @@ from semcityloc.localization.result import LOCALIZED
 from semcityloc.perception.registry import available_backends
 
 SHOWN_PHOTOS = 10  # photos named per reason in the closing lines
+# The exit status of a finished run that localized none of its photos (its files are written): as
+# ``semcityloc localize`` exits 1 for a photo it did not localize; 2 is a run that could not be made.
+NONE_LOCALIZED = 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -45,6 +51,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="localize a folder of photos against a city model: pose per photo, COLMAP, geotags, GeoJSON",
     )
     p.add_argument("images", help="folder of photos (DJI JPEGs carry their own prior and intrinsics)")
+    p.add_argument(
+        "--recursive",
+        action="store_true",
+        help="read the photos of the folder's subfolders too (a DJI card's DCIM/100MEDIA/...); their names "
+        "must be unique (outputs are named by them); without it only the top level is read, and the run "
+        "says how many photos in subfolders it left out",
+    )
     add_model_arguments(p, positional=False)
     p.add_argument(
         "--priors",
@@ -153,6 +166,7 @@ def spec_from_args(args: argparse.Namespace) -> PhotoSpec:
         overlays=not args.no_overlays,
         calibrate_focal=args.calibrate_focal,
         cache=not args.no_cache,
+        recursive=args.recursive,
     )
 
 
@@ -162,6 +176,15 @@ def run(args: argparse.Namespace) -> int:
     """
     spec = spec_from_args(args)
     out = Path(args.out)
+    unread = unread_subfolder_photos(spec)
+    if unread:  # before the run: a card's DCIM/100MEDIA/ or a flight's sub/ is not left out unsaid
+        shown = shown_names([str(p.relative_to(spec.images)) for p in unread], SHOWN_PHOTOS)
+        print(
+            f"semcityloc: note: {counted(len(unread), 'photo')} in subfolders of {spec.images} "
+            f"{'is' if len(unread) == 1 else 'are'} not read ({shown}): only its top level is; pass "
+            "--recursive to read them too",
+            file=sys.stderr,
+        )
     outcome = run_from_args(spec, out, args)
     # The model the run loaded (PhotoSpec.resolved, cached: not loaded again); said after the run, where
     # nothing before its first photo is delayed by it (the run's option checks come first).
@@ -202,4 +225,11 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"look at it: semcityloc report {out} --out {out / 'report'}  (tables and an interactive report.html)"
     )
+    if s["localized"] == 0:  # as ``localize`` exits 1 for its photo: a script does not go on as if it ran
+        print(
+            f"semcityloc: warning: 0 of {counted(s['photos'], 'photo')} localized (the reasons above): "
+            f"exit status {NONE_LOCALIZED}",
+            file=sys.stderr,
+        )
+        return NONE_LOCALIZED
     return 0

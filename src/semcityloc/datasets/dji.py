@@ -77,6 +77,9 @@ RTK_FLOAT_FLOOR_M = 1.0  # an RTK float solution: decimetres to a metre, whateve
 BAROMETRIC_UNCERTAINTY_M = 50.0  # DJI non-RTK "absolute altitude": barometric, weather dependent
 RTK_DEFAULT_UNCERTAINTY_M = 0.1
 GPS_DEFAULT_UNCERTAINTY_M = 5.0
+# A position of exactly 0, 0: what DJI aircraft write before their GNSS has a fix (no photo of a city model
+# is taken at "Null Island"); projected, it would be a prior thousands of kilometres from the model.
+NO_GNSS_FIX = "no GNSS fix (latitude 0, longitude 0: taken before the drone had a GPS position)"
 # Said (in the prior's notes) when a 2D CRS gets DJI's ellipsoidal height as its z unchanged: right for
 # UAVD4L-like frames, ~40 m wrong for a German LoD2 tile whose heights are DHHN2016.
 HEIGHT_AS_IS_NOTE = (
@@ -204,6 +207,8 @@ def dji_prior(
     crs = target_crs_of(target_crs)
     check_projected(crs, "the target CRS", "target_crs")
     lat, lon, h = float(meta.latitude), float(meta.longitude), float(meta.absolute_altitude_m)
+    if lat == 0.0 and lon == 0.0:
+        raise InputFileError(NO_GNSS_FIX)
     notes: list[str] = []
 
     if source_height == HEIGHT_AUTO:

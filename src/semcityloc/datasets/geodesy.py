@@ -188,14 +188,24 @@ def model_outside_crs(crs: pyproj.CRS, centre_xy: tuple[float, float]) -> str | 
 
 def check_area_of_use(crs: pyproj.CRS, lon: float, lat: float) -> None:
     """``CRSError`` when the image lies more than ``AREA_MARGIN_DEG`` outside the CRS's area of use: the
-    projection would still give numbers, metres to kilometres distorted, for a CRS that was never meant."""
+    projection would still give numbers, metres to kilometres distorted, for a CRS that was never meant.
+    When the position with latitude and longitude swapped lies inside it, the message asks that instead
+    (a geotag table with its columns the other way round) of "wrong target CRS?"."""
     area = crs.area_of_use
-    if area is None:
+    if area is None or _in_area(area, lon, lat):
         return
+    if _in_area(area, lat, lon):
+        hint = f"latitude and longitude swapped? (lat {lon:.6f}, lon {lat:.6f} lies inside it)"
+    else:
+        hint = "wrong target CRS?"
+    raise CRSError(
+        f"the position (lat {lat:.6f}, lon {lon:.6f}) is outside the area of use of {crs.name} "
+        f"({area.name}): {hint}"
+    )
+
+
+def _in_area(area: pyproj.aoi.AreaOfUse, lon: float, lat: float) -> bool:
+    """Whether (``lon``, ``lat``) lies within ``AREA_MARGIN_DEG`` of ``area``."""
     west, south, east, north = area.bounds
     lon_in = west - AREA_MARGIN_DEG <= lon <= east + AREA_MARGIN_DEG if west <= east else True
-    if not (lon_in and south - AREA_MARGIN_DEG <= lat <= north + AREA_MARGIN_DEG):
-        raise CRSError(
-            f"the image (lat {lat:.6f}, lon {lon:.6f}) is outside the area of use of {crs.name} "
-            f"({area.name}): wrong target CRS?"
-        )
+    return lon_in and south - AREA_MARGIN_DEG <= lat <= north + AREA_MARGIN_DEG

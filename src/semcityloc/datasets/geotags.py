@@ -115,6 +115,7 @@ class GeotagRow:
     accuracy_xy_m: float | None = None
     accuracy_z_m: float | None = None
     source: str = ""
+    line: int | None = None  # its line in the file it was read from (messages name it)
 
     def source_height(self) -> str:
         """How ``dji_prior`` must read this row's height (``datasets.dji`` ``HEIGHT_*``): orthometric when
@@ -224,6 +225,7 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
             get("accuracy_xy_m", optional=True),
             get("accuracy_z_m", optional=True),
             source,
+            n,
         )
     if not rows:
         raise InputFileError(f"{path}: no geotag rows")

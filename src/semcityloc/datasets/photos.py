@@ -7,7 +7,8 @@ per-photo information in whatever form they come with. This module matches each 
 
 - poses (``PoseFiles``): a COLMAP ``images.txt`` / ``images.bin`` or the model folder holding one (or
   any file ``geometry.io.read_poses`` reads) or a folder of LoD-Loc ``<stem>_pose.txt`` (4x4
-  camera-to-world), in the model's CRS / frame;
+  camera-to-world) or of a run's pose records (``semcityloc run``'s ``poses/<stem>.json``), in the
+  model's CRS / frame;
 - intrinsics (``IntrinsicsFiles``): ``exif`` (``dji_camera.dewarp_lens``: DJI's calibration with lens
   distortion, else ``dji_camera.camera_from_exif``: DJI's calibration tags, else the 35 mm-equivalent
   focal length of the photo's EXIF), one file for every photo (LoD-Loc ``*_intrinsic.txt``, COLMAP line,
@@ -29,7 +30,9 @@ the caller skips that photo with the reason.
 
 from __future__ import annotations
 
+import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,17 +97,65 @@ def check_images_folder(folder: str | os.PathLike) -> Path:
     raise InputFileError(f"{folder}: no such images folder")
 
 
-def list_images(folder: str | os.PathLike, every_entry: bool = False) -> list[Path]:
+def list_images(
+    folder: str | os.PathLike,
+    every_entry: bool = False,
+    recursive: bool = False,
+    skip_dir: Callable[[Path], bool] | None = None,
+    remedy: str = "give that subfolder as the images folder",
+) -> list[Path]:
     """The image files of a folder (``IMAGE_SUFFIXES``, ``check_images_folder``), sorted by name; with
     ``every_entry``, also what is named like one but is not a file (a folder ``x.jpg``, a broken link), for
-    the caller to report."""
+    the caller to report.
+
+    Only the folder's top level unless ``recursive`` (a DJI card: ``DCIM/100MEDIA/``), which also reads its
+    subfolders (``subfolder_images``: not hidden ones, nor those ``skip_dir`` names) and refuses two photos
+    of one stem (outputs are named by it: ``a/DJI_0001.JPG`` and ``b/DJI_0001.JPG`` would overwrite each
+    other's). A folder without images at its top level but with some in its subfolders says so, with
+    ``remedy``."""
     folder = check_images_folder(folder)
     images = sorted(
         p for p in folder.iterdir() if (every_entry or p.is_file()) and p.suffix.lower() in IMAGE_SUFFIXES
     )
+    if recursive:
+        images = sorted(images + subfolder_images(folder, skip_dir), key=lambda p: p.relative_to(folder))
+        check_unique_stems(folder, images)
     if not images:
-        raise InputFileError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        nested = subfolder_images(folder, skip_dir)
+        where = ""
+        if nested:
+            shown = ", ".join(str(p.relative_to(folder)) for p in nested[:3]) + (
+                " ..." if len(nested) > 3 else ""
+            )
+            verb = "is" if len(nested) == 1 else "are"
+            where = f" at its top level; {len(nested)} in its subfolders ({shown}) {verb} not read: {remedy}"
+        raise InputFileError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}){where}")
     return images
+
+
+def subfolder_images(folder: Path, skip_dir: Callable[[Path], bool] | None = None) -> list[Path]:
+    """The image files in the subfolders of ``folder`` at any depth (not its top level), sorted by their
+    path; hidden folders (``.thumbnails``) and those ``skip_dir`` names are not entered."""
+    found = []
+    for root, dirs, files in os.walk(folder):
+        here = Path(root)
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not (skip_dir and skip_dir(here / d)))
+        if here != folder:
+            found += [here / f for f in files if Path(f).suffix.lower() in IMAGE_SUFFIXES]
+    return sorted(found, key=lambda p: p.relative_to(folder))
+
+
+def check_unique_stems(folder: Path, images: list[Path]) -> None:
+    """``InputFileError`` naming two photos of ``folder`` (read with its subfolders) that share a stem."""
+    seen: dict[str, Path] = {}
+    for image in images:
+        if image.stem in seen:
+            a, b = (str(p.relative_to(folder)) for p in (seen[image.stem], image))
+            raise InputFileError(
+                f"{folder}: {a} and {b} share the name {image.stem}, and every output of a photo is named by "
+                "it: rename one, or run each subfolder on its own (with its own output folder)"
+            )
+        seen[image.stem] = image
 
 
 def match_name(entries: dict, image: Path):
@@ -166,8 +217,11 @@ class PoseFiles:
             self.camera_ids = read_colmap_camera_ids(self.source)
 
     def pose(self, image: Path) -> Pose | None:
+        """The pose of ``image``, None when the source has none for it; in a folder a LoD-Loc
+        ``<stem>_pose.txt`` / ``<stem>.txt`` or a run's ``poses/<stem>.json`` (``semcityloc run``'s record:
+        ``PhotoNotListed`` saying so when that run did not localize the photo)."""
         if self.folder is not None:
-            f = per_stem_file(self.folder, image.stem, "pose")
+            f = per_stem_file(self.folder, image.stem, "pose") or _pose_record(self.folder, image)
             if f is None:
                 return None
             try:
@@ -185,6 +239,28 @@ class PoseFiles:
         if list(self.entries) == [""]:
             return self.entries[""]
         return match_name(self.entries, image)
+
+
+def _pose_record(folder: Path, image: Path) -> Path | None:
+    """``folder/<stem>.json`` of ``image``: a pose record as ``semcityloc run`` writes it into its
+    ``poses/`` (``geometry.io.pose_to_dict``'s layout), None without one; ``PhotoNotListed`` when it is
+    the record of a photo that run did not localize (its status and reason, no pose)."""
+    path = folder / f"{image.stem}.json"
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return path  # read_pose says what is wrong with it
+    if isinstance(record, dict) and "status" in record and "world_from_cam" not in record:
+        why = record.get("reason") or record["status"]
+        raise PhotoNotListed(f"{path}: {image.name} has no pose there: that run did not localize it ({why})")
+    return path
+
+
+def pose_folder_names(stem: str) -> str:
+    """The files a pose folder (``PoseFiles``) may hold for the photo of ``stem``, for messages."""
+    return f"{stem}_pose.txt, {stem}.txt or {stem}.json"
 
 
 # Where a photo's camera came from with ``--intrinsics exif`` (``IntrinsicsFiles.photo_camera``).
@@ -366,12 +442,14 @@ class PriorFiles:
             )
 
     def _from_dji(
-        self, meta, source: str, source_height: str, stated: PriorUncertainty | None = None
+        self, meta, source: str, source_height: str, stated: PriorUncertainty | None = None, where: str = ""
     ) -> PhotoPrior:
-        """The prior of ``meta`` (a photo's DJI metadata, a geotag row's) with its uncertainty: ``stated``
-        (a geotag row's accuracies, else the defaults) or, for a photo's own metadata (``stated`` None and
-        ``source`` exif), its RTK tags; either way widened when its height was not converted
-        (``dji.height_widened``, one rule for every source)."""
+        """The prior of ``meta`` (a photo's DJI metadata, a geotag row's: ``where`` names the row) with its
+        uncertainty: ``stated`` (a geotag row's accuracies, else the defaults) or, for a photo's own metadata
+        (``stated`` None and ``source`` exif), its RTK tags; either way widened when its height was not
+        converted (``dji.height_widened``, one rule for every source). ``PhotoMissing`` when it gives no
+        prior in the model's CRS (no GNSS fix, a position outside the CRS's area of use, its latitude and
+        longitude swapped: ``dji.dji_prior``): that photo skipped, not the run."""
         try:
             prior = dji_prior(
                 meta,
@@ -381,8 +459,8 @@ class PriorFiles:
                 target_height=self.target_height,
                 geoid_separation_m=self.geoid_separation_m,
             )
-        except InputFileError as exc:
-            raise PhotoMissing(f"no usable GPS prior: {exc}") from None
+        except (InputFileError, CRSError) as exc:
+            raise PhotoMissing(f"no usable GPS prior{f' ({where})' if where else ''}: {exc}") from None
         details = prior.as_dict()
         if source == EXIF:
             sigma = prior_uncertainty(prior)
@@ -399,12 +477,18 @@ class PriorFiles:
         if self.files is not None:
             pose = self.files.pose(image)
             if pose is None:
-                raise PhotoNotListed(f"no prior pose for {image.name} in {self.files.path}")
+                expected = (
+                    f" (expected {pose_folder_names(image.stem)})" if self.files.folder is not None else ""
+                )
+                raise PhotoNotListed(f"no prior pose for {image.name} in {self.files.path}{expected}")
             return PhotoPrior(pose, None, f"pose file {self.files.path.name}")
         if self.geotags is not None:
             row = match_name(self.geotags, image)
             if row is None:
                 raise PhotoNotListed(f"no row for {image.name} in {self.spec}")
             source = f"geotags {Path(self.spec).name}"
-            return self._from_dji(row.geotag.metadata(), source, row.source_height(), row.uncertainty())
+            where = f"{self.spec} line {row.line}" if row.line is not None else str(self.spec)
+            return self._from_dji(
+                row.geotag.metadata(), source, row.source_height(), row.uncertainty(), where
+            )
         return self._from_dji(meta if meta is not None else photo_metadata(image), EXIF, HEIGHT_AUTO)

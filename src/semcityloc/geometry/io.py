@@ -32,6 +32,7 @@ from semcityloc.errors import (
     PoseError,
     SemCityLocError,
     ShapeError,
+    UnknownImageSizeError,
 )
 from semcityloc.geometry.camera import PRINCIPAL_POINT_TOLERANCE, Camera
 from semcityloc.geometry.colmap_text import (
@@ -456,7 +457,7 @@ def _size_from_principal_point(c: float, axis: str) -> int:
     """Image size 2c for a principal point c at the image centre (LoD-Loc files do not store the size)."""
     size = 2.0 * c
     if not math.isfinite(size) or size < 1 or abs(size - round(size)) > 1e-6:
-        raise CameraError(
+        raise UnknownImageSizeError(
             f"cannot infer the image {axis} from c{'x' if axis == 'width' else 'y'}={c:g} "
             f"(not at the centre of a whole-pixel image): pass the image {axis}"
         )

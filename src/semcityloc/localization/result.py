@@ -29,9 +29,11 @@ REASON_PRIOR_TOO_HIGH = (
     "the prior is so far above the model's highest roof that no building would be seen: is its height in "
     "the model's height system (geoid, take-off altitude)?"
 )
+# The hint names each source's convention: the same pitch reads "down" in one and "level" in the other.
 REASON_PRIOR_LOOKS_UP = (
     "the prior looks above the horizon from above every roof, so nothing of the model is in view: is its "
-    "pitch in our convention (0 = straight down; DJI's gimbal pitch -90)?"
+    "pitch in its source's convention? (a DJI photo's or a geotag CSV's gimbal pitch: -90 = straight down, "
+    "0 = level; semcityloc's x,y,z,roll,pitch,yaw and ODM's geo.txt: 0 = straight down)"
 )
 REASON_AT_EDGE = "best hypothesis on the edge of the search volume (state a larger prior uncertainty)"
 

@@ -66,6 +66,11 @@ def search_half_xy(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertaint
     return search_half(prior_local, cfg, unc, "xy")
 
 
+def _distance(metres: float) -> str:
+    """A distance for a message: metres up to 10 km, then kilometres."""
+    return f"{metres:.0f} m" if metres < 10_000.0 else f"{metres / 1000.0:.0f} km"
+
+
 def _view_rays(camera: Camera, pose: Pose, centre: bool) -> np.ndarray:
     """(3, 4 or 5) world directions of the view's corner rays (and its principal ray, ``centre``)."""
     uv = [[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]]
@@ -150,14 +155,33 @@ class MapLayout:
         beside a tile's edge metres; the distance tells the two apart. None for a model without buildings."""
         if not len(self.building_xy):
             return None
-        xy = prior_local.center[:2]
-        nearest = float(np.min(np.linalg.norm(self.building_xy - xy, axis=1)))
+        nearest = self.nearest_building_m(prior_local)
         lo, hi = self.building_xy.min(0), self.building_xy.max(0)
         return (
-            f"the prior lies {nearest:.0f} m from the model's nearest building (the buildings span "
+            f"the prior lies {_distance(nearest)} from the model's nearest building (the buildings span "
             f"{hi[0] - lo[0]:.0f} x {hi[1] - lo[1]:.0f} m); kilometres point at a wrong CRS or "
-            f"{parameter('offset')}"
+            f"{parameter('offset')}, or a photo of another place"
         )
+
+    def nearest_building_m(self, prior_local: Pose) -> float:
+        """The horizontal distance (m) from the prior's camera to the nearest building (inf: none)."""
+        if not len(self.building_xy):
+            return math.inf
+        return float(np.min(np.linalg.norm(self.building_xy - prior_local.center[:2], axis=1)))
+
+    def off_map(self, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty) -> str | None:
+        """``distance_warning`` when no camera the search may reach from this prior can see any building
+        (None otherwise): the nearest lies farther than twice the sum of ``MAX_VIEW_RANGE_M`` and the
+        search's horizontal reach. ``buildings_in_reach`` is then False whatever the camera (the footprint
+        it casts ends ``MAX_VIEW_RANGE_M`` out, its box widened by the reach), as is a tile store's reach
+        (``tiled.reach_radius``): the localizer would refuse it, ``REASON_NO_GEOMETRY``. ``semcityloc run``
+        checks it per photo before anything is searched or drawn (``benchmark.photo_inputs``): a prior
+        hundreds of kilometres off (a COLMAP quaternion in another order, a photo of another place) is
+        said as such, not found by a renderer that refuses cameras that far from the model."""
+        bound = 2.0 * (MAX_VIEW_RANGE_M + search_half_xy(prior_local, cfg, unc))
+        if self.nearest_building_m(prior_local) <= bound:
+            return None
+        return self.distance_warning(prior_local)
 
     def buildings_in_reach(
         self, camera: Camera, prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty
