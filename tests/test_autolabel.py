@@ -450,7 +450,7 @@ def test_label_reads_a_runs_pose_records_and_names_the_photo_it_could_not_label(
     dji_jpeg(photos / "NOEXIF.JPG", None, size=(160, 120))
     for stem in ("A", "NOEXIF"):
         pose = _world_pose(model, _centre(model, 90.0), pitch=20.0)
-        write_pose_json(pose, poses / f"{stem}.json", extra={"status": "localized"})
+        write_pose_json(poses / f"{stem}.json", pose_world=pose, extra={"status": "localized"})
     model.save_npz(tmp_path / "city.npz")
     args = _label_parser().parse_args(
         ["label", "--city", str(tmp_path / "city.npz"), "--images", str(photos), "--poses", str(poses),

@@ -354,7 +354,7 @@ def test_a_runs_pose_records_are_priors_and_truth(tmp_path):
     poses = tmp_path / "poses"
     poses.mkdir()
     pose = Pose.from_xyz_rpy([500100.0, 5400200.0, 300.0], 1.0, 40.0, 120.0)
-    write_pose_json(pose, poses / "a.json", crs="EPSG:25832", extra={"status": "localized"})
+    write_pose_json(poses / "a.json", pose_world=pose, crs="EPSG:25832", extra={"status": "localized"})
     record = {"status": "not_localized", "reason": "confidence below the acceptance probability"}
     (poses / "b.json").write_text(json.dumps(record))
     priors = PriorFiles(poses, pyproj.CRS("EPSG:25832"))
