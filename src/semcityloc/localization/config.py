@@ -296,6 +296,15 @@ class LocalizerConfig:
     # whole runs (seed 0); 0 / 0.003 / 0.01 moved at most one query of 800.
     flat_eaves_gate: float = 0.002
     flat_eaves_margin: float = 0.006
+    # A roll/pitch prior the image contradicts (``prior.roll_pitch_conflict``): where the found roll/pitch
+    # departs from the prior's by more than this many sigmas of its stated uncertainty (0: never looked
+    # at), the refinement runs again from the found pose with that sigma widened
+    # (``prior.roll_pitch_wide_sigma``), and the pose whose image score (the same score without the
+    # prior's term) is higher is kept; with ``roll_pitch_conflict_refuse`` a pose is refused instead when
+    # the two lie farther apart than the acceptance tolerates. Either way a warning names the departure.
+    # Chosen on the calibration cities (docs/localization.md, "A roll/pitch prior the image contradicts").
+    roll_pitch_conflict_sigma: float = 2.0
+    roll_pitch_conflict_refuse: bool = False
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -313,6 +322,15 @@ class LocalizerConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not -1.0 <= value <= 1.0:
                 raise ParameterError(f"{name} must be a score difference in [-1, 1], got {value!r}")
+        k = self.roll_pitch_conflict_sigma
+        if isinstance(k, bool) or not isinstance(k, (int, float)) or not 0.0 <= k <= 100.0:
+            raise ParameterError(
+                f"roll_pitch_conflict_sigma must be a number of sigmas in [0, 100], got {k!r}"
+            )
+        if not isinstance(self.roll_pitch_conflict_refuse, bool):
+            raise ParameterError(
+                f"roll_pitch_conflict_refuse must be True or False, got {self.roll_pitch_conflict_refuse!r}"
+            )
         eaves = self.map_eaves_m
         if isinstance(eaves, bool) or not isinstance(eaves, (int, float)) or not 0.0 <= eaves <= 3.0:
             raise ParameterError(f"map_eaves_m must be a number of metres in [0, 3], got {eaves!r}")

@@ -13,7 +13,8 @@
    hypotheses (cascade) or best grid cells (grid), then its polish; with ``restarts`` the best final score
    wins; the score's curvature at the pose gives its covariance (``covariance.py``). With
    ``map_eaves_flat_roofs="auto"`` a second look on the map with eaves on its flat roofs too
-   (``map_scenes.py``).
+   (``map_scenes.py``). A found roll/pitch far outside the IMU's stated sigma (``prior.roll_pitch_conflict``):
+   the refinement again with that sigma widened, the pose that fits the image better kept, and a warning.
 4. Accept: ``not_localized`` with a reason when the evidence is empty, the best hypothesis sits on the
    edge of the search volume, or the calibrated probability of being right (``confidence.py``) is
    below ``min_confidence`` (``acceptance="thresholds"``: the first design's hand-set gates). A pose the
@@ -37,6 +38,7 @@ from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import NUM_CLASSES, SemanticClass
 from semcityloc.errors import ParameterError, parameter
 from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import state_difference
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.agreement import agreed_depth_cost, boundary_distance_px, building_agreement
@@ -60,7 +62,17 @@ from semcityloc.localization.confidence import (
 from semcityloc.localization.config import LocalizerConfig, config_or_preset
 from semcityloc.localization.input_checks import check_query_inputs
 from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
-from semcityloc.localization.prior import prior_conflict_warning, prior_distance, prior_term
+from semcityloc.localization.prior import (
+    ROLL_PITCH_APART_DEG,
+    ROLL_PITCH_APART_M,
+    prior_conflict_warning,
+    prior_distance,
+    prior_term,
+    roll_pitch_conflict,
+    roll_pitch_conflict_warning,
+    roll_pitch_departure,
+    roll_pitch_wide_sigma,
+)
 from semcityloc.localization.query import (
     Query,
     check_mask_pixels,
@@ -70,7 +82,7 @@ from semcityloc.localization.query import (
     usable_depth,
 )
 from semcityloc.localization.refine import ScoringLevel, initial_sigma, score_states
-from semcityloc.localization.refine_stage import Refiner
+from semcityloc.localization.refine_stage import Refiner, adopt, image_score
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
@@ -79,6 +91,7 @@ from semcityloc.localization.result import (
     REASON_LOW_SCORE,
     REASON_NO_BUILDINGS_IN_QUERY,
     REASON_NO_GEOMETRY,
+    REASON_ROLL_PITCH_CONFLICT,
     LocalizationResult,
 )
 from semcityloc.localization.scoring import map_classes, merge_openings_lut
@@ -292,7 +305,74 @@ class Localizer:
             refiner.look_with_flat_eaves(
                 self.flat_eaves_scene, result, levels, hyps.states, cfg, sigma, prior
             )
+        if not cfg.no_refine:
+            self._settle_roll_pitch_conflict(result, levels, hyps.states, prior_state, cfg, unc)
         return levels[-1]
+
+    def _settle_roll_pitch_conflict(self, result, levels, seeds, prior_state, cfg, unc) -> None:
+        """A found roll/pitch that departs from the prior's by more than ``roll_pitch_conflict_sigma``
+        sigmas (``prior.roll_pitch_conflict``): the IMU is worse than stated, and its penalty may have
+        pulled the pose onto a tilt-for-shift compromise. The refinement runs again from the found pose and
+        ``seeds`` with the roll/pitch sigma widened (``prior.roll_pitch_wide_sigma``) on the map the pose
+        was found on; the pose whose image score (``refine_stage.image_score``: the same score without the
+        prior's term) is higher is kept, or with ``roll_pitch_conflict_refuse`` the result is refused when
+        the two lie farther apart than the acceptance tolerates. A warning names the departure; recorded in
+        ``result.search["roll_pitch_conflict"]``. Runs only on a conflict."""
+        state = result.pose_local.to_xyz_rpy()
+        if not roll_pitch_conflict(state, prior_state, unc, cfg.roll_pitch_conflict_sigma):
+            return
+        t0 = time.perf_counter()
+        departure = roll_pitch_departure(state, prior_state)
+        wide = roll_pitch_wide_sigma(departure, unc)
+        wide_unc = replace(unc, roll_pitch_deg=wide)
+        refiner = replace(self._refiner(), scene=self.map_of(result).scene)
+        trial = refiner.refine_again(
+            result,
+            levels,
+            seeds,
+            cfg,
+            initial_sigma(cfg.refine, wide),
+            prior_term(prior_state, cfg, wide_unc),
+        )
+        with_depth = levels[-1].depth is not None
+        gain = image_score(trial, cfg, with_depth) - image_score(result, cfg, with_depth)
+        moved = state_difference(trial.pose_local.to_xyz_rpy(), state)
+        moved_m, moved_deg = float(np.linalg.norm(moved[:3])), float(np.max(np.abs(moved[3:])))
+        apart = moved_m > ROLL_PITCH_APART_M or moved_deg > ROLL_PITCH_APART_DEG
+        look = {
+            "departure_deg": departure,
+            "sigmas": departure / unc.roll_pitch_deg,
+            "wide_sigma_deg": wide,
+            "gain": gain,
+            "moved_m": moved_m,
+            "moved_deg": moved_deg,
+            "taken": bool(gain > 0.0),
+            "refused": bool(apart and cfg.roll_pitch_conflict_refuse),
+        }
+        result.search["roll_pitch_conflict"] = look
+        if look["taken"]:
+            adopt(result, trial)
+        look["final_departure_deg"] = roll_pitch_departure(result.pose_local.to_xyz_rpy(), prior_state)
+        if look["refused"]:
+            outcome = (
+                f"refined again with its sigma widened to {wide:.1f} deg, the pose moved {moved_m:.1f} m / "
+                f"{moved_deg:.1f} deg: more than the acceptance tolerates, so it is refused"
+            )
+            result.rejected_pose_local = result.pose_local
+            result.reason = REASON_ROLL_PITCH_CONFLICT
+        elif look["taken"]:
+            outcome = (
+                f"refined again with its sigma widened to {wide:.1f} deg, the pose moved {moved_m:.1f} m / "
+                f"{moved_deg:.1f} deg and fits the image better (now {look['final_departure_deg']:.1f} deg "
+                "from the prior's)"
+            )
+        else:
+            outcome = (
+                f"refined again with its sigma widened to {wide:.1f} deg, the first pose fits the image best"
+            )
+
+        result.warnings.append(roll_pitch_conflict_warning(departure, unc, outcome))
+        result.timings["roll_pitch_conflict_s"] = time.perf_counter() - t0
 
     def _drop_inverted_depth(
         self, result: LocalizationResult, levels: list[ScoringLevel], pose_local: Pose

@@ -128,19 +128,26 @@ class Refiner:
             look["moved_m"] = float(np.linalg.norm(moved[:3]))
             if look["gain"] > cfg.flat_eaves_margin:
                 look["used"] = True
-                for name in (
-                    "pose_local",
-                    "score",
-                    "semantic",
-                    "depth_cost",
-                    "covariance",
-                    "score_curvature",
-                ):
-                    setattr(result, name, getattr(trial, name))
-                result.confidence.update(
-                    spread_m=trial.confidence["spread_m"], spread_deg=trial.confidence["spread_deg"]
-                )
+                adopt(result, trial)
         result.timings["flat_eaves_s"] = time.perf_counter() - t0
+
+    def refine_again(
+        self,
+        result: LocalizationResult,
+        levels: list[ScoringLevel],
+        seeds: np.ndarray,
+        cfg: LocalizerConfig,
+        sigma: np.ndarray,
+        prior: PriorTerm | None,
+    ) -> LocalizationResult:
+        """The refinement once more, into a result of its own, from ``result``'s pose and ``seeds`` (the
+        search's hypotheses) with other perturbation scales and prior (``Localizer`` after a roll/pitch
+        conflict, ``prior.roll_pitch_conflict``); its evaluations are counted on ``result``."""
+        trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
+        state = result.pose_local.to_xyz_rpy()
+        self.refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
+        result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
+        return trial
 
     def _filter_and_polish(
         self,
@@ -208,6 +215,21 @@ class Refiner:
         states = probe_states(state, steps)
         score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior)
         return score_curvature(states, score, state)
+
+
+def image_score(result: LocalizationResult, cfg: LocalizerConfig, with_depth: bool) -> float:
+    """What the refinement maximises at ``result``'s pose without the prior's term: ``lambda_1 * C_s -
+    lambda_2 * C_d`` (no depth term without depth), from the scores it recorded there."""
+    lam_d = cfg.refine.lambda_depth if with_depth else 0.0
+    return float(cfg.refine.lambda_semantic * result.semantic - lam_d * result.depth_cost)
+
+
+def adopt(result: LocalizationResult, trial: LocalizationResult) -> None:
+    """``trial``'s pose and its evidence (scores, covariance, spread) into ``result``: a second refinement's
+    pose taken (the flat-eaves look; ``Localizer``'s roll/pitch conflict)."""
+    for name in ("pose_local", "score", "semantic", "depth_cost", "covariance", "score_curvature"):
+        setattr(result, name, getattr(trial, name))
+    result.confidence.update(spread_m=trial.confidence["spread_m"], spread_deg=trial.confidence["spread_deg"])
 
 
 def _median_seen(depth: np.ndarray) -> float:

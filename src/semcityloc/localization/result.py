@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from semcityloc.errors import parameter
 from semcityloc.geometry.io import pose_to_dict
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.coarse import CostVolume
@@ -34,6 +35,12 @@ REASON_PRIOR_LOOKS_UP = (
     "the prior looks above the horizon from above every roof, so nothing of the model is in view: is its "
     "pitch in its source's convention? (a DJI photo's or a geotag CSV's gimbal pitch: -90 = straight down, "
     "0 = level; semcityloc's x,y,z,roll,pitch,yaw and ODM's geo.txt: 0 = straight down)"
+)
+# The refinement with the IMU's roll/pitch as stated and one with it widened found poses farther apart than
+# the acceptance tolerates (``prior.roll_pitch_conflict``; ``LocalizerConfig.roll_pitch_conflict_refuse``).
+REASON_ROLL_PITCH_CONFLICT = (
+    "the IMU's roll/pitch conflicts with the image: state its uncertainty, "
+    + parameter("prior_sigma", "rp=...")
 )
 REASON_AT_EDGE = "best hypothesis on the edge of the search volume (state a larger prior uncertainty)"
 
