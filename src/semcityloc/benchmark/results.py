@@ -16,8 +16,10 @@ without one);
 lacks; ``LocalizationResult.warnings``), joined by `` | ``, empty
 when none; ``flat_roof_eaves_used``: 1 where ``map_eaves_flat_roofs="auto"``'s second look took the pose from
 the map with eaves on its flat roofs (``Localizer.map_of``), 0 where it kept the first, empty where it made
-none (the report draws the map at the estimate from it). A ``results.csv`` written before a column of
-``ADDED_COLUMNS`` existed still resumes: it is rewritten with that column (empty) before rows are appended, so
+none (the report draws the map at the estimate from it); ``lookalike_margin``: the pose's final score
+minus that of the best look-alike more than 5 m / 5 deg away (``localization/lookalike.py``; empty when
+none). A ``results.csv`` written before a column of ``ADDED_COLUMNS`` existed still resumes: it is
+rewritten with that column (empty) before rows are appended, so
 every line matches the header.
 
 ``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
@@ -86,7 +88,7 @@ COLUMNS: tuple[str, ...] = tuple(
     building_iou probability found_err_xyz_m found_err_rot_deg coarse_hypotheses refine_evaluations
     t_coarse_s t_refine_s t_total_s meta_json sigma_xy_m sigma_z_m sigma_yaw_deg
     hypothesis_margin depth_cost_agreed building_fraction prior_distance boundary_distance_px
-    unmapped_building_share unseen_building_share flat_roof_eaves_used""".split()
+    unmapped_building_share unseen_building_share flat_roof_eaves_used lookalike_margin""".split()
 )
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
 # The acceptance's other inputs, as ``result.confidence`` holds them (stop 42; empty in earlier runs).
@@ -101,7 +103,9 @@ CONFIDENCE_COLUMNS = (
 )
 # Columns added after runs had been written with the others (module docstring): such a run still resumes.
 ADDED_COLUMNS = (
-    ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg") + CONFIDENCE_COLUMNS + ("flat_roof_eaves_used",)
+    ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg")
+    + CONFIDENCE_COLUMNS
+    + ("flat_roof_eaves_used", "lookalike_margin")
 )
 
 
@@ -291,6 +295,7 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         **_sigmas(result.covariance if est is not None else None),
         **{c: conf.get(c) for c in CONFIDENCE_COLUMNS},
         "flat_roof_eaves_used": flat_roof_eaves_used(result),
+        "lookalike_margin": conf.get("lookalike_margin"),
     }
     return {c: _fmt(row.get(c)) for c in COLUMNS}
 

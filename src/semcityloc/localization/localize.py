@@ -61,6 +61,7 @@ from semcityloc.localization.confidence import (
 )
 from semcityloc.localization.config import LocalizerConfig, config_or_preset
 from semcityloc.localization.input_checks import check_query_inputs
+from semcityloc.localization.lookalike import ambiguous_reason, distant_peak, is_distinct, lookalike_of
 from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
 from semcityloc.localization.prior import (
     ROLL_PITCH_APART_DEG,
@@ -86,6 +87,7 @@ from semcityloc.localization.refine_stage import Refiner, adopt, image_score
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
+    REASON_AMBIGUOUS,
     REASON_AT_EDGE,
     REASON_LOW_CONFIDENCE,
     REASON_LOW_SCORE,
@@ -198,6 +200,10 @@ class Localizer:
             t_beyond = time.perf_counter()
             self._look_beyond(result, camera, query, prior_state, cfg, unc)
             result.timings["beyond_s"] = time.perf_counter() - t_beyond
+        min_margin = cfg.cascade.lookalike.min_margin
+        if accepted and result.confidence.get("lookalike_margin", math.nan) < min_margin:
+            accepted = False
+            reason = f"{REASON_AMBIGUOUS}: {ambiguous_reason(result.search['lookalike'], min_margin)}"
         if not accepted:
             result.rejected_pose_local = result.pose_local
             result.pose_local = None
@@ -307,6 +313,8 @@ class Localizer:
             )
         if not cfg.no_refine:
             self._settle_roll_pitch_conflict(result, levels, hyps.states, prior_state, cfg, unc)
+        if cc.lookalike.enabled and not cfg.no_refine:
+            self._look_for_lookalike(result, sw, levels, q_local, unc, cfg, sigma, prior)
         return levels[-1]
 
     def _settle_roll_pitch_conflict(self, result, levels, seeds, prior_state, cfg, unc) -> None:
@@ -373,6 +381,35 @@ class Localizer:
 
         result.warnings.append(roll_pitch_conflict_warning(departure, unc, outcome))
         result.timings["roll_pitch_conflict_s"] = time.perf_counter() - t0
+
+    def _look_for_lookalike(
+        self, result, sw, levels, q_local, unc, cfg: LocalizerConfig, sigma, prior
+    ) -> None:
+        """The look-alike margin (``lookalike.py``): the sweep's best other peak, more than
+        ``LookalikeConfig.min_distance_m`` from the pose found, through one local grid and a small
+        refinement on the map the pose was found on; ``result.confidence["lookalike_margin"]`` is the pose's
+        final score minus that one's (NaN: none, or it came back within 5 m / 5 deg of the pose), its pose in
+        ``result.search["lookalike"]``. ``localize`` refuses an accepted pose below ``min_margin``."""
+        t0 = time.perf_counter()
+        look = cfg.cascade.lookalike
+        found = result.pose_local.to_xyz_rpy()
+        result.confidence["lookalike_margin"] = float("nan")
+        seed = distant_peak(sw, found, look.min_distance_m)
+        if seed is not None:
+            local = replace(cfg.cascade.local, keep=1)
+            camera, rp = levels[0].camera, unc.roll_pitch_deg
+            hyps = local_search(self.scene, camera, [seed], sw.step, rp, q_local, self.class_on, local)
+            refiner = self.map_of(result)._refiner()
+            moved = found.copy()  # the pose found, moved to the look-alike's place: its tilt, height, yaw
+            moved[:2] = hyps.states[0, :2]
+            refined = refiner.refine_lookalike(levels, moved, cfg, sigma, prior)
+            result.counts["coarse_hypotheses"] += hyps.evaluated
+            result.counts["refine_evaluations"] += refined.evaluations
+            if is_distinct(refined.xyz_rpy, found, look.min_distance_m, look.min_rotation_deg):
+                other = lookalike_of(found, result.score, refined.xyz_rpy, refined.score)
+                result.confidence["lookalike_margin"] = other.margin
+                result.search["lookalike"] = other.as_dict()
+        result.timings["lookalike_s"] = time.perf_counter() - t0
 
     def _drop_inverted_depth(
         self, result: LocalizationResult, levels: list[ScoringLevel], pose_local: Pose

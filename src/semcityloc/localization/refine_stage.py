@@ -149,6 +149,41 @@ class Refiner:
         result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
         return trial
 
+    def refine_lookalike(
+        self,
+        levels: list[ScoringLevel],
+        moved: np.ndarray,
+        cfg: LocalizerConfig,
+        sigma: np.ndarray,
+        prior: PriorTerm | None,
+    ) -> RefineResult:
+        """The look-alike's own refinement (``lookalike.py``). ``moved``: the pose found moved to the
+        look-alike's place (its height, tilt and yaw; the place from the local grid). A look-alike is the
+        same view elsewhere, so its place is searched first, on an x/y grid of ``LookalikeConfig.grid`` x
+        ``grid`` camera centres ``grid_half_m`` around ``moved`` at the fine level; then a small filter
+        (``particles`` x ``iterations``, at the fine level) and the polish from the grid's best, as the
+        pose's: its final score is comparable with the pose's ``result.score``."""
+        look = cfg.cascade.lookalike
+        fine = levels[-1]
+        offsets = np.linspace(-look.grid_half_m, look.grid_half_m, look.grid)
+        gx, gy = np.meshgrid(offsets, offsets, indexing="ij")
+        states = np.repeat(moved[None], gx.size, axis=0)
+        states[:, 0] += gx.ravel()
+        states[:, 1] += gy.ravel()
+        score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior)
+        best = states[int(np.argmax(score))]
+        small = replace(
+            cfg,
+            refine=replace(
+                cfg.refine, particles=look.particles, iterations=look.iterations, low_res_iterations=0
+            ),
+        )
+        if cfg.refine.pivot == "both":
+            sigma = self._about_pivot(levels[0].camera, best, sigma)
+        refined = self._filter_and_polish(levels, best[None], small, sigma, prior, 0)
+        refined.evaluations += len(states)
+        return refined
+
     def _filter_and_polish(
         self,
         levels: list[ScoringLevel],

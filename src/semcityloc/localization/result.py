@@ -42,6 +42,8 @@ REASON_ROLL_PITCH_CONFLICT = (
     "the IMU's roll/pitch conflicts with the image: state its uncertainty, "
     + parameter("prior_sigma", "rp=...")
 )
+# A pose as likely as another more than 5 m / 5 deg away (``lookalike.py``); the reason goes on to say where.
+REASON_AMBIGUOUS = "ambiguous"
 REASON_AT_EDGE = "best hypothesis on the edge of the search volume (state a larger prior uncertainty)"
 
 
@@ -58,7 +60,9 @@ class LocalizationResult:
     ``hypothesis_margin`` (final score of the winner minus the best other refined hypothesis),
     ``building_fraction`` (share of building pixels in the query), ``prior_distance`` (sigmas of the
     prior's uncertainty between the pose and the prior, x/y/z/yaw), ``boundary_distance_px`` (how far
-    apart the class boundaries of query and map lie at the pose, ``agreement.py``), ``probability``
+    apart the class boundaries of query and map lie at the pose, ``agreement.py``), ``lookalike_margin``
+    (the pose's final score minus that of the best pose more than 5 m / 5 deg away, refined as well,
+    ``lookalike.py``; NaN when none; its pose in ``search["lookalike"]``), ``probability``
     (the calibrated probability of being within 5 m / 5 deg, ``confidence.py``). ``search``: the volume
     searched, its extensions and edges; ``hypotheses``: the refined hypotheses' final states and scores,
     best first. ``rejected_pose_local``: the pose that was found but not accepted (for diagnostics; never
