@@ -376,7 +376,10 @@ def test_restarts_keep_the_best_scoring_run(city, localizer, renderer):
     truth = view(city, *CASES["nadir"][0])
     labels = renderer.render(CAMERA, truth).labels[0]
     prior = perturbed(truth, np.array(CASES["nadir"][1]), 1.0, -1.0, 5.0)
-    single = replace(localizer.config, map_eaves_flat_roofs="off")  # no second look: one map's counts
+    cfg = localizer.config
+    no_lookalike = replace(cfg.cascade, lookalike=replace(cfg.cascade.lookalike, enabled=False))
+    # no second look and no look-alike's refinement: the runs' counts alone
+    single = replace(cfg, map_eaves_flat_roofs="off", cascade=no_lookalike)
     one = localizer.localize(CAMERA, prior, labels, config=single)
     config = replace(single, refine=replace(single.refine, restarts=3))
     three = localizer.localize(CAMERA, prior, labels, config=config)
