@@ -13,6 +13,7 @@ from semcityloc.citymodel.io import load_city_model
 from semcityloc.geometry.errors import center_error_m
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.cascade import Sweep
+from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.lookalike import (
     ambiguous_reason,
@@ -76,15 +77,21 @@ def rows_city(path, nx: int = 10, ny: int = 7) -> str:
 
 def test_a_pose_one_house_along_in_a_row_of_equal_houses_is_refused_as_ambiguous(tmp_path):
     """The truth looks down on the middle of the rows; the prior lies one house along (15 m east, within
-    the stated +-15 m), where the view is the same. The localizer before stop 52 accepted the pose 15 m
-    off at probability 0.9+; now the truth is found as a look-alike as good and the pose is refused."""
+    the stated +-15 m), where the view is the same. The default localizer accepts the pose 15 m off at
+    probability 0.9+; with the ``lookalikes`` preset the truth is found as a look-alike as good and the
+    pose is refused."""
     city = load_city_model(rows_city(tmp_path / "rows.json"), cache=False)
     lo, hi = city.bounds_local
     centre = 0.5 * (lo + hi)
     true = Pose.from_xyz_rpy([centre[0], centre[1], lo[2] + 60.0], 0.0, 0.0, 0.0)
     prior = perturbed(true, [PITCH_ALONG_M, 0.0, 3.0])
     out = Renderer(city, engine="numba").render(CAMERA, true, depth=True)
-    result = Localizer(city).localize(CAMERA, prior, out.labels[0], 0.5 * out.depth[0] + 7.0)
+    depth = 0.5 * out.depth[0] + 7.0
+    default = Localizer(city).localize(CAMERA, prior, out.labels[0], depth)
+    assert "lookalike_margin" not in default.confidence  # off by default: not looked for
+    result = Localizer(city, LocalizerConfig.preset("lookalikes")).localize(
+        CAMERA, prior, out.labels[0], depth
+    )
     assert result.status == NOT_LOCALIZED, "a pose with an equal look-alike 15 m away was accepted"
     assert result.reason.startswith(REASON_AMBIGUOUS + ": a look-alike 1"), result.reason
     look = result.search["lookalike"]
