@@ -212,6 +212,13 @@ def test_render_and_localize_round_trip_on_generated_city(city_paths, tmp_path, 
                          f"{x},{y},{z},0,180,0", "--out", tmp_path / "sky", "--no-cache")  # fmt: skip
     assert code == 0 and json.loads(out)["pixels_per_class"] == {"0": 512 * 384}
     assert "nothing of the model is in view at this pose" in err
+    # A pose thousands of km off (another CRS, a garbage coordinate) is said in the pose file's words, not
+    # the renderer's "a pose in world coordinates given as local" (stop 52).
+    for far, said in ((f"{x},{y - 5e6},{z},1,35,120", "5,000 km"), (f"1e300,{y},{z},1,35,120", "1e+297 km")):
+        code, _, err = run(capsys, "render", "--city", city_paths[2], "--intrinsics", intr, "--pose", far,
+                           "--out", tmp_path / "far", "--no-cache")  # fmt: skip
+        assert code == 2 and f"the camera lies {said} from the model" in err, err
+        assert "model's CRS" in err and "pose_to_local" not in err
 
     def localize(prior: str, out: str, *extra) -> tuple[int, str, str]:
         argv = ["localize", "--city", city_paths[2], "--intrinsics", intr, "--prior", prior]
