@@ -205,6 +205,7 @@ PARAMETERS: dict[str, Parameter] = {
     "allow_lossy": Parameter("allow_lossy=True", "--allow-lossy-mask"),
     "out": Parameter("out='{}'", "--out {}"),
     "overwrite": Parameter("overwrite=True", "--overwrite"),
+    "recursive": Parameter("PhotoSpec(recursive=True)", "--recursive"),
 }
 
 

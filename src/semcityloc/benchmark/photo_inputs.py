@@ -74,7 +74,7 @@ from semcityloc.datasets.photos import (
     photo_metadata,
     subfolder_images,
 )
-from semcityloc.errors import InputFileError, IntrinsicsMismatchError, LossyMaskError
+from semcityloc.errors import InputFileError, IntrinsicsMismatchError, LossyMaskError, parameter
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion, undistort_image
 from semcityloc.geometry.pose import Pose
@@ -251,7 +251,7 @@ def _on_the_map(
     return kept
 
 
-RECURSIVE_REMEDY = "pass --recursive to read them (in Python: PhotoSpec(recursive=True))"
+RECURSIVE_REMEDY = f"pass {parameter('recursive')} to read them"
 
 
 def photo_paths(spec: PhotoSpec) -> list[Path]:

@@ -333,14 +333,17 @@ class Localizer:
         departure = roll_pitch_departure(state, prior_state)
         wide = roll_pitch_wide_sigma(departure, unc)
         wide_unc = replace(unc, roll_pitch_deg=wide)
-        refiner = replace(self._refiner(), scene=self.map_of(result).scene)
-        trial = refiner.refine_again(
-            result,
-            levels,
-            seeds,
-            cfg,
-            initial_sigma(cfg.refine, wide),
-            prior_term(prior_state, cfg, wide_unc),
+        trial = (
+            self.map_of(result)
+            ._refiner()
+            .refine_again(
+                result,
+                levels,
+                seeds,
+                cfg,
+                initial_sigma(cfg.refine, wide),
+                prior_term(prior_state, cfg, wide_unc),
+            )
         )
         with_depth = levels[-1].depth is not None
         gain = image_score(trial, cfg, with_depth) - image_score(result, cfg, with_depth)
@@ -361,24 +364,17 @@ class Localizer:
         if look["taken"]:
             adopt(result, trial)
         look["final_departure_deg"] = roll_pitch_departure(result.pose_local.to_xyz_rpy(), prior_state)
+        widened = f"refined again with its sigma widened to {wide:.1f} deg, "
+        moved_by = f"the pose moved {moved_m:.1f} m / {moved_deg:.1f} deg"
         if look["refused"]:
-            outcome = (
-                f"refined again with its sigma widened to {wide:.1f} deg, the pose moved {moved_m:.1f} m / "
-                f"{moved_deg:.1f} deg: more than the acceptance tolerates, so it is refused"
-            )
+            outcome = f"{widened}{moved_by}: more than the acceptance tolerates, so it is refused"
             result.rejected_pose_local = result.pose_local
             result.reason = REASON_ROLL_PITCH_CONFLICT
         elif look["taken"]:
-            outcome = (
-                f"refined again with its sigma widened to {wide:.1f} deg, the pose moved {moved_m:.1f} m / "
-                f"{moved_deg:.1f} deg and fits the image better (now {look['final_departure_deg']:.1f} deg "
-                "from the prior's)"
-            )
+            now = look["final_departure_deg"]
+            outcome = f"{widened}{moved_by} and fits the image better (now {now:.1f} deg from the prior's)"
         else:
-            outcome = (
-                f"refined again with its sigma widened to {wide:.1f} deg, the first pose fits the image best"
-            )
-
+            outcome = f"{widened}the first pose fits the image best"
         result.warnings.append(roll_pitch_conflict_warning(departure, unc, outcome))
         result.timings["roll_pitch_conflict_s"] = time.perf_counter() - t0
 

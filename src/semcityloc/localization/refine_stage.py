@@ -119,10 +119,7 @@ class Refiner:
         result.search["flat_roof_eaves"] = look
         result.counts["refine_evaluations"] += 1
         if look["gain_at_found"] > cfg.flat_eaves_gate:
-            trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
-            on_flat = replace(self, scene=flat_scene)
-            on_flat.refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
-            result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
+            trial = replace(self, scene=flat_scene).refine_again(result, levels, seeds, cfg, sigma, prior)
             look["gain"] = float(trial.semantic - result.semantic)
             moved = trial.pose_local.to_xyz_rpy() - state
             look["moved_m"] = float(np.linalg.norm(moved[:3]))
@@ -142,7 +139,8 @@ class Refiner:
     ) -> LocalizationResult:
         """The refinement once more, into a result of its own, from ``result``'s pose and ``seeds`` (the
         search's hypotheses) with other perturbation scales and prior (``Localizer`` after a roll/pitch
-        conflict, ``prior.roll_pitch_conflict``); its evaluations are counted on ``result``."""
+        conflict, ``prior.roll_pitch_conflict``), or on another map (``look_with_flat_eaves``); its
+        evaluations are counted on ``result``."""
         trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
         state = result.pose_local.to_xyz_rpy()
         self.refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
