@@ -14,6 +14,9 @@ refined pose still lies more than ``min_distance_m`` / ``min_rotation_deg`` from
 (``is_distinct``), the **look-alike margin** is the pose's final score minus that pose's (``Lookalike``);
 else there is no look-alike (NaN). An accepted pose whose margin is below ``min_margin`` is refused with
 ``result.REASON_AMBIGUOUS`` and a reason naming where the look-alike lies (``ambiguous_reason``).
+
+Off by default (``LookalikeConfig.enabled``; the ``lookalikes`` preset turns it on): held out on Berlin it
+refused three right poses and no wrong one, at 1.3-1.4 x the time (docs/localization.md, "Look-alikes").
 """
 
 from __future__ import annotations
