@@ -87,22 +87,29 @@ def grid_scores(Qx, Qy, Qz, T, fx, fy, cx, cy, pmap, width, height, near, out):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def pose_scores(P, Rs, ts, fx, fy, cx, cy, pmap, width, height, near, out):
-    """Mean edge probability of the points P (N, 3) at each pose (Rs (K, 3, 3), ts (K, 3)); out (K,)."""
-    n_pts = P.shape[0]
+def pose_scores(
+    points_local, R_cams_from_local, t_cams_from_local, fx, fy, cx, cy, pmap, width, height, near, out
+):
+    """Mean edge probability of ``points_local`` (N, 3) at each pose (``R_cams_from_local`` (K, 3, 3),
+    ``t_cams_from_local`` (K, 3)); out (K,)."""
+    n_pts = points_local.shape[0]
     inv_n = 1.0 / max(n_pts, 1)
-    for k in prange(Rs.shape[0]):
-        R = Rs[k]
-        t = ts[k]
+    for k in prange(R_cams_from_local.shape[0]):
+        R_cam_from_local = R_cams_from_local[k]
+        t_cam_from_local = t_cams_from_local[k]
+        r00, r01, r02 = R_cam_from_local[0, 0], R_cam_from_local[0, 1], R_cam_from_local[0, 2]
+        r10, r11, r12 = R_cam_from_local[1, 0], R_cam_from_local[1, 1], R_cam_from_local[1, 2]
+        r20, r21, r22 = R_cam_from_local[2, 0], R_cam_from_local[2, 1], R_cam_from_local[2, 2]
+        t0, t1, t2 = t_cam_from_local[0], t_cam_from_local[1], t_cam_from_local[2]
         acc = 0.0
         for i in range(n_pts):
-            X, Y, Z = P[i, 0], P[i, 1], P[i, 2]
-            z = R[2, 0] * X + R[2, 1] * Y + R[2, 2] * Z + t[2]
+            X, Y, Z = points_local[i, 0], points_local[i, 1], points_local[i, 2]
+            z = r20 * X + r21 * Y + r22 * Z + t2
             if z <= near:
                 continue
             iz = 1.0 / z
-            u = fx * (R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]) * iz + cx
-            v = fy * (R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]) * iz + cy
+            u = fx * (r00 * X + r01 * Y + r02 * Z + t0) * iz + cx
+            v = fy * (r10 * X + r11 * Y + r12 * Z + t1) * iz + cy
             acc += _lookup(pmap, width, height, u, v)
         out[k] = acc * inv_n
 
@@ -126,18 +133,18 @@ def sample_bilinear(
     return np.where(inside, top + (bottom - top) * ay, 0.0)
 
 
-def score_poses(points: np.ndarray, poses: Pose, camera: Camera, emap: np.ndarray) -> np.ndarray:
-    """Mean edge probability of ``points`` (N, 3, local frame) at each of ``poses`` (single or batch)
+def score_poses(points_local: np.ndarray, poses_local: Pose, camera: Camera, emap: np.ndarray) -> np.ndarray:
+    """Mean edge probability of ``points_local`` (N, 3) at each of ``poses_local`` (single or batch)
     on ``emap`` (H, W) seen by ``camera`` (same size). Returns (K,) float64."""
     if emap.shape != (camera.height, camera.width):
         raise ShapeError(f"edge map {emap.shape} does not match the camera ({camera.height}, {camera.width})")
-    Rs = np.ascontiguousarray(poses.R.reshape(-1, 3, 3))
-    ts = np.ascontiguousarray(poses.t.reshape(-1, 3))
-    out = np.empty(len(Rs))
+    R_cams_from_local = np.ascontiguousarray(poses_local.R.reshape(-1, 3, 3))
+    t_cams_from_local = np.ascontiguousarray(poses_local.t.reshape(-1, 3))
+    out = np.empty(len(R_cams_from_local))
     pose_scores(
-        np.ascontiguousarray(points, dtype=np.float64),
-        Rs,
-        ts,
+        np.ascontiguousarray(points_local, dtype=np.float64),
+        R_cams_from_local,
+        t_cams_from_local,
         camera.fx,
         camera.fy,
         camera.cx,

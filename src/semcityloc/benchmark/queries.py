@@ -436,16 +436,16 @@ class QuerySimulator:
         }
         return pose, info
 
-    def _blocked_above(self, pose: Pose) -> bool:
+    def _blocked_above(self, pose_local: Pose) -> bool:
         """Whether anything of the reality lies straight above the camera (it is inside or under it)."""
-        up = Pose.from_xyz_rpy(pose.center, 0.0, 180.0, 0.0)
+        up = Pose.from_xyz_rpy(pose_local.center, 0.0, 180.0, 0.0)
         d = self.reality.renderer.render(self._up_camera, up, depth=True).depth
         return bool(np.isfinite(d).any())
 
     def _segmentation(
         self,
         index: int,
-        pose: Pose,
+        pose_local: Pose,
         clean: np.ndarray,
         meta: dict,
         camera: Camera | None = None,
@@ -459,7 +459,7 @@ class QuerySimulator:
         if cfg.seg_model == "blobs":
             return simulate_segmentation(clean, SEG_PRESETS[cfg.seg_quality], rng)
         sun = sun_direction(np.random.default_rng([cfg.seed, index, STREAM_SUN]))
-        truth = view_truth(self.reality, camera or self.camera, pose, sun)
+        truth = view_truth(self.reality, camera or self.camera, pose_local, sun)
         meta["shadow_fraction"] = float(truth.shadow.mean())
         return simulate_segmentation(clean, cfg.seg_preset(), rng, truth=truth)
 
@@ -476,7 +476,7 @@ class QuerySimulator:
         return simulate_depth_realistic(true_depth, rng, cfg.depth_model)
 
     def _lens_canvas(
-        self, index: int, pose: Pose, labels: np.ndarray, depth: np.ndarray | None
+        self, index: int, pose_local: Pose, labels: np.ndarray, depth: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """The query's simulated labels and depth on ``canvas`` (a barrel lens; else as they are): the
         query's own in its pinhole window, unchanged, and around it a segmentation and depth of the wider
@@ -485,12 +485,12 @@ class QuerySimulator:
         left unknown there, a lens left out would be easier than on a real photo."""
         if self.canvas == self.camera:
             return labels, depth
-        out = self.reality.renderer.render(self.canvas, pose, depth=True)
+        out = self.reality.renderer.render(self.canvas, pose_local, depth=True)
         clean, true_depth = out.labels[0], out.depth[0]
         mx, my = round(self.canvas.cx - self.camera.cx), round(self.canvas.cy - self.camera.cy)
         window = (slice(my, my + self.camera.height), slice(mx, mx + self.camera.width))
         wide_labels = self._segmentation(
-            index, pose, clean, {}, self.canvas, (STREAM_SEG, STREAM_LENS_MARGIN)
+            index, pose_local, clean, {}, self.canvas, (STREAM_SEG, STREAM_LENS_MARGIN)
         )
         wide_labels[window] = labels
         if depth is None:
@@ -523,14 +523,14 @@ class QuerySimulator:
 
         return seen(labels, IGNORE), (None if depth is None else seen(depth, np.nan))
 
-    def map_confusion(self, pose: Pose, labels: np.ndarray) -> np.ndarray:
+    def map_confusion(self, pose_local: Pose, labels: np.ndarray) -> np.ndarray:
         """(C, C) int64 confusion [map label, predicted] of ``labels`` against the MAP's own labels at the
         true pose, by the automatic labelling rules (ignore pixels left out): the paper's mIoU. Windows and
         doors are scored as wall when the map has none (an LoD2 map: what its localizer does too)."""
         if self._map_renderer is None:
             self._map_renderer = Renderer(self.map_model, engine="numba")
         reference = auto_label(
-            self.map_model, self.camera, self.map_model.pose_to_world(pose), renderer=self._map_renderer
+            self.map_model, self.camera, self.map_model.pose_to_world(pose_local), renderer=self._map_renderer
         )
         keep = reference != IGNORE
         predicted = fold_to_map_classes(labels, self.map_model.classes)
@@ -547,10 +547,12 @@ class QuerySimulator:
         attempts = 0
         for attempt in range(MAX_ATTEMPTS):
             attempts = attempt + 1
-            pose, info = self._pose(np.random.default_rng([cfg.seed, index, STREAM_POSE, attempt]), view)
-            if self._blocked_above(pose):
+            pose_local, info = self._pose(
+                np.random.default_rng([cfg.seed, index, STREAM_POSE, attempt]), view
+            )
+            if self._blocked_above(pose_local):
                 continue
-            out = self.reality.renderer.render(self.camera, pose, depth=True)
+            out = self.reality.renderer.render(self.camera, pose_local, depth=True)
             labels, depth = out.labels[0], out.depth[0]
             coverage = float(np.isin(labels, BUILDING_CLASSES).mean())
             finite = np.isfinite(depth)
@@ -558,28 +560,28 @@ class QuerySimulator:
             ok = coverage >= cfg.min_building_fraction and clearance >= MIN_CLEARANCE_M
             score = (ok, clearance >= MIN_CLEARANCE_M, coverage)
             if best is None or score > best[0]:
-                best = (score, pose, info, labels, depth, coverage, clearance)
+                best = (score, pose_local, info, labels, depth, coverage, clearance)
             if ok:
                 break
         if best is None:
             raise QuerySimulationError(
                 f"query {index}: every one of {MAX_ATTEMPTS} sampled cameras had model geometry above it"
             )
-        (ok, _, _), pose, info, clean, true_depth, coverage, clearance = best
+        (ok, _, _), pose_local, info, clean, true_depth, coverage, clearance = best
 
         extra_meta: dict = {}
-        labels = self._segmentation(index, pose, clean, extra_meta)
+        labels = self._segmentation(index, pose_local, clean, extra_meta)
         depth = self._depth(index, true_depth, clean)
         realistic_prior = cfg.prior_height_m is not None or cfg.prior_roll_pitch_sigma_deg is not None
-        prior, prior_info = sample_prior(
-            pose,
+        prior_local, prior_info = sample_prior(
+            pose_local,
             cfg,
             np.random.default_rng([cfg.seed, index, STREAM_PRIOR]),
             np.random.default_rng([cfg.seed, index, STREAM_PRIOR_EXTRA]),
             np.random.default_rng([cfg.seed, index, STREAM_PRIOR_REALISTIC]) if realistic_prior else None,
         )
         if cfg.score_against_map:
-            extra_meta["map_confusion"] = self.map_confusion(pose, labels).reshape(-1).tolist()
+            extra_meta["map_confusion"] = self.map_confusion(pose_local, labels).reshape(-1).tolist()
         occluded = (clean == 0) & np.isfinite(true_depth)
         meta = {
             "view": view,
@@ -594,13 +596,13 @@ class QuerySimulator:
             **prior_info,
             **extra_meta,
         }
-        seen_labels, seen_depth = self._through_lens(*self._lens_canvas(index, pose, labels, depth))
+        seen_labels, seen_depth = self._through_lens(*self._lens_canvas(index, pose_local, labels, depth))
         query = BenchmarkQuery(
             query_id=query_id(index),
             index=index,
             camera=self.stated_camera,
-            true_pose_local=pose,
-            prior_pose_local=prior,
+            true_pose_local=pose_local,
+            prior_pose_local=prior_local,
             labels=seen_labels,
             depth=seen_depth,
             query_miou=miou(labels, clean),

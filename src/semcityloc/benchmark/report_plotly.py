@@ -192,17 +192,17 @@ def frustum_depth(centers: list[np.ndarray], model: CityModel) -> float:
     return max(2.0, FRUSTUM_FRACTION * float(np.median(heights))) if heights else 10.0
 
 
-def frustum_lines(pose: Pose, camera: Camera, depth: float) -> list[list[float | None]]:
+def frustum_lines(pose_local: Pose, camera: Camera, depth: float) -> list[list[float | None]]:
     """[x, y, z] lists of a frustum's 8 edges (apex to the image corners at ``depth``, then the image
     rectangle), segments separated by None, rounded to 0.1 m."""
     w, h = camera.width, camera.height
     corners_cam = camera.unproject(np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]]), depth)
-    world = (pose.world_from_cam[:3, :3] @ corners_cam.T).T + pose.center
-    c = pose.center
+    corners_local = (pose_local.world_from_cam[:3, :3] @ corners_cam.T).T + pose_local.center
+    c = pose_local.center
     points: list = []
     for k in range(4):
-        points += [c, world[k], None]
-    points += [world[0], world[1], world[2], world[3], world[0], None]
+        points += [c, corners_local[k], None]
+    points += [corners_local[0], corners_local[1], corners_local[2], corners_local[3], corners_local[0], None]
     return [[None if p is None else round(float(p[axis]), 1) for p in points] for axis in range(3)]
 
 

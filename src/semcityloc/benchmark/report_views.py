@@ -161,9 +161,9 @@ def _background(
     return None, "no image stored (the run kept no details of this query; see --keep-details)"
 
 
-def _pose_layers(renderer: Renderer, camera: Camera, pose: Pose, color) -> dict[str, str]:
+def _pose_layers(renderer: Renderer, camera: Camera, pose_local: Pose, color) -> dict[str, str]:
     """The rendered mask (background transparent) and the visible model edges of one pose."""
-    view = renderer.render(camera, pose, depth=True, face_ids=True)
+    view = renderer.render(camera, pose_local, depth=True, face_ids=True)
     labels = view.labels[0]
     fill = np.zeros(labels.shape + (4,), np.uint8)
     fill[..., :3] = label_colors(labels)

@@ -216,15 +216,15 @@ def _fmt(value: Any) -> str:
     return str(value).replace("\r", " ").replace("\n", " ")
 
 
-def _pose_values(prefix: str, pose: Pose | None, origin: np.ndarray, world: bool = True) -> dict:
+def _pose_values(prefix: str, pose_local: Pose | None, origin_world: np.ndarray, world: bool = True) -> dict:
     keys = [f"{prefix}_{k}" for k in _POSE_FIELDS]
     if world:
         keys += [f"{prefix}_world_{k}" for k in "xyz"]
-    if pose is None:
+    if pose_local is None:
         return dict.fromkeys(keys)
-    values = list(pose.to_xyz_rpy())
+    values = list(pose_local.to_xyz_rpy())
     if world:
-        values += list(pose.center + origin)
+        values += list(pose_local.center + origin_world)
     return dict(zip(keys, values, strict=True))
 
 
@@ -241,19 +241,25 @@ def row_pose(row: dict[str, str], prefix: str) -> Pose | None:
     return Pose.from_xyz_rpy(np.array([x, y, z]), roll, pitch, yaw)
 
 
-def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) -> dict[str, str]:
+def make_row(q: BenchmarkQuery, result: LocalizationResult, origin_world: np.ndarray) -> dict[str, str]:
     """One ``results.csv`` row (all values formatted) from a query and its result (poses local)."""
-    est = result.pose_local if result.localized else None
-    true = q.true_pose_local
+    est_local = result.pose_local if result.localized else None
+    true_local = q.true_pose_local
     none = (None, None, None)  # no ground truth (a user's photo): no error
-    err = pose_errors(est, true) if true is not None else none
-    prior = q.prior_pose_local  # None: an unreadable photo's (``photo_inputs.PhotoInput.unreadable``)
-    prior_err = pose_errors(prior, true) if true is not None and prior is not None else none
-    coarse = result.coarse_pose_local
-    coarse_err = pose_errors(coarse, true) if coarse is not None and true is not None else none
+    err = pose_errors(est_local, true_local) if true_local is not None else none
+    prior_local = q.prior_pose_local  # None: an unreadable photo's (``photo_inputs.PhotoInput.unreadable``)
+    prior_err = (
+        pose_errors(prior_local, true_local) if true_local is not None and prior_local is not None else none
+    )
+    coarse_local = result.coarse_pose_local
+    coarse_err = (
+        pose_errors(coarse_local, true_local) if coarse_local is not None and true_local is not None else none
+    )
     # The pose the search found, accepted or refused: what the acceptance's risk-coverage curve needs.
-    found = result.found_pose_local
-    found_err = pose_errors(found, true) if found is not None and true is not None else none
+    found_local = result.found_pose_local
+    found_err = (
+        pose_errors(found_local, true_local) if found_local is not None and true_local is not None else none
+    )
     meta = dict(q.meta or {})
     conf, counts, timings = result.confidence or {}, result.counts or {}, result.timings or {}
     row: dict[str, Any] = {
@@ -265,9 +271,9 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "view": meta.get("view"),
         "height_m": meta.get("height_m"),
         "query_miou": q.query_miou,
-        **_pose_values("true", q.true_pose_local, origin),
-        **_pose_values("est", est, origin),
-        **_pose_values("prior", q.prior_pose_local, origin, world=False),
+        **_pose_values("true", q.true_pose_local, origin_world),
+        **_pose_values("est", est_local, origin_world),
+        **_pose_values("prior", q.prior_pose_local, origin_world, world=False),
         "prior_err_m": prior_err[0],
         "prior_rot_deg": prior_err[1],
         "prior_yaw_err_deg": prior_err[2],
@@ -292,7 +298,7 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) 
         "t_refine_s": timings.get("refine_s"),
         "t_total_s": timings.get("total_s"),
         "meta_json": json.dumps(plain(meta), sort_keys=True),
-        **_sigmas(result.covariance if est is not None else None),
+        **_sigmas(result.covariance if est_local is not None else None),
         **{c: conf.get(c) for c in CONFIDENCE_COLUMNS},
         "flat_roof_eaves_used": flat_roof_eaves_used(result),
         "lookalike_margin": conf.get("lookalike_margin"),
@@ -427,18 +433,18 @@ def _parse_results(data: bytes, path: Path | str, strict: bool) -> tuple[list[di
 
 
 # --------------------------------------------------------------------------------------------- details
-def _pose_matrix(pose: Pose | None) -> np.ndarray:
-    return pose.cam_from_world if pose is not None else np.full((4, 4), np.nan)
+def _pose_matrix(pose_local: Pose | None) -> np.ndarray:
+    return pose_local.cam_from_world if pose_local is not None else np.full((4, 4), np.nan)
 
 
 FLOAT16_SAFE_MAX = 60_000.0  # float16's largest finite value is 65,504
 
 
-def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, origin: np.ndarray) -> None:
+def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, origin_world: np.ndarray) -> None:
     """The npz the report's figures need (module docstring), written atomically."""
     cam = q.camera
     volume = result.cost_volume
-    est = result.pose_local if result.localized else None
+    est_local = result.pose_local if result.localized else None
     meta = {
         "query_id": path.stem,
         "status": result.status,
@@ -453,10 +459,10 @@ def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, orig
         "labels": np.asarray(q.labels, dtype=np.uint8),
         "depth": details_depth(q.depth),
         "camera": np.array([cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height], dtype=np.float64),
-        "origin": np.asarray(origin, dtype=np.float64),
+        "origin": np.asarray(origin_world, dtype=np.float64),
         "true_cam_from_world": _pose_matrix(q.true_pose_local),
         "prior_cam_from_world": _pose_matrix(q.prior_pose_local),
-        "est_cam_from_world": _pose_matrix(est),
+        "est_cam_from_world": _pose_matrix(est_local),
         "coarse_cam_from_world": _pose_matrix(result.coarse_pose_local),
         "cost_scores": (
             volume.scores.astype(np.float32) if volume is not None else np.zeros((0, 0, 0, 0), np.float32)

@@ -198,9 +198,9 @@ class ColmapImage:
         return pose_from_colmap(*self.qvec, *self.tvec)
 
     @classmethod
-    def from_pose(cls, image_id: int, name: str, camera_id: int, pose: Pose) -> ColmapImage:
+    def from_pose(cls, image_id: int, name: str, camera_id: int, pose_world: Pose) -> ColmapImage:
         """The image record of ``pose`` (cam_from_world) as COLMAP's qvec (qw >= 0) and tvec."""
-        qvec, tvec = colmap_qvec_tvec(pose)
+        qvec, tvec = colmap_qvec_tvec(pose_world)
         return cls(image_id, qvec, tvec, camera_id, name)
 
 

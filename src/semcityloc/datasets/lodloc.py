@@ -150,15 +150,17 @@ def enu_from_ecef(lat_deg: float, lon_deg: float, height_m: float = 0.0) -> np.n
     return np.array([east, north, up])
 
 
-def rotate_pose(pose: Pose, R: np.ndarray) -> Pose:
-    """The same camera in a world rotated by ``R`` (new = R @ old) about the world origin."""
-    return Pose.from_rotation_center(R @ pose.R_world_from_cam, pose.center @ R.T)
+def rotate_pose(pose_ecef: Pose, R_enu_from_ecef: np.ndarray) -> Pose:
+    """The same camera in the world rotated by ``R_enu_from_ecef`` (new = R @ old) about the world origin."""
+    return Pose.from_rotation_center(
+        R_enu_from_ecef @ pose_ecef.R_world_from_cam, pose_ecef.center @ R_enu_from_ecef.T
+    )
 
 
-def rotate_model(model: CityModel, R: np.ndarray) -> CityModel:
-    """``model`` with its world coordinates rotated by ``R`` about the world origin, re-classified by
-    its normals in the new frame (walls / roofs depend on which way is up)."""
-    world = model.vertices.astype(np.float64) + model.origin
+def rotate_model(model: CityModel, R_enu_from_ecef: np.ndarray) -> CityModel:
+    """``model`` with its world coordinates rotated by ``R_enu_from_ecef`` about the world origin,
+    re-classified by its normals in the new frame (walls / roofs depend on which way is up)."""
+    xyz_ecef = model.vertices.astype(np.float64) + model.origin
     stats = ParseStats(warnings=list(model.stats.warnings) + ["rotated from an ECEF-shifted frame into ENU"])
     builder = MeshBuilder(stats)
     for building_id in model.building_ids:
@@ -167,7 +169,7 @@ def rotate_model(model: CityModel, R: np.ndarray) -> CityModel:
     for lod in lods:
         sel = model.lods == lod
         builder.add_mesh(
-            world @ R.T,
+            xyz_ecef @ R_enu_from_ecef.T,
             model.triangles[sel],
             np.full(int(sel.sum()), UNLABELLED),
             model.building_index[sel],
@@ -417,11 +419,13 @@ def _decide_frame(ds: LodLocDataset, frame: str, ecef_origin_llh) -> None:
                     f"{parameter('frame', FRAME_ECEF)}"
                 )
         llh = tuple(float(v) for v in (ecef_origin_llh or SWISS_EPFL_ECEF_ORIGIN_LLH))
-        R = enu_from_ecef(*llh)
+        R_enu_from_ecef = enu_from_ecef(*llh)
         for q in ds.queries:
-            q.gt_pose_world = rotate_pose(q.gt_pose_world, R) if q.gt_pose_world is not None else None
+            q.gt_pose_world = (
+                rotate_pose(q.gt_pose_world, R_enu_from_ecef) if q.gt_pose_world is not None else None
+            )
             q.prior_pose_world = (
-                rotate_pose(q.prior_pose_world, R) if q.prior_pose_world is not None else None
+                rotate_pose(q.prior_pose_world, R_enu_from_ecef) if q.prior_pose_world is not None else None
             )
         ds.frame, ds.ecef_origin_llh = FRAME_ECEF, llh
         ds.frame_note = (

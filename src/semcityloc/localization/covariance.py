@@ -121,9 +121,10 @@ def pose_covariance(
     return 0.5 * (cov + cov.T)
 
 
-def state_error(pose: Pose, truth: Pose) -> np.ndarray:
-    """(6,) ``pose - truth`` in state units (m, deg; angles wrapped to +-180): what a covariance describes."""
-    return state_difference(pose.to_xyz_rpy(), truth.to_xyz_rpy())
+def state_error(pose_local: Pose, truth_local: Pose) -> np.ndarray:
+    """(6,) ``pose_local - truth_local`` in state units (m, deg; angles wrapped to +-180): what a covariance
+    describes."""
+    return state_difference(pose_local.to_xyz_rpy(), truth_local.to_xyz_rpy())
 
 
 def horizontal_sigma(sigma_x: float, sigma_y: float) -> float:

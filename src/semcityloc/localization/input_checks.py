@@ -24,12 +24,12 @@ MIN_FOV_DEG = 1.0
 MAX_FOV_DEG = 150.0
 
 
-def check_camera_and_prior(camera: Camera, prior: Pose) -> None:
+def check_camera_and_prior(camera: Camera, prior_local: Pose) -> None:
     """Typed errors for the inputs every localizer shares (this one and the baselines)."""
     if not isinstance(camera, Camera):
         raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
     check_query_camera(camera)
-    if not isinstance(prior, Pose) or prior.batch_shape:
+    if not isinstance(prior_local, Pose) or prior_local.batch_shape:
         raise PoseError("prior must be a single Pose (cam_from_world)")
 
 
@@ -53,11 +53,11 @@ def check_query_camera(camera: Camera) -> None:
             )
 
 
-def check_query_inputs(camera: Camera, prior: Pose, semantic, depth) -> None:
+def check_query_inputs(camera: Camera, prior_local: Pose, semantic, depth) -> None:
     """``check_camera_and_prior``, then the query's arrays: ``semantic`` a non-empty (H, W) array of known
     integer class ids in the camera's aspect, ``depth`` (optional) a non-empty (H', W') array of real
     numbers in the mask's aspect (2 % either way)."""
-    check_camera_and_prior(camera, prior)
+    check_camera_and_prior(camera, prior_local)
     shape = np.shape(semantic)
     if len(shape) != 2 or 0 in shape:
         raise ShapeError(f"semantic mask must be a non-empty (H, W) array, got shape {shape}")

@@ -79,8 +79,8 @@ def coarse_scores(
     tile_bbox,
     block_start,
     block_bbox,
-    Rs,
-    ts,
+    R_cams_from_local,
+    t_cams_from_local,
     fx,
     fy,
     cx,
@@ -96,12 +96,12 @@ def coarse_scores(
 ):
     """IoU score of every (centre, yaw) hypothesis.
 
-    Rs, ts: (C, 3, 3), (C, 3) cam_from_world of the *wide* camera at each centre (local frame).
+    R_cams_from_local, t_cams_from_local: (C, 3, 3), (C, 3) the *wide* camera's pose at each centre.
     fx..height: the wide camera. lut: int32 (Y, P) index into the wide image for each of the P target
     pixels of yaw hypothesis y (-1: outside, counts as background). query: uint8 (P,) target-resolution
     query labels (IGNORE / background pixels are skipped). class_on: bool (N_SLOTS,). scores: (C, Y) out.
     """
-    n_centres = Rs.shape[0]
+    n_centres = R_cams_from_local.shape[0]
     n_yaw, n_pix = lut.shape
     npx = width * height
     # Only query pixels that take part (not background / ignore): compact them once.
@@ -133,8 +133,8 @@ def coarse_scores(
                 tile_bbox,
                 block_start,
                 block_bbox,
-                Rs[c],
-                ts[c],
+                R_cams_from_local[c],
+                t_cams_from_local[c],
                 fx,
                 fy,
                 cx,
@@ -244,8 +244,8 @@ def refine_scores(
     tile_bbox,
     block_start,
     block_bbox,
-    Rs,
-    ts,
+    R_cams_from_local,
+    t_cams_from_local,
     fx,
     fy,
     cx,
@@ -265,13 +265,14 @@ def refine_scores(
     depth_robust=False,
     depth_cap=1.0,
 ):
-    """Semantic IoU and depth cost of each view (Rs, ts at the fine camera).
+    """Semantic IoU and depth cost of each view (``R_cams_from_local``, ``t_cams_from_local``) at the fine
+    camera.
 
     query: uint8 (H*W,); query_depth: float64 (H*W,) relative depth, NaN where invalid. The depth term
     uses pixels with a rendered surface, a finite positive query depth and a non-background query label:
     ``_depth_cost_affine`` (the paper's), or ``_depth_cost_robust`` when ``depth_robust``.
     """
-    n_views = Rs.shape[0]
+    n_views = R_cams_from_local.shape[0]
     npx = width * height
     count_q = _query_counts(query)
     idx, lab, dep = _scored_pixels(query, query_depth, use_depth)
@@ -287,8 +288,8 @@ def refine_scores(
                 tile_bbox,
                 block_start,
                 block_bbox,
-                Rs[v],
-                ts[v],
+                R_cams_from_local[v],
+                t_cams_from_local[v],
                 fx,
                 fy,
                 cx,

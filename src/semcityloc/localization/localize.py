@@ -267,7 +267,7 @@ class Localizer:
         t_prep = time.perf_counter()
         if cfg.no_coarse:
             result.timings["coarse_s"] = 0.0
-            refiner.refine(result, levels, prior_state[None, :], cfg, sigma, prior=prior)
+            refiner.refine(result, levels, prior_state[None, :], cfg, sigma, prior_term=prior)
             return levels[-1]
         volume = search_volume(prior_state, unc, cc, self.layout.ground_below(prior_state, unc, cfg))
         sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
@@ -306,7 +306,7 @@ class Localizer:
         result.confidence["hypothesis_margin"] = (
             float(hyps.scores[0] - hyps.scores[1]) if len(hyps.scores) > 1 else float("nan")
         )
-        refiner.refine(result, levels, hyps.states, cfg, sigma, prior=prior, seed_depth=seen)
+        refiner.refine(result, levels, hyps.states, cfg, sigma, prior_term=prior, seed_depth=seen)
         if self.flat_eaves_scene is not None and cfg.map_eaves_flat_roofs == "auto" and not cfg.no_refine:
             refiner.look_with_flat_eaves(
                 self.flat_eaves_scene, result, levels, hyps.states, cfg, sigma, prior

@@ -147,7 +147,7 @@ def score_states(
     states: np.ndarray,
     class_on: np.ndarray,
     config: RefineConfig,
-    prior: PriorTerm | None = None,
+    prior_term: PriorTerm | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(score, C_s, C_d) of states (N, 6) at a scoring level: ``score = lambda_1 * C_s - lambda_2 * C_d``
     (no depth term when the level has no depth) minus the prior's penalty. What the refinement maximises,
@@ -164,8 +164,8 @@ def score_states(
     )
     lam_d = config.lambda_depth if level.depth is not None else 0.0
     score = config.lambda_semantic * sem - lam_d * dep
-    if prior is not None:
-        score = score - prior.penalty(states)
+    if prior_term is not None:
+        score = score - prior_term.penalty(states)
     return score, sem, dep
 
 
@@ -211,7 +211,7 @@ def particle_filter(
     particles: int | None = None,
     iterations: int | None = None,
     low_res_iterations: int | None = None,
-    prior: PriorTerm | None = None,
+    prior_term: PriorTerm | None = None,
     estimate_top: int = 0,
 ) -> RefineResult:
     """Refine from ``seeds`` ((k, 6) states, best first). ``levels[-1]`` is the fine resolution; with
@@ -220,7 +220,7 @@ def particle_filter(
     ``sigma``: (6,) initial perturbation scales (default ``initial_sigma(config, 0.3)``), or a (6, 6)
     matrix ``L`` whose perturbations are ``L @ n`` for standard normal ``n`` (``pivot_jacobian`` times
     the scales); the floors shrink it alike;
-    ``particles`` / ``iterations`` / ``low_res_iterations`` override the config's; ``prior``: the
+    ``particles`` / ``iterations`` / ``low_res_iterations`` override the config's; ``prior_term``: the
     prior's penalty subtracted from every score (``PriorTerm``); ``estimate_top`` > 0: the estimate is
     the mean of the best ``estimate_top`` fine-resolution evaluations (``top_mean``), scored once more,
     instead of the single best one (use it where the population stays in one basin: the polish)."""
@@ -243,7 +243,7 @@ def particle_filter(
         # The last iteration always scores at the fine resolution, whatever low_res_iterations says.
         fine = it >= min(low_res, n_iter - 1) or len(levels) == 1
         level = levels[-1] if fine else levels[0]
-        score, sem, dep = score_states(scene, level, states, class_on, config, prior)
+        score, sem, dep = score_states(scene, level, states, class_on, config, prior_term)
         evaluations += n
         i = int(np.argmax(score))
         if fine and estimate_top > 0:
@@ -273,7 +273,7 @@ def particle_filter(
 
     if estimate_top > 0 and seen_scores:
         est = top_mean(np.concatenate(seen_states), np.concatenate(seen_scores), estimate_top)
-        score, sem, dep = score_states(scene, levels[-1], est[None], class_on, config, prior)
+        score, sem, dep = score_states(scene, levels[-1], est[None], class_on, config, prior_term)
         evaluations += 1
         best = (float(score[0]), est, float(sem[0]), float(dep[0]))
 

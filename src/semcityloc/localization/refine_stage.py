@@ -60,7 +60,7 @@ class Refiner:
         seeds: np.ndarray,
         cfg: LocalizerConfig,
         sigma: np.ndarray,
-        prior: PriorTerm | None = None,
+        prior_term: PriorTerm | None = None,
         seed_depth: np.ndarray | None = None,
     ) -> None:
         """One particle filter seeded by ``seeds`` ((k, 6), best first), its polish, the covariance's probe;
@@ -71,13 +71,15 @@ class Refiner:
         fine = levels[-1]
         if cfg.no_refine:
             final = seeds[0]
-            score, sem, dep = score_states(self.scene, fine, final[None], self.class_on, cfg.refine, prior)
+            score, sem, dep = score_states(
+                self.scene, fine, final[None], self.class_on, cfg.refine, prior_term
+            )
             result.score, result.semantic, result.depth_cost = float(score[0]), float(sem[0]), float(dep[0])
         else:
             if cfg.refine.pivot == "both":  # the same first seed for every restart: one pivot render
                 sigma = self._about_pivot(levels[0].camera, seeds[0], sigma, seed_depth)
             restarts = range(cfg.refine.restarts)
-            runs = [self._filter_and_polish(levels, seeds, cfg, sigma, prior, r) for r in restarts]
+            runs = [self._filter_and_polish(levels, seeds, cfg, sigma, prior_term, r) for r in restarts]
             best = max(runs, key=lambda run: run.score)
             best.evaluations = sum(run.evaluations for run in runs)
             final = best.xyz_rpy
@@ -87,7 +89,7 @@ class Refiner:
             # The covariance's probe, where a fitted model will turn its curvature into one.
             cov_model = covariance_model(self.kind, fine.depth is not None, fine.camera.hfov_deg)
             if cfg.refine.covariance_probe_px > 0 and cov_model is not None:
-                result.score_curvature = self._probe_curvature(levels, final, cfg, prior)
+                result.score_curvature = self._probe_curvature(levels, final, cfg, prior_term)
                 result.counts["refine_evaluations"] += PROBES
                 if result.score_curvature is not None:
                     result.covariance = cov_model.covariance(result.score_curvature)
@@ -102,7 +104,7 @@ class Refiner:
         seeds: np.ndarray,
         cfg: LocalizerConfig,
         sigma: np.ndarray,
-        prior: PriorTerm | None,
+        prior_term: PriorTerm | None,
     ) -> None:
         """``map_eaves_flat_roofs="auto"``: does the view fit ``flat_scene`` (the map with eaves on its flat
         roofs too) better? Where ``result``'s pose (refined on this map) scores higher there by
@@ -114,12 +116,14 @@ class Refiner:
         state = result.pose_local.to_xyz_rpy()
         # result.semantic is already this pose's score on the plain map at the fine level (the refinement
         # scores its estimate with score_states there): one render, not two.
-        _, flat, _ = score_states(flat_scene, fine, state[None], self.class_on, cfg.refine, prior)
+        _, flat, _ = score_states(flat_scene, fine, state[None], self.class_on, cfg.refine, prior_term)
         look = {"gain_at_found": float(flat[0] - result.semantic), "used": False}
         result.search["flat_roof_eaves"] = look
         result.counts["refine_evaluations"] += 1
         if look["gain_at_found"] > cfg.flat_eaves_gate:
-            trial = replace(self, scene=flat_scene).refine_again(result, levels, seeds, cfg, sigma, prior)
+            trial = replace(self, scene=flat_scene).refine_again(
+                result, levels, seeds, cfg, sigma, prior_term
+            )
             look["gain"] = float(trial.semantic - result.semantic)
             moved = trial.pose_local.to_xyz_rpy() - state
             look["moved_m"] = float(np.linalg.norm(moved[:3]))
@@ -135,7 +139,7 @@ class Refiner:
         seeds: np.ndarray,
         cfg: LocalizerConfig,
         sigma: np.ndarray,
-        prior: PriorTerm | None,
+        prior_term: PriorTerm | None,
     ) -> LocalizationResult:
         """The refinement once more, into a result of its own, from ``result``'s pose and ``seeds`` (the
         search's hypotheses) with other perturbation scales and prior (``Localizer`` after a roll/pitch
@@ -143,7 +147,7 @@ class Refiner:
         evaluations are counted on ``result``."""
         trial = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
         state = result.pose_local.to_xyz_rpy()
-        self.refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior=prior)
+        self.refine(trial, levels, np.vstack([state[None], seeds]), cfg, sigma, prior_term=prior_term)
         result.counts["refine_evaluations"] += trial.counts["refine_evaluations"]
         return trial
 
@@ -153,7 +157,7 @@ class Refiner:
         moved: np.ndarray,
         cfg: LocalizerConfig,
         sigma: np.ndarray,
-        prior: PriorTerm | None,
+        prior_term: PriorTerm | None,
     ) -> RefineResult:
         """The look-alike's own refinement (``lookalike.py``). ``moved``: the pose found moved to the
         look-alike's place (its height, tilt and yaw; the place from the local grid). A look-alike is the
@@ -168,7 +172,7 @@ class Refiner:
         states = np.repeat(moved[None], gx.size, axis=0)
         states[:, 0] += gx.ravel()
         states[:, 1] += gy.ravel()
-        score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior)
+        score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior_term)
         best = states[int(np.argmax(score))]
         small = replace(
             cfg,
@@ -178,7 +182,7 @@ class Refiner:
         )
         if cfg.refine.pivot == "both":
             sigma = self._about_pivot(levels[0].camera, best, sigma)
-        refined = self._filter_and_polish(levels, best[None], small, sigma, prior, 0)
+        refined = self._filter_and_polish(levels, best[None], small, sigma, prior_term, 0)
         refined.evaluations += len(states)
         return refined
 
@@ -188,14 +192,16 @@ class Refiner:
         seeds: np.ndarray,
         cfg: LocalizerConfig,
         sigma: np.ndarray,
-        prior: PriorTerm | None,
+        prior_term: PriorTerm | None,
         restart: int,
     ) -> RefineResult:
         """One particle filter over ``seeds`` and its polish; ``restart`` > 0 draws other random numbers
         (restart 0 is the single run of ``restarts=1``: a seed sequence ignores trailing zeros, so
         ``[seed, 1, 0]`` is ``[seed, 1]``)."""
         rng = np.random.default_rng(cfg.seed if restart == 0 else [cfg.seed, 2, restart])
-        best = particle_filter(self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior=prior)
+        best = particle_filter(
+            self.scene, levels, seeds, self.class_on, cfg.refine, rng, sigma, prior_term=prior_term
+        )
         if cfg.refine.polish_iterations == 0:
             return best
         xy, z, rp, yaw = cfg.refine.polish_sigma
@@ -213,7 +219,7 @@ class Refiner:
             particles=cfg.refine.polish_particles,
             iterations=cfg.refine.polish_iterations,
             low_res_iterations=0,
-            prior=prior,
+            prior_term=prior_term,
             estimate_top=cfg.refine.polish_estimate_top,
         )
         polished.evaluations += best.evaluations
@@ -236,7 +242,11 @@ class Refiner:
         return _median_seen(seen)
 
     def _probe_curvature(
-        self, levels: list[ScoringLevel], state: np.ndarray, cfg: LocalizerConfig, prior: PriorTerm | None
+        self,
+        levels: list[ScoringLevel],
+        state: np.ndarray,
+        cfg: LocalizerConfig,
+        prior_term: PriorTerm | None,
     ) -> np.ndarray | None:
         """The score's curvature at ``state`` (``covariance.py``), probed at the fine level with steps that
         move the image by ``refine.covariance_probe_px`` pixels; None when nothing is seen."""
@@ -246,7 +256,7 @@ class Refiner:
             return None
         steps = probe_steps(fine.camera.fx, depth, cfg.refine.covariance_probe_px)
         states = probe_states(state, steps)
-        score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior)
+        score, _, _ = score_states(self.scene, fine, states, self.class_on, cfg.refine, prior_term)
         return score_curvature(states, score, state)
 
 

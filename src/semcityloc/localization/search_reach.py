@@ -71,12 +71,12 @@ def _distance(metres: float) -> str:
     return f"{metres:.0f} m" if metres < 10_000.0 else f"{metres / 1000.0:.0f} km"
 
 
-def _view_rays(camera: Camera, pose: Pose, centre: bool) -> np.ndarray:
-    """(3, 4 or 5) world directions of the view's corner rays (and its principal ray, ``centre``)."""
+def _view_rays(camera: Camera, pose_local: Pose, centre: bool) -> np.ndarray:
+    """(3, 4 or 5) local-frame directions of the view's corner rays (and its principal ray, ``centre``)."""
     uv = [[0, 0], [camera.width, 0], [camera.width, camera.height], [0, camera.height]]
     if centre:
         uv.append([camera.cx, camera.cy])
-    return pose.R_world_from_cam @ camera.unproject(np.array(uv, dtype=np.float64)).T
+    return pose_local.R_world_from_cam @ camera.unproject(np.array(uv, dtype=np.float64)).T
 
 
 def edge_sigma(edges: list[str], volume: SearchVolume, config: CascadeConfig) -> dict[str, int]:

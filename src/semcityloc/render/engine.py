@@ -50,9 +50,9 @@ def pose_arrays(cams_from_local: Pose) -> tuple[np.ndarray, np.ndarray]:
         raise ShapeError(
             f"cams_from_local must be a single pose or a 1-D batch (N,), got batch shape {shape}"
         )
-    R = np.ascontiguousarray(cams_from_local.R.reshape(-1, 3, 3), dtype=np.float64)
-    t = np.ascontiguousarray(cams_from_local.t.reshape(-1, 3), dtype=np.float64)
-    return R, t
+    R_cams_from_local = np.ascontiguousarray(cams_from_local.R.reshape(-1, 3, 3), dtype=np.float64)
+    t_cams_from_local = np.ascontiguousarray(cams_from_local.t.reshape(-1, 3), dtype=np.float64)
+    return R_cams_from_local, t_cams_from_local
 
 
 def check_camera(camera: Camera) -> Camera:
@@ -127,18 +127,21 @@ class Renderer:
         ``cams_from_local``, a ``Pose`` (or ``Pose.stack``) in the model's local frame
         (``model.pose_to_local(pose_world)``)."""
         check_camera(camera)
-        R, t = pose_arrays(cams_from_local)
+        R_cams_from_local, t_cams_from_local = pose_arrays(cams_from_local)
         problem = local_frame_problem(cams_from_local.center)  # a world pose draws nothing, silently
         if problem is not None:
             raise PoseError(f"Renderer.render takes poses in the model's local frame: {problem}")
-        pixels = len(R) * camera.width * camera.height
+        n_views = len(R_cams_from_local)
+        pixels = n_views * camera.width * camera.height
         if pixels > MAX_RENDER_PIXELS:
             raise RenderError(
-                f"{len(R)} view(s) of {camera.width}x{camera.height} pixels ({pixels:,}) exceed the "
+                f"{n_views} view(s) of {camera.width}x{camera.height} pixels ({pixels:,}) exceed the "
                 f"{MAX_RENDER_PIXELS:,} one render may make: check the image size, or render fewer views "
                 "at once"
             )
-        return self.engine.render(camera, R, t, depth=bool(depth), face_ids=bool(face_ids))
+        return self.engine.render(
+            camera, R_cams_from_local, t_cams_from_local, depth=bool(depth), face_ids=bool(face_ids)
+        )
 
     def __repr__(self) -> str:
         s = self.scene

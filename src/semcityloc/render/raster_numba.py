@@ -42,8 +42,8 @@ EDGE_EPS = 1e-9
 
 # ---------------------------------------------------------------------------------------------- culling
 @njit(cache=True, inline="always")
-def _frustum_planes(R, t, fx, fy, cx, cy, width, height, near, planes):
-    """Fill planes (5, 4) with world-frame half-spaces n.X + d >= 0 containing the view frustum."""
+def _frustum_planes(R_cam_from_local, t_cam_from_local, fx, fy, cx, cy, width, height, near, planes):
+    """Fill planes (5, 4) with local-frame half-spaces n.X + d >= 0 containing the view frustum."""
     # Camera-frame normals of the 4 side planes (through the centre) and the near plane.
     ncam = np.empty((5, 3))
     ncam[0, 0], ncam[0, 1], ncam[0, 2] = fx, 0.0, cx  # u >= 0
@@ -53,11 +53,11 @@ def _frustum_planes(R, t, fx, fy, cx, cy, width, height, near, planes):
     ncam[4, 0], ncam[4, 1], ncam[4, 2] = 0.0, 0.0, 1.0  # z >= near
     for p in range(5):
         a, b, c = ncam[p, 0], ncam[p, 1], ncam[p, 2]
-        # n_world = R^T n_cam ; d = n_cam . t   (x_cam = R x + t)
-        planes[p, 0] = R[0, 0] * a + R[1, 0] * b + R[2, 0] * c
-        planes[p, 1] = R[0, 1] * a + R[1, 1] * b + R[2, 1] * c
-        planes[p, 2] = R[0, 2] * a + R[1, 2] * b + R[2, 2] * c
-        planes[p, 3] = a * t[0] + b * t[1] + c * t[2]
+        # n_local = R^T n_cam ; d = n_cam . t   (x_cam = R x_local + t, R t: cam_from_local)
+        planes[p, 0] = R_cam_from_local[0, 0] * a + R_cam_from_local[1, 0] * b + R_cam_from_local[2, 0] * c
+        planes[p, 1] = R_cam_from_local[0, 1] * a + R_cam_from_local[1, 1] * b + R_cam_from_local[2, 1] * c
+        planes[p, 2] = R_cam_from_local[0, 2] * a + R_cam_from_local[1, 2] * b + R_cam_from_local[2, 2] * c
+        planes[p, 3] = a * t_cam_from_local[0] + b * t_cam_from_local[1] + c * t_cam_from_local[2]
     planes[4, 3] -= near
 
 
@@ -276,8 +276,8 @@ def render_view(
     tile_bbox,
     block_start,
     block_bbox,
-    R,
-    t,
+    R_cam_from_local,
+    t_cam_from_local,
     fx,
     fy,
     cx,
@@ -290,8 +290,9 @@ def render_view(
 ):
     """Rasterise one view into the flat buffers inv_z (float64, H*W) and tri_id (int32, H*W).
 
-    Scene arrays as in ``RenderScene``; ``R`` (3, 3) and ``t`` (3,) float64 cam_from_world in the local
-    frame; ``fx, fy, cx, cy, width, height`` the pinhole camera; ``near`` the clipping distance (``NEAR_M``).
+    Scene arrays as in ``RenderScene``; ``R_cam_from_local`` (3, 3) and ``t_cam_from_local`` (3,) float64
+    the pose in the scene's local frame; ``fx, fy, cx, cy, width, height`` the pinhole camera; ``near`` the
+    clipping distance (``NEAR_M``).
     On return ``tri_id[i * width + j]`` is the scene triangle seen at pixel (i, j) (-1: none) and
     ``inv_z`` its 1 / z-depth (0: none). Both buffers are overwritten (no need to clear them).
     Returns the number of triangles that reached the rasteriser (after culling), for statistics.
@@ -301,11 +302,11 @@ def render_view(
         inv_z[k] = 0.0
         tri_id[k] = -1
     planes = np.empty((5, 4))
-    _frustum_planes(R, t, fx, fy, cx, cy, width, height, near, planes)
-    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
-    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
-    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
-    t0, t1, t2 = t[0], t[1], t[2]
+    _frustum_planes(R_cam_from_local, t_cam_from_local, fx, fy, cx, cy, width, height, near, planes)
+    r00, r01, r02 = R_cam_from_local[0, 0], R_cam_from_local[0, 1], R_cam_from_local[0, 2]
+    r10, r11, r12 = R_cam_from_local[1, 0], R_cam_from_local[1, 1], R_cam_from_local[1, 2]
+    r20, r21, r22 = R_cam_from_local[2, 0], R_cam_from_local[2, 1], R_cam_from_local[2, 2]
+    t0, t1, t2 = t_cam_from_local[0], t_cam_from_local[1], t_cam_from_local[2]
     drawn = 0
     # Clipped polygon (at most 4 vertices) in camera coordinates.
     qx = np.empty(4)
@@ -390,8 +391,8 @@ def render_batch(
     tile_bbox,
     block_start,
     block_bbox,
-    Rs,
-    ts,
+    R_cams_from_local,
+    t_cams_from_local,
     fx,
     fy,
     cx,
@@ -406,12 +407,12 @@ def render_batch(
     want_ids,
     n_chunks,
 ):
-    """Render views ``Rs`` (N,3,3), ``ts`` (N,3) (cam_from_world, local frame) into flat outputs.
+    """Render views ``R_cams_from_local`` (N,3,3), ``t_cams_from_local`` (N,3) into flat outputs.
 
     labels: uint8 (N, H*W); depth: float32 (N, H*W) if want_depth; face_ids: int32 (N, H*W) if want_ids
     (pass (1, 1) dummies otherwise). Views are dealt to chunks round-robin (view v -> chunk v % C).
     """
-    n_views = Rs.shape[0]
+    n_views = R_cams_from_local.shape[0]
     npx = width * height
     for c in prange(n_chunks):
         inv_z = np.empty(npx)
@@ -423,8 +424,8 @@ def render_batch(
                 tile_bbox,
                 block_start,
                 block_bbox,
-                Rs[v],
-                ts[v],
+                R_cams_from_local[v],
+                t_cams_from_local[v],
                 fx,
                 fy,
                 cx,
