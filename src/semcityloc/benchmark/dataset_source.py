@@ -72,8 +72,9 @@ from semcityloc.errors import (
     unknown_choice,
 )
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.io import read_pose, write_pose_json
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose_files import read_pose
+from semcityloc.geometry.pose_json import write_pose_json
 from semcityloc.io.files import removed_on_error
 from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, scaled_size
 from semcityloc.io.stamps import file_sha256

@@ -53,8 +53,8 @@ from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_3
 from semcityloc.errors import InputFileError, SemCityLocError, counted
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.geometry.io import read_pose
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose_files import read_pose
 from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE

@@ -49,7 +49,7 @@ from semcityloc.classes import IGNORE
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.errors import InputFileError, ShapeError, as_flags
 from semcityloc.geometry.distortion import unseen_by_photo
-from semcityloc.geometry.io import pose_to_dict
+from semcityloc.geometry.pose_json import pose_to_dict
 from semcityloc.io.files import write_json_atomic
 from semcityloc.io.images import check_aspect, load_image, read_depth_file, read_mask_file
 from semcityloc.localization.methods import Method

@@ -20,14 +20,14 @@ import pyproj
 from semcityloc.citymodel.crs import parse_crs_name, same_horizontal_crs
 from semcityloc.citymodel.model import crs_label
 from semcityloc.errors import CRSError, parameter
-from semcityloc.geometry.io import (
+from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose_files import read_pose
+from semcityloc.geometry.pose_frame import (
     POSE_FRAME_CRS,
     POSE_FRAME_CRS_OFFSET,
     PoseFrame,
     declared_pose_frame,
-    read_pose,
 )
-from semcityloc.geometry.pose import Pose
 
 # Two offsets are one when they differ by less than this (m): both are written and read as float64.
 SAME_OFFSET_M = 1e-6

@@ -33,7 +33,7 @@ from semcityloc.datasets.lodloc import FRAMES, read_lodloc
 from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
 from semcityloc.errors import InputFileError, ParameterError, as_flags, counted
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.geometry.io import pose_to_dict
+from semcityloc.geometry.pose_json import pose_to_dict
 from semcityloc.localization.config import PRESETS
 from semcityloc.render import Renderer
 

@@ -26,7 +26,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import InputFileError, ParameterError, as_flags
 from semcityloc.geometry.distortion import undistort_image, unseen_by_photo
-from semcityloc.geometry.io import write_pose_json
+from semcityloc.geometry.pose_json import write_pose_json
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.files import write_json_atomic
 from semcityloc.io.images import (

@@ -12,7 +12,7 @@ from pathlib import Path
 from semcityloc.errors import UnknownImageSizeError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
-from semcityloc.geometry.io import check_fits_photo, read_lens
+from semcityloc.geometry.intrinsics_files import check_fits_photo, read_lens
 from semcityloc.io.images import check_aspect, image_size
 
 

@@ -54,8 +54,9 @@ from semcityloc.errors import (
 )
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
-from semcityloc.geometry.io import read_intrinsics, read_pose, read_poses
+from semcityloc.geometry.intrinsics_files import read_intrinsics
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose_files import read_pose, read_poses
 from semcityloc.io.files import write_atomic
 from semcityloc.io.images import image_size
 

@@ -56,8 +56,9 @@ from semcityloc.errors import (
 )
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
-from semcityloc.geometry.io import check_fits_photo, read_colmap_camera_ids, read_lens, read_poses
+from semcityloc.geometry.intrinsics_files import check_fits_photo, read_lens
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose_files import read_colmap_camera_ids, read_poses
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")

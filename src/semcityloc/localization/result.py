@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semcityloc.errors import parameter
-from semcityloc.geometry.io import pose_to_dict
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose_json import pose_to_dict
 from semcityloc.localization.coarse import CostVolume
 from semcityloc.localization.covariance import covariance_dict
 
