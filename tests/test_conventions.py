@@ -791,6 +791,51 @@ def test_a_pose_file_names_the_frame_its_numbers_are_in_and_old_files_read_as_th
             frame_of(bad)
 
 
+def test_a_json_pose_file_is_read_once_for_its_frame_and_its_pose(tmp_path, monkeypatch):
+    """``read_pose_world`` (``localize --prior``, ``render --pose``, a photo folder's pose files) read a pose
+    file twice, once for the frame it declares and once for its numbers; a pose file of ``run --poses``
+    three times (its camera ids too); ``benchmark`` reading a run's record parsed it, then read it again
+    for the pose. Each reads it once now, with the same results and the same refusals."""
+    from pathlib import Path
+
+    import pyproj
+
+    from semcityloc.benchmark.photo_exports import read_record
+    from semcityloc.citymodel.pose_crs import read_pose_world
+    from semcityloc.datasets.photos import PoseFiles
+    from semcityloc.errors import CRSError
+    from semcityloc.localization.result import LOCALIZED
+
+    pose = Pose.from_xyz_rpy([500100.25, 5800200.5, 80.0], 1.0, -30.0, 45.0)
+    path = tmp_path / "a.json"
+    write_pose_json(path, pose_world=pose, crs="EPSG:25833", extra={"status": LOCALIZED, "image": "a.jpg"})
+    expected = read_pose(path).cam_from_world  # what read_pose reads, to the last bit
+    reads: list[Path] = []
+    read_text = Path.read_text
+
+    def counted(self, *args, **kwargs):
+        if self == path:
+            reads.append(self)
+        return read_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "read_text", counted)
+    crs = pyproj.CRS.from_epsg(25833)
+    np.testing.assert_array_equal(read_pose_world(path, crs).cam_from_world, expected)
+    assert len(reads) == 1
+    reads.clear()
+    files = PoseFiles(path, crs)
+    np.testing.assert_array_equal(files.entries[""].cam_from_world, expected)
+    assert files.camera_ids == {} and len(reads) == 1
+    reads.clear()
+    record, found = read_record(path, "a.jpg")
+    assert record["extra"]["image"] == "a.jpg" and len(reads) == 1
+    np.testing.assert_array_equal(found.cam_from_world, expected)
+    with pytest.raises(CRSError, match="the prior is in EPSG:25833 but the model in EPSG:25832"):
+        read_pose_world(path, pyproj.CRS.from_epsg(25832), "prior")
+    with pytest.raises(CRSError, match="EPSG:25833 but the model in EPSG:25832"):
+        PoseFiles(path, pyproj.CRS.from_epsg(25832))
+
+
 def test_odm_angles_invert_opendronemaps_own_rotation():
     """OpenDroneMap's ``Photo.compute_opk`` builds the body rotation from (yaw, pitch, roll) with
     Baeumker's YPR matrix and maps its camera (x right, y image top, z backwards) into the body with

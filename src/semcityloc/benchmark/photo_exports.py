@@ -54,7 +54,8 @@ from semcityloc.errors import InputFileError, SemCityLocError, counted
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
-from semcityloc.geometry.pose_files import read_pose
+from semcityloc.geometry.pose_json import pose_from_json
+from semcityloc.geometry.spec_text import labelled
 from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
@@ -106,7 +107,7 @@ def read_record(path: Path, name: str) -> tuple[dict, Pose | None] | str:
     if _record_status(record) != LOCALIZED:
         return record, None
     try:
-        return record, read_pose(path)
+        return record, labelled(str(path), pose_from_json, record)  # the record read above: no second read
     except SemCityLocError as exc:
         return f"localized without a pose that reads ({exc})"
 

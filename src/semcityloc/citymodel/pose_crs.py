@@ -21,7 +21,7 @@ from semcityloc.citymodel.crs import parse_crs_name, same_horizontal_crs
 from semcityloc.citymodel.model import crs_label
 from semcityloc.errors import CRSError, parameter
 from semcityloc.geometry.pose import Pose
-from semcityloc.geometry.pose_files import read_pose
+from semcityloc.geometry.pose_files import read_pose_text
 from semcityloc.geometry.pose_frame import (
     POSE_FRAME_CRS,
     POSE_FRAME_CRS_OFFSET,
@@ -45,7 +45,13 @@ def check_pose_crs(
     ``crs_offset`` (the model's frame is ``model_crs`` minus this, ``run --offset``; None: the CRS itself).
     ``what`` names the pose in the message: "pose", "prior", ... Poses that declare no CRS (every non-JSON
     form, a ``model`` frame), and models without a CRS, pass: there is nothing to check them by."""
-    declared = declared_pose_frame(spec)
+    check_declared_frame(declared_pose_frame(spec), spec, model_crs, what, crs_offset)
+
+
+def check_declared_frame(
+    declared: PoseFrame, spec: str | os.PathLike, model_crs: pyproj.CRS | None, what: str, crs_offset
+) -> None:
+    """``check_pose_crs`` of the frame ``declared`` that the pose of ``spec`` declares (read already)."""
     if declared.crs is None or model_crs is None:
         return
     try:
@@ -100,6 +106,7 @@ def read_pose_world(
 ) -> Pose:
     """``read_pose(spec, name)``, a pose in the model's world frame (``model.pose_to_local`` takes it into
     the model's local frame), after ``check_pose_crs`` (``crs_offset``: the model's frame is ``model_crs``
-    minus this)."""
-    check_pose_crs(spec, model_crs, what, crs_offset)
-    return read_pose(spec, name)
+    minus this). The file is read once (``geometry.pose_files.read_pose_text``)."""
+    text = read_pose_text(spec)
+    check_declared_frame(text.frame, spec, model_crs, what, crs_offset)
+    return text.pose(name)

@@ -40,7 +40,7 @@ import numpy as np
 import pyproj
 
 from semcityloc.citymodel.crs import parse_crs_name
-from semcityloc.citymodel.pose_crs import check_pose_crs, read_pose_world
+from semcityloc.citymodel.pose_crs import check_declared_frame, read_pose_world
 from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, read_cameras_binary, read_images_binary
 from semcityloc.datasets.dji import HEIGHT_AUTO, dji_prior, height_widened, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
@@ -58,7 +58,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.intrinsics_files import check_fits_photo, read_lens
 from semcityloc.geometry.pose import Pose
-from semcityloc.geometry.pose_files import read_colmap_camera_ids, read_poses
+from semcityloc.geometry.pose_files import read_pose_text
 from semcityloc.geometry.uncertainty import PriorUncertainty
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
@@ -213,9 +213,10 @@ class PoseFiles:
             self.binary_images = {image.name: image for image in images}  # posed when asked
             self.camera_ids = {image.name: str(image.camera_id) for image in images}
         elif self.folder is None:
-            check_pose_crs(self.source, crs, crs_offset=crs_offset)
-            self.entries = read_poses(self.source)
-            self.camera_ids = read_colmap_camera_ids(self.source)
+            text = read_pose_text(self.source)  # read once: its frame, poses and camera ids
+            check_declared_frame(text.frame, self.source, crs, "pose", crs_offset)
+            self.entries = text.poses()
+            self.camera_ids = text.camera_ids()
 
     def pose(self, image: Path) -> Pose | None:
         """The pose of ``image``, None when the source has none for it; in a folder a LoD-Loc

@@ -8,6 +8,8 @@ CRS); bring it to a model's local frame with ``model.pose_to_local(pose)``.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -22,6 +24,7 @@ from semcityloc.geometry.colmap_text import (
 )
 from semcityloc.geometry.conventions import pose_from_colmap, pose_from_lodloc_c2w
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose_frame import PoseFrame, frame_of_pose_json
 from semcityloc.geometry.pose_json import pose_from_json
 from semcityloc.geometry.spec_text import labelled, load_spec, parse_json, pick_entry, spec_lines
 
@@ -74,15 +77,62 @@ def _pose_entries(text: str) -> dict[str, Pose]:
     raise PoseError(f"{len(rows)} line(s) with {shape} numbers is not a pose; expected {POSE_FORMS}")
 
 
+def _is_json(text: str) -> bool:
+    return text.lstrip().startswith(("{", "["))
+
+
 def read_pose_entries(spec: str | os.PathLike) -> tuple[dict[str, Pose], str]:
     text, label = load_spec(spec, PoseError, "pose")
 
     def parse() -> dict[str, Pose]:
-        if text.lstrip().startswith(("{", "[")):
+        if _is_json(text):
             return {"": pose_from_json(parse_json(text))}
         return _pose_entries(text)
 
     return labelled(label, parse), label
+
+
+def _named(entries: dict[str, Pose], label: str, name: str | None) -> Pose:
+    """The pose of ``entries`` for image ``name`` (``read_pose``'s rule: an unnamed single pose is it)."""
+    if list(entries) == [""]:
+        return entries[""]
+    return labelled(label, pick_entry, entries, name, PoseError, "pose")
+
+
+@dataclass(frozen=True)
+class PoseText:
+    """A pose spec read once (``read_pose_text``): the file's label, the frame it declares
+    (``declared_pose_frame``'s) and, parsed when asked, its poses (``read_poses``'s) and COLMAP camera ids
+    (``read_colmap_camera_ids``'s). For a caller that checks the frame before it takes the poses
+    (``citymodel.pose_crs.read_pose_world``, ``datasets.photos.PoseFiles``): one read of the file."""
+
+    label: str
+    frame: PoseFrame
+    text: str
+    json_value: Any  # the text parsed as JSON when it is JSON, else None
+
+    def poses(self) -> dict[str, Pose]:
+        """Every pose by image name, as ``read_poses``."""
+        if self.json_value is not None:
+            return {"": labelled(self.label, pose_from_json, self.json_value)}
+        return labelled(self.label, _pose_entries, self.text)
+
+    def pose(self, name: str | None = None) -> Pose:
+        """The pose for image ``name``, as ``read_pose``."""
+        return _named(self.poses(), self.label, name)
+
+    def camera_ids(self) -> dict[str, str]:
+        """Image name -> ``CAMERA_ID``, as ``read_colmap_camera_ids``."""
+        return {r[IMAGE_NAME]: r[IMAGE_CAMERA_ID] for r in spec_lines(self.text) if is_image_line(r)}
+
+
+def read_pose_text(spec: str | os.PathLike) -> PoseText:
+    """A pose spec read once, its declared frame read (errors: ``declared_pose_frame``'s) and its poses
+    left to ``PoseText.poses`` / ``pose``."""
+    text, label = load_spec(spec, PoseError, "pose")
+    value = labelled(label, parse_json, text) if _is_json(text) else None
+    frame = labelled(label, frame_of_pose_json, value) if isinstance(value, dict) else PoseFrame(None)
+    return PoseText(label, frame, text, value)
 
 
 def read_poses(spec: str | os.PathLike) -> dict[str, Pose]:
@@ -111,6 +161,4 @@ def read_pose(spec: str | os.PathLike, name: str | None = None) -> Pose:
     - inline ``x,y,z,roll,pitch,yaw`` (our Euler convention, degrees; see ``geometry/pose.py``).
     """
     entries, label = read_pose_entries(spec)
-    if list(entries) == [""]:
-        return entries[""]
-    return labelled(label, pick_entry, entries, name, PoseError, "pose")
+    return _named(entries, label, name)

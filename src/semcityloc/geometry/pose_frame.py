@@ -83,7 +83,7 @@ def _legacy_offset_frame(obj: dict, frame: str | None) -> PoseFrame | None:
     return found if any(found.crs_offset) else PoseFrame(POSE_FRAME_CRS, found.crs)
 
 
-def _pose_frame(obj: dict) -> PoseFrame:
+def frame_of_pose_json(obj: dict) -> PoseFrame:
     """The frame a pose JSON object declares (``declared_pose_frame``), old files' too."""
     frame, crs = obj.get("frame"), _crs_string(obj, "crs")
     if frame is not None and frame not in (*POSE_FRAMES, LEGACY_POSE_FRAME_WORLD):
@@ -128,4 +128,4 @@ def declared_pose_frame(spec: str | os.PathLike) -> PoseFrame:
     obj = labelled(label, parse_json, text)
     if not isinstance(obj, dict):
         return PoseFrame(None)
-    return labelled(label, _pose_frame, obj)
+    return labelled(label, frame_of_pose_json, obj)
