@@ -369,6 +369,21 @@ def test_a_runs_pose_records_are_priors_and_truth(tmp_path):
         priors.prior(tmp_path / "c.JPG")
 
 
+def test_a_folder_with_photos_only_in_subfolders_names_them_as_every_message_does(tmp_path):
+    """``list_images`` named the first three photos of the subfolders and then "...", its own copy of
+    the list that ``run``'s and ``benchmark``'s messages make with ``shown_names``; it uses that one now:
+    the first five, then how many more."""
+    sub = tmp_path / "DCIM" / "100MEDIA"
+    sub.mkdir(parents=True)
+    for k in range(7):
+        (sub / f"DJI_{k:04d}.JPG").write_bytes(b"")
+    shown = ", ".join(f"DCIM/100MEDIA/DJI_{k:04d}.JPG" for k in range(5))
+    with pytest.raises(
+        InputFileError, match=re.escape(f"7 in its subfolders ({shown} (+2 more)) are not read")
+    ):
+        list_images(tmp_path)
+
+
 def test_photos_in_subfolders_are_listed_with_recursive_and_named_without(tmp_path):
     """Stop 52's audit: photos in subfolders were ignored without a word (a DJI card's
     ``DCIM/100MEDIA/``: "no images"). ``recursive`` reads them (not hidden folders, nor those ``skip_dir``

@@ -166,6 +166,16 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
     return f"{n} {plural}"
 
 
+SHOWN_NAMES = 5  # names in a one-line message (photos in a warning), then "(+N more)"
+
+
+def shown_names(names: list[str], shown: int = SHOWN_NAMES) -> str:
+    """The first ``shown`` of ``names`` for a one-line message, then how many more: ``"a, b, c (+2 more)"``.
+    Why here: every layer names files, photos and folders in its messages, one wording for all."""
+    more = len(names) - shown
+    return ", ".join(names[:shown]) + (f" (+{more} more)" if more > 0 else "")
+
+
 @dataclass(frozen=True)
 class Parameter:
     """Something a message asks its reader to pass, spelled twice: ``python`` as a Python caller passes it

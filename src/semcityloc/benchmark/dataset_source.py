@@ -49,7 +49,6 @@ from semcityloc import __version__
 from semcityloc.benchmark.methods import searched_map
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
-from semcityloc.benchmark.photo_exports import shown_names
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
 from semcityloc.benchmark.results import UNFIT_INPUT, UNREADABLE_INPUT
 from semcityloc.benchmark.runfiles import (
@@ -69,6 +68,7 @@ from semcityloc.errors import (
     LossyMaskError,
     ShapeError,
     counted,
+    shown_names,
     unknown_choice,
 )
 from semcityloc.geometry.camera import Camera

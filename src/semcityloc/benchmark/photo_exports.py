@@ -50,7 +50,7 @@ from semcityloc.datasets.dji import GEOID_UNUSED_NOTE, HEIGHT_AS_IS_NOTE, dji_ge
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
-from semcityloc.errors import InputFileError, SemCityLocError, counted
+from semcityloc.errors import InputFileError, SemCityLocError, counted, shown_names
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
@@ -64,7 +64,6 @@ NO_CRS = (
     "the city model names no CRS, so no geotags.csv / geo.txt / cameras.geojson (their coordinates are "
     "WGS 84 or the CRS's); pass --crs (and --offset when the model's frame is its CRS minus an offset)"
 )
-SHOWN_NAMES = 5  # photos named in a warning, then "(+N more)"
 
 
 def position_accuracy(covariance: dict | None) -> tuple[float, float] | None:
@@ -371,12 +370,6 @@ def focal_notes(inputs: list) -> list[str]:
             )
         notes[line] = None
     return list(notes)
-
-
-def shown_names(names: list[str], shown: int = SHOWN_NAMES) -> str:
-    """The first ``shown`` of ``names`` for a one-line message, then how many more."""
-    more = len(names) - shown
-    return ", ".join(names[:shown]) + (f" (+{more} more)" if more > 0 else "")
 
 
 def space_split_names(names: list[str]) -> list[str]:

@@ -31,7 +31,6 @@ from semcityloc.benchmark.methods import searched_map
 from semcityloc.benchmark.photo_exports import (
     changed_inputs,
     redo_remedy,
-    shown_names,
     unfingerprinted,
     write_exports,
 )
@@ -46,7 +45,7 @@ from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_ci
 from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, TARGET_HEIGHTS
 from semcityloc.datasets.geodesy import check_geoid_separation
 from semcityloc.datasets.photos import EXIF
-from semcityloc.errors import BenchmarkError, InputFileError, as_flags, counted, unknown_choice
+from semcityloc.errors import BenchmarkError, InputFileError, as_flags, counted, shown_names, unknown_choice
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import ABLATIONS

@@ -21,7 +21,6 @@ import numpy as np
 from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpec
 from semcityloc.benchmark.methods import available_methods
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
-from semcityloc.benchmark.photo_exports import shown_names
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import unreadable_row
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO
@@ -31,7 +30,7 @@ from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
 from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
-from semcityloc.errors import InputFileError, ParameterError, as_flags, counted
+from semcityloc.errors import InputFileError, ParameterError, as_flags, counted, shown_names
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose_json import pose_to_dict
 from semcityloc.localization.config import PRESETS

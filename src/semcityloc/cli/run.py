@@ -14,7 +14,6 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from semcityloc.benchmark.photo_exports import shown_names
 from semcityloc.benchmark.photo_inputs import unread_subfolder_photos
 from semcityloc.benchmark.photo_spec import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report_tables import summary_markdown
@@ -30,7 +29,7 @@ from semcityloc.cli.localize import (
 )
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF, check_images_folder
-from semcityloc.errors import counted
+from semcityloc.errors import counted, shown_names
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED

@@ -53,6 +53,7 @@ from semcityloc.errors import (
     IntrinsicsMismatchError,
     SemCityLocError,
     parameter,
+    shown_names,
 )
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import LensDistortion
@@ -125,9 +126,7 @@ def list_images(
         nested = subfolder_images(folder, skip_dir)
         where = ""
         if nested:
-            shown = ", ".join(str(p.relative_to(folder)) for p in nested[:3]) + (
-                " ..." if len(nested) > 3 else ""
-            )
+            shown = shown_names([str(p.relative_to(folder)) for p in nested])
             verb = "is" if len(nested) == 1 else "are"
             where = f" at its top level; {len(nested)} in its subfolders ({shown}) {verb} not read: {remedy}"
         raise InputFileError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}){where}")
