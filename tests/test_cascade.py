@@ -13,7 +13,7 @@ from helpers import CAMERA, perturbed, view
 from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, yaw_fan_rotations
 from semcityloc.geometry.uncertainty import MAX_POSITION_SIGMA_M, PriorUncertainty
 from semcityloc.localization.cascade import BEYOND_WARNING, _lattice, search_volume
 from semcityloc.localization.confidence import (
@@ -279,6 +279,59 @@ def test_search_volume_follows_the_stated_uncertainty():
     assert (wide.half_xy_m, wide.half_z_m) == (30.0, 60.0)
 
 
+@pytest.mark.parametrize(("pitch", "dyaw"), [(60.0, 170.0), (75.0, 120.0)])
+def test_a_prior_without_a_heading_finds_an_oblique_view_turned_away(city, localizer, renderer, pitch, dyaw):
+    """Stop 53: with ``yaw=60`` (no compass) the sweep's one wide view read nothing of an oblique view
+    turned 120-170 deg (its rays lay beyond ``MAX_WIDE_RAY_DEG``), and the yaw lattice's +-180 deg ends
+    were edges to grow past: refused at the edge or at a look-alike. Every heading is searched now."""
+    true = view(city, -30.0, 15.0, 90.0, -1.0, pitch, 200.0)
+    prior = perturbed(true, [6.0, -5.0, 8.0], dyaw=dyaw)
+    labels, depth = query(renderer, true)
+    result = localizer.localize(
+        CAMERA, prior, labels, depth, prior_uncertainty=PriorUncertainty.parse("yaw=60")
+    )
+    assert result.status == LOCALIZED, result.reason
+    assert result.search["volume"]["full_circle"] and result.search["extensions"].count("yaw+") == 0
+    assert center_error_m(result.pose_local, true) < 2.0 and rotation_error_deg(result.pose_local, true) < 2.0
+
+
+def test_a_heading_not_known_searches_the_circle_once_in_sectors():
+    """Stop 53: ``yaw=60`` or more is a full circle of 2n+1 equal yaw steps, none twice, no yaw edge; up to
+    180 is accepted, beyond it the error says what to state. An oblique fan is cut into sectors whose
+    rays each lie within ``SECTOR_MAX_RAY_DEG`` of their wide view; a fan of a few degrees is one, on the
+    base given (as before)."""
+    from semcityloc.localization.cascade import FULL_CIRCLE_HALF_DEG
+    from semcityloc.localization.coarse import SECTOR_MAX_RAY_DEG, rotation_offsets, yaw_sectors
+
+    cfg = CascadeConfig()
+    state = np.array([1.0, 2.0, 3.0, 0.0, 50.0, 10.0])
+    assert not search_volume(state, PriorUncertainty(), cfg).full_circle
+    for text in ("yaw=60", "yaw=180"):
+        volume = search_volume(state, PriorUncertainty.parse(text), cfg)
+        assert volume.full_circle and volume.half_yaw_deg == FULL_CIRCLE_HALF_DEG
+        step, n = _lattice(volume, cfg.sweep, cfg.sweep.max_centres)
+        assert step[3] * (2 * n[3] + 1) == pytest.approx(360.0) and step[3] <= cfg.sweep.step_yaw_deg
+        assert reached_half(volume, cfg)["yaw"] == FULL_CIRCLE_HALF_DEG
+    with pytest.raises(ParameterError, match="60 or more searches every heading"):
+        PriorUncertainty.parse("yaw=181")
+    camera = CAMERA.scaled(32, 24)
+    base = Pose.from_xyz_rpy(np.zeros(3), 0.0, 50.0, 10.0).R
+    (one,) = yaw_sectors(camera, 0.0, 50.0, 10.0 + np.arange(-9.0, 10.0, 2.0), base)
+    assert one[0] is base or np.array_equal(one[0], base)
+    yaws = 10.0 + np.arange(-180.0, 180.0, 2.0)
+    sectors = yaw_sectors(camera, 0.0, 50.0, yaws, base)
+    assert len(sectors) > 1 and np.array_equal(
+        np.concatenate([idx for _, idx in sectors]), np.arange(len(yaws))
+    )
+    rays = camera.ray_directions().reshape(-1, 3)
+    for R_base, idx in sectors:
+        d = np.matmul(rays[None], rotation_offsets(R_base, yaw_fan_rotations(0.0, 50.0, yaws[idx])))
+        cos = d[..., 2] / np.linalg.norm(d, axis=-1)
+        assert np.degrees(np.arccos(cos.min())) <= SECTOR_MAX_RAY_DEG + 1e-6
+    nadir = yaw_sectors(camera, 0.0, 0.0, yaws, Pose.from_xyz_rpy(np.zeros(3), 0.0, 0.0, 10.0).R)
+    assert len(nadir) == 1  # a nadir view turned about its own axis: one wide view reads every heading
+
+
 def test_wider_uncertainty_keeps_the_number_of_camera_centres_bounded(city, localizer, renderer):
     true = view(city, *VIEWS["nadir"])
     labels, depth = query(renderer, true)
@@ -295,7 +348,7 @@ def test_prior_uncertainty_parsing_and_errors():
     u = PriorUncertainty.parse("xy=5, z=15, yaw=5, rp=1")
     assert (u.xy_m, u.z_m, u.yaw_deg, u.roll_pitch_deg) == (5.0, 15.0, 5.0, 1.0)
     assert PriorUncertainty.parse("z=40").xy_m == PriorUncertainty().xy_m
-    for bad in ("", "xy", "q=3", "z=abc", "z=-1", "yaw=90"):
+    for bad in ("", "xy", "q=3", "z=abc", "z=-1", "yaw=181"):
         with pytest.raises(ParameterError):
             PriorUncertainty.parse(bad)
     with pytest.raises(ParameterError, match="z is given twice"):  # stop 48: the last one won, silently

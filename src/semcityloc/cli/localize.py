@@ -78,7 +78,8 @@ def add_prior_sigma_argument(p: argparse.ArgumentParser, default_text: str | Non
         metavar="xy=5,z=15,yaw=5,rp=1",
         help=default_text
         or "1-sigma error of the prior (any subset; default xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg: "
-        "DJI GNSS + gimbal IMU); the search covers 3 sigma",
+        "DJI GNSS + gimbal IMU); the search covers 3 sigma; no compass: yaw=60 searches every heading "
+        "(slower)",
     )
 
 

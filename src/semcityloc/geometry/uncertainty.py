@@ -18,6 +18,9 @@ both real images in ``../shared/data`` and of the benchmark's ``realistic`` prio
 - ``yaw_deg`` = 3 deg: compass heading near steel and concrete; 3 sigma = 9 deg.
 - ``roll_pitch_deg`` = 1 deg: gimbal IMU (roll and pitch are measured against gravity).
 
+No heading at all (no compass, a photo without one): ``yaw=60`` (``NO_HEADING_YAW_DEG``) or more; the
+cascade then searches every heading, slower (``docs/localization.md``, "A prior without a heading").
+
 With RTK (``rtk()``): the reported standard deviations, floored at ``RTK_FLOOR_M`` because a city model
 is itself only good to about a metre (footprints, roof heights) and the camera-to-antenna offset and
 timing add decimetres.
@@ -36,6 +39,12 @@ RTK_FLOOR_M = 0.5  # a map is good to ~1 m; lever arm and timing add decimetres
 # Beyond this a position is no prior for a local search (a district is a few km across): a larger sigma is
 # a unit mistake or a broken tag, refused rather than searched.
 MAX_POSITION_SIGMA_M = 10_000.0
+# A heading not known at all (no compass; a photo without one) is stated as ``yaw=60`` or more: its 3 sigma
+# (``CascadeConfig.n_sigma``) spans every heading, which the search then covers as a full circle
+# (``cascade.FULL_CIRCLE_HALF_DEG``, stop 53); a larger yaw sigma says the same, up to 180.
+NO_HEADING_YAW_DEG = 60.0
+MAX_YAW_SIGMA_DEG = 180.0
+MAX_ROLL_PITCH_SIGMA_DEG = 20.0
 DEFAULT_SOURCE = "default (DJI single-point GNSS + gimbal IMU)"
 # Names accepted by ``parse`` for each field.
 _ALIASES = {
@@ -79,10 +88,11 @@ class PriorUncertainty:
                 f"prior uncertainty xy {self.xy_m:g} m / z {self.z_m:g} m is too large for a local search "
                 f"(at most {MAX_POSITION_SIGMA_M:g} m each): a prior that poor is no prior"
             )
-        if self.yaw_deg > 60 or self.roll_pitch_deg > 20:
+        if self.yaw_deg > MAX_YAW_SIGMA_DEG or self.roll_pitch_deg > MAX_ROLL_PITCH_SIGMA_DEG:
             raise ParameterError(
-                f"prior uncertainty yaw {self.yaw_deg} deg / roll-pitch {self.roll_pitch_deg} deg is too "
-                "large for a local search (yaw <= 60, roll/pitch <= 20 deg)"
+                f"prior uncertainty yaw {self.yaw_deg:g} deg / roll-pitch {self.roll_pitch_deg:g} deg is too "
+                f"large for a local search (yaw <= {MAX_YAW_SIGMA_DEG:g}: {NO_HEADING_YAW_DEG:g} or more "
+                f"searches every heading; roll/pitch <= {MAX_ROLL_PITCH_SIGMA_DEG:g} deg)"
             )
 
     @classmethod

@@ -41,11 +41,15 @@ import numpy as np
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose, yaw_fan_rotations
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.coarse import CostVolume, rotation_offsets, score_rotations
+from semcityloc.localization.coarse import CostVolume, rotation_offsets, score_rotations, yaw_sectors
 from semcityloc.localization.config import BeyondConfig, CascadeConfig, LocalConfig, SweepConfig
 from semcityloc.render.scene import RenderScene
 
 AXES = ("x", "y", "z", "yaw")
+# A volume whose yaw half-width reaches this searches every heading (``SearchVolume.full_circle``): a prior
+# without a usable heading (no compass, a photo without one: ``--prior-sigma yaw=60`` or more). Its yaw
+# lattice closes on itself (``_lattice``): no yaw edge, no extension in yaw, no heading scored twice.
+FULL_CIRCLE_HALF_DEG = 180.0
 # What a refused result's warning starts with when ``look_beyond`` found a view outside scoring higher.
 BEYOND_WARNING = "a view outside the search volume matches the image better than any inside"
 
@@ -63,8 +67,14 @@ class SearchVolume:
     half_roll_pitch_deg: float
     floor_z: float = -math.inf
 
+    @property
+    def full_circle(self) -> bool:
+        """Does the volume search every heading (``FULL_CIRCLE_HALF_DEG``)?"""
+        return self.half_yaw_deg >= FULL_CIRCLE_HALF_DEG
+
     def as_dict(self) -> dict:
-        """The half-widths (and a floor, when set) for a result's search record."""
+        """The half-widths (and a floor, when set; ``full_circle`` when every heading is searched) for a
+        result's search record."""
         out = {
             "half_xy_m": self.half_xy_m,
             "half_z_m": self.half_z_m,
@@ -73,6 +83,8 @@ class SearchVolume:
         }
         if math.isfinite(self.floor_z):
             out["floor_z"] = self.floor_z
+        if self.full_circle:
+            out["full_circle"] = True
         return out
 
 
@@ -90,7 +102,7 @@ def search_volume(
         centre=np.asarray(prior_state, dtype=np.float64).copy(),
         half_xy_m=max(k * uncertainty.xy_m, config.min_half_xy_m),
         half_z_m=max(k * uncertainty.z_m, config.min_half_z_m),
-        half_yaw_deg=max(k * uncertainty.yaw_deg, config.min_half_yaw_deg),
+        half_yaw_deg=min(max(k * uncertainty.yaw_deg, config.min_half_yaw_deg), FULL_CIRCLE_HALF_DEG),
         half_roll_pitch_deg=k * uncertainty.roll_pitch_deg,
         floor_z=float(ground_z) + config.min_clearance_m,
     )
@@ -109,6 +121,7 @@ class Sweep:
     roll: float
     pitch: float
     floor_index: float = -math.inf  # lowest z lattice index at or above the volume's floor
+    full_circle: bool = False  # the yaw lattice closes on itself (every heading): yaw has no edge
     extensions: list[str] = field(default_factory=list)  # e.g. ["z-", "x+"]
     at_edge: list[str] = field(default_factory=list)  # edges the best cell still sits on at the bound
     hypotheses: int = 0  # cells scored (the lattice plus any extension)
@@ -162,10 +175,15 @@ def _lattice_extent(half: float, step: float) -> int:
 
 def _lattice(volume: SearchVolume, config: SweepConfig, max_centres: int) -> tuple[np.ndarray, np.ndarray]:
     """(step, n) of the lattice ``-n..n`` over ``volume`` per axis (x, y, z, yaw): the sweep's steps, the
-    xy and z ones grown together until it needs at most ``max_centres`` camera centres."""
+    xy and z ones grown together until it needs at most ``max_centres`` camera centres. A full-circle
+    volume's yaw lattice is the circle cut into 2n+1 equal steps of at most the sweep's (no heading
+    twice, none beyond the circle)."""
     step = np.array([config.step_xy_m, config.step_xy_m, config.step_z_m, config.step_yaw_deg], dtype=float)
     half = np.array([volume.half_xy_m, volume.half_xy_m, volume.half_z_m, volume.half_yaw_deg])
     n = np.array([_lattice_extent(h, st) for h, st in zip(half, step, strict=True)])
+    if volume.full_circle:
+        n[3] = max(1, int(math.ceil((360.0 / config.step_yaw_deg - 1.0) / 2.0 - 1e-9)))
+        step[3] = 360.0 / (2 * n[3] + 1)
     while float(2 * n[0] + 1) ** 2 * float(2 * n[2] + 1) > max_centres and n[:3].max() > 1:
         step[:3] *= 1.1
         n[:3] = [_lattice_extent(h, st) for h, st in zip(half[:3], step[:3], strict=True)]
@@ -196,10 +214,13 @@ class _SweepScorer:
         yaws = o[3] + iyaw * s[3]
         gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
         centres = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
-        offsets = rotation_offsets(self.R_base, yaw_fan_rotations(self.roll, self.pitch, yaws))
-        out = score_rotations(
-            self.scene, self.camera, centres, self.R_base, offsets, self.query, self.class_on
-        )
+        rotations = yaw_fan_rotations(self.roll, self.pitch, yaws)
+        out = np.empty((len(centres), len(yaws)))
+        for R_base, idx in yaw_sectors(self.camera, self.roll, self.pitch, yaws, self.R_base):
+            offsets = rotation_offsets(R_base, rotations[idx])
+            out[:, idx] = score_rotations(
+                self.scene, self.camera, centres, R_base, offsets, self.query, self.class_on
+            )
         self.count += out.size
         return out.reshape(len(xs), len(ys), len(zs), len(yaws))
 
@@ -219,6 +240,8 @@ def sweep(
     scorer = _SweepScorer(scene, camera, query_labels, class_on, origin, step, float(c[3]), float(c[4]))
     lo, hi = -n.copy(), n.copy()
     bound = n + np.ceil(config.max_extensions * config.extension * n).astype(int)
+    if volume.full_circle:
+        bound[3] = n[3]  # every heading is scored already
     lower = -bound.copy()  # lowest index an extension may reach, per axis
     floor_index = _floor_index(volume, step[2])
     if math.isfinite(floor_index):
@@ -226,7 +249,9 @@ def sweep(
         hi[2] = max(hi[2], lo[2])  # a prior further underground than its volume reaches: the floor's layer
         lower[2] = max(lower[2], floor_index)
     scores = scorer.score(*(np.arange(lo[a], hi[a] + 1) for a in range(4)))
-    result = Sweep(origin, step, lo, hi, scores, float(c[3]), float(c[4]), floor_index=floor_index)
+    result = Sweep(
+        origin, step, lo, hi, scores, float(c[3]), float(c[4]), floor_index, full_circle=volume.full_circle
+    )
     for _ in range(config.max_extensions + 1):
         edges = _edges(result)
         if not edges:
@@ -263,12 +288,12 @@ def sweep(
 
 def _edges(sw: Sweep) -> list[tuple[int, int]]:
     """(axis, +1/-1) of every volume face the best cell lies on (axes with a single sample excluded; the
-    floor is not a face: no camera lies below it)."""
+    floor is not a face: no camera lies below it; nor is a full circle of yaw)."""
     best = sw.best()
     out = []
     for a in range(4):
         size = sw.scores.shape[a]
-        if size < 3:
+        if size < 3 or (a == 3 and sw.full_circle):
             continue
         if best[a] == 0:
             if a == 2 and sw.lo[2] <= sw.floor_index:

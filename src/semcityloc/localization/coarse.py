@@ -17,7 +17,7 @@ import numpy as np
 
 from semcityloc.errors import CameraError
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.pose import Pose, rotation_about_world_z
+from semcityloc.geometry.pose import Pose, rotation_about_world_z, yaw_fan_rotations
 from semcityloc.localization.config import CoarseConfig
 from semcityloc.localization.kernels import N_SLOTS, coarse_scores
 from semcityloc.render.raster_numba import NEAR_M, work_chunks
@@ -31,6 +31,12 @@ WIDE_OVERSAMPLE = 1.0  # default of CoarseConfig.wide_oversample
 # near 90 deg a pinhole's image coordinate runs to infinity, and the wide view with it. The views of the
 # benchmark and of real drones stay far below (a 70 deg camera's corner rays lie 41 deg off its axis).
 MAX_WIDE_RAY_DEG = 80.0
+# A fan of yaws whose rays reach beyond ``MAX_WIDE_RAY_DEG`` of one wide view (an oblique view turned by
+# tens of degrees: a prior without a heading) is scored in sectors (``yaw_sectors``), each read from a wide
+# view of its own at its middle yaw, cut until every ray lies within this of its sector's axis (a 70 deg
+# camera's corner rays lie 41 deg off its axis: a full circle is 8 sectors of 45 deg for a view 30-84 deg
+# from nadir, one for a view up to 20 deg from it, which turns about nearly its own axis).
+SECTOR_MAX_RAY_DEG = 60.0
 # The wide view's size bound: a few thousand pixels in every search the project measured; tens of millions
 # only for intrinsics or rotation ranges no drone photo has.
 MAX_WIDE_PIXELS = 4_000_000
@@ -112,7 +118,7 @@ def rotation_lookup(
     rays = camera.ray_directions().reshape(-1, 3)  # target pixel centres, z = 1
     # d[y, p] = A_y^T rays[p]; batched matmul (einsum is ~10x slower here).
     d = np.matmul(rays[None], np.asarray(offsets, dtype=np.float64))
-    front = d[..., 2] > math.cos(math.radians(MAX_WIDE_RAY_DEG)) * np.linalg.norm(d, axis=-1)
+    front = _within(d, MAX_WIDE_RAY_DEG)
     if not front.any():
         raise CameraError("every ray of the search's rotations points away from its wide view")
     z = np.where(front, d[..., 2], 1.0)
@@ -155,6 +161,43 @@ def yaw_lookup(
     """``rotation_lookup`` for a fan of yaws about world z: hypothesis d has ``R_d = R_base @ Rz(d)^T``."""
     R_hyps = np.asarray(R_base) @ np.swapaxes(rotation_about_world_z(yaw_offsets_deg), -1, -2)
     return rotation_lookup(camera, rotation_offsets(R_base, R_hyps), oversample)
+
+
+def _within(d: np.ndarray, max_deg: float) -> np.ndarray:
+    """Which ray directions ``d`` (..., 3) of the base camera lie within ``max_deg`` of its axis."""
+    return d[..., 2] > math.cos(math.radians(max_deg)) * np.linalg.norm(d, axis=-1)
+
+
+def _rays_within(rays: np.ndarray, offsets: np.ndarray, max_deg: float) -> bool:
+    """Do all ``rays`` (P, 3) turned by every offset (Y, 3, 3) lie within ``max_deg`` of the base axis?"""
+    return bool(np.all(_within(np.matmul(rays[None], offsets), max_deg)))
+
+
+def yaw_sectors(
+    camera: Camera, roll: float, pitch: float, yaws: np.ndarray, R_base: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The fan of ``yaws`` (degrees, ascending) at ``roll``/``pitch`` as (base rotation, yaw indices)
+    sectors, each scored through a wide view of its own. One sector on ``R_base`` when every hypothesis'
+    rays lie within ``MAX_WIDE_RAY_DEG`` of its axis (every search of a heading known to a few degrees);
+    else the fan halved until each sector's rays lie within ``SECTOR_MAX_RAY_DEG`` of its middle yaw's
+    axis. Why: a ray turned farther reads nothing, so an oblique view turned by 90-180 deg (the heading of
+    a prior without a compass) could not be scored from the prior's wide view."""
+    rays = camera.ray_directions().reshape(-1, 3)
+    yaws = np.asarray(yaws, dtype=np.float64)
+    R_hyps = yaw_fan_rotations(roll, pitch, yaws)
+    if _rays_within(rays, rotation_offsets(R_base, R_hyps), MAX_WIDE_RAY_DEG):
+        return [(np.asarray(R_base), np.arange(len(yaws)))]
+    out: list[tuple[np.ndarray, np.ndarray]] = []
+    todo = [np.arange(len(yaws))]
+    while todo:
+        idx = todo.pop(0)
+        base = R_hyps[idx[len(idx) // 2]]
+        if len(idx) > 1 and not _rays_within(rays, rotation_offsets(base, R_hyps[idx]), SECTOR_MAX_RAY_DEG):
+            half = len(idx) // 2
+            todo[:0] = [idx[:half], idx[half:]]
+            continue
+        out.append((base, idx))
+    return out
 
 
 def score_rotations(

@@ -28,7 +28,7 @@ from semcityloc.errors import parameter
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
-from semcityloc.localization.cascade import SearchVolume, search_volume
+from semcityloc.localization.cascade import FULL_CIRCLE_HALF_DEG, SearchVolume, search_volume
 from semcityloc.localization.config import CascadeConfig, LocalizerConfig
 from semcityloc.localization.result import (
     REASON_PRIOR_LOOKS_UP,
@@ -48,7 +48,8 @@ def reached_half(volume: SearchVolume, config: CascadeConfig) -> dict[str, float
     """The half-widths per ``--prior-sigma`` key (``xy``, ``z`` m; ``yaw`` deg) of ``volume`` grown by its
     largest extension: how far from the prior the cascade may search."""
     grown = 1.0 + config.sweep.max_extensions * config.sweep.extension
-    return {"xy": grown * volume.half_xy_m, "z": grown * volume.half_z_m, "yaw": grown * volume.half_yaw_deg}
+    yaw = FULL_CIRCLE_HALF_DEG if volume.full_circle else grown * volume.half_yaw_deg  # a circle is not grown
+    return {"xy": grown * volume.half_xy_m, "z": grown * volume.half_z_m, "yaw": yaw}
 
 
 def search_half(prior_local: Pose, cfg: LocalizerConfig, unc: PriorUncertainty, axis: str) -> float:
@@ -193,14 +194,19 @@ class MapLayout:
             return False
         rays = _view_rays(camera, prior_local, centre=True)  # (3, 5)
         centre = prior_local.center.copy()
+        full_circle = False
         if cfg.search == "cascade":
             volume = search_volume(prior_local.to_xyz_rpy(), unc, cfg.cascade)
             centre[2] += reached_half(volume, cfg.cascade)["z"]
+            full_circle = volume.full_circle
         dz = self.ground_z - centre[2]
         with np.errstate(divide="ignore", invalid="ignore"):
             s = np.where(rays[2] * dz > 0, dz / rays[2], np.inf)
         s = np.minimum(s, MAX_VIEW_RANGE_M / np.linalg.norm(rays, axis=0))
         pts = centre[:2, None] + rays[:2] * s
+        if full_circle:  # every heading searched: the footprint turned about the camera, a square around it
+            r = float(np.max(np.linalg.norm(pts - centre[:2, None], axis=0)))
+            pts = centre[:2, None] + np.array([[-r, r], [-r, r]])
         pts = np.concatenate([pts, centre[:2, None]], axis=1)
         margin = search_half_xy(prior_local, cfg, unc) + 1.0
         lo, hi = pts.min(1) - margin, pts.max(1) + margin
