@@ -29,7 +29,8 @@ from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.results import recall_summary
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
-from semcityloc.localization.focal import FocalView, estimate_focal_scale, is_oblique, with_focal_scale
+from semcityloc.localization.focal import FocalView, estimate_focal_scale
+from semcityloc.localization.focal_check import is_oblique, with_focal_scale
 from semcityloc.localization.localize import Localizer
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -10,9 +10,8 @@ from semcityloc.localization.focal import (
     MIN_IMAGES,
     FocalView,
     estimate_focal_scale,
-    is_oblique,
-    with_focal_scale,
 )
+from semcityloc.localization.focal_check import is_oblique, with_focal_scale
 from semcityloc.localization.localize import Localizer
 from semcityloc.render import Renderer
 

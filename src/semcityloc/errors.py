@@ -216,6 +216,7 @@ PARAMETERS: dict[str, Parameter] = {
     "out": Parameter("out='{}'", "--out {}"),
     "overwrite": Parameter("overwrite=True", "--overwrite"),
     "recursive": Parameter("PhotoSpec(recursive=True)", "--recursive"),
+    "calibrate_focal": Parameter("PhotoSpec(calibrate_focal='{}')", "'semcityloc run --calibrate-focal {}'"),
 }
 
 

@@ -36,8 +36,8 @@ from semcityloc.localization.focal import (
     estimate_focal_scale,
     oblique_subset,
     too_few_obliques,
-    with_focal_scale,
 )
+from semcityloc.localization.focal_check import with_focal_scale
 from semcityloc.localization.localize import Localizer
 
 if TYPE_CHECKING:

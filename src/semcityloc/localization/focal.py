@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,10 +33,10 @@ from semcityloc.errors import ParameterError
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.uncertainty import PriorUncertainty
+from semcityloc.localization.focal_check import MIN_OBLIQUE_DEG, is_oblique, with_focal_scale
 from semcityloc.localization.localize import Localizer
 
 SCALES = tuple(float(s) for s in np.round(np.linspace(0.94, 1.06, 9), 4))  # steps of 1.5 %
-MIN_OBLIQUE_DEG = 20.0
 MIN_IMAGES = 5
 MAX_IMAGES = 20
 
@@ -86,17 +86,6 @@ class FocalEstimate:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f"not a focal-length estimate: {exc!r}") from exc
-
-
-def is_oblique(prior_local: Pose, min_deg: float = MIN_OBLIQUE_DEG) -> bool:
-    """Whether the prior's optical axis is at least ``min_deg`` from straight down."""
-    down = -float(prior_local.viewing_direction[2])
-    return math.degrees(math.acos(max(-1.0, min(1.0, down)))) >= min_deg
-
-
-def with_focal_scale(camera: Camera, scale: float) -> Camera:
-    """``camera`` with both focal lengths times ``scale`` (principal point and size unchanged)."""
-    return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
 
 
 def oblique_subset(

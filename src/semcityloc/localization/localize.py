@@ -20,6 +20,8 @@
    below ``min_confidence`` (``acceptance="thresholds"``: the first design's hand-set gates). A pose the
    cascade found and the acceptance refused gets a look beyond the search's reach (``cascade.look_beyond``,
    ``ring_beyond``): a better view there is named in a warning.
+   An accepted oblique pose gets a focal-length check (``focal_check.py``): scored at focal scales 0.97 /
+   1 / 1.03 around it, a warning when its view fits one more than ``FocalCheckConfig.margin`` from 1.
 5. Result: a ``LocalizationResult`` with the pose (or the refused one), the evidence and the timings.
 
 ``Localizer`` keeps the render scene of one city model, so a batch of queries builds it once.
@@ -60,6 +62,7 @@ from semcityloc.localization.confidence import (
     view_span_m,
 )
 from semcityloc.localization.config import LocalizerConfig, config_or_preset
+from semcityloc.localization.focal_check import check_focal, focal_warning, is_oblique
 from semcityloc.localization.input_checks import check_query_inputs
 from semcityloc.localization.lookalike import ambiguous_reason, distant_peak, is_distinct, lookalike_of
 from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
@@ -212,6 +215,8 @@ class Localizer:
         conflict = prior_conflict_warning(result.pose_local, prior_state, unc)
         if conflict is not None:
             result.warnings.append(conflict)
+        if cfg.focal_check.enabled and not cfg.no_refine and is_oblique(result.pose_local):
+            self._check_focal(result, fine, prior_state, cfg, unc)
         return result.finish(None, t0)
 
     # ------------------------------------------------------------------ searches
@@ -483,6 +488,30 @@ class Localizer:
         if with_depth:
             return result.semantic >= cfg.min_semantic_with_depth and result.depth_cost <= cfg.max_depth_cost
         return result.semantic >= cfg.min_score
+
+    def _check_focal(self, result, fine: ScoringLevel, prior_state, cfg: LocalizerConfig, unc) -> None:
+        """An accepted oblique pose's focal-length check (``focal_check.py``) on the map it was found on:
+        recorded in ``result.search["focal_check"]``, a warning when the view fits a focal scale more than
+        ``FocalCheckConfig.margin`` from 1."""
+        t0 = time.perf_counter()
+        prior = prior_term(prior_state, cfg, unc) if cfg.search == "cascade" else None
+        state = result.pose_local.to_xyz_rpy()
+        check = check_focal(
+            self.map_of(result).scene,
+            self.class_on,
+            fine,
+            state,
+            cfg.focal_check,
+            cfg.refine,
+            prior,
+            cfg.seed,
+        )
+        if check is not None:
+            result.search["focal_check"] = check.as_dict()
+        warning = focal_warning(check, cfg.focal_check.margin)
+        if warning is not None:
+            result.warnings.append(warning)
+        result.timings["focal_check_s"] = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ refused poses: a look beyond
     def ring_beyond(
