@@ -255,7 +255,7 @@ class FocalCheckConfig:
     three peaks more than ``margin`` from 1, a warning says the focal length may be off. Only views at
     least ``focal_check.MIN_OBLIQUE_DEG`` from nadir (seen from above, focal length and height are one
     unknown). ``enabled=False``: not run. A warning, never a refusal: with the focal length 5 % off
-    the warned poses were mostly right still (3-4.5 m off), and refusing them cost more recall than the
+    most warned poses were right still (mostly 3-5 m off), and refusing them cost more recall than the
     precision it gained (docs/localization.md, "A focal length the image contradicts")."""
 
     enabled: bool = True
