@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -123,6 +123,8 @@ def estimate_focal_scale(
     oblique = [views[i] for i in oblique_subset(priors, max_images, min_oblique_deg)]
     if len(oblique) < MIN_IMAGES:
         return too_few_obliques(len(oblique), scales)
+    # Each image's own focal check (``focal_check.py``) would only warn on results thrown away here.
+    config = replace(localizer.config, focal_check=replace(localizer.config.focal_check, enabled=False))
     curves = []
     for view in oblique:
         scores = []
@@ -132,6 +134,7 @@ def estimate_focal_scale(
                 view.prior_local,
                 view.labels,
                 view.depth,
+                config=config,
                 prior_uncertainty=view.uncertainty,
             )
             scores.append(r.score if r.score is not None and math.isfinite(r.score) else math.nan)
