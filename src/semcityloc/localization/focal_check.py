@@ -82,7 +82,7 @@ def check_focal(
     state: np.ndarray,
     check: FocalCheckConfig,
     refine: RefineConfig,
-    prior: PriorTerm | None,
+    prior_term: PriorTerm | None,
     seed: int = 0,
 ) -> FocalCheck | None:
     """The check (module docstring) of the pose ``state`` (local frame) against the query at the fine
@@ -101,7 +101,7 @@ def check_focal(
         moved = moved_back(state, depth, s)
         axis = np.asarray(Pose.from_state(moved).R)[2]
         states = moved[None] + LINE_M[:, None] * np.r_[axis, 0.0, 0.0, 0.0][None]
-        score, _, _ = score_states(scene, level, states, class_on, refine, prior)
+        score, _, _ = score_states(scene, level, states, class_on, refine, prior_term)
         polished = particle_filter(
             scene,
             [level],
@@ -113,7 +113,7 @@ def check_focal(
             particles=check.particles,
             iterations=check.iterations,
             low_res_iterations=0,
-            prior=prior,
+            prior_term=prior_term,
             estimate_top=check.particles,
         )
         best.append(max(polished.score, float(score.max())))

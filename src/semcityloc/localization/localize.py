@@ -494,7 +494,7 @@ class Localizer:
         recorded in ``result.search["focal_check"]``, a warning when the view fits a focal scale more than
         ``FocalCheckConfig.margin`` from 1."""
         t0 = time.perf_counter()
-        prior = prior_term(prior_state, cfg, unc) if cfg.search == "cascade" else None
+        term = prior_term(prior_state, cfg, unc) if cfg.search == "cascade" else None
         state = result.pose_local.to_xyz_rpy()
         check = check_focal(
             self.map_of(result).scene,
@@ -503,7 +503,7 @@ class Localizer:
             state,
             cfg.focal_check,
             cfg.refine,
-            prior,
+            term,
             cfg.seed,
         )
         if check is not None:
