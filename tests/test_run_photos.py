@@ -1573,21 +1573,30 @@ def test_a_photo_whose_prior_lies_hundreds_of_km_away_is_skipped_not_the_runs_en
     a COLMAP quaternion in another order) stopped the whole run with the renderer's "Renderer.render takes
     poses in the model's local frame ..." when its overlay was drawn, and again on every resume: the flight
     could never finish. Now it is skipped before anything is searched or drawn, with the distance and where
-    the prior came from (``MapLayout.off_map``, the localizer's own bound); the others run."""
+    the prior came from (``MapLayout.off_map``, the localizer's own bound); the others run. With a true pose
+    (stop 53) it is a miss keeping that reason, not left out of the recall."""
     root = box_flight["root"]
     prior = read_pose(root / "GPS_pose" / "P0_pose.txt")
     far = Pose.from_rotation_center(prior.R_world_from_cam, prior.center + [300_000.0, 0.0, 0.0])
     np.savetxt(root / "GPS_pose" / "P0_pose.txt", far.world_from_cam)
+    no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]
     out = tmp_path / "out"
-    code, stdout, err = run(capsys, *box_flight["argv"], "--out", out)
+    code, stdout, err = run(capsys, *no_truth, "--out", out)
     assert code == 0 and "Traceback" not in err, err
     summary = json.loads((out / "summary.json").read_text())
     why = summary["skipped_photos"]["P0.JPG"]
     assert why.startswith("the prior lies 300 km from the model's nearest building") and "GPS_pose" in why
-    assert summary["localized"] == 1 and "4 photos: 1 localized, 1 not localized, 2 skipped" in stdout
+    assert summary["localized"] == 1 and "4 photos: 1 localized, 0 not localized, 3 skipped" in stdout
     assert not (out / "overlays" / "P0.png").exists() and (out / "overlays" / "P1.png").is_file()
-    code, stdout, _ = run(capsys, *box_flight["argv"], "--out", out)  # and the finished run resumes
+    code, stdout, _ = run(capsys, *no_truth, "--out", out)  # and the finished run resumes
     assert code == 0 and "4 photos: 1 localized" in stdout
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", tmp_path / "truth")
+    assert code == 0 and "Traceback" not in err, err
+    miss = _rows_by_name(tmp_path / "truth")["P0.JPG"]
+    assert miss["status"] == "not_localized" and miss["reason"] == f"skipped, counted as a miss: {why}"
+    said = "4 photos: 1 localized, 2 not localized (1 of them skipped, counted as misses), 1 skipped"
+    assert said in stdout
+    assert not (tmp_path / "truth" / "overlays" / "P0.png").exists()
 
 
 def test_a_runs_poses_folder_is_the_priors_and_truth_of_the_next_run(box_flight, tmp_path, capsys):
@@ -1683,3 +1692,33 @@ def test_a_run_skips_a_photo_without_a_gnss_fix_and_names_swapped_coordinates(tm
     code, _, err = run(capsys, *argv, "--priors", root / "swapped.csv", "--out", tmp_path / "csv")
     assert code == 2 and "no photo can be localized (F001.JPG: no usable GPS prior" in err
     assert "swapped.csv line 2): the position" in err and "latitude and longitude swapped?" in err
+
+
+def test_a_photo_of_the_truth_skipped_for_its_prior_is_a_miss_in_the_recall(box_flight, tmp_path, capsys):
+    """Stop 52's note: a photo skipped for an unusable prior (none in the file, no GNSS fix, outside the
+    CRS, 3-100 km off) left the recall's denominator, so a flight scored better by losing the photos it
+    could not place. With ``--truth`` such a photo is now a miss: a ``not_localized`` row keeping the skip's
+    reason, counted in the summary (``skipped_counted_as_misses``), the closing line, the report's note and
+    its misses table; without a true pose it is skipped as before."""
+    (box_flight["root"] / "GPS_pose" / "P1_pose.txt").unlink()
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
+    assert code == 0, err
+    miss = _rows_by_name(out)["P1.JPG"]
+    assert miss["status"] == "not_localized" and miss["err_xyz_m"] == "inf"
+    assert miss["reason"].startswith("skipped, counted as a miss: no prior pose for P1.JPG in ")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["with_ground_truth"] == 3 and summary["recall_2m2deg"] == pytest.approx(100 / 3)
+    assert summary["skipped_counted_as_misses"] == 1 and set(summary["skipped_photos"]) == {"P9.JPG"}
+    said = "4 photos: 1 localized, 2 not localized (1 of them skipped, counted as misses), 1 skipped"
+    assert said in stdout
+    assert json.loads((out / "poses" / "P1.json").read_text())["reason"] == miss["reason"]
+    report = make_report([out], tmp_path / "report", overlays=0)
+    assert any("1 skipped, counted as misses" in n and "P1.JPG (no prior pose" in n for n in report.notes)
+    (misses,) = list(csv.DictReader(report.tables["misses"][1].open(encoding="utf-8")))
+    assert (misses["hit"], misses["skipped"], misses["unreadable-input"]) == ("1", "1", "1")
+    no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]
+    code, _, err = run(capsys, *no_truth, "--out", tmp_path / "no_truth", "--no-overlays")
+    assert code == 0, err
+    skipped = json.loads((tmp_path / "no_truth" / "summary.json").read_text())["skipped_photos"]
+    assert skipped["P1.JPG"].startswith("no prior pose for P1.JPG in ")

@@ -9,6 +9,9 @@ Why: a recall figure says how many queries were missed, not why. A miss at 2 m /
 - ``unreadable-input``: the query's own input (a data set's mask or depth file) could not be read, so
   nothing was searched and nothing refused (``results.unreadable_result``); a miss all the same, in the
   recall's denominator, but the data's, not the localizer's, and kept apart from ``refused-wrong``;
+- ``skipped``: a photo of a run against ground truth that the run skipped before anything ran (no usable
+  prior or intrinsics, a prior off the map: ``results.skipped_miss_result``); a miss in the recall since
+  stop 53, nothing searched either;
 - ``failed``: the query's worker process died on every try (Ray, ``results.failed_row``): nothing was
   searched either; a miss where the query has a true pose.
 
@@ -29,14 +32,15 @@ import math
 
 import numpy as np
 
-from semcityloc.benchmark.results import FAILED, cell_float, unreadable_row
+from semcityloc.benchmark.results import FAILED, cell_float, skipped_miss_row, unreadable_row
 from semcityloc.classes import BUILDING_CLASSES, NUM_CLASSES
 from semcityloc.evaluation.metrics import is_right
 from semcityloc.localization.agreement import UNMAPPED_WARNING, UNSEEN_WARNING
 from semcityloc.localization.result import LOCALIZED
 
 UNREADABLE_KIND = "unreadable-input"
-MISS_KINDS = ("near", "refused-near", "refused-wrong", "wrong", UNREADABLE_KIND, FAILED)
+SKIPPED_KIND = "skipped"
+MISS_KINDS = ("near", "refused-near", "refused-wrong", "wrong", UNREADABLE_KIND, SKIPPED_KIND, FAILED)
 # Bins of the map's building IoU at the truth for the hits-per-bin figure; from MAP_AGREES up the map
 # agrees with the world in view.
 MAP_AGREES = 0.6
@@ -74,6 +78,8 @@ def kind_of(row: dict[str, str], max_m: float = 2.0, max_deg: float = 2.0) -> st
     """A ``results.csv`` row's kind of miss at ``max_m`` / ``max_deg`` (module docstring); None: a hit."""
     if unreadable_row(row):
         return UNREADABLE_KIND
+    if skipped_miss_row(row):
+        return SKIPPED_KIND
     if row["status"] == FAILED:
         return FAILED
     localized = row["status"] == LOCALIZED

@@ -64,7 +64,7 @@ def _calibrated(spec: PhotoSpec, stamp: tuple) -> Resolved:
         return resolved
     groups: dict[tuple[Camera, str], list[int]] = {}
     for i, inp in enumerate(resolved.inputs):
-        if inp.unreadable is None:  # an unreadable photo's miss needs no camera
+        if inp.runs:  # a miss decided before the run (an unreadable photo's, say) needs no camera
             groups.setdefault((inp.camera, inp.intrinsics_source), []).append(i)
     inputs = list(resolved.inputs)
     for (camera, source), members in groups.items():

@@ -39,9 +39,12 @@ corrupt, truncated, no class ids) or does not fit the photo (another aspect; int
 is not skipped but a miss of the run, found here or, for a file that fails only when read in full, at its
 turn (``benchmark.photo_source``): a ``not_localized`` row with the reason naming the file
 (``results.unreadable_result``, ``PhotoInput.unreadable``), in every recall's denominator, as in a data-set
-benchmark, so that recall is never over the photos that happened to have usable inputs. A photo without a
-true pose, or one that lacks a prior or intrinsics, or whose mask is in a lossy format without
-``allow_lossy_mask`` (the run's option, not the file), is skipped. With a tile store for the city, the map
+benchmark, so that recall is never over the photos that happened to have usable inputs. So is, since stop
+53, a photo with a true pose skipped for any other cause (no usable prior or intrinsics, a prior off the
+map, a mask in a lossy format without ``allow_lossy_mask``): a ``not_localized`` row whose reason is
+``skipped, counted as a miss: `` and the skip's (``results.skipped_miss_result``, ``PhotoInput.skipped``).
+A photo without a true pose is skipped, and so is one whose true pose cannot be used
+(``TruthUnusable``). With a tile store for the city, the map
 of the run's overlays and exports is the store's tiles within a camera's range of the priors
 (``flight_area``).
 """
@@ -50,7 +53,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -118,6 +121,15 @@ class PhotoInput:
     # Why a photo with a true pose cannot run: its own file cannot be read or used (checked before the
     # run). Its query is a miss naming the file, not skipped (module docstring); None: it runs.
     unreadable: str | None = None
+    # Why a photo with a true pose was skipped for another cause (no usable prior or intrinsics, a prior off
+    # the map, a lossy mask without ``allow_lossy_mask``): its query is a miss keeping that reason
+    # (``results.skipped_miss_result``); None: it runs.
+    skipped: str | None = None
+
+    @property
+    def runs(self) -> bool:
+        """Whether the photo is localized (not a miss decided before the run: ``unreadable``, ``skipped``)."""
+        return self.unreadable is None and self.skipped is None
 
     @property
     def stem(self) -> str:
@@ -185,7 +197,7 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
             true_pose = _true_pose(truth, path, meta)
         except PhotoMissing as exc:
             reason, true_pose = str(exc), None
-            if isinstance(exc, PhotoUnreadable):
+            if not isinstance(exc, TruthUnusable):
                 try:
                     true_pose = _true_pose(truth, path, meta)
                 except PhotoMissing as unusable:
@@ -193,15 +205,14 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
             if true_pose is None:
                 skipped[path.name] = reason
                 continue
-            # A photo of the truth whose own file cannot be read: a miss of the run (module docstring),
-            # with its prior when that is not in the photo itself (a pose file, a geotag CSV).
+            # A photo of the truth that cannot run: a miss of the run (module docstring), with its prior
+            # when that is not in the photo itself (a pose file, a geotag CSV) and can be used.
             prior = prior if prior is not None or lens is not None else _prior_or_none(priors, path)
             sigma = fixed or (prior.uncertainty if prior is not None else None) or PriorUncertainty()
             known = {} if lens is None else {"intrinsics_source": lens.source, "distortion": lens.distortion}
             camera = lens.camera if lens is not None else None
-            inputs.append(
-                PhotoInput(path.name, path, camera, prior, sigma, true_pose, unreadable=str(exc), **known)
-            )
+            miss = {"unreadable" if isinstance(exc, PhotoUnreadable) else "skipped": str(exc)}
+            inputs.append(PhotoInput(path.name, path, camera, prior, sigma, true_pose, **miss, **known))
             continue
         sigma = fixed or prior.uncertainty or PriorUncertainty()
         inputs.append(
@@ -235,17 +246,20 @@ def _on_the_map(
     search can see one (``search_reach.MapLayout.off_map``, the localizer's own bound); those are added to
     ``skipped`` with the distance and where the prior came from: a prior hundreds of kilometres off (a
     photo of another place, a COLMAP quaternion in another order) is that photo's problem, said before
-    anything is searched or drawn, not the run's end."""
+    anything is searched or drawn, not the run's end. One with a true pose stays, a miss with that reason
+    (``PhotoInput.skipped``)."""
     if not any(inp.prior is not None for inp in inputs):
         return inputs
     layout, cfg = MapLayout.of(model), spec.localizer_config()
     kept = []
     for inp in inputs:
         far = None
-        if inp.prior is not None and inp.unreadable is None:  # a miss of the truth stays one
+        if inp.prior is not None and inp.runs:  # a miss of the truth stays one
             far = layout.off_map(model.pose_to_local(inp.prior.pose_world), cfg, inp.uncertainty)
         if far is None:
             kept.append(inp)
+        elif inp.truth_world is not None:
+            kept.append(replace(inp, skipped=f"{far} (its prior: {inp.prior.source})"))
         else:
             skipped[inp.name] = f"{far} (its prior: {inp.prior.source})"
     return kept
@@ -289,6 +303,10 @@ class PhotoUnreadable(PhotoMissing):
     photo: skipped, or with a true pose a miss (module docstring)."""
 
 
+class TruthUnusable(PhotoMissing):
+    """The truth has an entry for the photo that cannot be used (``_true_pose``): skipped, never a miss."""
+
+
 def _photo_camera(intrinsics: IntrinsicsFiles, path: Path, width: int, height: int, meta) -> PhotoCamera:
     """``intrinsics.photo_camera`` of the photo ``path``; intrinsics of another image (another size, a
     principal point far off its centre: ``IntrinsicsMismatchError``) are ``PhotoUnreadable``, as a mask of
@@ -320,7 +338,7 @@ def _true_pose(truth: PriorFiles | None, path: Path, meta) -> Pose | None:
     except PhotoNotListed:
         return None
     except InputFileError as exc:
-        raise PhotoMissing(
+        raise TruthUnusable(
             f"its true pose cannot be used ({exc}): fix its --truth entry, or remove it to run the photo "
             "without ground truth"
         ) from None

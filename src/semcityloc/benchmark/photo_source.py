@@ -13,7 +13,8 @@ records it as ``skipped`` (its row, its ``poses/<stem>.json`` record, the summar
 goes on with the others; its row stays on resume (the file fixed, the run refuses that row when it
 finishes, ``photo_exports.changed_inputs``; deleting that line of ``results.csv`` redoes the photo). A
 photo with a true pose is a miss of the run instead, as is one whose own input was found unreadable before
-the run (``PhotoInput.unreadable``). Every query's meta holds the fingerprints of the photo's files, taken
+the run (``PhotoInput.unreadable``) or that was skipped before it (``PhotoInput.skipped``: no usable prior,
+say). Every query's meta holds the fingerprints of the photo's files, taken
 before they are read (``PhotoInput.fingerprints``): its row's ``meta_json`` and its record keep them.
 
 Outputs (``runfiles``): ``poses/<stem>.json`` for every photo (the pose in the model's CRS at the top level
@@ -38,8 +39,10 @@ from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.results import (
     SKIP_REASON,
     SKIPPED,
+    SKIPPED_MISS,
     UNFIT_INPUT,
     UNREADABLE_INPUT,
+    is_skipped_miss,
     is_unreadable,
 )
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, POSES_DIR, writing
@@ -131,6 +134,8 @@ class PhotoSource:
         files = {INPUT_FINGERPRINTS: inp.fingerprints()}
         if inp.unreadable is not None:  # checked before the run: a miss of the truth (module docstring)
             return self._query(index, None, None, {**files, UNREADABLE_INPUT: inp.unreadable})
+        if inp.skipped is not None:  # skipped before the run with a true pose: a miss all the same
+            return self._query(index, None, None, {**files, SKIPPED_MISS: inp.skipped})
         seg, dep = self.backends()
         try:
             photo, labels, depth = self._read_files(inp, seg is not None or dep is not None)
@@ -261,7 +266,12 @@ class PhotoSource:
             data = record
         with writing(folder / f"{inp.stem}.json"):
             write_json_atomic(folder / f"{inp.stem}.json", data)
-        if self.spec.overlays and result.status != SKIPPED and not is_unreadable(result.reason):
+        drawn = (
+            result.status != SKIPPED
+            and not is_unreadable(result.reason)
+            and not is_skipped_miss(result.reason)
+        )
+        if self.spec.overlays and drawn:
             photo = inp.pinhole(load_image(inp.path, max_width=PHOTO_MAX_WIDTH), fill=0, nearest=False)
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
             panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]

@@ -158,8 +158,8 @@ class PhotoSpec:
     def run_config(self) -> dict:
         """The ``run.json`` of a photo run (what decides the numbers; compared on resume)."""
         model, inputs, skipped, store = self.resolved()
-        if not any(inp.unreadable is None for inp in inputs):
-            misses = {inp.name: inp.unreadable for inp in inputs}
+        if not any(inp.runs for inp in inputs):
+            misses = {inp.name: inp.unreadable or inp.skipped for inp in inputs}
             reasons = "; ".join(f"{k}: {v}" for k, v in list({**misses, **skipped}.items())[:3])
             raise InputFileError(f"{self.images}: no photo can be localized ({reasons})")
         city = resolve_city(self.city)

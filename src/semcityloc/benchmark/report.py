@@ -60,6 +60,7 @@ from semcityloc.benchmark.report_runs import (
     no_truth_note,
     photo_of,
     readable_details,
+    skipped_misses_note,
 )
 from semcityloc.benchmark.report_tables import (
     MISSES_NOTE,
@@ -131,6 +132,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     truth = [r for r in runs if has_truth(r)]  # errors measured: curves and recall as always
     blind = [r for r in runs if not has_truth(r)]  # a user's photos without --truth: what they say instead
     notes += [no_truth_note(r) for r in blind]
+    notes += [n for n in map(skipped_misses_note, truth) if n is not None]
     doc = ["# SemCityLoc benchmark report", "", f"Runs: {len(runs)}", ""]
     doc += [f"- `{r.path}`: {r.label}" for r in runs]
     doc += ["", RECALL_LINE if truth else NO_TRUTH_LINE, ""]

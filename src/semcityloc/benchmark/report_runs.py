@@ -28,12 +28,14 @@ import numpy as np
 from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.queries import query_id
 from semcityloc.benchmark.results import (
+    REASON_SKIPPED_MISS,
     SKIPPED,
     cell_float,
     load_details,
     missing_details,
     missing_details_phrase,
     parse_results,
+    skipped_miss_row,
     summarize_rows,
 )
 from semcityloc.benchmark.runfiles import RESULTS_FILE, RUN_FILE, SUMMARY_FILE, read_run_file
@@ -321,6 +323,26 @@ def no_truth_note(run: RunData) -> str:
     return (
         f"{run.path}: no ground truth (a run without --truth), so no errors, recall or error curves of it; "
         "the table 'Without ground truth' shows what the run says of itself"
+    )
+
+
+def skipped_misses_note(run: RunData) -> str | None:
+    """The report's note on a run whose photos of the truth were skipped before it ran
+    (``results.skipped_miss_result``): they are misses in its recall, said with their reasons; None when
+    it has none."""
+    rows = [r for r in run.rows if skipped_miss_row(r)]
+    if not rows:
+        return None
+    names = run.config.get("query_names") or []
+    shown = [
+        f"{names[int(r['index'])] if int(r['index']) < len(names) else r['query_id']} "
+        f"({r['reason'].removeprefix(REASON_SKIPPED_MISS + ': ')})"
+        for r in rows[:3]
+    ]
+    more = f"; {len(rows) - 3} more" if len(rows) > 3 else ""
+    return (
+        f"{run.path}: {len(rows)} skipped, counted as misses (photos with a true pose that could not run, in "
+        f"'not loc.' and the misses table's 'skipped'): {'; '.join(shown)}{more}"
     )
 
 

@@ -38,14 +38,16 @@ UNTRUTHED_METRICS = ("queries", "localized", "not loc.", "skipped", "s/img")
 ACCEPT_THRESHOLDS = (0.3, 0.5, 0.7, 0.9)
 # The misses table's legend, written above the table in ``report.md``.
 MISSES_NOTE = (
-    "near: accepted within 5 m / 5° but beyond 2 m / 2°; refused-near: refused though the pose found was "
-    "within 5 m / 5°; refused-wrong: refused, rightly; wrong: accepted beyond 5 m / 5°; unreadable-input: "
-    "the query's mask or depth file could not be read, so nothing was searched or refused (a miss all the "
-    "same, counted in the recall); failed: the query's worker died on every try (Ray). Map agreement: the "
-    "query mask's building IoU against the map's labels at the true pose (simulated runs): low where the "
-    "map differs from the world in view (`python benchmarks/miss_causes.py RUN` lists every miss). "
-    "Outdated-map warning: results that said the image and the map disagree about buildings at the pose "
-    "found (the evidence a run on real photos has)."
+    "near: accepted within 5 m / 5° but beyond 2 m / 2°; refused-near: refused though the pose found "
+    "was within 5 m / 5°; refused-wrong: refused, rightly; wrong: accepted beyond 5 m / 5°; "
+    "unreadable-input: the query's mask or depth file could not be read, so nothing was searched or "
+    "refused (a miss all the same, counted in the recall); skipped: a photo of the truth its run "
+    "skipped (no usable prior or intrinsics, say), counted as a miss; failed: the query's worker died "
+    "on every try (Ray). Map agreement: the query mask's building IoU against the map's labels at the "
+    "true pose (simulated runs): low where the map differs from the world in view (`python "
+    "benchmarks/miss_causes.py RUN` lists every miss). Outdated-map warning: results that said the "
+    "image and the map disagree about buildings at the pose found (the evidence a run on real photos "
+    "has)."
 )
 
 

@@ -34,7 +34,9 @@ the file is less than half the size.
 query its source did not accept (a view the simulator could not make acceptable, a photo whose mask or
 depth cannot be read in full) gets a ``skipped`` row with the reason, is not localized and is only counted
 under ``skipped``. A data-set query whose mask or depth cannot be read is not skipped but a miss
-(``unreadable_result``): a ``not_localized`` row in every recall.
+(``unreadable_result``): a ``not_localized`` row in every recall. So is a photo of a run against ground
+truth that the run skipped before anything ran (``skipped_miss_result``), counted again apart as
+``skipped_counted_as_misses`` (only when there is one).
 
 A run folder speaks the command line's words, whoever started the run: a reason or warning the library
 worded with a Python parameter (``errors.parameter``: ``prior_uncertainty=PriorUncertainty.parse('z=8')``)
@@ -150,6 +152,31 @@ def unreadable_result(problem: str, unfit: bool = False) -> LocalizationResult:
     return LocalizationResult(
         status=NOT_LOCALIZED, reason=f"{REASON_UNFIT if unfit else REASON_UNREADABLE}: {problem}"
     )
+
+
+# A photo of a run against ground truth that the run skipped before anything ran for another cause than its
+# own file (no usable prior, no intrinsics, a prior off the map, a lossy mask without ``allow_lossy_mask``:
+# ``benchmark.photo_inputs``; ``meta[SKIPPED_MISS]`` says why): not localized, the reason starting with
+# ``REASON_SKIPPED_MISS`` and keeping the skip's, so that it is a miss in every recall (stop 53). Before, it
+# left the recall's denominator: a flight scored better by losing the photos it could not place.
+REASON_SKIPPED_MISS = "skipped, counted as a miss"
+SKIPPED_MISS = "skipped_miss"  # the meta key of why the photo was skipped
+
+
+def skipped_miss_result(reason: str) -> LocalizationResult:
+    """The result of a photo of the truth its run skipped (``SKIPPED_MISS``): not localized, a miss, the
+    reason the skip's."""
+    return LocalizationResult(status=NOT_LOCALIZED, reason=f"{REASON_SKIPPED_MISS}: {reason}")
+
+
+def is_skipped_miss(reason: str | None) -> bool:
+    """Whether a result's (or row's) reason is ``skipped_miss_result``'s."""
+    return (reason or "").startswith(REASON_SKIPPED_MISS)
+
+
+def skipped_miss_row(row: dict[str, str]) -> bool:
+    """Is this ``results.csv`` row a ``skipped_miss_result`` (nothing searched: the miss kind ``skipped``)?"""
+    return row["status"] == NOT_LOCALIZED and is_skipped_miss(row.get("reason"))
 
 
 def is_unreadable(reason: str | None) -> bool:
@@ -572,6 +599,8 @@ def summarize_rows(rows: list[dict[str, str]], config: dict) -> dict:
         n_loc = sum(r["status"] == LOCALIZED for r in every)
         s.update(queries=len(every), localized=n_loc, not_localized=len(every) - n_loc)
     s["skipped"] = skipped
+    if counted_misses := sum(skipped_miss_row(r) for r in ordered):  # said apart from ``skipped``
+        s["skipped_counted_as_misses"] = counted_misses
     miou = np.array([cell_float(r["query_miou"]) for r in every])
     total = np.array([cell_float(r["t_total_s"]) for r in every])
     s["mean_query_miou"] = float(np.nanmean(miou)) if np.isfinite(miou).any() else float("nan")

@@ -43,6 +43,7 @@ from semcityloc.benchmark.results import (
     REASON_SKIPPED,
     SKIP_REASON,
     SKIPPED,
+    SKIPPED_MISS,
     UNFIT_INPUT,
     UNREADABLE_INPUT,
     append_row,
@@ -51,6 +52,7 @@ from semcityloc.benchmark.results import (
     missing_details_phrase,
     read_results,
     save_details,
+    skipped_miss_result,
     skipped_result,
     summarize_rows,
     unreadable_result,
@@ -158,10 +160,12 @@ class _Worker:
 
 def _refused_by_source(meta: dict) -> LocalizationResult | None:
     """The result of a query its source could not hand to a method, or None: one whose input files it
-    could not read is a miss (``results.unreadable_result``), one it did not accept is skipped
-    (``results.skipped_result``)."""
+    could not read is a miss (``results.unreadable_result``), as is a photo of the truth its run skipped
+    (``results.skipped_miss_result``); one it did not accept is skipped (``results.skipped_result``)."""
     if UNREADABLE_INPUT in meta:
         return unreadable_result(str(meta[UNREADABLE_INPUT]), unfit=bool(meta.get(UNFIT_INPUT)))
+    if SKIPPED_MISS in meta:
+        return skipped_miss_result(str(meta[SKIPPED_MISS]))
     if not meta.get("accepted", True):
         return skipped_result(meta.get(SKIP_REASON, REASON_SKIPPED))
     return None

@@ -201,8 +201,11 @@ def run(args: argparse.Namespace) -> int:
         if row["status"] not in (LOCALIZED, SKIPPED):
             name = config["query_names"][int(row["index"])]
             refused.setdefault(row["reason"] or row["status"], []).append(name)
+    # photos of the truth skipped before the run: misses, among the not localized (``results``)
+    misses = s.get("skipped_counted_as_misses", 0)
     print(
-        f"{counted(s['photos'], 'photo')}: {s['localized']} localized, {s['not_localized']} not localized, "
+        f"{counted(s['photos'], 'photo')}: {s['localized']} localized, {s['not_localized']} not localized"
+        f"{f' ({misses} of them skipped, counted as misses)' if misses else ''}, "
         f"{len(skipped)} skipped (perception: {s['perception']})"
     )
     for reason, names in refused.items():
