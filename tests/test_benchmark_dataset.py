@@ -16,7 +16,7 @@ from semcityloc.benchmark.dataset_source import (
     oracle_labels,
     working_camera,
 )
-from semcityloc.benchmark.results import REASON_UNFIT, REASON_UNREADABLE, read_results
+from semcityloc.benchmark.results import REASON_UNFIT, REASON_UNREADABLE, read_results, write_rows
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.runfiles import ESTIMATES_DIR
 from semcityloc.cli.main import main
@@ -462,3 +462,41 @@ def test_dataset_colmap_leaves_names_with_spaces_out_of_text_and_says_so(tmp_pat
         err = capsys.readouterr().err
         assert {image.name for image in read_model(tmp_path / form).images.values()} == kept
         assert ("1 image left out of images.txt" in err and "DJI 0001.JPG" in err) == (form == "text")
+
+
+def test_a_mask_or_depth_changed_after_its_query_finished_is_refused_naming_it(dataset_dir, tmp_path, capsys):
+    """Stop 52's note: a data-set benchmark kept no fingerprints of its masks, so a mask fixed (or a missing
+    one added) after its query finished left the old row in the recall, exit 0, without a word (a photo run
+    refuses it). Each row now keeps the size and SHA-256 of its mask and depth files (``meta_json``
+    ``input_fingerprints``); a changed one is refused naming the query and the file, with the one-row
+    remedy; rows of an earlier version are kept and said to be unchecked."""
+    masks, depth = mask_and_depth_files(dataset_dir, tmp_path)
+    (masks / "DJI_0002_W.png").rename(tmp_path / "held_back.png")
+    out = tmp_path / "run"
+    argv = ["benchmark", "--dataset", str(dataset_dir), "--perception", "masks", "--masks", str(masks)]
+    argv += ["--depth", str(depth), "--preset", "fast", "--out", str(out)]
+    assert main(argv) == 0, capsys.readouterr().err
+    rows = read_results(out / "results.csv")
+    kept = json.loads(rows[0]["meta_json"])["input_fingerprints"]
+    assert kept["mask"]["file"] == "DJI_0001_W.png" and kept["depth"]["file"] == "DJI_0001_W.npy"
+    assert json.loads(rows[1]["meta_json"])["input_fingerprints"]["mask"] is None  # the missing mask
+    assert main(argv) == 0, capsys.readouterr().err  # nothing changed: summarised again
+    labels = read_mask_file(masks / "DJI_0001_W.png")
+    labels[:30, :30] = 255
+    save_labels_png(labels, masks / "DJI_0001_W.png")
+    (tmp_path / "held_back.png").rename(masks / "DJI_0002_W.png")
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "2 finished queries no longer match their rows" in err, err
+    assert "DJI_0001_W.JPG: its mask DJI_0001_W.png changed (" in err
+    assert "DJI_0002_W.JPG: its mask DJI_0002_W.png reads now" in err
+    assert f"delete their rows from {out / 'results.csv'} and run again" in err and "every query" in err
+    for row in rows:  # a run folder of an earlier version: kept, said to be unchecked
+        meta = json.loads(row["meta_json"])
+        meta.pop("input_fingerprints")
+        row["meta_json"] = json.dumps(meta, sort_keys=True)
+    write_rows(out / "results.csv", rows)
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "2 finished queries were run by an earlier version that kept no fingerprints" in err, err

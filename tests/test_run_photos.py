@@ -552,7 +552,8 @@ def test_run_given_a_photo_instead_of_its_folder_says_it_is_a_file(tmp_path, cap
     )
     assert code == 2 and err.count("\n") == 1 and "no such" not in err
     assert (
-        f"{photo}: is a file, not a folder of photos" in err and "semcityloc localize takes one image" in err
+        f"{photo}: is a file, not a folder of photos" in err
+        and "semcityloc localize takes one image" in err
     )
     assert not (tmp_path / "o").exists()
     with pytest.raises(InputFileError, match="is a file, not a folder of photos"):
@@ -1722,3 +1723,48 @@ def test_a_photo_of_the_truth_skipped_for_its_prior_is_a_miss_in_the_recall(box_
     assert code == 0, err
     skipped = json.loads((tmp_path / "no_truth" / "summary.json").read_text())["skipped_photos"]
     assert skipped["P1.JPG"].startswith("no prior pose for P1.JPG in ")
+
+
+def test_an_intrinsics_file_or_a_backends_mask_changed_after_it_finished_is_told_not_kept(
+    box_flight, tmp_path, capsys
+):
+    """Stop 52's note: a photo run fingerprinted the photo, mask and depth files, but not the intrinsics file
+    (``--intrinsics``) nor the masks a ``files`` backend reads (``--seg-backend files``): either corrected
+    after its photo finished left the old row and pose, exit 0, without a word. Both are now in each row's
+    fingerprints and a changed one is refused naming the photo and the file; rows of an earlier version
+    without them are kept and said to be unchecked for them."""
+    root, out = box_flight["root"], tmp_path / "out"
+    argv = [str(a) for a in box_flight["argv"]]
+    at = argv.index("--masks")
+    argv[at : at + 2] = ["--seg-backend", "files", "--backend-option", f"masks={root / 'masks'}"]
+    argv += ["--out", str(out), "--no-overlays"]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    kept = json.loads(_rows_by_name(out)["P1.JPG"]["meta_json"])["input_fingerprints"]
+    assert kept["intrinsics"]["file"] == "P1_intrinsic.txt" and kept["mask"]["file"] == "P1.png"
+    code, _, err = run(capsys, *argv)  # nothing changed
+    assert code == 0, err
+    calibration = root / "intrinsic" / "P0_intrinsic.txt"
+    _edit_keeping_times(calibration, lambda p: p.write_text(p.read_text() + "\n"))
+
+    def fix_mask(path: Path) -> None:
+        labels = load_labels_png(path)
+        labels[:40, :40] = IGNORE
+        save_labels_png(labels, path)
+
+    _edit_keeping_times(root / "masks" / "P1.png", fix_mask)
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and "2 finished photos no longer match their rows" in err, err
+    assert "P0.JPG: its intrinsics P0_intrinsic.txt changed (" in err
+    assert "P1.JPG: its mask P1.png changed (" in err
+    rows = read_results(out / "results.csv")  # as an earlier version wrote them: no such fingerprints
+    for row in rows:
+        meta = json.loads(row["meta_json"])
+        for kind in ("intrinsics", "mask"):
+            meta["input_fingerprints"].pop(kind, None)
+        row["meta_json"] = json.dumps(meta, sort_keys=True)
+    write_rows(out / "results.csv", rows)
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    assert "3 finished photos were run by an earlier version that kept no fingerprints" in err
+    assert "intrinsics file and a files backend's mask and depth (before stop 53)" in err

@@ -49,11 +49,14 @@ from semcityloc import __version__
 from semcityloc.benchmark.methods import searched_map
 from semcityloc.benchmark.perception_sim import get_preset, simulate_segmentation
 from semcityloc.benchmark.perception_sim import miou as seg_miou
+from semcityloc.benchmark.photo_exports import changed_files, redo_remedy, unfingerprinted
+from semcityloc.benchmark.photo_inputs import INPUT_FINGERPRINTS
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
 from semcityloc.benchmark.results import UNFIT_INPUT, UNREADABLE_INPUT
 from semcityloc.benchmark.runfiles import (
     ESTIMATES_COLMAP_DIR,
     ESTIMATES_DIR,
+    RESULTS_FILE,
     plain,
     writing,
 )
@@ -77,7 +80,7 @@ from semcityloc.geometry.pose_files import read_pose
 from semcityloc.geometry.pose_json import write_pose_json
 from semcityloc.io.files import removed_on_error
 from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, scaled_size
-from semcityloc.io.stamps import file_sha256
+from semcityloc.io.stamps import file_fingerprint, file_sha256
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
 from semcityloc.localization.methods import Method
@@ -153,6 +156,22 @@ def input_files(spec: DatasetSpec, q: LodLocQuery) -> tuple[Path, Path | None]:
     mask = _find(Path(str(spec.masks)), q.stem, mask_suffixes(spec.allow_lossy_mask))
     depth = _find(Path(spec.depth), q.stem, DEPTH_SUFFIXES) if spec.depth else None
     return mask, depth
+
+
+def input_fingerprints(spec: DatasetSpec, q: LodLocQuery) -> dict[str, dict | None]:
+    """``{"mask": fingerprint, "depth": ...}`` of query ``q``'s files in a ``masks`` run (``depth`` when the
+    run has one; ``io.stamps.file_fingerprint``, None where there is no file that reads): what its row is
+    made from, kept in its ``meta_json`` and compared when the run finishes (``DatasetSpec.finish``)."""
+    folders = {
+        "mask": (spec.masks, mask_suffixes(spec.allow_lossy_mask)),
+        "depth": (spec.depth, DEPTH_SUFFIXES),
+    }
+    prints = {}
+    for kind, (folder, suffixes) in folders.items():
+        if folder:
+            path = first_file(Path(folder), q.stem, suffixes) or Path(folder) / f"{q.stem}{suffixes[0]}"
+            prints[kind] = file_fingerprint(path)
+    return prints
 
 
 def check_some_inputs(spec: DatasetSpec, queries: list[LodLocQuery]) -> None:
@@ -297,12 +316,45 @@ class DatasetSpec:
         return DatasetSource(self, dataset, dataset.load_model())
 
     def finish(self, out_dir: Path, rows: list[dict[str, str]], summary: dict) -> None:
-        """Perception fields in the summary; the estimates as a COLMAP text model."""
+        """Perception fields in the summary; the estimates as a COLMAP text model, once the finished rows of
+        a ``masks`` run are checked against its mask and depth files as they are now (``input_fingerprints``:
+        a file changed since its query finished is refused naming the query and the file, as a photo run
+        does, ``photo_exports.changed_files``; rows of an earlier version, without fingerprints, are said)."""
         summary["perception"] = self.perception
         summary["perception_label"] = perception_label(self.perception, self.seg_quality)
         summary["labels_source"] = summary["config"]["labels_source"]
         queries, _ = evaluable(self.load_dataset())
+        if self.perception == PERCEPTION_MASKS:
+            self._check_files(out_dir, rows, queries, summary)
         write_estimates_colmap(queries, out_dir, out_dir / ESTIMATES_COLMAP_DIR)
+
+    def _check_files(
+        self, out_dir: Path, rows: list[dict[str, str]], queries: list[LodLocQuery], summary: dict
+    ) -> None:
+        """Refuse finished rows whose mask or depth file changed since (``finish``); a note in the summary
+        (``notes``) for rows that kept no fingerprints (written before stop 53)."""
+        changed = {}
+        for row in rows:
+            index = int(row["index"])
+            if index < len(queries):
+                why = changed_files(row, input_fingerprints(self, queries[index]))
+                if why:
+                    changed[queries[index].name] = why
+        if changed:
+            one = len(changed) == 1
+            raise InputFileError(
+                f"{counted(len(changed), 'finished query', 'finished queries')} no longer "
+                f"{'matches its row' if one else 'match their rows'} "
+                f"({shown_names([f'{n}: {why}' for n, why in changed.items()])}): the files changed since; "
+                + redo_remedy(len(changed), out_dir / RESULTS_FILE, "query")
+            )
+        if old := unfingerprinted(rows):
+            summary.setdefault("notes", []).append(
+                f"{counted(old, 'finished query', 'finished queries')} {'was' if old == 1 else 'were'} run "
+                "by an earlier version that kept no fingerprints of their mask and depth files (before stop "
+                f"53), so a file changed since is not noticed for {'it' if old == 1 else 'them'}: "
+                + redo_remedy(old, out_dir / RESULTS_FILE, "query")
+            )
 
 
 def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Path) -> Path:
@@ -364,6 +416,8 @@ class DatasetSource:
         miou = float("nan")
         if spec.perception == PERCEPTION_MASKS:
             camera = q.camera
+            # What the row is made from, fingerprinted before it is read (as a photo run's: ``finish``).
+            meta[INPUT_FINGERPRINTS] = input_fingerprints(spec, q)
             try:
                 mask, depth_file = input_files(spec, q)
                 labels, depth = read_inputs(camera, mask, depth_file, spec.allow_lossy_mask)

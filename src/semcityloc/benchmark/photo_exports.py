@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -111,12 +112,13 @@ def read_record(path: Path, name: str) -> tuple[dict, Pose | None] | str:
         return f"localized without a pose that reads ({exc})"
 
 
-def redo_remedy(count: int, results: Path) -> str:
-    """How to redo ``count`` finished photos whose rows no longer stand: delete the rows and run again."""
+def redo_remedy(count: int, results: Path, what: str = "photo") -> str:
+    """How to redo ``count`` finished photos (or data-set queries: ``what``) whose rows no longer stand:
+    delete the rows and run again."""
     one = count == 1
     return (
         f"delete {'its row' if one else 'their rows'} from {results} and run again to redo "
-        f"{'it' if one else 'them'} (or --overwrite, which redoes every photo)"
+        f"{'it' if one else 'them'} (or --overwrite, which redoes every {what})"
     )
 
 
@@ -436,7 +438,7 @@ def changed_inputs(rows: list[dict[str, str]], inputs: list, model: CityModel) -
             continue
         inp = inputs[index]
         why = _moved_pose(row, inp, model) if row.get("status") != SKIPPED else None
-        why = why or changed_files(row, inp)
+        why = why or changed_files(row, inp.fingerprints(), inp.later_kinds())
         if why:
             changed[inp.name] = why
     return changed
@@ -481,18 +483,23 @@ def _content(fingerprint: object) -> tuple | None:
     return (fingerprint.get("bytes"), fingerprint.get("sha256")) if isinstance(fingerprint, dict) else None
 
 
-def changed_files(row: dict[str, str], inp) -> str | None:
-    """How the photo's own files (photo, mask, depth: ``PhotoInput.fingerprints``, size and SHA-256 of the
-    bytes) differ from those its row was made from; None when they are the same, or when the row kept no
-    fingerprints (``row_fingerprints``). By content, not by modification time: a file copied or checked out
-    with the same bytes is the same, one restored with ``cp -p`` or ``git checkout`` with other bytes is
-    not."""
+# The kinds of files a row is made from, in the order a change is told (``changed_files``).
+FINGERPRINT_KINDS = ("photo", "mask", "depth", "intrinsics")
+
+
+def changed_files(row: dict[str, str], now: dict[str, dict | None], later: Iterable[str] = ()) -> str | None:
+    """How the files a row was made from (``FINGERPRINT_KINDS``; a photo's ``PhotoInput.fingerprints``, a
+    data set's mask and depth: size and SHA-256 of the bytes) differ from them as they are now (``now``);
+    None when they are the same, or when the row kept no fingerprints (``row_fingerprints``). ``later``: the
+    kinds fingerprinted since stop 53 (an intrinsics file, a backend's mask and depth), which a row of an
+    earlier version lacks: not compared for it. By content, not by modification time: a file copied or
+    checked out with the same bytes is the same, one restored with ``cp -p`` or ``git checkout`` with other
+    bytes is not."""
     then = row_fingerprints(row)
     if then is None:
         return None
-    now = inp.fingerprints()
-    for kind in ("photo", "mask", "depth"):
-        if kind not in then and kind not in now:
+    for kind in FINGERPRINT_KINDS:
+        if (kind not in then and kind not in now) or (kind not in then and kind in later):
             continue
         name = _file_name(now.get(kind), then.get(kind))
         if kind not in then or kind not in now:
@@ -507,10 +514,17 @@ def changed_files(row: dict[str, str], inp) -> str | None:
     return None
 
 
-def unfingerprinted(rows: list[dict[str, str]]) -> int:
+def unfingerprinted(rows: list[dict[str, str]], inputs: list | None = None) -> int:
     """How many of ``rows`` kept no fingerprints of their files (``row_fingerprints``: written before
-    stop 52): a file changed since is not noticed for them."""
-    return sum(row_fingerprints(row) is None for row in rows)
+    stop 52), or none of a kind their photo has now that was fingerprinted later (``inputs``:
+    ``PhotoInput`` by row index, ``PhotoInput.later_kinds``: before stop 53): a file changed since is not
+    noticed for them."""
+    count = 0
+    for row in rows:
+        then, index = row_fingerprints(row), int(row["index"])
+        later = inputs[index].later_kinds() if inputs is not None and index < len(inputs) else set()
+        count += then is None or not later <= set(then)
+    return count
 
 
 def camera_features(

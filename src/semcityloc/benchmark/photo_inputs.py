@@ -90,7 +90,7 @@ from semcityloc.io.images import (
 )
 from semcityloc.io.stamps import file_fingerprint, paths_stamp
 from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M, MapLayout
-from semcityloc.perception.files import DEPTH_SUFFIXES, find_file, find_mask
+from semcityloc.perception.files import DEPTH_SUFFIXES, find_file, find_mask, mask_suffixes, named_file
 
 if TYPE_CHECKING:
     # for annotations only: ``photo_spec`` imports this module, so importing it back would be a cycle
@@ -125,6 +125,9 @@ class PhotoInput:
     # the map, a lossy mask without ``allow_lossy_mask``): its query is a miss keeping that reason
     # (``results.skipped_miss_result``); None: it runs.
     skipped: str | None = None
+    # The other files the photo's row is made from, fingerprinted since stop 53 (``fingerprints``): its
+    # intrinsics file, a ``files`` backend's mask and depth; a path that is no file: fingerprint None.
+    later_files: tuple[tuple[str, Path], ...] = ()
 
     @property
     def runs(self) -> bool:
@@ -136,12 +139,19 @@ class PhotoInput:
         return self.path.stem
 
     def fingerprints(self) -> dict[str, dict | None]:
-        """``{"photo": fingerprint, "mask": ..., "depth": ...}`` of the photo's own files (those it has;
-        ``io.stamps.file_fingerprint``: name, size and SHA-256, None for one that is no file that reads):
-        what its row was made from, kept in the row (``meta_json``) and compared when the run finishes
+        """``{"photo": fingerprint, "mask": ..., "depth": ..., "intrinsics": ...}`` of the files the photo's
+        row is made from: its own (those it has) and ``later_files`` (always, None where there is no file)
+        (``io.stamps.file_fingerprint``: name, size and SHA-256, None for one that is no file that reads):
+        kept in the row (``meta_json``) and compared when the run finishes
         (``photo_exports.changed_inputs``)."""
         files = {"photo": self.path, "mask": self.mask, "depth": self.depth}
-        return {kind: file_fingerprint(path) for kind, path in files.items() if path is not None}
+        own = {kind: file_fingerprint(path) for kind, path in files.items() if path is not None}
+        return {**own, **{kind: file_fingerprint(path) for kind, path in self.later_files}}
+
+    def later_kinds(self) -> set[str]:
+        """The kinds of ``later_files``: a row of an earlier version (stop 52) holds none of them, and is not
+        compared for them (``photo_exports.changed_files``)."""
+        return {kind for kind, _ in self.later_files}
 
     def pinhole(self, image: np.ndarray, fill: float, nearest: bool) -> np.ndarray:
         """An array in the photo's geometry (the photo, a mask, a depth map; any resolution) resampled
@@ -230,6 +240,7 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
                 orientation=orientation,
             )
         )
+    inputs = [replace(inp, later_files=_later_files(spec, intrinsics, inp.path)) for inp in inputs]
     placed = [inp for inp in inputs if inp.prior is not None]
     if store is not None and placed:
         model = flight_area(store, model, placed)
@@ -263,6 +274,35 @@ def _on_the_map(
         else:
             skipped[inp.name] = f"{far} (its prior: {inp.prior.source})"
     return kept
+
+
+def _later_files(spec: PhotoSpec, intrinsics: IntrinsicsFiles, photo: Path) -> tuple[tuple[str, Path], ...]:
+    """``PhotoInput.later_files`` of ``photo``: its intrinsics file (``IntrinsicsFiles.file_of``; none for
+    ``exif``) and the mask and depth a ``files`` backend reads for it (``backend_options`` ``masks=`` /
+    ``depth=``, a folder or one file; named as expected when missing)."""
+    files = []
+    if (calibration := intrinsics.file_of(photo)) is not None:
+        files.append(("intrinsics", calibration))
+    options = dict(spec.backend_options)
+    backends = (
+        ("mask", spec.seg_backend, "masks", mask_suffixes(spec.allow_lossy_mask)),
+        ("depth", spec.depth_backend, "depth", DEPTH_SUFFIXES),
+    )
+    for kind, backend, option, suffixes in backends:
+        if backend == "files" and options.get(option):
+            where = Path(options[option])
+            found = where if not where.is_dir() else _named_or_none(where, photo, suffixes, kind)
+            files.append((kind, found or where / f"{photo.stem}{suffixes[0]}"))
+    return tuple(files)
+
+
+def _named_or_none(where: Path, photo: Path, suffixes: tuple[str, ...], kind: str) -> Path | None:
+    """``perception.files.named_file`` of ``photo`` in ``where``; None when there is none or two (the
+    backend says which at the photo's turn)."""
+    try:
+        return named_file(where, photo.name, suffixes, kind)
+    except InputFileError:
+        return None
 
 
 RECURSIVE_REMEDY = f"pass {parameter('recursive')} to read them"

@@ -248,10 +248,11 @@ class PhotoSpec:
         summary["outputs"] = write_exports(
             out_dir, model, placed, offset, self.target_height, self.geoid_separation_m
         )
-        if old := unfingerprinted(rows):  # rows of an earlier version: said, not refused
+        if old := unfingerprinted(rows, inputs):  # rows of an earlier version: said, not refused
             summary["outputs"]["notes"].append(
                 f"{counted(old, 'finished photo')} {'was' if old == 1 else 'were'} run by an earlier "
-                "version that kept no fingerprints of their photo, mask and depth files, so a file changed "
-                f"since is not noticed for {'it' if old == 1 else 'them'} (a changed prior or truth is): "
-                + redo_remedy(old, out_dir / RESULTS_FILE)
+                "version that kept no fingerprints of their photo, mask and depth files (before stop 52) or "
+                "of their intrinsics file and a files backend's mask and depth (before stop 53), so such a "
+                f"file changed since is not noticed for {'it' if old == 1 else 'them'} (a changed prior or "
+                "truth is): " + redo_remedy(old, out_dir / RESULTS_FILE)
             )

@@ -376,5 +376,7 @@ def run_dataset_benchmark(args: argparse.Namespace) -> int:
         return 0
     label = f"{args.method} [{outcome.summary['perception_label']}]"
     print(summary_markdown([outcome.summary], [label]))
+    for note in outcome.summary.get("notes", []):  # rows of an earlier version (``DatasetSpec.finish``)
+        print(f"semcityloc: note: {note}", file=sys.stderr)
     print(f"wrote {out / 'results.csv'} and {out / 'summary.json'}")
     return 0

@@ -322,6 +322,17 @@ class IntrinsicsFiles:
             "beside images.txt / images.bin, or an intrinsic/ folder beside the pose folder)"
         )
 
+    def file_of(self, image: Path) -> Path | None:
+        """The file the camera of ``image`` is read from: a folder's ``<stem>_intrinsic.txt`` (named as
+        expected when it is missing), else the one file or COLMAP cameras file; None for ``exif`` (the
+        photo's own metadata). What a photo run fingerprints (``benchmark.photo_inputs``)."""
+        if self.exif:
+            return None
+        if self.folder is not None:
+            found = per_stem_file(self.folder, image.stem, "intrinsic")
+            return found or self.folder / f"{image.stem}_intrinsic.txt"
+        return self.path
+
     def photo_camera(
         self, image: Path, width: int, height: int, meta: DjiMetadata | None = None
     ) -> PhotoCamera:
