@@ -9,17 +9,21 @@ what the command prints and a run folder keeps turns it into the flag (``errors.
 
 from __future__ import annotations
 
+import ast
 import json
 import re
+import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+import semcityloc
 from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
 from semcityloc.benchmark.runfiles import RUN_FILE, prepare_output
 from semcityloc.citymodel.io import load_city_model
-from semcityloc.citymodel.tiles import TILES_DIR, TileStore
+from semcityloc.citymodel.tiles import TILES_DIR, TileStore, build_store
 from semcityloc.cli.main import main
 from semcityloc.datasets.dji import dji_prior, read_dji_metadata
 from semcityloc.datasets.photos import EXIF, PriorFiles
@@ -31,6 +35,9 @@ from semcityloc.localization.config import CascadeConfig
 from semcityloc.localization.search_reach import edge_warning
 
 FLAG = re.compile(r"(?<![\w-])--[a-z]")  # a command-line flag
+# A command of the command line named in a message: ``semcityloc tiles build``, ``'semcityloc warmup'``.
+COMMANDS = "tiles|warmup|run|localize|label|train-segmenter|benchmark|render|city|dataset|report|sweep|demo"
+COMMAND = re.compile(rf"\bsemcityloc (?:{COMMANDS})(?![\w-])")
 X0, Y0 = 391000.0, 5819000.0  # metres of EPSG:25833 (Berlin)
 
 
@@ -103,7 +110,7 @@ def test_each_parameter_is_one_flag_and_other_text_is_left_alone():
         valued = as_flags(f"do this ({parameter(name, 'X1')}).")
         assert valued == f"do this ({entry.flag.replace('{}', 'X1')}).", name
         bare = as_flags(f"do this ({parameter(name)}).")
-        assert parameter(name) not in bare and FLAG.search(bare), (name, bare)
+        assert parameter(name) not in bare and (FLAG.search(bare) or COMMAND.search(bare)), (name, bare)
         assert as_flags(valued) == valued and as_flags(bare) == bare
     for text in (
         "target_crs given but the file names no CRS",
@@ -149,3 +156,63 @@ def test_a_resume_is_not_refused_for_a_skipped_photos_reworded_reason(tmp_path):
     assert json.loads((tmp_path / RUN_FILE).read_text())["skipped_photos"] == new["skipped_photos"]
     with pytest.raises(ResumeMismatchError, match="the photos to run differ"):
         prepare_output(tmp_path, {**old, "skipped_photos": {"d.jpg": "no mask"}})
+
+
+SRC = Path(semcityloc.__file__).resolve().parent  # the package imported, wherever it is
+
+
+def _message_texts(path: Path) -> list[tuple[int, str]]:
+    """The string constants of a module, f-strings' pieces among them, but not its docstrings."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    docs = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+                docs.add(id(body[0].value))
+    return [
+        (node.lineno, node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs
+    ]
+
+
+def test_library_messages_name_a_command_only_through_parameters():
+    """Stop 52's note: messages of the library named command-line commands (``semcityloc tiles build``,
+    ``'semcityloc warmup'``, ``'semcityloc run' / 'semcityloc localize'``, ``semcityloc localize takes one
+    image``, ``'semcityloc label'``), which a Python caller does not run. Each now goes through
+    ``errors.PARAMETERS`` (the Python function, or the command where the command line prints it): no
+    string of the library outside ``cli/`` and that table names a command."""
+    found = []
+    for path in sorted(SRC.rglob("*.py")):
+        if "cli" in path.relative_to(SRC).parts or path.name == "errors.py":
+            continue
+        found += [f"{path.relative_to(SRC)}:{line}: {text}" for line, text in _message_texts(path)
+                  if COMMAND.search(text)]  # fmt: skip
+    assert not found, "\n".join(found)
+
+
+def test_a_folder_of_tiles_or_a_zipped_tile_names_build_store_or_tiles_build(tmp_path, capsys):
+    """The refusal of a folder of tiles given as a city model names ``build_store(TILES, STORE)`` to a Python
+    caller and ``semcityloc tiles build TILES --out STORE`` on the command line; ``store.json`` speaks the
+    command line's words (``skipped_tiles``: a zipped tile left out), as a run folder does, while the build's
+    report keeps the Python ones."""
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    _citygml(tiles / "a.gml")
+    said = _said(lambda: load_city_model(tiles, cache=False))
+    assert "build_store(TILES, STORE) makes a store of them" in said and not COMMAND.search(said)
+    assert main(["city", "info", str(tiles), "--no-cache"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        "'semcityloc tiles build TILES --out STORE' makes a store of them" in err and "build_store" not in err
+    )
+    with zipfile.ZipFile(tiles / "b.gml", "w") as z:
+        z.write(_citygml(tmp_path / "x.gml"), "x.gml")
+    report = build_store(tiles, tmp_path / "store")
+    assert "their folder to build_store(TILES, STORE)" in report.skipped["b.gml"]
+    kept = json.loads((tmp_path / "store" / "store.json").read_text())["skipped_tiles"]["b.gml"]
+    assert "their folder to 'semcityloc tiles build TILES --out STORE'" in kept and "build_store" not in kept
+    assert main(["tiles", "build", str(tiles), "--out", str(tmp_path / "store2")]) == 0
+    kept = json.loads((tmp_path / "store2" / "store.json").read_text())["skipped_tiles"]["b.gml"]
+    assert "'semcityloc tiles build TILES --out STORE'" in kept

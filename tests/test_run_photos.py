@@ -553,7 +553,7 @@ def test_run_given_a_photo_instead_of_its_folder_says_it_is_a_file(tmp_path, cap
     assert code == 2 and err.count("\n") == 1 and "no such" not in err
     assert (
         f"{photo}: is a file, not a folder of photos" in err
-        and "semcityloc localize takes one image" in err
+        and "('semcityloc localize --image' takes one image)" in err
     )
     assert not (tmp_path / "o").exists()
     with pytest.raises(InputFileError, match="is a file, not a folder of photos"):

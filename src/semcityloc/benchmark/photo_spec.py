@@ -45,7 +45,15 @@ from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_ci
 from semcityloc.datasets.dji import HEIGHT_AUTO, HEIGHT_ELLIPSOIDAL, TARGET_HEIGHTS
 from semcityloc.datasets.geodesy import check_geoid_separation
 from semcityloc.datasets.photos import EXIF
-from semcityloc.errors import BenchmarkError, InputFileError, as_flags, counted, shown_names, unknown_choice
+from semcityloc.errors import (
+    BenchmarkError,
+    InputFileError,
+    as_flags,
+    counted,
+    parameter,
+    shown_names,
+    unknown_choice,
+)
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import ABLATIONS
@@ -54,10 +62,10 @@ from semcityloc.perception.registry import backend_entry
 RUN_FORMAT = 1
 CALIBRATE_FOCAL = ("auto", "on", "off")  # ``PhotoSpec.calibrate_focal``
 NO_PERCEPTION = (
-    "no perception source: give --masks DIR (label PNGs by photo stem), or --seg-backend dinov3-dpt "
-    "--backend-option backbone=DINOV3_DIR --backend-option head=HEAD_DIR (the paper's perception: DINOv3 "
-    "ViT + a DPT head trained on your posed photos with 'semcityloc label' + 'semcityloc train-segmenter'; "
-    "depth: --depth-backend moge2 --backend-option model=MOGE2_MODEL_PT); see docs/your-data.md"
+    f"no perception source: give {parameter('masks', 'DIR')} (label PNGs by photo stem), or "
+    f"{parameter('dinov3')} (the paper's perception: DINOv3 ViT + a DPT head trained on your posed photos "
+    f"with {parameter('label')} + {parameter('train_segmenter')}; depth: {parameter('moge2')}); see "
+    "docs/your-data.md"
 )
 
 
@@ -102,9 +110,13 @@ class PhotoSpec:
         if not (self.masks or self.seg_backend):
             raise InputFileError(NO_PERCEPTION)
         if self.masks and self.seg_backend:
-            raise InputFileError("give --masks DIR or --seg-backend NAME, not both")
+            raise InputFileError(
+                f"give {parameter('masks', 'DIR')} or {parameter('seg_backend', 'NAME')}, not both"
+            )
         if self.depth and self.depth_backend:
-            raise InputFileError("give --depth DIR or --depth-backend NAME, not both")
+            raise InputFileError(
+                f"give {parameter('depth', 'DIR')} or {parameter('depth_backend', 'NAME')}, not both"
+            )
         for kind, name in (("segmentation", self.seg_backend), ("depth", self.depth_backend)):
             if name:
                 backend_entry(kind, name)

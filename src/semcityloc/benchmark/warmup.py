@@ -39,6 +39,7 @@ from numba.core.registry import CPUDispatcher
 from semcityloc.benchmark.methods import get_method
 from semcityloc.benchmark.queries import BenchmarkQuery
 from semcityloc.citymodel.io import load_city_model
+from semcityloc.errors import parameter
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
@@ -54,7 +55,7 @@ BAKED_IN_MODULES = ("semcityloc.classes",)
 STAMP_NAME = "semcityloc-kernels.stamp"
 COMPILE_NOTICE = (
     "compiling the numba kernels this command needs: about a minute, once per install for each kind of "
-    "command ('semcityloc warmup' compiles all of them ahead of time)"
+    f"command ({parameter('warmup')} compiles all of them ahead of time)"
 )
 # Methods run by the warm-up: each reaches kernels (or signatures) the others do not.
 WARMUP_METHODS = ("semcityloc", "no-depth", "lodloc-wireframe")

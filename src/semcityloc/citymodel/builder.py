@@ -20,7 +20,7 @@ import pyproj
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import NONPLANAR_TOLERANCE_M, triangulate_polygon
 from semcityloc.classes import SemanticClass
-from semcityloc.errors import EmptyModelError, InputFileError, ParameterError
+from semcityloc.errors import EmptyModelError, InputFileError, ParameterError, parameter
 
 # Builder-internal sentinel "the source gave no class": ``build()`` replaces every such triangle with a class
 # from its normal (``classify_by_normals``), so it never reaches a CityModel. Not ``classes.IGNORE`` (a
@@ -247,7 +247,7 @@ def check_local_extent(
         f"building {name!r} lies {far[worst] / 1000:,.1f} km from the middle of the others. Local float32 "
         f"coordinates would lose centimetres to metres of precision beyond {MAX_LOCAL_EXTENT_M / 1000:g} km "
         "from the origin: fix or remove that building's coordinates, or split the model into tiles "
-        "(`semcityloc tiles build`)"
+        f"({parameter('store_build')})"
     )
 
 

@@ -63,7 +63,7 @@ def zip_message(path: Path) -> str:
     shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
     return (
         f"{path}: a ZIP archive, not a city model file; it holds {shown}: extract it and pass one of them "
-        "(several tiles of a city: their folder to `semcityloc tiles build`)"
+        f"(several tiles of a city: their folder to {parameter('store_build')})"
     )
 
 
@@ -122,8 +122,8 @@ def load_city_model(
     path = Path(path)
     if path.is_dir():
         raise InputFileError(
-            f"{path}: a folder, not a city model file (a folder of tiles: `semcityloc tiles build` makes a "
-            "store of them)"
+            f"{path}: a folder, not a city model file (a folder of tiles: {parameter('store_build')} makes "
+            "a store of them)"
         )
     if not path.is_file():
         raise InputFileError(f"{path}: no such file")

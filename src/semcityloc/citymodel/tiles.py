@@ -41,7 +41,7 @@ from semcityloc.citymodel.ground import base_points, store_ring
 from semcityloc.citymodel.io import MODEL_SUFFIXES, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
 from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
-from semcityloc.errors import CRSError, EmptyModelError, InputFileError, OutputPathError, parameter
+from semcityloc.errors import CRSError, EmptyModelError, InputFileError, OutputPathError, as_flags, parameter
 from semcityloc.io.stamps import file_sha256
 
 STORE_FORMAT = 1
@@ -215,7 +215,9 @@ def build_store(
         "crs_override": crs,
         "source_folder": str(folder.resolve()),
         "tiles": [asdict(t) for t in infos],
-        "skipped_tiles": skipped,
+        # in the command line's words, as a run folder's files (``benchmark.results``): what a user of
+        # ``semcityloc tiles build`` reads in the store; the report (``BuildReport.skipped``) keeps Python's
+        "skipped_tiles": as_flags(skipped),
     }
     tmp = root / (INDEX_FILE + ".tmp")
     tmp.write_text(json.dumps(index, indent=1), encoding="utf-8")
@@ -371,7 +373,7 @@ class TileStore:
             )
         if not is_store(root):
             raise InputFileError(
-                f"{path}: not a tile store (no {INDEX_FILE}; make one with 'semcityloc tiles build')"
+                f"{path}: not a tile store (no {INDEX_FILE}; make one with {parameter('store_build')})"
             )
         try:
             index = json.loads((root / INDEX_FILE).read_text(encoding="utf-8"))

@@ -94,7 +94,7 @@ def check_images_folder(folder: str | os.PathLike) -> Path:
     if folder.exists():
         raise InputFileError(
             f"{folder}: is a file, not a folder of photos: give its folder "
-            "(semcityloc localize takes one image)"
+            f"({parameter('localize_one')} takes one image)"
         )
     raise InputFileError(f"{folder}: no such images folder")
 

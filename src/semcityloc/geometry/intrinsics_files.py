@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.errors import CameraError, IntrinsicsMismatchError, UnknownImageSizeError
+from semcityloc.errors import CameraError, IntrinsicsMismatchError, UnknownImageSizeError, parameter
 from semcityloc.geometry.camera import PRINCIPAL_POINT_TOLERANCE, Camera
 from semcityloc.geometry.colmap_text import CAMERA_MODELS, camera_values, is_number, numbers
 from semcityloc.geometry.distortion import COEFFICIENTS, LensDistortion
@@ -223,8 +223,9 @@ def read_intrinsics(
         terms = ", ".join(f"{k}={v:g}" for k, v in distortion.as_dict().items() if k != "model" and v)
         raise CameraError(
             f"{load_spec(spec, CameraError, 'intrinsics')[1]}: non-zero lens distortion "
-            f"({terms}); this command takes pinhole images: undistort them first (colmap image_undistorter), "
-            "or give them to 'semcityloc run' / 'semcityloc localize', which undistort photo, mask and depth"
+            f"({terms}); these images are taken as pinhole ones: undistort them first (colmap "
+            f"image_undistorter), or give them to {parameter('undistorting')}, which undistorts photo, mask "
+            "and depth"
         )
     return camera
 
