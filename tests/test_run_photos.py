@@ -1595,7 +1595,7 @@ def test_a_photo_whose_prior_lies_hundreds_of_km_away_is_skipped_not_the_runs_en
     assert code == 0 and "Traceback" not in err, err
     miss = _rows_by_name(tmp_path / "truth")["P0.JPG"]
     assert miss["status"] == "not_localized" and miss["reason"] == f"skipped, counted as a miss: {why}"
-    said = "4 photos: 1 localized, 2 not localized (1 of them skipped, counted as misses), 1 skipped"
+    said = "4 photos: 1 localized, 2 not localized (1 of them skipped, counted as a miss), 1 skipped"
     assert said in stdout
     assert not (tmp_path / "truth" / "overlays" / "P0.png").exists()
 
@@ -1711,11 +1711,11 @@ def test_a_photo_of_the_truth_skipped_for_its_prior_is_a_miss_in_the_recall(box_
     summary = json.loads((out / "summary.json").read_text())
     assert summary["with_ground_truth"] == 3 and summary["recall_2m2deg"] == pytest.approx(100 / 3)
     assert summary["skipped_counted_as_misses"] == 1 and set(summary["skipped_photos"]) == {"P9.JPG"}
-    said = "4 photos: 1 localized, 2 not localized (1 of them skipped, counted as misses), 1 skipped"
+    said = "4 photos: 1 localized, 2 not localized (1 of them skipped, counted as a miss), 1 skipped"
     assert said in stdout
     assert json.loads((out / "poses" / "P1.json").read_text())["reason"] == miss["reason"]
     report = make_report([out], tmp_path / "report", overlays=0)
-    assert any("1 skipped, counted as misses" in n and "P1.JPG (no prior pose" in n for n in report.notes)
+    assert any("1 skipped, counted as a miss" in n and "P1.JPG (no prior pose" in n for n in report.notes)
     (misses,) = list(csv.DictReader(report.tables["misses"][1].open(encoding="utf-8")))
     assert (misses["hit"], misses["skipped"], misses["unreadable-input"]) == ("1", "1", "1")
     no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]

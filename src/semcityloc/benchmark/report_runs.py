@@ -31,6 +31,7 @@ from semcityloc.benchmark.results import (
     REASON_SKIPPED_MISS,
     SKIPPED,
     cell_float,
+    counted_as,
     load_details,
     missing_details,
     missing_details_phrase,
@@ -341,8 +342,8 @@ def skipped_misses_note(run: RunData) -> str | None:
     ]
     more = f"; {len(rows) - 3} more" if len(rows) > 3 else ""
     return (
-        f"{run.path}: {len(rows)} skipped, counted as misses (photos with a true pose that could not run, in "
-        f"'not loc.' and the misses table's 'skipped'): {'; '.join(shown)}{more}"
+        f"{run.path}: {len(rows)} skipped, counted as {counted_as(len(rows))} (photos with a true pose "
+        f"that could not run, in 'not loc.' and the misses table's 'skipped'): {'; '.join(shown)}{more}"
     )
 
 

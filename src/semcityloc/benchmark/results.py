@@ -169,6 +169,12 @@ def skipped_miss_result(reason: str) -> LocalizationResult:
     return LocalizationResult(status=NOT_LOCALIZED, reason=f"{REASON_SKIPPED_MISS}: {reason}")
 
 
+def counted_as(n: int) -> str:
+    """``a miss`` or ``misses``: how ``n`` photos skipped with a true pose are counted, in the closing line
+    and the report's note."""
+    return "a miss" if n == 1 else "misses"
+
+
 def is_skipped_miss(reason: str | None) -> bool:
     """Whether a result's (or row's) reason is ``skipped_miss_result``'s."""
     return (reason or "").startswith(REASON_SKIPPED_MISS)

@@ -17,7 +17,7 @@ from pathlib import Path
 from semcityloc.benchmark.photo_inputs import unread_subfolder_photos
 from semcityloc.benchmark.photo_spec import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report_tables import summary_markdown
-from semcityloc.benchmark.results import SKIPPED
+from semcityloc.benchmark.results import SKIPPED, counted_as
 from semcityloc.cli.city import add_model_arguments, parse_lod, print_model_warnings
 from semcityloc.cli.dataset import parse_floats
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
@@ -205,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
     misses = s.get("skipped_counted_as_misses", 0)
     print(
         f"{counted(s['photos'], 'photo')}: {s['localized']} localized, {s['not_localized']} not localized"
-        f"{f' ({misses} of them skipped, counted as misses)' if misses else ''}, "
+        f"{f' ({misses} of them skipped, counted as {counted_as(misses)})' if misses else ''}, "
         f"{len(skipped)} skipped (perception: {s['perception']})"
     )
     for reason, names in refused.items():
