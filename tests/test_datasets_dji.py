@@ -17,6 +17,7 @@ from semcityloc.datasets.dji import (
     HEIGHT_AS_IS_NOTE,
     HEIGHT_BAROMETRIC,
     HEIGHT_ELLIPSOIDAL,
+    NO_HEADING_NOTE,
     RTK_FLOAT_FLOOR_M,
     dji_geotag,
     dji_prior,
@@ -26,10 +27,11 @@ from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_ex
 from semcityloc.datasets.dji_metadata import parse_xmp_fields, read_dji_metadata
 from semcityloc.datasets.geodesy import GEOID_UNDULATION_BOUND_M, grid_convergence_deg
 from semcityloc.datasets.lodloc import read_lodloc
+from semcityloc.datasets.photos import PhotoPrior
 from semcityloc.errors import CRSError, InputFileError, ParameterError, as_flags
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.errors import rotation_error_deg
-from semcityloc.geometry.uncertainty import RTK_FLOOR_M, PriorUncertainty
+from semcityloc.geometry.uncertainty import NO_HEADING_YAW_DEG, RTK_FLOOR_M, PriorUncertainty
 
 REAL_IMAGE = "real_uav_lodloc/Query_image/DJI_20230513163714_0033_T.JPG"
 
@@ -164,7 +166,7 @@ def test_bad_targets_and_images_are_typed_errors(tmp_path):
     no_gimbal = read_dji_metadata(
         dji_jpeg(tmp_path / "b.jpg", xmp_packet(GpsLatitude="48", GpsLongitude="11"))
     )
-    with pytest.raises(InputFileError, match="absolute_altitude_m, gimbal_yaw_deg"):
+    with pytest.raises(InputFileError, match="absolute_altitude_m, gimbal_pitch_deg"):
         dji_prior(no_gimbal, "EPSG:25832")
     (tmp_path / "c.jpg").write_bytes(b"not an image")
     with pytest.raises(InputFileError, match="not a readable image"):
@@ -173,6 +175,31 @@ def test_bad_targets_and_images_are_typed_errors(tmp_path):
         read_dji_metadata(tmp_path / "absent.jpg")
     with pytest.raises(InputFileError, match="GimbalYawDegree is not a number"):
         read_dji_metadata(dji_jpeg(tmp_path / "d.jpg", xmp_packet(GimbalYawDegree="north")))
+
+
+def test_a_photo_without_a_heading_gets_a_prior_that_searches_every_heading_one_without_a_pitch_none(
+    tmp_path,
+):
+    """No GimbalYawDegree (position and pitch known): a prior with yaw 0 that says so, searched over every
+    heading whatever yaw sigma is stated (a larger one kept); without the pitch too: refused as before."""
+    fields = dict(GpsLatitude="+48.1", GpsLongitude="+11.5", AbsoluteAltitude="+600", GimbalPitchDegree="-45")
+    meta = read_dji_metadata(dji_jpeg(tmp_path / "a.jpg", xmp_packet(**fields)))
+    prior = dji_prior(meta, "EPSG:25832")
+    assert not prior.heading_known and prior.gimbal_ypr_deg[:2] == (0.0, -45.0)
+    assert NO_HEADING_NOTE in prior.notes and prior.as_dict()["heading_known"] is False
+    photo = PhotoPrior(prior.pose, prior_uncertainty(prior), "exif", heading_known=prior.heading_known)
+    assert photo.searched().yaw_deg == NO_HEADING_YAW_DEG and photo.warnings() == [NO_HEADING_NOTE]
+    assert "no heading" in photo.searched().source
+    assert photo.searched(PriorUncertainty(yaw_deg=3.0)).yaw_deg == NO_HEADING_YAW_DEG
+    assert photo.searched(PriorUncertainty(yaw_deg=90.0)).yaw_deg == 90.0
+    assert dji_prior(
+        read_dji_metadata(dji_jpeg(tmp_path / "b.jpg", xmp_packet(**fields, GimbalYawDegree="10"))),
+        "EPSG:25832",
+    ).heading_known
+    del fields["GimbalPitchDegree"]
+    no_tilt = read_dji_metadata(dji_jpeg(tmp_path / "c.jpg", xmp_packet(**fields)))
+    with pytest.raises(InputFileError, match="no gimbal_pitch_deg"):
+        dji_prior(no_tilt, "EPSG:25832")
 
 
 def test_grid_convergence_is_zero_on_the_central_meridian():

@@ -1768,3 +1768,47 @@ def test_an_intrinsics_file_or_a_backends_mask_changed_after_it_finished_is_told
     assert code == 0, err
     assert "3 finished photos were run by an earlier version that kept no fingerprints" in err
     assert "intrinsics file and a files backend's mask and depth (before stop 53)" in err
+
+
+def test_a_dji_photo_without_a_heading_is_localized_searching_every_heading(tmp_path, capsys):
+    """A DJI photo whose XMP has no GimbalYawDegree (position and pitch known) was skipped ("no usable GPS
+    prior: the image metadata has no gimbal_yaw_deg"), though a prior without a heading can be searched
+    (stop 53). Now its prior has yaw 0 and a yaw sigma that searches every heading, over a smaller yaw
+    sigma the user stated for the flight; its record and row say that its tags had no heading. As ground
+    truth such tags are refused."""
+    from semcityloc.citymodel import read_pose_world
+    from semcityloc.datasets.dji import NO_HEADING_NOTE
+    from semcityloc.geometry.uncertainty import NO_HEADING_YAW_DEG
+
+    root = tmp_path / "flight"
+    (root / "images").mkdir(parents=True)
+    city = root / "city.obj"
+    city.write_text(box_city_obj())
+    model = load_city_model(city, cache=False)
+    offset = np.array([686_100.0, 5_330_400.0, 0.0])  # the box placed at 48.1 N, 11.5 E (EPSG:25832)
+    to_wgs = pyproj.Transformer.from_crs("EPSG:25832", "EPSG:4326", always_xy=True)
+    truth = pose_from_dji(np.array([120.0, 60.0, 70.0]), -120.0, -30.0, 0.0)  # 120 deg from yaw 0 (grid)
+    prior_centre = truth.center + offset + [2.0, -1.5, 2.0]
+    lon, lat = to_wgs.transform(prior_centre[0], prior_centre[1])
+    fields = dict(GpsLatitude=f"{lat:+.10f}", GpsLongitude=f"{lon:+.10f}")
+    fields.update(AbsoluteAltitude=f"{prior_centre[2]:+.3f}", GimbalPitchDegree="-30.0", GimbalRollDegree="0")
+    photo = dji_jpeg(root / "images" / "H0.JPG", xmp_packet(**fields), size=(160, 120), focal_35mm=24)
+    camera = camera_from_exif(read_dji_metadata(photo))
+    save_labels_png(oracle_labels(model, camera, truth), root / "masks" / "H0.png")
+    out = tmp_path / "out"
+    argv = ["run", root / "images", "--city", city, "--masks", root / "masks", "--crs", "EPSG:25832"]
+    argv += ["--offset", ",".join(f"{v:g}" for v in offset), "--prior-sigma", "yaw=3", "--no-overlays"]
+    code, _, err = run(capsys, *argv, "--out", out)
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["skipped_photos"] == {} and summary["localized"] == 1, summary
+    record = json.loads((out / "poses" / "H0.json").read_text())
+    assert record["extra"]["prior_uncertainty"]["yaw_deg"] == NO_HEADING_YAW_DEG
+    assert record["extra"]["prior"]["extra"]["heading_known"] is False
+    assert NO_HEADING_NOTE in record["extra"]["warnings"]
+    assert NO_HEADING_NOTE in read_results(out / "results.csv")[0]["warnings"]
+    found = read_pose_world(out / "poses" / "H0.json", pyproj.CRS("EPSG:25832"), crs_offset=list(offset))
+    assert center_error_m(found, truth) < 1.0 and rotation_error_deg(found, truth) < 1.0
+    # Such tags as ground truth are none: a yaw of 0 taken for the missing one is no true pose.
+    code, _, err = run(capsys, *argv, "--truth", "exif", "--out", tmp_path / "truth")
+    assert code == 2 and "its tags have no heading (GimbalYawDegree)" in err, err

@@ -18,7 +18,8 @@ Per photo (``datasets.photos`` matches files to photos by name):
   COLMAP ``images.txt`` or a LoD-Loc ``GPS_pose/`` folder (in the model's frame);
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
   photo), else the photo's RTK tags (``dji.prior_uncertainty``) or the geotag file's accuracy columns,
-  else the defaults. Kept in each query (``BenchmarkQuery.prior_uncertainty``) and in the outputs;
+  else the defaults; every heading for a prior without one (``PhotoPrior.searched``: a DJI photo without
+  ``GimbalYawDegree``). Kept in each query (``BenchmarkQuery.prior_uncertainty``) and in the outputs;
 - perception: precomputed masks (``<masks>/<stem>.png|.npy``, or ``.jpg|.jpeg`` with ``allow_lossy_mask``;
   also named ``<photo name>.png``, e.g. ``P0.JPG.png``; any resolution with the photo's aspect),
   or a segmentation backend run on the photo (shrunk to ``PHOTO_MAX_WIDTH``); optional depth likewise;
@@ -218,13 +219,13 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
             # A photo of the truth that cannot run: a miss of the run (module docstring), with its prior
             # when that is not in the photo itself (a pose file, a geotag CSV) and can be used.
             prior = prior if prior is not None or lens is not None else _prior_or_none(priors, path)
-            sigma = fixed or (prior.uncertainty if prior is not None else None) or PriorUncertainty()
+            sigma = prior.searched(fixed) if prior is not None else fixed or PriorUncertainty()
             known = {} if lens is None else {"intrinsics_source": lens.source, "distortion": lens.distortion}
             camera = lens.camera if lens is not None else None
             miss = {"unreadable" if isinstance(exc, PhotoUnreadable) else "skipped": str(exc)}
             inputs.append(PhotoInput(path.name, path, camera, prior, sigma, true_pose, **miss, **known))
             continue
-        sigma = fixed or prior.uncertainty or PriorUncertainty()
+        sigma = prior.searched(fixed)
         inputs.append(
             PhotoInput(
                 path.name,
@@ -369,12 +370,16 @@ def _prior_or_none(priors: PriorFiles, path: Path) -> PhotoPrior | None:
 def _true_pose(truth: PriorFiles | None, path: Path, meta) -> Pose | None:
     """The true pose of the photo ``path`` (world frame), None when the truth has none for it (ground truth
     is optional per photo); ``PhotoMissing`` saying so when it has one that cannot be used (a file that
-    cannot be read, of another CRS, a geotag row without a usable position): that photo is skipped with the
-    reason, not run as one without ground truth, which would leave it out of the recall unsaid."""
+    cannot be read, of another CRS, a geotag row without a usable position, DJI tags without a heading):
+    that photo is skipped with the reason, not run as one without ground truth, which would leave it out of
+    the recall unsaid."""
     if truth is None:
         return None
     try:
-        return truth.prior(path, meta).pose_world
+        true = truth.prior(path, meta)
+        if not true.heading_known:  # a yaw of 0 taken for one the tags lack is no true pose
+            raise InputFileError("its tags have no heading (GimbalYawDegree)")
+        return true.pose_world
     except PhotoNotListed:
         return None
     except InputFileError as exc:

@@ -40,6 +40,7 @@ from semcityloc.benchmark.results import (
     SKIP_REASON,
     SKIPPED,
     SKIPPED_MISS,
+    SOURCE_WARNINGS,
     UNFIT_INPUT,
     UNREADABLE_INPUT,
     is_skipped_miss,
@@ -195,6 +196,7 @@ class PhotoSource:
             "perception": self.spec.perception(),
             "prior_source": inp.prior.source if inp.prior is not None else None,
             "prior_uncertainty": inp.uncertainty.as_dict(),
+            SOURCE_WARNINGS: inp.prior.warnings() if inp.prior is not None else [],
             "view": "nadir" if abs(pitch) < 15.0 else "oblique",
             **(extra or {}),
         }

@@ -119,6 +119,9 @@ def _resumable(header: tuple[str, ...]) -> bool:
 
 
 WARNING_SEPARATOR = " | "
+# The meta key of what a query's source says of its inputs (a photo whose prior had no heading:
+# ``datasets.photos.PhotoPrior.warnings``), added to its result's ``warnings`` (``benchmark.run``).
+SOURCE_WARNINGS = "source_warnings"
 
 # A query its source did not accept (``meta["accepted"] is False``): a simulated view the simulator could
 # not make acceptable, or a photo whose files could not be read in full (``meta["skip_reason"]`` says why).

@@ -44,6 +44,7 @@ from semcityloc.benchmark.results import (
     SKIP_REASON,
     SKIPPED,
     SKIPPED_MISS,
+    SOURCE_WARNINGS,
     UNFIT_INPUT,
     UNREADABLE_INPUT,
     append_row,
@@ -152,6 +153,7 @@ class _Worker:
             self.source.save_estimate(self.out_dir, q, refused)
             return make_row(q, refused, self.origin)
         result = self.method.localize(q)
+        result.warnings.extend((q.meta or {}).get(SOURCE_WARNINGS, ()))  # e.g. a prior without a heading
         if index < self.keep:
             save_details(self.out_dir / DETAILS_DIR / f"{query_id(index)}.npz", q, result, self.origin)
         self.source.save_estimate(self.out_dir, q, result)

@@ -80,6 +80,12 @@ GPS_DEFAULT_UNCERTAINTY_M = 5.0
 # A position of exactly 0, 0: what DJI aircraft write before their GNSS has a fix (no photo of a city model
 # is taken at "Null Island"); projected, it would be a prior thousands of kilometres from the model.
 NO_GNSS_FIX = "no GNSS fix (latitude 0, longitude 0: taken before the drone had a GPS position)"
+# Said of a photo whose tags have its position and gimbal pitch but no heading (``GimbalYawDegree``): its
+# prior's yaw is taken as 0 and its search covers every heading (``photos.PhotoPrior.searched``; stop 53).
+# Without the pitch too there is no tilt to search from: ``dji_prior`` refuses it.
+NO_HEADING_NOTE = (
+    "no GimbalYawDegree: the heading is unknown, yaw taken as 0 and every heading searched (slower)"
+)
 # Said (in the prior's notes) when a 2D CRS gets DJI's ellipsoidal height as its z unchanged: right for
 # UAVD4L-like frames, ~40 m wrong for a German LoD2 tile whose heights are DHHN2016.
 HEIGHT_AS_IS_NOTE = (
@@ -107,6 +113,7 @@ class DjiPrior:
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # subtracted from the CRS coordinates
     notes: list[str] = field(default_factory=list)
     meta: DjiMetadata | None = None  # what the prior was made from (``prior_uncertainty`` reads its RTK tags)
+    heading_known: bool = True  # False: the tags had no GimbalYawDegree, yaw taken as 0 (``NO_HEADING_NOTE``)
 
     @property
     def height_unconverted(self) -> bool:
@@ -129,6 +136,7 @@ class DjiPrior:
             "gimbal_yaw_pitch_roll_deg": list(self.gimbal_ypr_deg),
             "offset": self.offset.tolist(),
             "notes": list(self.notes),
+            "heading_known": self.heading_known,
         }
 
 
@@ -198,7 +206,7 @@ def dji_prior(
     """
     if not isinstance(meta, DjiMetadata):
         meta = read_dji_metadata(meta)
-    meta.require("latitude", "longitude", "absolute_altitude_m", "gimbal_yaw_deg", "gimbal_pitch_deg")
+    meta.require("latitude", "longitude", "absolute_altitude_m", "gimbal_pitch_deg")
     if source_height not in SOURCE_HEIGHTS:
         raise unknown_choice("source_height", source_height, SOURCE_HEIGHTS, InputFileError)
     if target_height not in TARGET_HEIGHTS:
@@ -293,8 +301,11 @@ def dji_prior(
     roll = meta.gimbal_roll_deg if meta.gimbal_roll_deg is not None else 0.0
     if meta.gimbal_roll_deg is None:
         notes.append("no GimbalRollDegree: roll taken as 0")
+    yaw = meta.gimbal_yaw_deg if meta.gimbal_yaw_deg is not None else 0.0
+    if meta.gimbal_yaw_deg is None:
+        notes.append(NO_HEADING_NOTE)
     try:
-        pose = pose_from_dji(world, meta.gimbal_yaw_deg + gamma, meta.gimbal_pitch_deg, roll)
+        pose = pose_from_dji(world, yaw + gamma, meta.gimbal_pitch_deg, roll)
     except PoseError as exc:
         raise InputFileError(f"DJI gimbal angles give no pose: {exc}") from exc
     return DjiPrior(
@@ -308,10 +319,11 @@ def dji_prior(
         vertical_flag=flag,
         vertical_uncertainty_m=float(uncertainty),
         grid_convergence_deg=gamma,
-        gimbal_ypr_deg=(float(meta.gimbal_yaw_deg), float(meta.gimbal_pitch_deg), float(roll)),
+        gimbal_ypr_deg=(float(yaw), float(meta.gimbal_pitch_deg), float(roll)),
         offset=shift,
         notes=notes,
         meta=meta,
+        heading_known=meta.gimbal_yaw_deg is not None,
     )
 
 
@@ -329,7 +341,8 @@ def prior_uncertainty(
       whose numbers are those of a DJI drone on plain GNSS).
 
     Orientation (yaw, roll / pitch) always comes from ``base``: DJI writes no accuracy for the gimbal. Given
-    a ``DjiPrior`` whose height could not be brought into the model's reference, ``height_widened``.
+    a ``DjiPrior`` whose height could not be brought into the model's reference, ``height_widened``. (One
+    without a heading: ``photos.PhotoPrior.searched``.)
     """
     meta = prior.meta if isinstance(prior, DjiPrior) else prior
     if not isinstance(meta, DjiMetadata):

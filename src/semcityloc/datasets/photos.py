@@ -22,7 +22,9 @@ per-photo information in whatever form they come with. This module matches each 
 - priors (``PriorFiles``): ``exif`` (the photo's DJI EXIF/XMP: ``dji.dji_prior`` into the model's CRS, its
   uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
   + angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above;
-  a height that could not be converted widens the height sigma either way (``dji.height_widened``).
+  a height that could not be converted widens the height sigma either way (``dji.height_widened``), and a
+  photo whose tags have no heading (no ``GimbalYawDegree``, its pitch known) gets yaw 0 and a yaw sigma
+  that searches every heading, whatever ``--prior-sigma`` says (``PhotoPrior.searched``; stop 53).
 
 A photo lacking something is not an error of the whole batch: ``PhotoMissing`` names what is missing and
 the caller skips that photo with the reason.
@@ -42,7 +44,7 @@ import pyproj
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.pose_crs import check_declared_frame, read_pose_world
 from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, read_cameras_binary, read_images_binary
-from semcityloc.datasets.dji import HEIGHT_AUTO, dji_prior, height_widened, prior_uncertainty
+from semcityloc.datasets.dji import HEIGHT_AUTO, NO_HEADING_NOTE, dji_prior, height_widened, prior_uncertainty
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
 from semcityloc.datasets.geotags import read_geotags_csv
@@ -416,6 +418,19 @@ class PhotoPrior:
     uncertainty: PriorUncertainty | None  # None: the caller's default
     source: str
     details: dict = field(default_factory=dict)
+    heading_known: bool = True  # False: the tags had no heading (``dji.NO_HEADING_NOTE``), yaw taken as 0
+
+    def searched(self, stated: PriorUncertainty | None = None) -> PriorUncertainty:
+        """The uncertainty the localizer searches for this prior: ``stated`` (``--prior-sigma``, the same
+        for every photo) when given, else its own, else the defaults; with every heading when the prior
+        has none (``PriorUncertainty.without_heading``: a yaw sigma stated for photos with a heading
+        would search around an arbitrary one)."""
+        sigma = stated or self.uncertainty or PriorUncertainty()
+        return sigma if self.heading_known else sigma.without_heading()
+
+    def warnings(self) -> list[str]:
+        """What a result of this prior says about it: that every heading was searched, when it had none."""
+        return [] if self.heading_known else [NO_HEADING_NOTE]
 
 
 class PriorFiles:
@@ -459,9 +474,10 @@ class PriorFiles:
         """The prior of ``meta`` (a photo's DJI metadata, a geotag row's: ``where`` names the row) with its
         uncertainty: ``stated`` (a geotag row's accuracies, else the defaults) or, for a photo's own metadata
         (``stated`` None and ``source`` exif), its RTK tags; either way widened when its height was not
-        converted (``dji.height_widened``, one rule for every source). ``PhotoMissing`` when it gives no
-        prior in the model's CRS (no GNSS fix, a position outside the CRS's area of use, its latitude and
-        longitude swapped: ``dji.dji_prior``): that photo skipped, not the run."""
+        converted (``dji.height_widened``, one rule for every source; no heading: ``PhotoPrior.searched``).
+        ``PhotoMissing`` when it gives no prior in the model's CRS (no GNSS fix, a position outside the CRS's
+        area of use, its latitude and longitude swapped, no gimbal pitch: ``dji.dji_prior``): that photo
+        skipped, not the run."""
         try:
             prior = dji_prior(
                 meta,
@@ -480,7 +496,7 @@ class PriorFiles:
             sigma = None  # the caller's default
         else:
             sigma = height_widened(stated or PriorUncertainty(), prior)
-        return PhotoPrior(prior.pose, sigma, source, details)
+        return PhotoPrior(prior.pose, sigma, source, details, heading_known=prior.heading_known)
 
     def prior(self, image: Path, meta: DjiMetadata | None = None) -> PhotoPrior:
         """The prior of ``image``; ``PhotoNotListed`` when the files have none for it, ``PhotoMissing`` when

@@ -142,6 +142,17 @@ class PriorUncertainty:
             roll_pitch_deg=self.roll_pitch_deg * factor,
         )
 
+    def without_heading(self) -> PriorUncertainty:
+        """This uncertainty for a prior whose heading is unknown (a photo whose tags have none): its yaw
+        sigma at least ``NO_HEADING_YAW_DEG``, so that every heading is searched whatever yaw the prior holds
+        (a smaller one, stated or a default, would search around an arbitrary heading); the reason added to
+        ``source``. The one rule of "no heading", whatever gave the other sigmas."""
+        return replace(
+            self,
+            yaw_deg=max(self.yaw_deg, NO_HEADING_YAW_DEG),
+            source=f"{self.source}; no heading in the prior: every heading searched",
+        )
+
     def as_dict(self) -> dict:
         """The sigmas and their source as a plain dict, for run records."""
         return asdict(self)
