@@ -32,7 +32,6 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import FocalCheckConfig, RefineConfig
 from semcityloc.localization.refine import PriorTerm, ScoringLevel, particle_filter, score_states
-from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene
 
 MIN_OBLIQUE_DEG = 20.0  # an optical axis at least this far from nadir: an oblique view
@@ -80,19 +79,18 @@ def check_focal(
     class_on: np.ndarray,
     fine: ScoringLevel,
     state: np.ndarray,
+    depth_m: float,
     check: FocalCheckConfig,
     refine: RefineConfig,
     prior_term: PriorTerm | None,
     seed: int = 0,
 ) -> FocalCheck | None:
     """The check (module docstring) of the pose ``state`` (local frame) against the query at the fine
-    level ``fine``; None when the map is not seen from it."""
-    pose = Pose.from_state(state)
-    seen = NumbaEngine(scene).render(fine.camera, pose.R[None], pose.t[None], depth=True).depth
-    seen = seen[np.isfinite(seen)]
-    if not seen.size:
+    level ``fine``; ``depth_m`` the median depth of the map seen from it at that level (the acceptance's
+    render: ``refine_stage.median_seen_depth``); None when the map is not seen from it (0)."""
+    if not depth_m > 0.0:
         return None
-    depth = float(np.median(seen))
+    depth = float(depth_m)
     xy, z, rp, yaw = refine.polish_sigma
     sigma = np.array([xy, xy, z, rp, rp, yaw])
     best = []

@@ -86,7 +86,7 @@ from semcityloc.localization.query import (
     usable_depth,
 )
 from semcityloc.localization.refine import ScoringLevel, initial_sigma, score_states
-from semcityloc.localization.refine_stage import Refiner, adopt, image_score
+from semcityloc.localization.refine_stage import Refiner, adopt, image_score, median_seen_depth
 from semcityloc.localization.result import (
     LOCALIZED,
     NOT_LOCALIZED,
@@ -198,7 +198,9 @@ class Localizer:
         if result.reason is not None:
             return result.finish(result.reason, t0)
 
-        accepted, reason = self._decide(result, camera, fine, prior_state, cfg, unc, building_fraction)
+        accepted, reason, seen_depth_m = self._decide(
+            result, camera, fine, prior_state, cfg, unc, building_fraction
+        )
         if not accepted and "sweep_best" in result.search and cfg.cascade.beyond.enabled:
             t_beyond = time.perf_counter()
             self._look_beyond(result, camera, query, prior_state, cfg, unc)
@@ -216,7 +218,7 @@ class Localizer:
         if conflict is not None:
             result.warnings.append(conflict)
         if cfg.focal_check.enabled and not cfg.no_refine and is_oblique(result.pose_local):
-            self._check_focal(result, fine, prior_state, cfg, unc)
+            self._check_focal(result, fine, seen_depth_m, prior_state, cfg, unc)
         return result.finish(None, t0)
 
     # ------------------------------------------------------------------ searches
@@ -443,12 +445,14 @@ class Localizer:
         cfg: LocalizerConfig,
         unc: PriorUncertainty,
         building_fraction: float,
-    ) -> tuple[bool, str]:
-        """Is the found pose accepted, and the reason if not? The evidence goes into ``result.confidence``
-        and ``result.warnings`` first: the map at the pose against the query (``agreement.py``), the
-        query's building share, the distance from the prior. Then the calibrated probability is held
-        against ``min_confidence`` (at least ``min_confidence_close_view`` for a close view), or with
-        ``acceptance="thresholds"`` the scores against the first design's gates (``_accept``)."""
+    ) -> tuple[bool, str, float]:
+        """Is the found pose accepted, the reason if not, and the median depth of the map seen from it at
+        the fine level (its render here; the focal check's camera move)? The evidence goes into
+        ``result.confidence`` and ``result.warnings`` first: the map at the pose against the query
+        (``agreement.py``), the query's building share, the distance from the prior. Then the calibrated
+        probability is held against ``min_confidence`` (at least ``min_confidence_close_view`` for a close
+        view), or with ``acceptance="thresholds"`` the scores against the first design's gates
+        (``_accept``)."""
         found_2d, found_depth = self.map_of(result).render_labels_and_depth(fine.camera, result.pose_local)
         query_2d = fine.labels.reshape(fine.camera.height, fine.camera.width)
         agreement = building_agreement(query_2d, found_2d)
@@ -465,7 +469,7 @@ class Localizer:
         result.confidence["building_fraction"] = building_fraction
         result.confidence["prior_distance"] = prior_distance(result.pose_local, prior_state, unc)
         if cfg.acceptance != "calibrated":
-            return self._accept(result, cfg, with_depth), REASON_LOW_SCORE
+            return self._accept(result, cfg, with_depth), REASON_LOW_SCORE, median_seen_depth(found_depth)
         p = confidence_model(self.confidence_kind, with_depth).probability(result)
         result.confidence["probability"] = p
         seen = found_depth[np.isfinite(found_depth)]
@@ -478,7 +482,7 @@ class Localizer:
         for warning in (field_of_view_warning(camera.hfov_deg), close_view_warning(span, needed)):
             if warning is not None:
                 result.warnings.append(warning)
-        return p >= needed, REASON_LOW_CONFIDENCE
+        return p >= needed, REASON_LOW_CONFIDENCE, median_seen_depth(found_depth)
 
     @staticmethod
     def _accept(result: LocalizationResult, cfg: LocalizerConfig, with_depth: bool) -> bool:
@@ -489,7 +493,9 @@ class Localizer:
             return result.semantic >= cfg.min_semantic_with_depth and result.depth_cost <= cfg.max_depth_cost
         return result.semantic >= cfg.min_score
 
-    def _check_focal(self, result, fine: ScoringLevel, prior_state, cfg: LocalizerConfig, unc) -> None:
+    def _check_focal(
+        self, result, fine: ScoringLevel, seen_depth_m: float, prior_state, cfg: LocalizerConfig, unc
+    ) -> None:
         """An accepted oblique pose's focal-length check (``focal_check.py``) on the map it was found on:
         recorded in ``result.search["focal_check"]``, a warning when the view fits a focal scale more than
         ``FocalCheckConfig.margin`` from 1."""
@@ -501,6 +507,7 @@ class Localizer:
             self.class_on,
             fine,
             state,
+            seen_depth_m,
             cfg.focal_check,
             cfg.refine,
             term,

@@ -232,14 +232,14 @@ class Refiner:
         """(6, 6) perturbation matrix: ``sigma``'s rotations about the point of the optical axis at the
         median depth of the model seen from ``state`` (``refine.pivot_jacobian``; ``seen``: that view's
         depth if already rendered); the plain scales when nothing is seen."""
-        depth = self._median_depth(camera, state) if seen is None else _median_seen(seen)
+        depth = self._median_depth(camera, state) if seen is None else median_seen_depth(seen)
         return pivot_jacobian(state, depth) @ np.diag(sigma)
 
     def _median_depth(self, camera: Camera, state: np.ndarray) -> float:
         """Median z-depth (m) of the model seen from ``state`` (0 when nothing is seen)."""
         pose = Pose.from_state(state)
         seen = NumbaEngine(self.scene).render(camera, pose.R[None], pose.t[None], depth=True).depth
-        return _median_seen(seen)
+        return median_seen_depth(seen)
 
     def _probe_curvature(
         self,
@@ -275,7 +275,7 @@ def adopt(result: LocalizationResult, trial: LocalizationResult) -> None:
     result.confidence.update(spread_m=trial.confidence["spread_m"], spread_deg=trial.confidence["spread_deg"])
 
 
-def _median_seen(depth: np.ndarray) -> float:
+def median_seen_depth(depth: np.ndarray) -> float:
     """Median of a render's finite depths (0 when it sees nothing)."""
     seen = depth[np.isfinite(depth)]
     return float(np.median(seen)) if seen.size else 0.0
