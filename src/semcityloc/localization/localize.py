@@ -75,6 +75,7 @@ from semcityloc.localization.prior import (
     roll_pitch_conflict,
     roll_pitch_conflict_warning,
     roll_pitch_departure,
+    roll_pitch_take_gain,
     roll_pitch_wide_sigma,
 )
 from semcityloc.localization.query import (
@@ -331,8 +332,9 @@ class Localizer:
         ``seeds`` with the roll/pitch sigma widened (``prior.roll_pitch_wide_sigma``) on the map the pose
         was found on; the pose whose image score (``refine_stage.image_score``: the same score without the
         prior's term) is higher is kept, or with ``roll_pitch_conflict_refuse`` the result is refused when
-        the two lie farther apart than the acceptance tolerates. A warning names the departure; recorded in
-        ``result.search["roll_pitch_conflict"]``. Runs only on a conflict."""
+        the two lie farther apart than the acceptance tolerates. A departure the stated IMU itself gives now
+        and then asks more of the second pose's gain (``prior.roll_pitch_take_gain``). A warning names the
+        departure; recorded in ``result.search["roll_pitch_conflict"]``. Runs only on a conflict."""
         state = result.pose_local.to_xyz_rpy()
         if not roll_pitch_conflict(state, prior_state, unc, cfg.roll_pitch_conflict_sigma):
             return
@@ -357,14 +359,16 @@ class Localizer:
         moved = state_difference(trial.pose_local.to_xyz_rpy(), state)
         moved_m, moved_deg = float(np.linalg.norm(moved[:3])), float(np.max(np.abs(moved[3:])))
         apart = moved_m > ROLL_PITCH_APART_M or moved_deg > ROLL_PITCH_APART_DEG
+        needed = roll_pitch_take_gain(departure, unc, cfg.roll_pitch_sure_sigma, cfg.roll_pitch_unsure_gain)
         look = {
             "departure_deg": departure,
             "sigmas": departure / unc.roll_pitch_deg,
             "wide_sigma_deg": wide,
             "gain": gain,
+            "gain_needed": needed,
             "moved_m": moved_m,
             "moved_deg": moved_deg,
-            "taken": bool(gain > 0.0),
+            "taken": bool(gain > needed),
             "refused": bool(apart and cfg.roll_pitch_conflict_refuse),
         }
         result.search["roll_pitch_conflict"] = look
@@ -380,6 +384,12 @@ class Localizer:
         elif look["taken"]:
             now = look["final_departure_deg"]
             outcome = f"{widened}{moved_by} and fits the image better (now {now:.1f} deg from the prior's)"
+        elif gain > 0.0:
+            outcome = (
+                f"{widened}its pose, {moved_m:.1f} m / {moved_deg:.1f} deg away, fits the image only "
+                f"{gain:.4f} better, less than the {needed:g} a departure within "
+                f"{cfg.roll_pitch_sure_sigma:g} sigma asks: the first pose is kept"
+            )
         else:
             outcome = f"{widened}the first pose fits the image best"
         result.warnings.append(roll_pitch_conflict_warning(departure, unc, outcome))
