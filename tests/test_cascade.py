@@ -332,6 +332,63 @@ def test_a_heading_not_known_searches_the_circle_once_in_sectors():
     assert len(nadir) == 1  # a nadir view turned about its own axis: one wide view reads every heading
 
 
+class _IndexScorer:
+    """A sweep scorer without a map: each cell scores ``score(ix, iy, iz, iyaw)`` of its lattice indices."""
+
+    score_of = None
+
+    def __init__(self, scene, camera, query_labels, class_on, origin, step, roll, pitch):
+        self.count = 0
+
+    def score(self, ix, iy, iz, iyaw):
+        out = type(self).score_of(*np.meshgrid(ix, iy, iz, iyaw, indexing="ij")).astype(float)
+        self.count += out.size
+        return out
+
+
+def _yaw_edge_scores(n: int) -> dict:
+    """Scores that keep the best cell on a yaw edge of the sweep (x, y, z best at the prior): always the +
+    edge, always the - edge, and both in turn (the best on the x+ and yaw- edges, then, among the cells the
+    x extension adds, on the yaw+ edge). ``n``: the lattice's x extent."""
+    centre = lambda ix, iy, iz: np.abs(ix) + np.abs(iy) + np.abs(iz)  # noqa: E731
+    return {
+        "yaw+": lambda ix, iy, iz, iyaw: iyaw - 1000.0 * centre(ix, iy, iz),
+        "yaw-": lambda ix, iy, iz, iyaw: -iyaw - 1000.0 * centre(ix, iy, iz),
+        "both": lambda ix, iy, iz, iyaw: (
+            np.where(ix > n, 1000.0 + ix + iyaw, ix - iyaw) - 1000.0 * (np.abs(iy) + np.abs(iz))
+        ),
+    }
+
+
+def test_no_yaw_sigma_scores_a_heading_twice(monkeypatch):
+    """Stop 54: a yaw sigma from 35 to 59 (3 sigma short of the closed circle) let the sweep's yaw lattice
+    grow past a turn at its edge (sigma 40 +-120 deg grown twice to -120..+240, sigma 59 to -178..+356: 88
+    headings twice), and 59.4-59.9 built -180..+180 (both ends one heading); a lattice grown to the whole
+    circle still had a yaw edge to refuse at. Now the volume is the closed circle when its lattice holds a
+    turn (``yaw_turn``), yaw grows to a turn at most, and a turn has no edge."""
+    from semcityloc.localization import cascade
+
+    cfg = CascadeConfig()
+    monkeypatch.setattr(cascade, "_SweepScorer", _IndexScorer)
+    for sigma in [*np.arange(1.0, 181.0, 1.0), 59.3, 59.4, 59.5, 59.9]:
+        unc = PriorUncertainty(xy_m=1.0, z_m=1.0, yaw_deg=float(sigma), roll_pitch_deg=1.0)
+        volume = search_volume(np.array([0.0, 0.0, 50.0, 0.0, 40.0, 37.0]), unc, cfg)
+        n_x = _lattice(volume, cfg.sweep, cfg.sweep.max_centres)[1][0]
+        assert reached_half(volume, cfg)["yaw"] <= cascade.FULL_CIRCLE_HALF_DEG, sigma
+        for name, score_of in _yaw_edge_scores(n_x).items():
+            monkeypatch.setattr(_IndexScorer, "score_of", staticmethod(score_of))
+            sw = cascade.sweep(None, CAMERA, volume, None, None, cfg.sweep)
+            case = (sigma, name, sw.extensions, sw.at_edge, sw.values(3)[[0, -1]] - 37.0)
+            yaws = np.sort(np.mod(sw.values(3), 360.0))
+            gaps = np.diff(np.append(yaws, yaws[0] + 360.0))
+            assert gaps.min() > 0.25 * sw.step[3], case  # no heading twice
+            turn = len(yaws) >= int(360.0 / sw.step[3] + 1e-9)  # every heading within a step of a scored one
+            assert sw.full_circle == turn and (gaps.max() < 2 * sw.step[3] - 1e-9 or not turn), case
+            assert not (turn and any(e.startswith("yaw") for e in sw.at_edge)), case  # a circle has no edge
+            if volume.full_circle:  # a closed circle does not grow in yaw
+                assert not any(e.startswith("yaw") for e in sw.extensions), case
+
+
 def test_wider_uncertainty_keeps_the_number_of_camera_centres_bounded(city, localizer, renderer):
     true = view(city, *VIEWS["nadir"])
     labels, depth = query(renderer, true)

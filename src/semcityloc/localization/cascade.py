@@ -15,7 +15,8 @@ sized for a smaller error gives a confident wrong pose at its edge. So:
    volume's edge, the volume grows in that direction (bounded, never below the floor) and only the new
    cells are scored; a best cell on the floor is not on an edge (nothing lies below it); still on the edge
    at the bound -> ``at_edge`` (the localizer refuses: a pose at the edge of what was
-   searched is not a pose that was found).
+   searched is not a pose that was found). Yaw grows to one turn at most (``yaw_turn``): a yaw range
+   grown to a turn is the whole circle, which has no edge.
 3. **Local** (``local_search``): around the sweep's best distinct cells (greedy non-maximum suppression
    on the lattice), a small grid at a finer resolution that also samples roll and pitch (one wide render
    per centre again; a roll/pitch/yaw hypothesis is a rotation about the centre, read through the lookup
@@ -47,8 +48,9 @@ from semcityloc.render.scene import RenderScene
 
 AXES = ("x", "y", "z", "yaw")
 # A volume whose yaw half-width reaches this searches every heading (``SearchVolume.full_circle``): a prior
-# without a usable heading (no compass, a photo without one: ``--prior-sigma yaw=60`` or more). Its yaw
-# lattice closes on itself (``_lattice``): no yaw edge, no extension in yaw, no heading scored twice.
+# without a usable heading (no compass, a photo without one: ``--prior-sigma yaw=60`` or more), or one
+# whose yaw lattice would hold a turn (``yaw_turn``). Its yaw lattice closes on itself (``_lattice``): no
+# yaw edge, no extension in yaw, no heading scored twice.
 FULL_CIRCLE_HALF_DEG = 180.0
 # What a refused result's warning starts with when ``look_beyond`` found a view outside scoring higher.
 BEYOND_WARNING = "a view outside the search volume matches the image better than any inside"
@@ -96,13 +98,18 @@ def search_volume(
 ) -> SearchVolume:
     """The volume the cascade searches for a prior with this uncertainty (module docstring, step 1).
     ``ground_z``: the lowest ground near the prior (local frame); the volume's floor lies
-    ``config.min_clearance_m`` above it."""
+    ``config.min_clearance_m`` above it. A yaw half-width whose lattice would hold a turn (``yaw_turn``:
+    more than 59.33 deg of yaw sigma at the default 3 sigma and 2 deg step) is the full circle."""
     k = config.n_sigma
+    half_yaw = min(max(k * uncertainty.yaw_deg, config.min_half_yaw_deg), FULL_CIRCLE_HALF_DEG)
+    step_yaw = config.sweep.step_yaw_deg
+    if 2 * _lattice_extent(half_yaw, step_yaw) + 1 >= yaw_turn(step_yaw):  # the lattice -n..n holds a turn
+        half_yaw = FULL_CIRCLE_HALF_DEG
     return SearchVolume(
         centre=np.asarray(prior_state, dtype=np.float64).copy(),
         half_xy_m=max(k * uncertainty.xy_m, config.min_half_xy_m),
         half_z_m=max(k * uncertainty.z_m, config.min_half_z_m),
-        half_yaw_deg=min(max(k * uncertainty.yaw_deg, config.min_half_yaw_deg), FULL_CIRCLE_HALF_DEG),
+        half_yaw_deg=half_yaw,
         half_roll_pitch_deg=k * uncertainty.roll_pitch_deg,
         floor_z=float(ground_z) + config.min_clearance_m,
     )
@@ -121,7 +128,8 @@ class Sweep:
     roll: float
     pitch: float
     floor_index: float = -math.inf  # lowest z lattice index at or above the volume's floor
-    full_circle: bool = False  # the yaw lattice closes on itself (every heading): yaw has no edge
+    full_circle: bool = False  # the yaw lattice closes on itself (every heading): yaw has no edge (a
+    # full-circle volume's, or a yaw range grown to ``yaw_turn`` steps)
     extensions: list[str] = field(default_factory=list)  # e.g. ["z-", "x+"]
     at_edge: list[str] = field(default_factory=list)  # edges the best cell still sits on at the bound
     hypotheses: int = 0  # cells scored (the lattice plus any extension)
@@ -171,6 +179,14 @@ class Sweep:
 def _lattice_extent(half: float, step: float) -> int:
     """Lattice indices -n..n cover +-half with spacing <= step."""
     return max(1, int(math.ceil(half / step - 1e-9)))
+
+
+def yaw_turn(step_deg: float) -> int:
+    """How many yaws ``step_deg`` apart make one turn: as many lie within 360 deg (180 at 2 deg), so that the
+    seam between the first and the last is at least one step and less than two. A yaw lattice of this many
+    is the whole circle: the volume searches the closed circle (``search_volume``) and the sweep grows yaw
+    no further (``sweep``); one more would score a heading twice (or two within a step of each other)."""
+    return max(1, int(math.floor(360.0 / step_deg + 1e-9)))
 
 
 def _lattice(volume: SearchVolume, config: SweepConfig, max_centres: int) -> tuple[np.ndarray, np.ndarray]:
@@ -242,6 +258,7 @@ def sweep(
     bound = n + np.ceil(config.max_extensions * config.extension * n).astype(int)
     if volume.full_circle:
         bound[3] = n[3]  # every heading is scored already
+    turn = yaw_turn(step[3])  # yaw grows to this many headings at most: then it is the whole circle
     lower = -bound.copy()  # lowest index an extension may reach, per axis
     floor_index = _floor_index(volume, step[2])
     if math.isfinite(floor_index):
@@ -249,9 +266,8 @@ def sweep(
         hi[2] = max(hi[2], lo[2])  # a prior further underground than its volume reaches: the floor's layer
         lower[2] = max(lower[2], floor_index)
     scores = scorer.score(*(np.arange(lo[a], hi[a] + 1) for a in range(4)))
-    result = Sweep(
-        origin, step, lo, hi, scores, float(c[3]), float(c[4]), floor_index, full_circle=volume.full_circle
-    )
+    closed = bool(hi[3] - lo[3] + 1 >= turn)  # a full-circle volume's lattice is a turn
+    result = Sweep(origin, step, lo, hi, scores, float(c[3]), float(c[4]), floor_index, full_circle=closed)
     for _ in range(config.max_extensions + 1):
         edges = _edges(result)
         if not edges:
@@ -262,6 +278,8 @@ def sweep(
             break
         for a, sgn in grow:
             amount = max(1, int(math.ceil(config.extension * n[a])))
+            if a == 3:  # never past one turn: a heading once
+                amount = min(amount, turn - (hi[3] - lo[3] + 1))
             if sgn > 0:
                 new = np.arange(hi[a] + 1, min(hi[a] + amount, bound[a]) + 1)
             else:
@@ -280,6 +298,7 @@ def sweep(
                 lo[a] = new[0]
             result.extensions.append(f"{AXES[a]}{'+' if sgn > 0 else '-'}")
         result.lo, result.hi = lo.copy(), hi.copy()
+        result.full_circle = bool(hi[3] - lo[3] + 1 >= turn)  # grown to a turn: the whole circle
     else:
         result.at_edge = [f"{AXES[a]}{'+' if s > 0 else '-'}" for a, s in _edges(result)]
     result.hypotheses = scorer.count

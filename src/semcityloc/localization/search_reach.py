@@ -46,9 +46,10 @@ GROUND_MARGIN_M = 20.0
 
 def reached_half(volume: SearchVolume, config: CascadeConfig) -> dict[str, float]:
     """The half-widths per ``--prior-sigma`` key (``xy``, ``z`` m; ``yaw`` deg) of ``volume`` grown by its
-    largest extension: how far from the prior the cascade may search."""
+    largest extension: how far from the prior the cascade may search (in yaw a turn at most:
+    ``cascade.yaw_turn``)."""
     grown = 1.0 + config.sweep.max_extensions * config.sweep.extension
-    yaw = FULL_CIRCLE_HALF_DEG if volume.full_circle else grown * volume.half_yaw_deg  # a circle is not grown
+    yaw = min(grown * volume.half_yaw_deg, FULL_CIRCLE_HALF_DEG)  # a circle is not grown
     return {"xy": grown * volume.half_xy_m, "z": grown * volume.half_z_m, "yaw": yaw}
 
 
