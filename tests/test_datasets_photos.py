@@ -11,10 +11,11 @@ import pyproj
 import pytest
 
 from dji_photo import RTK_FIELDS, dji_jpeg, xmp_packet
-from semcityloc.datasets.dji import DjiGeotag, dji_geotag
+from semcityloc.datasets.dji import NO_HEADING_NOTE, DjiGeotag, dji_geotag
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, footprint_xy
 from semcityloc.datasets.geotags import (
     GEOTAG_COLUMNS,
+    NO_YAW_NOTE,
     GeotagRow,
     geotags_csv_text,
     odm_geo_text,
@@ -36,6 +37,7 @@ from semcityloc.geometry.conventions import dji_gimbal_angles, dji_world_from_ca
 from semcityloc.geometry.distortion import LensDistortion
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.uncertainty import NO_HEADING_YAW_DEG, PriorUncertainty
 
 RTK = dict(RTK_FIELDS, GimbalYawDegree="+30.00", GimbalPitchDegree="-60.00", RtkStdLon="0.8", RtkStdLat="0.7")
 RTK["RtkStdHgt"] = "1.5"
@@ -71,7 +73,7 @@ def test_geotag_csv_accepts_other_headers_and_refuses_bad_rows(tmp_path):
     row = read_geotags_csv(path)["x.jpg"]
     assert (row.geotag.latitude, row.geotag.roll_deg, row.geotag.pitch_deg) == (48.1, 0.0, -45.0)
     path.write_text("image,latitude,longitude\nx.jpg,1,2\n")
-    with pytest.raises(InputFileError, match="missing height_m, yaw_deg, pitch_deg"):
+    with pytest.raises(InputFileError, match="missing height_m, pitch_deg"):  # no yaw: every heading
         read_geotags_csv(path)
     path.write_text("image,latitude,longitude,height_m,yaw_deg,pitch_deg\nx.jpg,95,2,3,4,5\n")
     with pytest.raises(InputFileError, match="line 2: latitude 95"):
@@ -411,3 +413,71 @@ def test_photos_in_subfolders_are_listed_with_recursive_and_named_without(tmp_pa
     ):
         list_images(card)
     assert [p.name for p in list_images(card, recursive=True)] == ["DJI_0001.JPG"]
+
+
+# ------------------------------------------------------------------------------ stop 54: rows without a yaw
+def test_a_geotag_row_without_a_yaw_is_a_prior_that_searches_every_heading(tmp_path):
+    """A geotag CSV row with an empty yaw cell, or a file with a pitch and no yaw column, refused the whole
+    file ("g.csv: line 2: no yaw_deg", "a geotag CSV needs the columns ... missing yaw_deg"), though a DJI
+    photo without ``GimbalYawDegree`` has been localized searching every heading since stop 53. Now such a
+    row is read as that photo is: yaw 0 taken, ``heading_known`` False, every heading searched over any
+    smaller yaw sigma, said in its notes and its result's warnings (``NO_YAW_NOTE``, the words of
+    ``NO_HEADING_NOTE`` after what lacked the heading). A row without a pitch is still refused, naming file,
+    line and column; a prior without a heading is written back with an empty yaw cell."""
+    crs = pyproj.CRS("EPSG:25832")
+    photo = dji_jpeg(tmp_path / "a.JPG", xmp_packet(**RTK), size=(80, 60))
+    header = "image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg\n"
+    files = {
+        "empty.csv": header + "a.JPG,48.1,11.5,600,,-45,0\n",
+        "nocolumn.csv": "Lat;Lon;Alt;Pitch;Label\n",
+    }
+    files["nocolumn.csv"] += "48.1;11.5;600;-45;a.JPG\n"
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+        row = read_geotags_csv(tmp_path / name)["a.JPG"]
+        g = row.geotag
+        assert not g.heading_known and (g.yaw_deg, g.pitch_deg, g.roll_deg) == (0.0, -45.0, 0.0), name
+        prior = PriorFiles(tmp_path / name, crs).prior(photo)
+        assert not prior.heading_known and prior.details["heading_known"] is False
+        assert prior.warnings() == [NO_YAW_NOTE] and NO_YAW_NOTE in prior.details["notes"]
+        assert NO_HEADING_NOTE not in prior.details["notes"]  # no GimbalYawDegree was read from a CSV
+        assert prior.searched().yaw_deg == NO_HEADING_YAW_DEG
+        assert prior.searched(PriorUncertainty(yaw_deg=3.0)).yaw_deg == NO_HEADING_YAW_DEG
+        assert f"its geotag row ({tmp_path / name} line 2) has no yaw" in prior.no_heading_truth
+        # Written back (a run's prior of a photo it did not localize): an empty yaw cell, read as none.
+        (tmp_path / "back.csv").write_text(geotags_csv_text([GeotagRow("a.JPG", g)]))
+        back = read_geotags_csv(tmp_path / "back.csv")["a.JPG"].geotag
+        assert not back.heading_known and back.pitch_deg == pytest.approx(-45.0)
+    (tmp_path / "yaw.csv").write_text(files["empty.csv"].replace(",,-45", ",30,-45"))
+    known = PriorFiles(tmp_path / "yaw.csv", crs).prior(photo)
+    assert (
+        known.heading_known and known.warnings() == [] and known.details["gimbal_yaw_pitch_roll_deg"][0] == 30
+    )
+    # A yaw and no pitch: refused as before, naming the file, the line and the column.
+    (tmp_path / "nopitch.csv").write_text(files["empty.csv"].replace(",,-45,", ",30,,"))
+    with pytest.raises(InputFileError, match=r"nopitch\.csv: line 2: no pitch_deg"):
+        read_geotags_csv(tmp_path / "nopitch.csv")
+    (tmp_path / "nopitch4.csv").write_text(
+        "image,lat,lon,alt,pix4d_yaw_deg,pix4d_pitch_deg\na.JPG,48.1,11.5,600,3,\n"
+    )
+    with pytest.raises(InputFileError, match=r"nopitch4\.csv: line 2: no pix4d_pitch_deg"):
+        read_geotags_csv(tmp_path / "nopitch4.csv")
+
+
+@pytest.mark.parametrize(("pitch", "roll"), [(0.7, 0.5), (3.0, -2.0), (60.0, 3.0), (30.0, -10.0)])
+def test_pix4d_angles_without_a_yaw_keep_the_cameras_tilt(tmp_path, pitch, roll):
+    """Pix4D's angles go to DJI's through a rotation: without a yaw it is taken as 0 for it (and the DJI yaw
+    that gives dropped for 0: near nadir DJI's yaw / roll split is arbitrary, 35 deg of roll for a camera
+    0.9 deg off nadir). The prior's roll and pitch (the camera's tilt) are those of the camera whatever its
+    heading, near nadir and oblique; the file's own yaw column may be empty or absent."""
+    photo = dji_jpeg(tmp_path / "a.JPG", xmp_packet(**RTK), size=(80, 60))
+    for header, cells in (("pix4d_yaw_deg,pix4d_pitch_deg,pix4d_roll_deg", f",{pitch},{roll}"),
+                          ("pix4d_pitch_deg,pix4d_roll_deg", f"{pitch},{roll}")):  # fmt: skip
+        (tmp_path / "g.csv").write_text(f"image,lat,lon,alt,{header}\na.JPG,48.1,11.5,600,{cells}\n")
+        prior = PriorFiles(tmp_path / "g.csv", pyproj.CRS("EPSG:25832")).prior(photo)
+        assert not prior.heading_known and prior.details["gimbal_yaw_pitch_roll_deg"][0] == 0.0
+        for heading in (0.0, 137.0, -75.0):
+            camera = Pose.from_rotation_center(odm_world_from_cam(heading, pitch, roll), np.zeros(3))
+            np.testing.assert_allclose(
+                prior.pose_world.to_xyz_rpy()[3:5], camera.to_xyz_rpy()[3:5], atol=1e-6
+            )

@@ -1770,16 +1770,11 @@ def test_an_intrinsics_file_or_a_backends_mask_changed_after_it_finished_is_told
     assert "intrinsics file and a files backend's mask and depth (before stop 53)" in err
 
 
-def test_a_dji_photo_without_a_heading_is_localized_searching_every_heading(tmp_path, capsys):
-    """A DJI photo whose XMP has no GimbalYawDegree (position and pitch known) was skipped ("no usable GPS
-    prior: the image metadata has no gimbal_yaw_deg"), though a prior without a heading can be searched
-    (stop 53). Now its prior has yaw 0 and a yaw sigma that searches every heading, over a smaller yaw
-    sigma the user stated for the flight; its record and row say that its tags had no heading. As ground
-    truth such tags are refused."""
-    from semcityloc.citymodel import read_pose_world
-    from semcityloc.datasets.dji import NO_HEADING_NOTE
-    from semcityloc.geometry.uncertainty import NO_HEADING_YAW_DEG
-
+def _headingless_flight(tmp_path) -> tuple[Path, Pose, np.ndarray, list]:
+    """One DJI photo over the box city placed at 48.1 N, 11.5 E (EPSG:25832), its XMP without
+    GimbalYawDegree (position and pitch known), its oracle mask; (folder, true pose, offset, the run's
+    argv without ``--out``: a flight yaw sigma of 3 deg stated). Its prior is 2-3 m off and 120 deg off
+    the yaw 0 taken."""
     root = tmp_path / "flight"
     (root / "images").mkdir(parents=True)
     city = root / "city.obj"
@@ -1795,20 +1790,61 @@ def test_a_dji_photo_without_a_heading_is_localized_searching_every_heading(tmp_
     photo = dji_jpeg(root / "images" / "H0.JPG", xmp_packet(**fields), size=(160, 120), focal_35mm=24)
     camera = camera_from_exif(read_dji_metadata(photo))
     save_labels_png(oracle_labels(model, camera, truth), root / "masks" / "H0.png")
-    out = tmp_path / "out"
     argv = ["run", root / "images", "--city", city, "--masks", root / "masks", "--crs", "EPSG:25832"]
     argv += ["--offset", ",".join(f"{v:g}" for v in offset), "--prior-sigma", "yaw=3", "--no-overlays"]
-    code, _, err = run(capsys, *argv, "--out", out)
-    assert code == 0, err
+    return root, truth, offset, argv
+
+
+def _localized_searching_every_heading(out: Path, truth: Pose, offset: np.ndarray, note: str) -> None:
+    """The one photo of ``_headingless_flight`` localized from a prior without a heading: its yaw sigma every
+    heading's over the 3 deg stated, its record and row saying ``note``, within 1 m / 1 deg."""
+    from semcityloc.citymodel import read_pose_world
+    from semcityloc.geometry.uncertainty import NO_HEADING_YAW_DEG
+
     summary = json.loads((out / "summary.json").read_text())
     assert summary["skipped_photos"] == {} and summary["localized"] == 1, summary
     record = json.loads((out / "poses" / "H0.json").read_text())
     assert record["extra"]["prior_uncertainty"]["yaw_deg"] == NO_HEADING_YAW_DEG
     assert record["extra"]["prior"]["extra"]["heading_known"] is False
-    assert NO_HEADING_NOTE in record["extra"]["warnings"]
-    assert NO_HEADING_NOTE in read_results(out / "results.csv")[0]["warnings"]
+    assert note in record["extra"]["warnings"] and note in record["extra"]["prior"]["extra"]["notes"]
+    assert note in read_results(out / "results.csv")[0]["warnings"]
     found = read_pose_world(out / "poses" / "H0.json", pyproj.CRS("EPSG:25832"), crs_offset=list(offset))
     assert center_error_m(found, truth) < 1.0 and rotation_error_deg(found, truth) < 1.0
+
+
+def test_a_dji_photo_without_a_heading_is_localized_searching_every_heading(tmp_path, capsys):
+    """A DJI photo whose XMP has no GimbalYawDegree (position and pitch known) was skipped ("no usable GPS
+    prior: the image metadata has no gimbal_yaw_deg"), though a prior without a heading can be searched
+    (stop 53). Now its prior has yaw 0 and a yaw sigma that searches every heading, over a smaller yaw
+    sigma the user stated for the flight; its record and row say that its tags had no heading. As ground
+    truth such tags are refused."""
+    from semcityloc.datasets.dji import NO_HEADING_NOTE
+
+    _, truth, offset, argv = _headingless_flight(tmp_path)
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "out")
+    assert code == 0, err
+    _localized_searching_every_heading(tmp_path / "out", truth, offset, NO_HEADING_NOTE)
     # Such tags as ground truth are none: a yaw of 0 taken for the missing one is no true pose.
     code, _, err = run(capsys, *argv, "--truth", "exif", "--out", tmp_path / "truth")
     assert code == 2 and "its tags have no heading (GimbalYawDegree)" in err, err
+
+
+def test_a_geotag_row_without_a_yaw_is_localized_searching_every_heading(tmp_path, capsys):
+    """Stop 54: a geotag CSV (``--priors``) whose row has an empty yaw cell (here Pix4D's angles, pitch 60 =
+    DJI's -30) refused the whole run ("line 2: no pix4d_yaw_deg"). Now its photo is localized as a DJI
+    photo without GimbalYawDegree is: yaw 0, every heading searched, its record and row saying that its
+    geotag row had no yaw; as ``--truth`` the row is refused for that photo, naming file and line."""
+    from semcityloc.datasets.geotags import NO_YAW_NOTE
+
+    root, truth, offset, argv = _headingless_flight(tmp_path)
+    metadata = read_dji_metadata(root / "images" / "H0.JPG")
+    csv_file = root / "geotags.csv"
+    csv_file.write_text(
+        "image,latitude,longitude,height_m,pix4d_yaw_deg,pix4d_pitch_deg,pix4d_roll_deg\n"
+        f"H0.JPG,{metadata.latitude!r},{metadata.longitude!r},{metadata.absolute_altitude_m!r},,60,0\n"
+    )
+    code, _, err = run(capsys, *argv, "--priors", csv_file, "--out", tmp_path / "out")
+    assert code == 0, err
+    _localized_searching_every_heading(tmp_path / "out", truth, offset, NO_YAW_NOTE)
+    code, _, err = run(capsys, *argv, "--truth", csv_file, "--out", tmp_path / "truth")
+    assert code == 2 and f"its geotag row ({csv_file} line 2) has no yaw" in err, err

@@ -29,6 +29,7 @@ import json
 import math
 from collections import Counter
 from collections.abc import Iterable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -637,6 +638,8 @@ def write_exports(
                 odm_accuracy.append(accuracy)
         else:
             tag = dji_geotag(inp.prior.pose_world, model.crs, shift, target_height, geoid_separation_m)
+            if not inp.prior.heading_known:  # its yaw 0 was taken, not known: none written
+                tag = replace(tag, heading_known=False)
             reason = records[inp.name].get("reason") or "no result"
             sigma = inp.uncertainty
             rows.append(GeotagRow(inp.name, tag, sigma.xy_m, sigma.z_m, f"prior (not localized: {reason})"))

@@ -19,7 +19,8 @@ Per photo (``datasets.photos`` matches files to photos by name):
 - how far the prior may be off (``PriorUncertainty``): ``prior_sigma`` when given (the same for every
   photo), else the photo's RTK tags (``dji.prior_uncertainty``) or the geotag file's accuracy columns,
   else the defaults; every heading for a prior without one (``PhotoPrior.searched``: a DJI photo without
-  ``GimbalYawDegree``). Kept in each query (``BenchmarkQuery.prior_uncertainty``) and in the outputs;
+  ``GimbalYawDegree``, a geotag row without a yaw). Kept in each query
+  (``BenchmarkQuery.prior_uncertainty``) and in the outputs;
 - perception: precomputed masks (``<masks>/<stem>.png|.npy``, or ``.jpg|.jpeg`` with ``allow_lossy_mask``;
   also named ``<photo name>.png``, e.g. ``P0.JPG.png``; any resolution with the photo's aspect),
   or a segmentation backend run on the photo (shrunk to ``PHOTO_MAX_WIDTH``); optional depth likewise;
@@ -370,15 +371,16 @@ def _prior_or_none(priors: PriorFiles, path: Path) -> PhotoPrior | None:
 def _true_pose(truth: PriorFiles | None, path: Path, meta) -> Pose | None:
     """The true pose of the photo ``path`` (world frame), None when the truth has none for it (ground truth
     is optional per photo); ``PhotoMissing`` saying so when it has one that cannot be used (a file that
-    cannot be read, of another CRS, a geotag row without a usable position, DJI tags without a heading):
+    cannot be read, of another CRS, a geotag row without a usable position, DJI tags or a geotag row
+    without a heading):
     that photo is skipped with the reason, not run as one without ground truth, which would leave it out of
     the recall unsaid."""
     if truth is None:
         return None
     try:
         true = truth.prior(path, meta)
-        if not true.heading_known:  # a yaw of 0 taken for one the tags lack is no true pose
-            raise InputFileError("its tags have no heading (GimbalYawDegree)")
+        if not true.heading_known:  # a yaw of 0 taken for one the tags (or the row) lack is no true pose
+            raise InputFileError(true.no_heading_truth)
         return true.pose_world
     except PhotoNotListed:
         return None

@@ -82,10 +82,12 @@ GPS_DEFAULT_UNCERTAINTY_M = 5.0
 NO_GNSS_FIX = "no GNSS fix (latitude 0, longitude 0: taken before the drone had a GPS position)"
 # Said of a photo whose tags have its position and gimbal pitch but no heading (``GimbalYawDegree``): its
 # prior's yaw is taken as 0 and its search covers every heading (``photos.PhotoPrior.searched``; stop 53).
-# Without the pitch too there is no tilt to search from: ``dji_prior`` refuses it.
-NO_HEADING_NOTE = (
-    "no GimbalYawDegree: the heading is unknown, yaw taken as 0 and every heading searched (slower)"
-)
+# Without the pitch too there is no tilt to search from: ``dji_prior`` refuses it. ``NO_HEADING_SEARCHED``
+# is what every prior without a heading says after what lacked it (a geotag row's: ``geotags.NO_YAW_NOTE``);
+# ``NO_HEADING_TRUTH`` why such tags are no true pose (``benchmark.photo_inputs``).
+NO_HEADING_SEARCHED = "the heading is unknown, yaw taken as 0 and every heading searched (slower)"
+NO_HEADING_NOTE = f"no GimbalYawDegree: {NO_HEADING_SEARCHED}"
+NO_HEADING_TRUTH = "its tags have no heading (GimbalYawDegree)"
 # Said (in the prior's notes) when a 2D CRS gets DJI's ellipsoidal height as its z unchanged: right for
 # UAVD4L-like frames, ~40 m wrong for a German LoD2 tile whose heights are DHHN2016.
 HEIGHT_AS_IS_NOTE = (
@@ -113,7 +115,7 @@ class DjiPrior:
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # subtracted from the CRS coordinates
     notes: list[str] = field(default_factory=list)
     meta: DjiMetadata | None = None  # what the prior was made from (``prior_uncertainty`` reads its RTK tags)
-    heading_known: bool = True  # False: the tags had no GimbalYawDegree, yaw taken as 0 (``NO_HEADING_NOTE``)
+    heading_known: bool = True  # False: no GimbalYawDegree (no yaw in a geotag row), yaw taken as 0 (notes)
 
     @property
     def height_unconverted(self) -> bool:
@@ -192,6 +194,7 @@ def dji_prior(
     source_height: str = HEIGHT_AUTO,
     target_height: str = HEIGHT_AUTO,
     geoid_separation_m: float | None = None,
+    no_heading_note: str = NO_HEADING_NOTE,
 ) -> DjiPrior:
     """The camera's prior pose in ``target_crs`` (minus ``offset``) from DJI metadata.
 
@@ -203,6 +206,8 @@ def dji_prior(
         target_height: ``"auto"`` (orthometric when the CRS has a vertical datum, else as the source),
             ``"ellipsoidal"`` or ``"orthometric"`` (EGM96 unless the CRS names a vertical datum).
         geoid_separation_m: a known geoid undulation N at the site (H = h - N); overrides pyproj.
+        no_heading_note: what the notes say when ``meta`` has no gimbal yaw (yaw taken as 0,
+            ``heading_known`` False): ``NO_HEADING_NOTE``, or a geotag row's ``geotags.NO_YAW_NOTE``.
     """
     if not isinstance(meta, DjiMetadata):
         meta = read_dji_metadata(meta)
@@ -303,7 +308,7 @@ def dji_prior(
         notes.append("no GimbalRollDegree: roll taken as 0")
     yaw = meta.gimbal_yaw_deg if meta.gimbal_yaw_deg is not None else 0.0
     if meta.gimbal_yaw_deg is None:
-        notes.append(NO_HEADING_NOTE)
+        notes.append(no_heading_note)
     try:
         pose = pose_from_dji(world, yaw + gamma, meta.gimbal_pitch_deg, roll)
     except PoseError as exc:
@@ -404,14 +409,16 @@ class DjiGeotag:
     roll_deg: float
     height_reference: str
     vertical_flag: str | None = None  # set when a height conversion the model's CRS asks for was not done
+    heading_known: bool = True  # False: a geotag row without a yaw (``yaw_deg`` 0, taken; no heading written)
 
     def metadata(self) -> DjiMetadata:
-        """The geotag as ``DjiMetadata`` (what ``dji_prior`` reads): a prior from a geotag file."""
+        """The geotag as ``DjiMetadata`` (what ``dji_prior`` reads): a prior from a geotag file; without a
+        heading no gimbal yaw, as a DJI photo without ``GimbalYawDegree`` (yaw 0, every heading searched)."""
         return DjiMetadata(
             latitude=self.latitude,
             longitude=self.longitude,
             absolute_altitude_m=self.height_m,
-            gimbal_yaw_deg=self.yaw_deg,
+            gimbal_yaw_deg=self.yaw_deg if self.heading_known else None,
             gimbal_pitch_deg=self.pitch_deg,
             gimbal_roll_deg=self.roll_deg,
             sources={"latitude": "geotag"},

@@ -26,10 +26,18 @@ Reading accepts any column order and these names too: ``name`` / ``label`` / ``f
 ``lat`` / ``lon`` / ``long``, ``alt`` / ``altitude`` / ``height`` / ``height_ellipsoidal_m``, and angles
 either as the ``pix4d_*`` columns or as DJI gimbal angles: ``yaw_deg`` / ``pitch_deg`` / ``roll_deg`` or
 ``yaw`` / ``pitch`` / ``roll`` (always DJI's convention, as a DJI photo's XMP holds them: what users export
-with exiftool); a file with both is refused (which would be meant?). ``geo.txt``: OpenDroneMap's image
-geolocation file, a projection line (the model's horizontal CRS, so no height conversion is involved)
-and one line per image: ``image_name x y z yaw pitch roll``, the angles those of ``geotags.csv``
-(``pix4d_angles``), which is ODM's convention.
+with exiftool); a file with both is refused (which would be meant?). The yaw may be left out (no such
+column, or an empty cell: a drone or a table without a compass heading): that row's prior has yaw 0 and
+every heading is searched, as a DJI photo without ``GimbalYawDegree`` (``NO_YAW_NOTE``; stop 54). Pix4D
+angles without a yaw are converted with yaw 0; the DJI yaw that gives is dropped for 0 too (in both
+conventions the yaw is the outermost turn, about the vertical: the camera's tilt, its roll and pitch,
+is the same whatever heading is taken, and near nadir DJI's yaw / roll split is arbitrary anyway). Such
+a row is no true pose (``benchmark.photo_inputs``); a run writes a photo's prior without a heading with
+an empty yaw cell. A row without a pitch is refused, naming file, line and column.
+
+``geo.txt``: OpenDroneMap's image geolocation file, a projection line (the model's horizontal CRS, so no
+height conversion is involved) and one line per image: ``image_name x y z yaw pitch roll``, the angles
+those of ``geotags.csv`` (``pix4d_angles``), which is ODM's convention.
 """
 
 from __future__ import annotations
@@ -44,7 +52,7 @@ import numpy as np
 import pyproj
 
 from semcityloc.citymodel.crs import horizontal_crs
-from semcityloc.datasets.dji import HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, DjiGeotag
+from semcityloc.datasets.dji import HEIGHT_ELLIPSOIDAL, HEIGHT_ORTHOMETRIC, NO_HEADING_SEARCHED, DjiGeotag
 from semcityloc.datasets.dji_metadata import finite_number
 from semcityloc.errors import CRSError, InputFileError
 from semcityloc.geometry.conventions import (
@@ -88,6 +96,9 @@ _ALIASES = {
 _REQUIRED = ("image", "latitude", "longitude", "height_m")
 DJI_ANGLES = ("yaw_deg", "pitch_deg", "roll_deg")  # ``_ALIASES`` keys of the two angle sets a file may hold
 PIX4D_ANGLES = ("pix4d_yaw_deg", "pix4d_pitch_deg", "pix4d_roll_deg")
+# Said of a row without a yaw (an empty cell, no yaw column), in its prior's notes and its result's warnings:
+# the words of ``dji.NO_HEADING_NOTE`` after what lacked the heading.
+NO_YAW_NOTE = f"no yaw in its geotag row: {NO_HEADING_SEARCHED}"
 
 
 def pix4d_angles(tag: DjiGeotag) -> tuple[float, float, float]:
@@ -177,12 +188,12 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
             "(pix4d_*): keep one set"
         )
     angles = PIX4D_ANGLES if pix4d else DJI_ANGLES
-    missing = [k for k in (*_REQUIRED, *angles[:2]) if k not in where]
+    missing = [k for k in (*_REQUIRED, angles[1]) if k not in where]
     if missing:
         raise InputFileError(
-            f"{path}: a geotag CSV needs the columns {', '.join(_REQUIRED)} and angles: yaw_deg, pitch_deg "
-            "(DJI's) or pix4d_yaw_deg, pix4d_pitch_deg (+ the roll, accuracy_xy_m, accuracy_z_m); missing "
-            f"{', '.join(missing)} in the header {header}"
+            f"{path}: a geotag CSV needs the columns {', '.join(_REQUIRED)} and a pitch: pitch_deg (DJI's) "
+            "or pix4d_pitch_deg (+ the yaw: without it every heading is searched; the roll, accuracy_xy_m, "
+            f"accuracy_z_m); missing {', '.join(missing)} in the header {header}"
         )
     rows: dict[str, GeotagRow] = {}
     for n, values in enumerate(reader, start=2):
@@ -205,10 +216,11 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
         lat, lon = get("latitude"), get("longitude")
         if not (-90 <= lat <= 90 and -180 <= lon <= 360):
             raise InputFileError(f"{line}: latitude {lat} / longitude {lon} out of range")
-        roll = get(angles[2], optional=True)
-        yaw, pitch, roll = get(angles[0]), get(angles[1]), 0.0 if roll is None else roll
+        yaw, pitch, roll = get(angles[0], optional=True), get(angles[1]), get(angles[2], optional=True)
+        heading_known, roll = yaw is not None, 0.0 if roll is None else roll
         if pix4d:
-            yaw, pitch, roll = dji_angles_of_pix4d(yaw, pitch, roll)
+            yaw, pitch, roll = dji_angles_of_pix4d(yaw if heading_known else 0.0, pitch, roll)
+        yaw = yaw if heading_known else 0.0  # module docstring: no heading, yaw 0 (DJI's)
         tag = DjiGeotag(
             latitude=lat,
             longitude=lon,
@@ -217,6 +229,7 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
             pitch_deg=pitch,
             roll_deg=roll,
             height_reference=text("height_reference") or "as given in the geotag file",
+            heading_known=heading_known,
         )
         source = text("source")
         rows[image] = GeotagRow(
@@ -250,7 +263,7 @@ def geotags_csv_text(rows: list[GeotagRow]) -> str:
                 f"{g.latitude:.10f}",
                 f"{g.longitude:.10f}",
                 f"{g.height_m:.4f}",
-                f"{yaw:.6f}",
+                f"{yaw:.6f}" if g.heading_known else "",  # none known: none written (module docstring)
                 f"{pitch:.6f}",
                 f"{roll:.6f}",
                 _cell(r.accuracy_xy_m, 3),

@@ -23,8 +23,9 @@ per-photo information in whatever form they come with. This module matches each 
   uncertainty from the RTK tags: ``dji.prior_uncertainty``), a geotag CSV (``datasets.geotags``: WGS 84
   + angles, converted the same way; accuracy columns = uncertainty) or a pose file / folder as above;
   a height that could not be converted widens the height sigma either way (``dji.height_widened``), and a
-  photo whose tags have no heading (no ``GimbalYawDegree``, its pitch known) gets yaw 0 and a yaw sigma
-  that searches every heading, whatever ``--prior-sigma`` says (``PhotoPrior.searched``; stop 53).
+  photo whose tags have no heading (no ``GimbalYawDegree``, its pitch known; stop 53) or whose geotag row
+  has no yaw (stop 54) gets yaw 0 and a yaw sigma that searches every heading, whatever ``--prior-sigma``
+  says (``PhotoPrior.searched``).
 
 A photo lacking something is not an error of the whole batch: ``PhotoMissing`` names what is missing and
 the caller skips that photo with the reason.
@@ -44,10 +45,17 @@ import pyproj
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.pose_crs import check_declared_frame, read_pose_world
 from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, read_cameras_binary, read_images_binary
-from semcityloc.datasets.dji import HEIGHT_AUTO, NO_HEADING_NOTE, dji_prior, height_widened, prior_uncertainty
+from semcityloc.datasets.dji import (
+    HEIGHT_AUTO,
+    NO_HEADING_NOTE,
+    NO_HEADING_TRUTH,
+    dji_prior,
+    height_widened,
+    prior_uncertainty,
+)
 from semcityloc.datasets.dji_camera import calibrated_intrinsics, camera_from_exif, dewarp_lens
 from semcityloc.datasets.dji_metadata import DjiMetadata, read_dji_metadata
-from semcityloc.datasets.geotags import read_geotags_csv
+from semcityloc.datasets.geotags import NO_YAW_NOTE, read_geotags_csv
 from semcityloc.errors import (
     CameraError,
     CRSError,
@@ -418,7 +426,9 @@ class PhotoPrior:
     uncertainty: PriorUncertainty | None  # None: the caller's default
     source: str
     details: dict = field(default_factory=dict)
-    heading_known: bool = True  # False: the tags had no heading (``dji.NO_HEADING_NOTE``), yaw taken as 0
+    heading_known: bool = True  # False: the tags or the geotag row had no heading, yaw taken as 0
+    no_heading_note: str = NO_HEADING_NOTE  # said of it without a heading (a geotag row's: ``NO_YAW_NOTE``)
+    no_heading_truth: str = NO_HEADING_TRUTH  # why it is then no true pose (``benchmark.photo_inputs``)
 
     def searched(self, stated: PriorUncertainty | None = None) -> PriorUncertainty:
         """The uncertainty the localizer searches for this prior: ``stated`` (``--prior-sigma``, the same
@@ -430,7 +440,7 @@ class PhotoPrior:
 
     def warnings(self) -> list[str]:
         """What a result of this prior says about it: that every heading was searched, when it had none."""
-        return [] if self.heading_known else [NO_HEADING_NOTE]
+        return [] if self.heading_known else [self.no_heading_note]
 
 
 class PriorFiles:
@@ -469,7 +479,13 @@ class PriorFiles:
             )
 
     def _from_dji(
-        self, meta, source: str, source_height: str, stated: PriorUncertainty | None = None, where: str = ""
+        self,
+        meta,
+        source: str,
+        source_height: str,
+        stated: PriorUncertainty | None = None,
+        where: str = "",
+        geotag: bool = False,
     ) -> PhotoPrior:
         """The prior of ``meta`` (a photo's DJI metadata, a geotag row's: ``where`` names the row) with its
         uncertainty: ``stated`` (a geotag row's accuracies, else the defaults) or, for a photo's own metadata
@@ -477,7 +493,9 @@ class PriorFiles:
         converted (``dji.height_widened``, one rule for every source; no heading: ``PhotoPrior.searched``).
         ``PhotoMissing`` when it gives no prior in the model's CRS (no GNSS fix, a position outside the CRS's
         area of use, its latitude and longitude swapped, no gimbal pitch: ``dji.dji_prior``): that photo
-        skipped, not the run."""
+        skipped, not the run. ``geotag``: ``meta`` is a geotag row's (without a yaw it says so in its words:
+        ``geotags.NO_YAW_NOTE``)."""
+        no_heading = NO_YAW_NOTE if geotag else NO_HEADING_NOTE
         try:
             prior = dji_prior(
                 meta,
@@ -486,6 +504,7 @@ class PriorFiles:
                 source_height=source_height,
                 target_height=self.target_height,
                 geoid_separation_m=self.geoid_separation_m,
+                no_heading_note=no_heading,
             )
         except (InputFileError, CRSError) as exc:
             raise PhotoMissing(f"no usable GPS prior{f' ({where})' if where else ''}: {exc}") from None
@@ -496,7 +515,8 @@ class PriorFiles:
             sigma = None  # the caller's default
         else:
             sigma = height_widened(stated or PriorUncertainty(), prior)
-        return PhotoPrior(prior.pose, sigma, source, details, heading_known=prior.heading_known)
+        untrue = f"its geotag row ({where}) has no yaw (heading)" if geotag else NO_HEADING_TRUTH
+        return PhotoPrior(prior.pose, sigma, source, details, prior.heading_known, no_heading, untrue)
 
     def prior(self, image: Path, meta: DjiMetadata | None = None) -> PhotoPrior:
         """The prior of ``image``; ``PhotoNotListed`` when the files have none for it, ``PhotoMissing`` when
@@ -517,6 +537,6 @@ class PriorFiles:
             source = f"geotags {Path(self.spec).name}"
             where = f"{self.spec} line {row.line}" if row.line is not None else str(self.spec)
             return self._from_dji(
-                row.geotag.metadata(), source, row.source_height(), row.uncertainty(), where
+                row.geotag.metadata(), source, row.source_height(), row.uncertainty(), where, geotag=True
             )
         return self._from_dji(meta if meta is not None else photo_metadata(image), EXIF, HEIGHT_AUTO)
