@@ -1230,11 +1230,13 @@ def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_
     assert PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=47.2)
 
 
-def test_a_geoid_separation_with_ellipsoidal_model_heights_is_refused(tmp_path):
+def test_a_geoid_separation_with_ellipsoidal_model_heights_is_refused(tmp_path, capsys):
     """``--geoid-separation`` was used only with ``--target-height orthometric`` (or a compound CRS) and said
     unused otherwise (user audit, stop 52): with ``auto`` it now applies (``dji.model_heights_orthometric``);
-    with ``ellipsoidal``, which says the model's heights need no N, the run is refused naming both."""
-    with pytest.raises(BenchmarkError, match="--geoid-separation 36.7 converts .* give one or the other"):
+    with ``ellipsoidal``, which says the model's heights need no N, the run is refused naming both: in
+    Python as ``PhotoSpec`` takes them (it named the flags until stop 54), on the command line as flags."""
+    said = "geoid_separation_m=36.7 converts .* but target_height='ellipsoidal' says .* give one or the other"
+    with pytest.raises(BenchmarkError, match=said):
         PhotoSpec(
             str(tmp_path),
             "city.obj",
@@ -1242,6 +1244,11 @@ def test_a_geoid_separation_with_ellipsoidal_model_heights_is_refused(tmp_path):
             target_height="ellipsoidal",
             geoid_separation_m=36.7,
         )
+    argv = ["run", tmp_path, "--city", "city.obj", "--masks", tmp_path, "--out", tmp_path / "out"]
+    code, _, err = run(capsys, *argv, "--target-height", "ellipsoidal", "--geoid-separation", "36.7")
+    assert (
+        code == 2 and "--geoid-separation 36.7 converts" in err and "but --target-height ellipsoidal" in err
+    )
 
 
 def _rename_photo(root: Path, stem: str, new_stem: str) -> None:

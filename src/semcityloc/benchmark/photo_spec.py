@@ -129,9 +129,10 @@ class PhotoSpec:
         check_geoid_separation(self.geoid_separation_m)  # refused now, not only once a photo's EXIF needs it
         if self.geoid_separation_m is not None and self.target_height == HEIGHT_ELLIPSOIDAL:
             raise BenchmarkError(
-                f"--geoid-separation {self.geoid_separation_m:g} converts the photos' ellipsoidal heights to "
-                "the model's orthometric ones, but --target-height ellipsoidal says the model's heights are "
-                "ellipsoidal: give one or the other"
+                f"{parameter('geoid_separation', f'{self.geoid_separation_m:g}')} converts the photos' "
+                "ellipsoidal heights to the model's orthometric ones, but "
+                f"{parameter('target_height', HEIGHT_ELLIPSOIDAL)} says the model's heights are ellipsoidal: "
+                "give one or the other"
             )
         self.fixed_uncertainty()
         check_run_options(self.method, self.preset, self.keep_details)
