@@ -1814,7 +1814,7 @@ def _localized_searching_every_heading(out: Path, truth: Pose, offset: np.ndarra
     assert record["extra"]["prior_uncertainty"]["yaw_deg"] == NO_HEADING_YAW_DEG
     assert record["extra"]["prior"]["extra"]["heading_known"] is False
     assert note in record["extra"]["warnings"] and note in record["extra"]["prior"]["extra"]["notes"]
-    assert note in read_results(out / "results.csv")[0]["warnings"]
+    assert note in _rows_by_name(out)["H0.JPG"]["warnings"]
     found = read_pose_world(out / "poses" / "H0.json", pyproj.CRS("EPSG:25832"), crs_offset=list(offset))
     assert center_error_m(found, truth) < 1.0 and rotation_error_deg(found, truth) < 1.0
 
@@ -1840,18 +1840,28 @@ def test_a_geotag_row_without_a_yaw_is_localized_searching_every_heading(tmp_pat
     """Stop 54: a geotag CSV (``--priors``) whose row has an empty yaw cell (here Pix4D's angles, pitch 60 =
     DJI's -30) refused the whole run ("line 2: no pix4d_yaw_deg"). Now its photo is localized as a DJI
     photo without GimbalYawDegree is: yaw 0, every heading searched, its record and row saying that its
-    geotag row had no yaw; as ``--truth`` the row is refused for that photo, naming file and line."""
-    from semcityloc.datasets.geotags import NO_YAW_NOTE
+    geotag row had no yaw; as ``--truth`` the row is refused for that photo, naming file and line. A photo
+    of such a row that is not localized (a mask without buildings) keeps its prior in the run's
+    ``geotags.csv`` with an empty yaw cell, not the yaw 0 taken for it."""
+    from semcityloc.datasets.geotags import NO_YAW_NOTE, read_geotags_csv
 
     root, truth, offset, argv = _headingless_flight(tmp_path)
+    shutil.copy(root / "images" / "H0.JPG", root / "images" / "H1.JPG")
+    save_labels_png(np.full((120, 160), IGNORE, np.uint8), root / "masks" / "H1.png")
     metadata = read_dji_metadata(root / "images" / "H0.JPG")
     csv_file = root / "geotags.csv"
+    where = f"{metadata.latitude!r},{metadata.longitude!r},{metadata.absolute_altitude_m!r}"
     csv_file.write_text(
         "image,latitude,longitude,height_m,pix4d_yaw_deg,pix4d_pitch_deg,pix4d_roll_deg\n"
-        f"H0.JPG,{metadata.latitude!r},{metadata.longitude!r},{metadata.absolute_altitude_m!r},,60,0\n"
+        f"H0.JPG,{where},,60,0\nH1.JPG,{where},,60,0\n"
     )
-    code, _, err = run(capsys, *argv, "--priors", csv_file, "--out", tmp_path / "out")
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *argv, "--priors", csv_file, "--out", out)
     assert code == 0, err
-    _localized_searching_every_heading(tmp_path / "out", truth, offset, NO_YAW_NOTE)
+    _localized_searching_every_heading(out, truth, offset, NO_YAW_NOTE)
+    assert NO_YAW_NOTE in _rows_by_name(out)["H1.JPG"]["warnings"]
+    kept = read_geotags_csv(out / "geotags.csv")["H1.JPG"]
+    assert kept.source.startswith("prior (not localized") and not kept.geotag.heading_known
+    assert ",,60.000000," in (out / "geotags.csv").read_text().splitlines()[2]
     code, _, err = run(capsys, *argv, "--truth", csv_file, "--out", tmp_path / "truth")
     assert code == 2 and f"its geotag row ({csv_file} line 2) has no yaw" in err, err
