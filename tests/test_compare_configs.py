@@ -111,3 +111,56 @@ def test_many_knobs_make_a_short_cache_folder_name(compare, tmp_path):
     assert len(folder.name) < 100 and folder.name.startswith("generated_s0_set-")
     assert folder != compare._cache_dir(tmp_path, "generated", 0, {**many, "reality.knob_0": 1})
     assert compare._cache_dir(tmp_path, "generated", 1, {}).name == "generated_s1_realistic"
+
+
+def test_every_tuning_condition_is_a_valid_scenario_and_map_faults_joins_three():
+    """The named conditions are the scenario's own knobs (a typo would fail in a worker, mid-run), and
+    ``map_faults`` is hilly + outdated + map_err2x at once, as its docs say."""
+    from semcityloc.benchmark.calibration import TUNING_CONDITIONS, tuning_condition
+    from semcityloc.benchmark.scenario import parse_settings, query_config
+    from semcityloc.errors import ParameterError
+
+    for name, knobs in TUNING_CONDITIONS.items():
+        cfg = query_config("realistic", parse_settings(list(knobs)))
+        assert (cfg == query_config("realistic")) == (name == "realistic"), name
+    joined = {*tuning_condition("hilly"), *tuning_condition("outdated"), *tuning_condition("map_err2x")}
+    assert set(tuning_condition("map_faults")) == joined
+    with pytest.raises(ParameterError, match="unknown tuning condition 'hard'.*map_faults"):
+        tuning_condition("hard")
+
+
+def test_conditions_are_run_and_summarised_apart(tmp_path):
+    """Two conditions, one query each: one JSON line per (condition, variant), each naming its condition,
+    and the rows file tags every row."""
+    import json
+
+    out = subprocess.run(
+        [
+            sys.executable,
+            str(SCRIPT),
+            "--variant",
+            "base",
+            "--city",
+            "generated",
+            "--queries",
+            "1",
+            "--workers",
+            "1",
+            "--condition",
+            "realistic",
+            "--condition",
+            "hilly",
+            "--cache",
+            str(tmp_path / "c"),
+            "--rows",
+            str(tmp_path / "rows.jsonl"),
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(x) for x in out.stdout.splitlines() if x.startswith("{")]
+    assert [(s["condition"], s["variant"]) for s in lines] == [("realistic", "base"), ("hilly", "base")]
+    rows = [json.loads(x) for x in (tmp_path / "rows.jsonl").read_text().splitlines()]
+    assert {r["condition"] for r in rows} == {"realistic", "hilly"}
+    assert len({r["query"] for r in rows}) == len(rows)  # the two conditions' queries are told apart

@@ -36,6 +36,38 @@ ACCEPTANCE_CONDITIONS: dict[str, tuple[str, tuple[float, float] | None]] = {
     "prior40-50": ("trained", (40.0, 50.0)),
 }
 
+# Named tuning conditions (``compare_configs --condition``): condition -> scenario knob settings
+# (``semcityloc benchmark --set``) on top of the realistic scenario. Why: the calibration cities' realistic
+# draws are easier than the reporting cities' (stop 53: no miss at 5 m / 5 deg in 400 queries of Fürth and
+# the generated city, where Berlin's seed 0 has six), so a knob chosen on them alone never meets the
+# failures it is reported on; stop 52's roll/pitch second look was, and the map's faults showed its harm
+# only on held-out runs (stop 54). A choice is made on ``realistic`` AND the map's faults; the bad IMUs
+# are what the stated uncertainty fails to say.
+TUNING_CONDITIONS: dict[str, tuple[str, ...]] = {
+    "realistic": (),
+    "hilly": ("reality.terrain_relief_m=10",),
+    "flat_eaves": ("reality.overhang_flat_roofs=true",),
+    "outdated": ("reality.missing_fraction=0.2", "reality.new_fraction=0.2"),
+    "map_err2x": ("reality.shift_xy_max_m=2", "reality.height_change_max_m=4"),
+    "map_faults": (
+        "reality.terrain_relief_m=10",
+        "reality.missing_fraction=0.2",
+        "reality.new_fraction=0.2",
+        "reality.shift_xy_max_m=2",
+        "reality.height_change_max_m=4",
+    ),
+    "imu2x": ("prior_roll_pitch_sigma_deg=2", "prior_roll_pitch_deg=5"),
+    "imu4x": ("prior_roll_pitch_sigma_deg=4", "prior_roll_pitch_deg=10"),
+}
+
+
+def tuning_condition(name: str) -> tuple[str, ...]:
+    """The ``--set`` knob settings of a named tuning condition (``TUNING_CONDITIONS``); ``ParameterError``
+    naming the known ones otherwise."""
+    if name not in TUNING_CONDITIONS:
+        raise ParameterError(f"unknown tuning condition {name!r}: one of {', '.join(TUNING_CONDITIONS)}")
+    return TUNING_CONDITIONS[name]
+
 
 def calibration_cities(shared_data: Path) -> list[str]:
     """The calibration cities: the generated district, and Fürth when ``shared_data`` holds it."""
