@@ -54,6 +54,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from semcityloc.benchmark.calibration import (
     TUNING_CONDITIONS,
     calibration_cities,
@@ -65,6 +67,7 @@ from semcityloc.benchmark.scenario import parse_settings, parse_value, query_con
 from semcityloc.benchmark.spec import BenchmarkSpec, load_map
 from semcityloc.errors import BenchmarkConfigError, ParameterError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
+from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.map_scenes import localizer_scene, scene_key
@@ -188,9 +191,24 @@ def _localize(path: Path) -> list[dict] | None:
                 "depth_cost": r.depth_cost,
                 "building_iou": r.confidence.get("building_iou"),
                 "flat_roof_eaves": r.search.get("flat_roof_eaves"),
+                "roll_pitch_look": _look_errors(r.search.get("roll_pitch_conflict"), q.true_pose_local),
             }
         )
     return rows
+
+
+def _look_errors(look: dict | None, true_pose_local: Pose) -> dict | None:
+    """The roll/pitch second look's record with the errors (m, deg) of its first and second pose, so that
+    a take rule can be judged on the same runs (``roll_pitch_takes.py``); None where it did not run."""
+    if look is None:
+        return None
+    keep = ("departure_deg", "sigmas", "gain", "gain_needed", "moved_m", "moved_deg", "taken")
+    out = {k: look[k] for k in keep}
+    for which in ("first", "second"):
+        pose = Pose.from_state(np.asarray(look[f"{which}_xyz_rpy_local"]))
+        err_m, err_deg, _ = pose_errors(pose, true_pose_local)
+        out[f"{which}_err"] = [float(err_m), float(err_deg)]
+    return out
 
 
 def _hits(rows: list[dict], m: float, deg: float) -> set[str]:

@@ -131,5 +131,7 @@ def test_a_small_gain_after_a_departure_within_three_sigma_keeps_the_first_pose(
     assert look["gain"] == pytest.approx(0.005) and look["gain_needed"] == pytest.approx(0.01)
     assert not look["taken"]
     assert look["final_departure_deg"] == pytest.approx(look["departure_deg"])
+    np.testing.assert_allclose(look["first_xyz_rpy_local"], result.pose_local.to_xyz_rpy())  # both recorded
+    assert len(look["second_xyz_rpy_local"]) == 6
     (said,) = [w for w in result.warnings if w.startswith(ROLL_PITCH_CONFLICT_WARNING)]
     assert "the first pose is kept" in said and "0.0050 better" in said

@@ -370,6 +370,8 @@ class Localizer:
             "moved_deg": moved_deg,
             "taken": bool(gain > needed),
             "refused": bool(apart and cfg.roll_pitch_conflict_refuse),
+            "first_xyz_rpy_local": state.tolist(),  # both poses, whichever is kept: a take rule can be
+            "second_xyz_rpy_local": trial.pose_local.to_xyz_rpy().tolist(),  # judged on the same runs
         }
         result.search["roll_pitch_conflict"] = look
         if look["taken"]:
