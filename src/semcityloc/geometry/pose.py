@@ -39,6 +39,53 @@ def rotation_about_world_z(angle_deg: np.ndarray | float) -> np.ndarray:
     return Rz
 
 
+# Below this many rotations scipy's ``Rotation`` is the quicker of the two (``euler_xyz_matrices``).
+EULER_NUMPY_MIN = 8
+
+
+def euler_xyz_matrices(angles_deg: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices of extrinsic x, y, z Euler angles (N, 3) in degrees: scipy's
+    ``Rotation.from_euler("xyz", angles, degrees=True).as_matrix()`` bit for bit, signed zeros too.
+
+    Why not scipy's alone: its per-rotation loop and per-call checks were half of every ``Pose.from_state``
+    of the refinement's particle batches (stop 54). From ``EULER_NUMPY_MIN`` rotations up the same
+    arithmetic runs in numpy: scipy's elementary quaternions ``(sin(a/2) e_axis, cos(a/2))``, composed
+    ``q_z (q_y q_x)`` by its product ``(p_w q_v + q_w p_v + p_v x q_v, p_w q_w - p_v . q_v)`` with the
+    zero components' terms kept (they decide the sign of a zero), then its quaternion-to-matrix formula,
+    every operation in its order; ``tests/test_pose.py`` holds the two to the same bits."""
+    a = np.asarray(angles_deg, dtype=np.float64)
+    if len(a) < EULER_NUMPY_MIN:
+        return Rotation.from_euler("xyz", a, degrees=True).as_matrix()
+    h = np.deg2rad(a) / 2.0
+    s, c = np.sin(h), np.cos(h)
+    sx, sy, sz = s[:, 0], s[:, 1], s[:, 2]
+    cx, cy, cz = c[:, 0], c[:, 1], c[:, 2]
+    # q1 = q_y q_x, with q_y = (0, sy, 0, cy) and q_x = (sx, 0, 0, cx) as (x, y, z, w)
+    zsx, zsy, zcx, zcy = sx * 0.0, sy * 0.0, cx * 0.0, cy * 0.0
+    x1 = cy * sx + zcx + (zsy - 0.0)
+    y1 = zcy + cx * sy + (zsx - 0.0)
+    z1 = zcy + zcx + (0.0 - sy * sx)
+    w1 = cy * cx - zsx - zsy - 0.0
+    # q = q_z q1, with q_z = (0, 0, sz, cz)
+    x = cz * x1 + w1 * 0.0 + (0.0 * z1 - sz * y1)
+    y = cz * y1 + w1 * 0.0 + (sz * x1 - 0.0 * z1)
+    z = cz * z1 + w1 * sz + (0.0 * y1 - 0.0 * x1)
+    w = cz * w1 - 0.0 * x1 - 0.0 * y1 - sz * z1
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    m = np.empty((len(a), 3, 3))
+    m[:, 0, 0] = x2 - y2 - z2 + w2
+    m[:, 1, 0] = 2 * (xy + zw)
+    m[:, 2, 0] = 2 * (xz - yw)
+    m[:, 0, 1] = 2 * (xy - zw)
+    m[:, 1, 1] = -x2 + y2 - z2 + w2
+    m[:, 2, 1] = 2 * (yz + xw)
+    m[:, 0, 2] = 2 * (xz + yw)
+    m[:, 1, 2] = 2 * (yz - xw)
+    m[:, 2, 2] = -x2 - y2 + z2 + w2
+    return m
+
+
 # float32 holds a coordinate of this magnitude to about 1 cm; beyond, world (CRS) coordinates lose metres
 # (a UTM northing of 5.8e6 to 0.5 m): they must reach a Pose in float64 (``float64_coordinates``).
 FLOAT32_SAFE_M = 1.0e5
@@ -106,7 +153,9 @@ class Pose:
 
     __slots__ = ("R", "t")
 
-    def __init__(self, R_cam_from_world: np.ndarray, t_cam_from_world: np.ndarray):
+    def __init__(
+        self, R_cam_from_world: np.ndarray, t_cam_from_world: np.ndarray, _rotation_checked: bool = False
+    ):
         # C-contiguous copies, not views: numpy's matrix products round by the operands' memory layout, and a
         # pose pickled to a worker process arrives C-contiguous; a transposed view here gave ``--workers 1``
         # poses up to 0.1 m apart from ``--workers 2`` ones (``tests/test_run_photos.py``).
@@ -116,7 +165,8 @@ class Pose:
             raise ShapeError(f"pose needs R (..., 3, 3) and t (..., 3), got {R.shape} and {t.shape}")
         if not np.all(np.isfinite(t)):
             raise PoseError("pose translation has non-finite entries")
-        _check_rotation(R, "pose rotation")
+        if not _rotation_checked:  # ``from_xyz_rpy``'s rotations are made from finite angles: rotations
+            _check_rotation(R, "pose rotation")
         self.R = R
         self.t = t
 
@@ -136,7 +186,9 @@ class Pose:
         return cls.from_rotation_center(T[..., :3, :3], T[..., :3, 3])
 
     @classmethod
-    def from_rotation_center(cls, R_world_from_cam: np.ndarray, center: np.ndarray) -> Pose:
+    def from_rotation_center(
+        cls, R_world_from_cam: np.ndarray, center: np.ndarray, _rotation_checked: bool = False
+    ) -> Pose:
         """From the camera's orientation in the world and its centre (world coordinates)."""
         Rwc = np.asarray(R_world_from_cam, dtype=np.float64)
         C = float64_coordinates(center, "camera centre")
@@ -147,7 +199,7 @@ class Pose:
         if not np.all(np.isfinite(C)):
             raise PoseError("camera centre has non-finite entries")
         R = np.swapaxes(Rwc, -1, -2)
-        return cls(R, -np.einsum("...ij,...j->...i", R, C))
+        return cls(R, -np.einsum("...ij,...j->...i", R, C), _rotation_checked)
 
     @classmethod
     def from_xyz_rpy(cls, xyz: np.ndarray, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> Pose:
@@ -158,9 +210,8 @@ class Pose:
         angles = np.stack(np.broadcast_arrays(pitch, roll, yaw), axis=-1).astype(np.float64)
         if not np.all(np.isfinite(angles)):
             raise PoseError("roll/pitch/yaw have non-finite entries")
-        R_body = Rotation.from_euler("xyz", angles.reshape(-1, 3), degrees=True).as_matrix()
-        R_body = R_body.reshape(angles.shape[:-1] + (3, 3))
-        return cls.from_rotation_center(R_body @ CAM_FROM_BODY_FLIP, xyz)
+        R_body = euler_xyz_matrices(angles.reshape(-1, 3)).reshape(angles.shape[:-1] + (3, 3))
+        return cls.from_rotation_center(R_body @ CAM_FROM_BODY_FLIP, xyz, _rotation_checked=True)
 
     @classmethod
     def from_state(cls, state: np.ndarray) -> Pose:

@@ -125,8 +125,9 @@ def rotation_lookup(
     fx, fy = camera.fx * oversample, camera.fy * oversample
     u = fx * d[..., 0] / z
     v = fy * d[..., 1] / z
-    umin, umax = u[front].min(), u[front].max()
-    vmin, vmax = v[front].min(), v[front].max()
+    u_front, v_front = u[front], v[front]
+    umin, umax = u_front.min(), u_front.max()
+    vmin, vmax = v_front.min(), v_front.max()
     margin = 1.0
     # Whole-pixel offsets from the target's principal point (scaled): a hypothesis equal to the base
     # then samples exactly the target's pixel centres when oversample is 1.
@@ -165,7 +166,10 @@ def yaw_lookup(
 
 def _within(d: np.ndarray, max_deg: float) -> np.ndarray:
     """Which ray directions ``d`` (..., 3) of the base camera lie within ``max_deg`` of its axis."""
-    return d[..., 2] > math.cos(math.radians(max_deg)) * np.linalg.norm(d, axis=-1)
+    # |d| summed as ``np.linalg.norm(d, axis=-1)`` sums it, (x^2 + y^2) + z^2 (the same bits), without its
+    # reduction over an axis of 3: a fifth of the time (stop 54)
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return z > math.cos(math.radians(max_deg)) * np.sqrt((x * x + y * y) + z * z)
 
 
 def _rays_within(rays: np.ndarray, offsets: np.ndarray, max_deg: float) -> bool:
