@@ -310,3 +310,19 @@ def test_a_world_pose_or_a_wrong_kind_of_argument_is_a_typed_error():
     ):
         with pytest.raises(ArgumentTypeError):
             call()
+
+
+@pytest.mark.parametrize("preset, expected", [(None, "PASSIVE"), ("ACTIVE", "ACTIVE")])
+def test_openmp_threads_wait_asleep_unless_the_user_chose(preset, expected):
+    """On shared cores a spinning OpenMP thread cost every parallel kernel call ~8 ms (stop 54): the render
+    package sets ``OMP_WAIT_POLICY=PASSIVE`` before numba starts its threads, and keeps a user's own."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if preset is not None:
+        env["OMP_WAIT_POLICY"] = preset
+    code = "import os, semcityloc.render.raster_numba; print(os.environ.get('OMP_WAIT_POLICY'))"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == expected
