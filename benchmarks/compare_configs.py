@@ -63,8 +63,9 @@ from semcityloc.benchmark.calibration import (
     tuning_condition,
 )
 from semcityloc.benchmark.code_version import code_fingerprint
-from semcityloc.benchmark.scenario import parse_settings, parse_value, query_config
+from semcityloc.benchmark.scenario import parse_value, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec, load_map
+from semcityloc.cli.benchmark import parse_settings  # the command line's --set knob=value
 from semcityloc.errors import BenchmarkConfigError, ParameterError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.geometry.pose import Pose

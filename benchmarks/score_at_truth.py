@@ -29,8 +29,9 @@ import dataclasses
 import json
 from concurrent.futures import ProcessPoolExecutor
 
-from semcityloc.benchmark.scenario import parse_settings, query_config
+from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
+from semcityloc.cli.benchmark import parse_settings  # the command line's --set knob=value
 from semcityloc.errors import BenchmarkConfigError
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.localization.localize import Localizer

@@ -29,6 +29,7 @@ from semcityloc.errors import (
     ResumeMismatchError,
     SemCityLocError,
     ShapeError,
+    as_flags,
 )
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.errors import center_error_m
@@ -330,10 +331,16 @@ def test_jpeg_masks_are_found_when_forced_and_named_when_not(dataset_dir, tmp_pa
 def test_options_are_checked_before_anything_runs(dataset_dir, tmp_path):
     with pytest.raises(BenchmarkError, match="unknown perception 'gt'; known: oracle, oracle-degraded"):
         run_benchmark(spec(dataset_dir, perception="gt"), tmp_path / "x", progress=False)
-    with pytest.raises(BenchmarkError, match="needs --masks"):
+    # Named as a Python caller passes them (the command line prints --perception masks, --masks DIR).
+    with pytest.raises(BenchmarkError, match=r"^perception='masks' needs masks='DIR' \(one"):
         run_benchmark(spec(dataset_dir, perception="masks"), tmp_path / "x", progress=False)
-    with pytest.raises(BenchmarkError, match="only used with --perception masks"):
+    with pytest.raises(BenchmarkError) as info:
         run_benchmark(spec(dataset_dir, masks="m"), tmp_path / "x", progress=False)
+    assert str(info.value) == (
+        "masks=... / depth=... / allow_lossy_mask=True are only used with perception='masks'"
+    )
+    flags = "--masks / --depth / --allow-lossy-mask are only used with --perception masks"
+    assert as_flags(str(info.value)) == flags
     with pytest.raises(ParameterError, match="unknown localizer preset 'huge'"):
         run_benchmark(DatasetSpec(dataset=str(dataset_dir), preset="huge"), tmp_path / "x")
     with pytest.raises(SemCityLocError, match="unknown segmentation preset 'nope'"):

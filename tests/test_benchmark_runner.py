@@ -253,7 +253,7 @@ def test_a_run_resumed_by_changed_code_says_its_results_mix(sim, baseline, tmp_p
     err = capsys.readouterr().err
     assert resumed.complete and resumed.new_rows == QUERIES - 2
     assert "started by other semcityloc code (source 0123456789abcdef" in err
-    assert "its 2 finished queries" in err and "--overwrite" in err
+    assert "its 2 finished queries" in err and "pass overwrite=True to make them all anew" in err  # Python's
     assert json.loads((out / "run.json").read_text())["code"] == "0123456789abcdef"  # it still says so
     run_benchmark(make_spec(sim), out, progress=False)  # finished: nothing is made, nothing mixes
     assert "other semcityloc code" not in capsys.readouterr().err
@@ -521,7 +521,7 @@ def test_a_damaged_results_file_names_remedies_that_work(sim, baseline, tmp_path
     with pytest.raises(BenchmarkError) as err:
         run_benchmark(make_spec(sim), out, progress=False)
     message = str(err.value)
-    assert "--overwrite" in message and "\n" not in message
+    assert "pass overwrite=True to start the run again" in message and "\n" not in message
     if damage != "header":  # the line to delete, keeping the other rows
         assert f"line {QUERIES + 2}" in message and "delete" in message
         lines = path.read_text().splitlines(keepends=True)
@@ -560,11 +560,13 @@ def test_a_results_file_that_cannot_be_read_says_cannot_read_naming_the_file_and
             call()
         message = str(err.value)
         assert message.startswith(f"cannot read {path}: ") and fix in message, message
-        assert "--overwrite" in message and "\n" not in message and "cannot write" not in message
+        assert "pass overwrite=True to start the run again" in message and "\n" not in message
+        assert "cannot write" not in message and "--overwrite" not in message
     report = ["report", str(out), "--out", str(tmp_path / "cli_report"), "--no-html"]
     assert cli(report) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"semcityloc: error: cannot read {path}: ") and err.count("\n") == 1
+    assert "pass --overwrite to start the run again" in err and "overwrite=True" not in err
     if damage == "no-permission":  # the fix named: readable again, the run resumes with its rows
         monkeypatch.undo()
         kept = run_benchmark(make_spec(sim), out, progress=False)
@@ -681,7 +683,7 @@ def test_two_different_rows_of_one_query_are_refused_naming_the_id_and_lines(sim
     path.write_text(lines[0] + other + "".join(lines[1:]))
     with pytest.raises(BenchmarkError, match=r"q0001 has 2 different rows \(lines 2 and 4\)") as err:
         run_benchmark(make_spec(sim), out, progress=False)
-    assert "delete" in str(err.value) and "--overwrite" in str(err.value)
+    assert "delete" in str(err.value) and "or pass overwrite=True to start the run again" in str(err.value)
     path.write_text("".join(lines[:2]) + "".join(lines[2:]) + other)  # after ours: refused too
     with pytest.raises(BenchmarkError, match=r"q0001 has 2 different rows \(lines 3 and 5\)"):
         run_benchmark(make_spec(sim), out, progress=False)

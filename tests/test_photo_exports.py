@@ -24,7 +24,7 @@ from semcityloc.benchmark.photo_exports import (
     space_split_names,
     yaw_moves_deg,
 )
-from semcityloc.errors import counted
+from semcityloc.errors import as_flags, counted
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, REASON_AT_EDGE
 
@@ -37,26 +37,28 @@ def test_a_shared_height_offset_is_said_with_its_size_and_side():
     median = float(np.median(moves[:, 2]))
     assert f"a median {abs(median):.1f} m below" in notes[0] and "height reference" in notes[0]
     assert "above their priors" in prior_offset_notes(moves * [1, 1, -1])[0]
-    assert "--prior-sigma" not in notes[0]  # nothing was refused at the volume's edge
+    assert "prior_sigma=" not in notes[0]  # nothing was refused at the volume's edge
     spread = 1.4826 * float(np.median(np.abs(moves[:, 2] - median)))
     sigma = math.ceil((abs(median) + 2 * spread) / 3)  # 3 sigma covers the offset and twice the spread
     (edge,) = prior_offset_notes(moves, at_edge=3)
-    assert f"(3 were; or run again with --prior-sigma z={sigma})" in edge and 7 <= sigma <= 9
+    assert f"(3 were; or run again with prior_sigma='z={sigma}')" in edge and 7 <= sigma <= 9
+    assert f"(3 were; or run again with --prior-sigma z={sigma})" in as_flags(edge)  # as the command says it
 
 
 def test_a_shared_horizontal_offset_is_said_apart_from_the_height():
     rng = np.random.default_rng(1)
     moves = np.c_[8.0 + rng.normal(0, 1, 10), -6.0 + rng.normal(0, 1, 10), rng.normal(0, 3, 10)]
     (note,) = prior_offset_notes(moves)
-    assert "horizontally" in note and "x +8" in note and "y -6" in note and "--crs" in note
-    assert "--prior-sigma" not in note
+    assert "horizontally" in note and "x +8" in note and "y -6" in note
+    assert "(a wrong crs=... or offset=..., or a GNSS bias)" in note and "prior_sigma=" not in note
+    assert "(a wrong --crs or --offset, or a GNSS bias)" in as_flags(note)
     (edge,) = prior_offset_notes(moves, at_edge=2, at_edge_xy=3)  # refused at the height edge: no z note
     spread = 1.4826 * float(np.median(np.linalg.norm(moves[:, :2] - np.median(moves[:, :2], axis=0), axis=1)))
     sigma = math.ceil((abs(float(np.median(moves[:, 0]))) + 2 * spread) / 3)  # x is the larger axis
     assert (
         edge.endswith(
             f"3 photos were refused at the search volume's horizontal edge: run again with "
-            f"--prior-sigma xy={sigma}"
+            f"prior_sigma='xy={sigma}'"
         )
         and 3 <= sigma <= 5
     )
@@ -82,12 +84,15 @@ def test_a_shared_yaw_offset_is_said_with_its_turn_and_the_sigma_that_covers_it(
     (note,) = prior_yaw_notes(moves)
     median = float(np.median(moves))
     assert f"turned a median {abs(median):.1f} deg clockwise" in note and "compass" in note
-    assert "--prior-sigma" not in note
+    assert "prior_sigma=" not in note
     assert "counter-clockwise" in prior_yaw_notes(-moves)[0]
     spread = 1.4826 * float(np.median(np.abs(moves - median)))
     (edge,) = prior_yaw_notes(moves, at_edge=4)
-    assert "4 photos were refused at the search volume's yaw edge: run again with --prior-sigma yaw=" in edge
-    assert edge.endswith(f"yaw={math.ceil((abs(median) + 2 * spread) / 3)}")
+    assert "4 photos were refused at the search volume's yaw edge: run again with prior_sigma='yaw=" in edge
+    assert edge.endswith(f"yaw={math.ceil((abs(median) + 2 * spread) / 3)}'")
+    assert as_flags(edge).endswith(
+        f"run again with --prior-sigma yaw={math.ceil((abs(median) + 2 * spread) / 3)}"
+    )
 
 
 def test_independent_compass_noise_is_not_a_yaw_offset():
@@ -128,10 +133,11 @@ def test_photos_refused_at_the_edge_get_one_note_with_the_widest_sigma_they_ask_
     ]
     (note,) = edge_notes(records)
     assert note.startswith("3 photos were refused at the search volume's edge (x+: 1, yaw+: 1, z-: 2)")
-    assert "--prior-sigma xy=20,z=40,yaw=12 to cover all of them" in note
+    assert "prior_sigma='xy=20,z=40,yaw=12' to cover all of them" in note
+    assert "--prior-sigma xy=20,z=40,yaw=12 to cover all of them" in as_flags(note)
     assert edge_notes(records[3:]) == []
     (old,) = edge_notes([{"reason": REASON_AT_EDGE, "search": {}}])  # a record without the edges
-    assert "edges not recorded" in old and "--prior-sigma" not in old and old.startswith("1 photo was")
+    assert "edges not recorded" in old and "prior_sigma" not in old and old.startswith("1 photo was")
 
 
 def test_refused_photos_with_a_better_view_beyond_the_volume_get_one_note_with_the_widest_sigma():
@@ -148,10 +154,14 @@ def test_refused_photos_with_a_better_view_beyond_the_volume_get_one_note_with_t
     ]
     (note,) = beyond_notes(records)
     assert note.startswith("2 refused photos have a view beyond the searched volume")
-    assert "run again with --prior-sigma xy=27 (a map that differs" in note
+    assert "run again with prior_sigma='xy=27' (a map that differs" in note
     assert beyond_notes(records[2:]) == []
     (old,) = beyond_notes([record(NOT_LOCALIZED, True)])  # a record without the sigma
-    assert old.startswith("1 refused photo has") and "state a larger --prior-sigma xy" in old
+    assert (
+        old.startswith("1 refused photo has")
+        and "state a larger horizontal sigma (prior_sigma='xy=...')" in old
+    )
+    assert "state a larger horizontal sigma (--prior-sigma xy=...)" in as_flags(old)
 
 
 def test_the_offset_note_and_the_edge_note_name_one_sigma_for_the_same_refusals():
@@ -170,8 +180,8 @@ def test_the_offset_note_and_the_edge_note_name_one_sigma_for_the_same_refusals(
         (height,) = prior_offset_notes(moves, at_edge=1, asked=asked)
         (yaw,) = prior_yaw_notes(yaws, at_edge=1, asked=asked)
         (edge,) = edge_notes(records, asked)
-        assert f"--prior-sigma z={asked['z']})" in height and f"--prior-sigma yaw={asked['yaw']}" in yaw
-        assert f"--prior-sigma z={asked['z']},yaw={asked['yaw']} to cover all of them" in edge
+        assert f"prior_sigma='z={asked['z']}')" in height and f"prior_sigma='yaw={asked['yaw']}'" in yaw
+        assert f"prior_sigma='z={asked['z']},yaw={asked['yaw']}' to cover all of them" in edge
     assert rerun_sigma([], moves, yaws) == {}  # nothing refused: nothing to run again
 
 
@@ -191,7 +201,7 @@ def test_counts_of_one_are_singular_in_every_note():
     rng = np.random.default_rng(4)
     moves = np.c_[8.0 + rng.normal(0, 1, 10), -6.0 + rng.normal(0, 1, 10), -20.0 + rng.normal(0, 1, 10)]
     height, horizontal = prior_offset_notes(moves, at_edge=1, at_edge_xy=1)
-    assert "(1 was; or run again with --prior-sigma z=" in height
+    assert "(1 was; or run again with prior_sigma='z=" in height
     assert "; 1 photo was refused at the search volume's horizontal edge" in horizontal
     (yaw,) = prior_yaw_notes(-12.0 + rng.normal(0, 1, 10), at_edge=1)
     assert "; 1 photo was refused at the search volume's yaw edge" in yaw

@@ -532,7 +532,8 @@ def test_a_photo_run_whose_photos_changed_is_refused_saying_so_not_as_other_argu
     more = {**old, "queries": 3, "query_names": ["P0.JPG", "P1.JPG", "P2.JPG"]}
     with pytest.raises(ResumeMismatchError, match=r"the photos to run differ .*queries: 2 -> 3") as info:
         prepare_output(tmp_path, more)
-    assert "arguments differ" not in str(info.value) and "--overwrite" in str(info.value)
+    assert "arguments differ" not in str(info.value)
+    assert str(info.value).endswith("; pass overwrite=True or choose another out_dir=...")
     with pytest.raises(ResumeMismatchError, match="arguments differ: method"):
         prepare_output(tmp_path, {**more, "method": "no-depth"})
     simulated = tmp_path / "simulated"  # its "queries" is --queries: the run grows (stop 50), alone
@@ -575,7 +576,7 @@ def test_a_run_json_that_cannot_be_read_says_cannot_read_and_overwrite_replaces_
         prepare_output(tmp_path, config)
     message = str(err.value)
     assert message.startswith(f"cannot read {path}: ") and fix in message, message
-    assert "--overwrite" in message and "another benchmark run" not in message and "\n" not in message
+    assert "overwrite=True" in message and "another benchmark run" not in message and "\n" not in message
     assert (tmp_path / "results.csv").read_text() == "kept\n"  # refused: nothing deleted
     assert prepare_output(tmp_path, config, overwrite=True) is None
     monkeypatch.undo()

@@ -603,7 +603,12 @@ def test_a_run_without_ground_truth_reports_what_it_says_of_itself_not_zero_reca
     assert (float(row["shift_yaw_deg_median"]), float(row["shift_yaw_deg_max"])) == (2.0, 3.0)  # 359: 1
     text = report.markdown.read_text(encoding="utf-8")
     assert "No ground truth" in text and "Recall cells" not in text and "- 1.00 / -" not in text
-    assert any("no ground truth (a run without --truth)" in n for n in report.notes)
+    # Its notes in a Python caller's words, report.md in the command line's (as a run folder's files).
+    assert any("no ground truth (a run without truth=...)" in n for n in report.notes)
+    assert (
+        "No ground truth (no run has `--truth`)" in text and "no ground truth (a run without --truth)" in text
+    )
+    assert "truth=" not in text
     with Image.open(tmp_path / "report" / "plots" / "self_assessment.png") as im:
         assert im.format == "PNG" and im.size[0] >= 1000
 

@@ -300,7 +300,9 @@ def test_a_true_pose_file_that_cannot_be_read_skips_its_photo_saying_so(box_flig
     assert set(skipped) == {"P0.JPG", "P1.JPG", "P9.JPG"}
     why = skipped["P1.JPG"]
     assert why.startswith("its true pose cannot be used (") and str(truth) in why and "UTF-8" in why
-    assert why.endswith("fix its --truth entry, or remove it to run the photo without ground truth")
+    assert why.endswith(
+        "fix its entry in the ground truth (truth=...), or remove it to run the photo without ground truth"
+    )
     assert "truncated" in skipped["P0.JPG"] and "its true pose cannot be used" in skipped["P0.JPG"]
 
 

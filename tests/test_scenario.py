@@ -20,12 +20,12 @@ from semcityloc.benchmark.queries import (
 from semcityloc.benchmark.scenario import (
     SCENARIOS,
     knob_names,
-    parse_settings,
     parse_value,
     query_config,
     set_knobs,
 )
-from semcityloc.errors import BenchmarkConfigError
+from semcityloc.cli.benchmark import parse_settings
+from semcityloc.errors import BenchmarkConfigError, as_flags
 from semcityloc.geometry.pose import Pose
 
 TRUE = Pose.from_xyz_rpy([100.0, 200.0, 90.0], 1.0, 35.0, 40.0)
@@ -104,6 +104,10 @@ def test_settings_reach_every_knob_and_are_checked():
         parse_settings(["focal_mm=20", "focal_mm=28"])
     with pytest.raises(BenchmarkConfigError, match="prior_height_m"):
         query_config("realistic", {"prior_height_m": -3}, queries=1)
+    # A value no check foresaw: the knob named as the caller set it (``settings``; the command prints --set).
+    with pytest.raises(BenchmarkConfigError, match=r"^reality\.tree_m2='x' \(settings=\.\.\.\): ") as info:
+        query_config("realistic", {"reality.tree_m2": "x"}, queries=1)
+    assert as_flags(str(info.value)).startswith("reality.tree_m2='x' (--set): ")
     with pytest.raises(BenchmarkConfigError, match="unknown scenario 'hard'"):
         query_config("hard", queries=1)
     # Beyond any map's error: a 1e9 m shift or a tree per 0.001 m2 ran one query to 18 GB (stop 50's audit)

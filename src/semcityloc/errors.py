@@ -234,6 +234,17 @@ PARAMETERS: dict[str, Parameter] = {
     "overwrite": Parameter("overwrite=True", "--overwrite"),
     "recursive": Parameter("PhotoSpec(recursive=True)", "--recursive"),
     "calibrate_focal": Parameter("PhotoSpec(calibrate_focal='{}')", "'semcityloc run --calibrate-focal {}'"),
+    # A run's spec (``PhotoSpec``, ``DatasetSpec``) and ``run_benchmark``: what a run folder's files and
+    # notes ask for (``benchmark``).
+    "run_prior_sigma": Parameter("prior_sigma='{}'", "--prior-sigma {}"),  # a spec's, not the Localizer's
+    "allow_lossy_mask": Parameter("allow_lossy_mask=True", "--allow-lossy-mask"),
+    "perception": Parameter("perception='{}'", "--perception {}"),
+    "truth": Parameter("truth='{}'", "--truth {}"),
+    "keep_details": Parameter("keep_details={}", "--keep-details {}"),
+    "out_dir": Parameter("out_dir='{}'", "--out {}"),
+    "executor": Parameter("executor='{}'", "--executor {}"),
+    "ray_address": Parameter("ray_address='{}'", "--ray-address {}"),
+    "settings": Parameter("settings={}", "--set {}"),  # ``scenario.query_config``'s knobs
 }
 
 

@@ -71,6 +71,7 @@ from semcityloc.errors import (
     LossyMaskError,
     ShapeError,
     counted,
+    parameter,
     shown_names,
     unknown_choice,
 )
@@ -126,12 +127,12 @@ def _find(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path:
 
 def _lossy_hint(folder: Path, stem: str, suffixes: tuple[str, ...]) -> str:
     """When mask ``suffixes`` leave the lossy ones out and a JPEG mask of ``stem`` is there: why it is not
-    used and the flag that uses it (as ``semcityloc run`` says it)."""
+    used and the parameter that uses it (``allow_lossy_mask``; the command line prints its flag)."""
     if suffixes != mask_suffixes(False) or (lossy := first_file(folder, stem, LOSSY_MASK_SUFFIXES)) is None:
         return ""
     return (
         f"; {lossy.name} is there, a lossy format (JPEG) whose compression changes class ids: "
-        "--allow-lossy-mask uses it"
+        f"{parameter('allow_lossy_mask')} uses it"
     )
 
 
@@ -241,10 +242,14 @@ class DatasetSpec:
         if self.perception not in PERCEPTIONS:
             raise unknown_choice("perception", self.perception, PERCEPTIONS, BenchmarkError)
         if self.perception == PERCEPTION_MASKS and not self.masks:
-            raise BenchmarkError("--perception masks needs --masks DIR (one <stem>.png / .npy per image)")
+            raise BenchmarkError(
+                f"{parameter('perception', PERCEPTION_MASKS)} needs {parameter('masks', 'DIR')} (one "
+                "<stem>.png / .npy per image)"
+            )
         if self.perception != PERCEPTION_MASKS and (self.masks or self.depth or self.allow_lossy_mask):
             raise BenchmarkError(
-                "--masks / --depth / --allow-lossy-mask are only used with --perception masks"
+                f"{parameter('masks')} / {parameter('depth')} / {parameter('allow_lossy_mask')} are only "
+                f"used with {parameter('perception', PERCEPTION_MASKS)}"
             )
         if self.perception == PERCEPTION_DEGRADED:
             get_preset(self.seg_quality)
@@ -273,7 +278,9 @@ class DatasetSpec:
         if not queries:
             raise BenchmarkError(f"{dataset.root}: no query has both a ground-truth pose and a prior")
         if dataset.model_path is None:
-            raise BenchmarkError(f"{dataset.root}: no LoD model found beside the data set; pass --city")
+            raise BenchmarkError(
+                f"{dataset.root}: no LoD model found beside the data set; pass {parameter('city')}"
+            )
         if self.perception == PERCEPTION_MASKS:
             check_some_inputs(self, queries)
         return plain(

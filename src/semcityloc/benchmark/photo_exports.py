@@ -52,7 +52,7 @@ from semcityloc.datasets.dji import GEOID_UNUSED_NOTE, HEIGHT_AS_IS_NOTE, dji_ge
 from semcityloc.datasets.geojson import CameraFeature, cameras_geojson, write_geojson
 from semcityloc.datasets.geotags import GeotagRow, geotags_csv_text, odm_geo_text
 from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE, INTRINSICS_35MM
-from semcityloc.errors import InputFileError, SemCityLocError, counted, shown_names
+from semcityloc.errors import InputFileError, SemCityLocError, counted, parameter, shown_names
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
@@ -64,7 +64,8 @@ from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 
 NO_CRS = (
     "the city model names no CRS, so no geotags.csv / geo.txt / cameras.geojson (their coordinates are "
-    "WGS 84 or the CRS's); pass --crs (and --offset when the model's frame is its CRS minus an offset)"
+    f"WGS 84 or the CRS's); pass {parameter('crs')} (and {parameter('offset')} when the model's frame is its "
+    "CRS minus an offset)"
 )
 
 
@@ -119,7 +120,7 @@ def redo_remedy(count: int, results: Path, what: str = "photo") -> str:
     one = count == 1
     return (
         f"delete {'its row' if one else 'their rows'} from {results} and run again to redo "
-        f"{'it' if one else 'them'} (or --overwrite, which redoes every {what})"
+        f"{'it' if one else 'them'} (or {parameter('overwrite')}, which redoes every {what})"
     )
 
 
@@ -202,7 +203,8 @@ def prior_offset_notes(
             "docs/your-data.md, sections 2 and 8); photos refused at the search volume's edge may "
             "localize once it is fixed"
             + (
-                f" ({counted(at_edge, 'was', 'were')}; or run again with --prior-sigma z={asked['z']})"
+                f" ({counted(at_edge, 'was', 'were')}; or run again with "
+                f"{parameter('run_prior_sigma', 'z=' + str(asked['z']))})"
                 if at_edge
                 else ""
             )
@@ -212,12 +214,12 @@ def prior_offset_notes(
         notes.append(
             f"the {len(moves)} localized photos sit a median {float(np.linalg.norm(median_xy)):.1f} m from "
             f"their priors horizontally (x {median_xy[0]:+.1f} m, y {median_xy[1]:+.1f} m in the model's "
-            f"frame; spread {spread_xy:.1f} m): the priors share a horizontal offset (a wrong --crs or "
-            "--offset, or a GNSS bias)"
+            f"frame; spread {spread_xy:.1f} m): the priors share a horizontal offset (a wrong "
+            f"{parameter('crs')} or {parameter('offset')}, or a GNSS bias)"
             + (
                 f"; {counted(at_edge_xy, 'photo was', 'photos were')} refused at the search volume's "
                 "horizontal edge: run again with "
-                f"--prior-sigma xy={asked['xy']}"
+                f"{parameter('run_prior_sigma', 'xy=' + str(asked['xy']))}"
                 if at_edge_xy
                 else ""
             )
@@ -272,8 +274,7 @@ def prior_yaw_notes(
         "taken for the gimbal's (docs/your-data.md, section 3)"
         + (
             f"; {counted(at_edge, 'photo was', 'photos were')} refused at the search volume's yaw edge: run "
-            "again with --prior-sigma "
-            f"yaw={asked['yaw']}"
+            f"again with {parameter('run_prior_sigma', 'yaw=' + str(asked['yaw']))}"
             if at_edge
             else ""
         )
@@ -329,7 +330,12 @@ def edge_notes(records: list[dict], asked: dict[str, int] | None = None) -> list
     return [
         f"{count} refused at the search volume's edge ({where or 'edges not recorded'}): "
         "their priors are further off than stated"
-        + (f"; run again with --prior-sigma {ask} to cover all of them, or correct the priors" if ask else "")
+        + (
+            f"; run again with {parameter('run_prior_sigma', ask)} to cover all of them, or correct the "
+            "priors"
+            if ask
+            else ""
+        )
     ]
 
 
@@ -349,7 +355,11 @@ def beyond_notes(records: list[dict]) -> list[str]:
     return [
         f"{count} a view beyond the searched volume that matches better than any inside: if their priors "
         "may be further off horizontally than stated"
-        + (f", run again with --prior-sigma xy={xy}" if xy else ", state a larger --prior-sigma xy")
+        + (
+            f", run again with {parameter('run_prior_sigma', 'xy=' + str(xy))}"
+            if xy
+            else f", state a larger horizontal sigma ({parameter('run_prior_sigma', 'xy=...')})"
+        )
         + " (a map that differs from the world in view can do the same)"
     ]
 

@@ -246,7 +246,10 @@ def resolve_inputs(spec: PhotoSpec) -> Resolved:
     placed = [inp for inp in inputs if inp.prior is not None]
     if store is not None and placed:
         model = flight_area(store, model, placed)
-    remedy = "pass --offset X,Y,Z (where the model's frame has its origin in that CRS), or leave out --crs"
+    remedy = (
+        f"pass {parameter('offset', 'X,Y,Z')} (where the model's frame has its origin in that CRS), or leave "
+        f"out {parameter('crs')}"
+    )
     check_model_in_crs(model, offset, remedy)  # before its poses are written as CRS coordinates
     inputs = _on_the_map(spec, model, inputs, skipped)
     return Resolved(model, inputs, skipped, store)
@@ -386,8 +389,8 @@ def _true_pose(truth: PriorFiles | None, path: Path, meta) -> Pose | None:
         return None
     except InputFileError as exc:
         raise TruthUnusable(
-            f"its true pose cannot be used ({exc}): fix its --truth entry, or remove it to run the photo "
-            "without ground truth"
+            f"its true pose cannot be used ({exc}): fix its entry in the ground truth "
+            f"({parameter('truth')}), or remove it to run the photo without ground truth"
         ) from None
 
 

@@ -52,13 +52,15 @@ from typing import Any
 import numba
 
 from semcityloc.benchmark.results import failed_row
-from semcityloc.errors import BenchmarkError, OptionalDependencyError
+from semcityloc.errors import BenchmarkError, OptionalDependencyError, parameter
 
 RETRIES = 1  # a query whose worker died is tried this many more times
 # Object store of a local runtime (bytes): the shipped models are tens of MB; Ray's default takes 30% of RAM.
 OBJECT_STORE_BYTES = 512 * 1024 * 1024
 CONNECT_TIMEOUT_S = 5.0  # how long a cluster's address may take to answer before it is refused
-_START_HINT = "start one with `ray start --head`, or leave out --ray-address for a local runtime"
+_START_HINT = (
+    f"start one with `ray start --head`, or leave out {parameter('ray_address')} for a local runtime"
+)
 
 
 def import_ray():
@@ -66,7 +68,7 @@ def import_ray():
     try:
         import ray  # optional extra [ray]: imported only when the Ray executor runs
     except ImportError as exc:
-        raise OptionalDependencyError("ray", "ray", "--executor ray") from exc
+        raise OptionalDependencyError("ray", "ray", parameter("executor", "ray")) from exc
     return ray
 
 
@@ -145,7 +147,9 @@ def host_port(address: str) -> tuple[str, int] | None:
         return None
     host, _, port = rest.rpartition(":")
     if not port.isdigit() or not 0 < int(port) < 65536:
-        raise BenchmarkError(f"--ray-address {address!r}: expected host:port (e.g. 10.0.0.5:6379) or auto")
+        raise BenchmarkError(
+            f"{parameter('ray_address', address)}: expected host:port (e.g. 10.0.0.5:6379) or auto"
+        )
     return host.strip("[]"), int(port)
 
 
@@ -157,7 +161,7 @@ def join_cluster(ray, address: str) -> None:
             socket.create_connection(target, timeout=CONNECT_TIMEOUT_S).close()
         except OSError as exc:
             raise BenchmarkError(
-                f"--ray-address {address}: no Ray cluster answers at {target[0]}:{target[1]} "
+                f"{parameter('ray_address', address)}: no Ray cluster answers at {target[0]}:{target[1]} "
                 f"({exc.strerror or exc}); {_START_HINT}"
             ) from None
     auth_error = getattr(ray.exceptions, "AuthenticationError", ())  # Ray's token authentication
@@ -172,7 +176,8 @@ def join_cluster(ray, address: str) -> None:
                 "if the cluster uses Ray's token authentication (a head started where ~/.ray/auth_token "
                 f"exists does), set RAY_AUTH_MODE=token; else {_START_HINT}"
             )
-        raise BenchmarkError(f"--ray-address {address}: {_first_line(exc).rstrip('.')}; {hint}") from None
+        said = _first_line(exc).rstrip(".")
+        raise BenchmarkError(f"{parameter('ray_address', address)}: {said}; {hint}") from None
 
 
 def _token_available() -> bool:

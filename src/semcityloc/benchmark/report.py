@@ -23,7 +23,10 @@ side by what differs in their ``run.json``:
   estimated and true poses (the estimate on the map it was found on: ``found_map``), an xy slice and a
   yaw slice of the coarse cost volume.
 
-Runs are read only (an unfinished run is reported with its finished rows and marked incomplete).
+Runs are read only (an unfinished run is reported with its finished rows and marked incomplete). The
+report's files speak the command line's words, as the run folders they read do (``errors.as_flags``: a
+note's ``truth=...`` is ``--truth`` in ``report.md`` and ``report.html``); ``ReportOutput.notes`` keeps a
+Python caller's, and the command prints them with the flags.
 
 Its parts: ``report_runs`` (a run folder read, runs described, labelled and grouped), ``report_tables``
 (the tables' Markdown and CSV), ``report_plots`` (the figures); this module chooses the tables and
@@ -71,7 +74,7 @@ from semcityloc.benchmark.report_tables import (
     self_assessment_table,
 )
 from semcityloc.benchmark.runfiles import DETAILS_DIR
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, as_flags
 
 # name -> (config key shown, title). "main" is always written; the others when their key varies.
 TABLES: dict[str, tuple[str, str]] = {
@@ -135,7 +138,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     notes += [n for n in map(skipped_misses_note, truth) if n is not None]
     doc = ["# SemCityLoc benchmark report", "", f"Runs: {len(runs)}", ""]
     doc += [f"- `{r.path}`: {r.label}" for r in runs]
-    doc += ["", RECALL_LINE if truth else NO_TRUTH_LINE, ""]
+    doc += ["", RECALL_LINE if truth else as_flags(NO_TRUTH_LINE), ""]
     tables: dict[str, tuple[Path, Path]] = {}
     sweep_plots: list[Path] = []
     for name, (factor, title) in TABLES.items():
@@ -175,7 +178,7 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     plots += _detail_figures(runs, out / "plots", overlays, notes)
     doc += ["## Figures", ""] + [f"![{p.stem}](plots/{p.name})" for p in plots]
     if notes:
-        doc += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+        doc += ["", "## Notes", ""] + [f"- {as_flags(n)}" for n in notes]
     md_file = out / "report.md"
     md_file.write_text("\n".join(doc) + "\n", encoding="utf-8")
     return ReportOutput(out, tables, plots, md_file, notes)

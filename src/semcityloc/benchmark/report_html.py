@@ -63,7 +63,7 @@ from semcityloc.benchmark.report_views import POSES, error_bins, query_camera, q
 from semcityloc.benchmark.results import row_pose
 from semcityloc.benchmark.runfiles import DETAILS_DIR
 from semcityloc.citymodel.model import CityModel
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, as_flags
 from semcityloc.geometry.camera import Camera
 from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.confidence import risk_coverage
@@ -307,7 +307,7 @@ def make_html_report(
     run_list = "".join(
         f"<li><b>{html.escape(r.label)}</b> <code>{html.escape(str(r.path))}</code></li>" for r in runs
     )
-    note_list = "".join(f"<li>{html.escape(n)}</li>" for n in notes)
+    note_list = "".join(f"<li>{html.escape(as_flags(n))}</li>" for n in notes)
     parts = {
         "STYLE": _asset("report.css"),
         "PLOTLY": _plotly_js().replace("</script", "<\\/script"),
@@ -315,7 +315,7 @@ def make_html_report(
         "TABLES": table_html or "<p>No tables.</p>",
         "HINT": RECALL_HINT
         if any(has_truth(r) for r in runs)
-        else html.escape(NO_TRUTH_LINE.replace("`", "")),
+        else html.escape(as_flags(NO_TRUTH_LINE).replace("`", "")),
         "NOTES": note_list or "<li>none</li>",
         "DATA": _script_json(data),
         "SCRIPT": _asset("report.js"),

@@ -44,7 +44,7 @@ from semcityloc.benchmark.spec import load_map
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
 from semcityloc.datasets.lodloc import FRAME_ECEF, IMAGE_DIR, enu_from_ecef, rotate_model
-from semcityloc.errors import BenchmarkError, SemCityLocError, counted
+from semcityloc.errors import BenchmarkError, SemCityLocError, counted, parameter
 from semcityloc.evaluation.metrics import is_right
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.localization.result import LOCALIZED
@@ -306,8 +306,8 @@ def acceptance_data(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
 
 # What a report says in place of the recall conventions when no run has ground truth (``has_truth``).
 NO_TRUTH_LINE = (
-    "No ground truth (no run has `--truth`): no errors or recall; the counts, the calibrated probability, "
-    "the stated sigmas and the shift from the prior are what the runs say of themselves."
+    f"No ground truth (no run has `{parameter('truth')}`): no errors or recall; the counts, the calibrated "
+    "probability, the stated sigmas and the shift from the prior are what the runs say of themselves."
 )
 
 
@@ -322,7 +322,8 @@ def has_truth(run: RunData) -> bool:
 def no_truth_note(run: RunData) -> str:
     """The report's note on a run without ground truth (``has_truth``): what is left out and why."""
     return (
-        f"{run.path}: no ground truth (a run without --truth), so no errors, recall or error curves of it; "
+        f"{run.path}: no ground truth (a run without {parameter('truth')}), so no errors, recall or error "
+        "curves of it; "
         "the table 'Without ground truth' shows what the run says of itself"
     )
 

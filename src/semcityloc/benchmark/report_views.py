@@ -35,7 +35,7 @@ from semcityloc.benchmark.queries import stated_camera
 from semcityloc.benchmark.results import SKIPPED, row_pose, unreadable_row
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR
 from semcityloc.classes import IGNORE
-from semcityloc.errors import SemCityLocError
+from semcityloc.errors import SemCityLocError, as_flags, parameter
 from semcityloc.evaluation.metrics import THRESHOLDS
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import wrap_deg
@@ -158,7 +158,7 @@ def _background(
         labels = details["labels"]
         size = scaled_size(labels.shape[1], labels.shape[0], width)
         return label_colors(resize_nearest(labels, *size)), QUERY_MASK
-    return None, "no image stored (the run kept no details of this query; see --keep-details)"
+    return None, f"no image stored (the run kept no details of this query; see {parameter('keep_details')})"
 
 
 def _pose_layers(renderer: Renderer, camera: Camera, pose_local: Pose, color) -> dict[str, str]:
@@ -273,7 +273,7 @@ def query_view(
         "background": data_uri(background, "JPEG" if background_kind != QUERY_MASK else "PNG")
         if background is not None and background_kind != QUERY_MASK
         else None,
-        "background_kind": background_kind,
+        "background_kind": as_flags(background_kind),  # the page's words: the command line's (``report``)
         "size": [camera.width, camera.height] if camera is not None and layers else None,
         "layers": layers,
         "estimate_map": estimate_map,  # None: the run's map as it is

@@ -71,7 +71,7 @@ from semcityloc.benchmark.runfiles import (
     writing,
 )
 from semcityloc.classes import NUM_CLASSES
-from semcityloc.errors import BenchmarkError, as_flags
+from semcityloc.errors import BenchmarkError, as_flags, parameter
 from semcityloc.evaluation.metrics import THRESHOLDS, is_right, pose_errors, recall, summarize_errors
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import removed_on_error, write_atomic
@@ -438,8 +438,8 @@ def _parse_results(data: bytes, path: Path | str, strict: bool) -> tuple[list[di
     header = tuple(next(reader))
     if not _resumable(header) and (strict or "query_id" not in header):
         raise BenchmarkError(
-            f"{path}: its columns differ from this version's; pass --overwrite to start the run again, or "
-            "choose another --out"
+            f"{path}: its columns differ from this version's; pass {parameter('overwrite')} to start the run "
+            f"again, or choose another {parameter('out_dir')}"
         )
     rows: dict[str, dict[str, str]] = {}
     first: dict[str, tuple[int, list[str]]] = {}
@@ -451,7 +451,7 @@ def _parse_results(data: bytes, path: Path | str, strict: bool) -> tuple[list[di
         if len(values) != len(header):
             raise BenchmarkError(
                 f"{path}: line {n} has {len(values)} fields, not {len(header)}: delete that line to keep "
-                "the other rows, or pass --overwrite to start the run again"
+                f"the other rows, or pass {parameter('overwrite')} to start the run again"
             )
         row = {c: "" for c in COLUMNS} | dict(zip(header, values, strict=True))
         qid = row["query_id"]
@@ -459,7 +459,8 @@ def _parse_results(data: bytes, path: Path | str, strict: bool) -> tuple[list[di
             if first[qid][1] != values:
                 raise BenchmarkError(
                     f"{path}: query {qid} has 2 different rows (lines {first[qid][0]} and {n}): delete the "
-                    "one not of this run to keep the other rows, or pass --overwrite to start the run again"
+                    "one not of this run to keep the other rows, or pass "
+                    f"{parameter('overwrite')} to start the run again"
                 )
             repeated += 1
             continue

@@ -52,7 +52,14 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from semcityloc.errors import OutputPathError, ResumeMismatchError, RunFileError, RunLockedError, counted
+from semcityloc.errors import (
+    OutputPathError,
+    ResumeMismatchError,
+    RunFileError,
+    RunLockedError,
+    counted,
+    parameter,
+)
 from semcityloc.io.files import json_default, write_atomic
 
 RUN_FILE = "run.json"
@@ -142,7 +149,7 @@ _READ_FIX = {
     errno.EPERM: "make it readable",
     errno.EISDIR: "move that folder out of the run's folder",
 }
-_START_AGAIN = "pass --overwrite to start the run again"
+_START_AGAIN = f"pass {parameter('overwrite')} to start the run again"
 
 
 def read_error(
@@ -156,7 +163,7 @@ def read_error(
         byte = exc.object[exc.start : exc.start + 1].hex()
         return RunFileError(
             f"cannot read {path}: byte 0x{byte} at offset {exc.start} is not UTF-8 text, so it is no {what} "
-            f"of this runner; {_START_AGAIN}, or choose another --out"
+            f"of this runner; {_START_AGAIN}, or choose another {parameter('out_dir')}"
         )
     fix = _READ_FIX.get(exc.errno, "fix it")
     again = f"run the same command again, or {_START_AGAIN}"
@@ -252,7 +259,7 @@ def run_lock(out_dir: Path) -> Iterator[None]:
             os.close(fd)
             raise RunLockedError(
                 f"{out_dir} is in use by another run ({holder}); wait for it to finish or choose another "
-                "--out"
+                f"{parameter('out_dir')}"
             ) from None
         try:  # the file may have been removed by its last holder between our open and flock: retry
             same = os.fstat(fd).st_ino == os.stat(path).st_ino
@@ -356,7 +363,8 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         mismatch = f"it has a {RESULTS_FILE} but no {RUN_FILE}"
     if mismatch and not overwrite:
         raise ResumeMismatchError(
-            f"{out_dir} holds another benchmark run: {mismatch}; pass --overwrite or choose another --out"
+            f"{out_dir} holds another benchmark run: {mismatch}; pass {parameter('overwrite')} or choose "
+            f"another {parameter('out_dir')}"
         )
     if mismatch or overwrite:  # --overwrite starts the run again, whatever the folder holds
         remove_entries(out_dir, RUN_OUTPUTS)
@@ -431,7 +439,7 @@ def code_change_note(out_dir: Path, old: dict | None, config: dict, done: int, t
         f"{out_dir}: resuming a run started by other semcityloc code (source {before}, now {now}): its "
         f"{counted(done, 'finished query was', 'finished queries were')} made by that code and the {todo} "
         f"left {'is' if todo == 1 else 'are'} made by this one, so its "
-        "results mix both; pass --overwrite to make them all anew"
+        f"results mix both; pass {parameter('overwrite')} to make them all anew"
     )
 
 

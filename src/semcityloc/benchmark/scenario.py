@@ -7,10 +7,11 @@ itself: kept to compare with); ``realistic`` (the default of ``semcityloc benchm
 follows the paper's real data: GNSS/IMU priors as flown, a reality that differs from the map, structured
 segmentation errors and non-affine depth. ``docs/benchmark.md`` gives each value and its source.
 
-Knob names for ``--set``: a ``QueryConfig`` field (``prior_height_m=20``), or a nested field by its own
-name when unambiguous (``shift_xy_max_m=1``) or dotted (``reality.shift_xy_max_m=1``,
-``depth_model.distortion=0.2``). Values are parsed as JSON where they can be (``30``, ``null``,
-``[2, 15]``, ``true``), else taken as strings (``zero-shot``); a pair is also accepted as ``2-15``.
+Knob names (``query_config``'s ``settings``, the command line's ``--set``): a ``QueryConfig`` field
+(``prior_height_m=20``), or a nested field by its own name when unambiguous (``shift_xy_max_m=1``) or dotted
+(``reality.shift_xy_max_m=1``, ``depth_model.distortion=0.2``). Values are parsed as JSON where they can be
+(``30``, ``null``, ``[2, 15]``, ``true``), else taken as strings (``zero-shot``); a pair is also accepted as
+``2-15``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from typing import Any
 from semcityloc.benchmark.depth_sim import DepthParams
 from semcityloc.benchmark.queries import QueryConfig
 from semcityloc.benchmark.reality import REALISTIC_REALITY, RealityParams
-from semcityloc.errors import BenchmarkConfigError, unknown_choice
+from semcityloc.errors import BenchmarkConfigError, parameter, unknown_choice
 
 DEFAULT_SCENARIO = "realistic"
 
@@ -49,7 +50,8 @@ def query_config(
     scenario: str = DEFAULT_SCENARIO, settings: dict[str, Any] | None = None, **fields
 ) -> QueryConfig:
     """The ``QueryConfig`` of ``scenario`` with ``fields`` (queries, seed, seg_quality, ...) and the
-    ``settings`` knob overrides applied (``parse_settings``)."""
+    ``settings`` knob overrides applied (``{knob: value}``; the command line's ``--set knob=value``:
+    ``cli.benchmark.parse_settings``)."""
     if scenario not in SCENARIOS:
         raise unknown_choice("scenario", scenario, SCENARIOS, BenchmarkConfigError)
     cfg = QueryConfig(**{**SCENARIOS[scenario], **fields, "scenario": scenario})
@@ -67,7 +69,7 @@ def knob_names() -> tuple[str, ...]:
 _NESTED = {"reality": RealityParams, "depth_model": DepthParams}
 
 
-def _resolve(name: str) -> tuple[str | None, str]:
+def resolve_knob(name: str) -> tuple[str | None, str]:
     """(nested field or None, field name) of a knob name (module docstring)."""
     top = {f.name for f in dataclasses.fields(QueryConfig)}
     if "." in name:
@@ -98,20 +100,6 @@ def parse_value(text: str) -> Any:
     return text
 
 
-def parse_settings(items: list[str] | None) -> dict[str, Any]:
-    """``["knob=value", ...]`` -> {knob: value}; each knob checked (``BenchmarkConfigError``)."""
-    out: dict[str, Any] = {}
-    for item in items or []:
-        name, sep, text = item.partition("=")
-        if not sep or not name.strip():
-            raise BenchmarkConfigError(f"--set takes knob=value, got {item!r}")
-        _resolve(name.strip())
-        if name.strip() in out:
-            raise BenchmarkConfigError(f"--set {name.strip()} is given twice; give each knob once")
-        out[name.strip()] = parse_value(text.strip())
-    return out
-
-
 def _coerce(value: Any, current: Any) -> Any:
     if isinstance(value, list):
         return tuple(value)
@@ -126,7 +114,7 @@ def set_knobs(cfg: QueryConfig, settings: dict[str, Any]) -> QueryConfig:
     top: dict[str, Any] = {}
     nested: dict[str, dict[str, Any]] = {}
     for name, value in settings.items():
-        outer, inner = _resolve(name)
+        outer, inner = resolve_knob(name)
         if outer is None:
             top[inner] = value
         else:
@@ -144,4 +132,4 @@ def set_knobs(cfg: QueryConfig, settings: dict[str, Any]) -> QueryConfig:
         if isinstance(exc, BenchmarkConfigError):
             raise
         given = " ".join(f"{name}={value!r}" for name, value in settings.items())
-        raise BenchmarkConfigError(f"--set {given}: {exc}") from exc
+        raise BenchmarkConfigError(f"{given} ({parameter('settings')}): {exc}") from exc

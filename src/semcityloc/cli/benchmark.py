@@ -13,11 +13,18 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+from typing import Any
 
 from semcityloc.benchmark.methods import available_methods
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report_tables import summary_markdown
-from semcityloc.benchmark.scenario import DEFAULT_SCENARIO, SCENARIOS, parse_settings, query_config
+from semcityloc.benchmark.scenario import (
+    DEFAULT_SCENARIO,
+    SCENARIOS,
+    parse_value,
+    query_config,
+    resolve_knob,
+)
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.cli.dataset import (
     add_dataset_arguments,
@@ -27,7 +34,7 @@ from semcityloc.cli.dataset import (
 )
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import add_prior_sigma_argument
-from semcityloc.errors import BenchmarkError, counted
+from semcityloc.errors import BenchmarkConfigError, BenchmarkError, counted
 from semcityloc.localization.config import PRESETS
 
 
@@ -115,6 +122,22 @@ def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help="localize at most N more queries, then stop (run again to continue)",
     )
+
+
+def parse_settings(items: list[str] | None) -> dict[str, Any]:
+    """``--set``'s ``["knob=value", ...]`` -> {knob: value} (``scenario.query_config``'s ``settings``); each
+    knob checked (``scenario.resolve_knob``, ``BenchmarkConfigError``). Here, not in ``benchmark.scenario``:
+    it reads the command line's text, and its refusals name the flag."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise BenchmarkConfigError(f"--set takes knob=value, got {item!r}")
+        resolve_knob(name.strip())
+        if name.strip() in out:
+            raise BenchmarkConfigError(f"--set {name.strip()} is given twice; give each knob once")
+        out[name.strip()] = parse_value(text.strip())
+    return out
 
 
 def parse_prior_extra(text: str | None) -> tuple[float, float] | None:

@@ -15,8 +15,8 @@ from pathlib import Path
 
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
-from semcityloc.benchmark.scenario import parse_settings, parse_value
-from semcityloc.cli.benchmark import add_simulation_arguments, spec_from_args
+from semcityloc.benchmark.scenario import parse_value
+from semcityloc.cli.benchmark import add_simulation_arguments, parse_settings, spec_from_args
 from semcityloc.errors import BenchmarkError, counted
 
 
