@@ -117,7 +117,8 @@ def test_every_tuning_condition_is_a_valid_scenario_and_map_faults_joins_three()
     """The named conditions are the scenario's own knobs (a typo would fail in a worker, mid-run), and
     ``map_faults`` is hilly + outdated + map_err2x at once, as its docs say."""
     from semcityloc.benchmark.calibration import TUNING_CONDITIONS, tuning_condition
-    from semcityloc.benchmark.scenario import parse_settings, query_config
+    from semcityloc.benchmark.scenario import query_config
+    from semcityloc.cli.benchmark import parse_settings
     from semcityloc.errors import ParameterError
 
     for name, knobs in TUNING_CONDITIONS.items():
