@@ -7,6 +7,11 @@ The queries are rendered with the true camera and the localizer is told one whos
 (5 m / 5 deg), oblique (the check's own test, on the pose found), the localize and check times, the
 check's record (``result.search["focal_check"]``) and whether it warned; a last line sums up: the warned
 share of the accepted poses, of the accepted wrong ones, and the precision with and without them.
+
+The correction (``FocalCheckConfig.correct``, stop 54): each row also has the error of the pose found at the
+stated focal length (``first``: what the localizer returned before the correction) and of the one returned
+(``err_m``); with ``--stretches 1,2`` the queries it ran on are localized again with each further stretch
+(``err_by_stretch``). The last line sums up R@2/3/5 m and precision before and after, per stretch.
 Reporting cities are refused unless ``--check-only`` (docs/localization.md, "A focal length the image
 contradicts").
 """
@@ -16,12 +21,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 from semcityloc.benchmark.calibration import calibration_cities_or_exit
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.evaluation.metrics import is_right, pose_errors
+from semcityloc.geometry.pose import Pose
+from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.focal_check import FOCAL_WARNING, is_oblique
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.result import LOCALIZED
@@ -37,13 +47,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--focal-error", type=float, default=0.0)
     ap.add_argument("--out", required=True, help="the JSON lines file to write")
     ap.add_argument("--check-only", action="store_true", help="allow a reporting city: a check only")
+    ap.add_argument("--stretches", default="1", help="FocalCheckConfig.stretch values, the first for all")
+    ap.add_argument("--no-correct", action="store_true", help="FocalCheckConfig.correct=False")
     args = ap.parse_args(argv)
     if not args.check_only:
         calibration_cities_or_exit([args.city], SHARED, "measure the focal-length check")
     cfg = query_config("realistic", {"focal_error": args.focal_error}, queries=args.queries, seed=args.seed)
     spec = BenchmarkSpec(city=args.city, query=cfg)
     source = spec.open_source(spec.run_config())
-    localizer = Localizer(source.map_model)
+    stretches = [float(x) for x in args.stretches.split(",")]
+    base = LocalizerConfig()
+    configs = [
+        replace(base, focal_check=replace(base.focal_check, stretch=k, correct=not args.no_correct))
+        for k in stretches
+    ]
+    localizer = Localizer(source.map_model, configs[0])
     rows = []
     with open(args.out, "w", encoding="utf-8") as fh:
         for i in range(args.queries):
@@ -65,6 +83,20 @@ def main(argv: list[str] | None = None) -> int:
                 "focal_check": r.search.get("focal_check"),
                 "warned": any(w.startswith(FOCAL_WARNING) for w in r.warnings),
             }
+            corr = (r.search.get("focal_check") or {}).get("correction")
+            row["first_err"] = [m, d]
+            if corr is not None:
+                row["first_err"] = list(
+                    pose_errors(Pose.from_state(np.array(corr["first_state"])), q.true_pose_local)[:2]
+                )
+                row["err_by_stretch"] = {args.stretches.split(",")[0]: [m, d, corr["taken"], corr["scale"]]}
+                for name, cfg_k in zip(args.stretches.split(",")[1:], configs[1:], strict=True):
+                    rk = localizer.localize(q.camera, q.prior_pose_local, q.labels, q.depth, config=cfg_k)
+                    ck = rk.search["focal_check"]["correction"]
+                    mk, dk, _ = pose_errors(
+                        rk.pose_local if rk.status == LOCALIZED else None, q.true_pose_local
+                    )
+                    row["err_by_stretch"][name] = [mk, dk, ck["taken"], ck["scale"]]
             rows.append(row)
             fh.write(json.dumps(row) + "\n")
         fh.write(json.dumps(summary(rows, args)) + "\n")
@@ -90,7 +122,41 @@ def summary(rows: list[dict], args) -> dict:
         "precision_pct": round(100.0 * (len(accepted) - len(wrong)) / max(len(accepted), 1), 1),
         "precision_unwarned_pct": round(100.0 * sum(r["right"] for r in kept) / max(len(kept), 1), 1),
         "check_time_share_pct": round(100.0 * sum(r["check_s"] for r in rows) / max(total, 1e-9), 1),
+        "corrections_run": sum("err_by_stretch" in r for r in rows),
+        "before": recall_figures([r["first_err"] for r in accepted], len(rows)),
+        "after": {
+            k: recall_figures([by_stretch(r, k) for r in accepted], len(rows))
+            for k in args.stretches.split(",")
+        },
+        "taken": {
+            k: sum(r.get("err_by_stretch", {}).get(k, [0, 0, False])[2] for r in rows)
+            for k in args.stretches.split(",")
+        },
+        "right_made_wrong": {
+            k: sum(is_right(*r["first_err"]) and not is_right(*by_stretch(r, k)) for r in accepted)
+            for k in args.stretches.split(",")
+        },
+        "wrong_made_right": {
+            k: sum(not is_right(*r["first_err"]) and is_right(*by_stretch(r, k)) for r in accepted)
+            for k in args.stretches.split(",")
+        },
     }
+
+
+def by_stretch(row: dict, k: str) -> list[float]:
+    """The (m, deg) errors of ``row``'s returned pose with stretch ``k`` (the first pose's where no correction
+    ran)."""
+    return row["err_by_stretch"][k][:2] if "err_by_stretch" in row else row["first_err"]
+
+
+def recall_figures(errs: list, queries: int) -> dict:
+    """R@2/3/5 (m and deg, per query) and the precision (within 5 m / 5 deg) of the accepted ``errs``."""
+    out = {
+        f"R@{t}": round(100.0 * sum(m <= t and d <= t for m, d in errs) / max(queries, 1), 1)
+        for t in (2, 3, 5)
+    }
+    out["precision"] = round(100.0 * sum(bool(is_right(m, d)) for m, d in errs) / max(len(errs), 1), 1)
+    return out
 
 
 if __name__ == "__main__":

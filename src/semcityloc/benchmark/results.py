@@ -18,9 +18,10 @@ when none; ``flat_roof_eaves_used``: 1 where ``map_eaves_flat_roofs="auto"``'s s
 the map with eaves on its flat roofs (``Localizer.map_of``), 0 where it kept the first, empty where it made
 none (the report draws the map at the estimate from it); ``lookalike_margin``: the pose's final score
 minus that of the best look-alike more than 5 m / 5 deg away (``localization/lookalike.py``; empty when
-none). A ``results.csv`` written before a column of ``ADDED_COLUMNS`` existed still resumes: it is
-rewritten with that column (empty) before rows are appended, so
-every line matches the header.
+none); ``focal_scale``: the focal scale the returned pose was found with where the focal check's correction
+took it (``focal_check.focal_scale_used``: the stated focal lengths times it; empty: the stated ones). A
+``results.csv`` written before a column of ``ADDED_COLUMNS`` existed still resumes: it is rewritten with that
+column (empty) before rows are appended, so every line matches the header.
 
 ``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
 coarse poses, the coarse cost volume and its axes, the second look's ``flat_roof_eaves`` record (the map
@@ -76,6 +77,7 @@ from semcityloc.evaluation.metrics import THRESHOLDS, is_right, pose_errors, rec
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.files import removed_on_error, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
+from semcityloc.localization.focal_check import focal_scale_used
 from semcityloc.localization.result import LOCALIZED, NOT_LOCALIZED, LocalizationResult
 from semcityloc.perception.metrics import mean_iou
 
@@ -90,7 +92,7 @@ COLUMNS: tuple[str, ...] = tuple(
     building_iou probability found_err_xyz_m found_err_rot_deg coarse_hypotheses refine_evaluations
     t_coarse_s t_refine_s t_total_s meta_json sigma_xy_m sigma_z_m sigma_yaw_deg
     hypothesis_margin depth_cost_agreed building_fraction prior_distance boundary_distance_px
-    unmapped_building_share unseen_building_share flat_roof_eaves_used lookalike_margin""".split()
+    unmapped_building_share unseen_building_share flat_roof_eaves_used lookalike_margin focal_scale""".split()
 )
 TIMING_COLUMNS = ("t_coarse_s", "t_refine_s", "t_total_s")
 # The acceptance's other inputs, as ``result.confidence`` holds them (stop 42; empty in earlier runs).
@@ -107,7 +109,7 @@ CONFIDENCE_COLUMNS = (
 ADDED_COLUMNS = (
     ("warnings", "sigma_xy_m", "sigma_z_m", "sigma_yaw_deg")
     + CONFIDENCE_COLUMNS
-    + ("flat_roof_eaves_used", "lookalike_margin")
+    + ("flat_roof_eaves_used", "lookalike_margin", "focal_scale")
 )
 
 
@@ -338,6 +340,7 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin_world: np.nda
         **{c: conf.get(c) for c in CONFIDENCE_COLUMNS},
         "flat_roof_eaves_used": flat_roof_eaves_used(result),
         "lookalike_margin": conf.get("lookalike_margin"),
+        "focal_scale": focal_scale_used(result.search or {}),
     }
     return {c: _fmt(row.get(c)) for c in COLUMNS}
 

@@ -129,10 +129,44 @@ def vertex(gains: tuple[float, float], step: float) -> float | None:
     return float(1.0 - step * (upper - lower) / (2.0 * curvature))
 
 
+def fires(check: FocalCheck | None, margin: float) -> bool:
+    """Whether the view fits a focal scale more than ``margin`` from 1 (the check warns)."""
+    return check is not None and check.scale is not None and abs(check.scale - 1.0) > margin
+
+
+def correction_scale(check: FocalCheck, config: FocalCheckConfig) -> float:
+    """The focal scale the pose is re-found with where the check fires: ``1 + stretch (vertex - 1)``, at
+    most one probe step beyond the probed scales (``2 step`` from 1)."""
+    if check.scale is None:
+        raise ValueError("correction_scale needs a check whose scores peak (FocalCheck.scale)")
+    wide = 2.0 * check.step
+    return float(np.clip(1.0 + config.stretch * (check.scale - 1.0), 1.0 - wide, 1.0 + wide))
+
+
+def corrected_warning(check: FocalCheck, scale: float) -> str:
+    """The warning when the pose was re-found with the focal length times ``scale`` and kept."""
+    off = 100.0 * abs(scale - 1.0)
+    return (
+        f"{FOCAL_WARNING}: this oblique view fits a focal length {off:.1f} % "
+        f"{'longer' if scale > 1.0 else 'shorter'} than the stated one better (the check's vertex "
+        f"{check.scale:.3f}), so the pose was found again with it and fits the image better: kept, with "
+        f"the focal scale in the result. The error may be about twice that. Give the camera's calibrated "
+        f"intrinsics ({parameter('intrinsics', 'FILE')}, docs/your-data.md section 4), or estimate the focal "
+        f"length from the flight's oblique photos ({parameter('calibrate_focal', 'on')})"
+    )
+
+
+def focal_scale_used(search: dict) -> float | None:
+    """The focal scale a result's pose was found with, from its ``search`` record: the correction's where it
+    was taken (``Localizer._correct_focal``), else None (the stated focal lengths)."""
+    correction = (search.get("focal_check") or {}).get("correction") or {}
+    return float(correction["scale"]) if correction.get("taken") else None
+
+
 def focal_warning(check: FocalCheck | None, margin: float) -> str | None:
     """The warning when the view fits a focal scale more than ``margin`` from 1 (None otherwise): the
     direction, what it does to the pose and the remedies."""
-    if check is None or check.scale is None or abs(check.scale - 1.0) <= margin:
+    if not fires(check, margin):
         return None
     off = 100.0 * abs(check.scale - 1.0)
     longer = check.scale > 1.0

@@ -22,6 +22,8 @@
    ``ring_beyond``): a better view there is named in a warning.
    An accepted oblique pose gets a focal-length check (``focal_check.py``): scored at focal scales 0.97 /
    1 / 1.03 around it, a warning when its view fits one more than ``FocalCheckConfig.margin`` from 1.
+   Then (``FocalCheckConfig.correct``) the pose is found again with the focal length that scale points at
+   and kept when the acceptance takes it and it fits the image better (``_correct_focal``).
 5. Result: a ``LocalizationResult`` with the pose (or the refused one), the evidence and the timings.
 
 ``Localizer`` keeps the render scene of one city model, so a batch of queries builds it once.
@@ -32,7 +34,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -62,7 +64,16 @@ from semcityloc.localization.confidence import (
     view_span_m,
 )
 from semcityloc.localization.config import LocalizerConfig, config_or_preset
-from semcityloc.localization.focal_check import check_focal, focal_warning, is_oblique
+from semcityloc.localization.focal_check import (
+    FocalCheck,
+    check_focal,
+    corrected_warning,
+    correction_scale,
+    focal_warning,
+    is_oblique,
+    moved_back,
+    with_focal_scale,
+)
 from semcityloc.localization.input_checks import check_query_inputs
 from semcityloc.localization.lookalike import ambiguous_reason, distant_peak, is_distinct, lookalike_of
 from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
@@ -104,6 +115,19 @@ from semcityloc.localization.scoring import map_classes, merge_openings_lut
 from semcityloc.localization.search_reach import MapLayout, edge_sigma, edge_warning, reached_half
 from semcityloc.render.raster_numba import NumbaEngine
 from semcityloc.render.scene import RenderScene
+
+
+@dataclass(frozen=True)
+class _Found:
+    """What the acceptance judged a found pose with, for the focal check's second look: the query's
+    ``camera``, the search's scoring ``levels`` (fine last), the prior's state, the query's building share
+    and how many warnings the result had before the acceptance added its own."""
+
+    camera: Camera
+    levels: list[ScoringLevel]
+    prior_state: np.ndarray
+    building: float
+    warnings_before: int
 
 
 class Localizer:
@@ -193,12 +217,14 @@ class Localizer:
                 result.warnings.append(far)
             return result.finish(REASON_NO_GEOMETRY, t0)
         if cfg.search == "grid":
-            fine = self._localize_grid(result, camera, query, prior_state, cfg)
+            levels = self._localize_grid(result, camera, query, prior_state, cfg)
         else:
-            fine = self._localize_cascade(result, camera, query, prior_state, cfg, unc)
+            levels = self._localize_cascade(result, camera, query, prior_state, cfg, unc)
+        fine = levels[-1]
         if result.reason is not None:
             return result.finish(result.reason, t0)
 
+        found = _Found(camera, levels, prior_state, building_fraction, len(result.warnings))
         accepted, reason, seen_depth_m = self._decide(
             result, camera, fine, prior_state, cfg, unc, building_fraction
         )
@@ -219,13 +245,13 @@ class Localizer:
         if conflict is not None:
             result.warnings.append(conflict)
         if cfg.focal_check.enabled and not cfg.no_refine and is_oblique(result.pose_local):
-            self._check_focal(result, fine, seen_depth_m, prior_state, cfg, unc)
+            self._check_focal(result, found, seen_depth_m, cfg, unc)
         return result.finish(None, t0)
 
     # ------------------------------------------------------------------ searches
-    # Each search fills ``result`` and returns the fine scoring level (camera and query at the refinement's
-    # resolution), which the acceptance reuses.
-    def _localize_grid(self, result, camera, query, prior_state, cfg) -> ScoringLevel:
+    # Each search fills ``result`` and returns its scoring levels (camera and query at the refinement's
+    # resolutions, the fine one last), which the acceptance and the focal check reuse.
+    def _localize_grid(self, result, camera, query, prior_state, cfg) -> list[ScoringLevel]:
         """The first design: one 4D grid (optionally re-centred by a pre-stage), one particle filter."""
         c = cfg.coarse
         coarse_cam = _scaled(camera, c.width)
@@ -258,9 +284,9 @@ class Localizer:
         if not cfg.no_coarse:
             levels, _ = self._drop_inverted_depth(result, levels, result.coarse_pose_local)
         self._refiner().refine(result, levels, seeds, cfg, initial_sigma(cfg.refine, 0.3))
-        return levels[-1]
+        return levels
 
-    def _localize_cascade(self, result, camera, query, prior_state, cfg, unc) -> ScoringLevel:
+    def _localize_cascade(self, result, camera, query, prior_state, cfg, unc) -> list[ScoringLevel]:
         """The default: sweep, local grids with roll/pitch, one particle filter over the best distinct
         hypotheses, a polish."""
         cc = cfg.cascade
@@ -276,7 +302,7 @@ class Localizer:
         if cfg.no_coarse:
             result.timings["coarse_s"] = 0.0
             refiner.refine(result, levels, prior_state[None, :], cfg, sigma, prior_term=prior)
-            return levels[-1]
+            return levels
         volume = search_volume(prior_state, unc, cc, self.layout.ground_below(prior_state, unc, cfg))
         sweep_cam = _scaled(camera, cc.sweep.width, cc.sweep.height)
         q_sweep, _ = query.at(sweep_cam.width, sweep_cam.height)
@@ -298,7 +324,7 @@ class Localizer:
             result.reason = REASON_AT_EDGE
             result.search["edge_sigma"] = edge_sigma(sw.at_edge, volume, cc)
             result.warnings.append(edge_warning(sw.at_edge, volume, cc))
-            return levels[-1]
+            return levels
         seeds = [sw.state(c) for c in sw.top_distinct(cc.sweep.keep, cc.sweep.nms_radius)]
         hyps = local_search(
             self.scene, local_cam, seeds, sw.step, unc.roll_pitch_deg, q_local, self.class_on, cc.local
@@ -323,7 +349,7 @@ class Localizer:
             self._settle_roll_pitch_conflict(result, levels, hyps.states, prior_state, cfg, unc)
         if cc.lookalike.enabled and not cfg.no_refine:
             self._look_for_lookalike(result, sw, levels, q_local, unc, cfg, sigma, prior)
-        return levels[-1]
+        return levels
 
     def _settle_roll_pitch_conflict(self, result, levels, seeds, prior_state, cfg, unc) -> None:
         """A found roll/pitch that departs from the prior's by more than ``roll_pitch_conflict_sigma``
@@ -505,19 +531,18 @@ class Localizer:
             return result.semantic >= cfg.min_semantic_with_depth and result.depth_cost <= cfg.max_depth_cost
         return result.semantic >= cfg.min_score
 
-    def _check_focal(
-        self, result, fine: ScoringLevel, seen_depth_m: float, prior_state, cfg: LocalizerConfig, unc
-    ) -> None:
+    def _check_focal(self, result, found: _Found, seen_depth_m: float, cfg: LocalizerConfig, unc) -> None:
         """An accepted oblique pose's focal-length check (``focal_check.py``) on the map it was found on:
         recorded in ``result.search["focal_check"]``, a warning when the view fits a focal scale more than
-        ``FocalCheckConfig.margin`` from 1."""
+        ``FocalCheckConfig.margin`` from 1; then, with ``FocalCheckConfig.correct``, the pose found again
+        with that focal scale (``_correct_focal``)."""
         t0 = time.perf_counter()
-        term = prior_term(prior_state, cfg, unc) if cfg.search == "cascade" else None
+        term = prior_term(found.prior_state, cfg, unc) if cfg.search == "cascade" else None
         state = result.pose_local.to_xyz_rpy()
         check = check_focal(
             self.map_of(result).scene,
             self.class_on,
-            fine,
+            found.levels[-1],
             state,
             seen_depth_m,
             cfg.focal_check,
@@ -528,9 +553,59 @@ class Localizer:
         if check is not None:
             result.search["focal_check"] = check.as_dict()
         warning = focal_warning(check, cfg.focal_check.margin)
+        correct = warning is not None and cfg.focal_check.correct
+        if correct and self._correct_focal(result, found, check, cfg, unc):
+            warning = corrected_warning(check, result.search["focal_check"]["correction"]["scale"])
         if warning is not None:
             result.warnings.append(warning)
         result.timings["focal_check_s"] = time.perf_counter() - t0
+
+    def _correct_focal(self, result, found: _Found, check: FocalCheck, cfg: LocalizerConfig, unc) -> bool:
+        """Where the focal check fires: the refinement once more with every level's focal lengths times
+        ``focal_check.correction_scale`` (the check's vertex), seeded at the pose found moved back along its
+        axis by ``d (s - 1)`` (``focal_check.moved_back``); the acceptance (``_decide``) judges that pose
+        with the scaled camera, as any other. Kept (True) when accepted and its image score
+        (``refine_stage.image_score``) is higher; recorded in ``result.search["focal_check"]
+        ["correction"]``."""
+        s = correction_scale(check, cfg.focal_check)
+        levels = [ScoringLevel(with_focal_scale(lv.camera, s), lv.labels, lv.depth) for lv in found.levels]
+        first = result.pose_local.to_xyz_rpy()
+        seed = moved_back(first, check.depth_m, s)
+        rp = unc.roll_pitch_deg if cfg.search == "cascade" else 0.3
+        term = prior_term(found.prior_state, cfg, unc) if cfg.search == "cascade" else None
+        refined = LocalizationResult(status=NOT_LOCALIZED, counts={"refine_evaluations": 0})
+        self.map_of(result)._refiner().refine(
+            refined, levels, seed[None], cfg, initial_sigma(cfg.refine, rp), prior_term=term
+        )
+        result.counts["refine_evaluations"] += refined.counts["refine_evaluations"]
+        # The trial: this result with the re-found pose, judged from the evidence before the acceptance.
+        trial = copy.copy(result)
+        trial.confidence, trial.warnings = dict(result.confidence), result.warnings[: found.warnings_before]
+        adopt(trial, refined)
+        accepted, _, _ = self._decide(
+            trial, with_focal_scale(found.camera, s), levels[-1], found.prior_state, cfg, unc, found.building
+        )
+        with_depth = levels[-1].depth is not None
+        gain = image_score(trial, cfg, with_depth) - image_score(result, cfg, with_depth)
+        moved = state_difference(trial.pose_local.to_xyz_rpy(), first)
+        taken = bool(accepted and gain > 0.0)
+        result.search["focal_check"]["correction"] = {
+            "scale": s,
+            "gain": gain,
+            "accepted": bool(accepted),
+            "taken": taken,
+            "moved_m": float(np.linalg.norm(moved[:3])),
+            "first_state": first.tolist(),
+        }
+        if not taken:
+            return False
+        conflict = prior_conflict_warning(trial.pose_local, found.prior_state, unc)
+        if conflict is not None:
+            trial.warnings.append(conflict)
+        for name in ("pose_local", "score", "semantic", "depth_cost", "covariance", "score_curvature"):
+            setattr(result, name, getattr(trial, name))
+        result.confidence, result.warnings = trial.confidence, trial.warnings
+        return True
 
     # ------------------------------------------------------------------ refused poses: a look beyond
     def ring_beyond(
