@@ -16,6 +16,7 @@ from semcityloc.localization.focal_check import (
     FOCAL_WARNING,
     FocalCheck,
     correction_scale,
+    focal_scale_used,
     focal_warning,
     vertex,
     with_focal_scale,
@@ -161,3 +162,16 @@ def test_the_vertex_and_the_warning_follow_the_scores():
 def test_a_bad_focal_check_setting_is_refused(field, value):
     with pytest.raises(ParameterError, match=f"focal_check.{field}"):
         FocalCheckConfig(**{field: value})
+
+
+def test_a_results_row_says_the_focal_scale_a_re_found_pose_used():
+    from semcityloc.benchmark.results import ADDED_COLUMNS, COLUMNS
+
+    assert "focal_scale" in COLUMNS and "focal_scale" in ADDED_COLUMNS  # older runs still resume
+    taken = {"focal_check": {"scale": 0.97, "correction": {"scale": 0.97, "taken": True}}}
+    assert focal_scale_used(taken) == pytest.approx(0.97)
+    assert (
+        focal_scale_used({"focal_check": {"scale": 0.97, "correction": {"scale": 0.97, "taken": False}}})
+        is None
+    )
+    assert focal_scale_used({"focal_check": {"scale": 1.0}}) is None and focal_scale_used({}) is None
