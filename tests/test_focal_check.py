@@ -29,6 +29,7 @@ from semcityloc.render import Renderer
 OBLIQUES = [(-30.0, 15.0, 90.0, -1.0, 40.0, 200.0), (20.0, -25.0, 80.0, 0.5, 45.0, 30.0)]
 NADIR = (10.0, -20.0, 80.0, 0.5, 1.0, 30.0)
 WARN_ONLY = replace(LocalizerConfig(), focal_check=FocalCheckConfig(correct=False))  # stop 53's check
+CORRECT = LocalizerConfig.preset("focal-correct")  # the correction: opt-in (stop 54)
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +86,7 @@ def test_an_oblique_view_told_a_focal_length_5_percent_off_is_found_again_nearer
     prior, labels, depth, true = out[k]
     told = with_focal_scale(CAMERA, 1.0 + error)
     first = localizer.localize(told, prior, labels, depth, config=WARN_ONLY)
-    result = localizer.localize(told, prior, labels, depth)
+    result = localizer.localize(told, prior, labels, depth, config=CORRECT)
     assert first.status == result.status == LOCALIZED
     correction = result.search["focal_check"]["correction"]
     assert correction["taken"] and correction["accepted"] and correction["gain"] > 0.0
@@ -109,7 +110,7 @@ def test_the_correction_switched_off_is_stop_53s_warning_alone(views, k):
     prior, labels, depth, _ = out[k]
     told = with_focal_scale(CAMERA, 1.05)
     off = localizer.localize(told, prior, labels, depth, config=WARN_ONLY)
-    on = localizer.localize(told, prior, labels, depth)
+    on = localizer.localize(told, prior, labels, depth, config=CORRECT)
     assert "correction" not in off.search["focal_check"]
     assert off.pose_local.to_xyz_rpy().tolist() == on.search["focal_check"]["correction"]["first_state"]
     (warning,) = warned(off)
@@ -117,6 +118,11 @@ def test_the_correction_switched_off_is_stop_53s_warning_alone(views, k):
     no_check = replace(LocalizerConfig(), focal_check=FocalCheckConfig(enabled=False))
     plain = localizer.localize(told, prior, labels, depth, config=no_check)
     assert plain.pose_local.to_xyz_rpy().tolist() == off.pose_local.to_xyz_rpy().tolist()  # only warned
+    # The default only warns (the correction costs the views it fires on where the focal length is
+    # right: held out, past its criterion), and its warning names the preset that corrects.
+    default = localizer.localize(told, prior, labels, depth)
+    assert default.pose_local.to_xyz_rpy().tolist() == off.pose_local.to_xyz_rpy().tolist()
+    assert "config='focal-correct'" in warned(default)[0]
 
 
 def test_the_scale_found_again_with_is_the_stretched_vertex_at_most_a_probe_step_beyond():

@@ -234,6 +234,7 @@ PARAMETERS: dict[str, Parameter] = {
     "overwrite": Parameter("overwrite=True", "--overwrite"),
     "recursive": Parameter("PhotoSpec(recursive=True)", "--recursive"),
     "calibrate_focal": Parameter("PhotoSpec(calibrate_focal='{}')", "'semcityloc run --calibrate-focal {}'"),
+    "preset": Parameter("config='{}'", "--preset {}"),  # a ``LocalizerConfig`` preset by name
     # A run's spec (``PhotoSpec``, ``DatasetSpec``) and ``run_benchmark``: what a run folder's files and
     # notes ask for (``benchmark``).
     "run_prior_sigma": Parameter("prior_sigma='{}'", "--prior-sigma {}"),  # a spec's, not the Localizer's

@@ -175,6 +175,7 @@ def focal_warning(check: FocalCheck | None, margin: float) -> str | None:
         f"{'longer' if longer else 'shorter'} than the stated one better (the check understates the error, "
         f"about by half), so the camera may be placed too {'close' if longer else 'far'} along its axis. "
         f"Give the camera's calibrated intrinsics ({parameter('intrinsics', 'FILE')}, docs/your-data.md "
-        "section 4), or estimate the focal length from the flight's oblique photos "
-        f"({parameter('calibrate_focal', 'on')})"
+        "section 4), estimate the focal length from the flight's oblique photos "
+        f"({parameter('calibrate_focal', 'on')}), or find each pose again with the focal length its view "
+        f"fits ({parameter('preset', 'focal-correct')})"
     )
