@@ -39,23 +39,18 @@ def rotation_about_world_z(angle_deg: np.ndarray | float) -> np.ndarray:
     return Rz
 
 
-# Below this many rotations scipy's ``Rotation`` is the quicker of the two (``euler_xyz_matrices``).
-EULER_NUMPY_MIN = 8
-
-
 def euler_xyz_matrices(angles_deg: np.ndarray) -> np.ndarray:
     """(N, 3, 3) rotation matrices of extrinsic x, y, z Euler angles (N, 3) in degrees: scipy's
-    ``Rotation.from_euler("xyz", angles, degrees=True).as_matrix()`` bit for bit, signed zeros too.
+    ``Rotation.from_euler("xyz", angles, degrees=True).as_matrix()``, in numpy.
 
-    Why not scipy's alone: its per-rotation loop and per-call checks were half of every ``Pose.from_state``
-    of the refinement's particle batches (stop 54). From ``EULER_NUMPY_MIN`` rotations up the same
-    arithmetic runs in numpy: scipy's elementary quaternions ``(sin(a/2) e_axis, cos(a/2))``, composed
-    ``q_z (q_y q_x)`` by its product ``(p_w q_v + q_w p_v + p_v x q_v, p_w q_w - p_v . q_v)`` with the
-    zero components' terms kept (they decide the sign of a zero), then its quaternion-to-matrix formula,
-    every operation in its order; ``tests/test_pose.py`` holds the two to the same bits."""
-    a = np.asarray(angles_deg, dtype=np.float64)
-    if len(a) < EULER_NUMPY_MIN:
-        return Rotation.from_euler("xyz", a, degrees=True).as_matrix()
+    Why not scipy's: its per-rotation loop and per-call checks were half of every ``Pose.from_state`` of
+    the refinement's particle batches (stop 54). The arithmetic is scipy 1.17's: its elementary
+    quaternions ``(sin(a/2) e_axis, cos(a/2))``, composed ``q_z (q_y q_x)`` by its product
+    ``(p_w q_v + q_w p_v + p_v x q_v, p_w q_w - p_v . q_v)`` with the zero components' terms kept (they
+    decide the sign of a zero), then its quaternion-to-matrix formula, every operation in its order: the
+    same bits as that version's (checked at stop 54), and ours whatever scipy a machine installs, so
+    a scipy upgrade cannot move a pose; ``tests/test_pose.py`` holds it to scipy within rounding."""
+    a = np.asarray(angles_deg, dtype=np.float64).reshape(-1, 3)
     h = np.deg2rad(a) / 2.0
     s, c = np.sin(h), np.cos(h)
     sx, sy, sz = s[:, 0], s[:, 1], s[:, 2]
