@@ -83,9 +83,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sure-sigma", type=float, default=3.0)
     ap.add_argument("--unsure-gain", type=float, default=0.01)
     args = ap.parse_args(argv)
-    rows = [json.loads(line) for line in args.rows.read_text().splitlines() if line.strip()]
-    if not rows:
-        raise SystemExit(f"{args.rows}: no rows")
+    try:
+        rows = [json.loads(line) for line in args.rows.read_text().splitlines() if line.strip()]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SystemExit(f"{args.rows}: cannot read it as compare_configs.py --rows output ({exc})") from None
+    if not rows or not all(isinstance(r, dict) and {"variant", "status", "err_m"} <= r.keys() for r in rows):
+        raise SystemExit(
+            f"{args.rows}: not compare_configs.py --rows output (one JSON row per query and variant)"
+        )
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    if args.variant is not None and args.variant not in variants:
+        raise SystemExit(
+            f"no rows of variant {args.variant!r} in {args.rows} (it has: {', '.join(variants)})"
+        )
     print(
         "Accepted poses within 2 m / 2 deg / within 5 m / 5 deg (outside 5 m / 5 deg), had each rule "
         "decided; the acceptance as it decided on the pose kept."

@@ -481,3 +481,17 @@ def test_pix4d_angles_without_a_yaw_keep_the_cameras_tilt(tmp_path, pitch, roll)
             np.testing.assert_allclose(
                 prior.pose_world.to_xyz_rpy()[3:5], camera.to_xyz_rpy()[3:5], atol=1e-6
             )
+
+
+@pytest.mark.parametrize("cell", ["nan", "NaN", "N/A", "-", "null", " none "])
+def test_a_yaw_cell_holding_a_missing_value_marker_is_no_heading(tmp_path, cell):
+    """Tables write a missing value as 'nan' (numpy's savetxt), 'N/A' or '-': in the yaw column that
+    refused the whole run ('line 2: yaw_deg is not finite'); now it reads as an empty cell, a row without a
+    heading. A required column holding one is still refused, naming it."""
+    header = "image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg\n"
+    (tmp_path / "g.csv").write_text(header + f"a.JPG,48.1,11.5,600,{cell},-45,{cell}\n")
+    g = read_geotags_csv(tmp_path / "g.csv")["a.JPG"].geotag
+    assert not g.heading_known and (g.yaw_deg, g.pitch_deg, g.roll_deg) == (0.0, -45.0, 0.0)
+    (tmp_path / "h.csv").write_text(header + f"a.JPG,48.1,11.5,{cell},30,-45,0\n")
+    with pytest.raises(InputFileError, match=r"h\.csv: line 2: .*height_m"):
+        read_geotags_csv(tmp_path / "h.csv")

@@ -66,3 +66,19 @@ def test_compare_configs_writes_both_poses_errors_of_a_second_look():
     assert out["second_err"][0] == pytest.approx(0.0, abs=1e-9) and out["second_err"][1] == pytest.approx(2.0)
     assert out["gain_needed"] == 0.01 and "first_xyz_rpy_local" not in out
     assert compare._look_errors(None, truth) is None
+
+
+def test_bad_input_is_one_line_not_a_traceback(takes, tmp_path):
+    """Stop 54 audit: a missing file, the summary lines instead of the --rows file, or an unknown variant
+    gave a traceback or an empty table with exit 0."""
+    rows = tmp_path / "rows.jsonl"
+    rows.write_text('{"variant": "base", "status": "localized", "err_m": 1.0, "err_deg": 0.5}\n')
+    with pytest.raises(SystemExit, match="cannot read it"):
+        takes.main([str(tmp_path / "missing.jsonl")])
+    summary = tmp_path / "summary.jsonl"
+    summary.write_text('{"condition": "realistic", "variant": "base", "queries": 3}\n')
+    with pytest.raises(SystemExit, match="not compare_configs.py --rows output"):
+        takes.main([str(summary)])
+    with pytest.raises(SystemExit, match="no rows of variant 'nosuch'.*it has: base"):
+        takes.main([str(rows), "--variant", "nosuch"])
+    assert takes.main([str(rows)]) == 0

@@ -1867,3 +1867,38 @@ def test_a_geotag_row_without_a_yaw_is_localized_searching_every_heading(tmp_pat
     assert ",,60.000000," in (out / "geotags.csv").read_text().splitlines()[2]
     code, _, err = run(capsys, *argv, "--truth", csv_file, "--out", tmp_path / "truth")
     assert code == 2 and f"its geotag row ({csv_file} line 2) has no yaw" in err, err
+
+
+def test_a_run_of_photos_without_a_heading_says_so_once_and_gives_no_yaw_error_of_a_yaw_taken(
+    tmp_path, capsys
+):
+    """Stop 54 audit: photos whose prior had no heading were fed to the compass notes (their yaw 0 taken
+    read as a shared yaw offset: "turned a median 117.8 deg ... a compass bias"), the run never said that
+    some photos had no heading, and with ``--truth`` their row gave a prior yaw error and rotation error of
+    the yaw taken. Now the run's notes name them once, their yaw is left out of the compass notes, and
+    their rows leave the prior's rotation and yaw errors empty (its position error stays)."""
+    from semcityloc.benchmark.photo_exports import no_heading_notes
+
+    root, truth, offset, argv = _headingless_flight(tmp_path)
+    metadata = read_dji_metadata(root / "images" / "H0.JPG")
+    where = f"{metadata.latitude!r},{metadata.longitude!r},{metadata.absolute_altitude_m!r}"
+    (root / "priors.csv").write_text(
+        f"image,latitude,longitude,height_m,yaw,pitch,roll\nH0.JPG,{where},nan,-30,0\n"
+    )
+    to_wgs = pyproj.Transformer.from_crs("EPSG:25832", "EPSG:4326", always_xy=True)
+    centre = truth.center + offset
+    lon, lat = to_wgs.transform(centre[0], centre[1])
+    (root / "truth.csv").write_text(
+        f"image,latitude,longitude,height_m,yaw,pitch,roll\nH0.JPG,{lat:.10f},{lon:.10f},{centre[2]:.3f},-120,-30,0\n"
+    )
+    out = tmp_path / "out"
+    code, printed, err = run(
+        capsys, *argv, "--priors", root / "priors.csv", "--truth", root / "truth.csv", "--out", out
+    )
+    assert code == 0, err
+    row = _rows_by_name(out)["H0.JPG"]
+    assert row["status"] == "localized" and float(row["err_xyz_m"]) < 1.0
+    assert row["prior_yaw_err_deg"] == "" and row["prior_rot_deg"] == "" and float(row["prior_err_m"]) > 1.0
+    (said,) = no_heading_notes(["H0.JPG"])
+    assert said in printed + err or said in json.dumps(json.loads((out / "summary.json").read_text()))
+    assert "compass bias" not in printed + err

@@ -227,6 +227,25 @@ def prior_offset_notes(
     return notes
 
 
+def _heading_known(inp) -> bool:
+    return inp.prior is None or inp.prior.heading_known
+
+
+def no_heading_notes(names: list[str]) -> list[str]:
+    """One note naming the photos whose prior had no heading (a DJI photo without ``GimbalYawDegree``, a
+    geotag row without a yaw): every heading was searched for them, about four times a headed search's time,
+    and their yaw 0 is left out of the compass notes (``prior_yaw_notes``). Said once per run, not only in
+    each photo's row."""
+    if not names:
+        return []
+    shown = shown_names(names)
+    return [
+        f"{counted(len(names), 'photo')} without a heading in the prior ({shown}): every heading was "
+        "searched (slower), and the yaw taken is left out of the compass notes; give the heading where "
+        "it is known"
+    ]
+
+
 def yaw_moves_deg(estimates: list[Pose], priors: list[Pose]) -> np.ndarray:
     """(n,) estimate minus prior yaw of each photo in degrees, wrapped to (-180, 180] (``wrap_deg``): the
     turn about the vertical (counter-clockwise seen from above) that took each prior's heading to the found
@@ -605,7 +624,9 @@ def write_exports(
     found = [inp for inp in inputs if inp.name in estimates]
     moves = [estimates[inp.name].center - inp.prior.pose_world.center for inp in found]
     done = list(records.values())
-    yaw_moves = yaw_moves_deg([estimates[inp.name] for inp in found], [inp.prior.pose_world for inp in found])
+    headed = [inp for inp in found if inp.prior.heading_known]  # a yaw taken as 0 says nothing of a compass
+    yaw_moves = yaw_moves_deg([estimates[i.name] for i in headed], [i.prior.pose_world for i in headed])
+    outputs["notes"] += no_heading_notes([inp.name for inp in inputs if not _heading_known(inp)])
     asked = rerun_sigma(done, np.array(moves), yaw_moves)  # one figure per axis in every note below
     z_edge, xy_edge = edge_count(done, "z"), edge_count(done, "x", "y")
     outputs["notes"] += prior_offset_notes(np.array(moves), z_edge, xy_edge, asked)

@@ -37,6 +37,7 @@ from semcityloc.benchmark.found_map import FoundMaps
 from semcityloc.benchmark.photo_inputs import INPUT_FINGERPRINTS, PhotoInput
 from semcityloc.benchmark.queries import BenchmarkQuery, query_id
 from semcityloc.benchmark.results import (
+    HEADING_KNOWN,
     SKIP_REASON,
     SKIPPED,
     SKIPPED_MISS,
@@ -197,6 +198,7 @@ class PhotoSource:
             "prior_source": inp.prior.source if inp.prior is not None else None,
             "prior_uncertainty": inp.uncertainty.as_dict(),
             SOURCE_WARNINGS: inp.prior.warnings() if inp.prior is not None else [],
+            HEADING_KNOWN: inp.prior.heading_known if inp.prior is not None else True,
             "view": "nadir" if abs(pitch) < 15.0 else "oblique",
             **(extra or {}),
         }

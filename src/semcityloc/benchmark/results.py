@@ -124,6 +124,9 @@ WARNING_SEPARATOR = " | "
 # The meta key of what a query's source says of its inputs (a photo whose prior had no heading:
 # ``datasets.photos.PhotoPrior.warnings``), added to its result's ``warnings`` (``benchmark.run``).
 SOURCE_WARNINGS = "source_warnings"
+# The meta key saying whether a query's prior had a heading (False: a photo without one, its yaw taken as 0
+# and every heading searched): without one its rotation and yaw errors are left empty (``make_row``).
+HEADING_KNOWN = "heading_known"
 
 # A query its source did not accept (``meta["accepted"] is False``): a simulated view the simulator could
 # not make acceptable, or a photo whose files could not be read in full (``meta["skip_reason"]`` says why).
@@ -299,6 +302,8 @@ def make_row(q: BenchmarkQuery, result: LocalizationResult, origin_world: np.nda
         pose_errors(found_local, true_local) if found_local is not None and true_local is not None else none
     )
     meta = dict(q.meta or {})
+    if not meta.get(HEADING_KNOWN, True):  # its yaw was taken, not known: no error of it, nor of its rotation
+        prior_err = (prior_err[0], None, None)
     conf, counts, timings = result.confidence or {}, result.counts or {}, result.timings or {}
     row: dict[str, Any] = {
         "query_id": query_id(q.index),

@@ -151,7 +151,14 @@ class GeotagRow:
         )
 
 
+# What tables write for a missing value (numpy's ``savetxt``, pandas, spreadsheets): in an optional column
+# (the yaw, the roll) the same as an empty cell; in a required one still a refusal naming it.
+MISSING_VALUES = frozenset({"nan", "n/a", "na", "-", "none", "null"})
+
+
 def _number(value: str, what: str, where: str, optional: bool = False) -> float | None:
+    if optional and value.strip().lower() in MISSING_VALUES:
+        return None
     out = finite_number(value, f"{where}: {what}")
     if out is None and not optional:
         raise InputFileError(f"{where}: no {what}")
