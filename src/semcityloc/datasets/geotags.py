@@ -25,15 +25,16 @@ place of the photos' EXIF, and users bring priors in such tables. One CSV layout
 Reading accepts any column order and these names too: ``name`` / ``label`` / ``filename`` for the image,
 ``lat`` / ``lon`` / ``long``, ``alt`` / ``altitude`` / ``height`` / ``height_ellipsoidal_m``, and angles
 either as the ``pix4d_*`` columns or as DJI gimbal angles: ``yaw_deg`` / ``pitch_deg`` / ``roll_deg`` or
-``yaw`` / ``pitch`` / ``roll`` (always DJI's convention, as a DJI photo's XMP holds them: what users export
-with exiftool); a file with both is refused (which would be meant?). The yaw may be left out (no such
-column, or an empty cell: a drone or a table without a compass heading): that row's prior has yaw 0 and
-every heading is searched, as a DJI photo without ``GimbalYawDegree`` (``NO_YAW_NOTE``; stop 54). Pix4D
-angles without a yaw are converted with yaw 0; the DJI yaw that gives is dropped for 0 too (in both
-conventions the yaw is the outermost turn, about the vertical: the camera's tilt, its roll and pitch,
-is the same whatever heading is taken, and near nadir DJI's yaw / roll split is arbitrary anyway). Such
-a row is no true pose (``benchmark.photo_inputs``); a run writes a photo's prior without a heading with
-an empty yaw cell. A row without a pitch is refused, naming file, line and column.
+``yaw`` / ``pitch`` / ``roll`` (always DJI's convention, as a DJI photo's XMP holds them: what users
+export with exiftool); a file with both is refused (which would be meant?). The yaw may be left out (no
+such column, or an empty cell or a missing-value marker, ``MISSING_VALUES``: a drone or a table without a
+compass heading): that row's prior has yaw 0 and every heading is searched, as a DJI photo without
+``GimbalYawDegree`` (``NO_YAW_NOTE``; stop 54). Pix4D angles without a yaw are converted with yaw 0; the
+DJI yaw that gives is dropped for 0 too (in both conventions the yaw is the outermost turn, about the
+vertical: the camera's tilt, its roll and pitch, is the same whatever heading is taken, and near nadir
+DJI's yaw / roll split is arbitrary anyway). Such a row is no true pose (``benchmark.photo_inputs``); a
+run writes a photo's prior without a heading with an empty yaw cell. A row without a pitch is refused,
+naming file, line and column.
 
 ``geo.txt``: OpenDroneMap's image geolocation file, a projection line (the model's horizontal CRS, so no
 height conversion is involved) and one line per image: ``image_name x y z yaw pitch roll``, the angles
