@@ -507,6 +507,43 @@ def test_localize_overlay_shows_the_map_the_pose_was_found_on(exif_view, tmp_pat
     assert not np.array_equal(overlays[False], overlays[True])
 
 
+def test_localize_says_the_focal_scale_a_re_found_pose_holds_with(exif_view, tmp_path, capsys, monkeypatch):
+    """(stop 54) With --preset focal-correct a pose re-found with the focal length times s was printed and
+    written with nothing but extra.search saying so: re-projected with the stated intrinsics it was off by
+    the scale. Now the printed JSON has ``focal_scale`` (null for a pose found with the stated focal
+    lengths) and pose.json ``focal_scale`` at the top level (absent otherwise) with the scaled fx, fy in
+    ``extra.intrinsics`` and the stated ones in ``extra.intrinsics_stated``."""
+    from semcityloc.localization.localize import Localizer
+
+    real = Localizer.localize
+    r = exif_view["root"]
+    common = ("--intrinsics", "exif", "--image", exif_view["photo"], "--semantic", r / "r" / "labels.png")
+    for taken in (False, True):
+
+        def localize(self, *args, taken=taken, **kwargs):
+            result = real(self, *args, **kwargs)  # the same pose; the record says it was re-found
+            result.search["focal_check"] = {"scale": 0.988, "correction": {"scale": 0.976, "taken": taken}}
+            return result
+
+        monkeypatch.setattr(Localizer, "localize", localize)
+        out = tmp_path / str(taken)
+        code, stdout, _ = _localize(capsys, exif_view, out, *common)
+        printed = json.loads(stdout.strip().splitlines()[-1])
+        pose = json.loads((out / "pose.json").read_text())
+        assert code == 0
+        if taken:
+            assert printed["focal_scale"] == pytest.approx(0.976) and pose["focal_scale"] == pytest.approx(
+                0.976
+            )
+            found, stated = pose["extra"]["intrinsics"], pose["extra"]["intrinsics_stated"]
+            for key in ("fx", "fy"):
+                assert found[key] == pytest.approx(stated[key] * 0.976)
+            assert (found["cx"], found["cy"], found["width"]) == (stated["cx"], stated["cy"], stated["width"])
+        else:
+            assert printed["focal_scale"] is None and "focal_scale" not in pose
+            assert "intrinsics_stated" not in pose["extra"]
+
+
 @pytest.mark.parametrize(
     "extra, needle",
     [

@@ -15,9 +15,11 @@ from semcityloc.localization.config import FocalCheckConfig, LocalizerConfig
 from semcityloc.localization.focal_check import (
     FOCAL_WARNING,
     FocalCheck,
+    corrected_warning,
     correction_scale,
     focal_scale_used,
     focal_warning,
+    found_camera,
     vertex,
     with_focal_scale,
 )
@@ -181,3 +183,14 @@ def test_a_results_row_says_the_focal_scale_a_re_found_pose_used():
         is None
     )
     assert focal_scale_used({"focal_check": {"scale": 1.0}}) is None and focal_scale_used({}) is None
+
+
+def test_the_corrected_warning_says_the_pose_holds_with_the_scaled_focal_length_and_which_camera_that_is():
+    """(stop 54) The warning said "kept, with the focal scale in the result" only: a user re-projecting
+    with the stated intrinsics was off by the scale. Now it names the scale to multiply fx, fy by."""
+    text = corrected_warning(FocalCheck(0.988, (0.1, -0.2), 0.02, 80.0), 0.976)
+    assert "focal length times 0.976" in text and "fx and fy times 0.976, not the stated intrinsics" in text
+    assert "the pose file's intrinsics are the scaled ones" in text
+    taken = {"focal_check": {"correction": {"scale": 0.976, "taken": True}}}
+    assert found_camera(CAMERA, taken) == with_focal_scale(CAMERA, 0.976)
+    assert found_camera(CAMERA, {}) is CAMERA

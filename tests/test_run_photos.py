@@ -52,6 +52,7 @@ from semcityloc.geometry.io import read_lens, read_pose
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_labels_png
 from semcityloc.localization.focal import estimate_focal_scale
+from semcityloc.localization.focal_check import with_focal_scale
 from semcityloc.localization.result import REASON_AT_EDGE
 from semcityloc.render import Renderer
 from test_benchmark_reference import same
@@ -190,6 +191,46 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     # The same folder with other arguments is refused, in one line.
     code, _, err = run(capsys, *argv, "--prior-sigma", "xy=2")
     assert code == 2 and "other benchmark run" in err and err.count("\n") == 1
+
+
+def test_a_pose_re_found_with_a_scaled_focal_length_is_exported_with_that_camera(
+    box_flight, tmp_path, capsys, monkeypatch
+):
+    """(stop 54) With --preset focal-correct a pose re-found with the focal length times s kept the stated
+    fx in its pose file and COLMAP camera: re-projected with them it was off by the scale. Now its pose
+    file has ``focal_scale`` at the top level, the scaled fx, fy in ``extra.intrinsics`` (the stated ones
+    in ``extra.intrinsics_stated``) and its own COLMAP camera with them; a pose found with the stated focal
+    lengths is written as before."""
+    from semcityloc.localization.localize import Localizer
+
+    real, marked = Localizer.localize, []
+
+    def localize(self, *args, **kwargs):
+        result = real(self, *args, **kwargs)
+        if result.localized and not marked:  # the first localized photo: "re-found" with 0.976
+            result.search["focal_check"] = {"scale": 0.988, "correction": {"scale": 0.976, "taken": True}}
+            marked.append(result)
+        return result
+
+    monkeypatch.setattr(Localizer, "localize", localize)
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
+    assert code == 0, err
+    records = {p.stem: json.loads(p.read_text()) for p in (out / "poses").glob("P[01].json")}
+    refound = [stem for stem, record in records.items() if "focal_scale" in record]
+    assert len(refound) == 1 and len(records) == 2
+    record = records[refound[0]]
+    assert record["focal_scale"] == pytest.approx(0.976)
+    scaled = with_focal_scale(CAM, 0.976)
+    assert record["extra"]["intrinsics"] == scaled.as_dict()
+    assert record["extra"]["intrinsics_stated"] == CAM.as_dict()
+    (other,) = (record for stem, record in records.items() if stem not in refound)
+    assert "intrinsics_stated" not in other["extra"] and other["extra"]["intrinsics"] == CAM.as_dict()
+    cameras = {Path(name).stem: camera for name, (camera, _) in read_model(out / "colmap").poses().items()}
+    assert cameras[refound[0]] == scaled  # a COLMAP camera of its own
+    (stem,) = set(cameras) - set(refound)
+    assert cameras[stem] == CAM
+    assert _rows_by_name(out)[f"{refound[0]}.JPG"]["focal_scale"] == "0.976"
 
 
 def test_a_run_says_the_models_warnings_once_on_stderr(box_flight, tmp_path, capsys):

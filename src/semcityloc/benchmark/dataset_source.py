@@ -38,6 +38,7 @@ covers LoD-Loc's priors).
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -84,6 +85,7 @@ from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, 
 from semcityloc.io.stamps import file_fingerprint, file_sha256
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
+from semcityloc.localization.focal_check import focal_scale_used, with_focal_scale
 from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
@@ -364,6 +366,15 @@ class DatasetSpec:
             )
 
 
+def _focal_scale(path: Path) -> float:
+    """An estimate file's ``focal_scale`` (its pose holds with the focal lengths times it; 1 without)."""
+    try:
+        scale = json.loads(path.read_text(encoding="utf-8")).get("focal_scale")
+    except (OSError, ValueError, AttributeError):
+        return 1.0  # read_pose says what is wrong with the file
+    return float(scale) if isinstance(scale, (int, float)) else 1.0
+
+
 def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Path) -> Path:
     """The localized estimates of a run (``estimates/qNNNN.json``, world frame) as a COLMAP text model
     named by image (``queries``: the run's queries in index order)."""
@@ -371,7 +382,7 @@ def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Pa
     for index, q in enumerate(queries):
         path = out_dir / ESTIMATES_DIR / f"{query_id(index)}.json"
         if path.is_file():
-            entries[q.name] = (q.camera, read_pose(path))
+            entries[q.name] = (with_focal_scale(q.camera, _focal_scale(path)), read_pose(path))
     unreadable = text_unreadable_names(entries)
     if unreadable:  # COLMAP's text reader would cut them at their first space; estimates/ holds them
         print(
@@ -500,6 +511,10 @@ class DatasetSource:
                 extra["covariance"] = covariance_dict(result.covariance)
             with writing(path), removed_on_error(tmp):
                 write_pose_json(
-                    tmp, pose_local=result.pose_local, origin_world=self.map_model.origin, extra=extra
+                    tmp,
+                    pose_local=result.pose_local,
+                    origin_world=self.map_model.origin,
+                    extra=extra,
+                    focal_scale=focal_scale_used(result.search or {}),
                 )
                 tmp.replace(path)

@@ -4,7 +4,9 @@ Read back from the per-photo ``poses/<stem>.json`` files (so a run finished over
 the same), in the formats users import elsewhere:
 
 - ``colmap/``: ``cameras.txt``, ``images.txt``, ``points3D.txt`` (empty): the localized photos' poses in
-  the model's frame, named by image (``datasets.colmap.write_model``, the one COLMAP writer);
+  the model's frame, named by image (``datasets.colmap.write_model``, the one COLMAP writer), each with
+  the camera its pose holds with (a pose the focal check re-found: a camera of its own, its focal lengths
+  times the pose file's ``focal_scale``);
 - ``geotags.csv`` (model CRS known): every photo's WGS 84 position and yaw, pitch, roll as Pix4D,
   Metashape and OpenDroneMap define them (``datasets.geotags``; ``source`` = ``semcityloc`` for a
   corrected pose, with its covariance's sigmas as accuracy, ``prior (not localized: ...)`` for a photo
@@ -60,6 +62,7 @@ from semcityloc.geometry.pose_json import pose_from_json
 from semcityloc.geometry.spec_text import labelled
 from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
+from semcityloc.localization.focal_check import found_camera
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 
 NO_CRS = (
@@ -557,6 +560,12 @@ def unfingerprinted(rows: list[dict[str, str]], inputs: list | None = None) -> i
     return count
 
 
+def _found(inp, records: dict[str, dict]):
+    """The camera ``inp``'s estimate holds with (``focal_check.found_camera``: its focal lengths scaled where
+    the focal check's correction re-found the pose; a camera of its own in ``colmap/cameras.txt`` then)."""
+    return found_camera(inp.camera, records[inp.name].get("extra", {}).get("search") or {})
+
+
 def camera_features(
     inputs: list, records: dict[str, dict], estimates: dict[str, Pose], shift: np.ndarray
 ) -> list[CameraFeature]:
@@ -575,7 +584,8 @@ def camera_features(
         }
         if inp.truth_world is not None and est is not None:
             props["error_m"] = float(center_error_m(est, inp.truth_world))
-        features.append(CameraFeature(inp.name, inp.camera, pose, json_safe(props)))
+        camera = _found(inp, records) if est is not None else inp.camera
+        features.append(CameraFeature(inp.name, camera, pose, json_safe(props)))
     return features
 
 
@@ -634,7 +644,9 @@ def write_exports(
     outputs["notes"] += edge_notes(done, asked)
     outputs["notes"] += beyond_notes(done)
     split = space_split_names([inp.name for inp in found])  # left out of images.txt and geo.txt
-    cameras = {inp.name: (inp.camera, estimates[inp.name]) for inp in found if inp.name not in split}
+    cameras = {
+        inp.name: (_found(inp, records), estimates[inp.name]) for inp in found if inp.name not in split
+    }
     lenses = {inp.name: inp.distortion for inp in inputs}  # the photos as they are: with their lens
     colmap = ColmapModel.from_poses(cameras, lenses)
     outputs["colmap"] = str(write_model(colmap, out_dir / COLMAP_DIR, ext=".txt"))

@@ -57,6 +57,7 @@ from semcityloc.geometry.distortion import unseen_by_photo
 from semcityloc.geometry.pose_json import pose_to_dict
 from semcityloc.io.files import write_json_atomic
 from semcityloc.io.images import check_aspect, load_image, read_depth_file, read_mask_file
+from semcityloc.localization.focal_check import focal_scale_used, found_camera
 from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.base import PHOTO_MAX_WIDTH
@@ -235,10 +236,13 @@ class PhotoSource:
         if self.spec.offset is not None:  # the numbers + crs_offset are coordinates in offset_crs
             record.update(crs_offset=[float(v) for v in self.spec.offset], offset_crs=crs_label(model.crs))
         prior = inp.prior  # None: an unreadable photo's (``PhotoInput.unreadable``), and its camera too
+        camera = found_camera(inp.camera, result.search) if inp.camera is not None else None
+        if camera is not None and camera != inp.camera:  # re-found with the focal length scaled
+            record["intrinsics_stated"] = inp.camera.as_dict()
         record.update(
             image=inp.name,
             perception=self.spec.perception(),
-            intrinsics=inp.camera.as_dict() if inp.camera is not None else None,
+            intrinsics=camera.as_dict() if camera is not None else None,  # the one the pose holds with
             intrinsics_source=inp.intrinsics_source,
             focal_estimate=inp.focal_estimate,
             lens_distortion=None if inp.distortion.is_zero else inp.distortion.as_dict(),
@@ -264,7 +268,11 @@ class PhotoSource:
         estimate = result.pose_local if result.localized else None
         if estimate is not None:
             data = pose_to_dict(
-                pose_local=estimate, origin_world=model.origin, **self.pose_frame(), extra=record
+                pose_local=estimate,
+                origin_world=model.origin,
+                **self.pose_frame(),
+                extra=record,
+                focal_scale=focal_scale_used(result.search or {}),  # extra.intrinsics: the stated times it
             )
         else:
             data = record

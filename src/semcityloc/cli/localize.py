@@ -40,6 +40,7 @@ from semcityloc.io.images import (
     save_rgb,
 )
 from semcityloc.localization.config import FLAT_EAVES, PRESETS, LocalizerConfig
+from semcityloc.localization.focal_check import focal_scale_used, found_camera
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.map_scenes import found_on_flat_eaves
 from semcityloc.localization.methods import ABLATIONS
@@ -296,15 +297,26 @@ def run(args: argparse.Namespace) -> int:
     if not lens.distortion.is_zero:
         record["lens_distortion"] = lens.distortion.as_dict()  # the inputs were undistorted with it
     record = as_flags(record)  # its reason and warnings in the command line's words, as printed
+    # The camera the pose holds with: the stated one, its focal lengths times focal_scale where the focal
+    # check's correction re-found the pose (pose.json's "focal_scale" and extra "intrinsics" then).
+    scale = focal_scale_used(result.search or {})
+    found = found_camera(camera, result.search or {})
+    if scale is not None:
+        record.update(intrinsics=found.as_dict(), intrinsics_stated=camera.as_dict())
     if result.pose_local is not None:
         # pose.json: the pose at the top level (read_pose reads it), the whole result record in "extra".
         data = write_pose_json(
-            out / "pose.json", pose_local=result.pose_local, origin_world=model.origin, crs=crs, extra=record
+            out / "pose.json",
+            pose_local=result.pose_local,
+            origin_world=model.origin,
+            crs=crs,
+            extra=record,
+            focal_scale=scale,
         )
 
         scene = localizer.map_of(result).scene  # the map the pose was found on (flat roofs' eaves too?)
         view = NumbaEngine(scene).render(
-            camera, result.pose_local.R[None], result.pose_local.t[None], depth=True, face_ids=True
+            found, result.pose_local.R[None], result.pose_local.t[None], depth=True, face_ids=True
         )
         background = (
             _pinhole_photo(args.image, lens)
@@ -320,6 +332,7 @@ def run(args: argparse.Namespace) -> int:
             "pitch": data["pitch"],
             "yaw": data["yaw"],
             "crs": data.get("crs"),
+            "focal_scale": scale,  # null: the pose holds with the stated focal lengths
             "timings_s": result.timings,
         }
         if "covariance" in record:  # 1-sigma per component (m, deg); the whole matrix is in pose.json

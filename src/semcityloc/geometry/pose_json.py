@@ -86,6 +86,7 @@ def pose_to_dict(
     crs: Any = None,
     crs_offset: np.ndarray | None = None,
     extra: dict | None = None,
+    focal_scale: float | None = None,
 ) -> dict[str, Any]:
     """The JSON-ready description of one pose written by ``write_pose_json`` (see there)."""
     if (pose_local is None) == (pose_world is None):
@@ -144,6 +145,8 @@ def pose_to_dict(
             ),
         }
     )
+    if focal_scale is not None:  # the pose holds with the stated focal lengths times this
+        out["focal_scale"] = float(focal_scale)
     if extra is not None:
         if not isinstance(extra, dict):
             raise ShapeError(f"extra must be a dict, got {type(extra).__name__}")
@@ -167,8 +170,10 @@ def write_pose_json(path: str | os.PathLike, **pose_keywords: Any) -> dict[str, 
     ``offset_crs`` minus ``crs_offset``, and no ``crs`` key, so that no reader takes them for CRS
     coordinates; "model", a model's own coordinates without a CRS), ``position`` (camera centre),
     ``roll`` / ``pitch`` / ``yaw`` (degrees, our convention), ``world_from_cam`` and ``cam_from_world``
-    (4x4), ``qvec_wxyz`` / ``tvec`` (COLMAP), ``convention`` (a reminder string), and ``extra`` (any
-    JSON-serialisable dict) when given. ``read_pose`` reads the file back (in the frame it was written in;
+    (4x4), ``qvec_wxyz`` / ``tvec`` (COLMAP), ``convention`` (a reminder string), ``focal_scale`` when
+    given (the pose holds with the camera's stated focal lengths times it: a pose the focal check's
+    correction re-found, ``localization.focal_check.found_camera``), and ``extra`` (any JSON-serialisable
+    dict) when given. ``read_pose`` reads the file back (in the frame it was written in;
     ``citymodel.read_pose_world`` checks that frame against a model's). The file is strict JSON (a NaN or
     infinity in ``extra``, e.g. the depth cost of a run without depth, is written ``null``; the returned
     dict keeps it) and written whole or not at all (``io.files.write_json_atomic``).

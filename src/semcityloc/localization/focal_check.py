@@ -149,8 +149,10 @@ def corrected_warning(check: FocalCheck, scale: float) -> str:
     return (
         f"{FOCAL_WARNING}: this oblique view fits a focal length {off:.1f} % "
         f"{'longer' if scale > 1.0 else 'shorter'} than the stated one better (the check's vertex "
-        f"{check.scale:.3f}), so the pose was found again with it and fits the image better: kept, with "
-        f"the focal scale in the result. The error may be about twice that. Give the camera's calibrated "
+        f"{check.scale:.3f}), so the pose was found again with it and fits the image better: kept. It holds "
+        f"with the focal length times {scale:.3f}: re-project with fx and fy times {scale:.3f}, not the "
+        f"stated intrinsics (the pose file's intrinsics are the scaled ones, its focal_scale this scale). "
+        f"The stated focal length may be off by about twice {off:.1f} %. Give the camera's calibrated "
         f"intrinsics ({parameter('intrinsics', 'FILE')}, docs/your-data.md section 4), or estimate the focal "
         f"length from the flight's oblique photos ({parameter('calibrate_focal', 'on')})"
     )
@@ -161,6 +163,14 @@ def focal_scale_used(search: dict) -> float | None:
     was taken (``Localizer._correct_focal``), else None (the stated focal lengths)."""
     correction = (search.get("focal_check") or {}).get("correction") or {}
     return float(correction["scale"]) if correction.get("taken") else None
+
+
+def found_camera(camera: Camera, search: dict) -> Camera:
+    """The camera a result's pose holds with: ``camera`` (the stated one) with its focal lengths times
+    ``focal_scale_used(search)`` where the correction took it, else ``camera``. What a pose file's
+    ``intrinsics`` and a COLMAP export's camera of that image are (``focal_scale`` beside them)."""
+    scale = focal_scale_used(search or {})
+    return camera if scale is None else with_focal_scale(camera, scale)
 
 
 def focal_warning(check: FocalCheck | None, margin: float) -> str | None:
