@@ -507,3 +507,24 @@ def test_a_mask_or_depth_changed_after_its_query_finished_is_refused_naming_it(d
     assert main(argv) == 0
     err = capsys.readouterr().err
     assert "2 finished queries were run by an earlier version that kept no fingerprints" in err, err
+
+
+def test_an_estimate_re_found_with_a_scaled_focal_length_gets_its_own_colmap_camera(tmp_path):
+    """(stop 54) ``estimates_colmap/`` gave every image its query's stated camera: a pose the focal check's
+    correction re-found with the focal length times s (``focal_scale`` in its estimate file) now has a
+    camera of its own with fx, fy times s; the others keep the stated one."""
+    from semcityloc.benchmark.dataset_source import write_estimates_colmap
+    from semcityloc.geometry.pose_json import write_pose_json
+    from semcityloc.localization.focal_check import with_focal_scale
+
+    cam = Camera.from_fov(160, 120, 60.0)
+    pose = Pose.from_xyz_rpy([1.0, 2.0, 80.0], 0.0, 20.0, 30.0)
+    queries = [LodLocQuery(f"Q{i}.JPG", "s", cam, gt_pose_world=pose) for i in range(2)]
+    (tmp_path / ESTIMATES_DIR).mkdir()
+    for i, scale in enumerate((None, 0.976)):
+        write_pose_json(tmp_path / ESTIMATES_DIR / f"q{i:04d}.json", pose_world=pose, focal_scale=scale)
+    cameras = {
+        n: c
+        for n, (c, _) in read_model(write_estimates_colmap(queries, tmp_path, tmp_path / "c")).poses().items()
+    }
+    assert cameras == {"Q0.JPG": cam, "Q1.JPG": with_focal_scale(cam, 0.976)}
