@@ -495,3 +495,14 @@ def test_a_yaw_cell_holding_a_missing_value_marker_is_no_heading(tmp_path, cell)
     (tmp_path / "h.csv").write_text(header + f"a.JPG,48.1,11.5,{cell},30,-45,0\n")
     with pytest.raises(InputFileError, match=r"h\.csv: line 2: .*height_m"):
         read_geotags_csv(tmp_path / "h.csv")
+
+
+def test_a_bad_geotag_value_is_named_by_the_files_own_column(tmp_path):
+    """Stop 54 audit: a file whose header says ``yaw`` / ``Alt`` was told about ``yaw_deg`` / ``height_m``
+    (the reader's own names), columns the user cannot find in it."""
+    (tmp_path / "g.csv").write_text("image,lat,lon,Alt,yaw,pitch\na.JPG,48.1,11.5,600,abc,-45\n")
+    with pytest.raises(InputFileError, match=r"g\.csv: line 2: yaw is not a number: 'abc'"):
+        read_geotags_csv(tmp_path / "g.csv")
+    (tmp_path / "h.csv").write_text("image,lat,lon,Alt,yaw,pitch\na.JPG,48.1,11.5,,30,-45\n")
+    with pytest.raises(InputFileError, match=r"h\.csv: line 2: no alt\b"):
+        read_geotags_csv(tmp_path / "h.csv")

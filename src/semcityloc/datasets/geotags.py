@@ -212,7 +212,8 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
         def get(key: str, values=values, line=line, optional: bool = False) -> float | None:
             i = where.get(key)
             value = values[i] if i is not None and i < len(values) else ""
-            return _number(value, key, line, optional=optional or i is None)
+            named = header[i] if i is not None else key  # the column as the file names it
+            return _number(value, named, line, optional=optional or i is None)
 
         def text(key: str, values=values) -> str:
             i = where.get(key)
