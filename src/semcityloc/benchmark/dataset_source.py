@@ -79,7 +79,7 @@ from semcityloc.errors import (
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
 from semcityloc.geometry.pose_files import read_pose
-from semcityloc.geometry.pose_json import write_pose_json
+from semcityloc.geometry.pose_json import focal_scale_of, write_pose_json
 from semcityloc.io.files import removed_on_error
 from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, scaled_size
 from semcityloc.io.stamps import file_fingerprint, file_sha256
@@ -367,12 +367,12 @@ class DatasetSpec:
 
 
 def _focal_scale(path: Path) -> float:
-    """An estimate file's ``focal_scale`` (its pose holds with the focal lengths times it; 1 without)."""
+    """An estimate file's ``focal_scale`` (``pose_json.focal_scale_of``; 1 where the file cannot be read:
+    ``read_pose`` says what is wrong with it)."""
     try:
-        scale = json.loads(path.read_text(encoding="utf-8")).get("focal_scale")
-    except (OSError, ValueError, AttributeError):
-        return 1.0  # read_pose says what is wrong with the file
-    return float(scale) if isinstance(scale, (int, float)) else 1.0
+        return focal_scale_of(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError):
+        return 1.0
 
 
 def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Path) -> Path:

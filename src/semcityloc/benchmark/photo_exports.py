@@ -58,11 +58,11 @@ from semcityloc.errors import InputFileError, SemCityLocError, counted, paramete
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose import Pose
-from semcityloc.geometry.pose_json import pose_from_json
+from semcityloc.geometry.pose_json import focal_scale_of, pose_from_json
 from semcityloc.geometry.spec_text import labelled
 from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
-from semcityloc.localization.focal_check import found_camera
+from semcityloc.localization.focal_check import with_focal_scale
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 
 NO_CRS = (
@@ -561,9 +561,10 @@ def unfingerprinted(rows: list[dict[str, str]], inputs: list | None = None) -> i
 
 
 def _found(inp, records: dict[str, dict]):
-    """The camera ``inp``'s estimate holds with (``focal_check.found_camera``: its focal lengths scaled where
-    the focal check's correction re-found the pose; a camera of its own in ``colmap/cameras.txt`` then)."""
-    return found_camera(inp.camera, records[inp.name].get("extra", {}).get("search") or {})
+    """The camera ``inp``'s estimate holds with: its focal lengths times its pose file's ``focal_scale``
+    (``pose_json.focal_scale_of``: where the focal check's correction re-found the pose; a camera of its own
+    in ``colmap/cameras.txt`` then)."""
+    return with_focal_scale(inp.camera, focal_scale_of(records[inp.name]))
 
 
 def camera_features(
@@ -634,7 +635,7 @@ def write_exports(
     found = [inp for inp in inputs if inp.name in estimates]
     moves = [estimates[inp.name].center - inp.prior.pose_world.center for inp in found]
     done = list(records.values())
-    headed = [inp for inp in found if inp.prior.heading_known]  # a yaw taken as 0 says nothing of a compass
+    headed = [inp for inp in found if _heading_known(inp)]  # a yaw taken as 0 says nothing of a compass
     yaw_moves = yaw_moves_deg([estimates[i.name] for i in headed], [i.prior.pose_world for i in headed])
     outputs["notes"] += no_heading_notes([inp.name for inp in inputs if not _heading_known(inp)])
     asked = rerun_sigma(done, np.array(moves), yaw_moves)  # one figure per axis in every note below

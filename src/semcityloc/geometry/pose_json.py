@@ -25,6 +25,13 @@ CONSISTENCY_TOL_M = 1e-4
 CONSISTENCY_TOL_R = 1e-6
 
 
+def focal_scale_of(obj: Any) -> float:
+    """A pose file's ``focal_scale`` (``write_pose_json``: its pose holds with the camera's stated focal
+    lengths times it), 1 where it has none."""
+    scale = obj.get("focal_scale") if isinstance(obj, dict) else None
+    return float(scale) if isinstance(scale, (int, float)) and not isinstance(scale, bool) else 1.0
+
+
 def pose_from_json(obj: Any) -> Pose:
     if not isinstance(obj, dict):
         raise PoseError(f"pose JSON must be an object, got {type(obj).__name__}")

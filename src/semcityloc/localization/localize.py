@@ -602,8 +602,7 @@ class Localizer:
         conflict = prior_conflict_warning(trial.pose_local, found.prior_state, unc)
         if conflict is not None:
             trial.warnings.append(conflict)
-        for name in ("pose_local", "score", "semantic", "depth_cost", "covariance", "score_curvature"):
-            setattr(result, name, getattr(trial, name))
+        adopt(result, trial)  # its pose and evidence; then the acceptance's judgement of it
         result.confidence, result.warnings = trial.confidence, trial.warnings
         return True
 
