@@ -28,6 +28,7 @@ from semcityloc.datasets.photos import (
     INTRINSICS_DJI_DEWARP,
     IntrinsicsFiles,
     PhotoMissing,
+    PhotoNotListed,
     PriorFiles,
     list_images,
 )
@@ -422,8 +423,8 @@ def test_a_geotag_row_without_a_yaw_is_a_prior_that_searches_every_heading(tmp_p
     photo without ``GimbalYawDegree`` has been localized searching every heading since stop 53. Now such a
     row is read as that photo is: yaw 0 taken, ``heading_known`` False, every heading searched over any
     smaller yaw sigma, said in its notes and its result's warnings (``NO_YAW_NOTE``, the words of
-    ``NO_HEADING_NOTE`` after what lacked the heading). A row without a pitch is still refused, naming file,
-    line and column; a prior without a heading is written back with an empty yaw cell."""
+    ``NO_HEADING_NOTE`` after what lacked the heading). A prior without a heading is written back with an
+    empty yaw cell. (A row without a pitch: stop 55, below.)"""
     crs = pyproj.CRS("EPSG:25832")
     photo = dji_jpeg(tmp_path / "a.JPG", xmp_packet(**RTK), size=(80, 60))
     header = "image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg\n"
@@ -453,15 +454,63 @@ def test_a_geotag_row_without_a_yaw_is_a_prior_that_searches_every_heading(tmp_p
     assert (
         known.heading_known and known.warnings() == [] and known.details["gimbal_yaw_pitch_roll_deg"][0] == 30
     )
-    # A yaw and no pitch: refused as before, naming the file, the line and the column.
-    (tmp_path / "nopitch.csv").write_text(files["empty.csv"].replace(",,-45,", ",30,,"))
-    with pytest.raises(InputFileError, match=r"nopitch\.csv: line 2: no pitch_deg"):
-        read_geotags_csv(tmp_path / "nopitch.csv")
-    (tmp_path / "nopitch4.csv").write_text(
-        "image,lat,lon,alt,pix4d_yaw_deg,pix4d_pitch_deg\na.JPG,48.1,11.5,600,3,\n"
+
+
+# ------------------------------------------------------------------ stop 55: rows without a pitch, short rows
+@pytest.mark.parametrize("cell", ["", "nan", "N/A", " - "])
+def test_a_geotag_row_without_a_pitch_skips_its_photo_not_the_whole_file(tmp_path, cell):
+    """Stop 55 audit: one geotag row whose pitch cell was empty refused the whole file ("line 3: no
+    pitch_deg": every photo of the run), and one holding a missing-value marker too ("pitch_deg is not
+    finite"), whereas a DJI photo without ``GimbalPitchDegree`` is only skipped. Now such a row (the same
+    ``MISSING_VALUES`` as the yaw's) gives no prior: its photo is skipped (``PhotoMissing``, not
+    ``PhotoNotListed``: its row is there) with a reason naming the file, the line and the column, as the
+    DJI photo is; the other rows are read. A file without a pitch column is still refused."""
+    crs = pyproj.CRS("EPSG:25832")
+    photo = dji_jpeg(tmp_path / "a.JPG", xmp_packet(**RTK), size=(80, 60))
+    header = "image,latitude,longitude,height_m,yaw_deg,pitch_deg,roll_deg\n"
+    (tmp_path / "g.csv").write_text(
+        header + "a.JPG,48.1,11.5,600,30,-45,0\n" + f"b.JPG,48.1,11.5,600,30,{cell},0\n"
     )
-    with pytest.raises(InputFileError, match=r"nopitch4\.csv: line 2: no pix4d_pitch_deg"):
-        read_geotags_csv(tmp_path / "nopitch4.csv")
+    rows = read_geotags_csv(tmp_path / "g.csv")
+    assert rows["a.JPG"].geotag.pitch_deg == -45.0 and rows["b.JPG"].geotag is None
+    priors = PriorFiles(tmp_path / "g.csv", crs)
+    assert priors.prior(photo).heading_known
+    with pytest.raises(PhotoMissing, match=r"g\.csv line 3\): no pitch_deg: without a pitch") as info:
+        priors.prior(tmp_path / "b.JPG")
+    assert not isinstance(info.value, PhotoNotListed)
+    # Pix4D's angles: the same, named by the file's own column; a file of such rows alone is read too.
+    (tmp_path / "p.csv").write_text(
+        f"image,lat,lon,alt,pix4d_yaw_deg,pix4d_pitch_deg\na.JPG,48.1,11.5,600,3,{cell}\n"
+    )
+    with pytest.raises(PhotoMissing, match=r"p\.csv line 2\): no pix4d_pitch_deg"):
+        PriorFiles(tmp_path / "p.csv", crs).prior(photo)
+    # The DJI path it is consistent with: a photo without GimbalPitchDegree is skipped, not the run.
+    no_pitch = dji_jpeg(
+        tmp_path / "c.JPG", xmp_packet(**{k: v for k, v in RTK.items() if k != "GimbalPitchDegree"})
+    )
+    with pytest.raises(PhotoMissing, match="no usable GPS prior"):
+        PriorFiles(EXIF, crs).prior(no_pitch)
+    (tmp_path / "none.csv").write_text("image,lat,lon,alt,yaw\na.JPG,48.1,11.5,600,30\n")
+    with pytest.raises(InputFileError, match="missing pitch_deg in the header"):
+        read_geotags_csv(tmp_path / "none.csv")
+
+
+def test_a_geotag_row_cut_short_is_refused_naming_the_columns_it_lacks(tmp_path):
+    """Stop 55 audit: a row with fewer cells than the header (a file cut short, a cell and its delimiter
+    lost) read its missing yaw as an empty one: the photo silently searched without a heading. A short row
+    is a damaged file: refused naming the file, the line and the columns it lacks. A row whose yaw cell is
+    there and empty keeps reading as one without a heading, and a header's trailing delimiter names no
+    column a row must have."""
+    header = "image,latitude,longitude,height_m,pitch_deg,yaw_deg,roll_deg\n"
+    (tmp_path / "g.csv").write_text(header + "a.JPG,48.1,11.5,600,-45,10,0\nb.JPG,48.1,11.5,600,-45\n")
+    with pytest.raises(
+        InputFileError, match=r"g\.csv: line 3: 5 cells where the header has 7: no yaw_deg, roll_deg"
+    ):
+        read_geotags_csv(tmp_path / "g.csv")
+    (tmp_path / "h.csv").write_text(header + "b.JPG,48.1,11.5,600,-45,,\n")
+    assert not read_geotags_csv(tmp_path / "h.csv")["b.JPG"].geotag.heading_known
+    (tmp_path / "t.csv").write_text("image,lat,lon,alt,pitch,\nb.JPG,48.1,11.5,600,-45\n")
+    assert read_geotags_csv(tmp_path / "t.csv")["b.JPG"].geotag.pitch_deg == -45.0
 
 
 @pytest.mark.parametrize(("pitch", "roll"), [(0.7, 0.5), (3.0, -2.0), (60.0, 3.0), (30.0, -10.0)])

@@ -1910,6 +1910,32 @@ def test_a_geotag_row_without_a_yaw_is_localized_searching_every_heading(tmp_pat
     assert code == 2 and f"its geotag row ({csv_file} line 2) has no yaw" in err, err
 
 
+def test_a_geotag_row_without_a_pitch_skips_its_photo_and_the_run_goes_on(tmp_path):
+    """Stop 55 audit: one row of a ``--priors`` geotag CSV with an empty pitch cell refused the whole run
+    ("line 3: no pitch"); now its photo is skipped, as a DJI photo without GimbalPitchDegree is, the reason
+    naming the file, the line and the column; the other photos run."""
+    root, _, offset, _ = _headingless_flight(tmp_path)
+    shutil.copy(root / "images" / "H0.JPG", root / "images" / "H1.JPG")
+    shutil.copy(root / "masks" / "H0.png", root / "masks" / "H1.png")
+    metadata = read_dji_metadata(root / "images" / "H0.JPG")
+    where = f"{metadata.latitude!r},{metadata.longitude!r},{metadata.absolute_altitude_m!r}"
+    csv_file = root / "priors.csv"
+    csv_file.write_text(
+        f"image,latitude,longitude,height_m,yaw,pitch,roll\nH0.JPG,{where},30,-30,0\nH1.JPG,{where},30,,0\n"
+    )
+    spec = PhotoSpec(
+        images=str(root / "images"),
+        city=str(root / "city.obj"),
+        priors=str(csv_file),
+        masks=str(root / "masks"),
+        crs="EPSG:25832",
+        offset=tuple(offset),
+    )
+    _, inputs, skipped, _ = spec.resolved()
+    assert [i.name for i in inputs] == ["H0.JPG"] and list(skipped) == ["H1.JPG"]
+    assert f"no usable GPS prior ({csv_file} line 3): no pitch: without a pitch" in skipped["H1.JPG"]
+
+
 def test_a_run_of_photos_without_a_heading_says_so_once_and_gives_no_yaw_error_of_a_yaw_taken(
     tmp_path, capsys
 ):

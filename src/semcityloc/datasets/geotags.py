@@ -33,8 +33,12 @@ compass heading): that row's prior has yaw 0 and every heading is searched, as a
 DJI yaw that gives is dropped for 0 too (in both conventions the yaw is the outermost turn, about the
 vertical: the camera's tilt, its roll and pitch, is the same whatever heading is taken, and near nadir
 DJI's yaw / roll split is arbitrary anyway). Such a row is no true pose (``benchmark.photo_inputs``); a
-run writes a photo's prior without a heading with an empty yaw cell. A row without a pitch is refused,
-naming file, line and column.
+run writes a photo's prior without a heading with an empty yaw cell. A row without a pitch (an empty cell
+or a ``MISSING_VALUES`` marker) gives no prior, as a DJI photo without ``GimbalPitchDegree`` (no tilt to
+search from): its photo is skipped with a reason naming file, line and column (``GeotagRow.unusable``;
+stop 55: before, the whole file was refused); a file without a pitch column is refused. A row cut short
+(fewer cells than the header: a damaged file) is refused naming file, line and the columns it lacks
+(stop 55: before, a row cut before its yaw cell read as a row without a heading).
 
 ``geo.txt``: OpenDroneMap's image geolocation file, a projection line (the model's horizontal CRS, so no
 height conversion is involved) and one line per image: ``image_name x y z yaw pitch roll``, the angles
@@ -120,14 +124,18 @@ def dji_angles_of_pix4d(yaw_deg: float, pitch_deg: float, roll_deg: float) -> tu
 
 @dataclass(frozen=True)
 class GeotagRow:
-    """One row of a geotag file: the photo's name, its geotag, accuracies and what the row is."""
+    """One row of a geotag file: the photo's name, its geotag, accuracies and what the row is.
+
+    ``geotag`` None: the row gives no camera (no pitch), ``unusable`` says why and ``PriorFiles`` skips its
+    photo with it (module docstring)."""
 
     image: str
-    geotag: DjiGeotag
+    geotag: DjiGeotag | None
     accuracy_xy_m: float | None = None
     accuracy_z_m: float | None = None
     source: str = ""
     line: int | None = None  # its line in the file it was read from (messages name it)
+    unusable: str = ""  # why the row gives no prior (``geotag`` None): "no pitch_deg: ..."
 
     def source_height(self) -> str:
         """How ``dji_prior`` must read this row's height (``datasets.dji`` ``HEIGHT_*``): orthometric when
@@ -153,8 +161,12 @@ class GeotagRow:
 
 
 # What tables write for a missing value (numpy's ``savetxt``, pandas, spreadsheets): in an optional column
-# (the yaw, the roll) the same as an empty cell; in a required one still a refusal naming it.
+# (the yaw, the roll) the same as an empty cell, in the pitch's a row without a prior (``NO_PITCH``); in a
+# required one still a refusal naming it.
 MISSING_VALUES = frozenset({"nan", "n/a", "na", "-", "none", "null"})
+# Why a row without a pitch gives no prior (after "no <its pitch column>"), as a DJI photo without
+# ``GimbalPitchDegree`` gives none (``dji.dji_prior``): its photo is skipped, not the file refused.
+NO_PITCH = "without a pitch there is no camera tilt to search from (only the yaw may be left out)"
 
 
 def _number(value: str, what: str, where: str, optional: bool = False) -> float | None:
@@ -168,7 +180,8 @@ def _number(value: str, what: str, where: str, optional: bool = False) -> float 
 
 def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
     """``{image name: GeotagRow}`` of a geotag CSV (module docstring); ``InputFileError`` naming the line
-    of a bad value or the missing columns."""
+    of a bad value, of a row cut short or the missing columns. A row without a pitch is kept without a
+    geotag (``GeotagRow.unusable``): its photo is skipped, not the file refused."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -204,20 +217,28 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
             f"accuracy_z_m); missing {', '.join(missing)} in the header {header}"
         )
     rows: dict[str, GeotagRow] = {}
+    columns = [i for i, h in enumerate(header) if h]  # a trailing delimiter of the header names no column
+    width = columns[-1] + 1 if columns else 0
     for n, values in enumerate(reader, start=2):
         if not values or all(not v.strip() for v in values) or values[0].lstrip().startswith("#"):
             continue
         line = f"{path}: line {n}"
+        if len(values) < width:  # cut short: a damaged file, not a row whose last cells are empty
+            lacking = [h for h in header[len(values) : width] if h]
+            raise InputFileError(
+                f"{line}: {len(values)} cells where the header has {width}: no {', '.join(lacking)} (the "
+                "row is cut short; an empty cell keeps its delimiter)"
+            )
 
         def get(key: str, values=values, line=line, optional: bool = False) -> float | None:
             i = where.get(key)
-            value = values[i] if i is not None and i < len(values) else ""
+            value = values[i] if i is not None else ""
             named = header[i] if i is not None else key  # the column as the file names it
             return _number(value, named, line, optional=optional or i is None)
 
         def text(key: str, values=values) -> str:
             i = where.get(key)
-            return values[i].strip() if i is not None and i < len(values) else ""
+            return values[i].strip() if i is not None else ""
 
         image = text("image")
         if not image:
@@ -225,7 +246,13 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
         lat, lon = get("latitude"), get("longitude")
         if not (-90 <= lat <= 90 and -180 <= lon <= 360):
             raise InputFileError(f"{line}: latitude {lat} / longitude {lon} out of range")
-        yaw, pitch, roll = get(angles[0], optional=True), get(angles[1]), get(angles[2], optional=True)
+        height = get("height_m")
+        accuracy = get("accuracy_xy_m", optional=True), get("accuracy_z_m", optional=True)
+        yaw, pitch, roll = (get(a, optional=True) for a in angles)
+        if pitch is None:  # no prior, as a DJI photo without GimbalPitchDegree: its photo skipped
+            why = f"no {header[where[angles[1]]]}: {NO_PITCH}"
+            rows[image] = GeotagRow(image, None, *accuracy, text("source"), n, unusable=why)
+            continue
         heading_known, roll = yaw is not None, 0.0 if roll is None else roll
         if pix4d:
             yaw, pitch, roll = dji_angles_of_pix4d(yaw if heading_known else 0.0, pitch, roll)
@@ -233,22 +260,14 @@ def read_geotags_csv(path: str | os.PathLike) -> dict[str, GeotagRow]:
         tag = DjiGeotag(
             latitude=lat,
             longitude=lon,
-            height_m=get("height_m"),
+            height_m=height,
             yaw_deg=yaw,
             pitch_deg=pitch,
             roll_deg=roll,
             height_reference=text("height_reference") or "as given in the geotag file",
             heading_known=heading_known,
         )
-        source = text("source")
-        rows[image] = GeotagRow(
-            image,
-            tag,
-            get("accuracy_xy_m", optional=True),
-            get("accuracy_z_m", optional=True),
-            source,
-            n,
-        )
+        rows[image] = GeotagRow(image, tag, *accuracy, text("source"), n)
     if not rows:
         raise InputFileError(f"{path}: no geotag rows")
     return rows

@@ -25,7 +25,7 @@ per-photo information in whatever form they come with. This module matches each 
   a height that could not be converted widens the height sigma either way (``dji.height_widened``), and a
   photo whose tags have no heading (no ``GimbalYawDegree``, its pitch known; stop 53) or whose geotag row
   has no yaw (stop 54) gets yaw 0 and a yaw sigma that searches every heading, whatever ``--prior-sigma``
-  says (``PhotoPrior.searched``).
+  says (``PhotoPrior.searched``); one without a pitch, its tags' or its row's (stop 55), has no prior.
 
 A photo lacking something is not an error of the whole batch: ``PhotoMissing`` names what is missing and
 the caller skips that photo with the reason.
@@ -536,6 +536,8 @@ class PriorFiles:
                 raise PhotoNotListed(f"no row for {image.name} in {self.spec}")
             source = f"geotags {Path(self.spec).name}"
             where = f"{self.spec} line {row.line}" if row.line is not None else str(self.spec)
+            if row.geotag is None:  # no pitch: skipped, as a DJI photo without GimbalPitchDegree
+                raise PhotoMissing(f"no usable GPS prior ({where}): {row.unusable}")
             return self._from_dji(
                 row.geotag.metadata(), source, row.source_height(), row.uncertainty(), where, geotag=True
             )
