@@ -33,6 +33,7 @@ from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.io.images import load_labels_png
 from semcityloc.localization.cascade import search_volume
 from semcityloc.localization.config import CascadeConfig
+from semcityloc.localization.focal_check import FocalCheck, corrected_warning, focal_warning
 from semcityloc.localization.search_reach import edge_warning
 
 FLAG = re.compile(r"(?<![\w-])--[a-z]")  # a command-line flag
@@ -102,6 +103,21 @@ def test_library_messages_name_the_python_parameter_and_no_flag(tmp_path):
     assert as_flags(said["prior_uncertainty=PriorUncertainty.parse('z="]).endswith(
         f"with --prior-sigma {asked.group(1)} or correct the prior"
     )
+
+
+def test_the_focal_length_warning_names_what_a_localize_caller_sets():
+    """Stop 55 audit: the focal-length warnings told a Python caller to pass ``intrinsics='FILE'``, a
+    parameter ``Localizer.localize`` does not have (it takes a ``camera``). They now name the camera's
+    calibrated ``fx`` / ``fy`` (and a photo run's ``PhotoSpec(intrinsics='FILE')``); the command line
+    still prints ``--intrinsics FILE``."""
+    check = FocalCheck(1.02, (-0.02, -0.002), 0.03, 80.0)
+    for text in (focal_warning(check, 0.01), corrected_warning(check, 1.03)):
+        said = text.split("calibrated intrinsics (")[1]
+        assert said.startswith("camera=Camera(fx=..., fy=...") and "PhotoSpec(intrinsics='FILE')" in said
+        assert not FLAG.search(text) and "(--intrinsics FILE, docs/your-data.md" in as_flags(text)
+        assert "Camera(" not in as_flags(text) and "--preset focal-correct" in as_flags(
+            focal_warning(check, 0.01)
+        )
 
 
 def test_each_parameter_is_one_flag_and_other_text_is_left_alone():

@@ -227,6 +227,12 @@ PARAMETERS: dict[str, Parameter] = {
     "geoid_separation": Parameter("geoid_separation_m={}", "--geoid-separation {}"),
     "city": Parameter("city='{}'", "--city {}"),
     "frame": Parameter("frame='{}'", "--frame {}"),
+    # What a caller of ``Localizer.localize`` sets to give a camera's calibrated focal lengths (a photo run
+    # its ``PhotoSpec``'s intrinsics file): before ``intrinsics``, whose spelling it holds.
+    "calibrated_camera": Parameter(
+        "camera=Camera(fx=..., fy=..., ...) from the calibration, or PhotoSpec(intrinsics='FILE')",
+        "--intrinsics FILE",
+    ),
     "intrinsics": Parameter("intrinsics='{}'", "--intrinsics {}"),
     "priors": Parameter("priors='{}'", "--priors {}"),
     "allow_lossy": Parameter("allow_lossy=True", "--allow-lossy-mask"),

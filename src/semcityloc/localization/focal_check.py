@@ -153,7 +153,7 @@ def corrected_warning(check: FocalCheck, scale: float) -> str:
         f"with the focal length times {scale:.3f}: re-project with fx and fy times {scale:.3f}, not the "
         f"stated intrinsics (the pose file's intrinsics are the scaled ones, its focal_scale this scale). "
         f"The stated focal length may be off by about twice {off:.1f} %. Give the camera's calibrated "
-        f"intrinsics ({parameter('intrinsics', 'FILE')}, docs/your-data.md section 4), or estimate the focal "
+        f"intrinsics ({parameter('calibrated_camera')}, docs/your-data.md section 4), or estimate the focal "
         f"length from the flight's oblique photos ({parameter('calibrate_focal', 'on')})"
     )
 
@@ -184,7 +184,7 @@ def focal_warning(check: FocalCheck | None, margin: float) -> str | None:
         f"{FOCAL_WARNING}: around the pose found, this oblique view fits a focal length {off:.1f} % "
         f"{'longer' if longer else 'shorter'} than the stated one better (the check understates the error, "
         f"about by half), so the camera may be placed too {'close' if longer else 'far'} along its axis. "
-        f"Give the camera's calibrated intrinsics ({parameter('intrinsics', 'FILE')}, docs/your-data.md "
+        f"Give the camera's calibrated intrinsics ({parameter('calibrated_camera')}, docs/your-data.md "
         "section 4), estimate the focal length from the flight's oblique photos "
         f"({parameter('calibrate_focal', 'on')}), or find each pose again with the focal length its view "
         f"fits ({parameter('preset', 'focal-correct')})"
