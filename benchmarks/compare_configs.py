@@ -259,6 +259,19 @@ def summarise(rows: list[dict], names: list[str]) -> list[dict]:
     return out
 
 
+def conditions_help() -> str:
+    """``--condition``'s help: each name of ``TUNING_CONDITIONS`` with the knobs it sets, from the dict (a
+    copied list would go stale when a condition is added or changed)."""
+    said = [
+        f"{name} ({', '.join(knobs) or 'the realistic scenario as it is'})"
+        for name, knobs in TUNING_CONDITIONS.items()
+    ]
+    return (
+        "a named tuning condition, its scenario knobs set as --set sets them, under --set's own (repeatable; "
+        "default: realistic): " + "; ".join(said)
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--variant", action="append", required=True, help="NAME or NAME:key=value,...")
@@ -271,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
         "--condition",
         action="append",
         choices=list(TUNING_CONDITIONS),
-        help="a named tuning condition (repeatable; default: realistic)",
+        help=conditions_help(),
     )
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cache", type=Path, default=Path(".compare_cache"))

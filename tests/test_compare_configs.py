@@ -130,6 +130,18 @@ def test_every_tuning_condition_is_a_valid_scenario_and_map_faults_joins_three()
         tuning_condition("hard")
 
 
+def test_help_says_what_each_condition_sets(compare, capsys):
+    """Stop 55 audit: ``--help`` listed the condition names alone ("a named tuning condition"), what each
+    sets only in the source. Now each name comes with its knobs, made from ``TUNING_CONDITIONS`` itself."""
+    from semcityloc.benchmark.calibration import TUNING_CONDITIONS
+
+    with pytest.raises(SystemExit):
+        compare.main(["--help"])
+    said = " ".join(capsys.readouterr().out.split())
+    for name, knobs in TUNING_CONDITIONS.items():
+        assert f"{name} ({', '.join(knobs) or 'the realistic scenario as it is'})" in said, name
+
+
 def test_conditions_are_run_and_summarised_apart(tmp_path):
     """Two conditions, one query each: one JSON line per (condition, variant), each naming its condition,
     and the rows file tags every row."""
