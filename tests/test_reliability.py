@@ -493,9 +493,24 @@ def test_resume_refusal_names_only_the_differing_keys(tmp_path):
         prepare_output(tmp_path, other)
     message = str(info.value)
     assert "method: 'semcityloc' -> 'no-depth'" in message and "query.seed: 1 -> 2" in message
-    assert "query.knob_3" in message and "knob_4" not in message and "[0, 1, 2" not in message
+    assert "query.knob_4" not in message and str(list(range(50))) not in message  # no whole value
     assert len(message) < 300, message
     assert json.loads((tmp_path / RUN_FILE).read_text()) == config  # untouched
+
+
+def test_resume_refusal_shows_a_long_values_both_sides_cut_short(tmp_path):
+    """Stop 55 audit: a differing key whose value was long (the clean scenario's ``depth_model`` None, the
+    realistic one's a dict of eight knobs; a 50-number list) was named without either value, so the user
+    could not tell what changed. Each side is now shown, a long one cut to ``_SHORT_VALUE`` characters."""
+    depth = {"distortion": 0.2, "noise": 0.05, "holes": 0.1, "max_depth_m": 300.0, "edge_blur_px": 2}
+    old = {"method": "semcityloc", "query_config": {"depth_model": None, "knob": list(range(50))}}
+    prepare_output(tmp_path, old)
+    new = {"method": "semcityloc", "query_config": {"depth_model": depth, "knob": [1]}}
+    with pytest.raises(ResumeMismatchError) as info:
+        prepare_output(tmp_path, new)
+    message = str(info.value)
+    assert "query_config.depth_model: None -> {'distortion': 0.2, 'noise': 0.05, 'h..." in message, message
+    assert "query_config.knob: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11... -> [1]" in message, message
 
 
 def test_a_configuration_field_added_by_newer_code_does_not_refuse_a_resume(tmp_path):

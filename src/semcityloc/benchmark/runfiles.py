@@ -7,8 +7,9 @@ a killed run resumes and a run with other arguments is refused; none of it depen
 Folder ``DIR`` of a run:
 
 - ``run.json``: what decides the numbers (the spec's ``run_config``), written first. A later call with
-  other arguments is refused with ``ResumeMismatchError`` naming the differing keys, unless ``overwrite``
-  (which deletes the old results, whatever the arguments: it always starts the run again). It also keeps
+  other arguments is refused with ``ResumeMismatchError`` naming the differing keys with both values
+  (``differing_settings``), unless ``overwrite`` (which deletes the old results, whatever the arguments:
+  it always starts the run again). It also keeps
   ``code``, the package source that started the run: a resume by changed code is not refused but told
   that its results mix (``code_change_note``). A run that fails (or is interrupted) before the folder
   holds its first row - a backend without its weights - leaves nothing of itself (``run_entries``,
@@ -291,13 +292,20 @@ def _lock_holder(fd: int, default: str = "pid unknown") -> str:
         return default
 
 
-_SHORT_VALUE = 40  # a differing value longer than this (as repr) is named, not shown
+_SHORT_VALUE = 40  # a differing value longer than this (as repr) is shown cut to it, "..." at the end
+
+
+def _shortened(value: object) -> str:
+    """``repr(value)``, cut to ``_SHORT_VALUE`` characters ending in ``...`` when longer."""
+    text = repr(value)
+    return text if len(text) <= _SHORT_VALUE else text[: _SHORT_VALUE - 3] + "..."
 
 
 def differing_settings(old: dict, new: dict, prefix: str = "", full: bool = False) -> list[str]:
-    """The keys (dotted into nested objects) whose values differ, each with ``old -> new`` when both are
-    short: what a refused resume names (never whole configurations). Inside ``FULL_CONFIGS`` (``full``),
-    a key only one side has is the code's difference, not named."""
+    """The keys (dotted into nested objects) whose values differ, each with ``stored -> now`` (a long value
+    cut short, ``_shortened``): what a refused resume names (never whole configurations; stop 55: a long
+    value's key was named without either value). Inside ``FULL_CONFIGS`` (``full``), a key only one side
+    has is the code's difference, not named."""
     out = []
     for k in sorted(set(old) | set(new), key=str):
         if not prefix and k in NOT_IDENTITY:
@@ -310,8 +318,7 @@ def differing_settings(old: dict, new: dict, prefix: str = "", full: bool = Fals
         if isinstance(a, dict) and isinstance(b, dict):
             out += differing_settings(a, b, f"{prefix}{k}.", full or (not prefix and k in FULL_CONFIGS))
             continue
-        shown = f"{a!r} -> {b!r}"
-        out.append(f"{prefix}{k}" + (f": {shown}" if len(shown) <= 2 * _SHORT_VALUE else ""))
+        out.append(f"{prefix}{k}: {_shortened(a)} -> {_shortened(b)}")
     return out
 
 
