@@ -46,6 +46,7 @@ from semcityloc.errors import (
     ParameterError,
     ResumeMismatchError,
     RunFileError,
+    parameter,
 )
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.pose import Pose
@@ -107,6 +108,28 @@ def baseline(sim, tmp_path_factory):
 
 
 # ------------------------------------------------------------------------------------------------ tests
+@dataclasses.dataclass(frozen=True)
+class _NotingSpec(BenchmarkSpec):
+    """A simulated run whose ``finish`` adds a note naming a parameter, as a photo run's exports do."""
+
+    def finish(self, out_dir, rows, summary) -> None:
+        summary.setdefault("notes", []).append(f"run again with {parameter('run_prior_sigma', 'z=12')}")
+
+
+def test_the_summary_returned_keeps_python_words_and_its_file_the_flags(sim, baseline, tmp_path):
+    """Stop 55 audit: ``run_benchmark`` turned its summary into the command line's words before returning
+    it, so a Python caller read "run again with --prior-sigma z=12", a flag it never passed (the scan of
+    the library's strings did not see it: the flag was made at run time, by ``as_flags``). The summary
+    returned names the parameter (``prior_sigma='z=12'``); ``summary.json`` keeps the flag."""
+    out = tmp_path / "run"
+    shutil.copytree(baseline.out_dir, out)  # finished: summarised again, nothing localized
+    spec = _NotingSpec(**{f.name: getattr(make_spec(sim), f.name) for f in dataclasses.fields(BenchmarkSpec)})
+    outcome = run_benchmark(spec, out, progress=False)
+    assert outcome.complete and outcome.new_rows == 0
+    assert outcome.summary["notes"] == ["run again with prior_sigma='z=12'"]
+    assert json.loads((out / "summary.json").read_text())["notes"] == ["run again with --prior-sigma z=12"]
+
+
 def test_a_run_writes_one_row_per_query_and_a_summary(baseline):
     assert baseline.complete and baseline.new_rows == QUERIES
     rows = csv_rows(baseline.out_dir / RESULTS_FILE)

@@ -115,7 +115,9 @@ class RunSpec(Protocol):
 class BenchmarkOutcome:
     """What ``run_benchmark`` leaves: the run folder, whether every query has a row (then ``summary.json`` is
     written), how many rows this call wrote, all rows, the summary and the run's config. A killed or
-    ``--stop-after`` run is incomplete, not an error.
+    ``--stop-after`` run is incomplete, not an error. ``summary``'s notes name parameters as a Python caller
+    passes them (``errors.parameter``; stop 55: they were in the command line's words), ``summary.json``
+    the flags (``errors.as_flags``); the rows are ``results.csv``'s, in the run folder's words.
     """
 
     out_dir: Path
@@ -349,8 +351,9 @@ def _run_rows(
         try:
             with writing(folder=out):  # the exports and summary.json (names the file that failed)
                 spec.finish(out, rows, summary)
-                summary = as_flags(summary)  # its notes, skip reasons: a run folder's words (``results``)
-                write_json_atomic(out / SUMMARY_FILE, summary)
+                # The file in a run folder's words (``results``: its notes name flags); the summary returned
+                # keeps the library's (a Python caller passed no flag; the command line prints flags).
+                write_json_atomic(out / SUMMARY_FILE, as_flags(summary))
         except OutputPathError as exc:
             raise OutputPathError(f"{exc}: all {total} rows are kept") from exc
     return BenchmarkOutcome(out, complete, written, rows, summary, config)
