@@ -510,6 +510,34 @@ def test_a_jpeg_mask_is_found_when_forced_and_named_when_not(box_flight, tmp_pat
     assert json.loads((tmp_path / "forced" / "run.json").read_text())["query_names"] == ["P0.JPG", "P1.JPG"]
 
 
+def test_a_lossy_mask_refusal_names_the_specs_own_keyword(box_flight, tmp_path):
+    """Stop 55 audit: a ``PhotoSpec`` (or ``DatasetSpec``) whose mask was a JPEG was told to pass
+    ``allow_lossy=True``, the keyword of the functions below it, which a spec does not take: it has
+    ``allow_lossy_mask``. Each refusal a spec's caller meets (a ``<stem>.jpg`` beside no other mask, a
+    ``.png`` of JPEG content, read before the run or when its photo's turn comes) names that keyword; the
+    command line still prints ``--allow-lossy-mask``, and the functions themselves still name theirs."""
+    from semcityloc.benchmark.dataset_source import read_inputs
+    from semcityloc.errors import LossyMaskError, as_flags
+    from semcityloc.io.images import read_mask_file
+    from semcityloc.perception.files import find_mask
+
+    masks = box_flight["root"] / "masks"
+    ids = np.array(Image.open(masks / "P0.png"))
+    Image.fromarray(ids, mode="L").save(masks / "P0.jpg", quality=95)
+    (masks / "P0.png").unlink()
+    Image.fromarray(np.array(Image.open(masks / "P1.png")), mode="L").save(masks / "P1.png", format="JPEG")
+    _, _, skipped, _ = _box_spec(box_flight["root"]).resolved()
+    for name in ("P0.JPG", "P1.JPG"):
+        assert "allow_lossy_mask=True" in skipped[name] and "allow_lossy=True" not in skipped[name], skipped
+        assert "--allow-lossy-mask" in as_flags(skipped[name])
+    with pytest.raises(LossyMaskError, match=r"allow_lossy_mask=True forces it"):  # a DatasetSpec's query
+        read_inputs(CAM, masks / "P1.png", None, False)
+    with pytest.raises(LossyMaskError, match=r"\(allow_lossy=True forces it"):
+        read_mask_file(masks / "P1.png")
+    with pytest.raises(LossyMaskError, match="or allow_lossy=True uses it"):
+        find_mask(masks, "P0.JPG", False)
+
+
 def _drop_column(path: Path, column: str) -> None:
     """Rewrite a results.csv without ``column``: the layout of a version before it was added."""
     with open(path, newline="", encoding="utf-8") as fh:

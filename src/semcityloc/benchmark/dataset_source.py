@@ -144,7 +144,7 @@ def read_inputs(
     """(labels, depth or None) of a query from its files, each checked to show the camera's field of view
     (``io.images.check_aspect``); ``InputFileError`` / ``ShapeError`` naming the file that cannot be read
     or used (``LossyMaskError`` for a lossy mask without ``allow_lossy``)."""
-    labels = read_mask_file(mask, allow_lossy=allow_lossy)
+    labels = read_mask_file(mask, allow_lossy, "allow_lossy_mask")  # a refusal names the spec's keyword
     check_aspect(labels.shape, camera.width, camera.height, "mask", mask)
     if depth is None:
         return labels, None

@@ -422,11 +422,12 @@ def _mask_file(spec: PhotoSpec, photo: Path, camera: Camera, orientation: int) -
     ``allow_lossy_mask``), its header checked too (``io.images.check_label_header``) saying why it cannot
     be used: a lossy format without ``allow_lossy_mask`` (named ``.png``, or a JPEG beside no other mask),
     ``PhotoMissing``; not class ids, ``PhotoUnreadable``."""
-    find = functools.partial(find_mask, allow_lossy=spec.allow_lossy_mask)
+    # a refusal names the spec's own allow_lossy_mask (``errors.PARAMETERS``), not the backend's allow_lossy
+    find = functools.partial(find_mask, allow_lossy=spec.allow_lossy_mask, lossy_option="allow_lossy_mask")
     try:
         path = _input_file(spec.masks, photo, find, "mask", camera, orientation)
         if path is not None and path.suffix.lower() != ".npy":
-            check_label_header(path, spec.allow_lossy_mask)
+            check_label_header(path, spec.allow_lossy_mask, "allow_lossy_mask")
     except LossyMaskError as exc:  # the run's --allow-lossy-mask, not this file
         raise PhotoMissing(str(exc)) from None
     except PhotoMissing:

@@ -176,7 +176,7 @@ class PhotoSource:
         photo = load_image(inp.path, max_width=PHOTO_MAX_WIDTH) if need_photo else None
         labels = depth = None
         if inp.mask is not None:
-            labels = read_mask_file(inp.mask, allow_lossy=self.spec.allow_lossy_mask)
+            labels = read_mask_file(inp.mask, self.spec.allow_lossy_mask, "allow_lossy_mask")
             check_aspect(labels.shape, cam.width, cam.height, "mask", inp.mask)
         if inp.depth is not None:
             depth = read_depth_file(inp.depth)

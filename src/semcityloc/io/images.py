@@ -68,35 +68,40 @@ def save_labels_png(labels: np.ndarray, path: str | Path) -> Path:
 LOSSY_FORMATS = ("JPEG", "MPO", "JPEG2000", "WEBP")
 
 
-def load_labels_png(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
+def load_labels_png(
+    path: str | Path, allow_lossy: bool = False, lossy_option: str = "allow_lossy"
+) -> np.ndarray:
     """(H, W) uint8 class ids from a palette PNG (or a grey PNG whose values are class ids); a mask in a
-    lossy format (``LOSSY_FORMATS``) is refused unless ``allow_lossy``."""
+    lossy format (``LOSSY_FORMATS``) is refused unless ``allow_lossy``, the refusal naming ``lossy_option``
+    (``errors.PARAMETERS``: the caller's own keyword, a run spec's ``allow_lossy_mask``; stop 55)."""
     try:
         with Image.open(path) as img:
-            _check_label_image(img, path, allow_lossy)
+            _check_label_image(img, path, allow_lossy, lossy_option)
             return np.array(img, dtype=np.uint8)
     except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read label image ({exc})") from exc
 
 
-def check_label_header(path: str | Path, allow_lossy: bool = False) -> None:
+def check_label_header(
+    path: str | Path, allow_lossy: bool = False, lossy_option: str = "allow_lossy"
+) -> None:
     """What ``load_labels_png`` refuses that a label image's header tells (a lossy format unless
     ``allow_lossy``, a mode other than palette or grey), its pixels not decoded: a photo run checks every
     mask this way before its first photo (``benchmark.photo_inputs``)."""
     try:
         with Image.open(path) as img:
-            _check_label_image(img, path, allow_lossy)
+            _check_label_image(img, path, allow_lossy, lossy_option)
     except IMAGE_DECODE_ERRORS as exc:
         raise InputFileError(f"{path}: cannot read label image ({exc})") from exc
 
 
-def _check_label_image(img: Image.Image, path: str | Path, allow_lossy: bool) -> None:
+def _check_label_image(img: Image.Image, path: str | Path, allow_lossy: bool, lossy_option: str) -> None:
     """``InputFileError`` naming ``path`` when the opened label image ``img`` is in a lossy format (unless
-    ``allow_lossy``: a ``LossyMaskError``) or not a palette or grey image."""
+    ``allow_lossy``: a ``LossyMaskError`` naming ``lossy_option``) or not a palette or grey image."""
     if img.format in LOSSY_FORMATS and not allow_lossy:
         raise LossyMaskError(
             f"{path}: label mask saved as {img.format}, a lossy format: its compression changes "
-            f"class ids along every edge; save masks as PNG ({parameter('allow_lossy')} forces it)"
+            f"class ids along every edge; save masks as PNG ({parameter(lossy_option)} forces it)"
         )
     if img.mode not in ("P", "L"):
         raise InputFileError(
@@ -327,15 +332,17 @@ def save_rgb(image: np.ndarray, path: str | Path, optimize: bool = False) -> Pat
     return path
 
 
-def read_mask_file(path: str | Path, allow_lossy: bool = False) -> np.ndarray:
+def read_mask_file(
+    path: str | Path, allow_lossy: bool = False, lossy_option: str = "allow_lossy"
+) -> np.ndarray:
     """(H, W) uint8 class ids (0..5, 255 = ignore) from a ``.npy`` or a label PNG (palette or grey image
-    whose values are class ids, ``load_labels_png``; lossy formats only with ``allow_lossy``); ids
-    outside the classes are refused, naming them (``mask_labels``)."""
+    whose values are class ids, ``load_labels_png``; lossy formats only with ``allow_lossy``, else refused
+    naming ``lossy_option``); ids outside the classes are refused, naming them (``mask_labels``)."""
     path = Path(path)
     if path.suffix.lower() == ".npy":
         labels = load_npy(path, "mask")
     else:
-        labels = load_labels_png(path, allow_lossy)
+        labels = load_labels_png(path, allow_lossy, lossy_option)
     return mask_labels(labels, path)
 
 

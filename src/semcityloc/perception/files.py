@@ -94,16 +94,18 @@ def mask_suffixes(allow_lossy: bool) -> tuple[str, ...]:
     return MASK_SUFFIXES + LOSSY_MASK_SUFFIXES if allow_lossy else MASK_SUFFIXES
 
 
-def find_mask(where: Path, name: str | None, allow_lossy: bool) -> Path:
+def find_mask(where: Path, name: str | None, allow_lossy: bool, lossy_option: str = "allow_lossy") -> Path:
     """``find_file`` of image ``name``'s mask, a JPEG one too when ``allow_lossy``; without it, a JPEG mask
-    that is there is named with the flag (``_refuse_lossy_mask``) instead of "no mask"."""
+    that is there is named with the parameter that uses it (``_refuse_lossy_mask``) instead of "no mask":
+    ``lossy_option`` (``errors.PARAMETERS``), the caller's own keyword (this backend's ``allow_lossy``, a
+    run spec's ``allow_lossy_mask``; stop 55: a spec's caller was told ``allow_lossy=True``)."""
     suffixes = mask_suffixes(allow_lossy)
     if name is not None and not allow_lossy and where.is_dir():
-        _refuse_lossy_mask(where, name, suffixes)
+        _refuse_lossy_mask(where, name, suffixes, lossy_option)
     return find_file(where, name, suffixes, "mask")
 
 
-def _refuse_lossy_mask(where: Path, name: str, suffixes: tuple[str, ...]) -> None:
+def _refuse_lossy_mask(where: Path, name: str, suffixes: tuple[str, ...], lossy_option: str) -> None:
     """``LossyMaskError`` (as for a lossy mask named ``.png``) when folder ``where`` holds no mask of image
     ``name`` with ``suffixes`` but a JPEG one: the user sees why the file they made is not used and how to
     force it, not "no mask"."""
@@ -114,7 +116,7 @@ def _refuse_lossy_mask(where: Path, name: str, suffixes: tuple[str, ...]) -> Non
         raise LossyMaskError(
             f"{where}: no mask for image {Path(str(name)).stem!r} (looked for {_looked_for(name, suffixes)}) "
             f"but {lossy.name}, a lossy format (JPEG) whose compression changes class ids along every edge: "
-            f"save masks as PNG, or {parameter('allow_lossy')} uses it"
+            f"save masks as PNG, or {parameter(lossy_option)} uses it"
         )
 
 
