@@ -11,6 +11,7 @@ from helpers import CAMERA, perturbed, view
 from semcityloc.errors import ParameterError
 from semcityloc.evaluation.metrics import pose_errors
 from semcityloc.geometry.pose import Pose
+from semcityloc.localization import focal_check
 from semcityloc.localization.config import FocalCheckConfig, LocalizerConfig
 from semcityloc.localization.focal_check import (
     FOCAL_WARNING,
@@ -48,6 +49,10 @@ def views(generated_lod2):
 
 def warned(result) -> list[str]:
     return [w for w in result.warnings if w.startswith(FOCAL_WARNING)]
+
+
+def not_checked(result) -> list[str]:
+    return [w for w in result.warnings if w.startswith(focal_check.NOT_CHECKED_WARNING)]
 
 
 @pytest.mark.parametrize("k", range(len(OBLIQUES)))
@@ -127,6 +132,39 @@ def test_the_correction_switched_off_is_stop_53s_warning_alone(views, k):
     assert "config='focal-correct'" in warned(default)[0]
 
 
+def test_a_re_found_poses_lookalike_margin_is_found_again_with_the_scaled_camera(views):
+    """(stop 55) With look-alikes on, a pose the correction re-found kept the first pose's look-alike
+    margin: the first pose's score minus its look-alike's, both at the stated focal length, beside a pose
+    and score found with the scaled one. Now the look-alike is refined again with the scaled camera from
+    the place the first look found: the margin is the re-found pose's score minus that one's (the first
+    pose's look-alike kept in the correction's record); a re-found pose ambiguous that way is not kept."""
+    localizer, out = views
+    prior, labels, depth, _ = out[0]
+    told = with_focal_scale(CAMERA, 1.05)
+
+    def with_lookalikes(min_margin: float) -> LocalizerConfig:
+        look = replace(CORRECT.cascade.lookalike, enabled=True, min_margin=min_margin)
+        return replace(CORRECT, cascade=replace(CORRECT.cascade, lookalike=look))
+
+    result = localizer.localize(told, prior, labels, depth, config=with_lookalikes(0.05))
+    correction = result.search["focal_check"]["correction"]
+    assert result.status == LOCALIZED and correction["taken"]
+    look = result.search["lookalike"]  # this view has one
+    margin = result.confidence["lookalike_margin"]
+    # The re-found pose's score minus its look-alike's (was: the first pose's minus the first look-alike's).
+    assert margin == pytest.approx(result.score - look["score"]) == pytest.approx(look["margin"])
+    first = correction["first_lookalike"]
+    assert correction["lookalike_margin"] == margin and margin != pytest.approx(first["margin"])
+    # A margin needed between the two: the first pose passes, the re-found one is ambiguous: not kept.
+    needed = 0.5 * (margin + first["margin"])
+    strict = localizer.localize(told, prior, labels, depth, config=with_lookalikes(needed))
+    kept = strict.search["focal_check"]["correction"]
+    assert strict.status == LOCALIZED and not kept["taken"] and kept["accepted"]
+    assert kept["ambiguous"].startswith("a look-alike") and f"at least {needed:g}" in kept["ambiguous"]
+    assert strict.pose_local.to_xyz_rpy().tolist() == kept["first_state"]
+    assert strict.confidence["lookalike_margin"] == pytest.approx(first["margin"])
+
+
 def test_the_scale_found_again_with_is_the_stretched_vertex_at_most_a_probe_step_beyond():
     check = FocalCheck(0.98, (0.004, -0.02), 0.03, 80.0)
     assert correction_scale(check, FocalCheckConfig(stretch=1.0)) == pytest.approx(0.98)
@@ -135,11 +173,24 @@ def test_the_scale_found_again_with_is_the_stretched_vertex_at_most_a_probe_step
     assert correction_scale(far, FocalCheckConfig(stretch=1.0)) == pytest.approx(0.94)  # 2 steps at most
 
 
-def test_a_nadir_view_is_not_checked_and_the_check_can_be_switched_off(views):
+def test_a_nadir_view_is_not_checked_and_says_so_and_the_check_can_be_switched_off(views):
+    """Seen from above, focal length and height are one unknown: a nadir view is not checked. (stop 55) Its
+    record said nothing, and with ``--preset focal-correct`` a nadir pose found with a wrong focal length
+    came back as if checked. Now its record names why (``not_checked: nadir``), and with the correction
+    asked for a warning says it was neither checked nor found again; the default's warnings are as before."""
     localizer, out = views
     prior, labels, depth, _ = out[-1]
     result = localizer.localize(with_focal_scale(CAMERA, 1.06), prior, labels, depth)
-    assert "focal_check" not in result.search and not warned(result)  # focal length and height: one unknown
+    assert result.status == LOCALIZED and not warned(result) and not not_checked(result)
+    record = result.search["focal_check"]
+    assert record["not_checked"] == focal_check.NADIR
+    assert record["off_nadir_deg"] < record["min_oblique_deg"] == 20.0
+    assert focal_scale_used(result.search) is None
+    corrected = localizer.localize(with_focal_scale(CAMERA, 1.06), prior, labels, depth, config=CORRECT)
+    assert corrected.pose_local.to_xyz_rpy().tolist() == result.pose_local.to_xyz_rpy().tolist()
+    (warning,) = not_checked(corrected)
+    assert "nadir view" in warning and "neither checked nor found again" in warning
+    assert "intrinsics=" in warning and "calibrate_focal='on'" in warning and not warned(corrected)
     off = replace(LocalizerConfig(), focal_check=FocalCheckConfig(enabled=False))
     prior, labels, depth, _ = out[0]
     result = localizer.localize(with_focal_scale(CAMERA, 1.06), prior, labels, depth, config=off)
@@ -192,5 +243,5 @@ def test_the_corrected_warning_says_the_pose_holds_with_the_scaled_focal_length_
     assert "focal length times 0.976" in text and "fx and fy times 0.976, not the stated intrinsics" in text
     assert "the pose file's intrinsics are the scaled ones" in text
     taken = {"focal_check": {"correction": {"scale": 0.976, "taken": True}}}
-    assert found_camera(CAMERA, taken) == with_focal_scale(CAMERA, 0.976)
-    assert found_camera(CAMERA, {}) is CAMERA
+    assert found_camera(CAMERA, focal_scale_used(taken)) == with_focal_scale(CAMERA, 0.976)
+    assert found_camera(CAMERA, focal_scale_used({})) is CAMERA

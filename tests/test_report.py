@@ -484,19 +484,29 @@ def _record_flat_eaves_look(run: Path, used: bool) -> Path:
     """``run`` as if ``map_eaves_flat_roofs="auto"``'s second look had (``used``) or had not taken every
     pose from the map with eaves on its flat roofs: its details files and rows say so (the poses as
     they are)."""
+    _edit_details_meta(run, lambda meta: meta.update(flat_roof_eaves={"gain_at_found": 0.01, "used": used}))
+    rows = read_csv(run / RESULTS_FILE)
+    for row in rows:
+        if "flat_roof_eaves_used" in row:  # the column of this version
+            row["flat_roof_eaves_used"] = "1" if used else "0"
+    return _write_rows_as_read(run, rows)
+
+
+def _edit_details_meta(run: Path, edit) -> None:
+    """Every details file of ``run`` with ``edit(meta)`` applied to its ``meta``."""
     import numpy as np
 
     for path in (run / "details").glob("q*.npz"):
         with np.load(path) as z:
             arrays = {k: z[k] for k in z.files}
         meta = json.loads(bytes(arrays["meta"]).decode("utf-8"))
-        meta["flat_roof_eaves"] = {"gain_at_found": 0.01, "used": used}
+        edit(meta)
         arrays["meta"] = np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)
         np.savez_compressed(path, **arrays)
-    rows = read_csv(run / RESULTS_FILE)
-    for row in rows:
-        if "flat_roof_eaves_used" in row:  # the column of this version
-            row["flat_roof_eaves_used"] = "1" if used else "0"
+
+
+def _write_rows_as_read(run: Path, rows: list[dict[str, str]]) -> Path:
+    """``run`` with its ``results.csv`` holding ``rows`` under their own header (as read)."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, list(rows[0]), lineterminator="\n")
     writer.writeheader()
@@ -554,6 +564,70 @@ def test_an_estimate_found_on_the_flat_eaves_map_is_drawn_on_that_map_and_said_s
         assert plain["layers"]["truth"] == flat["layers"]["truth"]
         assert plain["layers"]["estimate"]["edges"] != flat["layers"]["estimate"]["edges"]
         assert flat["estimate_map"] == "the map with eaves on its flat roofs"
+
+
+def _record_focal_scale(run: Path, scale: float) -> Path:
+    """``run`` as if the focal check's correction had re-found every localized pose with the focal
+    lengths times ``scale``: its details files and rows say so (the poses as they are)."""
+    _edit_details_meta(
+        run, lambda meta: meta.update(focal_scale=scale if meta["status"] == "localized" else None)
+    )
+    rows = read_csv(run / RESULTS_FILE)
+    for row in rows:
+        row["focal_scale"] = str(scale) if row["status"] == "localized" else ""
+    return _write_rows_as_read(run, rows)
+
+
+def test_an_estimate_re_found_with_a_scaled_focal_length_is_drawn_with_that_camera(
+    two_runs, tmp_path, monkeypatch
+):
+    """(stop 55) The report's figures and query browser drew a pose the focal check's correction re-found
+    with the focal lengths times s (``focal_scale`` in its row and details) with the stated camera, where
+    the pose does not hold. Now the estimate is drawn with the scaled camera (``focal_check.found_camera``)
+    and the figure says so; the truth and the prior with the stated one."""
+    import shutil
+
+    import numpy as np
+
+    from semcityloc.benchmark import report_plots, report_views
+    from semcityloc.benchmark.report_html import make_html_report
+    from semcityloc.localization.focal_check import with_focal_scale
+
+    plain = two_runs[0].out_dir
+    scaled = _record_focal_scale(shutil.copytree(plain, tmp_path / "scaled"), 0.976)
+    cameras: dict[str, list] = {"plain": [], "scaled": []}
+    figures: dict[str, list] = {"plain": [], "scaled": []}
+    layers = report_views._pose_layers
+
+    def spy_layers(renderer, camera, pose, color):  # the query browser: the camera of each pose
+        cameras[current].append((color, camera))
+        return layers(renderer, camera, pose, color)
+
+    overlay = report_plots.overlay_image
+
+    def spy_overlay(labels, est, true):  # the figures: the estimate's and the truth's label renders
+        figures[current].append((est, true))
+        return overlay(labels, est, true)
+
+    monkeypatch.setattr(report_views, "_pose_layers", spy_layers)
+    monkeypatch.setattr(report_plots, "overlay_image", spy_overlay)
+    for current, run in (("plain", plain), ("scaled", scaled)):
+        make_html_report([run], tmp_path / f"h_{current}")
+        make_report([run], tmp_path / f"r_{current}", overlays=1)
+    estimate, truth = report_views.POSES["estimate"][1], report_views.POSES["truth"][1]
+    assert len(cameras["plain"]) == len(cameras["scaled"]) > 0
+    seen_estimate = 0
+    for (color, before), (again, after) in zip(cameras["plain"], cameras["scaled"], strict=True):
+        assert color == again
+        if color == estimate:  # the estimate: the stated camera times the row's focal_scale
+            assert after == with_focal_scale(before, 0.976) and after != before
+            seen_estimate += 1
+        else:  # the truth, the prior: the stated camera
+            assert after == before
+    assert seen_estimate > 0 and any(c == truth for c, _ in cameras["scaled"])
+    (est_plain, true_plain), (est_scaled, true_scaled) = figures["plain"][0], figures["scaled"][0]
+    assert est_plain is not None and np.array_equal(true_plain, true_scaled)
+    assert not np.array_equal(est_plain, est_scaled)
 
 
 # ------------------------------------------------------------------------------ no ground truth (stop 50)

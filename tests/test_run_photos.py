@@ -193,6 +193,23 @@ def test_box_city_run_skips_what_it_cannot_use_and_resumes(box_flight, tmp_path,
     assert code == 2 and "other benchmark run" in err and err.count("\n") == 1
 
 
+def _first_localized_re_found(monkeypatch, scale: float) -> None:
+    """The run's first localized photo as if the focal check's correction had re-found it with the focal
+    lengths times ``scale`` (its ``search`` record; the pose as found)."""
+    from semcityloc.localization.localize import Localizer
+
+    real, marked = Localizer.localize, []
+
+    def localize(self, *args, **kwargs):
+        result = real(self, *args, **kwargs)
+        if result.localized and not marked:
+            result.search["focal_check"] = {"scale": 0.988, "correction": {"scale": scale, "taken": True}}
+            marked.append(result)
+        return result
+
+    monkeypatch.setattr(Localizer, "localize", localize)
+
+
 def test_a_pose_re_found_with_a_scaled_focal_length_is_exported_with_that_camera(
     box_flight, tmp_path, capsys, monkeypatch
 ):
@@ -201,18 +218,7 @@ def test_a_pose_re_found_with_a_scaled_focal_length_is_exported_with_that_camera
     file has ``focal_scale`` at the top level, the scaled fx, fy in ``extra.intrinsics`` (the stated ones
     in ``extra.intrinsics_stated``) and its own COLMAP camera with them; a pose found with the stated focal
     lengths is written as before."""
-    from semcityloc.localization.localize import Localizer
-
-    real, marked = Localizer.localize, []
-
-    def localize(self, *args, **kwargs):
-        result = real(self, *args, **kwargs)
-        if result.localized and not marked:  # the first localized photo: "re-found" with 0.976
-            result.search["focal_check"] = {"scale": 0.988, "correction": {"scale": 0.976, "taken": True}}
-            marked.append(result)
-        return result
-
-    monkeypatch.setattr(Localizer, "localize", localize)
+    _first_localized_re_found(monkeypatch, 0.976)
     out = tmp_path / "out"
     code, _, err = run(capsys, *box_flight["argv"], "--out", out, "--no-overlays")
     assert code == 0, err
@@ -231,6 +237,43 @@ def test_a_pose_re_found_with_a_scaled_focal_length_is_exported_with_that_camera
     (stem,) = set(cameras) - set(refound)
     assert cameras[stem] == CAM
     assert _rows_by_name(out)[f"{refound[0]}.JPG"]["focal_scale"] == "0.976"
+
+
+def test_a_pose_re_found_with_a_scaled_focal_length_is_drawn_in_its_overlay_with_that_camera(
+    box_flight, tmp_path, capsys, monkeypatch
+):
+    """(stop 55) A run's ``overlays/<stem>.png`` drew a pose the focal check's correction re-found with the
+    focal length times s with the stated camera: its edges lay off by the scale where the pose file said
+    it holds. Now the estimate's panel is drawn with the scaled camera (``focal_check.found_camera``) and
+    says so; the prior's with the stated one; a pose found with the stated focal lengths as before."""
+    from semcityloc.datasets.overlay import edges_figure
+
+    _first_localized_re_found(monkeypatch, 0.976)
+    drawn = []
+
+    def spy(image, model, camera, panels, *args, **kwargs):
+        cameras = kwargs.get("cameras") or (args[2] if len(args) > 2 else None) or [None] * len(panels)
+        used = [camera if c is None else c for c in cameras]
+        drawn.append([(title, c, camera) for (_, _, title), c in zip(panels, used, strict=True)])
+        return edges_figure(image, model, camera, panels, *args, **kwargs)
+
+    monkeypatch.setattr(photo_source, "edges_figure", spy)
+    out = tmp_path / "out"
+    code, _, err = run(capsys, *box_flight["argv"], "--out", out)
+    assert code == 0, err
+    records = {p.stem: json.loads(p.read_text()) for p in (out / "poses").glob("P[01].json")}
+    (refound,) = [stem for stem, record in records.items() if "focal_scale" in record]
+    estimates = [panels[0] for panels in drawn if panels[0][0].startswith(photo_source.ESTIMATE_TITLE)]
+    assert len(estimates) == 2
+    (scaled,) = [e for e in estimates if "focal length x 0.976" in e[0]]
+    (plain,) = [e for e in estimates if e is not scaled]
+    _, used, stated = scaled
+    assert used == with_focal_scale(stated, 0.976) and used.width == stated.width  # the overlay's size
+    assert plain[1] == plain[2]  # found with the stated focal lengths: drawn with them
+    for panels in drawn:  # the prior: always the stated camera
+        (prior,) = [p for p in panels if p[0] == photo_source.PRIOR_TITLE]
+        assert prior[1] == prior[2]
+    assert (out / "overlays" / f"{refound}.png").is_file()
 
 
 def test_a_run_says_the_models_warnings_once_on_stderr(box_flight, tmp_path, capsys):

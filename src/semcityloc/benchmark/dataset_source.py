@@ -85,7 +85,7 @@ from semcityloc.io.images import check_aspect, read_depth_file, read_mask_file, 
 from semcityloc.io.stamps import file_fingerprint, file_sha256
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
-from semcityloc.localization.focal_check import focal_scale_used, with_focal_scale
+from semcityloc.localization.focal_check import focal_scale_used, found_camera
 from semcityloc.localization.methods import Method
 from semcityloc.localization.result import LocalizationResult
 from semcityloc.perception.autolabel import auto_label
@@ -382,7 +382,7 @@ def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Pa
     for index, q in enumerate(queries):
         path = out_dir / ESTIMATES_DIR / f"{query_id(index)}.json"
         if path.is_file():
-            entries[q.name] = (with_focal_scale(q.camera, _focal_scale(path)), read_pose(path))
+            entries[q.name] = (found_camera(q.camera, _focal_scale(path)), read_pose(path))
     unreadable = text_unreadable_names(entries)
     if unreadable:  # COLMAP's text reader would cut them at their first space; estimates/ holds them
         print(

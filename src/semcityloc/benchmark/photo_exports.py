@@ -62,7 +62,7 @@ from semcityloc.geometry.pose_json import focal_scale_of, pose_from_json
 from semcityloc.geometry.spec_text import labelled
 from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.covariance import horizontal_sigma
-from semcityloc.localization.focal_check import with_focal_scale
+from semcityloc.localization.focal_check import found_camera
 from semcityloc.localization.result import LOCALIZED, REASON_AT_EDGE
 
 NO_CRS = (
@@ -564,7 +564,7 @@ def _found(inp, records: dict[str, dict]):
     """The camera ``inp``'s estimate holds with: its focal lengths times its pose file's ``focal_scale``
     (``pose_json.focal_scale_of``: where the focal check's correction re-found the pose; a camera of its own
     in ``colmap/cameras.txt`` then)."""
-    return with_focal_scale(inp.camera, focal_scale_of(records[inp.name]))
+    return found_camera(inp.camera, focal_scale_of(records[inp.name]))
 
 
 def camera_features(

@@ -53,6 +53,7 @@ from semcityloc.citymodel.tiles import TileStore
 from semcityloc.classes import IGNORE
 from semcityloc.datasets.overlay import GT_COLOR, PRIOR_COLOR, edges_figure, save_png
 from semcityloc.errors import InputFileError, ShapeError, as_flags
+from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.distortion import unseen_by_photo
 from semcityloc.geometry.pose_json import pose_to_dict
 from semcityloc.io.files import write_json_atomic
@@ -236,7 +237,8 @@ class PhotoSource:
         if self.spec.offset is not None:  # the numbers + crs_offset are coordinates in offset_crs
             record.update(crs_offset=[float(v) for v in self.spec.offset], offset_crs=crs_label(model.crs))
         prior = inp.prior  # None: an unreadable photo's (``PhotoInput.unreadable``), and its camera too
-        camera = found_camera(inp.camera, result.search) if inp.camera is not None else None
+        scale = focal_scale_used(result.search or {})
+        camera = found_camera(inp.camera, scale) if inp.camera is not None else None
         if camera is not None and camera != inp.camera:  # re-found with the focal length scaled
             record["intrinsics_stated"] = inp.camera.as_dict()
         record.update(
@@ -288,12 +290,17 @@ class PhotoSource:
             camera = inp.camera.scaled(photo.shape[1], photo.shape[0])
             panels = [(inp.prior.pose_world, PRIOR_COLOR, PRIOR_TITLE)]
             renderers: list[Renderer | None] = [self.maps.searched()]
+            cameras: list[Camera | None] = [None]  # the prior: the stated camera
             if estimate is not None:
                 found_on, found_map = self.maps.for_estimate(result.search.get("flat_roof_eaves"))
                 title = ESTIMATE_TITLE if found_map is None else f"{ESTIMATE_TITLE}, on {found_map}"
+                scale = focal_scale_used(result.search or {})
+                if scale is not None:  # re-found with the focal lengths scaled: drawn with that camera
+                    title += f", focal length x {scale:.3f}"
                 panels.insert(0, (model.pose_to_world(estimate), GT_COLOR, title))
                 renderers.insert(0, found_on)
-            figure = edges_figure(photo, model, camera, panels, self.renderer, renderers)
+                cameras.insert(0, found_camera(camera, scale))
+            figure = edges_figure(photo, model, camera, panels, self.renderer, renderers, cameras)
             png = out_dir / OVERLAYS_DIR / f"{inp.stem}.png"
             with writing(png):
                 png.parent.mkdir(exist_ok=True)

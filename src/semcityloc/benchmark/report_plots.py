@@ -5,9 +5,10 @@ report holds (``benchmark.report``). Cumulative position and rotation error curv
 ``not_localized`` never reaches the curve), recall against the prior noise and against a sweep's values,
 the acceptance's precision against coverage, and per saved query (``details/``) the query mask with the
 label boundaries of the map rendered at the estimated and true poses (the estimate on the map it was
-found on: ``found_map``), the photo with the model's edges (real data), and an xy slice and a yaw slice of
-the coarse cost volume; for runs without ground truth, what they say of themselves (the calibrated
-probability, the stated sigmas, the shift from the prior). matplotlib is an optional dependency (extra
+found on: ``found_map``, with the camera it holds with: ``focal_check.found_camera``), the photo with
+the model's edges (real data), and an xy slice and a yaw slice of the coarse cost volume; for runs
+without ground truth, what they say of themselves (the calibrated probability, the stated sigmas, the
+shift from the prior). matplotlib is an optional dependency (extra
 ``plots``), imported when a figure is drawn.
 """
 
@@ -36,6 +37,7 @@ from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_image, resize_nearest, scaled_size
 from semcityloc.localization.confidence import risk_coverage
+from semcityloc.localization.focal_check import found_camera
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
 from semcityloc.render.overlay import (
@@ -145,14 +147,25 @@ def overlay_image(
 
 
 def photo_overlay(
-    photo: np.ndarray, renderer: Renderer, camera: Camera, true, est, est_renderer: Renderer | None = None
+    photo: np.ndarray,
+    renderer: Renderer,
+    camera: Camera,
+    true,
+    est,
+    est_renderer: Renderer | None = None,
+    est_camera: Camera | None = None,
 ) -> np.ndarray:
     """RGB uint8: the photo (at ``camera``'s size) with the model's visible edges at the true pose (cyan)
-    and at the estimate (magenta; drawn by ``est_renderer``, the map it was found on, when given)."""
+    and at the estimate (magenta; drawn by ``est_renderer``, the map it was found on, when given, and with
+    ``est_camera``, the camera it holds with, ``focal_check.found_camera``, when given)."""
     out = photo
-    for pose, color, r in ((true, TRUE_COLOR, renderer), (est, EST_COLOR, est_renderer or renderer)):
+    drawn = (
+        (true, TRUE_COLOR, renderer, camera),
+        (est, EST_COLOR, est_renderer or renderer, est_camera or camera),
+    )
+    for pose, color, r, cam in drawn:
         if pose is not None:
-            view = r.render(camera, pose, depth=True, face_ids=True)
+            view = r.render(cam, pose, depth=True, face_ids=True)
             out = draw_edges(out, visible_edges(view.face_ids[0], view.depth[0], r.scene), color)
     return out
 
@@ -176,14 +189,19 @@ def plot_details(
     fx, fy, cx, cy, w, h = details["camera"]
     camera = Camera(fx, fy, cx, cy, int(w), int(h))
     camera = camera.scaled(*scaled_size(camera.width, camera.height, FIGURE_MAX_WIDTH))
+    # The estimate holds with the focal lengths times the correction's scale where it re-found the pose.
+    focal_scale = details["meta"].get("focal_scale")
+    est_camera = found_camera(camera, focal_scale)
     labels = resize_nearest(details["labels"], camera.width, camera.height)
     true, prior, est = (_pose(details[f"{k}_cam_from_world"]) for k in ("true", "prior", "est"))
     maps = maps or FoundMaps(map_model, Renderer(map_model, engine="numba"))
     renderer = maps.searched()
     est_renderer, est_map = maps.for_estimate(details["meta"].get("flat_roof_eaves"))
     true_lab = renderer.render(camera, true).labels[0] if true is not None else None
-    est_lab = est_renderer.render(camera, est).labels[0] if est is not None else None
+    est_lab = est_renderer.render(est_camera, est).labels[0] if est is not None else None
     est_note = f"\nestimate drawn on {est_map}" if est is not None and est_map else ""
+    if est is not None and focal_scale is not None:  # the camera it was re-found with, on the same line
+        est_note = f" (focal length x {focal_scale:.3f})" + est_note
     scores = details["cost_scores"]
     axes_info = details["meta"].get("cost_volume")
     has_volume = scores.size > 0 and axes_info is not None
@@ -202,7 +220,7 @@ def plot_details(
     ax.axis("off")
     if photo is not None:
         ax = next(panels)
-        ax.imshow(photo_overlay(photo, renderer, camera, true, est, est_renderer))
+        ax.imshow(photo_overlay(photo, renderer, camera, true, est, est_renderer, est_camera))
         ax.set_title(f"photo; model edges: {truth_note}magenta = estimate{est_note}", fontsize=8)
         ax.axis("off")
     if has_volume:

@@ -15,7 +15,9 @@ at ``VIEW_WIDTH`` pixels wide (a few milliseconds a view):
 - per pose (prior, estimate, truth): the rendered mask (``fill``, background transparent) and the
   model's visible edges (``edges``, one colour per pose), drawn over the background in the browser. The
   estimate is drawn on the map it was found on (``found_map``: the map with eaves on its flat roofs where
-  the details or the row record it, named in ``estimate_map``), the others on the run's map as it is.
+  the details or the row record it, named in ``estimate_map``), the others on the run's map as it is; and
+  with the camera it was found with (``focal_check.found_camera``: the stated focal lengths times the
+  row's ``focal_scale`` where the focal check's correction re-found it), the others with the stated one.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_image, resize_nearest, scaled_size
+from semcityloc.localization.focal_check import found_camera
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
 from semcityloc.render.overlay import label_colors, visible_edges
@@ -76,6 +79,12 @@ def _float(text: str | None) -> float | None:
     except ValueError:
         return None
     return value if value is not None and math.isfinite(value) else None
+
+
+def row_focal_scale(row: dict[str, str]) -> float | None:
+    """A ``results.csv`` row's ``focal_scale``: the focal scale its estimate was found with where the focal
+    check's correction re-found it (the camera to draw it with: ``focal_check.found_camera``), else None."""
+    return _float(row.get("focal_scale"))
 
 
 def error_bin(row: dict[str, str]) -> str:
@@ -250,8 +259,10 @@ def query_view(
         found_on, found_map = maps.for_estimate(look)
         for name, pose in poses.items():
             if pose is not None:
-                renderer = found_on if name == "estimate" else maps.searched()
-                layers[name] = _pose_layers(renderer, camera, pose, POSES[name][1])
+                renderer, drawn_with = maps.searched(), camera
+                if name == "estimate":  # on the map and with the camera it was found with
+                    renderer, drawn_with = found_on, found_camera(camera, row_focal_scale(row))
+                layers[name] = _pose_layers(renderer, drawn_with, pose, POSES[name][1])
         estimate_map = found_map if "estimate" in layers else None
     mask = data_uri(background) if background_kind == QUERY_MASK else None
     if mask is None and details is not None:

@@ -25,11 +25,12 @@ column (empty) before rows are appended, so every line matches the header.
 
 ``details/qNNNN.npz`` (first ``keep_details`` queries): labels, depth, camera, true / prior / estimated /
 coarse poses, the coarse cost volume and its axes, the second look's ``flat_roof_eaves`` record (the map
-the pose was found on), for the report's figures; written atomically BEFORE the
-row, so a row always has its details. One deleted since is made again by a resume (``missing_details``:
-the query localized again, its row replaced in place by ``write_rows``). The depth is kept as float16
-(``details_depth``) when its values fit: relative depth is good to a few percent, float16 to 0.05 %, and
-the file is less than half the size.
+the pose was found on) and ``focal_scale`` (as the row's: the report draws the estimate with the stated
+camera's focal lengths times it, ``focal_check.found_camera``), for the report's figures; written
+atomically BEFORE the row, so a row always has its details. One deleted since is made again by a resume
+(``missing_details``: the query localized again, its row replaced in place by ``write_rows``). The depth
+is kept as float16 (``details_depth``) when its values fit: relative depth is good to a few percent,
+float16 to 0.05 %, and the file is less than half the size.
 
 ``summary.json``: metrics over all rows (``summarize_rows``). ``queries`` counts the evaluated queries: a
 query its source did not accept (a view the simulator could not make acceptable, a photo whose mask or
@@ -499,6 +500,8 @@ def save_details(path: Path, q: BenchmarkQuery, result: LocalizationResult, orig
         "cost_volume": volume.as_dict() if volume is not None else None,
         "camera": cam.as_dict(),
         "flat_roof_eaves": result.search.get("flat_roof_eaves"),  # the map the pose was found on
+        # the camera it holds with: ``camera`` times this where the focal check's correction re-found it
+        "focal_scale": focal_scale_used(result.search or {}),
     }
     arrays = {
         "labels": np.asarray(q.labels, dtype=np.uint8),

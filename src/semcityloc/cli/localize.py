@@ -300,7 +300,7 @@ def run(args: argparse.Namespace) -> int:
     # The camera the pose holds with: the stated one, its focal lengths times focal_scale where the focal
     # check's correction re-found the pose (pose.json's "focal_scale" and extra "intrinsics" then).
     scale = focal_scale_used(result.search or {})
-    found = found_camera(camera, result.search or {})
+    found = found_camera(camera, scale)
     if scale is not None:
         record.update(intrinsics=found.as_dict(), intrinsics_stated=camera.as_dict())
     if result.pose_local is not None:

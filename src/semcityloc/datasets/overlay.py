@@ -87,25 +87,35 @@ def edges_figure(
     panels: list[tuple[Pose, tuple[int, int, int], str]],
     renderer=None,
     renderers: list | None = None,
+    cameras: list[Camera | None] | None = None,
 ) -> np.ndarray:
     """(H + header, n W + gaps, 3) uint8: one panel per ``(pose_world, colour, title)``, the image with the
     model's visible edges at that pose drawn in that colour, side by side.
 
     Poses are in the model's world frame (``model.origin`` + local). ``camera`` must have the image's size.
     ``renderers``: one per panel (None in it: ``renderer``'s), for a panel drawn on another map of the
-    model (an estimate's, on the map it was found on: ``benchmark.found_map``).
+    model (an estimate's, on the map it was found on: ``benchmark.found_map``). ``cameras``: one per panel
+    (None in it: ``camera``), each of the image's size, for a pose that holds with another camera (one the
+    focal check's correction re-found with the focal lengths scaled: ``focal_check.found_camera``).
     """
-    if image.shape[:2] != (camera.height, camera.width):
-        raise ShapeError(
-            f"image {image.shape[1]}x{image.shape[0]} is not the camera's {camera.width}x{camera.height}"
-        )
+    cameras = cameras or [None] * len(panels)
     if renderers is not None and len(renderers) != len(panels):
         raise ShapeError(f"{len(renderers)} renderers for {len(panels)} panels: give one per panel")
+    if len(cameras) != len(panels):
+        raise ShapeError(f"{len(cameras)} cameras for {len(panels)} panels: give one per panel")
+    cameras = [camera if c is None else c for c in cameras]
+    for c in cameras:
+        if image.shape[:2] != (c.height, c.width):
+            raise ShapeError(
+                f"image {image.shape[1]}x{image.shape[0]} is not the camera's {c.width}x{c.height}"
+            )
     base = _renderer(model, renderer)
     out = []
-    for (pose, color, title), own in zip(panels, renderers or [None] * len(panels), strict=True):
+    for (pose, color, title), own, cam in zip(
+        panels, renderers or [None] * len(panels), cameras, strict=True
+    ):
         r = own or base
-        view = r.render(camera, model.pose_to_local(pose), depth=True, face_ids=True)
+        view = r.render(cam, model.pose_to_local(pose), depth=True, face_ids=True)
         edges = visible_edges(view.face_ids[0], view.depth[0], r.scene)
         out.append(_panel(draw_edges(image, edges, color), title))
     gap = np.full((out[0].shape[0], 6, 3), 255, dtype=np.uint8)

@@ -36,13 +36,20 @@ from semcityloc.render.scene import RenderScene
 
 MIN_OBLIQUE_DEG = 20.0  # an optical axis at least this far from nadir: an oblique view
 FOCAL_WARNING = "focal length may be off"
+NOT_CHECKED_WARNING = "focal length not checked"
+NADIR = "nadir"  # ``search["focal_check"]["not_checked"]`` of a view the check leaves out
 LINE_M = np.linspace(-1.0, 1.0, 5)  # camera centres along the optical axis around the moved one
+
+
+def off_nadir_deg(pose_local: Pose) -> float:
+    """How far the pose's optical axis is from straight down (deg)."""
+    down = -float(pose_local.viewing_direction[2])
+    return math.degrees(math.acos(max(-1.0, min(1.0, down))))
 
 
 def is_oblique(pose_local: Pose, min_deg: float = MIN_OBLIQUE_DEG) -> bool:
     """Whether the pose's optical axis is at least ``min_deg`` from straight down."""
-    down = -float(pose_local.viewing_direction[2])
-    return math.degrees(math.acos(max(-1.0, min(1.0, down)))) >= min_deg
+    return off_nadir_deg(pose_local) >= min_deg
 
 
 def with_focal_scale(camera: Camera, scale: float) -> Camera:
@@ -165,12 +172,38 @@ def focal_scale_used(search: dict) -> float | None:
     return float(correction["scale"]) if correction.get("taken") else None
 
 
-def found_camera(camera: Camera, search: dict) -> Camera:
-    """The camera a result's pose holds with: ``camera`` (the stated one) with its focal lengths times
-    ``focal_scale_used(search)`` where the correction took it, else ``camera``. What a pose file's
-    ``intrinsics`` and a COLMAP export's camera of that image are (``focal_scale`` beside them)."""
-    scale = focal_scale_used(search or {})
-    return camera if scale is None else with_focal_scale(camera, scale)
+def found_camera(camera: Camera, focal_scale: float | None) -> Camera:
+    """The camera a pose holds with: ``camera`` (the stated one) with its focal lengths times
+    ``focal_scale`` where the focal check's correction re-found the pose with it, else ``camera`` (None).
+    ``focal_scale`` as a result's ``focal_scale_used(result.search)``, a ``results.csv`` row's or a details
+    file's ``focal_scale``, or a pose file's (``pose_json.focal_scale_of``). The one camera of such a pose:
+    its pose file's ``intrinsics``, its COLMAP camera, ``localize``'s overlay, a run's overlays and the
+    report's drawings of it."""
+    return camera if focal_scale is None else with_focal_scale(camera, focal_scale)
+
+
+def nadir_record(pose_local: Pose) -> dict:
+    """``result.search["focal_check"]`` of an accepted view the check leaves out because it looks down
+    (``is_oblique`` false): ``not_checked`` names why, ``off_nadir_deg`` how far its axis is from nadir."""
+    return {
+        "not_checked": NADIR,
+        "off_nadir_deg": off_nadir_deg(pose_local),
+        "min_oblique_deg": MIN_OBLIQUE_DEG,
+    }
+
+
+def nadir_warning(record: dict) -> str:
+    """The warning of a view the check left out (``nadir_record``) where the user asked for the
+    correction (``FocalCheckConfig.correct``): nothing was checked or re-found, and why."""
+    return (
+        f"{NOT_CHECKED_WARNING}: nadir view (its optical axis {record['off_nadir_deg']:.0f} deg from "
+        f"straight down, under the {record['min_oblique_deg']:g} deg the check needs): seen from above, "
+        "focal length and height are one unknown, so the pose was neither checked nor found again with "
+        "another focal length, and a focal length x % off places the camera about x % too high or too low. "
+        f"Give the camera's calibrated intrinsics ({parameter('intrinsics', 'FILE')}, docs/your-data.md "
+        "section 4), or estimate the focal length from the flight's oblique photos "
+        f"({parameter('calibrate_focal', 'on')})"
+    )
 
 
 def focal_warning(check: FocalCheck | None, margin: float) -> str | None:

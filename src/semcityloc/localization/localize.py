@@ -23,7 +23,9 @@
    An accepted oblique pose gets a focal-length check (``focal_check.py``): scored at focal scales 0.97 /
    1 / 1.03 around it, a warning when its view fits one more than ``FocalCheckConfig.margin`` from 1.
    Then (``FocalCheckConfig.correct``) the pose is found again with the focal length that scale points at
-   and kept when the acceptance takes it and it fits the image better (``_correct_focal``).
+   and kept when the acceptance takes it and it fits the image better (``_correct_focal``). A nadir view
+   is not checked (focal length and height are one unknown): its record says so
+   (``focal_check.nadir_record``), and with the correction asked for, a warning.
 5. Result: a ``LocalizationResult`` with the pose (or the refused one), the evidence and the timings.
 
 ``Localizer`` keeps the render scene of one city model, so a batch of queries builds it once.
@@ -72,10 +74,18 @@ from semcityloc.localization.focal_check import (
     focal_warning,
     is_oblique,
     moved_back,
+    nadir_record,
+    nadir_warning,
     with_focal_scale,
 )
 from semcityloc.localization.input_checks import check_query_inputs
-from semcityloc.localization.lookalike import ambiguous_reason, distant_peak, is_distinct, lookalike_of
+from semcityloc.localization.lookalike import (
+    Lookalike,
+    ambiguous_reason,
+    distant_peak,
+    is_distinct,
+    lookalike_of,
+)
 from semcityloc.localization.map_scenes import flat_eaves_scene, localizer_scene
 from semcityloc.localization.prior import (
     ROLL_PITCH_APART_DEG,
@@ -244,8 +254,13 @@ class Localizer:
         conflict = prior_conflict_warning(result.pose_local, prior_state, unc)
         if conflict is not None:
             result.warnings.append(conflict)
-        if cfg.focal_check.enabled and not cfg.no_refine and is_oblique(result.pose_local):
-            self._check_focal(result, found, seen_depth_m, cfg, unc)
+        if cfg.focal_check.enabled and not cfg.no_refine:
+            if is_oblique(result.pose_local):
+                self._check_focal(result, found, seen_depth_m, cfg, unc)
+            else:  # seen from above, focal length and height are one unknown: not checked, and said so
+                result.search["focal_check"] = nadir_record(result.pose_local)
+                if cfg.focal_check.correct:  # asked to re-find poses with the focal length the view fits
+                    result.warnings.append(nadir_warning(result.search["focal_check"]))
         return result.finish(None, t0)
 
     # ------------------------------------------------------------------ searches
@@ -443,6 +458,7 @@ class Localizer:
             refiner = self.map_of(result)._refiner()
             moved = found.copy()  # the pose found, moved to the look-alike's place: its tilt, height, yaw
             moved[:2] = hyps.states[0, :2]
+            result.search["lookalike_seed_xy"] = moved[:2].tolist()  # the place (``_lookalike_again``)
             refined = refiner.refine_lookalike(levels, moved, cfg, sigma, prior)
             result.counts["coarse_hypotheses"] += hyps.evaluated
             result.counts["refine_evaluations"] += refined.evaluations
@@ -566,7 +582,11 @@ class Localizer:
         axis by ``d (s - 1)`` (``focal_check.moved_back``); the acceptance (``_decide``) judges that pose
         with the scaled camera, as any other. Kept (True) when accepted and its image score
         (``refine_stage.image_score``) is higher; recorded in ``result.search["focal_check"]
-        ["correction"]``."""
+        ["correction"]``. With look-alikes on (``LookalikeConfig``) its look-alike margin is found again
+        with the scaled camera (``_lookalike_again``): below ``min_margin`` the pose is not kept
+        (``correction["ambiguous"]`` says where the look-alike lies); kept, the margin is the result's
+        ``lookalike_margin`` and its look-alike ``search["lookalike"]`` (the first pose's in
+        ``correction["first_lookalike"]``)."""
         s = correction_scale(check, cfg.focal_check)
         levels = [ScoringLevel(with_focal_scale(lv.camera, s), lv.labels, lv.depth) for lv in found.levels]
         first = result.pose_local.to_xyz_rpy()
@@ -588,23 +608,63 @@ class Localizer:
         with_depth = levels[-1].depth is not None
         gain = image_score(trial, cfg, with_depth) - image_score(result, cfg, with_depth)
         moved = state_difference(trial.pose_local.to_xyz_rpy(), first)
-        taken = bool(accepted and gain > 0.0)
-        result.search["focal_check"]["correction"] = {
+        correction = {
             "scale": s,
             "gain": gain,
             "accepted": bool(accepted),
-            "taken": taken,
+            "taken": bool(accepted and gain > 0.0),
             "moved_m": float(np.linalg.norm(moved[:3])),
             "first_state": first.tolist(),
         }
-        if not taken:
+        result.search["focal_check"]["correction"] = correction
+        looked = "lookalike_margin" in result.confidence  # look-alikes on: the margin again, same camera
+        other: Lookalike | None = None
+        if correction["taken"] and looked:
+            other = self._lookalike_again(result, trial, levels, cfg, unc, found.prior_state)
+            margin = other.margin if other is not None else math.nan
+            trial.confidence["lookalike_margin"] = margin
+            correction["lookalike_margin"] = margin
+            if margin < cfg.cascade.lookalike.min_margin:  # ambiguous with the scaled camera: not taken
+                correction["taken"] = False
+                correction["ambiguous"] = ambiguous_reason(other.as_dict(), cfg.cascade.lookalike.min_margin)
+        if not correction["taken"]:
             return False
         conflict = prior_conflict_warning(trial.pose_local, found.prior_state, unc)
         if conflict is not None:
             trial.warnings.append(conflict)
         adopt(result, trial)  # its pose and evidence; then the acceptance's judgement of it
         result.confidence, result.warnings = trial.confidence, trial.warnings
+        if looked:  # the look-alike of the pose kept, the first pose's beside the correction
+            if "lookalike" in result.search:
+                correction["first_lookalike"] = result.search.pop("lookalike")
+            if other is not None:
+                result.search["lookalike"] = other.as_dict()
         return True
+
+    def _lookalike_again(
+        self, result, trial, levels, cfg: LocalizerConfig, unc, prior_state
+    ) -> Lookalike | None:
+        """The look-alike margin of the pose the focal correction re-found (``trial``), with the camera it
+        was re-found with (``levels``: the focal lengths times the correction's scale): the look-alike's
+        refinement (``Refiner.refine_lookalike``, same prior term) again, from ``trial``'s pose moved to
+        the place the first look found (``search["lookalike_seed_xy"]``), as ``_look_for_lookalike`` does
+        from the first pose. None when the first look found no place (the sweep that finds one is not run
+        again) or the refined pose lies within 5 m / 5 deg of ``trial``'s (no look-alike). Both scores
+        with one camera: the margin compares like with like."""
+        seed_xy = result.search.get("lookalike_seed_xy")
+        if seed_xy is None:
+            return None
+        look = cfg.cascade.lookalike
+        state = trial.pose_local.to_xyz_rpy()
+        moved = state.copy()
+        moved[:2] = seed_xy
+        sigma = initial_sigma(cfg.refine, unc.roll_pitch_deg)
+        term = prior_term(prior_state, cfg, unc)
+        refined = self.map_of(result)._refiner().refine_lookalike(levels, moved, cfg, sigma, term)
+        result.counts["refine_evaluations"] += refined.evaluations
+        if not is_distinct(refined.xyz_rpy, state, look.min_distance_m, look.min_rotation_deg):
+            return None
+        return lookalike_of(state, trial.score, refined.xyz_rpy, refined.score)
 
     # ------------------------------------------------------------------ refused poses: a look beyond
     def ring_beyond(
