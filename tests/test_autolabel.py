@@ -270,6 +270,37 @@ def test_label_cli_with_colmap_images_and_cameras(city, tmp_path):
         assert (written != pinhole).mean() > 0.02 and written[0, 0] == IGNORE  # barrel: corners unseen
 
 
+def test_label_skips_a_photo_whose_pose_lies_far_from_the_model_naming_it(city, tmp_path, capsys):
+    """One pose of the batch in another CRS (5,818 km off: Berlin UTM numbers for a local model) stopped
+    the whole ``label`` run with ``auto_label``'s Python-API advice naming neither photo nor file (stop 55
+    audit). Now that photo is left out with the render check's words, naming photo, pose file and distance,
+    and the others are labelled."""
+    model, _ = city
+    photos = tmp_path / "photos"
+    lines = []
+    for i in range(2):
+        name, pose = f"view_{i}.png", _world_pose(model, _centre(model, 90.0), yaw=30.0 * i)
+        if i == 1:
+            pose = Pose(pose.R, pose.t - pose.R @ np.array([0.0, 5_818_000.0, 0.0]))  # centre moved north
+        save_rgb(np.full((120, 160, 3), 100, np.uint8), photos / name)
+        q, t = colmap_qvec_tvec(pose)
+        lines.append(f"{i + 1} {' '.join(f'{v:.12g}' for v in (*q, *t))} 7 {name}\n\n")
+    (tmp_path / "images.txt").write_text("# COLMAP\n" + "".join(lines))
+    (tmp_path / "cameras.txt").write_text("7 PINHOLE 160 120 150 150 80 60\n")
+    model.save_npz(tmp_path / "city.npz")
+    args = _label_parser().parse_args(
+        ["label", "--city", str(tmp_path / "city.npz"), "--images", str(photos), "--poses",
+         str(tmp_path / "images.txt"), "--out", str(tmp_path / "out")]
+    )  # fmt: skip
+    assert args.func(args) == 0
+    err = capsys.readouterr().err
+    assert (
+        f"not labelled: view_1.png: {tmp_path / 'images.txt'}: the camera lies 5,818 km from the model" in err
+    )
+    assert "auto_label" not in err
+    assert (tmp_path / "out" / "view_0.png").is_file() and not (tmp_path / "out" / "view_1.png").exists()
+
+
 def test_label_cli_reads_a_binary_colmap_model_as_its_text(city, tmp_path, capsys):
     """``--poses sparse/0/images.bin`` (what COLMAP and hloc write by default) was read as text: "cannot
     read". Now a binary model, its ``images.bin`` or its folder, labels exactly as the same model in text,

@@ -399,6 +399,38 @@ def test_dataset_cli_actions(dataset_dir, tmp_path, capsys):
         run("dataset", "benchmark", dataset_dir, "--out", tmp_path / "c", "--ecef-origin", "1,2,3")
 
 
+def test_a_pose_far_from_the_model_is_that_querys_miss_in_every_dataset_command(
+    dataset_dir, tmp_path, capsys
+):
+    """One GT pose of a data set in another CRS (5,818 km off) stopped ``dataset benchmark`` and ``dataset
+    overlay`` with a library's message naming neither photo nor file, and ``dataset info`` printed its prior
+    error of 5.8e6 m without a word (stop 55 audit). Now each command names photo, pose file and distance:
+    info warns, overlay skips it, the benchmark counts it as a miss (a skipped query) and runs the others."""
+    import shutil
+
+    ds = tmp_path / "scene"
+    shutil.copytree(dataset_dir, ds)
+    pose_file = ds / "GT_pose" / "DJI_0002_W_pose.txt"
+    world_from_cam = np.loadtxt(pose_file)
+    world_from_cam[1, 3] += 5_818_000.0
+    np.savetxt(pose_file, world_from_cam)
+    said = f"DJI_0002_W.JPG: {pose_file}: the camera lies 5,818 km from the model"
+    assert main(["dataset", "info", str(ds)]) == 0
+    assert said in capsys.readouterr().out
+    assert main(["dataset", "overlay", str(ds), "--out", str(tmp_path / "ov")]) == 0
+    assert f"warning: skipped {said}" in capsys.readouterr().err
+    assert (tmp_path / "ov" / "DJI_0001_W_gt_vs_prior.png").is_file()
+    assert not (tmp_path / "ov" / "DJI_0002_W_gt_vs_prior.png").exists()
+    out = tmp_path / "run"
+    assert main(["dataset", "benchmark", str(ds), "--preset", "default", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: skipped, counted as a miss: {said}" in err and "q0001 (DJI_0002_W.JPG) is a miss" in err
+    rows = {r["query_id"]: r for r in read_results(out / "results.csv")}
+    assert rows["q0000"]["status"] == "localized" and rows["q0001"]["status"] == "not_localized"
+    assert said in rows["q0001"]["reason"]
+    assert json.loads((out / "summary.json").read_text())["recall_5m5deg"] == 50.0
+
+
 def test_dataset_options_fit_the_benchmark_command(dataset_dir, tmp_path, capsys):
     """``semcityloc benchmark`` carries the data-set flags beside its own and runs the real-data benchmark."""
     import argparse

@@ -53,7 +53,7 @@ from semcityloc.benchmark.perception_sim import miou as seg_miou
 from semcityloc.benchmark.photo_exports import changed_files, redo_remedy, unfingerprinted
 from semcityloc.benchmark.photo_inputs import INPUT_FINGERPRINTS
 from semcityloc.benchmark.queries import STREAM_SEG, BenchmarkQuery, query_id
-from semcityloc.benchmark.results import UNFIT_INPUT, UNREADABLE_INPUT
+from semcityloc.benchmark.results import SKIPPED_MISS, UNFIT_INPUT, UNREADABLE_INPUT
 from semcityloc.benchmark.runfiles import (
     ESTIMATES_COLMAP_DIR,
     ESTIMATES_DIR,
@@ -432,7 +432,11 @@ class DatasetSource:
         meta: dict[str, Any] = {"name": q.name, "scene": q.scene, "perception": spec.perception}
         depth = None
         miou = float("nan")
-        if spec.perception == PERCEPTION_MASKS:
+        far = q.far_pose(self.map_model)
+        if far is not None:  # a pose in another CRS: a miss said in its file's words, not the run's end
+            labels = np.full((camera.height, camera.width), IGNORE, dtype=np.uint8)
+            meta[SKIPPED_MISS] = far
+        elif spec.perception == PERCEPTION_MASKS:
             camera = q.camera
             # What the row is made from, fingerprinted before it is read (as a photo run's: ``finish``).
             meta[INPUT_FINGERPRINTS] = input_fingerprints(spec, q)
@@ -473,9 +477,16 @@ class DatasetSource:
         )
 
     def start_note(self, todo: list[int]) -> str | None:
-        """The warning the run says before its first query (``benchmark.run``): the queries of ``todo``
+        """The warning the run says before its first query (``benchmark.run``): one line per query of
+        ``todo`` whose GT pose or prior lies far from the model (``LodLocQuery.far_pose``), then the queries
         whose mask or depth file is missing, found by ``stat`` alone, how many and the first
         ``MISSING_SHOWN``; each is a miss at its turn (``query``). None when every file is there."""
+        far = [why for index in todo if (why := self.queries[index].far_pose(self.map_model))]
+        lines = [f"semcityloc: warning: skipped, counted as a miss: {why}" for why in far]
+        missing_note = self._missing_note(todo)
+        return "\n".join(lines + ([missing_note] if missing_note else [])) or None
+
+    def _missing_note(self, todo: list[int]) -> str | None:
         if self.spec.perception != PERCEPTION_MASKS:
             return None
         missing = []

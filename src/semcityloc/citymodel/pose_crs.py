@@ -12,15 +12,16 @@ library user.
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 import pyproj
 
 from semcityloc.citymodel.crs import parse_crs_name, same_horizontal_crs
-from semcityloc.citymodel.model import crs_label
-from semcityloc.errors import CRSError, parameter
-from semcityloc.geometry.pose import Pose
+from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.errors import CRSError, PoseError, parameter
+from semcityloc.geometry.pose import LOCAL_FRAME_REACH_M, Pose
 from semcityloc.geometry.pose_files import read_pose_text
 from semcityloc.geometry.pose_frame import (
     POSE_FRAME_CRS,
@@ -110,3 +111,31 @@ def read_pose_world(
     text = read_pose_text(spec)
     check_declared_frame(text.frame, spec, model_crs, what, crs_offset)
     return text.pose(name)
+
+
+def camera_far_from_model(pose_local: Pose, model: CityModel) -> str | None:
+    """Why the camera of ``pose_local`` (in ``model``'s local frame) cannot be a view of the model, or None:
+    it lies farther from the model than a local frame reaches (``LOCAL_FRAME_REACH_M``), a pose in another
+    CRS, another unit or with a garbage coordinate (1e300). Said in the words of the pose file's frame: the
+    one check ``render``, ``label`` and the data-set commands make of each pose before it is rendered."""
+    distance = float(np.abs(pose_local.center).max())
+    if math.isfinite(distance) and distance <= LOCAL_FRAME_REACH_M:
+        return None
+    if not math.isfinite(distance):
+        far = "infinitely far"
+    else:
+        far = f"{distance / 1000:,.0f} km" if distance < 1e9 else f"{distance / 1000:.3g} km"
+    return (
+        f"the camera lies {far} from the model (more than {LOCAL_FRAME_REACH_M / 1000:g} km from its "
+        f"origin, {model.origin[0]:.1f} {model.origin[1]:.1f} {model.origin[2]:.1f}): is the pose in the "
+        f"model's CRS ({crs_label(model.crs) or 'none declared'}) and in metres?"
+    )
+
+
+def check_camera_near_model(pose_local: Pose, model: CityModel, source: object) -> None:
+    """``PoseError`` led by ``source`` (the pose file) when ``camera_far_from_model`` says why the camera
+    cannot be a view of ``model``: before the renderer refuses it in a library's words (a pose in world
+    coordinates given as local)."""
+    problem = camera_far_from_model(pose_local, model)
+    if problem is not None:
+        raise PoseError(f"{source}: {problem}")

@@ -22,7 +22,7 @@ from semcityloc.benchmark.dataset_source import FORMATS, PERCEPTIONS, DatasetSpe
 from semcityloc.benchmark.methods import available_methods
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report_tables import summary_markdown
-from semcityloc.benchmark.results import unreadable_row
+from semcityloc.benchmark.results import is_skipped_miss, unreadable_row
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
@@ -192,8 +192,12 @@ def run_info(args: argparse.Namespace) -> int:
     ``cli.main``, which prints them as one line).
     """
     ds = _dataset(args)
+    model = ds.load_model() if ds.model_path is not None else None
     rows = []
     for q in ds.queries:
+        far = q.far_pose(model) if model is not None else None
+        if far is not None:  # a pose in another CRS: its prior error below is the CRSs' distance
+            ds.warnings.append(far)
         row = {"name": q.name, "scene": q.scene, "camera": q.camera.as_dict()}
         row["gt"] = q.gt_pose_world is not None
         row["prior"] = q.prior_pose_world is not None
@@ -241,6 +245,10 @@ def run_overlay(args: argparse.Namespace) -> int:
     for q in queries:
         if q.image_path is None or q.gt_pose_world is None or q.prior_pose_world is None:
             print(f"skipped {q.name}: needs the image, a GT pose and a prior")
+            continue
+        far = q.far_pose(model)
+        if far is not None:  # a pose in another CRS: said in its file's words, the others drawn
+            print(f"semcityloc: warning: skipped {far}", file=sys.stderr)
             continue
         image = read_image(q.image_path)
         figure = gt_vs_prior_figure(image, model, q.camera, q.gt_pose_world, q.prior_pose_world, renderer)
@@ -306,10 +314,11 @@ def run_dji_prior(args: argparse.Namespace) -> int:
 
 
 def warn_unreadable(rows: list[dict[str, str]], config: dict) -> None:
-    """One line on stderr per query whose input files could not be read (``results.REASON_UNREADABLE``):
+    """One line on stderr per query whose input files could not be read (``results.REASON_UNREADABLE``) or
+    that was skipped (``results.REASON_SKIPPED_MISS``: a pose far from the model, ``LodLocQuery.far_pose``):
     the run went on without it, and the recall counts it as a miss."""
     for row in sorted(rows, key=lambda r: int(r["index"])):
-        if unreadable_row(row):
+        if unreadable_row(row) or is_skipped_miss(row.get("reason")):
             name = config["query_names"][int(row["index"])]
             line = f"semcityloc: warning: {row['query_id']} ({name}) is a miss: {row['reason']}"
             print(line, file=sys.stderr)

@@ -9,6 +9,9 @@ Poses (``--poses``), in the model's CRS / frame:
 - a COLMAP ``images.txt`` / ``images.bin`` or the model folder holding one (or any file
   ``geometry.io.read_poses`` reads), matched to photos by name, file name or stem;
 - a folder of LoD-Loc ``<stem>_pose.txt`` (4x4 camera-to-world) files, e.g. ``GT_pose/``.
+A photo whose pose lies farther from the model than a local frame reaches (another CRS:
+``citymodel.pose_crs.check_camera_near_model``, as ``render`` checks its pose) is left out with a warning
+naming photo, pose file and distance; the others are labelled.
 
 Intrinsics (``--intrinsics``): one file for every photo (a LoD-Loc ``*_intrinsic.txt``, a COLMAP line,
 JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (several cameras: the camera id of each photo comes
@@ -27,6 +30,7 @@ import json
 import sys
 from pathlib import Path
 
+from semcityloc.citymodel.pose_crs import check_camera_near_model
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.datasets.photos import IntrinsicsFiles, PoseFiles, list_images
@@ -109,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
             if pose is None:
                 skipped.append(image.name)
                 continue
+            check_camera_near_model(model.pose_to_local(pose), model, poses.file_of(image))
             width, height = image_size(image)
             lens = intrinsics.photo_camera(image, width, height)
         except SemCityLocError as exc:

@@ -10,20 +10,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from semcityloc.citymodel.model import CityModel, crs_label
-from semcityloc.citymodel.pose_crs import read_pose_world
+from semcityloc.citymodel.pose_crs import check_camera_near_model, read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.cli.pose_input import read_lens_for_photo
-from semcityloc.errors import PoseError
 from semcityloc.geometry.distortion import distort_image
-from semcityloc.geometry.pose import LOCAL_FRAME_REACH_M, Pose
 from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
@@ -55,26 +51,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--engine", default="numba", choices=ENGINES, help="render engine (default numba)")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=run)
-
-
-def check_camera_near_model(pose_local: Pose, model: CityModel, source: object) -> None:
-    """``PoseError`` naming the pose file when its camera lies farther from the model than a local frame
-    reaches (``LOCAL_FRAME_REACH_M``): a pose in another CRS, another unit or with a garbage coordinate
-    (1e300). Said in the words of the file's frame, before the renderer refuses it in a library's (a pose
-    in world coordinates given as local)."""
-    centre = pose_local.center
-    distance = float(np.abs(centre).max())
-    if math.isfinite(distance) and distance <= LOCAL_FRAME_REACH_M:
-        return
-    if not math.isfinite(distance):
-        far = "infinitely far"
-    else:
-        far = f"{distance / 1000:,.0f} km" if distance < 1e9 else f"{distance / 1000:.3g} km"
-    raise PoseError(
-        f"{source}: the camera lies {far} from the model (more than {LOCAL_FRAME_REACH_M / 1000:g} km from "
-        f"its origin, {model.origin[0]:.1f} {model.origin[1]:.1f} {model.origin[2]:.1f}): is the pose in the "
-        f"model's CRS ({crs_label(model.crs) or 'none declared'}) and in metres?"
-    )
 
 
 def run(args: argparse.Namespace) -> int:

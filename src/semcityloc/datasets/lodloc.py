@@ -45,6 +45,7 @@ import numpy as np
 from semcityloc.citymodel.builder import UNLABELLED, MeshBuilder
 from semcityloc.citymodel.io import load_city_model
 from semcityloc.citymodel.model import CityModel, ParseStats
+from semcityloc.citymodel.pose_crs import camera_far_from_model
 from semcityloc.errors import (
     InputFileError,
     IntrinsicsMismatchError,
@@ -91,11 +92,24 @@ class LodLocQuery:
     gt_pose_world: Pose | None = None  # cam_from_world, data set's world frame (not a model's local one)
     prior_pose_world: Pose | None = None  # cam_from_world, same frame (LoD-Loc's "GPS" prior)
     points_path: Path | None = None  # Points_GT/<stem>_points.npy when present
+    gt_pose_file: Path | None = None  # the file each pose was read from (per-image file or scene text file)
+    prior_pose_file: Path | None = None
 
     @property
     def stem(self) -> str:
         """The image name without folder and suffix: how masks and depth files are matched to it."""
         return Path(self.name).stem
+
+    def far_pose(self, model: CityModel) -> str | None:
+        """Why this query's GT pose or prior cannot be a view of ``model`` (in the model's frame, the data
+        set's: ``LodLocDataset.load_model``), naming the photo and the pose file, or None: a camera farther
+        from the model than a local frame reaches (``citymodel.pose_crs.camera_far_from_model``), a pose in
+        another CRS. The data-set commands skip such a query with this warning; the others run."""
+        poses = ((self.gt_pose_world, self.gt_pose_file), (self.prior_pose_world, self.prior_pose_file))
+        for pose, file in poses:
+            if pose is not None and (problem := camera_far_from_model(model.pose_to_local(pose), model)):
+                return f"{self.name}: {file}: {problem}"
+        return None
 
 
 @dataclass
@@ -245,7 +259,10 @@ def _names(scene_dir: Path, text_names: set[str]) -> tuple[list[str], dict[str, 
     return sorted(names | text_names), {}
 
 
-def _pose_of(folder: Path, stem: str, text: dict[str, Pose], name: str, warnings: list[str], what: str):
+def _pose_of(
+    folder: Path, stem: str, text: dict[str, Pose], name: str, warnings: list[str], what: str
+) -> tuple[Pose | None, Path | None]:
+    """(the pose of query ``name`` from ``folder/<stem>_pose.txt`` or the scene's text file, that file)."""
     file = folder / f"{stem}_pose.txt"
     pose = read_pose(file) if file.is_file() else None
     other = text.get(name)
@@ -255,7 +272,9 @@ def _pose_of(folder: Path, stem: str, text: dict[str, Pose], name: str, warnings
         gap = float(np.linalg.norm(pose.center - other.center))
         if gap > TEXT_FILE_TOLERANCE_M:
             warnings.append(f"{name}: {what} in {folder.name}/ and the scene text file differ by {gap:.3f} m")
-    return pose if pose is not None else other
+    if pose is not None:
+        return pose, file
+    return other, (folder.parent / f"{folder.name}.txt" if other is not None else None)
 
 
 def _camera_of(
@@ -300,17 +319,19 @@ def _read_scene(scene_dir: Path, warnings: list[str]) -> list[LodLocQuery]:
             warnings.append(f"{scene_dir.name}/{name}: {camera}; skipped")
             continue
         points = scene_dir / POINTS_DIR / f"{stem}_points.npy"
+        gt, gt_file = _pose_of(scene_dir / GT_DIR, stem, gt_text, name, warnings, "GT pose")
+        prior, prior_file = _pose_of(scene_dir / PRIOR_DIR, stem, prior_text, name, warnings, "GPS prior")
         queries.append(
             LodLocQuery(
                 name=name,
                 scene=scene_dir.name,
                 camera=camera,
                 image_path=image,
-                gt_pose_world=_pose_of(scene_dir / GT_DIR, stem, gt_text, name, warnings, "GT pose"),
-                prior_pose_world=_pose_of(
-                    scene_dir / PRIOR_DIR, stem, prior_text, name, warnings, "GPS prior"
-                ),
+                gt_pose_world=gt,
+                prior_pose_world=prior,
                 points_path=points if points.is_file() else None,
+                gt_pose_file=gt_file,
+                prior_pose_file=prior_file,
             )
         )
     return queries

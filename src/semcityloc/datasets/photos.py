@@ -251,6 +251,14 @@ class PoseFiles:
             return self.entries[""]
         return match_name(self.entries, image)
 
+    def file_of(self, image: Path) -> Path:
+        """The file the pose of ``image`` is read from (its folder's ``<stem>_pose.txt`` / ``<stem>.txt`` /
+        ``<stem>.json``, else the one poses file), for messages about that pose."""
+        if self.folder is not None:
+            found = per_stem_file(self.folder, image.stem, "pose")
+            return found or self.folder / f"{image.stem}.json"
+        return self.source
+
 
 def _pose_record(folder: Path, image: Path) -> Path | None:
     """``folder/<stem>.json`` of ``image``: a pose record as ``semcityloc run`` writes it into its
