@@ -773,6 +773,30 @@ def test_render_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tm
     assert code == 0 and (tmp_path / "b" / "overlay_edges.png").is_file(), err
 
 
+def test_render_draws_labels_and_depth_at_the_photos_own_size(exif_view, tmp_path, capsys):
+    """Stop 55 audit: ``render --image`` of a photo downscaled by an exact factor from the size its
+    intrinsics imply (a LoD-Loc K of 1024x768, the photo 512x384) wrote labels and depth at 1024x768 but the
+    overlays at 512x384. The photo's own size wins: every output on its pixels, the K rescaled."""
+    from PIL import Image
+
+    k = tmp_path / "T_intrinsic.txt"
+    np.savetxt(k, np.array([[728.0, 0, 512, 0], [0, 728, 384, 0], [0, 0, 1, 0]]))
+    argv = [
+        "render",
+        "--city",
+        exif_view["city"],
+        "--image",
+        exif_view["photo"],
+        "--pose",
+        exif_view["prior"],
+    ]
+    code, out, err = run(capsys, *argv, "--intrinsics", k, "--out", tmp_path / "r")
+    assert code == 0, err
+    for name in ("labels.png", "depth.png", "overlay_edges.png", "overlay_labels.png"):
+        assert Image.open(tmp_path / "r" / name).size == (512, 384), name
+    assert np.load(tmp_path / "r" / "depth.npy").shape == (384, 512)
+
+
 def test_a_photo_of_another_aspect_than_the_intrinsics_is_refused(exif_view, tmp_path, capsys):
     """Stop 45's audit: `--image` of another aspect than the camera was drawn on, misaligned, silently."""
     from PIL import Image

@@ -631,6 +631,12 @@ def test_intrinsics_of_another_image_do_not_fit_a_photo(tmp_path):
         read_intrinsics(f"1125,1125,{beyond},256,640,512", photo=("T.JPG", 640, 512))
     # Without a photo (render at a chosen size): resampled to any size, as before.
     assert read_intrinsics(stated, 2325, 1742).size == (2325, 1742)
+    # A LoD-Loc K states no size: a photo that is its 2 cx x 2 cy resized by an exact factor (a downscaled
+    # copy) takes it rescaled, as a stated size is (stop 55 audit: refused, principal point 50 % off).
+    assert read_intrinsics(k, 320, 256, photo=("h.JPG", 320, 256)) == Camera(562.5, 562.5, 160, 128, 320, 256)
+    assert read_intrinsics(k, 1280, 1024, photo=("T.JPG", 1280, 1024)) == Camera(
+        2250, 2250, 640, 512, 1280, 1024
+    )
 
 
 def test_read_intrinsics_multi_camera_file(tmp_path):

@@ -139,19 +139,40 @@ def test_images_without_intrinsics_are_skipped_with_a_warning(tmp_path):
 
 
 def test_intrinsics_of_another_image_than_the_query_image_are_skipped_with_a_warning(tmp_path):
-    """Stop 50's audit: intrinsics of another image size (here: of the image at half its size, a principal
-    point 25 % off its centre) were applied to the query image unchecked; now that query is skipped, the
-    warning naming the file, the image and both sizes."""
+    """Stop 50's audit: intrinsics of another image (here: a principal point 25 % off the image's centre,
+    the centre of a 320x320 image) were applied to the query image unchecked; now that query is skipped,
+    the warning naming the file, the image and both sizes. Since stop 55 a K of the image at half its size
+    (the centre of 320x256, an exact-factor resize) is that image's camera rescaled, as a stated size is."""
     qs = queries(2)
     folder = make_scene(tmp_path / "s", qs)
-    half = CAM.scale(0.5)
+    other = Camera(CAM.fx / 2, CAM.fy / 2, 160.0, 160.0, 320, 320)
     k_file = folder / "intrinsic" / f"{qs[1].stem}_intrinsic.txt"
-    np.savetxt(k_file, np.hstack([half.K, np.zeros((3, 1))]))
+    np.savetxt(k_file, np.hstack([other.K, np.zeros((3, 1))]))
     ds = read_lodloc(folder)
     assert [q.name for q in ds.queries] == [qs[0].name]
     said = [w for w in ds.warnings if "principal point" in w]
     assert len(said) == 1 and str(k_file) in said[0] and f"photo {qs[1].name} (640x512" in said[0]
-    assert "320x256 image" in said[0] and said[0].endswith("; skipped")
+    assert "320x320 image" in said[0] and said[0].endswith("; skipped")
+    np.savetxt(k_file, np.hstack([CAM.scale(0.5).K, np.zeros((3, 1))]))
+    assert read_lodloc(folder).query(qs[1].name).camera == CAM
+
+
+def test_a_photo_downscaled_by_an_exact_factor_takes_the_k_rescaled_and_every_skip_is_named(tmp_path):
+    """Stop 55 audit: a LoD-Loc K of 640x512 (cx 320, cy 256) with its photo downscaled to 320x256 was
+    refused (principal point 50 % off), though a COLMAP camera stating 640x512 is rescaled; and when no
+    image survived, the data set said only "no query images with intrinsics". Now the K is rescaled the
+    same way, and the refusal names why each image was skipped."""
+    qs = queries(1)
+    folder = make_scene(tmp_path / "s", qs)
+    Image.new("RGB", (320, 256)).save(folder / "Query_image" / qs[0].name)
+    assert read_lodloc(folder).queries[0].camera == CAM.scale(0.5)
+    np.savetxt(
+        folder / "intrinsic" / f"{qs[0].stem}_intrinsic.txt",
+        [[500, 0, 400, 0], [0, 500, 256, 0], [0, 0, 1, 0]],
+    )
+    with pytest.raises(InputFileError, match="no query images with intrinsics") as exc:
+        read_lodloc(folder)
+    assert f"{qs[0].name}: " in str(exc.value) and "principal point (400, 256)" in str(exc.value)
 
 
 def test_no_image_means_size_from_the_principal_point_or_an_error(tmp_path):

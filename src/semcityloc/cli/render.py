@@ -20,7 +20,7 @@ from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.cli.pose_input import read_lens_for_photo
 from semcityloc.geometry.distortion import distort_image
-from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
+from semcityloc.io.images import image_size, load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
@@ -47,7 +47,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--width", type=int, default=None, help="image width (when the intrinsics do not say)")
     p.add_argument("--height", type=int, default=None, help="image height")
-    p.add_argument("--image", default=None, help="photo to overlay the visible model edges on")
+    p.add_argument(
+        "--image",
+        default=None,
+        help="photo to overlay the visible model edges on (without --width/--height, every output is at "
+        "its size)",
+    )
     p.add_argument("--engine", default="numba", choices=ENGINES, help="render engine (default numba)")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=run)
@@ -59,6 +64,9 @@ def run(args: argparse.Namespace) -> int:
     """
     # With --image the intrinsics must describe that photo: edges drawn with another camera's are misaligned
     camera, lens = read_lens_for_photo(args.intrinsics, args.width, args.height, args.image)
+    if args.image and args.width is None and args.height is None:  # the photo's own size wins: labels,
+        size = image_size(args.image, "photo")  # depth and overlays on its pixels (checked to fit it)
+        camera = camera if camera.size == size else camera.scaled(*size)
     model = load_model_from_args(args)
     pose_world = read_pose_world(args.pose, model.crs)
     out = Path(args.out)

@@ -77,6 +77,8 @@ VERTICAL_TOLERANCE_DEG = 3.0
 STEEP_MIN_DEG = 45.0
 # A z-up LoD model has at least this share of its steep area vertical (measured: UAVD4L-LoD1 0.99).
 MIN_VERTICAL_SHARE = 0.6
+# How a query left out for its intrinsics is said among the data set's warnings (``LodLocDataset.warnings``).
+SKIPPED = "; skipped"
 # Per-image pose file vs the scene text file: disagreement beyond this (metres) is reported.
 TEXT_FILE_TOLERANCE_M = 0.01
 
@@ -316,7 +318,7 @@ def _read_scene(scene_dir: Path, warnings: list[str]) -> list[LodLocQuery]:
         width, height = _image_size(image)
         camera = _camera_of(scene_dir, name, stem, intr_text, (name, width, height) if image else None)
         if isinstance(camera, str):
-            warnings.append(f"{scene_dir.name}/{name}: {camera}; skipped")
+            warnings.append(f"{scene_dir.name}/{name}: {camera}{SKIPPED}")
             continue
         points = scene_dir / POINTS_DIR / f"{stem}_points.npy"
         gt, gt_file = _pose_of(scene_dir / GT_DIR, stem, gt_text, name, warnings, "GT pose")
@@ -419,8 +421,12 @@ def read_lodloc(
         single = len(scene_dirs) == 1 and scene_dirs[0].name not in wanted
         every = set().union(*wanted.values()) if wanted else set()
         queries = [q for q in queries if q.name in (every if single else wanted.get(q.scene, ()))]
-    if not queries:
-        raise InputFileError(f"{root}: no query images with intrinsics" + (" in the split" if split else ""))
+    if not queries:  # why each image was skipped, else a user sees no reason at all
+        skips = [w.removesuffix(SKIPPED) for w in warnings if w.endswith(SKIPPED)]
+        why = f" ({'; '.join(skips[:3])}{'; ...' if len(skips) > 3 else ''})" if skips else ""
+        raise InputFileError(
+            f"{root}: no query images with intrinsics" + (" in the split" if split else "") + why
+        )
 
     model_path = Path(city) if city is not None else _find_model(root, scene_dirs)
     if model_path is not None and not model_path.is_file():

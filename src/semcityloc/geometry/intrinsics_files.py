@@ -51,6 +51,23 @@ def _size_from_principal_point(c: float, axis: str) -> int:
     return int(round(size))
 
 
+def implied_size(cx: float, cy: float, width: int, height: int) -> tuple[int, int] | None:
+    """The size ``2 cx`` x ``2 cy`` a sizeless K (LoD-Loc's ``[K|0]``) was made for when an image of
+    ``width`` x ``height`` is that size resized by one exact factor (a downscaled copy: 320x256 of a
+    640x512 K), else None (the same size, another aspect, or a principal point off any whole-pixel
+    centre: the K is taken at the given size, as it is). Such a K is then read as one that states its size
+    and resampled the same way (``read_lens``: ``check_fits_photo``, then ``Camera.scaled``)."""
+    w2, h2 = 2.0 * cx, 2.0 * cy
+    if not (math.isfinite(w2) and math.isfinite(h2)) or w2 < 1 or h2 < 1:
+        return None
+    if abs(w2 - round(w2)) > 1e-6 or abs(h2 - round(h2)) > 1e-6:
+        return None
+    implied = (int(round(w2)), int(round(h2)))
+    if implied == (width, height) or width * implied[1] != height * implied[0]:
+        return None
+    return implied
+
+
 def _camera(
     fx: float,
     fy: float,
@@ -62,7 +79,10 @@ def _camera(
     height: int | None,
 ) -> Camera:
     """The camera at its own size if it has one (``read_lens`` resamples it to the requested size, after
-    checking it against the photo it is for), else at the given size, else ``2 cx`` x ``2 cy``."""
+    checking it against the photo it is for; a sizeless K of which the given size is an exact-factor resize
+    has ``implied_size``), else at the given size, else ``2 cx`` x ``2 cy``."""
+    if own_w is None and own_h is None and width is not None and height is not None:
+        own_w, own_h = implied_size(cx, cy, width, height) or (None, None)
     if own_w is not None and own_h is not None:
         if (width is None) != (height is None):
             raise CameraError(
@@ -243,7 +263,9 @@ def read_lens(
     - LoD-Loc ``*_intrinsic.txt``: a 3x4 ``[K|0]`` (or 3x3 ``K``) matrix. It stores no image size: unless
       ``width`` / ``height`` are given they are taken as ``2 cx`` / ``2 cy`` (principal point at the image
       centre; the real file has cx = 320, cy = 256 for a 640x512 image). A principal point that is not at
-      the centre of a whole-pixel image raises ``CameraError`` asking for the size;
+      the centre of a whole-pixel image raises ``CameraError`` asking for the size. A ``width`` x
+      ``height`` that is ``2 cx`` x ``2 cy`` resized by one exact factor (a downscaled photo) resamples the
+      K as a stated size is (``implied_size``);
     - a COLMAP ``cameras.txt`` / LoD-Loc ``intrinsic.txt`` line ``name MODEL w h params`` (or without the
       name/id), MODEL one of PINHOLE ``fx fy cx cy``, SIMPLE_PINHOLE ``f cx cy``, SIMPLE_RADIAL ``f cx cy
       k``, RADIAL ``f cx cy k1 k2``, OPENCV ``fx fy cx cy k1 k2 p1 p2`` and FULL_OPENCV with its rational
