@@ -747,13 +747,9 @@ def test_localize_takes_an_off_centre_k_at_its_photos_size_and_names_the_photo(e
     assert code == 2 and f"{plain}: the image has no 35 mm-equivalent focal length" in err, err
 
 
-def test_render_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tmp_path, capsys):
-    """``render --image`` checked only the photo's aspect, and only when the intrinsics' own: another
-    camera's K (640x512) at --width 512 --height 384 drew the edges shifted on the photo (principal point
-    17 % off its centre). Refused like ``localize``'s, before the model loads; the photo's own draw."""
-    other = tmp_path / "T_intrinsic.txt"
-    np.savetxt(other, np.array([[400.0, 0, 320, 0], [0, 400, 256, 0], [0, 0, 1, 0]]))
-    argv = [
+def render_on_photo(exif_view) -> list:
+    """``render`` of the generated city at the prior of the EXIF photo, drawn on it."""
+    return [
         "render",
         "--city",
         exif_view["city"],
@@ -762,6 +758,15 @@ def test_render_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tm
         "--pose",
         exif_view["prior"],
     ]
+
+
+def test_render_refuses_intrinsics_of_another_image_than_its_photo(exif_view, tmp_path, capsys):
+    """``render --image`` checked only the photo's aspect, and only when the intrinsics' own: another
+    camera's K (640x512) at --width 512 --height 384 drew the edges shifted on the photo (principal point
+    17 % off its centre). Refused like ``localize``'s, before the model loads; the photo's own draw."""
+    other = tmp_path / "T_intrinsic.txt"
+    np.savetxt(other, np.array([[400.0, 0, 320, 0], [0, 400, 256, 0], [0, 0, 1, 0]]))
+    argv = render_on_photo(exif_view)
     code, out, err = run(
         capsys, *argv, "--intrinsics", other, "--width", 512, "--height", 384, "--out", tmp_path / "a"
     )
@@ -781,15 +786,7 @@ def test_render_draws_labels_and_depth_at_the_photos_own_size(exif_view, tmp_pat
 
     k = tmp_path / "T_intrinsic.txt"
     np.savetxt(k, np.array([[728.0, 0, 512, 0], [0, 728, 384, 0], [0, 0, 1, 0]]))
-    argv = [
-        "render",
-        "--city",
-        exif_view["city"],
-        "--image",
-        exif_view["photo"],
-        "--pose",
-        exif_view["prior"],
-    ]
+    argv = render_on_photo(exif_view)
     code, out, err = run(capsys, *argv, "--intrinsics", k, "--out", tmp_path / "r")
     assert code == 0, err
     for name in ("labels.png", "depth.png", "overlay_edges.png", "overlay_labels.png"):
