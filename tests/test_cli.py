@@ -747,6 +747,52 @@ def test_localize_takes_an_off_centre_k_at_its_photos_size_and_names_the_photo(e
     assert code == 2 and f"{plain}: the image has no 35 mm-equivalent focal length" in err, err
 
 
+def test_a_pose_of_a_multi_image_file_is_chosen_by_pose_name_or_by_the_photos_name(
+    city_paths, tmp_path, capsys
+):
+    """Stop 55 audit: ``render --pose images.txt`` (and ``localize --prior``) of a COLMAP file with several
+    images said "pass the image name to choose one", but no option took a name. Now ``--pose-name NAME``
+    chooses, ``--image``'s file name chooses when it is not given, and the message names the option."""
+    from PIL import Image
+
+    from semcityloc.geometry.conventions import colmap_qvec_tvec
+    from semcityloc.geometry.pose import Pose
+
+    model = load_city_model(city_paths[2], cache=False)
+    lo, hi = model.bounds_local
+    centre = model.origin + 0.5 * (lo + hi)
+    lines = []
+    for i, yaw in enumerate((0.0, 120.0, 240.0)):
+        pose = Pose.from_xyz_rpy([centre[0] + 12.0, centre[1] - 9.0, lo[2] + 85.0], 1.0, 35.0, yaw)
+        q, t = colmap_qvec_tvec(pose)
+        lines.append(f"{i + 1} {' '.join(f'{v:.12g}' for v in (*q, *t))} 1 view_{i}.png\n\n")
+    (tmp_path / "images.txt").write_text("".join(lines))
+    Image.new("RGB", (512, 384)).save(tmp_path / "view_1.png")
+    argv = ["render", "--city", city_paths[2], "--intrinsics", "364,364,256,192,512,384", "--no-cache"]
+    argv += ["--pose", tmp_path / "images.txt"]
+    code, out, err = run(capsys, *argv, "--out", tmp_path / "none")
+    assert code == 2 and "3 poses (view_0.png, view_1.png, view_2.png, ...)" in err
+    assert "choose one by its image name (--pose-name NAME)" in err
+    code, _, err = run(capsys, *argv, "--pose-name", "view_1.png", "--out", tmp_path / "named")
+    assert code == 0, err
+    code, _, err = run(capsys, *argv, "--image", tmp_path / "view_1.png", "--out", tmp_path / "photo")
+    assert code == 0, err
+    code, _, err = run(capsys, *argv, "--pose-name", "view_2", "--out", tmp_path / "other")
+    assert code == 0, err
+    named = load_labels_png(tmp_path / "named" / "labels.png")
+    assert np.array_equal(named, load_labels_png(tmp_path / "photo" / "labels.png"))
+    assert not np.array_equal(named, load_labels_png(tmp_path / "other" / "labels.png"))
+    argv = ["localize", "--city", city_paths[2], "--intrinsics", "364,364,256,192,512,384", "--no-cache"]
+    argv += ["--prior", tmp_path / "images.txt", "--semantic", tmp_path / "named" / "labels.png"]
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "loc")
+    assert code == 2 and "(--pose-name NAME)" in err
+    from semcityloc.cli.main import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for command in ("render", "localize"):
+        assert "--pose-name NAME" in sub.choices[command].format_help()
+
+
 def render_on_photo(exif_view) -> list:
     """``render`` of the generated city at the prior of the EXIF photo, drawn on it."""
     return [

@@ -404,7 +404,9 @@ def test_read_pose_multi_line_files(tmp_path):
     assert_same_pose(read_pose(path, name="DJI_2.JPG"), poses[1])
     assert_same_pose(read_pose(path, name="DJI_1.JPG"), poses[0])  # by file name
     assert_same_pose(read_pose(path, name="DJI_3"), poses[2])  # by stem
-    with pytest.raises(PoseError, match="pass the image name") as exc:
+    with pytest.raises(
+        PoseError, match=r"choose one by its image name \(read_pose\(\.\.\., name=.NAME.\)\)"
+    ) as exc:
         read_pose(path)
     assert str(path) in str(exc.value)
     with pytest.raises(PoseError, match="no pose for image 'nope.JPG'"):

@@ -219,6 +219,7 @@ PARAMETERS: dict[str, Parameter] = {
     "train_backbone": Parameter("train_segmenter(backbone='{}')", "train-segmenter --backbone {}"),
     "backbone": Parameter("get_segmentation_backend(..., backbone={})", "--backend-option backbone={}"),
     "head": Parameter("get_segmentation_backend(..., head={})", "--backend-option head={}"),
+    "pose_name": Parameter("read_pose(..., name='{}')", "--pose-name {}"),  # one pose of a multi-image file
     "crs": Parameter("crs='{}'", "--crs {}"),
     "target_crs": Parameter("target_crs='{}'", "--crs {}"),
     "prior_sigma": Parameter("prior_uncertainty=PriorUncertainty.parse('{}')", "--prior-sigma {}"),

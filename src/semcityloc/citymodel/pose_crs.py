@@ -104,13 +104,15 @@ def read_pose_world(
     what: str = "pose",
     name: str | None = None,
     crs_offset=None,
+    photo: str | None = None,
 ) -> Pose:
     """``read_pose(spec, name)``, a pose in the model's world frame (``model.pose_to_local`` takes it into
     the model's local frame), after ``check_pose_crs`` (``crs_offset``: the model's frame is ``model_crs``
-    minus this). The file is read once (``geometry.pose_files.read_pose_text``)."""
+    minus this). ``photo``: the file name of the image the pose is for, which chooses among several when
+    ``name`` is None. The file is read once (``geometry.pose_files.read_pose_text``)."""
     text = read_pose_text(spec)
     check_declared_frame(text.frame, spec, model_crs, what, crs_offset)
-    return text.pose(name)
+    return text.pose(name, photo)
 
 
 def camera_far_from_model(pose_local: Pose, model: CityModel) -> str | None:

@@ -14,7 +14,7 @@ from semcityloc.citymodel.model import crs_label
 from semcityloc.citymodel.pose_crs import read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args, print_model_warnings
-from semcityloc.cli.pose_input import read_lens_for_photo
+from semcityloc.cli.pose_input import add_pose_name_argument, photo_name, read_lens_for_photo
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
@@ -134,6 +134,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--prior", required=True, help="prior pose in the model's CRS (same forms as render --pose)"
     )
+    add_pose_name_argument(p, "--prior")
     p.add_argument("--semantic", default=None, help="query label mask (palette/grey PNG of class ids)")
     add_lossy_mask_argument(p, "a --semantic mask (or the files backend's masks)")
     p.add_argument("--depth", default=None, help="query relative depth (.npy or 16-bit PNG); optional")
@@ -274,7 +275,9 @@ def run(args: argparse.Namespace) -> int:
         "takes an --offset that places it)",
     )
     print_model_warnings(model)
-    prior_world = read_pose_world(args.prior, model.crs, "prior")
+    prior_world = read_pose_world(
+        args.prior, model.crs, "prior", args.pose_name, photo=photo_name(args.image)
+    )
     labels, depth = _query_inputs(args, lens)
     localizer = Localizer(model, config)
     result = localizer.localize(

@@ -7,6 +7,7 @@ against the model's CRS by ``citymodel.pose_crs.read_pose_world``.)
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from semcityloc.errors import UnknownImageSizeError
@@ -38,3 +39,20 @@ def read_lens_for_photo(
     else:  # no photo to hold it against: its principal point must still be near its own image's centre
         check_fits_photo(camera, str(intrinsics), ("(no --image: the size they are used at)", *camera.size))
     return camera, distortion
+
+
+def add_pose_name_argument(p: argparse.ArgumentParser, pose_option: str) -> None:
+    """``--pose-name NAME``: which pose of a multi-image ``pose_option`` file (a COLMAP ``images.txt``) to
+    take; without it, ``--image``'s file name chooses (``photo_name``)."""
+    p.add_argument(
+        "--pose-name",
+        default=None,
+        metavar="NAME",
+        help=f"the image name of the pose to take from a {pose_option} file of several (a COLMAP images.txt; "
+        "default: --image's file name)",
+    )
+
+
+def photo_name(image: str | None) -> str | None:
+    """The file name of ``--image``, which chooses a pose among several when no ``--pose-name`` is given."""
+    return Path(image).name if image else None

@@ -18,7 +18,7 @@ import numpy as np
 from semcityloc.citymodel.pose_crs import check_camera_near_model, read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.cli.pose_input import read_lens_for_photo
+from semcityloc.cli.pose_input import add_pose_name_argument, photo_name, read_lens_for_photo
 from semcityloc.geometry.distortion import distort_image
 from semcityloc.io.images import image_size, load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
@@ -45,6 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or x,y,z,roll,pitch,yaw in degrees (0,0,0 looks straight down with image-up north; pitch 90 "
         "looks at the horizon: a DJI gimbal pitch -90 is our 0; yaw counter-clockwise from north)",
     )
+    add_pose_name_argument(p, "--pose")
     p.add_argument("--width", type=int, default=None, help="image width (when the intrinsics do not say)")
     p.add_argument("--height", type=int, default=None, help="image height")
     p.add_argument(
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         size = image_size(args.image, "photo")  # depth and overlays on its pixels (checked to fit it)
         camera = camera if camera.size == size else camera.scaled(*size)
     model = load_model_from_args(args)
-    pose_world = read_pose_world(args.pose, model.crs)
+    pose_world = read_pose_world(args.pose, model.crs, name=args.pose_name, photo=photo_name(args.image))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(model, engine=args.engine)

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.errors import PoseError
+from semcityloc.errors import PoseError, parameter
 from semcityloc.geometry.colmap_text import (
     IMAGE_CAMERA_ID,
     IMAGE_NAME,
@@ -92,11 +92,16 @@ def read_pose_entries(spec: str | os.PathLike) -> tuple[dict[str, Pose], str]:
     return labelled(label, parse), label
 
 
-def _named(entries: dict[str, Pose], label: str, name: str | None) -> Pose:
-    """The pose of ``entries`` for image ``name`` (``read_pose``'s rule: an unnamed single pose is it)."""
+def _named(entries: dict[str, Pose], label: str, name: str | None, photo: str | None = None) -> Pose:
+    """The pose of ``entries`` for image ``name`` (``read_pose``'s rule: an unnamed single pose is it);
+    without a ``name``, one of several is the pose of ``photo`` (the file name of the image it is used
+    with: ``render --image``, ``localize --image``) when given."""
     if list(entries) == [""]:
         return entries[""]
-    return labelled(label, pick_entry, entries, name, PoseError, "pose")
+    if name is None and photo is not None and len(entries) > 1:
+        name = photo
+    choose = f"choose one by its image name ({parameter('pose_name', 'NAME')})"
+    return labelled(label, pick_entry, entries, name, PoseError, "pose", choose)
 
 
 @dataclass(frozen=True)
@@ -117,9 +122,9 @@ class PoseText:
             return {"": labelled(self.label, pose_from_json, self.json_value)}
         return labelled(self.label, _pose_entries, self.text)
 
-    def pose(self, name: str | None = None) -> Pose:
-        """The pose for image ``name``, as ``read_pose``."""
-        return _named(self.poses(), self.label, name)
+    def pose(self, name: str | None = None, photo: str | None = None) -> Pose:
+        """The pose for image ``name`` (else, of several, ``photo``'s: ``_named``), as ``read_pose``."""
+        return _named(self.poses(), self.label, name, photo)
 
     def camera_ids(self) -> dict[str, str]:
         """Image name -> ``CAMERA_ID``, as ``read_colmap_camera_ids``."""

@@ -92,13 +92,20 @@ def spec_lines(text: str) -> list[list[str]]:
     return out
 
 
-def pick_entry(entries: dict[str, Any], name: str | None, error: type[SemCityLocError], what: str) -> Any:
-    """The entry called ``name`` (exact, then file name, then stem); the only one when name is None."""
+def pick_entry(
+    entries: dict[str, Any],
+    name: str | None,
+    error: type[SemCityLocError],
+    what: str,
+    choose: str = "pass the image name to choose one",
+) -> Any:
+    """The entry called ``name`` (exact, then file name, then stem); the only one when name is None.
+    ``choose``: how the message tells the caller to name one (``parameter``'s words: a flag on the CLI)."""
     if name is None:
         if len(entries) == 1:
             return next(iter(entries.values()))
         some = ", ".join(list(entries)[:3])
-        raise error(f"{len(entries)} {what}s ({some}, ...): pass the image name to choose one")
+        raise error(f"{len(entries)} {what}s ({some}, ...): {choose}")
     for key in (lambda n: n, lambda n: Path(n).name, lambda n: Path(n).stem):
         hits = [k for k in entries if key(k) == key(name)]
         if len(hits) == 1:
