@@ -493,6 +493,37 @@ def test_label_reads_a_runs_pose_records_and_names_the_photo_it_could_not_label(
     assert "not labelled: NOEXIF.JPG: the image has no 35 mm-equivalent focal length" in err
 
 
+def test_label_with_exif_intrinsics_says_once_that_the_35mm_focal_length_is_approximate(
+    city, tmp_path, capsys
+):
+    """Stop 55 audit: ``label --intrinsics exif`` used the approximate 35 mm-equivalent focal length (2.3 %
+    short on the thermal photo) without a word, where ``localize`` / ``run`` print the note; and ``exif``
+    was not in ``label --help``. Now the note, once per run, naming how many photos."""
+    from dji_photo import dji_jpeg
+    from semcityloc.datasets.photos import APPROXIMATE_INTRINSICS_NOTE
+
+    model, _ = city
+    photos, poses = tmp_path / "photos", tmp_path / "poses"
+    photos.mkdir()
+    poses.mkdir()
+    for stem in ("A", "B"):
+        dji_jpeg(photos / f"{stem}.JPG", None, size=(160, 120), focal_35mm=24)
+        pose = _world_pose(model, _centre(model, 90.0), pitch=20.0)
+        write_pose_json(poses / f"{stem}.json", pose_world=pose, extra={"status": "localized"})
+    model.save_npz(tmp_path / "city.npz")
+    parser = _label_parser()
+    args = parser.parse_args(
+        ["label", "--city", str(tmp_path / "city.npz"), "--images", str(photos), "--poses", str(poses),
+         "--intrinsics", "exif", "--out", str(tmp_path / "out")]
+    )  # fmt: skip
+    assert args.func(args) == 0
+    err = capsys.readouterr().err
+    assert err.count(APPROXIMATE_INTRINSICS_NOTE) == 1
+    assert f"semcityloc: note: 2 photos: {APPROXIMATE_INTRINSICS_NOTE}" in err
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert "'exif'" in sub.choices["label"].format_help()
+
+
 @pytest.mark.parametrize("margin", [-50.0, float("nan"), float("inf")])
 def test_an_extent_margin_that_is_no_distance_is_refused(city, margin):
     """``--extent-margin -50`` / nan / inf were taken, all giving the same labels (stop 50's audit)."""

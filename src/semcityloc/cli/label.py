@@ -15,7 +15,9 @@ naming photo, pose file and distance; the others are labelled.
 
 Intrinsics (``--intrinsics``): one file for every photo (a LoD-Loc ``*_intrinsic.txt``, a COLMAP line,
 JSON, ``fx,fy,cx,cy[,w,h]``), a COLMAP ``cameras.txt`` (several cameras: the camera id of each photo comes
-from the ``images.txt`` given as ``--poses``), or a folder of LoD-Loc ``<stem>_intrinsic.txt``. Without
+from the ``images.txt`` given as ``--poses``), a folder of LoD-Loc ``<stem>_intrinsic.txt``, or ``exif``
+(each photo's DJI calibration tags, else its 35 mm-equivalent focal length, approximate: a note says for
+how many photos, ``datasets.photos.APPROXIMATE_INTRINSICS_NOTE``). Without
 ``--intrinsics``: ``cameras.txt`` beside a COLMAP ``images.txt``, or the ``intrinsic/`` folder beside a
 LoD-Loc pose folder. The photo's own size always wins (intrinsics of another size are rescaled). With
 lens distortion in the intrinsics (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``, JSON ``k1 k2 p1 p2
@@ -33,8 +35,14 @@ from pathlib import Path
 from semcityloc.citymodel.pose_crs import check_camera_near_model
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.datasets.photos import IntrinsicsFiles, PoseFiles, list_images
-from semcityloc.errors import InputFileError, SemCityLocError
+from semcityloc.datasets.photos import (
+    APPROXIMATE_INTRINSICS_NOTE,
+    INTRINSICS_35MM,
+    IntrinsicsFiles,
+    PoseFiles,
+    list_images,
+)
+from semcityloc.errors import InputFileError, SemCityLocError, counted
 from semcityloc.geometry.distortion import distort_image
 from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
 from semcityloc.perception.autolabel import auto_label_render, label_overlay
@@ -59,7 +67,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--intrinsics",
         default=None,
-        help="file, COLMAP cameras.txt / cameras.bin, or folder of <stem>_intrinsic.txt (with lens "
+        help="file, COLMAP cameras.txt / cameras.bin, folder of <stem>_intrinsic.txt, or 'exif' (each "
+        "photo's DJI calibration tags, else its 35 mm-equivalent focal length: approximate) (with lens "
         "distortion, the labels are resampled onto the photo's distorted pixels)",
     )
     p.add_argument("--out", required=True, help="output folder for <stem>.png label maps")
@@ -107,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     written, skipped, failed, no_overlay = 0, [], {}, {}
+    approximate = 0  # photos whose camera is the EXIF's 35 mm-equivalent focal length (--intrinsics exif)
     for image in images:
         try:  # this photo's own files (its pose, size, intrinsics): its failure, not the run's end
             pose = poses.pose(image)
@@ -119,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
         except SemCityLocError as exc:
             failed[image.name] = str(exc)
             continue
+        approximate += lens.source == INTRINSICS_35MM  # said once, after the photos
         camera = lens.camera
         res = auto_label_render(
             model,
@@ -141,6 +152,11 @@ def run(args: argparse.Namespace) -> int:
         labelled = float((labels != IGNORE).mean())
         print(json.dumps({"image": image.name, "labelled": round(labelled, 4), "ignored": res.reasons}))
         written += 1
+    if approximate:
+        print(
+            f"semcityloc: note: {counted(approximate, 'photo')}: {APPROXIMATE_INTRINSICS_NOTE}",
+            file=sys.stderr,
+        )
     if skipped:
         print(
             f"no pose for {len(skipped)} image(s): {', '.join(skipped[:5])}"
