@@ -176,6 +176,34 @@ def test_crs_option(tmp_path):
         read_obj(path, crs="EPSG:999999999")
 
 
+def test_crs_and_lod_options_are_applied_warned_of_or_refused_for_obj_and_npz_as_for_citygml(tmp_path):
+    """Stop 55 audit: ``--crs`` and ``--lod`` were ignored without a word for a semcityloc ``.npz``, ``--crs``
+    replaced an OBJ header's CRS without the warning the CityGML reader gives, and ``--lod`` on an OBJ was
+    accepted silently. Now an override of another CRS warns as CityGML's does (and a ``.npz`` takes it), a
+    ``--lod`` an OBJ cannot apply warns, and one a ``.npz`` does not hold alone is refused."""
+    from semcityloc.citymodel.io import load_city_model
+    from semcityloc.errors import ParameterError, as_flags
+
+    header = "# semcityloc local frame: world = origin + vertex; origin 500000 5400000 0; crs EPSG:25832\n"
+    obj = write(tmp_path, header + cube_text(), "h.obj")
+    said = "crs='EPSG:25833' overrides the CRS the file states (EPSG:25832): the coordinates are read as"
+    model = load_city_model(obj, crs="EPSG:25833", lod=2, cache=False)
+    assert model.crs.to_epsg() == 25833 and any(said in w for w in model.stats.warnings)
+    assert "--lod 2 is ignored for an OBJ" in as_flags(" ".join(model.stats.warnings))
+    assert any(w.startswith("load_city_model(..., lod=2) is ignored") for w in model.stats.warnings)
+    assert load_city_model(obj, crs="EPSG:25832", cache=False).stats.warnings == []  # its own: no word
+    load_city_model(obj, cache=False).save_npz(tmp_path / "m.npz")
+    npz = load_city_model(tmp_path / "m.npz", crs="EPSG:25833")
+    assert npz.crs.to_epsg() == 25833 and any(said in w for w in npz.stats.warnings)
+    assert load_city_model(tmp_path / "m.npz", lod=1).crs.to_epsg() == 25832  # the LoD it holds
+    with pytest.raises(
+        ParameterError, match=r"m\.npz: a semcityloc \.npz holds the LoD it was converted with \(LoD1\)"
+    ):
+        load_city_model(tmp_path / "m.npz", lod=2)
+    read_obj(write(tmp_path, cube_text(), "bare.obj")).save_npz(tmp_path / "bare.npz")
+    assert load_city_model(tmp_path / "bare.npz", crs="EPSG:25832").crs.to_epsg() == 25832  # labelled
+
+
 def test_an_earth_centred_crs_is_refused_as_check_projected_refuses_it(tmp_path):
     """Stop 51: OBJ reading refused only geographic CRSs, so ``crs='EPSG:4978'`` (geocentric) loaded while a
     prior for the same CRS was refused; one rule now (``crs.check_projected``), for the option and the

@@ -221,6 +221,7 @@ PARAMETERS: dict[str, Parameter] = {
     "head": Parameter("get_segmentation_backend(..., head={})", "--backend-option head={}"),
     "pose_name": Parameter("read_pose(..., name='{}')", "--pose-name {}"),  # one pose of a multi-image file
     "crs": Parameter("crs='{}'", "--crs {}"),
+    "lod": Parameter("load_city_model(..., lod={})", "--lod {}"),
     "target_crs": Parameter("target_crs='{}'", "--crs {}"),
     "prior_sigma": Parameter("prior_uncertainty=PriorUncertainty.parse('{}')", "--prior-sigma {}"),
     "offset": Parameter("offset=({})", "--offset {}"),  # PhotoSpec(offset=(x, y, z))

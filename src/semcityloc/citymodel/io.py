@@ -19,10 +19,16 @@ import numpy as np
 from semcityloc.cache import cache_root
 from semcityloc.citymodel.citygml import read_citygml
 from semcityloc.citymodel.cityjson import read_cityjson
-from semcityloc.citymodel.crs import check_projected, ground_scale_problem, parse_crs_name
-from semcityloc.citymodel.model import CityModel
-from semcityloc.citymodel.obj import read_obj
-from semcityloc.errors import CRSError, InputFileError, UnsupportedFormatError, parameter
+from semcityloc.citymodel.crs import (
+    check_projected,
+    ground_scale_problem,
+    metric_crs,
+    overridden_warning,
+    parse_crs_name,
+)
+from semcityloc.citymodel.model import CityModel, crs_label
+from semcityloc.citymodel.obj import OBJ_LOD, read_obj
+from semcityloc.errors import CRSError, InputFileError, ParameterError, UnsupportedFormatError, parameter
 from semcityloc.io.stamps import file_sha256
 
 # Part of every parse-cache key: raised when the readers' output changes, so that no cached parse made
@@ -112,8 +118,10 @@ def load_city_model(
 
     Args:
         path: CityGML (1.0/2.0/3.0), CityJSON, OBJ or a semcityloc ``.npz``.
-        lod: LoD to keep (None: the highest each building has). Ignored for OBJ.
-        crs: override of the CRS the file states (or states nothing about), e.g. ``"EPSG:25832"``.
+        lod: LoD to keep (None: the highest each building has). Ignored for OBJ (with a warning); an
+            ``.npz`` that holds other LoDs is refused (``ParameterError``).
+        crs: override of the CRS the file states (or states nothing about), e.g. ``"EPSG:25832"``; an
+            override of another CRS is warned of (``model.stats.warnings``), for every format.
         target_crs: metric CRS to project a geographic source to (default: its UTM zone).
         cache: True for the default cache dir, a path for another, False to parse every time.
         origin: float64 (3,) origin of the local frame (default: the data's rounded centre); a tile store
@@ -131,7 +139,7 @@ def load_city_model(
     if fmt == "zip":
         raise UnsupportedFormatError(zip_message(path))
     if fmt == "npz":
-        return _checked_frame(CityModel.load_npz(path), path, crs)
+        return _checked_frame(_npz_options(CityModel.load_npz(path), path, lod, crs), path, crs)
 
     cache_file = None
     if cache:
@@ -174,6 +182,41 @@ def _checked_frame(model: CityModel, path: Path, crs_given: str | None = None) -
     return model
 
 
+def _npz_options(model: CityModel, path: Path, lod, crs: str | None) -> CityModel:
+    """A semcityloc ``.npz`` with the ``lod`` and ``crs`` options applied as far as they can be, as the
+    CityGML reader applies them: a ``crs`` labels a model that names none, and overrides another with the
+    reader's warning (``crs.overridden_warning``); a ``lod`` it does not hold alone is refused, since the
+    LoD was chosen when it was converted (they were ignored without a word)."""
+    if lod is not None and model.lods_present() != [lod]:
+        held = ", ".join(f"LoD{v}" for v in model.lods_present()) or "no triangles"
+        raise ParameterError(
+            f"{path}: a semcityloc .npz holds the LoD it was converted with ({held}), so "
+            f"{parameter('lod', lod)} cannot be applied to it: leave it out, or convert the CityGML / "
+            "CityJSON file again with it"
+        )
+    if crs is None:
+        return model
+    given = metric_crs(crs, f"the CRS {crs!r}")
+    stated = crs_label(model.crs)
+    if stated is not None:
+        said = overridden_warning(crs, stated)
+        if said is None:  # the same place: the model's own CRS (with its height system) is kept
+            return model
+        model.stats.warnings.append(said)
+    model.crs = model.source_crs = given
+    return model
+
+
+def _obj_lod_warning(model: CityModel, lod) -> CityModel:
+    """``model`` read from an OBJ, with a warning when a ``lod`` was asked for: an OBJ names none."""
+    if lod is not None:
+        model.stats.warnings.append(
+            f"{parameter('lod', lod)} is ignored for an OBJ, which names no LoD (every triangle is read as "
+            f"LoD{OBJ_LOD})"
+        )
+    return model
+
+
 def _key_value(value):
     """A cache-key option JSON does not write itself (a numpy integer LoD): its plain value or its text."""
     return value.item() if hasattr(value, "item") else str(value)
@@ -186,4 +229,4 @@ def _read(path: Path, fmt: str, lod, crs, target_crs, origin=None) -> CityModel:
     if fmt == "cityjson":
         return read_cityjson(path, lod=lod, target_crs=target, crs_override=crs, origin=origin)
 
-    return read_obj(path, crs=crs)
+    return _obj_lod_warning(read_obj(path, crs=crs), lod)

@@ -46,7 +46,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from semcityloc.citymodel.builder import MAX_ABS_COORDINATE_M, UNLABELLED, MeshBuilder, usable_points
-from semcityloc.citymodel.crs import metric_crs
+from semcityloc.citymodel.crs import metric_crs, overridden_warning
 from semcityloc.citymodel.limits import check_file_size
 from semcityloc.citymodel.model import CityModel, ParseStats
 from semcityloc.citymodel.triangulate import DUPLICATE_TOLERANCE_M, NONPLANAR_TOLERANCE_M, triangulate_polygon
@@ -90,6 +90,9 @@ def read_obj(path: str | Path, crs: str | None = None, z_up: bool = True) -> Cit
     stats = ParseStats()
     mesh = _parse(_read_text(path), path)
     crs_name = crs if crs is not None else mesh.header_crs
+    if crs is not None and mesh.header_crs is not None:  # as the CityGML reader says an srsName overridden
+        if (said := overridden_warning(crs, mesh.header_crs)) is not None:
+            stats.warnings.append(said)
     source_crs = None if crs_name is None else metric_crs(crs_name, f"the OBJ's CRS {crs_name!r}")
     verts = mesh.vertices if z_up else mesh.vertices @ Y_UP_TO_Z_UP.T
     if not len(mesh.face_len):
