@@ -60,6 +60,29 @@ def test_city_info_text_and_convert(city_paths, capsys, tmp_path):
     assert code == 0 and (tmp_path / "m.ply").stat().st_size > 1000
 
 
+def test_city_info_prints_the_world_bounding_box_and_dji_prior_explains_its_height_options(
+    city_paths, capsys
+):
+    """Stop 55 audit: ``city info`` printed the extent and origin but not where the model lies nor its z
+    range (what a pose's height is checked against); ``dataset dji-prior --source-height`` /
+    ``--target-height`` had no help text."""
+    from semcityloc.cli.main import build_parser
+
+    model = load_city_model(city_paths[2], cache=False)
+    (x0, y0, z0), (x1, y1, z1) = model.to_world(model.bounds_local)
+    code, out, _ = run(capsys, "city", "info", city_paths[2], "--no-cache")
+    assert code == 0
+    assert (
+        f"bounds:     x {x0:.1f} .. {x1:.1f}, y {y0:.1f} .. {y1:.1f}, z {z0:.1f} .. {z1:.1f} (world)" in out
+    )
+    code, out, _ = run(capsys, "city", "info", city_paths[2], "--json", "--no-cache")
+    np.testing.assert_allclose(json.loads(out)["bounds_world"], [[x0, y0, z0], [x1, y1, z1]], atol=1e-3)
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    dataset = next(a for a in sub.choices["dataset"]._actions if a.dest == "dataset_command")
+    text = " ".join(dataset.choices["dji-prior"].format_help().split())
+    assert "what the photo's AbsoluteAltitude is" in text and "what the model's z is" in text
+
+
 @pytest.mark.parametrize(
     "content, needle",
     [

@@ -30,6 +30,18 @@ def test_without_a_gpu_auto_is_numba_and_gpu_is_a_clear_error(city):
         Renderer(city, engine="gpu")
 
 
+@pytest.mark.skipif(GPU_OK, reason="a usable GPU is present: the no-GPU behaviour cannot be observed")
+def test_the_gpu_engines_refusal_names_the_flag_on_the_command_line(city):
+    """Stop 55 audit: ``render --engine gpu`` said "or use engine='numba'", a Python keyword, on the command
+    line. The hint goes through ``errors.PARAMETERS``: ``--engine numba`` there, ``engine='numba'`` in
+    Python."""
+    from semcityloc.errors import as_flags
+
+    with pytest.raises(RenderError, match="or use engine='numba'") as exc:
+        Renderer(city, engine="gpu")
+    assert as_flags(str(exc.value)).endswith("or use --engine numba")
+
+
 class _FakeGpuEngine:
     """Stands in for ``GpuEngine`` where the GPU stack "loads" (no GPU is needed to see who picks it)."""
 

@@ -222,6 +222,7 @@ PARAMETERS: dict[str, Parameter] = {
     "pose_name": Parameter("read_pose(..., name='{}')", "--pose-name {}"),  # one pose of a multi-image file
     "crs": Parameter("crs='{}'", "--crs {}"),
     "lod": Parameter("load_city_model(..., lod={})", "--lod {}"),
+    "engine": Parameter("engine='{}'", "--engine {}"),  # a Renderer's
     "target_crs": Parameter("target_crs='{}'", "--crs {}"),
     "prior_sigma": Parameter("prior_uncertainty=PriorUncertainty.parse('{}')", "--prior-sigma {}"),
     "offset": Parameter("offset=({})", "--offset {}"),  # PhotoSpec(offset=(x, y, z))

@@ -205,6 +205,12 @@ class CityModel:
             "lods": self.lods_present(),
             "extent_m": [round(float(v), 3) for v in self.extent_m] if self.num_triangles else [0, 0, 0],
             "origin": [float(v) for v in self.origin],
+            # the world (CRS) bounding box, [[x, y, z] min, [x, y, z] max]: where the model lies, its z range
+            "bounds_world": (
+                [[round(float(v), 3) for v in corner] for corner in self.to_world(self.bounds_local)]
+                if self.num_triangles
+                else None
+            ),
             "skipped": {
                 "degenerate_polygons": self.stats.degenerate_polygons,
                 "failed_triangulations": self.stats.failed_triangulations,

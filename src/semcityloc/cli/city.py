@@ -112,9 +112,18 @@ def run_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bounds_lines(bounds: list | None) -> list[str]:
+    """``city info``'s line of the model's world bounding box (its z range too), none for an empty one."""
+    if not bounds:
+        return []
+    (x0, y0, z0), (x1, y1, z1) = bounds
+    return [f"bounds:     x {x0:.1f} .. {x1:.1f}, y {y0:.1f} .. {y1:.1f}, z {z0:.1f} .. {z1:.1f} (world)"]
+
+
 def format_summary(s: dict) -> str:
     """``city info``'s text: a model summary (source, buildings, triangles, CRS, LoDs, extent, the local
-    frame's origin, per-class triangles and areas, skipped polygons, warnings) as aligned lines.
+    frame's origin, its world bounding box, per-class triangles and areas, skipped polygons, warnings) as
+    aligned lines.
     """
     dx, dy, dz = s["extent_m"]
     lines = [
@@ -126,6 +135,7 @@ def format_summary(s: dict) -> str:
         f"LoDs:       {', '.join(map(str, s['lods']))}",
         f"extent:     {dx:.1f} x {dy:.1f} x {dz:.1f} m",
         "origin:     " + " ".join(f"{v:.3f}" for v in s["origin"]) + "  (world = origin + local)",
+        *_bounds_lines(s.get("bounds_world")),
         "classes:    name        triangles       area m2",
     ]
     for name, count in s["class_triangles"].items():

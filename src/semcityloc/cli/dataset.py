@@ -76,8 +76,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     dji.add_argument("image", help="an original DJI photo (EXIF + XMP)")
     dji.add_argument("--crs", required=True, help="the city model's CRS, e.g. EPSG:25832 or EPSG:25832+7837")
     dji.add_argument("--offset", default=None, help="x,y,z subtracted from the CRS coordinates")
-    dji.add_argument("--source-height", default="auto", choices=SOURCE_HEIGHTS)
-    dji.add_argument("--target-height", default="auto", choices=TARGET_HEIGHTS)
+    dji.add_argument(
+        "--source-height",
+        default="auto",
+        choices=SOURCE_HEIGHTS,
+        help="what the photo's AbsoluteAltitude is (auto: WGS 84 ellipsoidal on an RTK aircraft, else "
+        "barometric, flagged as tens of metres uncertain; default %(default)s)",
+    )
+    dji.add_argument(
+        "--target-height",
+        default="auto",
+        choices=TARGET_HEIGHTS,
+        help="what the model's z is (auto: orthometric when --crs has a vertical datum or "
+        "--geoid-separation is given, else the source's; orthometric: EGM96 for a 2D CRS; "
+        "default %(default)s)",
+    )
     dji.add_argument("--geoid-separation", type=float, default=None, help="known geoid undulation N (m)")
     dji.add_argument("--out", default=None, help="write the pose JSON here (default: print it)")
     dji.set_defaults(func=run_dji_prior)

@@ -24,14 +24,16 @@ import importlib.util
 
 import numpy as np
 
-from semcityloc.errors import RenderError
+from semcityloc.errors import RenderError, parameter
 from semcityloc.geometry.camera import Camera
 from semcityloc.render.output import RenderOutput
 from semcityloc.render.scene import RenderScene
 
 GPU_NEAR_M = 1.0
 GPU_FAR_M = 100_000.0
-INSTALL_HINT = "pip install torch nvdiffrast (needs an NVIDIA GPU with CUDA); or use engine='numba'"
+INSTALL_HINT = (
+    f"pip install torch nvdiffrast (needs an NVIDIA GPU with CUDA); or use {parameter('engine', 'numba')}"
+)
 
 
 def gpu_status() -> tuple[bool, str]:
