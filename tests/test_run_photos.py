@@ -1307,11 +1307,12 @@ def test_intrinsics_of_another_image_are_that_photos_miss_or_skip_naming_file_an
     """Stop 50's audit: a calibration of another image (the thermal camera's K on the wide photo) was
     applied unchecked, and the photo ended "confidence below the acceptance probability". Now, as for a
     mask of another aspect: with a true pose a miss, else skipped, the reason naming the file, the photo
-    and both sizes. P0: a K of the photo at half its size (principal point 25 % off the photo's centre);
+    and both sizes. P0: a K of another image (principal point 25 % off the photo's centre, the centre of an
+    80x80 image: since stop 55 a K of the photo at half its size, 80x60, is rescaled as a stated size is);
     P2: intrinsics stating a 160x160 image (no resize of the 160x120 photo). P1 runs."""
     root = box_flight["root"]
-    half = CAM.scale(0.5)
-    np.savetxt(root / "intrinsic" / "P0_intrinsic.txt", np.hstack([half.K, np.zeros((3, 1))]))
+    other = Camera(CAM.fx / 2, CAM.fy / 2, 40.0, 40.0, 80, 80)
+    np.savetxt(root / "intrinsic" / "P0_intrinsic.txt", np.hstack([other.K, np.zeros((3, 1))]))
     square = {"fx": CAM.fx, "fy": CAM.fy, "cx": 80, "cy": 80, "width": 160, "height": 160}
     (root / "intrinsic" / "P2_intrinsic.txt").write_text(json.dumps(square))
     out = tmp_path / "out"
@@ -1319,9 +1320,9 @@ def test_intrinsics_of_another_image_are_that_photos_miss_or_skip_naming_file_an
     assert code == 0, err
     miss = _rows_by_name(out)["P0.JPG"]
     assert miss["status"] == "not_localized" and miss["err_xyz_m"] == "inf"
-    said = f"{root / 'intrinsic' / 'P0_intrinsic.txt'}: principal point (40, 30) lies 25 % of the image size "
+    said = f"{root / 'intrinsic' / 'P0_intrinsic.txt'}: principal point (40, 40) lies 25 % of the image size "
     assert said + "off the centre of photo P0.JPG (160x120" in miss["reason"]
-    assert "centre of a 80x60 image" in miss["reason"]
+    assert "centre of a 80x80 image" in miss["reason"]
     no_truth = box_flight["argv"][: box_flight["argv"].index("--truth")]
     code, _, err = run(capsys, *no_truth, "--out", tmp_path / "no_truth", "--stop-after", "0")
     assert code == 0, err
