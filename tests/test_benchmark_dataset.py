@@ -560,3 +560,22 @@ def test_an_estimate_re_found_with_a_scaled_focal_length_gets_its_own_colmap_cam
         for n, (c, _) in read_model(write_estimates_colmap(queries, tmp_path, tmp_path / "c")).poses().items()
     }
     assert cameras == {"Q0.JPG": cam, "Q1.JPG": with_focal_scale(cam, 0.976)}
+
+
+def test_a_lost_estimate_file_is_refused_naming_it_not_exported_short(dataset_dir, tmp_path):
+    """(stop 55) ``rm estimates/q0001.json`` after a finished run, then the same run again: exit 0, the
+    summary counting it localized and ``estimates_colmap/`` one image short, without a word. Refused now
+    naming the file and the remedy (delete its row, run again), as a photo run's lost ``poses/`` are."""
+    out = tmp_path / "run"
+    run_benchmark(spec(dataset_dir), out, progress=False)
+    (out / ESTIMATES_DIR / "q0001.json").unlink()
+    with pytest.raises(InputFileError, match=r"1 localized query has no usable estimate file \(q0001.json "):
+        run_benchmark(spec(dataset_dir), out, progress=False)
+    (out / ESTIMATES_DIR / "q0001.json").write_text((out / ESTIMATES_DIR / "q0000.json").read_text())
+    with pytest.raises(InputFileError, match=r"is the estimate of 'DJI_0001_W.JPG'.*delete its row"):
+        run_benchmark(spec(dataset_dir), out, progress=False)
+    rows = [r for r in read_results(out / "results.csv") if r["query_id"] != "q0001"]
+    write_rows(out / "results.csv", rows)
+    again = run_benchmark(spec(dataset_dir), out, progress=False)
+    assert again.complete and again.new_rows == 1
+    assert len(read_model(out / ESTIMATES_COLMAP_DIR).poses()) == 2

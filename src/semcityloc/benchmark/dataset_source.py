@@ -30,10 +30,11 @@ Frames: the data set's poses are world-frame (``LodLocQuery.gt_pose_world``); qu
 model's local frame at this boundary (``CityModel.pose_to_local``). ``results.csv`` also holds world
 coordinates. Each localized estimate is written as ``estimates/<query_id>.json`` in the world frame
 (``geometry.io.write_pose_json``) and, when every query is done, all of them as a COLMAP text model
-(``estimates_colmap/``) named by image. Oracle labels are rendered at no more than ``ORACLE_MAX_WIDTH``
-pixels wide (the localizer searches at 64 px anyway). Localizer: the ``default`` preset, whose search
-covers the prior's stated uncertainty (``prior_sigma``; default: DJI GNSS, +-30 m in height, which
-covers LoD-Loc's priors).
+(``estimates_colmap/``) named by image; a localized row whose estimate file is gone or unusable is refused
+then, naming it, as a photo run's lost ``poses/`` are (``check_estimates``, stop 55). Oracle labels are
+rendered at no more than ``ORACLE_MAX_WIDTH`` pixels wide (the localizer searches at 64 px anyway).
+Localizer: the ``default`` preset, whose search covers the prior's stated uncertainty (``prior_sigma``;
+default: DJI GNSS, +-30 m in height, which covers LoD-Loc's priors).
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ from semcityloc.errors import (
     BenchmarkError,
     InputFileError,
     LossyMaskError,
+    SemCityLocError,
     ShapeError,
     counted,
     parameter,
@@ -87,7 +89,7 @@ from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import covariance_dict
 from semcityloc.localization.focal_check import focal_scale_used, found_camera
 from semcityloc.localization.methods import Method
-from semcityloc.localization.result import LocalizationResult
+from semcityloc.localization.result import LOCALIZED, LocalizationResult
 from semcityloc.perception.autolabel import auto_label
 from semcityloc.perception.files import DEPTH_SUFFIXES, LOSSY_MASK_SUFFIXES, first_file, mask_suffixes
 from semcityloc.render import Renderer
@@ -335,6 +337,7 @@ class DatasetSpec:
         queries, _ = evaluable(self.load_dataset())
         if self.perception == PERCEPTION_MASKS:
             self._check_files(out_dir, rows, queries, summary)
+        check_estimates(out_dir, rows, queries)
         write_estimates_colmap(queries, out_dir, out_dir / ESTIMATES_COLMAP_DIR)
 
     def _check_files(
@@ -373,6 +376,41 @@ def _focal_scale(path: Path) -> float:
         return focal_scale_of(json.loads(path.read_text(encoding="utf-8")))
     except (OSError, ValueError):
         return 1.0
+
+
+def _estimate_problem(path: Path, name: str) -> str | None:
+    """Why ``path`` is no usable estimate of query ``name`` (None: it is): missing, unreadable, another
+    image's (a copied file)."""
+    if not path.is_file():
+        return "no estimate file"
+    try:
+        image = json.loads(path.read_text(encoding="utf-8")).get("extra", {}).get("image", name)
+        read_pose(path)
+    except (OSError, ValueError, AttributeError, SemCityLocError) as exc:
+        return f"unreadable ({exc})"
+    return None if image == name else f"is the estimate of {image!r}"
+
+
+def check_estimates(out_dir: Path, rows: list[dict[str, str]], queries: list[LodLocQuery]) -> None:
+    """Refuse (one line, before any export is written) a run whose localized rows lack a usable
+    ``estimates/<query_id>.json``: the COLMAP export is written from those files, so it would hold fewer
+    images than the summary counts localized, without a word (stop 55; a photo run's ``poses/``,
+    ``photo_exports.check_records``, stop 51). Deleting the row redoes that query."""
+    problems = {}
+    for row in rows:
+        index = int(row["index"])
+        if row.get("status") != LOCALIZED or index >= len(queries):
+            continue
+        why = _estimate_problem(out_dir / ESTIMATES_DIR / f"{row['query_id']}.json", queries[index].name)
+        if why:
+            problems[f"{row['query_id']}.json ({queries[index].name})"] = why
+    if problems:
+        shown = shown_names([f"{name}: {why}" for name, why in problems.items()])
+        count = f"{len(problems)} localized {'query has' if len(problems) == 1 else 'queries have'}"
+        raise InputFileError(
+            f"{out_dir / ESTIMATES_DIR}: {count} no usable estimate file ({shown}), so no exports were "
+            "written; " + redo_remedy(len(problems), out_dir / RESULTS_FILE, "query")
+        )
 
 
 def write_estimates_colmap(queries: list[LodLocQuery], out_dir: Path, folder: Path) -> Path:
