@@ -71,6 +71,7 @@ from semcityloc.benchmark.runfiles import (
     Progress,
     code_change_note,
     holds_rows,
+    kept_note,
     prepare_output,
     remove_entries,
     remove_stale_temps,
@@ -268,8 +269,11 @@ def _say_kept(out: Path, total: int, progress: bool | TextIO) -> None:
     with contextlib.suppress(SemCityLocError, OSError):  # the interruption is the news, not a damaged file
         done = len(read_results(out / RESULTS_FILE)) if (out / RESULTS_FILE).is_file() else 0
         if done:
-            note = f"semcityloc: note: {done}/{total} done and kept in {out}; the same command again goes on"
-            print(note, file=sys.stderr if isinstance(progress, bool) else progress, flush=True)
+            print(
+                kept_note(done, total, out),
+                file=sys.stderr if isinstance(progress, bool) else progress,
+                flush=True,
+            )
 
 
 def _run_locked(

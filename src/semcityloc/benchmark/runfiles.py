@@ -204,6 +204,12 @@ def writing(path: Path | str | None = None, folder: Path | str = "the run's fold
 _TMP_NAME = re.compile(r"^\.(?:.+\.(\d+)\.tmp(?:\.\w+)?|q\d+\.tmp\.json|cameras\.geojson\.tmp)$")
 
 
+def kept_note(done: int, total: int, out: Path | str) -> str:
+    """What an interrupted command that resumes says it keeps: ``done`` of ``total`` finished in ``out`` and
+    that the same command goes on (``run``, ``benchmark``, ``dataset benchmark``, ``label``)."""
+    return f"semcityloc: note: {done}/{total} done and kept in {out}; the same command again goes on"
+
+
 def remove_stale_temps(out_dir: Path, folders: tuple[str, ...] = ("",)) -> int:
     """Remove the temporary files of atomic writes in ``out_dir`` (and its ``folders``) that no live
     process owns: left by a run killed, or stopped by a full disk, between writing and renaming one. Only

@@ -4,6 +4,9 @@ PLY (binary little-endian) carries per-face ``class`` and ``building`` propertie
 colours from the class palette; OBJ carries one material per class (``usemtl roof`` ...) and a ``.mtl``
 with the palette. Both write world coordinates *relative to the model origin* (float32-safe) and record
 the origin and CRS in a header comment, so a viewer shows the model without precision loss.
+
+Every file is written whole or not at all (``io.files.write_atomic``; stop 55): a full disk or a Ctrl-C
+left a truncated PLY under its final name, which a viewer opens as a model missing its last faces.
 """
 
 from __future__ import annotations
@@ -15,6 +18,13 @@ import numpy as np
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.classes import CLASS_NAMES, PALETTE
 from semcityloc.errors import UnsupportedFormatError
+from semcityloc.io.files import write_atomic
+
+
+def export_paths(path: str | Path) -> list[Path]:
+    """The files ``export_model`` writes for ``path``: it, and an OBJ's ``.mtl`` beside it."""
+    path = Path(path)
+    return [path, path.with_suffix(".mtl")] if path.suffix.lower() == ".obj" else [path]
 
 
 def export_model(model: CityModel, path: str | Path) -> Path:
@@ -70,10 +80,7 @@ def write_ply(model: CityModel, path: str | Path) -> Path:
         "end_header\n"
     )
     path = Path(path)
-    with open(path, "wb") as fh:
-        fh.write(header.encode("ascii"))
-        fh.write(vertex.tobytes())
-        fh.write(face.tobytes())
+    write_atomic(path, header.encode("ascii") + vertex.tobytes() + face.tobytes())
     return path
 
 
@@ -81,11 +88,12 @@ def write_obj(model: CityModel, path: str | Path) -> Path:
     """OBJ with a material per class and an MTL file beside it; one ``o <building id>`` per building (what
     ``obj.read_obj`` reads back as the buildings), its faces grouped by class."""
     path = Path(path)
-    mtl = path.with_suffix(".mtl")
-    with open(mtl, "w", encoding="ascii") as fh:
-        for i, name in enumerate(CLASS_NAMES):
-            r, g, b = PALETTE[i] / 255.0
-            fh.write(f"newmtl {name}\nKd {r:.4f} {g:.4f} {b:.4f}\n\n")
+    mtl = export_paths(path)[1]
+    materials = []
+    for i, name in enumerate(CLASS_NAMES):
+        r, g, b = PALETTE[i] / 255.0
+        materials.append(f"newmtl {name}\nKd {r:.4f} {g:.4f} {b:.4f}\n\n")
+    write_atomic(mtl, "".join(materials).encode("ascii"))
     lines = [f"# {_header_comment(model)}", f"mtllib {mtl.name}"]
     lines.extend(f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in model.vertices)
     order = np.lexsort((model.classes, model.building_index))  # one sort, not a mask per building
@@ -97,5 +105,5 @@ def write_obj(model: CityModel, path: str | Path) -> Path:
             lines.append(f"usemtl {CLASS_NAMES[classes[i]]}")
         a, c, d = faces[i]
         lines.append(f"f {a} {c} {d}")
-    path.write_text("\n".join(lines) + "\n", encoding="ascii")
+    write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
     return path

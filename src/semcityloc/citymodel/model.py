@@ -17,6 +17,7 @@ import pyproj
 from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
 from semcityloc.errors import ArgumentTypeError, EmptyModelError, InputFileError, ShapeError
 from semcityloc.geometry.pose import Pose, float64_coordinates
+from semcityloc.io.files import removed_on_error
 
 
 @dataclass
@@ -239,17 +240,18 @@ class CityModel:
             "stats": self.stats.as_dict(),
         }
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(
-            tmp,
-            origin=self.origin,
-            vertices=self.vertices,
-            triangles=self.triangles,
-            classes=self.classes,
-            building_index=self.building_index,
-            lods=self.lods,
-            meta=np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8),
-        )
-        tmp.replace(path)
+        with removed_on_error(tmp):  # a full disk leaves no half-written temporary file either
+            np.savez(
+                tmp,
+                origin=self.origin,
+                vertices=self.vertices,
+                triangles=self.triangles,
+                classes=self.classes,
+                building_index=self.building_index,
+                lods=self.lods,
+                meta=np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8),
+            )
+            tmp.replace(path)
         return path
 
     @classmethod

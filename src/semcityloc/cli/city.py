@@ -7,11 +7,13 @@ import json
 import sys
 from pathlib import Path
 
+from semcityloc.benchmark.runfiles import writing
 from semcityloc.citymodel.cityjson import lod_key
-from semcityloc.citymodel.export import export_model
+from semcityloc.citymodel.export import export_model, export_paths
 from semcityloc.citymodel.generator import default_city_path
 from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import load_city
+from semcityloc.cli.outputs import check_outputs
 from semcityloc.errors import ParameterError
 
 
@@ -154,7 +156,9 @@ def run_convert(args: argparse.Namespace) -> int:
     """Run ``semcityloc city convert`` from its parsed arguments; the exit code (typed errors are left to
     ``cli.main``, which prints them as one line).
     """
+    check_outputs([(args.path, path) for path in export_paths(args.out)], [args.path], flag="OUT")
     model = _load(args)
-    out = export_model(model, args.out)
+    with writing(folder=Path(args.out).parent):  # a full disk, a folder in its place: one line, naming it
+        out = export_model(model, args.out)
     print(f"wrote {out} ({model.num_triangles} triangles)")
     return 0

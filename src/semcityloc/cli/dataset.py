@@ -26,7 +26,8 @@ from semcityloc.benchmark.results import is_skipped_miss, unreadable_row
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
-from semcityloc.datasets.colmap import ColmapModel, text_unreadable_names, write_model
+from semcityloc.cli.outputs import check_outputs
+from semcityloc.datasets.colmap import MODEL_KINDS, ColmapModel, text_unreadable_names, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
 from semcityloc.datasets.lodloc import FRAMES, read_lodloc
 from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
@@ -252,6 +253,11 @@ def run_overlay(args: argparse.Namespace) -> int:
     """
     ds = _dataset(args)
     queries = [ds.query(args.name)] if args.name else ds.queries
+    out = Path(args.out)
+    check_outputs(  # two scenes' queries of one stem would write one file; an input is never overwritten
+        [(q.name, out / f"{q.stem}_gt_vs_prior.png") for q in queries],
+        [ds.model_path, *(q.image_path for q in queries)],
+    )
     model = ds.load_model()
     renderer = Renderer(model, engine="numba")
     written = 0
@@ -265,7 +271,7 @@ def run_overlay(args: argparse.Namespace) -> int:
             continue
         image = read_image(q.image_path)
         figure = gt_vs_prior_figure(image, model, q.camera, q.gt_pose_world, q.prior_pose_world, renderer)
-        path = save_png(figure, Path(args.out) / f"{q.stem}_gt_vs_prior.png")
+        path = save_png(figure, out / f"{q.stem}_gt_vs_prior.png")
         print(f"wrote {path}")
         written += 1
     return 0 if written else 2
@@ -291,7 +297,13 @@ def run_colmap(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         entries = {name: entry for name, entry in entries.items() if name not in unreadable}
-    folder = write_model(ColmapModel.from_poses(entries), args.out, ext=".bin" if args.binary else ".txt")
+    ext = ".bin" if args.binary else ".txt"
+    out = Path(args.out)
+    check_outputs(
+        [(kind, out / f"{kind}{ext}") for kind in MODEL_KINDS],
+        [ds.model_path, args.split, *(q.image_path for q in ds.queries)],
+    )
+    folder = write_model(ColmapModel.from_poses(entries), out, ext=ext)
     print(f"wrote {len(entries)} {args.poses} poses to {folder}")
     return 0
 

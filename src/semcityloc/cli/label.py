@@ -23,6 +23,14 @@ LoD-Loc pose folder. The photo's own size always wins (intrinsics of another siz
 lens distortion in the intrinsics (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPLE_RADIAL``, JSON ``k1 k2 p1 p2
 k3``) the labels, rendered through the pinhole camera, are resampled onto the photo's own distorted pixels
 (``geometry.distortion.distort_image``; IGNORE where the pinhole render does not reach).
+
+Resuming (stop 55): a photo whose ``--out/<stem>.png`` exists is kept, not labelled again (every label map is
+written whole or not at all, ``io.files.write_atomic``, so one that exists is finished; a label corrected by
+hand stays): ``N of M already labelled, kept``. A Ctrl-C says how many are done and kept, and the same
+command goes on. ``--overwrite`` labels every photo again. Refused before any work
+(``cli.outputs.check_outputs``): an output that is an input (PNG photos and ``--out`` the same folder) and
+two photos of one stem (``X.JPG``, ``X.png``), which would write one ``X.png``. A write that fails (a full
+disk, a folder where the file goes) is one line (``benchmark.runfiles.writing``).
 """
 
 from __future__ import annotations
@@ -32,9 +40,11 @@ import json
 import sys
 from pathlib import Path
 
+from semcityloc.benchmark.runfiles import OVERLAYS_DIR, kept_note, remove_stale_temps, writing
 from semcityloc.citymodel.pose_crs import check_camera_near_model
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.cli.outputs import check_outputs
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
     INTRINSICS_35MM,
@@ -95,6 +105,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--overlay", action="store_true", help="also write overlays/<stem>.png (photo + labels)")
     p.add_argument("--engine", default="auto", choices=ENGINES, help="render engine (default auto)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="label every photo again (default: a photo whose <stem>.png exists in --out is kept, so a "
+        "stopped run goes on and labels corrected by hand stay)",
+    )
     p.set_defaults(func=run)
 
 
@@ -109,15 +125,38 @@ def run(args: argparse.Namespace) -> int:
     ``cli.main``, which prints them as one line).
     """
     images = list_images(Path(args.images))
-    model = load_model_from_args(args)
-    poses = PoseFiles(args.poses, model.crs)
-    intrinsics = IntrinsicsFiles(args.intrinsics, poses)
-    renderer = Renderer(model, engine=args.engine)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    outputs = [(image.name, out / f"{image.stem}.png") for image in images]
+    if args.overlay:
+        outputs += [(image.name, out / OVERLAYS_DIR / f"{image.stem}.png") for image in images]
+    check_outputs(outputs, [*images, args.poses, args.intrinsics, args.path])
+    with writing(folder=out):
+        out.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(out, ("", OVERLAYS_DIR))  # a stopped run's half-written temporary files
+    todo = images if args.overwrite else [i for i in images if not (out / f"{i.stem}.png").is_file()]
+    kept = len(images) - len(todo)
+    if kept:
+        print(f"{kept} of {len(images)} already labelled, kept (--overwrite labels them again)")
+    if not todo:
+        print(f"nothing to label: every photo's label map is in {out}")
+        return 0
+    try:
+        model = load_model_from_args(args)
+        poses = PoseFiles(args.poses, model.crs)
+        intrinsics = IntrinsicsFiles(args.intrinsics, poses)
+        renderer = Renderer(model, engine=args.engine)
+        return _label(args, images, todo, model, poses, intrinsics, renderer, out)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: what is kept, and that the same command goes on
+        done = sum((out / f"{i.stem}.png").is_file() for i in images)
+        print(kept_note(done, len(images), out), file=sys.stderr, flush=True)
+        raise
+
+
+def _label(args, images, todo, model, poses, intrinsics, renderer, out: Path) -> int:
+    """Label the photos ``todo`` (of ``images``) into ``out``; the exit code (``run``)."""
     written, skipped, failed, no_overlay = 0, [], {}, {}
     approximate = 0  # photos whose camera is the EXIF's 35 mm-equivalent focal length (--intrinsics exif)
-    for image in images:
+    for image in todo:
         try:  # this photo's own files (its pose, size, intrinsics): its failure, not the run's end
             pose = poses.pose(image)
             if pose is None:
@@ -143,12 +182,15 @@ def run(args: argparse.Namespace) -> int:
         )
         # Rendered through the pinhole camera; a distorting lens moves them onto the photo's own pixels.
         labels = distort_image(res.labels, camera, lens.distortion, fill=IGNORE, nearest=True)
-        save_labels_png(labels, out / f"{image.stem}.png")
-        if args.overlay:
+        if args.overlay:  # before the label map: the map's existence says the photo is finished
             try:  # the labels need the photo's size only; the overlay its pixels, which may not decode
-                save_rgb(label_overlay(load_image(image), labels), out / "overlays" / f"{image.stem}.png")
+                overlay = label_overlay(load_image(image), labels)
+                with writing(out / OVERLAYS_DIR / f"{image.stem}.png"):
+                    save_rgb(overlay, out / OVERLAYS_DIR / f"{image.stem}.png")
             except InputFileError as exc:
                 no_overlay[image.name] = str(exc)
+        with writing(out / f"{image.stem}.png"):
+            save_labels_png(labels, out / f"{image.stem}.png")
         labelled = float((labels != IGNORE).mean())
         print(json.dumps({"image": image.name, "labelled": round(labelled, 4), "ignored": res.reasons}))
         written += 1
@@ -167,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"semcityloc: warning: {what}: {named(name, why)}", file=sys.stderr)
         if len(problems) > SHOWN_PROBLEMS:
             print(f"semcityloc: warning: {len(problems) - SHOWN_PROBLEMS} more {what}", file=sys.stderr)
-    if written == 0:
+    if written == 0 and len(todo) == len(images):
         if failed:
             first = "; ".join(named(name, why) for name, why in list(failed.items())[:3])
             raise InputFileError(

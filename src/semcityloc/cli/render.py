@@ -4,6 +4,10 @@ With lens distortion in the intrinsics (COLMAP ``OPENCV`` / ``RADIAL`` / ``SIMPL
 k3``) everything is written in the photo's own distorted pixels: rendered through the pinhole camera, then
 resampled (``geometry.distortion.distort_image``; IGNORE / no depth / no edge where the pinhole render
 does not reach), so the overlays lie on the photo as it is.
+
+Its files (``OUTPUT_FILES``) are checked against its inputs before any work (``cli.outputs.check_outputs``:
+``--image out/labels.png`` would be overwritten); a write that fails is one line
+(``benchmark.runfiles.writing``), every file written whole or not at all (``io.files.write_atomic``).
 """
 
 from __future__ import annotations
@@ -15,15 +19,20 @@ from pathlib import Path
 
 import numpy as np
 
+from semcityloc.benchmark.runfiles import writing
 from semcityloc.citymodel.pose_crs import check_camera_near_model, read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
+from semcityloc.cli.outputs import check_outputs
 from semcityloc.cli.pose_input import add_pose_name_argument, photo_name, read_lens_for_photo
 from semcityloc.geometry.distortion import distort_image
 from semcityloc.io.images import image_size, load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
+
+# What ``render`` writes into ``--out`` (the overlays only with ``--image``).
+OUTPUT_FILES = ("labels.png", "depth.png", "depth.npy", "overlay_edges.png", "overlay_labels.png")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
     """Run ``semcityloc render`` from its parsed arguments; the exit code (typed errors are left to
     ``cli.main``, which prints them as one line).
     """
+    out = Path(args.out)
+    check_outputs(
+        [(name, out / name) for name in OUTPUT_FILES], [args.image, args.intrinsics, args.pose, args.path]
+    )
     # With --image the intrinsics must describe that photo: edges drawn with another camera's are misaligned
     camera, lens = read_lens_for_photo(args.intrinsics, args.width, args.height, args.image)
     if args.image and args.width is None and args.height is None:  # the photo's own size wins: labels,
@@ -70,8 +83,8 @@ def run(args: argparse.Namespace) -> int:
         camera = camera if camera.size == size else camera.scaled(*size)
     model = load_model_from_args(args)
     pose_world = read_pose_world(args.pose, model.crs, name=args.pose_name, photo=photo_name(args.image))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    with writing(folder=out):
+        out.mkdir(parents=True, exist_ok=True)
     renderer = Renderer(model, engine=args.engine)
     pose_local = model.pose_to_local(pose_world)
     check_camera_near_model(pose_local, model, args.pose)
@@ -80,11 +93,12 @@ def run(args: argparse.Namespace) -> int:
     labels = distort_image(view.labels[0], camera, lens, fill=IGNORE, nearest=True)
     depth = distort_image(view.depth[0], camera, lens, fill=np.nan, nearest=True)
     edges = distort_image(edges, camera, lens, fill=False, nearest=True)
-    written = [save_labels_png(labels, out / "labels.png"), *save_depth(depth, out / "depth.png")]
-    if args.image:
-        photo = load_image(args.image)
-        written.append(save_rgb(draw_edges(photo, edges), out / "overlay_edges.png"))
-        written.append(save_rgb(blend_labels(photo, labels), out / "overlay_labels.png"))
+    photo = load_image(args.image) if args.image else None
+    with writing(folder=out):  # the error names the file that failed
+        written = [save_labels_png(labels, out / "labels.png"), *save_depth(depth, out / "depth.png")]
+        if photo is not None:
+            written.append(save_rgb(draw_edges(photo, edges), out / "overlay_edges.png"))
+            written.append(save_rgb(blend_labels(photo, labels), out / "overlay_labels.png"))
     counts = {int(c): int((labels == c).sum()) for c in set(labels.reshape(-1).tolist())}
     print(json.dumps({"written": [str(p) for p in written], "pixels_per_class": counts}))
     if not np.isfinite(view.depth[0]).any():  # most often a pose in another frame or with other axes

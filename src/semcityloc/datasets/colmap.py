@@ -40,7 +40,13 @@ from pathlib import Path
 
 import numpy as np
 
-from semcityloc.errors import CameraError, InputFileError, UnsupportedFormatError, unknown_choice
+from semcityloc.errors import (
+    CameraError,
+    InputFileError,
+    OutputPathError,
+    UnsupportedFormatError,
+    unknown_choice,
+)
 from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.colmap_text import (
     CAMERA_MODELS,
@@ -581,15 +587,32 @@ _WRITERS = {
 }
 
 
+MODEL_KINDS = ("cameras", "images", "points3D")
+
+
+def model_file(folder: Path, kind: str) -> Path | None:
+    """``folder/<kind>.bin`` or ``.txt`` (``kind``: one of ``MODEL_KINDS``), None when neither is there.
+    Both there is an ``InputFileError`` naming both (stop 55): they are two models that may differ (a text
+    export written into a folder that held a binary one), and COLMAP's choice, binary first, read the one
+    the user had not just written, silently."""
+    found = [folder / f"{kind}{ext}" for ext in (".bin", ".txt") if (folder / f"{kind}{ext}").is_file()]
+    if len(found) > 1:
+        raise InputFileError(
+            f"{folder}: holds both {found[0].name} and {found[1].name}, a binary and a text COLMAP model "
+            "that may differ: remove the one not meant (or give the file itself)"
+        )
+    return found[0] if found else None
+
+
 def detect_model_format(path: str | os.PathLike) -> str:
-    """``".bin"`` or ``".txt"``: the format whose ``cameras`` and ``images`` files are in ``path``
-    (binary first, as COLMAP does)."""
+    """``".bin"`` or ``".txt"``: the format whose ``cameras`` and ``images`` files are in ``path``; a folder
+    holding either in both formats is refused (``model_file``)."""
     folder = Path(path)
     if not folder.is_dir():
         raise InputFileError(f"{folder}: no such COLMAP model folder")
-    for ext in (".bin", ".txt"):
-        if (folder / f"cameras{ext}").is_file() and (folder / f"images{ext}").is_file():
-            return ext
+    cameras, images = model_file(folder, "cameras"), model_file(folder, "images")
+    if cameras is not None and images is not None and cameras.suffix == images.suffix:
+        return cameras.suffix
     raise InputFileError(f"{folder}: no COLMAP model (cameras.bin + images.bin or cameras.txt + images.txt)")
 
 
@@ -616,6 +639,14 @@ def write_model(model: ColmapModel, path: str | os.PathLike, ext: str = ".bin") 
     if ext not in _WRITERS:
         raise UnsupportedFormatError(f"COLMAP model format must be '.bin' or '.txt', got {ext!r}")
     folder = Path(path)
+    other = ".txt" if ext == ".bin" else ".bin"
+    theirs = [f"{kind}{other}" for kind in MODEL_KINDS if (folder / f"{kind}{other}").is_file()]
+    if theirs:  # two models in one folder: a reader would choose one of them (``model_file``)
+        raise OutputPathError(
+            f"{folder}: holds a {'binary' if other == '.bin' else 'text'} COLMAP model already "
+            f"({', '.join(theirs)}); writing {ext} files beside it would leave two models that may differ: "
+            "remove those files or choose another folder"
+        )
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -44,7 +44,13 @@ import pyproj
 
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.pose_crs import check_declared_frame, read_pose_world
-from semcityloc.datasets.colmap import ColmapCamera, ColmapImage, read_cameras_binary, read_images_binary
+from semcityloc.datasets.colmap import (
+    ColmapCamera,
+    ColmapImage,
+    model_file,
+    read_cameras_binary,
+    read_images_binary,
+)
 from semcityloc.datasets.dji import (
     HEIGHT_AUTO,
     NO_HEADING_NOTE,
@@ -188,12 +194,10 @@ def per_stem_file(folder: Path, stem: str, suffix: str) -> Path | None:
 def colmap_file(path: Path, kind: str) -> Path | None:
     """The COLMAP ``<kind>.bin`` / ``<kind>.txt`` that ``path`` names: the file itself (``images.bin``, or
     any ``*.bin``: COLMAP text is read by ``geometry.io``), or the one in a model folder (``sparse/0``,
-    binary first as COLMAP reads it); None for anything else (a LoD-Loc folder, a pose file)."""
+    refused when it holds both formats, ``colmap.model_file``); None for anything else (a LoD-Loc folder, a
+    pose file)."""
     if path.is_dir():
-        for ext in (".bin", ".txt"):
-            if (path / f"{kind}{ext}").is_file():
-                return path / f"{kind}{ext}"
-        return None
+        return model_file(path, kind)  # both formats there: refused, naming both
     return path if path.suffix.lower() == ".bin" else None
 
 

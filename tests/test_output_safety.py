@@ -1,0 +1,192 @@
+"""Outputs that would overwrite an input, two inputs written to one file, writes that fail, ``label``'s resume
+and COLMAP's two formats in one folder (stop 55's audit of the commands that write files)."""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semcityloc.benchmark.warmup import box_city_obj
+from semcityloc.cli.main import main
+from semcityloc.datasets.colmap import ColmapModel, read_model, write_model
+from semcityloc.errors import InputFileError, OutputPathError
+from semcityloc.geometry.camera import Camera
+from semcityloc.geometry.conventions import colmap_qvec_tvec
+from semcityloc.geometry.pose import Pose
+from semcityloc.io.images import load_labels_png, save_labels_png, save_rgb
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+INTRINSICS = "100,100,64,48,128,96"
+POSE = "0,0,150,0,0,0"  # nadir over the box city's centre
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.fixture()
+def obj(tmp_path) -> Path:
+    path = tmp_path / "u.obj"
+    path.write_text(box_city_obj())
+    return path
+
+
+def posed_photos(tmp_path: Path, names: list[str]) -> tuple[Path, Path]:
+    """``names`` as 128 x 96 photos in ``tmp_path/photos``, each with a nadir pose in a COLMAP
+    ``images.txt`` (its ``cameras.txt`` beside it); returns (photos folder, images.txt)."""
+    photos = tmp_path / "photos"
+    lines = []
+    for i, name in enumerate(names):
+        save_rgb(np.full((96, 128, 3), 90 + i, np.uint8), photos / name)
+        q, t = colmap_qvec_tvec(Pose.from_xyz_rpy(np.array([10.0 * i, 0.0, 150.0]), 0.0, 0.0, 0.0))
+        lines.append(f"{i + 1} {' '.join(f'{v:.12g}' for v in (*q, *t))} 1 {name}\n\n")
+    (tmp_path / "images.txt").write_text("# COLMAP\n" + "".join(lines))
+    (tmp_path / "cameras.txt").write_text("1 PINHOLE 128 96 100 100 64 48\n")
+    return photos, tmp_path / "images.txt"
+
+
+def label(capsys, obj: Path, photos: Path, poses: Path, out: Path, *extra) -> tuple[int, str, str]:
+    return run(capsys, "label", "--city", obj, "--images", photos, "--poses", poses, "--out", out,
+               "--no-cache", *extra)  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ an output that is an input
+def test_label_into_its_own_png_photos_is_refused_and_the_photos_stay(obj, tmp_path, capsys):
+    photos, poses = posed_photos(tmp_path, ["A.png", "B.png"])
+    before = (photos / "A.png").read_bytes()
+    code, out, err = label(capsys, obj, photos, poses, photos)
+    errors = [line for line in err.splitlines() if line.startswith("semcityloc: error:")]
+    assert code == 2 and len(errors) == 1, err
+    assert "A.png is an input of this command: writing it would overwrite the input" in err
+    assert (photos / "A.png").read_bytes() == before
+
+
+def test_two_photos_of_one_stem_are_refused_naming_both(obj, tmp_path, capsys):
+    photos, poses = posed_photos(tmp_path, ["X.JPG", "X.png"])
+    code, out, err = label(capsys, obj, photos, poses, tmp_path / "labels")
+    assert code == 2 and "X.JPG and X.png would both be written to" in err, err
+    assert not (tmp_path / "labels" / "X.png").exists()
+
+
+def test_city_convert_onto_its_input_is_refused(obj, tmp_path, capsys):
+    before = obj.read_bytes()
+    code, _, err = run(capsys, "city", "convert", obj, obj, "--no-cache")
+    assert code == 2 and "would overwrite the input" in err, err
+    assert obj.read_bytes() == before
+    # through another spelling of the same path, and the OBJ's .mtl that another OBJ's export writes
+    code, _, err = run(capsys, "city", "convert", obj, tmp_path / "." / "u.obj", "--no-cache")
+    assert code == 2 and "would overwrite the input" in err
+    mtl = tmp_path / "m.mtl"
+    mtl.write_text("newmtl roof\n")
+    code, _, err = run(capsys, "city", "convert", mtl, tmp_path / "m.obj", "--no-cache")
+    assert code == 2 and "would overwrite the input" in err
+    assert mtl.read_text() == "newmtl roof\n"
+
+
+def test_render_onto_its_photo_is_refused(obj, tmp_path, capsys):
+    out = tmp_path / "r"
+    save_rgb(np.full((96, 128, 3), 50, np.uint8), out / "labels.png")
+    before = (out / "labels.png").read_bytes()
+    code, _, err = run(capsys, "render", "--city", obj, "--intrinsics", INTRINSICS, "--pose", POSE,
+                       "--image", out / "labels.png", "--out", out, "--no-cache")  # fmt: skip
+    assert code == 2 and "would overwrite the input" in err, err
+    assert (out / "labels.png").read_bytes() == before
+
+
+# ------------------------------------------------------------------------------ writes that fail
+def test_a_write_that_fails_is_one_line_and_leaves_no_partial_file(obj, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "r"
+    (out / "depth.png").mkdir(parents=True)  # a folder where the depth map goes
+    code, _, err = run(capsys, "render", "--city", obj, "--intrinsics", INTRINSICS, "--pose", POSE,
+                       "--out", out, "--no-cache")  # fmt: skip
+    assert code == 2 and "semcityloc: error: cannot write" in err and "depth.png" in err, err
+    assert "Traceback" not in err
+
+    photos, poses = posed_photos(tmp_path, ["A.png"])  # before the disk fills up
+    import semcityloc.io.files as files
+
+    real_open = open
+
+    def full_disk(path, mode="r", *args, **kwargs):
+        fh = real_open(path, mode, *args, **kwargs)
+        if "w" in mode and ".tmp" in str(path):
+            fh.close()
+            with real_open(path, "wb") as part:
+                part.write(b"ply\n")  # a few bytes, then the disk is full
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return fh
+
+    monkeypatch.setattr(files, "open", full_disk, raising=False)
+    for target in ("m.ply", "m.obj"):
+        code, _, err = run(capsys, "city", "convert", obj, tmp_path / "conv" / target, "--no-cache")
+        assert code == 2 and "No space left on device; free space" in err, (target, err)
+        assert not (tmp_path / "conv" / target).exists()
+        assert not [p for p in (tmp_path / "conv").iterdir() if ".tmp" in p.name]
+    code, _, err = label(capsys, obj, photos, poses, tmp_path / "labels")
+    assert code == 2 and "cannot write" in err and "A.png: No space left on device" in err, err
+    assert not (tmp_path / "labels" / "A.png").exists()
+
+
+# ------------------------------------------------------------------------------ label resumes
+def test_label_keeps_finished_and_hand_corrected_labels_unless_overwrite(obj, tmp_path, capsys):
+    photos, poses = posed_photos(tmp_path, ["A.png", "B.png", "C.png"])
+    out = tmp_path / "labels"
+    save_labels_png(np.full((96, 128), 3, np.uint8), out / "B.png")  # corrected by hand
+    code, stdout, _ = label(capsys, obj, photos, poses, out)
+    assert code == 0 and "1 of 3 already labelled, kept" in stdout and "wrote 2 label map(s)" in stdout
+    assert (load_labels_png(out / "B.png") == 3).all()
+    code, stdout, _ = label(capsys, obj, photos, poses, out)
+    assert code == 0 and "3 of 3 already labelled, kept" in stdout
+    code, stdout, _ = label(capsys, obj, photos, poses, out, "--overwrite")
+    assert code == 0 and "wrote 3 label map(s)" in stdout and "already labelled" not in stdout
+    assert not (load_labels_png(out / "B.png") == 3).all()
+
+
+def test_an_interrupted_label_run_says_what_it_kept(obj, tmp_path):
+    photos, poses = posed_photos(tmp_path, [f"P{i:02d}.png" for i in range(40)])
+    out = tmp_path / "labels"
+    cmd = [sys.executable, "-m", "semcityloc", "label", "--city", str(obj), "--images", str(photos),
+           "--poses", str(poses), "--out", str(out), "--no-cache"]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 120
+    while not (out / "P00.png").exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    done = len(list(out.glob("*.png")))
+    if proc.returncode == 0:  # finished before the signal came: nothing to say
+        pytest.skip("the run finished before it was interrupted")
+    assert proc.returncode == 130
+    assert f"{done}/40 done and kept in {out}; the same command again goes on" in err, err
+
+
+# ------------------------------------------------------------------------------ COLMAP's two formats
+def test_colmap_of_one_format_is_not_written_beside_the_other_and_both_are_refused_on_reading(tmp_path):
+    model = ColmapModel.from_poses(
+        {"a.jpg": (Camera(100.0, 100.0, 64.0, 48.0, 128, 96), Pose.from_xyz_rpy(np.zeros(3), 0, 0, 0))}
+    )
+    write_model(model, tmp_path / "cg", ".bin")
+    with pytest.raises(OutputPathError, match=r"holds a binary COLMAP model already \(cameras.bin"):
+        write_model(model, tmp_path / "cg", ".txt")
+    assert not (tmp_path / "cg" / "images.txt").exists()
+    write_model(model, tmp_path / "cg", ".bin")  # the same format again: replaced
+    write_model(model, tmp_path / "both", ".txt")
+    for name in ("cameras.bin", "images.bin"):
+        (tmp_path / "both" / name).write_bytes((tmp_path / "cg" / name).read_bytes())
+    with pytest.raises(InputFileError, match="holds both cameras.bin and cameras.txt"):
+        read_model(tmp_path / "both")
+    from semcityloc.datasets.photos import PoseFiles
+
+    with pytest.raises(InputFileError, match="holds both images.bin and images.txt"):
+        PoseFiles(tmp_path / "both")
