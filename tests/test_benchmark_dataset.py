@@ -569,7 +569,8 @@ def test_a_lost_estimate_file_is_refused_naming_it_not_exported_short(dataset_di
     out = tmp_path / "run"
     run_benchmark(spec(dataset_dir), out, progress=False)
     (out / ESTIMATES_DIR / "q0001.json").unlink()
-    with pytest.raises(InputFileError, match=r"1 localized query has no usable estimate file \(q0001.json "):
+    lost = r"1 localized query has no usable estimate file \(q0001.json of DJI_0002_W.JPG: no estimate file\)"
+    with pytest.raises(InputFileError, match=lost):
         run_benchmark(spec(dataset_dir), out, progress=False)
     (out / ESTIMATES_DIR / "q0001.json").write_text((out / ESTIMATES_DIR / "q0000.json").read_text())
     with pytest.raises(InputFileError, match=r"is the estimate of 'DJI_0001_W.JPG'.*delete its row"):

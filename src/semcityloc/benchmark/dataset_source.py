@@ -403,7 +403,7 @@ def check_estimates(out_dir: Path, rows: list[dict[str, str]], queries: list[Lod
             continue
         why = _estimate_problem(out_dir / ESTIMATES_DIR / f"{row['query_id']}.json", queries[index].name)
         if why:
-            problems[f"{row['query_id']}.json ({queries[index].name})"] = why
+            problems[f"{row['query_id']}.json of {queries[index].name}"] = why
     if problems:
         shown = shown_names([f"{name}: {why}" for name, why in problems.items()])
         count = f"{len(problems)} localized {'query has' if len(problems) == 1 else 'queries have'}"
