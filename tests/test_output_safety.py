@@ -103,6 +103,23 @@ def test_render_onto_its_photo_is_refused(obj, tmp_path, capsys):
     assert (out / "labels.png").read_bytes() == before
 
 
+def test_localize_onto_its_prior_and_dji_prior_onto_its_photo_are_refused(obj, tmp_path, capsys):
+    out = tmp_path / "r"
+    out.mkdir()
+    (out / "pose.json").write_text('{"position": [0, 0, 150], "roll": 0, "pitch": 0, "yaw": 0}\n')
+    save_labels_png(np.full((96, 128), 2, np.uint8), tmp_path / "mask.png")
+    before = (out / "pose.json").read_bytes()
+    argv = ["localize", "--city", obj, "--intrinsics", INTRINSICS, "--prior", out / "pose.json"]
+    code, _, err = run(capsys, *argv, "--semantic", tmp_path / "mask.png", "--out", out, "--no-cache")
+    assert code == 2 and "pose.json is an input of this command" in err, err
+    assert (out / "pose.json").read_bytes() == before
+    photo = tmp_path / "DJI_0001.JPG"
+    photo.write_bytes(b"\xff\xd8 a photo")
+    code, _, err = run(capsys, "dataset", "dji-prior", photo, "--crs", "EPSG:25832", "--out", photo)
+    assert code == 2 and "DJI_0001.JPG is an input of this command" in err, err
+    assert photo.read_bytes() == b"\xff\xd8 a photo"
+
+
 # ------------------------------------------------------------------------------ writes that fail
 def test_a_write_that_fails_is_one_line_and_leaves_no_partial_file(obj, tmp_path, capsys, monkeypatch):
     out = tmp_path / "r"

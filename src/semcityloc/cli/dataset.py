@@ -23,6 +23,7 @@ from semcityloc.benchmark.methods import available_methods
 from semcityloc.benchmark.perception_sim import SEG_PRESETS
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import is_skipped_miss, unreadable_row
+from semcityloc.benchmark.runfiles import writing
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO
 from semcityloc.cli.executor import run_from_args
 from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
@@ -34,6 +35,7 @@ from semcityloc.datasets.overlay import gt_vs_prior_figure, read_image, save_png
 from semcityloc.errors import InputFileError, ParameterError, as_flags, counted, shown_names
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose_json import pose_to_dict
+from semcityloc.io.files import write_atomic
 from semcityloc.localization.config import PRESETS
 from semcityloc.render import Renderer
 
@@ -313,6 +315,8 @@ def run_dji_prior(args: argparse.Namespace) -> int:
     ``cli.main``, which prints them as one line).
     """
     offset = parse_floats(args.offset, 3, "--offset")
+    if args.out:  # ``--out DJI_0001.JPG`` would replace the photo by its prior
+        check_outputs([(args.image, Path(args.out))], [args.image])
     prior = dji_prior(
         args.image,
         args.crs,
@@ -328,8 +332,9 @@ def run_dji_prior(args: argparse.Namespace) -> int:
     )
     text = json.dumps(data, indent=2)
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text + "\n", encoding="utf-8")
+        with writing(args.out):  # whole or not at all; a failure is one line
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            write_atomic(Path(args.out), text + "\n")
         print(f"wrote {args.out}")
     else:
         print(text)

@@ -10,10 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
+from semcityloc.benchmark.runfiles import writing
 from semcityloc.citymodel.model import crs_label
 from semcityloc.citymodel.pose_crs import read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args, print_model_warnings
+from semcityloc.cli.outputs import check_outputs
 from semcityloc.cli.pose_input import add_pose_name_argument, photo_name, read_lens_for_photo
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
@@ -252,6 +254,10 @@ def _pinhole_photo(path, lens: PhotoCamera, max_width: int | None = None) -> np.
     return undistort_image(image, lens.camera, lens.distortion, fill=0, nearest=False)
 
 
+# What ``localize`` writes into ``--out`` (the overlay only with a pose); checked against its inputs first.
+OUTPUT_FILES = ("pose.json", "overlay.png")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``semcityloc localize`` from its parsed arguments; the exit code (typed errors are left to
     ``cli.main``, which prints them as one line).
@@ -260,6 +266,11 @@ def run(args: argparse.Namespace) -> int:
     config = replace(LocalizerConfig.preset(args.preset).with_ablation(args.method), seed=args.seed)
     config = config.with_map_eaves(args.map_eaves, args.map_eaves_flat)  # checked here, before anything loads
     _check_files(args)
+    out = Path(args.out)
+    check_outputs(  # ``--prior out/pose.json`` would be replaced by the pose found from it
+        [(name, out / name) for name in OUTPUT_FILES],
+        [args.prior, args.image, args.semantic, args.depth, args.intrinsics, args.path],
+    )
     if config.no_depth and (args.depth or args.depth_backend):
         print(
             f"semcityloc: warning: --method {args.method} localizes without depth: the depth is not used",
@@ -286,8 +297,13 @@ def run(args: argparse.Namespace) -> int:
     for warning in result.warnings:
         print(f"semcityloc: warning: {warning}", file=sys.stderr)
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    with writing(folder=out):  # a full disk, a file where the folder goes: one line, naming it
+        out.mkdir(parents=True, exist_ok=True)
+        return _write_result(args, out, model, localizer, result, config, camera, lens, labels)
+
+
+def _write_result(args, out: Path, model, localizer, result, config, camera, lens, labels) -> int:
+    """``pose.json`` (and with a pose ``overlay.png``) into ``out``, the summary printed; the exit code."""
     crs = crs_label(model.crs)
     record = result.to_dict(model.origin, crs)  # the pose, if any, in CRS coordinates
     # The map searched: its eaves, and whether the pose was found with them on the flat roofs too.

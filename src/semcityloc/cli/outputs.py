@@ -9,7 +9,8 @@ read-only mounts and immutable folders, which permission bits do not show (root 
 them may be one of its inputs (``label --images photos --out photos`` of PNG photos replaced each photo by
 its label map; ``city convert u.obj u.obj`` the user's model), and no two inputs may write one file
 (``X.JPG`` and ``X.png`` both to ``X.png``, the second overwriting the first). ``label``, ``render``,
-``city convert``, ``dataset overlay`` and ``dataset colmap`` call it before any work.
+``localize``, ``city convert``, ``dataset overlay``, ``dataset colmap`` and ``dataset dji-prior`` call it
+before any work.
 """
 
 from __future__ import annotations
