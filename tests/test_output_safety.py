@@ -120,6 +120,23 @@ def test_localize_onto_its_prior_and_dji_prior_onto_its_photo_are_refused(obj, t
     assert photo.read_bytes() == b"\xff\xd8 a photo"
 
 
+def test_dataset_overlay_of_two_scenes_with_one_photo_name_is_refused_naming_both(obj, tmp_path, capsys):
+    from semcityloc.datasets.lodloc import LodLocQuery, write_lodloc_scene
+
+    cam = Camera(100.0, 100.0, 64.0, 48.0, 128, 96)
+    gt = Pose.from_xyz_rpy(np.array([0.0, 0.0, 150.0]), 0.0, 0.0, 0.0)
+    prior = Pose.from_xyz_rpy(np.array([5.0, 0.0, 150.0]), 0.0, 0.0, 5.0)
+    for scene in ("s1", "s2"):
+        write_lodloc_scene(
+            tmp_path / "ds" / scene,
+            [LodLocQuery("P.JPG", scene, cam, gt_pose_world=gt, prior_pose_world=prior)],
+        )
+        save_rgb(np.zeros((96, 128, 3), np.uint8), tmp_path / "ds" / scene / "Query_image" / "P.JPG")
+    code, _, err = run(capsys, "dataset", "overlay", tmp_path / "ds", "--city", obj, "--out", tmp_path / "o")
+    assert code == 2 and "s1/P.JPG and s2/P.JPG would both be written to" in err, err
+    assert not (tmp_path / "o" / "P_gt_vs_prior.png").exists()
+
+
 # ------------------------------------------------------------------------------ writes that fail
 def test_a_write_that_fails_is_one_line_and_leaves_no_partial_file(obj, tmp_path, capsys, monkeypatch):
     out = tmp_path / "r"

@@ -257,7 +257,7 @@ def run_overlay(args: argparse.Namespace) -> int:
     queries = [ds.query(args.name)] if args.name else ds.queries
     out = Path(args.out)
     check_outputs(  # two scenes' queries of one stem would write one file; an input is never overwritten
-        [(q.name, out / f"{q.stem}_gt_vs_prior.png") for q in queries],
+        [(f"{q.scene}/{q.name}" if q.scene else q.name, out / f"{q.stem}_gt_vs_prior.png") for q in queries],
         [ds.model_path, *(q.image_path for q in queries)],
     )
     model = ds.load_model()

@@ -87,10 +87,10 @@ def check_outputs(
         key = _file_key(Path(given))
         if key is not None and Path(given).is_file():
             keys.setdefault(key, Path(given))
-    written: dict[str, str] = {}
-    for source, path in outputs:
-        source_of = written.setdefault(os.path.normcase(os.path.realpath(path)), source)
-        if source_of != source:
+    written: dict[str, tuple[int, str]] = {}
+    for index, (source, path) in enumerate(outputs):
+        first, source_of = written.setdefault(os.path.normcase(os.path.realpath(path)), (index, source))
+        if first != index:
             raise OutputPathError(
                 f"{source_of} and {source} would both be written to {path} (the second replacing the first): "
                 "rename one of them or write them to separate folders"
