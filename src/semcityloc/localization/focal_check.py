@@ -200,7 +200,7 @@ def nadir_warning(record: dict) -> str:
         f"straight down, under the {record['min_oblique_deg']:g} deg the check needs): seen from above, "
         "focal length and height are one unknown, so the pose was neither checked nor found again with "
         "another focal length, and a focal length x % off places the camera about x % too high or too low. "
-        f"Give the camera's calibrated intrinsics ({parameter('intrinsics', 'FILE')}, docs/your-data.md "
+        f"Give the camera's calibrated intrinsics ({parameter('calibrated_camera')}, docs/your-data.md "
         "section 4), or estimate the focal length from the flight's oblique photos "
         f"({parameter('calibrate_focal', 'on')})"
     )
