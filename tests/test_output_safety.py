@@ -4,11 +4,13 @@ and COLMAP's two formats in one folder (stop 55's audit of the commands that wri
 from __future__ import annotations
 
 import errno
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from semcityloc.benchmark.runfiles import LOCK_FILE, run_lock
 from semcityloc.benchmark.warmup import box_city_obj
 from semcityloc.cli.main import main
 from semcityloc.datasets.colmap import ColmapModel, read_model, write_model
@@ -205,6 +207,25 @@ def test_an_interrupted_label_run_says_what_it_kept(obj, tmp_path, capsys, monke
     monkeypatch.setattr(cli_label, "save_labels_png", real_save)
     code, stdout, _ = label(capsys, obj, photos, poses, out)
     assert code == 0 and "2 of 5 already labelled, kept" in stdout and "wrote 3 label map(s)" in stdout
+
+
+def test_a_second_label_run_into_one_folder_is_refused_and_a_stale_lock_taken_over(obj, tmp_path, capsys):
+    """Two ``label`` runs into one --out at once (stop 56): the second is refused in one line naming the
+    folder and the first's pid, as ``run`` says it; a lock a killed run left is taken over, saying so."""
+    photos, poses = posed_photos(tmp_path, ["A.png"])
+    out = tmp_path / "labels"
+    with run_lock(out):  # another run holds the folder
+        code, _, err = label(capsys, obj, photos, poses, out)
+        errors = [line for line in err.splitlines() if line.startswith("semcityloc: error:")]
+        assert code == 2 and len(errors) == 1, err
+        assert f"{out} is in use by another run (pid {os.getpid()}" in err, err
+        assert "wait for it to finish or choose another --out" in err, err
+        assert not (out / "A.png").exists()
+    (out / LOCK_FILE).write_text('{"pid": 999999999, "host": "h", "started": "2026-01-01T00:00:00"}\n')
+    code, stdout, err = label(capsys, obj, photos, poses, out)
+    assert code == 0 and "wrote 1 label map(s)" in stdout, err
+    assert "taking over the stale lock of a run that ended (pid 999999999" in err, err
+    assert not (out / LOCK_FILE).exists()
 
 
 # ------------------------------------------------------------------------------ COLMAP's two formats

@@ -30,7 +30,9 @@ hand stays): ``N of M already labelled, kept``. A Ctrl-C says how many are done 
 command goes on. ``--overwrite`` labels every photo again. Refused before any work
 (``cli.outputs.check_outputs``): an output that is an input (PNG photos and ``--out`` the same folder) and
 two photos of one stem (``X.JPG``, ``X.png``), which would write one ``X.png``. A write that fails (a full
-disk, a folder where the file goes) is one line (``benchmark.runfiles.writing``).
+disk, a folder where the file goes) is one line (``benchmark.runfiles.writing``). One run at a time writes
+a folder (stop 56): ``label`` holds ``--out/run.lock`` as ``run`` does (``benchmark.runfiles.run_lock``), so
+a second run into it is refused naming the first's pid, and a lock a killed run left is taken over.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ import json
 import sys
 from pathlib import Path
 
-from semcityloc.benchmark.runfiles import OVERLAYS_DIR, kept_note, remove_stale_temps, writing
+from semcityloc.benchmark.runfiles import OVERLAYS_DIR, kept_note, remove_stale_temps, run_lock, writing
 from semcityloc.citymodel.pose_crs import check_camera_near_model
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
@@ -132,6 +134,12 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(outputs, [*images, args.poses, args.intrinsics, args.path])
     with writing(folder=out):
         out.mkdir(parents=True, exist_ok=True)
+    with run_lock(out):  # one run at a time writes a folder, as ``run`` and ``benchmark``
+        return _run_locked(args, images, out)
+
+
+def _run_locked(args: argparse.Namespace, images: list[Path], out: Path) -> int:
+    """``run`` once it holds ``out``'s lock: what is kept, then the photos to label."""
     remove_stale_temps(out, ("", OVERLAYS_DIR))  # a stopped run's half-written temporary files
     todo = images if args.overwrite else [i for i in images if not (out / f"{i.stem}.png").is_file()]
     kept = len(images) - len(todo)
