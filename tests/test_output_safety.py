@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from semcityloc.benchmark.runfiles import LOCK_FILE, run_lock
 from semcityloc.benchmark.warmup import box_city_obj
@@ -19,6 +20,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import colmap_qvec_tvec
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_labels_png, save_labels_png, save_rgb
+from semcityloc.perception.autolabel import label_overlay
 
 INTRINSICS = "100,100,64,48,128,96"
 POSE = "0,0,150,0,0,0"  # nadir over the box city's centre
@@ -207,6 +209,36 @@ def test_an_interrupted_label_run_says_what_it_kept(obj, tmp_path, capsys, monke
     monkeypatch.setattr(cli_label, "save_labels_png", real_save)
     code, stdout, _ = label(capsys, obj, photos, poses, out)
     assert code == 0 and "2 of 5 already labelled, kept" in stdout and "wrote 3 label map(s)" in stdout
+
+
+def test_a_resumed_label_run_with_overlay_draws_the_overlays_a_run_without_it_left_out(obj, tmp_path, capsys):
+    """Labelled without --overlay, then the same with it (stop 56): each kept photo's missing overlay is
+    drawn from its kept label map (a hand correction shows), not left out, and the summary line says so."""
+    photos, poses = posed_photos(tmp_path, ["A.png", "B.png", "C.png"])
+    out = tmp_path / "labels"
+    code, stdout, _ = label(capsys, obj, photos, poses, out)
+    assert code == 0 and "wrote 3 label map(s)" in stdout and not (out / "overlays").exists()
+    save_labels_png(np.full((96, 128), 3, np.uint8), out / "B.png")  # corrected by hand
+    (out / "C.png").unlink()  # labelled again, with its overlay
+    code, stdout, err = label(capsys, obj, photos, poses, out, "--overlay")
+    assert code == 0 and "2 of 3 already labelled, kept" in stdout, err
+    assert "wrote 1 label map(s)" in stdout and "2 missing overlays drawn from the kept label maps" in stdout
+    assert sorted(p.name for p in (out / "overlays").iterdir()) == ["A.png", "B.png", "C.png"]
+    b = np.asarray(Image.open(out / "overlays" / "B.png"))
+    assert (
+        b[10, 10].tolist()
+        == label_overlay(np.full((96, 128, 3), 91, np.uint8), np.full((96, 128), 3))[10, 10].tolist()
+    )  # the corrected map's class, not a fresh render's
+    code, stdout, _ = label(capsys, obj, photos, poses, out, "--overlay")
+    assert code == 0 and stdout.strip().endswith(f"nothing to label: every photo's label map is in {out}")
+    (out / "overlays" / "A.png").unlink()
+    save_labels_png(np.full((48, 64), 3, np.uint8), out / "B.png")  # another size: named, not drawn
+    (out / "overlays" / "B.png").unlink()
+    code, stdout, err = label(capsys, obj, photos, poses, out, "--overlay")
+    assert code == 0 and "; 1 missing overlay drawn from the kept label maps" in stdout, err
+    assert (
+        f"warning: kept, no overlay: the kept label map {out / 'B.png'} is 64x48 pixels, B.png 128x96" in err
+    )
 
 
 def test_a_second_label_run_into_one_folder_is_refused_and_a_stale_lock_taken_over(obj, tmp_path, capsys):

@@ -27,12 +27,17 @@ k3``) the labels, rendered through the pinhole camera, are resampled onto the ph
 Resuming (stop 55): a photo whose ``--out/<stem>.png`` exists is kept, not labelled again (every label map is
 written whole or not at all, ``io.files.write_atomic``, so one that exists is finished; a label corrected by
 hand stays): ``N of M already labelled, kept``. A Ctrl-C says how many are done and kept, and the same
-command goes on. ``--overwrite`` labels every photo again. Refused before any work
-(``cli.outputs.check_outputs``): an output that is an input (PNG photos and ``--out`` the same folder) and
-two photos of one stem (``X.JPG``, ``X.png``), which would write one ``X.png``. A write that fails (a full
-disk, a folder where the file goes) is one line (``benchmark.runfiles.writing``). One run at a time writes
-a folder (stop 56): ``label`` holds ``--out/run.lock`` as ``run`` does (``benchmark.runfiles.run_lock``), so
-a second run into it is refused naming the first's pid, and a lock a killed run left is taken over.
+command goes on. ``--overwrite`` labels every photo again. With ``--overlay``, a kept photo without its
+overlay (labelled by a run without ``--overlay``) gets one drawn from its kept label map (stop 56: what the
+folder holds, a hand correction too, and no render), which the summary line counts (``K missing overlays
+drawn from the kept label maps``); a map of another size than its photo is named in a warning.
+
+Refused before any work (``cli.outputs.check_outputs``): an output that is an input (PNG photos and
+``--out`` the same folder) and two photos of one stem (``X.JPG``, ``X.png``), which would write one
+``X.png``. A write that fails (a full disk, a folder where the file goes) is one line
+(``benchmark.runfiles.writing``). One run at a time writes a folder (stop 56): ``label`` holds
+``--out/run.lock`` as ``run`` does (``benchmark.runfiles.run_lock``), so a second run into it is refused
+naming the first's pid, and a lock a killed run left is taken over.
 """
 
 from __future__ import annotations
@@ -41,6 +46,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from semcityloc.benchmark.runfiles import OVERLAYS_DIR, kept_note, remove_stale_temps, run_lock, writing
 from semcityloc.citymodel.pose_crs import check_camera_near_model
@@ -56,7 +63,7 @@ from semcityloc.datasets.photos import (
 )
 from semcityloc.errors import InputFileError, SemCityLocError, counted
 from semcityloc.geometry.distortion import distort_image
-from semcityloc.io.images import image_size, load_image, save_labels_png, save_rgb
+from semcityloc.io.images import image_size, load_image, load_labels_png, save_labels_png, save_rgb
 from semcityloc.perception.autolabel import auto_label_render, label_overlay
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
@@ -141,27 +148,80 @@ def run(args: argparse.Namespace) -> int:
 def _run_locked(args: argparse.Namespace, images: list[Path], out: Path) -> int:
     """``run`` once it holds ``out``'s lock: what is kept, then the photos to label."""
     remove_stale_temps(out, ("", OVERLAYS_DIR))  # a stopped run's half-written temporary files
-    todo = images if args.overwrite else [i for i in images if not (out / f"{i.stem}.png").is_file()]
-    kept = len(images) - len(todo)
+    kept = [] if args.overwrite else [i for i in images if (out / f"{i.stem}.png").is_file()]
+    finished = set(kept)
+    todo = [i for i in images if i not in finished]
     if kept:
-        print(f"{kept} of {len(images)} already labelled, kept (--overwrite labels them again)")
-    if not todo:
-        print(f"nothing to label: every photo's label map is in {out}")
-        return 0
+        print(f"{len(kept)} of {len(images)} already labelled, kept (--overwrite labels them again)")
     try:
+        drawn = _kept_overlays(kept, out) if args.overlay else 0
+        if not todo:
+            print(f"nothing to label: every photo's label map is in {out}{drawn_note(drawn)}")
+            return 0
         model = load_model_from_args(args)
         poses = PoseFiles(args.poses, model.crs)
         intrinsics = IntrinsicsFiles(args.intrinsics, poses)
         renderer = Renderer(model, engine=args.engine)
-        return _label(args, images, todo, model, poses, intrinsics, renderer, out)
+        return _label(args, images, todo, model, poses, intrinsics, renderer, out, drawn)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: what is kept, and that the same command goes on
         done = sum((out / f"{i.stem}.png").is_file() for i in images)
         print(kept_note(done, len(images), out), file=sys.stderr, flush=True)
         raise
 
 
-def _label(args, images, todo, model, poses, intrinsics, renderer, out: Path) -> int:
-    """Label the photos ``todo`` (of ``images``) into ``out``; the exit code (``run``)."""
+def drawn_note(drawn: int) -> str:
+    """What the summary line adds when overlays were drawn from kept label maps (``_kept_overlays``)."""
+    return f"; {counted(drawn, 'missing overlay')} drawn from the kept label maps" if drawn else ""
+
+
+def _draw_overlay(image: Path, labels: np.ndarray | Path, out: Path) -> str | None:
+    """Write ``out/overlays/<stem>.png``: the photo ``image`` with ``labels`` over it (or those of the label
+    map file ``labels`` names, a kept one). None, or why it could not be drawn: the photo's pixels do not
+    decode (its labels need its size only), a kept map that cannot be read or is of another size."""
+    try:
+        if isinstance(labels, Path):
+            labels = load_labels_png(labels)
+        photo = load_image(image)
+    except InputFileError as exc:
+        return str(exc)
+    if labels.shape != photo.shape[:2]:  # a map made or corrected by hand at another size
+        (h, w), (ph, pw) = labels.shape, photo.shape[:2]
+        return f"the kept label map {out / f'{image.stem}.png'} is {w}x{h} pixels, {image.name} {pw}x{ph}"
+    path = out / OVERLAYS_DIR / f"{image.stem}.png"
+    with writing(path):
+        save_rgb(label_overlay(photo, labels), path)
+    return None
+
+
+def _kept_overlays(kept: list[Path], out: Path) -> int:
+    """Draw the overlay of each ``kept`` photo that has none (labelled by a run without ``--overlay``; stop
+    56) from its kept label map: the labels the folder holds, a hand correction too, without rendering
+    again. Warns for those it could not draw; returns how many it drew."""
+    drawn, problems = 0, {}
+    for image in kept:
+        if (out / OVERLAYS_DIR / f"{image.stem}.png").is_file():
+            continue
+        why = _draw_overlay(image, out / f"{image.stem}.png", out)
+        if why is None:
+            drawn += 1
+        else:
+            problems[image.name] = why
+    warn("kept, no overlay", problems)
+    return drawn
+
+
+def warn(what: str, problems: dict[str, str]) -> None:
+    """One ``semcityloc: warning: WHAT: photo: why`` line for each of the first ``SHOWN_PROBLEMS``
+    ``problems`` (photo name: why), then how many more."""
+    for name, why in list(problems.items())[:SHOWN_PROBLEMS]:
+        print(f"semcityloc: warning: {what}: {named(name, why)}", file=sys.stderr)
+    if len(problems) > SHOWN_PROBLEMS:
+        print(f"semcityloc: warning: {len(problems) - SHOWN_PROBLEMS} more {what}", file=sys.stderr)
+
+
+def _label(args, images, todo, model, poses, intrinsics, renderer, out: Path, drawn: int) -> int:
+    """Label the photos ``todo`` (of ``images``) into ``out``; the exit code (``run``). ``drawn``: the
+    overlays drawn from kept label maps before (``_kept_overlays``), for the summary line."""
     written, skipped, failed, no_overlay = 0, [], {}, {}
     approximate = 0  # photos whose camera is the EXIF's 35 mm-equivalent focal length (--intrinsics exif)
     for image in todo:
@@ -191,12 +251,9 @@ def _label(args, images, todo, model, poses, intrinsics, renderer, out: Path) ->
         # Rendered through the pinhole camera; a distorting lens moves them onto the photo's own pixels.
         labels = distort_image(res.labels, camera, lens.distortion, fill=IGNORE, nearest=True)
         if args.overlay:  # before the label map: the map's existence says the photo is finished
-            try:  # the labels need the photo's size only; the overlay its pixels, which may not decode
-                overlay = label_overlay(load_image(image), labels)
-                with writing(out / OVERLAYS_DIR / f"{image.stem}.png"):
-                    save_rgb(overlay, out / OVERLAYS_DIR / f"{image.stem}.png")
-            except InputFileError as exc:
-                no_overlay[image.name] = str(exc)
+            why = _draw_overlay(image, labels, out)
+            if why is not None:
+                no_overlay[image.name] = why
         with writing(out / f"{image.stem}.png"):
             save_labels_png(labels, out / f"{image.stem}.png")
         labelled = float((labels != IGNORE).mean())
@@ -212,11 +269,8 @@ def _label(args, images, todo, model, poses, intrinsics, renderer, out: Path) ->
             f"no pose for {len(skipped)} image(s): {', '.join(skipped[:5])}"
             + (" ..." if len(skipped) > 5 else "")
         )
-    for what, problems in (("not labelled", failed), ("labelled, no overlay", no_overlay)):
-        for name, why in list(problems.items())[:SHOWN_PROBLEMS]:
-            print(f"semcityloc: warning: {what}: {named(name, why)}", file=sys.stderr)
-        if len(problems) > SHOWN_PROBLEMS:
-            print(f"semcityloc: warning: {len(problems) - SHOWN_PROBLEMS} more {what}", file=sys.stderr)
+    warn("not labelled", failed)
+    warn("labelled, no overlay", no_overlay)
     if written == 0 and len(todo) == len(images):
         if failed:
             first = "; ".join(named(name, why) for name, why in list(failed.items())[:3])
@@ -224,5 +278,5 @@ def _label(args, images, todo, model, poses, intrinsics, renderer, out: Path) ->
                 f"none of the {len(images)} images in {args.images} could be labelled: {first}"
             )
         raise InputFileError(f"none of the {len(images)} images in {args.images} has a pose in {args.poses}")
-    print(f"wrote {written} label map(s) to {out}")
+    print(f"wrote {written} label map(s) to {out}{drawn_note(drawn)}")
     return 0
