@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from semcityloc.io.images import load_image
+from semcityloc.io.images import is_label_map, load_image, save_labels_png, save_rgb
 
 
 @pytest.mark.parametrize("suffix", [".png", ".tif"])
@@ -45,3 +45,23 @@ def test_an_8_bit_photo_is_unchanged(tmp_path):
     photo = np.random.default_rng(0).integers(0, 256, (6, 9, 3), dtype=np.uint8)
     Image.fromarray(photo).save(tmp_path / "p.png")
     np.testing.assert_array_equal(load_image(tmp_path / "p.png"), photo)
+
+
+def test_a_label_map_is_told_from_a_photo(tmp_path):
+    """``is_label_map`` (stop 56): a palette PNG of semcityloc's classes or a grey PNG of class ids is a
+    label map; a photo, a grey PNG of other values, a JPEG and bytes of no image are not."""
+    save_labels_png(np.full((8, 8), 2, np.uint8), tmp_path / "map.png")
+    Image.fromarray(np.array([[0, 5], [255, 3]], np.uint8), mode="L").save(tmp_path / "grey.png")
+    Image.fromarray(np.array([[0, 5], [200, 3]], np.uint8), mode="L").save(tmp_path / "dark.png")
+    save_rgb(np.full((8, 8, 3), 90, np.uint8), tmp_path / "photo.png")
+    save_rgb(np.full((8, 8, 3), 90, np.uint8), tmp_path / "photo.jpg")
+    (tmp_path / "junk.png").write_bytes(b"\x89PNG no image")
+    found = {p.name: is_label_map(p) for p in sorted(tmp_path.iterdir())}
+    assert found == {
+        "dark.png": False,
+        "grey.png": True,
+        "junk.png": False,
+        "map.png": True,
+        "photo.jpg": False,
+        "photo.png": False,
+    }

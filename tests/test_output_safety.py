@@ -69,6 +69,27 @@ def test_label_into_its_own_png_photos_is_refused_and_the_photos_stay(obj, tmp_p
     assert (photos / "A.png").read_bytes() == before
 
 
+def test_label_into_the_folder_of_its_jpg_photos_runs_again_over_its_own_label_maps(obj, tmp_path, capsys):
+    """``label --images photos --out photos`` of JPG photos, run again (stop 56): the label maps it wrote
+    there (``A.png`` beside ``A.JPG``) are its kept maps, not photos that would be overwritten; another
+    --out leaves them out of the photos, saying so. A PNG photo beside a JPG of its stem is still refused."""
+    photos, poses = posed_photos(tmp_path, ["A.JPG", "B.JPG"])
+    code, stdout, err = label(capsys, obj, photos, poses, photos)
+    assert code == 0 and "wrote 2 label map(s)" in stdout, err
+    made = (photos / "A.png").read_bytes()
+    code, stdout, err = label(capsys, obj, photos, poses, photos, "--overlay")
+    assert code == 0, err
+    assert "2 of 2 already labelled, kept" in stdout and "2 missing overlays drawn" in stdout, stdout
+    assert "note" not in err and (photos / "A.png").read_bytes() == made
+    code, stdout, err = label(capsys, obj, photos, poses, tmp_path / "labels2")
+    assert code == 0 and "wrote 2 label map(s)" in stdout, err
+    assert f"A.png, B.png in {photos} are label maps beside photos of their names, not photos: left" in err
+    assert sorted(p.name for p in (tmp_path / "labels2").glob("*.png")) == ["A.png", "B.png"]
+    save_rgb(np.full((96, 128, 3), 50, np.uint8), photos / "B.png")  # a photo, not a label map
+    code, _, err = label(capsys, obj, photos, poses, tmp_path / "labels3")
+    assert code == 2 and "B.JPG and B.png would both be written to" in err, err
+
+
 def test_two_photos_of_one_stem_are_refused_naming_both(obj, tmp_path, capsys):
     photos, poses = posed_photos(tmp_path, ["X.JPG", "X.png"])
     code, out, err = label(capsys, obj, photos, poses, tmp_path / "labels")

@@ -109,6 +109,23 @@ def _check_label_image(img: Image.Image, path: str | Path, allow_lossy: bool, lo
         )
 
 
+def is_label_map(path: str | Path) -> bool:
+    """Whether the image file ``path`` is a label map of semcityloc's classes rather than a photo: a palette
+    PNG whose palette begins with ``classes.PALETTE`` (what ``save_labels_png`` writes), or a grey PNG whose
+    values are all class ids or ``IGNORE``. False for anything else, and for a file that does not read.
+    ``semcityloc label`` leaves such a map beside a photo of its stem out of the photos (stop 56)."""
+    try:
+        with Image.open(path) as img:
+            if img.format != "PNG" or img.mode not in ("P", "L"):
+                return False
+            if img.mode == "P":
+                palette = img.getpalette() or []
+                return palette[: 3 * NUM_CLASSES] == PALETTE.reshape(-1).tolist()
+            return invalid_class_ids(np.array(img)) is None
+    except IMAGE_DECODE_ERRORS:
+        return False
+
+
 def save_depth(depth: np.ndarray, path_png: str | Path) -> tuple[Path, Path]:
     """Depth as a 16-bit PNG (unit in its ``depth_unit_m`` chunk, 0 = nothing) + float32 metres in .npy."""
     depth = np.asarray(depth, dtype=np.float32)
