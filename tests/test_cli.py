@@ -447,6 +447,7 @@ def exif_view(city_paths, tmp_path_factory):
     intr = f"{cam.fx},{cam.fy},{cam.cx},{cam.cy},{cam.width},{cam.height}"
     assert main(["render", "--city", str(city_paths[2]), "--intrinsics", intr, "--pose",
                  f"{x},{y},{z},1.0,35.0,120.0", "--out", str(root / "r")]) == 0  # fmt: skip
+    (root / "r" / "intrinsics.txt").write_text(intr)
     (root / "depth").mkdir()
     np.save(root / "depth" / "view.npy", np.load(root / "r" / "depth.npy"))
     return {
@@ -733,7 +734,7 @@ def test_localize_refuses_intrinsics_of_another_image_than_its_photo(exif_view, 
     half = tmp_path / "half_intrinsic.txt"
     np.savetxt(half, np.array([[200.0, 0, 128, 0], [0, 200, 96, 0], [0, 0, 1, 0]]))
     args = argparse.Namespace(intrinsics=str(half), image=str(exif_view["photo"]), width=None, height=None)
-    assert _camera(args).camera.size == (256, 192)  # the photo resized: the mask may be of any size
+    assert _camera(args).camera.size == (512, 384)  # the K of the photo halved: at the photo's size
     # Without --image (stop 51): nothing to hold the K against but the size it is given at
     no_photo = argparse.Namespace(intrinsics=str(other), image=None, width=512, height=384)
     with pytest.raises(IntrinsicsMismatchError, match=r"lies 17 % .* \(no --image: the size they are used"):
@@ -861,6 +862,42 @@ def test_render_draws_labels_and_depth_at_the_photos_own_size(exif_view, tmp_pat
     for name in ("labels.png", "depth.png", "overlay_edges.png", "overlay_labels.png"):
         assert Image.open(tmp_path / "r" / name).size == (512, 384), name
     assert np.load(tmp_path / "r" / "depth.npy").shape == (384, 512)
+
+
+def test_localize_finds_and_draws_on_the_photos_own_size_as_render_does(exif_view, tmp_path, capsys):
+    """Stop 56: ``localize --intrinsics K --image photo`` with the photo an exact-factor resize of the size
+    the K states (a LoD-Loc K of 1024x768, the photo 512x384) kept the camera at 1024x768, while ``render
+    --image`` moved every output to the photo's size: the overlay was drawn at 1024x768 and thinned onto
+    the photo. Now the camera is at the photo's size (one helper, ``cli.pose_input.read_lens_for_photo``):
+    the pose is the one found with the photo's own intrinsics, its overlay the one ``render`` draws at it."""
+    import argparse
+
+    from semcityloc.cli.localize import _camera
+
+    r, photo = exif_view["root"], exif_view["photo"]
+    fx, fy, cx, cy, w, h = (float(v) for v in (r / "r" / "intrinsics.txt").read_text().split(","))
+    k = tmp_path / "T_intrinsic.txt"  # the same camera, stated at twice the photo's size
+    np.savetxt(k, np.array([[2 * fx, 0, 2 * cx, 0], [0, 2 * fy, 2 * cy, 0], [0, 0, 1, 0]]))
+    args = argparse.Namespace(intrinsics=str(k), image=str(photo), width=None, height=None)
+    assert _camera(args).camera.size == (512, 384)
+    common = ("--image", photo, "--semantic", r / "r" / "labels.png", "--depth", r / "depth" / "view.npy")
+    flat = ("--map-eaves", "0")  # the overlay shows the map searched: here the model as render draws it
+    poses = {}
+    for name, intrinsics in (("own", f"{fx},{fy},{cx},{cy},{w:.0f},{h:.0f}"), ("k", k)):
+        code, _, err = _localize(
+            capsys, exif_view, tmp_path / name, "--intrinsics", intrinsics, *common, *flat
+        )
+        assert code == 0, err
+        poses[name] = json.loads((tmp_path / name / "pose.json").read_text())
+    assert np.allclose(poses["k"]["position"], poses["own"]["position"], atol=0.05)
+    assert all(abs(poses["k"][a] - poses["own"][a]) < 0.05 for a in ("roll", "pitch", "yaw"))
+    argv = [*render_on_photo(exif_view)[:-1], tmp_path / "k" / "pose.json", "--intrinsics", k]
+    code, _, err = run(capsys, *argv, "--no-cache", "--out", tmp_path / "drawn")
+    assert code == 0, err
+    overlay = load_image(tmp_path / "k" / "overlay.png")
+    assert overlay.shape == (384, 512, 3)
+    drawn = load_image(tmp_path / "drawn" / "overlay_edges.png")
+    assert np.array_equal(overlay, drawn)
 
 
 def test_a_photo_of_another_aspect_than_the_intrinsics_is_refused(exif_view, tmp_path, capsys):

@@ -201,7 +201,8 @@ def _check_files(args) -> None:
 
 def _camera(args) -> PhotoCamera:
     """The camera of the query: from ``--image``'s EXIF, or from the ``--intrinsics`` file (at ``--width`` x
-    ``--height`` when given, ``read_lens``'s size rules). With ``--image`` the file must describe that photo
+    ``--height`` when given, else at ``--image``'s size, else ``read_lens``'s size rules:
+    ``read_lens_for_photo``, as ``render``). With ``--image`` the file must describe that photo
     (``geometry.io.check_fits_photo``: its size or resized, a principal point near the centre): another
     camera's intrinsics, or an overlay on another photo's pixels, would be wrong silently."""
     if args.intrinsics == EXIF:

@@ -24,9 +24,12 @@ def read_lens_for_photo(
     size, and one whose principal point is not at the centre of a whole-pixel image gives none: then at
     ``--image``'s size, without one the message names ``--width`` / ``--height``); with ``--image`` the
     intrinsics must describe that photo (``geometry.io.check_fits_photo``: its size or resized, a principal
-    point near the centre) and, resampled, keep its aspect; without one, their principal point must lie
-    near the centre of the size they state (a K of another image size, given at a ``--width`` it never
-    had, was taken as it is)."""
+    point near the centre) and, resampled, keep its aspect; without ``--width`` / ``--height`` the camera is
+    then at the photo's own size (a photo resized from the size the intrinsics state: the K rescaled,
+    ``Camera.scaled``), so that whatever is drawn or found with it is on the photo's pixels (``render``'s
+    outputs, ``localize``'s overlay and pose file); without one, their principal point must lie near the
+    centre of the size they state (a K of another image size, given at a ``--width`` it never had, was
+    taken as it is)."""
     photo = (Path(image).name, *image_size(image, "photo")) if image else None
     try:
         camera, distortion = read_lens(intrinsics, width=width, height=height, photo=photo)
@@ -36,6 +39,8 @@ def read_lens_for_photo(
         camera, distortion = read_lens(intrinsics, width=photo[1], height=photo[2], photo=photo)
     if photo is not None:  # resampled to a --width x --height of another aspect than the photo
         check_aspect((photo[2], photo[1]), camera.width, camera.height, "photo", image)
+        if width is None and height is None and camera.size != photo[1:]:  # the photo's own size wins
+            camera = camera.scaled(*photo[1:])
     else:  # no photo to hold it against: its principal point must still be near its own image's centre
         check_fits_photo(camera, str(intrinsics), ("(no --image: the size they are used at)", *camera.size))
     return camera, distortion

@@ -26,7 +26,7 @@ from semcityloc.cli.city import add_model_arguments, load_model_from_args
 from semcityloc.cli.outputs import check_outputs
 from semcityloc.cli.pose_input import add_pose_name_argument, photo_name, read_lens_for_photo
 from semcityloc.geometry.distortion import distort_image
-from semcityloc.io.images import image_size, load_image, save_depth, save_labels_png, save_rgb
+from semcityloc.io.images import load_image, save_depth, save_labels_png, save_rgb
 from semcityloc.render import Renderer
 from semcityloc.render.engine import ENGINES
 from semcityloc.render.overlay import blend_labels, draw_edges, visible_edges
@@ -76,11 +76,9 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(
         [(name, out / name) for name in OUTPUT_FILES], [args.image, args.intrinsics, args.pose, args.path]
     )
-    # With --image the intrinsics must describe that photo: edges drawn with another camera's are misaligned
+    # With --image the intrinsics must describe that photo (edges drawn with another camera's are
+    # misaligned), and without --width/--height its own size wins: labels, depth and overlays on its pixels
     camera, lens = read_lens_for_photo(args.intrinsics, args.width, args.height, args.image)
-    if args.image and args.width is None and args.height is None:  # the photo's own size wins: labels,
-        size = image_size(args.image, "photo")  # depth and overlays on its pixels (checked to fit it)
-        camera = camera if camera.size == size else camera.scaled(*size)
     model = load_model_from_args(args)
     pose_world = read_pose_world(args.pose, model.crs, name=args.pose_name, photo=photo_name(args.image))
     with writing(folder=out):
