@@ -630,6 +630,68 @@ def test_an_estimate_re_found_with_a_scaled_focal_length_is_drawn_with_that_came
     assert not np.array_equal(est_plain, est_scaled)
 
 
+def test_the_truth_of_a_simulated_focal_error_is_drawn_with_the_camera_the_query_was_made_with(
+    tmp_path, monkeypatch
+):
+    """(stop 56) A simulated run with ``--set focal_error=0.05`` renders its queries with the true camera
+    and tells the localizer one with focal lengths 1.05 times longer; the report drew the truth with the
+    stated one, so that the truth did not lie on the query mask. Now the truth (query browser, figure, 3D
+    frusta) is drawn with the true camera, read from the run's query config (``report_views.true_camera``);
+    the prior and the estimate with the stated one; a run without the error in its query config (older
+    runs) with the stated one."""
+    import shutil
+
+    import numpy as np
+
+    from semcityloc.benchmark import report_html, report_plots, report_views
+    from semcityloc.benchmark.queries import QueryConfig
+    from semcityloc.localization.focal_check import with_focal_scale
+
+    spec = BenchmarkSpec(
+        city="generated",
+        query=QueryConfig(queries=1, seed=1, focal_error=0.05),
+        preset="fast",
+        keep_details=1,
+    )
+    erred = run_benchmark(spec, tmp_path / "erred", progress=False).out_dir
+    old = shutil.copytree(erred, tmp_path / "old")  # as a run folder that does not say it
+    config = json.loads((old / RUN_FILE).read_text())
+    del config["query_config"]["focal_error"]
+    (old / RUN_FILE).write_text(json.dumps(config))
+    drawn: dict[str, dict] = {"erred": {}, "old": {}}
+    layers, overlay, frustum = (
+        report_views._pose_layers,
+        report_plots.overlay_image,
+        report_html.frustum_lines,
+    )
+
+    def spy_layers(renderer, camera, pose, color):  # the query browser: the camera of each pose
+        drawn[current][color] = camera
+        return layers(renderer, camera, pose, color)
+
+    def spy_overlay(labels, est, true):  # the figure: the truth's label render
+        drawn[current]["figure truth"] = true
+        return overlay(labels, est, true)
+
+    def spy_frustum(pose, camera, depth):  # the 3D view: the frusta, in the order prior, estimate, truth
+        drawn[current].setdefault("frusta", []).append(camera)
+        return frustum(pose, camera, depth)
+
+    monkeypatch.setattr(report_views, "_pose_layers", spy_layers)
+    monkeypatch.setattr(report_plots, "overlay_image", spy_overlay)
+    monkeypatch.setattr(report_html, "frustum_lines", spy_frustum)
+    for current, run in (("erred", erred), ("old", old)):
+        report_html.make_html_report([run], tmp_path / f"h_{current}")
+        make_report([run], tmp_path / f"r_{current}", overlays=1)
+    prior, truth = report_views.POSES["prior"][1], report_views.POSES["truth"][1]
+    stated = drawn["erred"][prior]
+    assert drawn["erred"][truth] == with_focal_scale(stated, 1 / 1.05) != stated
+    assert drawn["old"][truth] == drawn["old"][prior] == stated  # no error recorded: the stated camera
+    assert not np.array_equal(drawn["erred"]["figure truth"], drawn["old"]["figure truth"])
+    frusta = drawn["erred"]["frusta"]
+    assert frusta[-1].fx == pytest.approx(frusta[0].fx / 1.05) and drawn["old"]["frusta"][-1] == frusta[0]
+
+
 # ------------------------------------------------------------------------------ no ground truth (stop 50)
 def blind_run(root: Path, name: str = "photos") -> Path:
     """A photo run without ``--truth``: three photos localized, each moved from its prior by a known

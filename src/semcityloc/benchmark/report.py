@@ -216,5 +216,5 @@ def _detail_figures(runs: list[RunData], plot_dir: Path, overlays: int, notes: l
             photo = photo_of(run.config, details["meta"].get("query_meta") or {})
             name = f"query_{n:02d}_{_slug(run.path.name)}_{f.stem}.png"
             title = f"{run.label} {f.stem}"
-            figures.append(plot_details(details, model, plot_dir / name, title, photo, maps))
+            figures.append(plot_details(details, model, plot_dir / name, title, photo, maps, run.config))
     return figures

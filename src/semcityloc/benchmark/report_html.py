@@ -59,7 +59,7 @@ from semcityloc.benchmark.report_runs import (
     readable_details,
     sweep_x,
 )
-from semcityloc.benchmark.report_views import POSES, error_bins, query_camera, query_view, row_focal_scale
+from semcityloc.benchmark.report_views import POSES, error_bins, pose_camera, query_camera, query_view
 from semcityloc.benchmark.results import row_pose
 from semcityloc.benchmark.runfiles import DETAILS_DIR
 from semcityloc.citymodel.model import CityModel
@@ -67,7 +67,6 @@ from semcityloc.errors import BenchmarkError, as_flags
 from semcityloc.geometry.camera import Camera
 from semcityloc.io.files import json_safe, write_atomic
 from semcityloc.localization.confidence import risk_coverage
-from semcityloc.localization.focal_check import found_camera
 
 HTML_FILE = "report.html"
 NOMINAL_CAMERA = Camera.from_fov(640, 480, 70.0)  # frusta of photos whose camera the run did not keep
@@ -168,9 +167,7 @@ def _city(runs, maps, entries, notes) -> tuple[Any, dict] | None:
                 pose = poses[e["key"]][kind]
                 if pose is None:
                     continue
-                camera = e["camera"]
-                if kind == "estimate":  # the camera it was found with (``focal_check.found_camera``)
-                    camera = found_camera(camera, row_focal_scale(by_key[e["key"]]))
+                camera = pose_camera(kind, e["camera"], run.config, by_key[e["key"]])
                 lines = frustum_lines(pose, camera, depth)
                 frusta.setdefault(e["key"], {})[kind] = lines
                 for axis in range(3):

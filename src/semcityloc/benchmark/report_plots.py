@@ -29,6 +29,7 @@ from semcityloc.benchmark.report_runs import (
     self_assessment,
     sweep_x,
 )
+from semcityloc.benchmark.report_views import true_camera
 from semcityloc.benchmark.results import SKIPPED
 from semcityloc.errors import OptionalDependencyError
 from semcityloc.evaluation.metrics import THRESHOLDS, cumulative_curve, threshold_key
@@ -175,7 +176,13 @@ def _pose(matrix: np.ndarray):
 
 
 def plot_details(
-    details: dict, map_model, path: Path, title: str, photo_path: Path | None = None, maps=None
+    details: dict,
+    map_model,
+    path: Path,
+    title: str,
+    photo_path: Path | None = None,
+    maps=None,
+    config: dict | None = None,
 ) -> Path:
     """One query: overlay (``overlay_image``), the photo with the model's edges (``photo_overlay``, when
     ``photo_path`` is given: real-data runs), xy slice at the best (z, yaw) and yaw slice at the best
@@ -183,7 +190,9 @@ def plot_details(
     Drawn at most ``FIGURE_MAX_WIDTH`` wide; a query without a true pose (a user's photo) shows the
     estimate alone. ``maps``: the run's ``found_map.FoundMaps`` (default: the model as it is), so that the
     poses are drawn on the map the run searched (with its eaves) and an estimate found on the map with
-    eaves on its flat roofs on that map, and the caption says so."""
+    eaves on its flat roofs on that map, and the caption says so. ``config``: the run's ``run.json``, whose
+    query config names the camera a simulated query was made with (``report_views.true_camera``: the truth
+    is drawn with it; without one, with the stated camera)."""
 
     plt = _pyplot()
     fx, fy, cx, cy, w, h = details["camera"]
@@ -197,7 +206,8 @@ def plot_details(
     maps = maps or FoundMaps(map_model, Renderer(map_model, engine="numba"))
     renderer = maps.searched()
     est_renderer, est_map = maps.for_estimate(details["meta"].get("flat_roof_eaves"))
-    true_lab = renderer.render(camera, true).labels[0] if true is not None else None
+    true_cam = true_camera(config or {}, camera)  # a simulated focal_error: the query's true camera
+    true_lab = renderer.render(true_cam, true).labels[0] if true is not None else None
     est_lab = est_renderer.render(est_camera, est).labels[0] if est is not None else None
     est_note = f"\nestimate drawn on {est_map}" if est is not None and est_map else ""
     if est is not None and focal_scale is not None:  # the camera it was re-found with, on the same line

@@ -17,7 +17,9 @@ at ``VIEW_WIDTH`` pixels wide (a few milliseconds a view):
   estimate is drawn on the map it was found on (``found_map``: the map with eaves on its flat roofs where
   the details or the row record it, named in ``estimate_map``), the others on the run's map as it is; and
   with the camera it was found with (``focal_check.found_camera``: the stated focal lengths times the
-  row's ``focal_scale`` where the focal check's correction re-found it), the others with the stated one.
+  row's ``focal_scale`` where the focal check's correction re-found it), the truth with the camera the
+  query was made with (``true_camera``: a simulated run told a focal length off by ``focal_error``
+  rendered its queries with the true one), the prior with the stated one (``pose_camera``).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from semcityloc.geometry.camera import Camera
 from semcityloc.geometry.conventions import wrap_deg
 from semcityloc.geometry.pose import Pose
 from semcityloc.io.images import load_image, resize_nearest, scaled_size
-from semcityloc.localization.focal_check import found_camera
+from semcityloc.localization.focal_check import found_camera, with_focal_scale
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.render import Renderer
 from semcityloc.render.overlay import label_colors, visible_edges
@@ -125,6 +127,25 @@ def query_camera(config: dict, details: dict | None) -> Camera | None:
     if config.get("mode") is None and qc:
         return stated_camera(**{k: qc[k] for k in ("width", "height", "focal_mm", "focal_error") if k in qc})
     return None
+
+
+def true_camera(config: dict, camera: Camera) -> Camera:
+    """The camera a run's queries were made with, ``camera`` being the stated one (``query_camera``, at any
+    size): a simulated run's query config with a ``focal_error`` rendered them with the focal lengths the
+    stated ones are ``1 + focal_error`` times (``queries.stated_camera``); otherwise the stated one (real
+    data, a run without the error, a run folder without a query config)."""
+    qc = config.get("query_config") or {}
+    error = _float(str(qc.get("focal_error", ""))) if config.get("mode") is None else None
+    return camera if not error else with_focal_scale(camera, 1.0 / (1.0 + error))
+
+
+def pose_camera(name: str, camera: Camera, config: dict, row: dict[str, str]) -> Camera:
+    """The camera to draw pose ``name`` of ``POSES`` with, ``camera`` being the stated one: the estimate
+    with the camera it was found with (``focal_check.found_camera``), the truth with the one the query was
+    made with (``true_camera``), the prior with the stated one (what the localizer was given)."""
+    if name == "estimate":
+        return found_camera(camera, row_focal_scale(row))
+    return true_camera(config, camera) if name == "truth" else camera
 
 
 def _query_meta(row: dict[str, str], details: dict | None) -> dict:
@@ -258,10 +279,9 @@ def query_view(
         look = details["meta"].get("flat_roof_eaves") if details is not None else row_look(row)
         found_on, found_map = maps.for_estimate(look)
         for name, pose in poses.items():
-            if pose is not None:
-                renderer, drawn_with = maps.searched(), camera
-                if name == "estimate":  # on the map and with the camera it was found with
-                    renderer, drawn_with = found_on, found_camera(camera, row_focal_scale(row))
+            if pose is not None:  # the estimate on the map it was found on
+                renderer = found_on if name == "estimate" else maps.searched()
+                drawn_with = pose_camera(name, camera, config, row)
                 layers[name] = _pose_layers(renderer, drawn_with, pose, POSES[name][1])
         estimate_map = found_map if "estimate" in layers else None
     mask = data_uri(background) if background_kind == QUERY_MASK else None
