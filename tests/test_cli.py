@@ -401,6 +401,85 @@ def test_benchmark_without_city_or_dataset_is_a_one_line_error(capsys):
     assert code == 2 and "--city" in err and err.count("\n") == 1
 
 
+def test_presets_combine_on_the_command_line_and_what_cannot_combine_is_one_line(
+    tmp_path, capsys, monkeypatch
+):
+    """(stop 56) The look-alike test and the focal correction could only be combined from Python: every
+    command took one ``--preset``. Now ``--preset lookalikes,focal-correct`` or ``--preset`` repeated
+    combines them (the default with what each changes, ``config.combine_presets``) in every command that
+    takes a preset, under one spelling that the run records; presets that set one setting to different
+    values, or where one switches off what the other sets, are refused in one line before any work."""
+    from dataclasses import replace
+
+    from semcityloc.cli.main import build_parser
+    from semcityloc.errors import ParameterError
+    from semcityloc.localization.config import LocalizerConfig
+
+    both = LocalizerConfig.preset("focal-correct, lookalikes")
+    assert both.cascade.lookalike.enabled and both.focal_check.correct
+    assert replace(both, cascade=LocalizerConfig().cascade) == PRESETS["focal-correct"]
+    commands = {
+        "localize": ["localize", "--city", "c", "--intrinsics", "k", "--prior", "p", "--out", "o"],
+        "run": ["run", "photos", "--city", "c"],
+        "benchmark": ["benchmark", "--city", "generated", "--out", "o"],
+        "sweep": ["sweep", "--knob", "seed", "--values", "1", "--city", "generated", "--out", "o"],
+        "dataset benchmark": ["dataset", "benchmark", "data", "--out", "o"],
+    }
+    parser = build_parser()
+    for argv in commands.values():
+        for given in (["focal-correct,lookalikes"], ["focal-correct", "lookalikes"], ["lookalikes, default"]):
+            args = parser.parse_args([*argv, *(a for name in given for a in ("--preset", name))])
+            want = "lookalikes" if "default" in given[0] else "lookalikes,focal-correct"
+            assert args.preset == want, (argv[0], given)
+    assert parser.parse_args(commands["localize"]).preset == "default"
+    common = ["--queries", "1", "--seed", "3", "--workers", "1"]
+    argv = [
+        "benchmark",
+        "--city",
+        "generated",
+        *common,
+        "--preset",
+        "fast",
+        "--preset",
+        "lookalikes,focal-correct",
+    ]
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "both")
+    recorded = json.loads((tmp_path / "both" / "run.json").read_text())
+    assert code == 0 and recorded["localizer_preset"] == "lookalikes,focal-correct,fast", err
+    assert (
+        recorded["localizer"]["cascade"]["lookalike"]["enabled"]
+        and recorded["localizer"]["focal_check"]["correct"]
+    )
+    assert recorded["localizer"]["cascade"]["sweep"]["max_centres"] == 600
+    why = "legacy sets focal_check.enabled=False, which leaves focal_check.correct of focal-correct unused"
+    for argv in (
+        [
+            "localize",
+            "--city",
+            "generated",
+            "--intrinsics",
+            "k",
+            "--prior",
+            "p",
+            "--preset",
+            "legacy,focal-correct",
+        ],
+        ["benchmark", "--city", "generated", *common, "--preset", "focal-correct", "--preset", "legacy"],
+    ):
+        code, out, err = run(capsys, *argv, "--out", tmp_path / "refused")
+        assert code == 2 and out == "" and err.count("\n") == 1 and why in err, err
+        assert (
+            "presets legacy and focal-correct cannot be combined" in err
+            and not (tmp_path / "refused").exists()
+        )
+    monkeypatch.setitem(PRESETS, "thin-eaves", replace(LocalizerConfig(), map_eaves_m=0.2))
+    with pytest.raises(
+        ParameterError,
+        match=r"presets no-eaves and thin-eaves set map_eaves_m to different values \(0\.0, 0\.2\)",
+    ):
+        LocalizerConfig.preset("thin-eaves,no-eaves")
+
+
 @pytest.mark.parametrize(
     "option, valid",
     [

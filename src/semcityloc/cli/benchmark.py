@@ -33,9 +33,8 @@ from semcityloc.cli.dataset import (
     run_dataset_benchmark,
 )
 from semcityloc.cli.executor import add_executor_arguments, run_from_args
-from semcityloc.cli.localize import add_prior_sigma_argument
+from semcityloc.cli.localize import add_preset_argument, add_prior_sigma_argument
 from semcityloc.errors import BenchmarkConfigError, BenchmarkError, counted
-from semcityloc.localization.config import PRESETS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -81,12 +80,7 @@ def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
         metavar="A-B",
         help="extra per-axis prior perturbation in metres, e.g. 10-20 (default: none)",
     )
-    p.add_argument(
-        "--preset",
-        default=None,
-        choices=tuple(PRESETS),
-        help="localizer preset (default: default)",
-    )
+    add_preset_argument(p, default=None)
     add_prior_sigma_argument(p)
     p.add_argument(
         "--scenario",

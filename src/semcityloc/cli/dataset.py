@@ -26,7 +26,7 @@ from semcityloc.benchmark.results import is_skipped_miss, unreadable_row
 from semcityloc.benchmark.runfiles import writing
 from semcityloc.benchmark.scenario import DEFAULT_SCENARIO
 from semcityloc.cli.executor import run_from_args
-from semcityloc.cli.localize import add_lossy_mask_argument, add_prior_sigma_argument
+from semcityloc.cli.localize import add_lossy_mask_argument, add_preset_argument, add_prior_sigma_argument
 from semcityloc.cli.outputs import check_outputs
 from semcityloc.datasets.colmap import MODEL_KINDS, ColmapModel, text_unreadable_names, write_model
 from semcityloc.datasets.dji import SOURCE_HEIGHTS, TARGET_HEIGHTS, dji_prior
@@ -36,7 +36,6 @@ from semcityloc.errors import InputFileError, ParameterError, as_flags, counted,
 from semcityloc.geometry.errors import center_error_m, rotation_error_deg
 from semcityloc.geometry.pose_json import pose_to_dict
 from semcityloc.io.files import write_atomic
-from semcityloc.localization.config import PRESETS
 from semcityloc.render import Renderer
 
 
@@ -156,12 +155,7 @@ def add_dataset_benchmark_arguments(p: argparse.ArgumentParser) -> None:
         help="segmentation preset of oracle-degraded",
     )
     p.add_argument("--method", default="semcityloc", choices=available_methods(), help="a benchmark method")
-    p.add_argument(
-        "--preset",
-        default=None,
-        choices=tuple(PRESETS),
-        help="localizer preset (default: default)",
-    )
+    add_preset_argument(p, default=None)
     add_prior_sigma_argument(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the degraded segmentation")
     p.add_argument("--keep-details", type=int, default=3, help="save details of the first N queries")

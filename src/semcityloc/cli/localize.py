@@ -41,7 +41,7 @@ from semcityloc.io.images import (
     read_mask_file,
     save_rgb,
 )
-from semcityloc.localization.config import FLAT_EAVES, PRESETS, LocalizerConfig
+from semcityloc.localization.config import FLAT_EAVES, PRESET_JOIN, PRESETS, LocalizerConfig, preset_name
 from semcityloc.localization.focal_check import focal_scale_used, found_camera
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.map_scenes import found_on_flat_eaves
@@ -83,6 +83,35 @@ def add_prior_sigma_argument(p: argparse.ArgumentParser, default_text: str | Non
         or "1-sigma error of the prior (any subset; default xy 5 m, z 10 m, yaw 3 deg, roll/pitch 1 deg: "
         "DJI GNSS + gimbal IMU); the search covers 3 sigma; no compass: yaw=60 searches every heading "
         "(slower)",
+    )
+
+
+class _PresetsAction(argparse.Action):
+    """``--preset NAME``: one of ``PRESETS``, several joined by commas, or the option repeated: the presets
+    combined (``LocalizerConfig.preset``), kept in their one spelling (``config.preset_name``), which a
+    run records. An unknown name is argparse's "invalid choice"; presets that cannot be combined are
+    refused when the command builds its config, in one line."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        unknown = [n.strip() for n in values.split(PRESET_JOIN) if n.strip() not in PRESETS]
+        if unknown:
+            known = ", ".join(repr(n) for n in PRESETS)
+            raise argparse.ArgumentError(self, f"invalid choice: {unknown[0]!r} (choose from {known})")
+        before = getattr(namespace, self.dest, None)
+        joined = values if before in (None, self.default) else f"{before}{PRESET_JOIN}{values}"
+        setattr(namespace, self.dest, preset_name(joined))
+
+
+def add_preset_argument(p: argparse.ArgumentParser, default: str | None = "default") -> None:
+    """``--preset NAME[,NAME...]`` (repeatable): the localizer preset, or presets combined
+    (``_PresetsAction``); every command that localizes takes it through here."""
+    p.add_argument(
+        "--preset",
+        default=default,
+        action=_PresetsAction,
+        metavar="PRESET",
+        help=f"localizer preset, one of {', '.join(PRESETS)}; several combine (lookalikes,focal-correct, or "
+        "--preset repeated) when they change different settings (default: default)",
     )
 
 
@@ -161,9 +190,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="option passed to the perception backends (repeatable): head=DIR, backbone=DIR "
         "(segmentation), model=PATH (moge2), device=cpu|cuda",
     )
-    p.add_argument(
-        "--preset", default="default", choices=tuple(PRESETS), help="localizer preset (default: default)"
-    )
+    add_preset_argument(p)
     add_prior_sigma_argument(p)
     add_map_eaves_arguments(p)
     p.add_argument(

@@ -24,13 +24,13 @@ from semcityloc.cli.executor import add_executor_arguments, run_from_args
 from semcityloc.cli.localize import (
     add_lossy_mask_argument,
     add_map_eaves_arguments,
+    add_preset_argument,
     add_prior_sigma_argument,
     parse_backend_options,
 )
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF, check_images_folder
 from semcityloc.errors import counted, shown_names
-from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
 from semcityloc.perception.registry import available_backends
@@ -112,7 +112,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="known geoid undulation N (m) at the site: the model's z = the photos' ellipsoidal height - N",
     )
     p.add_argument("--method", default="semcityloc", choices=ABLATIONS, help="the method or an ablation")
-    p.add_argument("--preset", default="default", choices=tuple(PRESETS), help="localizer preset")
+    add_preset_argument(p)
     add_map_eaves_arguments(p)
     p.add_argument("--out", default="semcityloc_run", help="output folder (default semcityloc_run)")
     p.add_argument("--workers", type=int, default=1, help="processes localizing in parallel (default 1)")

@@ -19,7 +19,7 @@ Two searches share the refinement and the scores:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 
 import numpy as np
 
@@ -442,10 +442,10 @@ class LocalizerConfig:
 
     @classmethod
     def preset(cls, name: str) -> LocalizerConfig:
-        """The preset ``name`` of ``PRESETS`` (``ParameterError`` naming the presets otherwise)."""
-        if name not in PRESETS:
-            raise unknown_choice("localizer preset", name, PRESETS)
-        return PRESETS[name]
+        """The preset ``name`` of ``PRESETS``, or several joined by commas (``"lookalikes,focal-correct"``:
+        ``combine_presets``); ``ParameterError`` naming the presets otherwise."""
+        names = preset_names(name)
+        return PRESETS[names[0]] if len(names) == 1 else combine_presets(names)
 
     def with_ablation(self, method: str) -> LocalizerConfig:
         """The config of a method of ``ABLATION_FLAGS`` (``semcityloc``, ``no-coarse``, ...)."""
@@ -534,8 +534,99 @@ PRESETS: dict[str, LocalizerConfig] = {
 }
 
 
+PRESET_JOIN = ","  # presets combined: their names joined by it, "lookalikes,focal-correct"
+
+
+def preset_names(name: str) -> tuple[str, ...]:
+    """The presets ``name`` (one of ``PRESETS`` or several joined by ``PRESET_JOIN``) combines, each once
+    and in ``PRESETS``' order (the combination's one spelling, ``preset_name``), ``default`` left out of a
+    combination (it changes nothing); ``ParameterError`` naming the presets for an unknown one."""
+    given = [n.strip() for n in str(name).split(PRESET_JOIN)]
+    unknown = [n for n in given if n not in PRESETS]
+    if unknown:
+        raise unknown_choice("localizer preset", unknown if len(unknown) > 1 else unknown[0], PRESETS)
+    names = tuple(n for n in PRESETS if n in given and (n != "default" or set(given) == {"default"}))
+    return names
+
+
+def preset_name(name: str) -> str:
+    """The one spelling of a preset or a combination of presets (``preset_names``), as a run records it:
+    ``"focal-correct, lookalikes"`` -> ``"lookalikes,focal-correct"``."""
+    return PRESET_JOIN.join(preset_names(name))
+
+
+def _changes(config, base, at: tuple[str, ...] = ()) -> dict[tuple[str, ...], object]:
+    """The settings (dotted paths into the nested configs) where ``config`` differs from ``base``."""
+    out: dict[tuple[str, ...], object] = {}
+    for f in fields(config):
+        value, was = getattr(config, f.name), getattr(base, f.name)
+        if is_dataclass(value) and type(value) is type(was):
+            out.update(_changes(value, was, (*at, f.name)))
+        elif value != was:
+            out[(*at, f.name)] = value
+    return out
+
+
+def _changed(config, changes: dict[tuple[str, ...], object]):
+    """``config`` with ``changes`` (``_changes``' form) made, each nested config replaced as a whole."""
+    own = {path[0]: value for path, value in changes.items() if len(path) == 1}
+    nested: dict[str, dict] = {}
+    for path, value in changes.items():
+        if len(path) > 1:
+            nested.setdefault(path[0], {})[path[1:]] = value
+    own.update({name: _changed(getattr(config, name), sub) for name, sub in nested.items()})
+    return replace(config, **own)
+
+
+def _switched_off(config: LocalizerConfig) -> dict[tuple[str, ...], str]:
+    """The nested configs ``config`` leaves unused, each with the setting that does: one whose ``enabled``
+    is False, and the cascade's under ``search="grid"``."""
+    out = {("cascade",): 'search="grid"'} if config.search == "grid" else {}
+    stack: list[tuple[tuple[str, ...], object]] = [((), config)]
+    while stack:
+        at, node = stack.pop()
+        for f in fields(node):
+            value = getattr(node, f.name)
+            if is_dataclass(value):
+                if getattr(value, "enabled", True) is False:
+                    out[(*at, f.name)] = ".".join((*at, f.name, "enabled")) + "=False"
+                stack.append(((*at, f.name), value))
+    return out
+
+
+def combine_presets(names: tuple[str, ...] | list[str]) -> LocalizerConfig:
+    """The default with the settings each preset of ``names`` changes from it, all of them. Why this rule:
+    every preset but ``legacy`` is the default with a few settings changed, so two of them that change
+    different settings mean both (``lookalikes`` + ``focal-correct``: the look-alike test and the focal
+    correction). ``ParameterError`` in one line when two set one setting to different values, or one
+    switches off what another sets (``legacy`` turns the focal check off, ``focal-correct`` sets its
+    correction): one of the two would be dropped silently."""
+    base = LocalizerConfig()
+    changes: dict[tuple[str, ...], tuple[str, object]] = {}
+    for name in names:
+        for path, value in _changes(PRESETS[name], base).items():
+            other, was = changes.setdefault(path, (name, value))
+            if was != value:
+                raise ParameterError(
+                    f"presets {other} and {name} set {'.'.join(path)} to different values ({was!r}, "
+                    f"{value!r}): they cannot be combined; choose one of them"
+                )
+    config = _changed(base, {path: value for path, (_, value) in changes.items()})
+    switched_off = _switched_off(config)
+    for path, (name, _) in changes.items():
+        for off, why in switched_off.items():
+            if path[: len(off)] == off and len(path) > len(off) and off not in _switched_off(PRESETS[name]):
+                culprit = next(n for n in names if off in _switched_off(PRESETS[n]))
+                raise ParameterError(
+                    f"presets {culprit} and {name} cannot be combined: {culprit} sets {why}, which leaves "
+                    f"{'.'.join(path)} of {name} unused; choose one of them"
+                )
+    return config
+
+
 def config_or_preset(config: LocalizerConfig | str | None) -> LocalizerConfig:
-    """A ``LocalizerConfig`` from a config, a preset name (``PRESETS``) or None (the default)."""
+    """A ``LocalizerConfig`` from a config, a preset name (``PRESETS``, or several joined by commas) or
+    None (the default)."""
     if config is None:
         return LocalizerConfig()
     if isinstance(config, str):
