@@ -439,6 +439,14 @@ def test_method_registry_and_bad_specs(sim, tmp_path):
         run_benchmark(make_spec(sim), tmp_path / "w", workers=0)
 
 
+def test_a_python_spec_of_combined_presets_holds_them_in_one_spelling(sim):
+    """Two orders of one combination are one run (its ``run.json``, so a resume matches), as on the CLI."""
+    a = dataclasses.replace(make_spec(sim), preset="focal-correct, lookalikes")
+    b = dataclasses.replace(make_spec(sim), preset="lookalikes,focal-correct")
+    assert a.preset == b.preset == "lookalikes,focal-correct"
+    assert a.run_config()["localizer_preset"] == b.run_config()["localizer_preset"]
+
+
 def test_progress_is_a_bar_on_a_tty_and_one_line_otherwise():
     class Tty(io.StringIO):
         def isatty(self):

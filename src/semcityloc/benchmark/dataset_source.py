@@ -257,7 +257,7 @@ class DatasetSpec:
             )
         if self.perception == PERCEPTION_DEGRADED:
             get_preset(self.seg_quality)
-        check_run_options(self.method, self.preset, self.keep_details)
+        check_run_options(self)
         self.localizer_config()  # a malformed prior_sigma fails here, before anything loads
 
     def localizer_config(self) -> LocalizerConfig:

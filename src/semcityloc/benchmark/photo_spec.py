@@ -135,7 +135,7 @@ class PhotoSpec:
                 "give one or the other"
             )
         self.fixed_uncertainty()
-        check_run_options(self.method, self.preset, self.keep_details)
+        check_run_options(self)
         self.localizer_config()  # a bad eaves value fails here, before anything loads
 
     # ------------------------------------------------------------------ what the run is

@@ -29,7 +29,7 @@ from semcityloc.citymodel.lod1 import derive_lod1
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
 from semcityloc.errors import BenchmarkError, InputFileError
-from semcityloc.localization.config import LocalizerConfig
+from semcityloc.localization.config import LocalizerConfig, preset_name
 
 RUN_FORMAT = 1
 GENERATED = "generated"  # --city value meaning the embedded generated district
@@ -66,12 +66,15 @@ def generated_sibling(path: Path, lod: int) -> Path | None:
     return sibling if sibling.is_file() else None
 
 
-def check_run_options(method: str, preset: str, keep_details: int) -> None:
-    """The checks every spec shares: a registered method, a known localizer preset, ``keep_details >= 0``."""
-    check_method(method)
-    LocalizerConfig.preset(preset)
-    if int(keep_details) < 0:
-        raise BenchmarkError(f"keep_details must be >= 0, got {keep_details}")
+def check_run_options(spec) -> None:
+    """The checks every spec shares: a registered method, a known localizer preset (or presets combined,
+    which the frozen ``spec`` then holds in their one spelling, ``config.preset_name``, so that a run of
+    ``"focal-correct,lookalikes"`` resumes one of ``"lookalikes,focal-correct"``), ``keep_details >= 0``."""
+    check_method(spec.method)
+    LocalizerConfig.preset(spec.preset)
+    object.__setattr__(spec, "preset", preset_name(spec.preset))
+    if int(spec.keep_details) < 0:
+        raise BenchmarkError(f"keep_details must be >= 0, got {spec.keep_details}")
 
 
 @dataclass(frozen=True)
@@ -101,7 +104,7 @@ class BenchmarkSpec:
             raise BenchmarkError("spec.query must be a QueryConfig")
         if int(self.query.queries) < 1:
             raise BenchmarkError(f"the number of queries must be >= 1, got {self.query.queries}")
-        check_run_options(self.method, self.preset, self.keep_details)
+        check_run_options(self)
         self.localizer_config()  # a malformed prior_sigma fails here, before anything loads
 
     def localizer_config(self) -> LocalizerConfig:
