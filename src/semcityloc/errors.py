@@ -48,6 +48,17 @@ class EmptyModelError(SemCityLocError):
     """A city model with no building geometry (or none left after LoD selection)."""
 
 
+class LodNotHeldError(EmptyModelError):
+    """A city model (or tile) whose buildings hold no geometry at the LoD asked for; ``present``: the LoDs
+    it does hold, as the message says them (``"1, 2"``). A tile store's build refuses such tiles rather
+    than leaving them out (``citymodel.tiles.build_store``): they are not malformed, and left out they would
+    be holes in the city."""
+
+    def __init__(self, message: str, present: str = ""):
+        super().__init__(message)
+        self.present = present
+
+
 class CRSError(SemCityLocError):
     """A coordinate reference system string that cannot be parsed or resolved."""
 

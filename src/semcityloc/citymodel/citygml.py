@@ -81,7 +81,7 @@ from semcityloc.citymodel.citygml_xlinks import XLinkResolver
 from semcityloc.citymodel.citygml_xml import PARSER_OPTIONS, external_entity_error, reading, root_element
 from semcityloc.citymodel.crs import parse_crs_name
 from semcityloc.citymodel.model import CityModel, ParseStats
-from semcityloc.errors import EmptyModelError, InputFileError, counted
+from semcityloc.errors import EmptyModelError, InputFileError, LodNotHeldError, counted
 
 __all__ = [
     "CityGMLPolygon",
@@ -204,9 +204,10 @@ class CityGMLReader:
             raise EmptyModelError(f"{self.path}: no Building city objects (found: {found})")
         present = sorted(r.lod_polygons)
         if self.lod is not None and present:
-            raise EmptyModelError(
+            raise LodNotHeldError(
                 f"{self.path}: no LoD {self.lod} building geometry; "
-                f"LoDs present: {', '.join(map(str, present))}"
+                f"LoDs present: {', '.join(map(str, present))}",
+                present=", ".join(map(str, present)),
             )
         if r.polygons_2d:
             raise InputFileError(

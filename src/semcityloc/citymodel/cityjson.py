@@ -64,6 +64,7 @@ from semcityloc.errors import (
     CRSError,
     EmptyModelError,
     InputFileError,
+    LodNotHeldError,
     MalformedCityJSONError,
     UnsupportedFormatError,
 )
@@ -549,8 +550,9 @@ class _CityJSONReader:
         except EmptyModelError:
             present = ", ".join(sorted(lods_present, key=_lod_order)) or "none"
             if self.lod_request is not None and lods_present:
-                raise EmptyModelError(
-                    f"{self.path}: no building geometry at LoD {self.lod_request!r}; LoDs present: {present}"
+                raise LodNotHeldError(
+                    f"{self.path}: no building geometry at LoD {self.lod_request!r}; LoDs present: {present}",
+                    present=present,
                 ) from None
             raise EmptyModelError(
                 f"{self.path}: no building surfaces could be read (building LoDs present: {present}; "

@@ -6,7 +6,7 @@ them whole for every photo costs minutes and gigabytes; a photo sees a few hundr
 
 - ``STORE/store.json``: format, the float64 ``origin`` of the whole store (the rounded centre of all
   tiles, the rule of a single file), the CRS, the reading options, and per tile its file name, SHA-256,
-  size, format, CRS, building count and world extent;
+  size, format, CRS, building count, world extent and the LoDs its buildings were read at;
 - ``STORE/buildings.npz``: per building its tile and its bounding box in the store's local frame, and
   the border ring of the whole city's terrain (``ground.store_ring``: a part of the city rendered for one
   photo gets the same terrain as the whole city);
@@ -19,7 +19,8 @@ first); mixed formats are fine. ``TileStore.tiles_within`` answers "which tiles 
 radius" from an STRtree of the buildings' boxes; ``TileStore.load`` merges tiles (store order) through an
 LRU of parsed tiles under a byte budget (``TileCache``), reused across the photos of a flight.
 ``load_city`` opens a model file or a whole store, for every command that takes ``--city``; ``open_store``
-opens a store and refuses a ``--lod`` / ``--crs`` other than the ones it was built with.
+opens a store and refuses a ``--lod`` / ``--crs`` it does not hold (``check_store_lod``: the LoD it was
+built at, or, built at each building's highest, the one LoD every tile holds).
 """
 
 from __future__ import annotations
@@ -41,7 +42,17 @@ from semcityloc.citymodel.ground import base_points, store_ring
 from semcityloc.citymodel.io import MODEL_SUFFIXES, load_city_model, sniff_format
 from semcityloc.citymodel.limits import env_mb
 from semcityloc.citymodel.model import CityModel, ParseStats, crs_label
-from semcityloc.errors import CRSError, EmptyModelError, InputFileError, OutputPathError, as_flags, parameter
+from semcityloc.errors import (
+    CRSError,
+    EmptyModelError,
+    InputFileError,
+    LodNotHeldError,
+    OutputPathError,
+    as_flags,
+    counted,
+    parameter,
+    shown_names,
+)
 from semcityloc.io.stamps import file_sha256
 
 STORE_FORMAT = 1
@@ -65,6 +76,8 @@ class TileInfo:
     buildings: int
     extent: tuple[float, ...]  # world xmin, ymin, zmin, xmax, ymax, zmax
     npz: str  # the parsed tile, relative to the store
+    # the LoDs its buildings were read at (``CityModel.lods_present``; empty in a store built before stop 56)
+    lods: tuple[int, ...] = ()
 
 
 @dataclass
@@ -124,7 +137,7 @@ def tile_files(folder: Path) -> list[Path]:
 def build_store(
     folder: str | Path,
     out: str | Path,
-    lod: int | None = None,
+    lod: int | str | None = None,
     crs: str | None = None,
     progress: Callable[[str], None] | None = None,
     overwrite: bool = False,
@@ -135,10 +148,14 @@ def build_store(
     once into the store's origin for the parsed npz. A tile that cannot be read (malformed, truncated) or
     holds no building (a geoportal's water or forest tile) is left out, named with the reason in the
     report's ``skipped`` and ``store.json``'s ``skipped_tiles``, and the others are built: one bad file of
-    hundreds must not cost the city. Raises ``InputFileError`` (no tiles, or none readable: the first
-    reasons), ``CRSError`` (tiles in different CRSs), ``OutputPathError`` (``out`` holds a store already
-    and ``overwrite`` is false: an hour's build is not replaced by a typo; with it, the old store's index
-    goes first, so a build stopped half-way never leaves an index naming tiles of two builds).
+    hundreds must not cost the city. A tile whose buildings hold no geometry at ``lod`` is no bad file: the
+    build is refused (``LodNotHeldError``, naming those tiles and the LoDs they hold), as a single file
+    without that LoD is, since left out it would be a hole in the city. Raises ``InputFileError`` (``folder``
+    is a file or missing, no tiles, or none readable: the first reasons), ``CRSError`` (tiles in different
+    CRSs), ``OutputPathError`` (``out`` holds a store already and ``overwrite`` is false: an hour's build is
+    not replaced by a typo; with it, the old store's index goes first, so a build stopped half-way never
+    leaves an index naming tiles of two builds; ``out`` a file, or a folder holding anything but a store,
+    with ``overwrite`` too).
     """
     t0 = time.perf_counter()
     folder, root = Path(folder), Path(out)
@@ -158,11 +175,16 @@ def build_store(
     extents, crss, boxes, counts = [], [], [], []
     ids: list[set[str]] = []
     skipped: dict[str, str] = {}
+    lacking: dict[str, str] = {}  # tile -> the LoDs it holds, when not ``lod``
+    lods: list[tuple[int, ...]] = []
     read: list[Path] = []
     for i, path in enumerate(files):
         say(f"indexing {i + 1}/{len(files)} {path.name}")
         try:
             model = load_city_model(path, lod=lod, crs=crs, cache=False)
+        except LodNotHeldError as exc:  # buildings, at other LoDs: refused below, not left out
+            lacking[str(path.relative_to(folder))] = exc.present
+            continue
         except (InputFileError, EmptyModelError) as exc:  # this tile's own trouble: left out, named
             skipped[str(path.relative_to(folder))] = str(exc)
             continue
@@ -173,6 +195,16 @@ def build_store(
         boxes.append(box + np.concatenate([model.origin, model.origin]))
         counts.append(len(box))
         ids.append(set(model.building_ids))
+        lods.append(tuple(model.lods_present()))
+    if lacking:
+        held = [f"{name}: LoDs {present}" for name, present in lacking.items()]
+        verb = "holds" if len(lacking) == 1 else "hold"
+        raise LodNotHeldError(
+            f"{folder}: {counted(len(lacking), 'tile')} of {len(files)} {verb} no LoD {lod} building "
+            f"geometry ({shown_names(held)}): left out they would be holes in the city; build the store at a "
+            f"LoD every tile holds ({parameter('store_lod', 'N')}), or at each building's highest LoD (the "
+            "default)"
+        )
     if not read:
         reasons = "; ".join(list(skipped.values())[:3])  # each names its file
         raise InputFileError(f"{folder}: no tile can be read ({len(skipped)} tried; {reasons})")
@@ -201,6 +233,7 @@ def build_store(
                 buildings=counts[i],
                 extent=tuple(float(v) for v in (*e[0], *e[1])),
                 npz=npz,
+                lods=lods[i],
             )
         )
     tile_of = np.repeat(np.arange(len(files), dtype=np.int32), counts)
@@ -353,7 +386,10 @@ class TileStore:
         self.origin = np.asarray(index["origin"], dtype=np.float64)
         self.crs = pyproj.CRS.from_wkt(index["crs"]) if index.get("crs") else None
         self.lod = index.get("lod")
-        self.tiles = [TileInfo(**{**t, "extent": tuple(t["extent"])}) for t in index["tiles"]]
+        self.tiles = [
+            TileInfo(**{**t, "extent": tuple(t["extent"]), "lods": tuple(t.get("lods", ()))})
+            for t in index["tiles"]
+        ]
         self.tile_of = tile_of
         self.bbox = bbox
         self.terrain_ring = terrain_ring  # the whole city's terrain border (``ground.store_ring``)
@@ -488,8 +524,19 @@ class TileStore:
             "extent_m": [round(float(v), 3) for v in hi - lo],
             "input_mb": round(sum(t.size_bytes for t in self.tiles) / 1e6, 3),
             "formats": sorted({t.format for t in self.tiles}),
-            "skipped_tiles": len(self.index.get("skipped_tiles") or {}),  # left out by the build, named there
+            "lod": self.lod,  # None: each building's highest
+            "lods": self.lods_held(),
+            "skipped_tiles": sorted(
+                self.index.get("skipped_tiles") or {}
+            ),  # left out by the build (why: there)
         }
+
+    def lods_held(self) -> list[int] | None:
+        """The LoDs the store's buildings were read at, over all tiles (None: a store built before stop 56,
+        which did not record them)."""
+        if any(not t.lods for t in self.tiles):
+            return None
+        return sorted({v for t in self.tiles for v in t.lods})
 
 
 def merge_models(models: Sequence[CityModel], source: str = "") -> CityModel:
@@ -528,20 +575,50 @@ def city_sha256(path: str | Path) -> str:
 
 
 def open_store(path: str | Path, lod: int | str | None = None, crs: str | None = None) -> TileStore:
-    """The store at ``path``, refused in one line (``InputFileError``) when ``lod`` / ``crs`` are given and
-    are not the ones it was built with: they were fixed when its tiles were parsed, so another value would
-    silently be ignored."""
+    """The store at ``path``, refused in one line when ``lod`` / ``crs`` are given and the store does not
+    hold them (``check_store_lod``; a ``crs`` other than the one it was built with): they were fixed when
+    its tiles were parsed, so another value would silently be ignored."""
     store = TileStore.open(path)
-    if lod is not None and str(lod) != str(store.lod):
-        raise _built_with(path, "lod", store.lod, parameter("store_lod", lod))
+    check_store_lod(store, lod, path)
     if crs is not None and not _same_crs(crs, store.crs):
         built = store.index.get("crs_override") or (store.crs.name if store.crs is not None else None)
-        raise _built_with(path, "crs", built, parameter("store_crs", crs))
+        raise _built_with(path, f"crs={built}", parameter("store_crs", crs))
     return store
 
 
-def _built_with(path: str | Path, name: str, built: object, again: str) -> InputFileError:
-    return InputFileError(f"{path}: the store was built with {name}={built}; build it again with {again}")
+def check_store_lod(store: TileStore, lod: int | str | None, path: str | Path | None = None) -> None:
+    """Refuse in one line a ``lod`` the store does not hold; the one rule of every command that opens a
+    store with a ``--lod`` (``open_store``). Held: the LoD it was built at; or, built at each building's
+    highest LoD (``lod=None``), a whole-number LoD that is every tile's only one (reading the tiles at it
+    gives the same buildings). A LoD no tile holds is refused as a single file without it is
+    (``LodNotHeldError``: ``no LoD N building geometry; LoDs present: ...``); a LoD held beside others, a
+    refinement (2.2) of a store built at each building's highest, or another LoD than the one it was built
+    at asks for the store to be built again at it (``InputFileError``)."""
+    where = store.root if path is None else path
+    if isinstance(lod, str) and lod.strip().isdigit():
+        lod = int(lod)
+    if lod is None or str(lod) == str(store.lod):
+        return
+    held = store.lods_held()
+    if store.lod is None and held is not None:
+        if isinstance(lod, int) and held == [lod]:
+            return
+        whole = int(str(lod).split(".")[0])
+        if whole not in held:
+            present = ", ".join(map(str, held))
+            raise LodNotHeldError(
+                f"{where}: no LoD {lod} building geometry; LoDs present: {present} (the store was built with "
+                "each building's highest LoD)",
+                present=present,
+            )
+    built = "each building's highest LoD" if store.lod is None else f"LoD {store.lod}"
+    if held is not None:
+        built += f" (its tiles hold LoDs {', '.join(map(str, held))})"
+    raise _built_with(where, built, parameter("store_lod", lod))
+
+
+def _built_with(path: str | Path, built: str, again: str) -> InputFileError:
+    return InputFileError(f"{path}: the store was built with {built}; build it again with {again}")
 
 
 def _same_crs(given: str, store_crs: pyproj.CRS | None) -> bool:

@@ -39,6 +39,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     add_model_arguments(p, positional=True)
 
 
+LOD_HELP = "LoD to read: 0 to 4 (CityJSON also a refinement, e.g. 2.2; default: the highest per building)"
+
+
 def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
     """The city-model options every command shares: the file (``PATH`` or ``--city``), LoD, CRS, cache."""
     help_text = (
@@ -49,11 +52,7 @@ def add_model_arguments(p: argparse.ArgumentParser, positional: bool) -> None:
         p.add_argument("path", help=help_text)
     else:
         p.add_argument("--city", dest="path", required=True, help=help_text)
-    p.add_argument(
-        "--lod",
-        default=None,
-        help="LoD to read: 0 to 4 (CityJSON also a refinement, e.g. 2.2; default: the highest per building)",
-    )
+    p.add_argument("--lod", default=None, help=LOD_HELP)
     p.add_argument("--crs", default=None, help="override the file's CRS, e.g. EPSG:25832")
     p.add_argument(
         "--no-cache",

@@ -8,7 +8,8 @@ import json
 import sys
 
 from semcityloc.citymodel.tiles import TileStore, build_store
-from semcityloc.errors import counted
+from semcityloc.cli.city import LOD_HELP, parse_lod
+from semcityloc.errors import counted, shown_names
 
 SHOWN_SKIPPED = 10  # tiles left out named one per line; the rest counted
 
@@ -22,9 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     build = tiles_sub.add_parser("build", help="index a folder of CityGML / CityJSON tiles into a store")
     build.add_argument("folder", help="folder of tiles (searched recursively; formats may be mixed)")
     build.add_argument("--out", required=True, help="the store's folder")
-    build.add_argument(
-        "--lod", type=int, default=None, help="LoD to read (default: the highest per building)"
-    )
+    build.add_argument("--lod", default=None, help=LOD_HELP)
     build.add_argument("--crs", default=None, help="override the tiles' CRS, e.g. EPSG:25832")
     build.add_argument(
         "--overwrite", action="store_true", help="replace the store already in --out (default: refuse)"
@@ -49,7 +48,12 @@ def run_build(args: argparse.Namespace) -> int:
 
     try:
         report = build_store(
-            args.folder, args.out, lod=args.lod, crs=args.crs, progress=progress, overwrite=args.overwrite
+            args.folder,
+            args.out,
+            lod=parse_lod(args.lod),
+            crs=args.crs,
+            progress=progress,
+            overwrite=args.overwrite,
         )
     finally:  # the progress line ends, whatever ends the build (an error, a Ctrl-C: their line follows)
         if shown:
@@ -85,6 +89,15 @@ def run_info(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
         return 0
+    width = max(len(key) for key in summary) + 2
     for key, value in summary.items():
-        print(f"{key + ':':<12}{value}")
+        if key == "lod" and value is None:
+            value = "each building's highest"
+        elif key == "lods" and value is None:
+            value = "not recorded (built before stop 56)"
+        elif key == "skipped_tiles":
+            value = f"{len(value)} ({shown_names(value)})" if value else 0
+        elif isinstance(value, list) and key in ("lods", "formats"):
+            value = ", ".join(map(str, value))
+        print(f"{key + ':':<{width}}{value}")
     return 0
