@@ -11,7 +11,7 @@ import pytest
 from semcityloc.benchmark.spec import open_tile_store
 from semcityloc.citymodel.tiles import TileStore, build_store, load_city, open_store
 from semcityloc.cli.main import main
-from semcityloc.errors import InputFileError, LodNotHeldError
+from semcityloc.errors import InputFileError, LodNotHeldError, OutputPathError
 
 SHELL = [[[0, 3, 2, 1]], [[4, 5, 6, 7]], [[0, 1, 5, 4]], [[1, 2, 6, 5]], [[2, 3, 7, 6]], [[3, 0, 4, 7]]]
 BOX = [[0, 0, 0], [10, 0, 0], [10, 8, 0], [0, 8, 0], [0, 0, 9], [10, 0, 9], [10, 8, 9], [0, 8, 9]]
@@ -109,3 +109,29 @@ def test_a_store_holds_the_lod_every_tile_was_read_at_one_rule_for_every_command
         open_store(mixed, lod=2)
     code, out, _ = cli(capsys, "tiles", "info", mixed)
     assert code == 0 and "lod:           each building's highest" in out and "lods:          1, 2" in out
+
+
+def test_a_store_is_not_built_into_a_folder_of_other_files_nor_from_a_file(tmp_path, capsys):
+    """``tiles build --out DIR`` wrote into a folder of the user's files (or a benchmark run, with
+    ``--overwrite``) without a word, and ``tiles build FILE.gml`` said "no such folder of tiles"."""
+    tiles = tmp_path / "tiles"
+    box_tile(tiles / "a.json", "2")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    (mine / "results.csv").write_text("")
+    for overwrite in (False, True):
+        with pytest.raises(OutputPathError, match=r"not empty and not a tile store \(it holds notes\.txt"):
+            build_store(tiles, mine, overwrite=overwrite)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt", "results.csv"]
+    code, _, err = cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "mine", "--overwrite")
+    assert code == 2 and "results.csv" in err and err.count("\n") == 1
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(OutputPathError, match="a file, not a folder"):
+        build_store(tiles, tmp_path / "afile")
+    code, _, err = cli(capsys, "tiles", "build", tiles / "a.json", "--out", tmp_path / "s")
+    assert (
+        code == 2 and "a.json: a file, not a folder of tiles" in err and f"--city {tiles / 'a.json'}" in err
+    )
+    assert cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "store")[0] == 0  # a new folder
+    assert cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "store", "--overwrite")[0] == 0

@@ -159,6 +159,11 @@ def build_store(
     """
     t0 = time.perf_counter()
     folder, root = Path(folder), Path(out)
+    if folder.is_file():
+        raise InputFileError(
+            f"{folder}: a file, not a folder of tiles: give the folder that holds the tiles, or pass the "
+            f"file itself to any command that takes a city ({parameter('city', folder)})"
+        )
     if not folder.is_dir():
         raise InputFileError(f"{folder}: no such folder of tiles")
     if root.resolve() == folder.resolve() or root.resolve() in folder.resolve().parents:
@@ -262,9 +267,22 @@ def build_store(
     )
 
 
+STORE_NAMES = (INDEX_FILE, BUILDINGS_FILE, TILES_DIR, INDEX_FILE + ".tmp")  # what a build writes in ``out``
+
+
 def _clear_old_store(root: Path, overwrite: bool) -> None:
     """Refuse (``OutputPathError``) or, with ``overwrite``, remove the store already at ``root``: its
-    index first, then its tile and building files (only the names a build writes)."""
+    index first, then its tile and building files (only the names a build writes). A file at ``root``, or
+    a folder holding anything a build does not write (a user's files, a benchmark run), is refused with
+    ``overwrite`` too, naming what it holds: the store's files would mix with them."""
+    if root.exists() and not root.is_dir():
+        raise OutputPathError(f"{root}: a file, not a folder: give a new or empty folder for the store")
+    others = sorted(p.name for p in root.iterdir() if p.name not in STORE_NAMES) if root.is_dir() else []
+    if others:
+        raise OutputPathError(
+            f"{root}: not empty and not a tile store (it holds {shown_names(others)}); build the store in a "
+            "new or empty folder"
+        )
     old = [root / INDEX_FILE, root / BUILDINGS_FILE, root / TILES_DIR]
     if not any(p.exists() for p in old):
         return
