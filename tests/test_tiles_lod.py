@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from semcityloc.benchmark.spec import open_tile_store
+from semcityloc.citymodel.model import CityModel
 from semcityloc.citymodel.tiles import TileStore, build_store, load_city, open_store
 from semcityloc.cli.main import main
 from semcityloc.errors import InputFileError, LodNotHeldError, OutputPathError
@@ -135,3 +136,30 @@ def test_a_store_is_not_built_into_a_folder_of_other_files_nor_from_a_file(tmp_p
     )
     assert cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "store")[0] == 0  # a new folder
     assert cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "store", "--overwrite")[0] == 0
+
+
+def test_a_damaged_store_says_what_is_wrong_and_tiles_info_checks_the_tile_files(tmp_path, capsys):
+    """A text file in place of a tile was said to hold "pickled objects", a missing one to be "damaged, or
+    another program's: [Errno 2]", ``tiles info`` passed both, and printed ``skipped_tiles:2`` unnamed."""
+    tiles = tmp_path / "tiles"
+    box_tile(tiles / "a.json", "2")
+    water = {"type": "CityJSON", "version": "1.1", "transform": {"scale": [1, 1, 1], "translate": [0, 0, 0]}}
+    (tiles / "water.json").write_text(json.dumps({**water, "CityObjects": {}, "vertices": []}))
+    store = tmp_path / "store"
+    build_store(tiles, store)
+    code, out, _ = cli(capsys, "tiles", "info", store)
+    assert code == 0 and "skipped_tiles: 1 (water.json)" in out
+    assert json.loads(cli(capsys, "tiles", "info", store, "--json")[1])["skipped_tiles"] == ["water.json"]
+    npz = store / "tiles" / "00000.npz"
+    npz.write_text("not a tile\n")
+    code, _, err = cli(capsys, "city", "info", store)
+    assert code == 2 and "no npz (ZIP) file: text" in err and "pickled" not in err and "a.json" in err
+    npz.write_bytes(b"")
+    with pytest.raises(InputFileError, match="the file is empty"):
+        CityModel.load_npz(npz)  # was numpy's EOFError
+    npz.unlink()
+    for argv in (["tiles", "info", store], ["city", "info", store]):
+        code, _, err = cli(capsys, *argv)
+        assert code == 2 and err.count("\n") == 1, err
+        assert "1 tile file missing (tiles/00000.npz of a.json)" in err and "--overwrite" in err
+        assert "Errno" not in err and "another program" not in err

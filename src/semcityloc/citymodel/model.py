@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -265,8 +266,10 @@ class CityModel:
                 arrays = {
                     k: z[k] for k in ("origin", "vertices", "triangles", "classes", "building_index", "lods")
                 }
-        except (OSError, KeyError, ValueError) as exc:
-            why = "it holds pickled objects" if "pickle" in str(exc) else str(exc)  # numpy's own advice
+        except FileNotFoundError as exc:
+            raise InputFileError(f"{path}: no such file") from exc
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # empty, cut short
+            why = _npz_fault(path, exc)
             raise InputFileError(
                 f"{path}: not a semcityloc city-model npz (damaged, or another program's: {why})"
             ) from exc
@@ -278,6 +281,23 @@ class CityModel:
             source=meta.get("source", ""),
             stats=ParseStats(**meta.get("stats", {})),
         )
+
+
+def _npz_fault(path: str | Path, exc: Exception) -> str:
+    """What is wrong with a file ``CityModel.load_npz`` could not read, in a user's words: numpy tries any
+    file that is no ZIP (npz) or npy as a pickle, and says so, also for a text file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(6)
+    except OSError as err:
+        return str(err)
+    if not head:
+        return "the file is empty"
+    if "pickle" not in str(exc):
+        return str(exc)
+    if head.startswith(b"\x80"):  # a pickle's protocol byte
+        return "it holds pickled objects"
+    return "it is no npz (ZIP) file: text or another kind of file"
 
 
 def _pose(pose, what: str) -> Pose:

@@ -440,7 +440,14 @@ class TileStore:
             raise InputFileError(
                 f"{root}: store format {index.get('format')!r}, this version reads {STORE_FORMAT}"
             )
-        return cls(root, index, tile_of, bbox, ring, budget_mb)
+        store = cls(root, index, tile_of, bbox, ring, budget_mb)
+        missing = [f"{t.npz} of {t.name}" for t in store.tiles if not (root / t.npz).is_file()]
+        if missing:
+            raise InputFileError(
+                f"{root}: a damaged tile store: {counted(len(missing), 'tile file')} missing "
+                f"({shown_names(missing)}); build it again with {parameter('store_again')}"
+            )
+        return store
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
@@ -513,7 +520,19 @@ class TileStore:
         return self.cache.get(index, self._read_tile)
 
     def _read_tile(self, index: int) -> CityModel:
-        model = CityModel.load_npz(self.root / self.tiles[index].npz)
+        tile = self.tiles[index]
+        if not (self.root / tile.npz).is_file():  # removed since the store was opened
+            raise InputFileError(
+                f"{self.root}: a damaged tile store: tile file {tile.npz} of {tile.name} is missing; build "
+                f"it again with {parameter('store_again')}"
+            )
+        try:
+            model = CityModel.load_npz(self.root / tile.npz)
+        except InputFileError as exc:
+            raise InputFileError(
+                f"{self.root}: a damaged tile store: tile {tile.name}: {exc}; build it again with "
+                f"{parameter('store_again')}"
+            ) from exc
         if not np.array_equal(model.origin, self.origin):
             raise InputFileError(f"{self.root}: tile {self.tiles[index].name} is not in the store's origin")
         return model
