@@ -135,6 +135,9 @@ def test_a_store_is_not_built_into_a_folder_of_other_files_nor_from_a_file(tmp_p
         code == 2 and "a.json: a file, not a folder of tiles" in err and f"--city {tiles / 'a.json'}" in err
     )
     assert cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "store")[0] == 0  # a new folder
+    (tmp_path / "hidden").mkdir()
+    (tmp_path / "hidden" / ".DS_Store").write_text("")  # a file manager's: no one's work
+    assert cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "hidden")[0] == 0
     assert cli(capsys, "tiles", "build", tiles, "--out", tmp_path / "store", "--overwrite")[0] == 0
 
 

@@ -295,7 +295,7 @@ def _npz_fault(path: str | Path, exc: Exception) -> str:
         return "the file is empty"
     if "pickle" not in str(exc):
         return str(exc)
-    if head.startswith(b"\x80"):  # a pickle's protocol byte
+    if head.startswith((b"PK", b"\x93NUMPY", b"\x80")):  # an npz or npy of objects, or a pickle itself
         return "it holds pickled objects"
     return "it is no npz (ZIP) file: text or another kind of file"
 

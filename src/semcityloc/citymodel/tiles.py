@@ -273,11 +273,13 @@ STORE_NAMES = (INDEX_FILE, BUILDINGS_FILE, TILES_DIR, INDEX_FILE + ".tmp")  # wh
 def _clear_old_store(root: Path, overwrite: bool) -> None:
     """Refuse (``OutputPathError``) or, with ``overwrite``, remove the store already at ``root``: its
     index first, then its tile and building files (only the names a build writes). A file at ``root``, or
-    a folder holding anything a build does not write (a user's files, a benchmark run), is refused with
-    ``overwrite`` too, naming what it holds: the store's files would mix with them."""
+    a folder holding anything a build does not write but hidden files (a user's files, a benchmark run), is
+    refused with ``overwrite`` too, naming what it holds: the store's files would mix with them."""
     if root.exists() and not root.is_dir():
         raise OutputPathError(f"{root}: a file, not a folder: give a new or empty folder for the store")
-    others = sorted(p.name for p in root.iterdir() if p.name not in STORE_NAMES) if root.is_dir() else []
+    # hidden files (a file manager's .DS_Store) are no one's work: the tile search passes them over too
+    inside = sorted(p.name for p in root.iterdir()) if root.is_dir() else []
+    others = [name for name in inside if name not in STORE_NAMES and not name.startswith(".")]
     if others:
         raise OutputPathError(
             f"{root}: not empty and not a tile store (it holds {shown_names(others)}); build the store in a "
