@@ -35,9 +35,9 @@ drawn from the kept label maps``); a map of another size than its photo is named
 Refused before any work (``cli.outputs.check_outputs``): an output that is an input (PNG photos and
 ``--out`` the same folder) and two photos of one stem (``X.JPG``, ``X.png``), which would write one
 ``X.png``. A label map beside a photo of its stem (``X.png``, palette of the classes or grey class ids,
-beside ``X.JPG``: ``--out`` the photos' own folder, ``label_maps_beside_photos``) is no photo (stop 56):
-into that folder it is the photo's kept label map; from another ``--out`` it is left out, with a note. A
-write that fails (a full disk, a folder where the file goes) is one line
+beside ``X.JPG``: ``--out`` the photos' own folder, ``io.images.label_maps_beside_photos``) is no photo
+(stop 56): into that folder it is the photo's kept label map; from another ``--out`` it is left out, with a
+note. A write that fails (a full disk, a folder where the file goes) is one line
 (``benchmark.runfiles.writing``). One run at a time writes a folder (stop 56): ``label`` holds
 ``--out/run.lock`` as ``run`` does (``benchmark.runfiles.run_lock``), so a second run into it is refused
 naming the first's pid, and a lock a killed run left is taken over.
@@ -49,7 +49,6 @@ import argparse
 import json
 import os
 import sys
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -70,7 +69,7 @@ from semcityloc.errors import InputFileError, SemCityLocError, counted, shown_na
 from semcityloc.geometry.distortion import distort_image
 from semcityloc.io.images import (
     image_size,
-    is_label_map,
+    label_maps_beside_photos,
     load_image,
     load_labels_png,
     save_labels_png,
@@ -166,16 +165,6 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     with run_lock(out):  # one run at a time writes a folder, as ``run`` and ``benchmark``
         return _run_locked(args, images, out)
-
-
-def label_maps_beside_photos(images: list[Path]) -> set[Path]:
-    """The ``images`` that are label maps beside a photo of their stem (``X.png`` beside ``X.JPG``: what
-    ``label --out`` into the photos' own folder wrote, ``io.images.is_label_map``): no photos to label, nor
-    two photos of one stem (stop 56)."""
-    stems = Counter(i.stem for i in images)
-    maps = {i for i in images if stems[i.stem] > 1 and i.suffix.lower() == ".png" and is_label_map(i)}
-    photos = {i.stem for i in images if i not in maps}
-    return {m for m in maps if m.stem in photos}
 
 
 def _same_file(a: Path, b: Path) -> bool:

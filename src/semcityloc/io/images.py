@@ -13,6 +13,7 @@ import io
 import math
 import struct
 import tokenize
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -124,6 +125,18 @@ def is_label_map(path: str | Path) -> bool:
             return invalid_class_ids(np.array(img)) is None
     except IMAGE_DECODE_ERRORS:
         return False
+
+
+def label_maps_beside_photos(images: list[Path]) -> set[Path]:
+    """The ``images`` that are label maps beside a photo of their stem (``X.png`` beside ``X.JPG``: what
+    ``label --out`` into the photos' own folder wrote, ``is_label_map``): no photos to label or train on,
+    nor two photos of one stem (stop 56; ``semcityloc label``, ``perception.training.find_pairs``)."""
+    stems = Counter(Path(i).stem for i in images)
+    maps = {
+        i for i in images if stems[Path(i).stem] > 1 and Path(i).suffix.lower() == ".png" and is_label_map(i)
+    }
+    photos = {Path(i).stem for i in images if i not in maps}
+    return {m for m in maps if Path(m).stem in photos}
 
 
 def save_depth(depth: np.ndarray, path_png: str | Path) -> tuple[Path, Path]:
