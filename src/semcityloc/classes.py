@@ -104,5 +104,5 @@ def invalid_class_ids(labels: np.ndarray) -> str | None:
     shown = ", ".join(str(int(i)) for i in ids[:12]) + (", ..." if len(ids) > 12 else "")
     return (
         f"invalid class ids {shown} in {int(bad.sum())} pixels; class ids must be "
-        f"0..{NUM_CLASSES - 1} or {IGNORE} (semcityloc.classes)"
+        f"0..{NUM_CLASSES - 1} ({', '.join(CLASS_NAMES)}) or {IGNORE} (ignore; semcityloc.classes)"
     )

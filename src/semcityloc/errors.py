@@ -266,6 +266,13 @@ PARAMETERS: dict[str, Parameter] = {
     "executor": Parameter("executor='{}'", "--executor {}"),
     "ray_address": Parameter("ray_address='{}'", "--ray-address {}"),
     "settings": Parameter("settings={}", "--set {}"),  # ``scenario.query_config``'s knobs
+    # ``train_segmenter``'s settings (``TrainConfig``) and its own keywords
+    "lr": Parameter("TrainConfig(lr={})", "--lr {}"),
+    "epochs": Parameter("TrainConfig(epochs={})", "--epochs {}"),
+    "train_classes": Parameter("TrainConfig(classes='{}')", "--classes {}"),
+    "input_size": Parameter("TrainConfig(input_size='{}')", "--input-size {}"),
+    "val_fraction": Parameter("split_samples(..., val_fraction={})", "--val-fraction {}"),
+    "resume": Parameter("train_segmenter(..., resume=True)", "--resume"),
 }
 
 

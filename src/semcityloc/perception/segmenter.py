@@ -263,6 +263,15 @@ def load_segmenter(head_dir: str | Path, backbone: str | None = None, device: st
             f"{head_dir / HEAD_WEIGHTS}: weights do not fit {HEAD_JSON} (missing {missing[:3]}, "
             f"unexpected {unexpected[:3]}, wrong shape {bad[:3]})"
         )
+    broken = sorted(
+        k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())
+    )
+    if broken:  # a diverged training's head: its every output would be NaN, no class at all
+        raise InputFileError(
+            f"{head_dir / HEAD_WEIGHTS}: head weights are not finite (NaN or inf in "
+            f"{', '.join(broken[:3])}): a training that diverged saved them; train again with a lower "
+            "learning rate"
+        )
     head.load_state_dict(state, strict=True)
     bspec = dict(bspec, path=path)
     seg = Segmenter(bb, head, dict(spec, backbone=bspec))

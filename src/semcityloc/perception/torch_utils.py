@@ -112,6 +112,18 @@ def image_tensor(images: np.ndarray | list[np.ndarray], size: tuple[int, int] | 
     return x.contiguous()
 
 
+def resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(h, w, 3) uint8 copy of an (H, W, 3) uint8 image resized to ``size`` = (w, h) with ``image_tensor``'s
+    filter (bilinear with antialiasing, the one inference uses); ``image`` itself when it has that size."""
+    image = np.asarray(image)
+    if (image.shape[1], image.shape[0]) == tuple(size):
+        return image
+    x = image_tensor(image, size, normalize=False)[0]
+    return (
+        x.mul_(255.0).round_().clamp_(0, 255).to(require_torch().uint8).permute(1, 2, 0).contiguous().numpy()
+    )
+
+
 def labels_tensor(labels: np.ndarray | list[np.ndarray], size: tuple[int, int] | None = None):
     """(N, h, w) int64 tensor of label maps resized by nearest neighbour (pixel centres) to (w, h)."""
     torch = require_torch()
