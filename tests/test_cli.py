@@ -677,6 +677,17 @@ def test_localize_input_errors_are_one_line_before_localizing(exif_view, tmp_pat
     assert not (tmp_path / "o").exists()  # refused before anything was localized or written
 
 
+def test_localize_refuses_an_option_of_a_backend_it_does_not_run(exif_view, tmp_path, capsys):
+    """Stop 56: ``model=`` (moge2's) beside ``--depth-backend files`` was ignored without a word."""
+    r = exif_view["root"]
+    argv = ["--semantic", r / "r" / "labels.png", "--image", exif_view["photo"], "--depth-backend", "files"]
+    argv += ["--backend-option", f"depth={r / 'depth'}", "--backend-option", "model=/nonexistent/model.pt"]
+    code, out, err = _localize(capsys, exif_view, tmp_path / "o", *argv, "--intrinsics", "exif")
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert "backend option model=/nonexistent/model.pt is not used" in err and "--depth-backend moge2" in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_localize_says_when_a_method_leaves_the_given_depth_unused(exif_view, tmp_path, capsys):
     """``--depth`` with ``--method no-depth`` was dropped silently."""
     r = exif_view["root"]

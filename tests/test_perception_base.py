@@ -58,6 +58,41 @@ def test_options_meant_for_the_other_backend_are_ignored(tmp_path):
 
 
 @pytest.mark.parametrize(
+    "seg, depth, options, words",
+    [
+        (
+            "mobilenetv2",
+            None,
+            {"model": "/x/model.pt"},
+            [
+                "model=/x/model.pt is not used",
+                "depth backend moge2",
+                "depth_backend='moge2'",
+                "no depth backend is given",
+            ],
+        ),
+        (
+            "files",
+            "files",
+            {"head": "runs/h"},
+            ["head=runs/h", "segmentation backend dinov3-dpt", "segmentation backend is files"],
+        ),
+        ("files", None, {"resolution_level": "9"}, ["resolution_level=9 is not used"]),
+        ("mobilenetv2", None, {"hed": "x"}, ["unknown backend option(s) 'hed'", "head"]),
+    ],
+)
+def test_an_option_of_a_backend_not_selected_is_refused_naming_it(seg, depth, options, words):
+    """Stop 56: ``model=...`` without ``--depth-backend moge2`` was dropped without a word (audit B 10)."""
+    from semcityloc.perception.registry import check_backend_options
+
+    with pytest.raises(ParameterError) as err:
+        check_backend_options(seg, depth, options)
+    for word in words:
+        assert word in str(err.value)
+    check_backend_options("mobilenetv2", "moge2", {"model": "m", "head": "h", "threads": "2"})  # all used
+
+
+@pytest.mark.parametrize(
     "kind, name, options, words",
     [
         (

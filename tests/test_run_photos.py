@@ -1352,6 +1352,22 @@ def test_a_geoid_separation_that_is_no_number_of_metres_is_refused_when_the_run_
     assert PhotoSpec(str(tmp_path), "city.obj", masks=str(tmp_path), geoid_separation_m=47.2)
 
 
+def test_a_backend_option_no_selected_backend_takes_is_refused_when_the_run_is_made(tmp_path, capsys):
+    """Stop 56: ``--backend-option model=...`` without ``--depth-backend moge2`` was ignored without a word;
+    refused before anything is read, in Python as ``PhotoSpec`` takes it, on the command line as flags."""
+    from semcityloc.errors import ParameterError
+
+    masks = ("masks", str(tmp_path))
+    with pytest.raises(ParameterError, match="model=m.pt is not used.*depth_backend='moge2'"):
+        PhotoSpec(str(tmp_path), "city.obj", seg_backend="files", backend_options=(masks, ("model", "m.pt")))
+    argv = ["run", tmp_path, "--city", "city.obj", "--seg-backend", "files", "--out", tmp_path / "out"]
+    code, _, err = run(
+        capsys, *argv, "--backend-option", f"masks={tmp_path}", "--backend-option", "model=m.pt"
+    )
+    assert code == 2 and err.count("\n") == 1 and "model=m.pt is not used" in err, err
+    assert "--depth-backend moge2" in err and not (tmp_path / "out").exists()
+
+
 def test_a_geoid_separation_with_ellipsoidal_model_heights_is_refused(tmp_path, capsys):
     """``--geoid-separation`` was used only with ``--target-height orthometric`` (or a compound CRS) and said
     unused otherwise (user audit, stop 52): with ``auto`` it now applies (``dji.model_heights_orthometric``);

@@ -57,7 +57,7 @@ from semcityloc.errors import (
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import ABLATIONS
-from semcityloc.perception.registry import backend_entry
+from semcityloc.perception.registry import backend_entry, check_backend_options
 
 RUN_FORMAT = 1
 CALIBRATE_FOCAL = ("auto", "on", "off")  # ``PhotoSpec.calibrate_focal``
@@ -120,6 +120,7 @@ class PhotoSpec:
         for kind, name in (("segmentation", self.seg_backend), ("depth", self.depth_backend)):
             if name:
                 backend_entry(kind, name)
+        check_backend_options(self.seg_backend, self.depth_backend, self.backend_options)
         if self.method not in ABLATIONS:
             raise unknown_choice("method for photos", self.method, ABLATIONS, BenchmarkError)
         if self.target_height not in TARGET_HEIGHTS:

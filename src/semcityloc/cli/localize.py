@@ -50,6 +50,7 @@ from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import with_lossy_masks
 from semcityloc.perception.registry import (
     available_backends,
+    check_backend_options,
     get_depth_backend,
     get_segmentation_backend,
 )
@@ -224,6 +225,7 @@ def _check_files(args) -> None:
         raise InputFileError(
             "--backend-option sets options of --seg-backend / --depth-backend: give one of them"
         )
+    check_backend_options(args.seg_backend, args.depth_backend, parse_backend_options(args.backend_option))
 
 
 def _camera(args) -> PhotoCamera:

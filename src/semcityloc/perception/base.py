@@ -17,7 +17,8 @@ Conventions of every backend:
 
 Options: each backend declares the option names it accepts. The same option dict may be handed to a
 segmentation and a depth backend (the CLI does), so an option that another registered backend knows is
-ignored; an option no backend knows is a ``ParameterError`` (a typo).
+ignored; an option no backend knows is a ``ParameterError`` (a typo). The commands check first that each
+option is taken by a selected backend (``registry.check_backend_options``).
 
 Weights are never fetched silently: a missing file raises ``MissingWeightsError`` naming what to download
 and where to put it (default folder: ``weights_dir()``). Hugging Face hub ids are looked up only when

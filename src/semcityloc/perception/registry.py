@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from semcityloc.errors import ParameterError, unknown_choice
+from semcityloc.errors import ParameterError, parameter, unknown_choice
 from semcityloc.perception.base import DepthBackend, SegmentationBackend
 from semcityloc.perception.files import files_depth_backend, files_segmentation_backend
 
@@ -69,6 +69,45 @@ def _filter_options(entry: BackendEntry, options: dict[str, Any]) -> dict[str, A
     if unknown:
         raise unknown_choice(f"{entry.kind} backend {entry.name!r} option(s)", unknown, entry.options)
     return {k: v for k, v in options.items() if k in entry.options and v is not None}
+
+
+# The parameter that selects a backend of each kind (``errors.PARAMETERS``: ``--seg-backend`` on the CLI).
+SELECTED_BY = {"segmentation": "seg_backend", "depth": "depth_backend"}
+
+
+def check_backend_options(seg_backend: str | None, depth_backend: str | None, options) -> None:
+    """Refuse, before anything loads, an option (``options``: names, or a mapping / (key, value) pairs) that
+    neither selected backend takes: one no backend knows is a typo (``unknown_choice``); one of a backend
+    that is not selected (``model=`` without ``--depth-backend moge2``) would be ignored without a word
+    (``_filter_options`` drops it), so it is named with its backend and the option that selects it."""
+    pairs = options.items() if isinstance(options, dict) else options
+    items = [(kv, None) if isinstance(kv, str) else (kv[0], kv[1]) for kv in pairs]
+    selected = {
+        kind: name for kind, name in (("segmentation", seg_backend), ("depth", depth_backend)) if name
+    }
+    taken = {o for kind, name in selected.items() for o in backend_entry(kind, name).options}
+    for key, value in items:
+        if key in taken:
+            continue
+        owners = [e for e in _REGISTRY.values() if key in e.options]
+        if not owners:
+            raise unknown_choice(
+                "backend option(s)",
+                [key],
+                sorted(taken) or sorted({o for e in _REGISTRY.values() for o in e.options}),
+            )
+        given = key if value is None else f"{key}={value}"
+        whose = " or ".join(
+            f"the {e.kind} backend {e.name} ({parameter(SELECTED_BY[e.kind], e.name)})" for e in owners
+        )
+        chosen = ", ".join(
+            f"the {kind} backend is {selected[kind]}" if kind in selected else f"no {kind} backend is given"
+            for kind in SELECTED_BY
+        )
+        raise ParameterError(
+            f"backend option {given} is not used: it is an option of {whose}, but {chosen}; select that "
+            "backend or leave the option out"
+        )
 
 
 def get_segmentation_backend(name: str, **options: Any) -> SegmentationBackend:
