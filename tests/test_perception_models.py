@@ -188,6 +188,10 @@ def test_mobilenetv2_head_round_trip_through_the_registry(tmp_path):
     save_head(seg, tmp_path)
     out = get_segmentation_backend("mobilenetv2", head=str(tmp_path)).predict(PHOTO)
     assert np.allclose(out.probs[:4], probs, atol=1e-5)
+    # Stop 56: head=DIR/head.json was "no trained segmentation head"; a file of the head is its folder.
+    for name in ("head.json", "head.safetensors"):
+        out = get_segmentation_backend("mobilenetv2", head=str(tmp_path / name)).predict(PHOTO)
+        assert np.allclose(out.probs[:4], probs, atol=1e-5)
 
 
 # ---------------------------------------------------------------------------------------------- MoGe-2

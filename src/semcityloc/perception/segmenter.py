@@ -25,13 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from semcityloc.errors import InputFileError, MissingWeightsError, ParameterError, parameter
+from semcityloc.errors import InputFileError, ParameterError
 from semcityloc.perception.base import (
     SegmentationOutput,
     check_classes,
     check_image,
     class_probs_to_output,
-    weights_dir,
 )
 from semcityloc.perception.dinov3 import DINOv3Backbone
 from semcityloc.perception.heads import DPTSegHead, FPNSegHead, build_head
@@ -44,17 +43,20 @@ from semcityloc.perception.torch_utils import (
     require,
     require_torch,
 )
+from semcityloc.perception.weight_files import (
+    HEAD_FORMAT,
+    HEAD_JSON,
+    HEAD_VERSION,
+    HEAD_WEIGHTS,
+    head_folder,
+    read_head_spec,
+)
 
 torch = require_torch("segmentation")
 nn = torch.nn
 F = torch.nn.functional
 
-HEAD_FORMAT = "semcityloc-segmentation-head"
-HEAD_VERSION = 1
-HEAD_JSON = "head.json"
-HEAD_WEIGHTS = "head.safetensors"
 DEFAULT_INPUT_AREA = {"dinov3": 512 * 384, "mobilenetv2": 256 * 192}
-DEFAULT_HEAD_DIRS = {"dinov3": "dinov3-dpt-head", "mobilenetv2": "mobilenetv2-head"}
 
 
 # ---------------------------------------------------------------------------------------------- backbones
@@ -202,32 +204,6 @@ def save_head(segmenter: Segmenter, out_dir: str | Path, metrics: dict | None = 
     return out
 
 
-def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
-    """The spec (``head.json``) of a trained head folder, checked: a ``MissingWeightsError`` saying how to
-    train one when the folder lacks its two files, an ``InputFileError`` when the spec is unreadable, not
-    ours, of a newer version or incomplete.
-    """
-    head_dir = Path(head_dir)
-    path = head_dir / HEAD_JSON
-    if not path.is_file() or not (head_dir / HEAD_WEIGHTS).is_file():
-        raise MissingWeightsError(
-            f"{head_dir}: no trained segmentation head ({HEAD_JSON} + {HEAD_WEIGHTS}); train one with "
-            f"{parameter('train_segmenter')} and pass its folder as {parameter('head', 'DIR')}"
-        )
-    try:
-        spec = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFileError(f"{path}: unreadable head description ({exc})") from exc
-    if not isinstance(spec, dict) or spec.get("format") != HEAD_FORMAT:
-        raise InputFileError(f"{path}: not a semcityloc segmentation head (format {spec.get('format')!r})")
-    if int(spec.get("version", 0)) > HEAD_VERSION:
-        raise InputFileError(f"{path}: head version {spec['version']} is newer than this semcityloc reads")
-    for key in ("backbone", "head", "classes", "input_size", "stride"):
-        if key not in spec:
-            raise InputFileError(f"{path}: missing key {key!r}")
-    return spec
-
-
 def load_segmenter(head_dir: str | Path, backbone: str | None = None, device: str | None = None) -> Segmenter:
     """Rebuild a saved segmenter. ``backbone`` overrides the backbone path stored in ``head.json`` (a
     head trained on one machine is used on another): ``"DIR"``, ``"dinov3:DIR"`` or
@@ -299,10 +275,11 @@ class SegmenterBackend:
 
 
 def _segmenter_backend(name: str, kind: str, head, backbone, device, threads) -> SegmenterBackend:
-    """The backend ``name`` of a head trained on a ``kind`` backbone: ``head`` (default
-    ``weights_dir()/DEFAULT_HEAD_DIRS[kind]``), refused before loading when it was trained on another."""
+    """The backend ``name`` of a head trained on a ``kind`` backbone: ``head`` (its folder, or a path to its
+    head.json; default ``weights_dir()/DEFAULT_HEAD_DIRS[kind]``: ``weight_files.head_folder``), refused
+    before loading when it was trained on another."""
     n = parse_threads(threads)
-    head_dir = Path(head) if head else weights_dir() / DEFAULT_HEAD_DIRS[kind]
+    head_dir = head_folder(head, kind)
     trained_on = read_head_spec(head_dir)["backbone"].get("kind")
     if trained_on != kind:
         raise ParameterError(f"head {head_dir} was trained on {trained_on}, not {kind} (backend {name})")
