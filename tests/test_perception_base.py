@@ -92,6 +92,32 @@ def test_an_option_of_a_backend_not_selected_is_refused_naming_it(seg, depth, op
     check_backend_options("mobilenetv2", "moge2", {"model": "m", "head": "h", "threads": "2"})  # all used
 
 
+def test_a_moge2_hub_id_without_network_fails_at_once_in_one_line(tmp_path, monkeypatch):
+    """Stop 56 (audit B 14): a hub id with no network took ~23 s of hub retries, then an error embedding the
+    hub's paragraph; now the local cache is asked, then whether the hub's host answers: one short line."""
+    import socket
+    import time
+
+    pytest.importorskip("huggingface_hub")
+    from semcityloc.perception.weight_files import moge2_model_file
+
+    def no_dns(*args, **kwargs):
+        raise socket.gaierror(-2, "Name or service not known")
+
+    monkeypatch.delenv("HF_HUB_OFFLINE", raising=False)
+    for name in ("HTTPS_PROXY", "https_proxy", "ALL_PROXY", "all_proxy"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(socket, "getaddrinfo", no_dns)
+    start = time.monotonic()
+    with pytest.raises(MissingWeightsError) as err:
+        moge2_model_file("nobody-here/no-such-moge")
+    text = str(err.value)
+    assert time.monotonic() - start < 5.0 and "\n" not in text and len(text) < 400, text
+    assert (
+        "not in the local Hugging Face cache" in text and "cannot be reached" in text and "model=PATH" in text
+    )
+
+
 @pytest.mark.parametrize(
     "kind, name, options, words",
     [

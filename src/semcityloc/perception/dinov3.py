@@ -21,11 +21,11 @@ from pathlib import Path
 from semcityloc.errors import MissingWeightsError, ParameterError, parameter
 from semcityloc.perception.base import hub_offline, looks_like_hub_id, weights_dir
 from semcityloc.perception.torch_utils import quiet_transformers, require, require_torch
+from semcityloc.perception.weight_files import DEFAULT_DINOV3_DIR
 
 torch = require_torch("the DINOv3 backbone")
 nn = torch.nn
 
-DEFAULT_DINOV3_DIR = "dinov3-vits16"
 DOWNLOAD_HINT = (
     "download a DINOv3 ViT checkpoint in Hugging Face format (config.json + model.safetensors), e.g. "
     "facebook/dinov3-vits16-pretrain-lvd1689m (gated: accept its licence on huggingface.co), and pass its "

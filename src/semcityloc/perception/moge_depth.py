@@ -31,56 +31,14 @@ from semcityloc.errors import MissingWeightsError, ParameterError
 from semcityloc.perception.base import (
     DepthOutput,
     check_image,
-    hub_offline,
-    looks_like_hub_id,
-    weights_dir,
 )
 from semcityloc.perception.torch_utils import device_of, image_tensor, parse_threads, require, require_torch
+from semcityloc.perception.weight_files import MOGE_DOWNLOAD_HINT, default_moge2_path, moge2_model_file
 
 torch = require_torch("MoGe-2 depth")
 
-DEFAULT_MOGE_DIR = "moge-2-vits-normal"
 # Buffers a checkpoint may omit without harm: fixed ImageNet statistics, rebuilt by the constructor.
 OPTIONAL_KEYS = frozenset({"encoder.image_mean", "encoder.image_std"})
-DOWNLOAD_HINT = (
-    "download a MoGe-2 model.pt (e.g. from https://huggingface.co/Ruicheng/moge-2-vits-normal or "
-    "moge-2-vitl-normal) and pass it as model=PATH (default location: {default})"
-)
-
-
-def default_model_path() -> Path:
-    """Where the MoGe-2 ``model.pt`` is looked for when none is given: under the weights directory."""
-    return weights_dir() / DEFAULT_MOGE_DIR / "model.pt"
-
-
-def _resolve(spec: str | Path | None) -> Path:
-    """A local model.pt path; a hub id is fetched with hf_hub_download unless HF_HUB_OFFLINE is set."""
-    hint = DOWNLOAD_HINT.format(default=default_model_path())
-    if spec is None or str(spec) == "":
-        path = default_model_path()
-        if path.is_file():
-            return path
-        raise MissingWeightsError(f"no MoGe-2 model given and none at {path}: {hint}")
-    path = Path(spec).expanduser()
-    if path.is_dir():
-        path = path / "model.pt"
-    if path.is_file():
-        return path
-    if looks_like_hub_id(str(spec)) and not Path(spec).exists():
-        hub = require("huggingface_hub", "huggingface_hub", "downloading MoGe-2 weights")
-        try:
-            return Path(
-                hub.hf_hub_download(
-                    repo_id=str(spec), filename="model.pt", repo_type="model", local_files_only=hub_offline()
-                )
-            )
-        except Exception as exc:  # hub client errors of many types: one line, no hub traceback
-            why = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
-            offline = " (HF_HUB_OFFLINE is set: only the local cache was searched)" if hub_offline() else ""
-            raise MissingWeightsError(
-                f"{spec}: MoGe-2 weights not available{offline}: {why}; {hint}"
-            ) from None
-    raise MissingWeightsError(f"{path}: no such MoGe-2 model file; {hint}")
 
 
 def load_moge2(spec: str | Path | None = None, device: str | None = None):
@@ -89,8 +47,8 @@ def load_moge2(spec: str | Path | None = None, device: str | None = None):
     require("utils3d", "dlr-utils3d", "MoGe-2 depth")
     from moge.model.v2 import MoGeModel  # optional dependency, loaded only when used
 
-    path = _resolve(spec)
-    hint = DOWNLOAD_HINT.format(default=default_model_path())
+    path = moge2_model_file(spec)  # the file, found (a hub id fetched) before anything heavy loads
+    hint = MOGE_DOWNLOAD_HINT.format(default=default_moge2_path())
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # pickle / zip errors of many types

@@ -10,12 +10,18 @@ needs no torch; loading the weights does (``perception.segmenter``, ``perception
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
+import os
+import socket
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from semcityloc.errors import InputFileError, MissingWeightsError, parameter
-from semcityloc.perception.base import weights_dir
+from semcityloc.perception.base import hub_offline, looks_like_hub_id, weights_dir
+from semcityloc.perception.torch_utils import require
 
 HEAD_FORMAT = "semcityloc-segmentation-head"
 HEAD_VERSION = 1
@@ -64,3 +70,80 @@ def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
         if key not in spec:
             raise InputFileError(f"{path}: missing key {key!r}")
     return spec
+
+
+# ---------------------------------------------------------------------------------------------- MoGe-2
+MOGE_DOWNLOAD_HINT = (
+    "download a MoGe-2 model.pt (e.g. from https://huggingface.co/Ruicheng/moge-2-vits-normal or "
+    "moge-2-vitl-normal) and pass it as model=PATH (default location: {default})"
+)
+
+
+def default_moge2_path() -> Path:
+    """Where the MoGe-2 ``model.pt`` is looked for when none is given: under the weights directory."""
+    return weights_dir() / DEFAULT_MOGE_DIR / "model.pt"
+
+
+def moge2_model_file(spec: str | Path | None) -> Path:
+    """The local ``model.pt`` that ``model=`` names (a file, its folder, or the default); a hub id is looked
+    up in the local Hugging Face cache and, unless ``HF_HUB_OFFLINE`` is set, fetched
+    (``_hub_model_file``); a ``MissingWeightsError`` saying what to download otherwise."""
+    hint = MOGE_DOWNLOAD_HINT.format(default=default_moge2_path())
+    if spec is None or str(spec) == "":
+        path = default_moge2_path()
+        if path.is_file():
+            return path
+        raise MissingWeightsError(f"no MoGe-2 model given and none at {path}: {hint}")
+    path = Path(spec).expanduser()
+    if path.is_dir():
+        path = path / "model.pt"
+    if path.is_file():
+        return path
+    if looks_like_hub_id(str(spec)) and not Path(spec).exists():
+        return _hub_model_file(str(spec), hint)
+    raise MissingWeightsError(f"{path}: no such MoGe-2 model file; {hint}")
+
+
+HUB_PROBE_S = 3.0  # how long the hub's host may take to accept a connection before it counts as unreachable
+PROXY_VARIABLES = ("HTTPS_PROXY", "https_proxy", "ALL_PROXY", "all_proxy")
+
+
+def _hub_model_file(repo: str, hint: str) -> Path:
+    """``model.pt`` of hub repo ``repo``: from the local Hugging Face cache, else downloaded. Without a
+    network the hub client retries for about half a minute and then fails with a paragraph of text (audit
+    stop 56): so the cache is asked first, then whether the hub's host accepts a connection at all
+    (``_hub_unreachable``), each failure one line."""
+    hub = require("huggingface_hub", "huggingface_hub", "downloading MoGe-2 weights")
+    fetch = functools.partial(hub.hf_hub_download, repo_id=repo, filename="model.pt", repo_type="model")
+    with contextlib.suppress(Exception):  # not in the cache (the hub's own error types): fetched below
+        return Path(fetch(local_files_only=True))
+    if hub_offline():
+        raise MissingWeightsError(
+            f"{repo}: MoGe-2 weights are not in the local Hugging Face cache and HF_HUB_OFFLINE is set; "
+            + hint
+        )
+    why = _hub_unreachable(hub.constants.ENDPOINT)
+    if why is not None:
+        raise MissingWeightsError(
+            f"{repo}: MoGe-2 weights are not in the local Hugging Face cache and {why}; {hint}"
+        )
+    try:
+        return Path(fetch())
+    except Exception as exc:  # hub client errors of many types: one line, no hub traceback
+        text = str(exc).strip().splitlines()
+        why = f"{type(exc).__name__}: {text[0][:160]}" if text else type(exc).__name__
+        raise MissingWeightsError(f"{repo}: MoGe-2 weights not available ({why}); {hint}") from None
+
+
+def _hub_unreachable(endpoint: str) -> str | None:
+    """Why the hub at ``endpoint`` cannot be reached (its host does not resolve or accept a connection
+    within ``HUB_PROBE_S``); None when it can, or when a proxy is set (which the probe would not use)."""
+    if any(os.environ.get(v) for v in PROXY_VARIABLES):
+        return None
+    url = urlsplit(endpoint)
+    host, port = url.hostname or "", url.port or (443 if url.scheme == "https" else 80)
+    try:
+        with socket.create_connection((host, port), timeout=HUB_PROBE_S):
+            return None
+    except OSError as exc:
+        return f"{host} cannot be reached from here (no network? {exc.strerror or type(exc).__name__})"
