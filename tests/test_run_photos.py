@@ -657,6 +657,53 @@ def test_a_run_whose_backend_fails_to_load_does_not_block_the_corrected_command(
     assert "4 photos: 2 localized, 1 not localized, 1 skipped" in stdout
 
 
+def _fake_head(folder: Path, weights: bytes) -> Path:
+    """A head folder whose head.json reads (``weight_files.read_head_spec``) and whose head.safetensors
+    holds ``weights`` (the backend itself is replaced in the tests using it)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    spec = {"format": "semcityloc-segmentation-head", "version": 1, "backbone": {"kind": "mobilenetv2"}}
+    spec.update(
+        head={"type": "fpn", "params": {}}, classes=["ground", "wall"], input_size=[64, 64], stride=32
+    )
+    (folder / "head.json").write_text(json.dumps(spec))
+    (folder / "head.safetensors").write_bytes(weights)
+    return folder
+
+
+def test_a_head_retrained_at_the_same_path_is_another_run_and_a_missing_one_is_said_first(
+    box_flight, tmp_path, capsys, monkeypatch
+):
+    """Stop 56 (audit B 7): run.json kept the head's path only, so a head retrained in place left the old
+    poses reported as this head's; its files' fingerprints are now part of the run. A missing head is said
+    before the city model loads (it was said after)."""
+    from semcityloc.perception.files import FilesSegmentation
+
+    masks = box_flight["root"] / "masks"
+    monkeypatch.setattr(photo_source, "get_segmentation_backend", lambda name, **o: FilesSegmentation(masks))
+    head = _fake_head(tmp_path / "head", b"first head")
+    out = tmp_path / "out"
+    base = [a for a in box_flight["argv"] if a not in ("--masks", masks)]
+    argv = [*base, "--seg-backend", "mobilenetv2", "--backend-option", f"head={head}", "--no-overlays"]
+    code, stdout, err = run(capsys, *argv, "--out", out)
+    assert code == 0 and "3 localized" in stdout, err
+    weights = json.loads((out / "run.json").read_text())["perception_weights"]
+    assert weights["head"]["sha256"] == sha256(b"first head").hexdigest() and "head_spec" in weights
+    code, _, err = run(capsys, *argv, "--out", out)  # the same head: the finished run, not refused
+    assert code == 0, err
+    _fake_head(head, b"the head trained again")
+    code, _, err = run(capsys, *argv, "--out", out)
+    assert code == 2 and "arguments differ: perception_weights.head.bytes" in err and err.count("\n") == 1
+    assert "perception_weights.head.sha256" in err and "--overwrite" in err
+
+    def no_model(*args, **kwargs):
+        raise AssertionError("the city model was loaded")
+
+    monkeypatch.setattr(PhotoSpec, "load_model", no_model)
+    argv[argv.index(f"head={head}")] = f"head={tmp_path / 'absent'}"
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "out2")
+    assert code == 2 and "absent: no trained segmentation head" in err and err.count("\n") == 1, err
+
+
 def test_run_given_a_photo_instead_of_its_folder_says_it_is_a_file(tmp_path, capsys):
     """Stop 50's audit: ``semcityloc run PHOTO.JPG`` said "no such images folder" of a file that is there."""
     photo = tmp_path / "P0.JPG"

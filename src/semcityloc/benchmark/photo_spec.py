@@ -38,7 +38,7 @@ from semcityloc.benchmark.photo_focal import calibrated_inputs
 from semcityloc.benchmark.photo_inputs import Resolved
 from semcityloc.benchmark.photo_source import PhotoSource
 from semcityloc.benchmark.results import SKIPPED
-from semcityloc.benchmark.runfiles import RESULTS_FILE, plain
+from semcityloc.benchmark.runfiles import RESULTS_FILE, WEIGHTS_KEY, plain
 from semcityloc.benchmark.spec import check_run_options, resolve_city
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
@@ -57,7 +57,7 @@ from semcityloc.errors import (
 from semcityloc.geometry.uncertainty import PriorUncertainty
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.methods import ABLATIONS
-from semcityloc.perception.registry import backend_entry, check_backend_options
+from semcityloc.perception.registry import backend_entry, check_backend_options, weight_fingerprints
 
 RUN_FORMAT = 1
 CALIBRATE_FOCAL = ("auto", "on", "off")  # ``PhotoSpec.calibrate_focal``
@@ -170,7 +170,10 @@ class PhotoSpec:
         return calibrated_inputs(self)
 
     def run_config(self) -> dict:
-        """The ``run.json`` of a photo run (what decides the numbers; compared on resume)."""
+        """The ``run.json`` of a photo run (what decides the numbers; compared on resume). The backends'
+        weight files are found and fingerprinted first (``registry.weight_fingerprints``): a missing head is
+        said before the city model loads, and a head retrained at the same path is another run's."""
+        weights = weight_fingerprints(self.seg_backend, self.depth_backend, self.backend_options)
         model, inputs, skipped, store = self.resolved()
         if not any(inp.runs for inp in inputs):
             misses = {inp.name: inp.unreadable or inp.skipped for inp in inputs}
@@ -201,6 +204,8 @@ class PhotoSpec:
                 "seg_backend": self.seg_backend,
                 "depth_backend": self.depth_backend,
                 "backend_options": [list(kv) for kv in self.backend_options],
+                # the fingerprints of the backends' weight files (since stop 56; none for masks or files)
+                **({WEIGHTS_KEY: weights} if weights else {}),
                 "method": self.method,
                 "localizer_preset": self.preset,
                 "localizer": self.localizer_config().as_dict(),

@@ -112,6 +112,12 @@ PHOTOS_DIFFER = (
 # only one side holds was added or removed by the code, not by the arguments: a resume across it is told
 # like any code change (``code_change_note``), not refused.
 FULL_CONFIGS = ("localizer", "query_config", "seg_preset")
+# The fingerprints of a photo run's perception weights (``PhotoSpec.run_config``): a head retrained at the
+# same path differs here, and the run is refused as one of other arguments, naming the file that changed.
+WEIGHTS_KEY = "perception_weights"
+# Keys recorded since a later version: a stored run.json without one is not compared for it (a run made
+# before stop 56 kept no weight fingerprints and resumes as it did).
+ADDED_KEYS = (WEIGHTS_KEY,)
 
 
 def plain(value: Any) -> Any:
@@ -356,7 +362,8 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         if mismatch is None and not isinstance(old, dict):  # JSON null too: None means "starts here"
             old, mismatch = None, f"its {RUN_FILE} is not a JSON object"
         if isinstance(old, dict):
-            differ = differing_settings(_reasons_aside(old), _reasons_aside(config))
+            recorded = {k: v for k, v in config.items() if k in old or k not in ADDED_KEYS}
+            differ = differing_settings(_reasons_aside(old), _reasons_aside(recorded))
             if not differ and old.get(SKIPPED_KEY) != config.get(SKIPPED_KEY):  # the same photos, reworded
                 old = {**old, SKIPPED_KEY: config.get(SKIPPED_KEY)}
                 write_atomic(run_file, json.dumps(old, indent=2) + "\n")

