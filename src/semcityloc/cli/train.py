@@ -19,6 +19,7 @@ from pathlib import Path
 
 from semcityloc.errors import ParameterError, as_flags
 from semcityloc.io.images import load_image
+from semcityloc.perception.torch_utils import require_torch
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -98,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``semcityloc train-segmenter`` from its parsed arguments; the exit code (typed errors are left to
     ``cli.main``, which prints them as one line).
     """
+    require_torch("train-segmenter")  # named as asked for (training's imports would name the DINOv3 part)
     # needs torch (optional [perception] extra): imported only when training runs
     from semcityloc.perception.training import (
         TrainConfig,

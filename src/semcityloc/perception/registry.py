@@ -24,6 +24,7 @@ from semcityloc.errors import ParameterError, parameter, unknown_choice
 from semcityloc.io.stamps import file_fingerprint
 from semcityloc.perception.base import DepthBackend, SegmentationBackend
 from semcityloc.perception.files import files_depth_backend, files_segmentation_backend
+from semcityloc.perception.torch_utils import require_torch
 from semcityloc.perception.weight_files import moge2_weight_files, segmenter_weight_files
 
 
@@ -169,6 +170,7 @@ SEG_OPTIONS = ("head", "backbone", "device", "threads")
 
 
 def _dinov3_dpt(**options):
+    require_torch("the dinov3-dpt backend")  # named as asked for (the module imports would name a part of it)
     # needs torch (optional [perception] extra): imported when the backend is built
     from semcityloc.perception.segmenter import dinov3_dpt_backend
 
@@ -176,6 +178,9 @@ def _dinov3_dpt(**options):
 
 
 def _mobilenetv2(**options):
+    require_torch(
+        "the mobilenetv2 backend"
+    )  # named as asked for (the module imports would name a part of it)
     # needs torch (optional [perception] extra): imported when the backend is built
     from semcityloc.perception.segmenter import mobilenetv2_backend
 
@@ -187,6 +192,7 @@ def _files_seg(**options):
 
 
 def _moge2(**options):
+    require_torch("the moge2 backend")  # named as asked for (the module imports would name a part of it)
     # needs torch (optional [perception] extra): imported when the backend is built
     from semcityloc.perception.moge_depth import moge2_backend
 

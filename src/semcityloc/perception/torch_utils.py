@@ -22,11 +22,12 @@ IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
 def require_torch(purpose: str = "perception") -> Any:
-    """The ``torch`` module, or ``OptionalDependencyError`` naming the ``[perception]`` extra."""
+    """The ``torch`` module, or ``OptionalDependencyError`` naming ``purpose`` (what was asked for: a
+    backend, training) and the whole install (``install_command("torch")``)."""
     try:
         import torch  # optional dependency, loaded only when used
     except ImportError as exc:
-        raise OptionalDependencyError("torch", "perception", purpose) from exc
+        raise OptionalDependencyError("torch", "perception", purpose, install_command("torch")) from exc
     return torch
 
 
@@ -38,11 +39,19 @@ NO_DEPS_PACKAGES = {
 }
 
 
+# CPU-only torch (the default wheel pulls CUDA libraries of several GB), installed before the extra.
+CPU_TORCH = "pip install torch --index-url https://download.pytorch.org/whl/cpu"
+
+
 def install_command(package: str) -> str:
-    """The pip command(s) that install ``package`` for the perception backends."""
+    """The pip command(s) that install ``package`` for the perception backends; for ``torch``, the whole
+    perception install of docs/perception.md "Install": CPU torch, the extra, and the packages installed
+    with ``--no-deps`` (``NO_DEPS_PACKAGES``)."""
     extra = "pip install 'semcityloc[perception]'"
     if package in NO_DEPS_PACKAGES:
         return f"{extra} && pip install --no-deps {NO_DEPS_PACKAGES[package]}"
+    if package == "torch":
+        return f"{CPU_TORCH} && {extra} && pip install --no-deps {' '.join(NO_DEPS_PACKAGES.values())}"
     return extra
 
 
