@@ -705,6 +705,63 @@ def test_train_segmenter_without_torch_names_training_and_the_whole_install(tmp_
     )
 
 
+def test_localize_writes_what_its_backends_made_and_checks_their_weights_first(
+    exif_view, tmp_path, capsys, monkeypatch
+):
+    """Stop 56 (audit B 15): ``localize`` wrote the backends' mask and depth nowhere (the user could not see
+    what the segmenter produced), and a missing head was said only after the city model had loaded."""
+    import shutil
+
+    from semcityloc.cli import localize as localize_cli
+    from semcityloc.io.images import load_depth, load_labels_png
+
+    r = exif_view["root"]
+    (tmp_path / "masks").mkdir()
+    shutil.copy(r / "r" / "labels.png", tmp_path / "masks" / "view.png")
+    argv = [
+        "--image",
+        exif_view["photo"],
+        "--intrinsics",
+        "exif",
+        "--seg-backend",
+        "files",
+        "--depth-backend",
+    ]
+    argv += [
+        "files",
+        "--backend-option",
+        f"masks={tmp_path / 'masks'}",
+        "--backend-option",
+        f"depth={r / 'depth'}",
+    ]
+    code, _, err = _localize(capsys, exif_view, tmp_path / "o", *argv)
+    assert code == 0, err
+    mask, given = load_labels_png(tmp_path / "o" / "mask.png"), load_labels_png(r / "r" / "labels.png")
+    assert mask.shape == given.shape and np.mean(mask == given) > 0.99
+    depth = np.load(tmp_path / "o" / "depth.npy")
+    truth = np.load(r / "depth" / "view.npy")
+    assert depth.shape == truth.shape and load_depth(tmp_path / "o" / "depth.png").shape == truth.shape
+
+    def no_model(args):
+        raise AssertionError("the city model was loaded")
+
+    monkeypatch.setattr(localize_cli, "load_model_from_args", no_model)
+    argv = ["--image", exif_view["photo"], "--intrinsics", "exif", "--seg-backend", "mobilenetv2"]
+    code, _, err = _localize(
+        capsys, exif_view, tmp_path / "o2", *argv, "--backend-option", f"head={tmp_path}"
+    )
+    assert code == 2 and err.count("error:") == 1 and "no trained segmentation head" in err, err
+
+
+def test_run_help_says_what_the_backend_options_are():
+    from semcityloc.cli.main import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    text = " ".join(sub.choices["run"].format_help().split())
+    assert "segmentation backend run on each photo instead of --masks" in text
+    assert "depth backend run on each photo instead of --depth" in text
+
+
 def test_localize_says_when_a_method_leaves_the_given_depth_unused(exif_view, tmp_path, capsys):
     """``--depth`` with ``--method no-depth`` was dropped silently."""
     r = exif_view["root"]

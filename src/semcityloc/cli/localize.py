@@ -39,6 +39,8 @@ from semcityloc.io.images import (
     load_depth,
     load_image,
     read_mask_file,
+    save_depth,
+    save_labels_png,
     save_rgb,
 )
 from semcityloc.localization.config import FLAT_EAVES, PRESET_JOIN, PRESETS, LocalizerConfig, preset_name
@@ -50,6 +52,7 @@ from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import with_lossy_masks
 from semcityloc.perception.registry import (
     available_backends,
+    backend_weight_files,
     check_backend_options,
     get_depth_backend,
     get_segmentation_backend,
@@ -200,7 +203,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--height", type=int, default=None)
-    p.add_argument("--out", required=True, help="output folder: pose.json and overlay.png")
+    p.add_argument(
+        "--out",
+        required=True,
+        help="output folder: pose.json and overlay.png; with --seg-backend also mask.png (its label map), "
+        "with --depth-backend depth.png + depth.npy",
+    )
     p.set_defaults(func=run)
 
 
@@ -286,6 +294,24 @@ def _pinhole_photo(path, lens: PhotoCamera, max_width: int | None = None) -> np.
 
 # What ``localize`` writes into ``--out`` (the overlay only with a pose); checked against its inputs first.
 OUTPUT_FILES = ("pose.json", "overlay.png")
+# What the backends made of the photo, written beside them when a backend ran (``_write_perception``).
+MASK_FILE = "mask.png"  # --seg-backend's label map (``io.images.save_labels_png``)
+DEPTH_FILES = ("depth.png", "depth.npy")  # --depth-backend's depth (``io.images.save_depth``)
+
+
+def output_files(args) -> tuple[str, ...]:
+    """The files this ``localize`` writes into ``--out``: ``OUTPUT_FILES`` and what its backends made."""
+    made = ((MASK_FILE,) if args.seg_backend else ()) + (DEPTH_FILES if args.depth_backend else ())
+    return OUTPUT_FILES + made
+
+
+def _write_perception(args, out: Path, labels: np.ndarray, depth: np.ndarray | None) -> None:
+    """The mask and depth the backends made of the photo (on the pinhole camera, at the size the backend
+    ran at), so that what the localizer was given can be looked at: ``mask.png``, ``depth.png`` + ``.npy``."""
+    if args.seg_backend:
+        save_labels_png(labels, out / MASK_FILE)
+    if args.depth_backend and depth is not None:
+        save_depth(depth, out / DEPTH_FILES[0])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -298,7 +324,7 @@ def run(args: argparse.Namespace) -> int:
     _check_files(args)
     out = Path(args.out)
     check_outputs(  # ``--prior out/pose.json`` would be replaced by the pose found from it
-        [(name, out / name) for name in OUTPUT_FILES],
+        [(name, out / name) for name in output_files(args)],
         [args.prior, args.image, args.semantic, args.depth, args.intrinsics, args.path],
     )
     if config.no_depth and (args.depth or args.depth_backend):
@@ -308,6 +334,8 @@ def run(args: argparse.Namespace) -> int:
         )
     lens = _camera(args)  # before the model loads: intrinsics that do not fit the photo stop at once
     camera = lens.camera
+    # the backends' weight files (a missing head, a MoGe-2 model.pt) before the model loads too
+    backend_weight_files(args.seg_backend, args.depth_backend, parse_backend_options(args.backend_option))
     model = load_model_from_args(args)
     check_model_in_crs(
         model,
@@ -329,6 +357,7 @@ def run(args: argparse.Namespace) -> int:
 
     with writing(folder=out):  # a full disk, a file where the folder goes: one line, naming it
         out.mkdir(parents=True, exist_ok=True)
+        _write_perception(args, out, labels, depth)
         return _write_result(args, out, model, localizer, result, config, camera, lens, labels)
 
 

@@ -88,8 +88,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_lossy_mask_argument(p, "--masks (or the files backend's masks)")
     p.add_argument("--depth", default=None, help="folder of precomputed relative depth <stem>.npy / .png")
-    p.add_argument("--seg-backend", default=None, choices=available_backends("segmentation"))
-    p.add_argument("--depth-backend", default=None, choices=available_backends("depth"))
+    p.add_argument(
+        "--seg-backend",
+        default=None,
+        choices=available_backends("segmentation"),
+        help="segmentation backend run on each photo instead of --masks (mobilenetv2 / dinov3-dpt need a "
+        "trained head: --backend-option head=DIR; docs/perception.md)",
+    )
+    p.add_argument(
+        "--depth-backend",
+        default=None,
+        choices=available_backends("depth"),
+        help="depth backend run on each photo instead of --depth (moge2: --backend-option model=PATH)",
+    )
     p.add_argument(
         "--backend-option",
         action="append",
