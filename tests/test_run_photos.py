@@ -2111,3 +2111,24 @@ def test_a_run_of_photos_without_a_heading_says_so_once_and_gives_no_yaw_error_o
     (said,) = no_heading_notes(["H0.JPG"])
     assert said in printed + err or said in json.dumps(json.loads((out / "summary.json").read_text()))
     assert "compass bias" not in printed + err
+
+
+def test_two_photos_of_one_stem_are_refused_and_label_maps_beside_photos_left_out(
+    box_flight, tmp_path, capsys
+):
+    """``X.JPG`` and ``X.png`` photos wrote one ``poses/X.json`` (the second's) and then refused the exports
+    with advice that could never help; a label map ``semcityloc label`` wrote beside its photo was
+    localized as a photo (stop 56)."""
+    images = box_flight["root"] / "images"
+    shutil.copy(images / "P0.JPG", images / "P0.png")  # a second photo of the stem P0
+    code, _, err = run(capsys, *box_flight["argv"], "--out", tmp_path / "a", "--no-overlays")
+    assert code == 2 and err.count("\n") == 1
+    assert "P0.JPG and P0.png share the name P0" in err and "rename one" in err
+    assert not (tmp_path / "a" / "poses").exists()
+    # A label map beside its photo (what ``label --out images`` writes) is no photo: left out, said once.
+    shutil.copy(box_flight["root"] / "masks" / "P0.png", images / "P0.png")
+    code, stdout, err = run(capsys, *box_flight["argv"], "--out", tmp_path / "b", "--no-overlays")
+    assert code == 0 and "1 label map beside the photo of its name (P0.png; semcityloc label's)" in err
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["photos"] == 4 and "P0.png" not in _rows_by_name(tmp_path / "b")
+    assert json.loads((tmp_path / "b" / "poses" / "P0.json").read_text())["extra"]["status"] == "localized"

@@ -75,6 +75,7 @@ from semcityloc.datasets.photos import (
     PhotoNotListed,
     PhotoPrior,
     PriorFiles,
+    check_unique_stems,
     list_images,
     photo_metadata,
     subfolder_images,
@@ -89,6 +90,7 @@ from semcityloc.io.images import (
     check_label_header,
     decoded_size_and_orientation,
     image_size,
+    label_maps_beside_photos,
 )
 from semcityloc.io.stamps import file_fingerprint, paths_stamp
 from semcityloc.localization.search_reach import MAX_VIEW_RANGE_M, MapLayout
@@ -315,7 +317,25 @@ RECURSIVE_REMEDY = f"pass {parameter('recursive')} to read them"
 
 def photo_paths(spec: PhotoSpec) -> list[Path]:
     """The photos of ``spec``'s folder (``datasets.photos.list_images``; with ``spec.recursive`` its
-    subfolders too, but not the run's own ``_run_folders``)."""
+    subfolders too, but not the run's own ``_run_folders``), without the label maps beside photos of their
+    stem (``label_maps_left_out``). Two photos of one stem (``X.JPG``, ``X.png``) are refused
+    (``InputFileError``, ``check_unique_stems``): every output of a photo is named by its stem, so the
+    second's ``poses/X.json`` would replace the first's."""
+    images = _listed_photos(spec)
+    maps = label_maps_beside_photos(images)
+    images = [i for i in images if i not in maps]
+    check_unique_stems(Path(spec.images), images)
+    return images
+
+
+def label_maps_left_out(spec: PhotoSpec) -> list[Path]:
+    """The label maps of ``spec``'s folder that lie beside a photo of their stem (``X.png`` beside
+    ``X.JPG``, ``io.images.label_maps_beside_photos``: what ``semcityloc label --out`` into the photos'
+    folder writes): no photos of the run, said before it (stop 56)."""
+    return sorted(label_maps_beside_photos(_listed_photos(spec)))
+
+
+def _listed_photos(spec: PhotoSpec) -> list[Path]:
     return list_images(
         spec.images,
         every_entry=True,

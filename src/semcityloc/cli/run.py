@@ -14,7 +14,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from semcityloc.benchmark.photo_inputs import unread_subfolder_photos
+from semcityloc.benchmark.photo_inputs import label_maps_left_out, unread_subfolder_photos
 from semcityloc.benchmark.photo_spec import CALIBRATE_FOCAL, PhotoSpec
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.results import SKIPPED, counted_as
@@ -193,6 +193,14 @@ def run(args: argparse.Namespace) -> int:
             f"semcityloc: note: {counted(len(unread), 'photo')} in subfolders of {spec.images} "
             f"{'is' if len(unread) == 1 else 'are'} not read ({shown}): only its top level is; pass "
             "--recursive to read them too",
+            file=sys.stderr,
+        )
+    maps = label_maps_left_out(spec)
+    if maps:  # what ``semcityloc label --out`` into the photos' folder wrote: not localized as photos
+        shown = shown_names([str(p.relative_to(spec.images)) for p in maps], SHOWN_PHOTOS)
+        print(
+            f"semcityloc: note: {spec.images} holds {counted(len(maps), 'label map')} beside the photo of "
+            f"its name ({shown}; semcityloc label's): not photos, left out",
             file=sys.stderr,
         )
     outcome = run_from_args(spec, out, args)
