@@ -3,9 +3,13 @@
 How the localizer's knobs were chosen (``docs/localization.md``, "Measured alternatives"): every variant
 localizes the SAME queries of the realistic scenario, so a difference of a few queries is the change's,
 not the draw's. Each query is simulated once and cached (``--cache DIR``), so trying another variant
-costs only its localizations. The cache is keyed by city, seed and ``--set``, and stamped with the code
-that simulated it (``code_fingerprint`` of everything but ``localization/``): after any change outside the
-localizer, the queries are simulated again.
+costs only its localizations. The cache is keyed by the city's content (``citymodel.tiles.city_sha256`` of
+the city file or store and of the reality model the queries are drawn from, so two cities whose files share
+a name, or a city file edited in place, are told apart), seed and ``--set``, and stamped with the code that
+simulated it (``code_fingerprint`` of everything but ``localization/``): after any change outside the
+localizer, the queries are simulated again. A malformed argument (a seed list, ``--workers``, a ``--cache``
+that is a file, an unknown preset, a city that is not there, a variant value of the wrong type for its
+field) is refused in one line before anything is simulated.
 
 Usage::
 
@@ -49,6 +53,8 @@ import pickle
 import re
 import sys
 import time
+import types
+import typing
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -65,8 +71,9 @@ from semcityloc.benchmark.calibration import (
 from semcityloc.benchmark.code_version import code_fingerprint
 from semcityloc.benchmark.scenario import parse_value, query_config
 from semcityloc.benchmark.spec import BenchmarkSpec, load_map
+from semcityloc.citymodel.tiles import city_sha256
 from semcityloc.cli.benchmark import parse_settings  # the command line's --set knob=value
-from semcityloc.errors import BenchmarkConfigError, ParameterError
+from semcityloc.errors import BenchmarkConfigError, ParameterError, SemCityLocError
 from semcityloc.evaluation.metrics import THRESHOLDS, pose_errors, recall
 from semcityloc.geometry.pose import Pose
 from semcityloc.localization.config import LocalizerConfig
@@ -81,11 +88,38 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 _WORKER: dict[str, Any] = {}
 
 
+def _fits(value: Any, hint: Any) -> bool:
+    """Does ``value`` (parsed like ``--set``'s) fit a config field annotated ``hint``? A JSON list fits a
+    tuple field; an int fits a float field, a bool no number field; an annotation not known here: any."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(value, arg) for arg in typing.get_args(hint))
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    if origin in (tuple, list) or hint in (tuple, list):
+        return isinstance(value, (list, tuple))
+    if origin is dict or hint is dict:
+        return isinstance(value, dict)
+    if dataclasses.is_dataclass(hint):
+        return dataclasses.is_dataclass(value)
+    return True
+
+
 def with_overrides(config: Any, items: dict[str, Any]) -> Any:
-    """``config`` (a frozen dataclass) with dotted ``items`` replaced in it or its nested dataclasses."""
+    """``config`` (a frozen dataclass) with dotted ``items`` replaced in it or its nested dataclasses; a
+    field it lacks or a value of another type than the field's is refused in one line (``SystemExit``)."""
     direct: dict[str, Any] = {}
     nested: dict[str, dict[str, Any]] = {}
     fields = {f.name for f in dataclasses.fields(config)}
+    hints = typing.get_type_hints(type(config))
     for key, value in items.items():
         head, _, rest = key.partition(".")
         if head not in fields:
@@ -94,6 +128,9 @@ def with_overrides(config: Any, items: dict[str, Any]) -> Any:
             )
         if rest:
             nested.setdefault(head, {})[rest] = value
+        elif not _fits(value, hints.get(head, Any)):
+            shown = getattr(hints.get(head), "__name__", None) or str(hints.get(head))
+            raise SystemExit(f"{type(config).__name__}.{head} takes {shown}, got {value!r}")
         else:
             direct[head] = value
     for head, sub in nested.items():
@@ -109,18 +146,43 @@ def parse_variant(text: str, preset: str) -> tuple[str, LocalizerConfig]:
         if not eq:
             raise SystemExit(f"variant {name!r}: expected key=value, got {part!r}")
         items[key.strip()] = parse_value(value.strip())
-    return name, with_overrides(LocalizerConfig.preset(preset), items)
+    try:
+        base = LocalizerConfig.preset(preset)
+        return name, with_overrides(base, items)
+    except (ParameterError, ValueError, TypeError) as exc:  # an unknown preset, a config's own check
+        raise SystemExit(f"variant {name!r}: {exc}") from None
 
 
 def _spec(city: str, seed: int, queries: int, settings: dict[str, Any]) -> BenchmarkSpec:
     return BenchmarkSpec(city=city, query=query_config("realistic", settings, queries=queries, seed=seed))
 
 
-def _cache_dir(root: Path, city: str, seed: int, settings: dict[str, Any]) -> Path:
+def city_key(city: str) -> str:
+    """The cache's name of ``city``: its file's stem and a digest of what its queries are simulated from,
+    the city file or store (``city_sha256``) and the reality model (``generated_lod3.gml`` beside a
+    generated city, else the city itself). ``InputFileError`` when ``city`` is not there."""
+    config = _spec(city, 0, 1, {}).run_config()
+    sources = [city_sha256(config["city_path"]), city_sha256(config["reality_source"])]
+    return f"{Path(city).stem}-{hashlib.sha256(' '.join(sources).encode()).hexdigest()[:12]}"
+
+
+def _cache_dir(root: Path, city_name: str, seed: int, settings: dict[str, Any]) -> Path:
+    """The cache folder of ``city_name`` (``city_key``), ``seed`` and the ``--set`` ``settings``."""
     tag = "_".join(f"{k}={v}" for k, v in sorted(settings.items())).replace("/", "-") or "realistic"
     if len(tag) > 80:  # many knobs: a file name has at most 255 bytes
         tag = "set-" + hashlib.sha256(tag.encode()).hexdigest()[:16]
-    return root / f"{Path(city).stem}_s{seed}_{tag}"
+    return root / f"{city_name}_s{seed}_{tag}"
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``--seeds`` (comma-separated integers >= 0), refused in one line when malformed."""
+    try:
+        seeds = [int(s) for s in text.split(",")]
+    except ValueError:
+        raise SystemExit(f"--seeds takes comma-separated integers, e.g. 0,1; got {text!r}") from None
+    if any(s < 0 for s in seeds):
+        raise SystemExit(f"--seeds must be >= 0, got {text!r}")
+    return seeds
 
 
 def reset_if_stale(folder: Path, fingerprint: str) -> None:
@@ -293,15 +355,30 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     cities = args.city or calibration_cities(SHARED_DATA)
+    seeds = parse_seeds(args.seeds)
+    try:
+        LocalizerConfig.preset(args.preset)
+    except ParameterError as exc:
+        raise SystemExit(f"--preset: {exc}") from None
+    variants = [parse_variant(v, args.preset) for v in args.variant]
+    names = [n for n, _ in variants]
+    if len(set(names)) != len(names):
+        raise SystemExit("variant names must differ")
+    if args.workers < 1:
+        raise SystemExit(f"--workers must be >= 1, got {args.workers}")
+    if args.queries < 1:
+        raise SystemExit(f"--queries must be >= 1, got {args.queries}")
+    if args.cache.exists() and not args.cache.is_dir():
+        raise SystemExit(f"--cache {args.cache}: is a file, not a folder")
+    try:
+        city_names = {city: city_key(city) for city in cities}  # a city that is not there: said here
+    except SemCityLocError as exc:
+        raise SystemExit(f"--city: {exc}") from None
     if not args.check_only:
         try:
             require_calibration_cities(cities, SHARED_DATA, "tune a knob")
         except ParameterError as exc:
             raise SystemExit(f"{exc} (--check-only to check a choice already made)") from None
-    variants = [parse_variant(v, args.preset) for v in args.variant]
-    names = [n for n, _ in variants]
-    if len(set(names)) != len(names):
-        raise SystemExit("variant names must differ")
     conditions = args.condition or ["realistic"]
     settings_of = {}
     for condition in conditions:
@@ -312,10 +389,10 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"--set: {exc}") from None
     rows: list[dict] = []
     fingerprint = code_fingerprint(exclude=("localization",))
-    runs = [(c, city, int(s)) for c in conditions for city in cities for s in args.seeds.split(",")]
+    runs = [(c, city, s) for c in conditions for city in cities for s in seeds]
     for condition, city, seed in runs:
         settings = settings_of[condition]
-        folder = _cache_dir(args.cache, city, seed, settings)
+        folder = _cache_dir(args.cache, city_names[city], seed, settings)
         folder.mkdir(parents=True, exist_ok=True)
         reset_if_stale(folder, fingerprint)
         paths = [folder / f"q{i:04d}.pkl" for i in range(args.queries)]

@@ -177,3 +177,44 @@ def test_conditions_are_run_and_summarised_apart(tmp_path):
     rows = [json.loads(x) for x in (tmp_path / "rows.jsonl").read_text().splitlines()]
     assert {r["condition"] for r in rows} == {"realistic", "hilly"}
     assert len({r["query"] for r in rows}) == len(rows)  # the two conditions' queries are told apart
+
+
+def test_two_cities_of_one_file_name_get_their_own_cached_queries(compare, tmp_path):
+    """Stop 56 audit: the cache was keyed by the city file's stem, so a second city named like the first
+    (two generated cities, ``a/generated_lod2.gml`` and ``b/generated_lod2.gml``) was localized with the
+    first one's cached queries: 0 % recall where a fresh cache gave 100 %. Now the key holds a digest of the
+    city's content and of its reality model; a file edited in place is another key too."""
+    a, b = tmp_path / "a" / "m.gml", tmp_path / "b" / "m.gml"
+    for path, text in ((a, "<a/>"), (b, "<b/>")):
+        path.parent.mkdir()
+        path.write_text(text)
+    key_a, key_b = compare.city_key(str(a)), compare.city_key(str(b))
+    assert key_a != key_b and key_a.startswith("m-") and key_b.startswith("m-")
+    assert compare._cache_dir(tmp_path, key_a, 0, {}) != compare._cache_dir(tmp_path, key_b, 0, {})
+    a.write_text("<a edited/>")
+    assert compare.city_key(str(a)) != key_a
+    assert compare.city_key(str(tmp_path / "b" / ".." / "b" / "m.gml")) == key_b  # the content, not the path
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--seeds", "0,,"], "--seeds takes comma-separated integers"),
+        (["--workers", "0"], "--workers must be >= 1"),
+        (["--preset", "nope"], "--preset: unknown localizer preset 'nope'"),
+        (["--variant", "x:refine.polish_estimate_top=abc"], "RefineConfig.polish_estimate_top takes int"),
+        (["--variant", "x:no_depth=3"], "LocalizerConfig.no_depth takes bool"),
+        (["--city", "nope.gml"], "--city: nope.gml: no such city model file"),
+        (["--cache", "FILE"], "is a file, not a folder"),
+    ],
+)
+def test_bad_arguments_are_refused_in_one_line_before_any_work(compare, tmp_path, args, said):
+    """Stop 56 audit: these ended in tracebacks (or, for a variant value of the wrong type, in a worker
+    after the queries were simulated; a missing city was called "not a calibration city")."""
+    (tmp_path / "FILE").write_text("x")
+    args = [str(tmp_path / "FILE") if a == "FILE" else a for a in args]
+    cache = [] if "--cache" in args else ["--cache", str(tmp_path / "c")]
+    with pytest.raises(SystemExit) as exc:
+        compare.main(["--variant", "base", "--city", "generated", "--check-only", *cache, *args])
+    assert said in str(exc.value) and "\n" not in str(exc.value)
+    assert not (tmp_path / "c").exists()  # nothing simulated
