@@ -20,6 +20,7 @@ from semcityloc.citymodel.io import load_city_model
 from semcityloc.cli.main import main
 from semcityloc.errors import IntrinsicsMismatchError
 from semcityloc.io.images import load_depth, load_image, load_labels_png, save_depth, save_labels_png
+from semcityloc.io.stamps import file_sha256
 from semcityloc.localization.config import PRESETS
 from semcityloc.localization.methods import ABLATIONS
 from test_citygml import X0, Y0, _bounded_box, _building, _city
@@ -375,6 +376,33 @@ def test_demo_runs_end_to_end_small(tmp_path, capsys):
     assert (tmp_path / "demo" / "report" / "report.md").exists()
     assert f"interactive report: {(tmp_path / 'demo' / 'report' / 'report.html').resolve()}" in out
     assert list((tmp_path / "demo" / "report" / "plots").glob("*.png"))
+
+
+def test_demo_refuses_another_city_under_its_runs_before_writing_and_overwrite_redoes_them(tmp_path, capsys):
+    """Stop 56 audit: ``demo --seed 1`` into a folder of seed-0 runs generated the seed-1 city over
+    ``OUT/city`` and only then refused (``pass --overwrite``, an option demo did not have): the finished
+    runs' recorded city no longer matched their folder's. Now the city is compared first, nothing is
+    written, and ``--overwrite`` exists and runs them again on the new city."""
+    # and a method named twice runs once
+    d = tmp_path / "d"
+    common = ("--queries", "1", "--out", d)
+    code, out, _ = run(capsys, "demo", *common, "--methods", "no-refine,no-refine")
+    assert code == 0 and out.count("| no-refine |") == 1
+    city = d / "city" / "generated_lod2.gml"
+    before = (city.read_bytes(), city.stat().st_mtime_ns)
+    code, _, err = run(capsys, "demo", *common, "--seed", "1", "--methods", "no-refine")
+    assert code == 2 and err.count("\n") == 1 and "run_no-refine" in err and "pass --overwrite" in err
+    assert (city.read_bytes(), city.stat().st_mtime_ns) == before
+    code, _, _ = run(capsys, "demo", *common, "--seed", "1", "--methods", "no-refine", "--overwrite")
+    config = json.loads((d / "run_no-refine" / "run.json").read_text())
+    assert code == 0 and config["seed"] == 1 and config["city_sha256"] == file_sha256(city)
+
+
+@pytest.mark.parametrize("queries", ["0", "-2"])
+def test_demo_refuses_no_queries_in_one_wording_before_generating_the_city(tmp_path, capsys, queries):
+    code, _, err = run(capsys, "demo", f"--queries={queries}", "--out", tmp_path / "d")
+    assert code == 2 and f"the number of queries must be >= 1, got {queries}" in err
+    assert not (tmp_path / "d").exists()
 
 
 def test_benchmark_on_the_real_lodloc_dataset_with_oracle_perception(shared, tmp_path, capsys):

@@ -371,21 +371,13 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
                 write_atomic(run_file, json.dumps(config, indent=2) + "\n")  # the run grows or shrinks
                 return old
             if differ:
-                shown = "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
-                changed = {d.split(":")[0].split(".")[0] for d in differ}
-                folder = changed <= set(PHOTO_SET_KEYS) and (
-                    "query_names" in changed or changed == {SKIPPED_KEY}
-                )
-                mismatch = (PHOTOS_DIFFER if folder else "arguments differ: ") + shown
+                mismatch = _differ_phrase(differ)
                 if results.is_file() and not holds_rows(results):  # begun, no query finished: nothing to keep
                     overwrite = True
     elif results.exists() and not run_file.exists():
         mismatch = f"it has a {RESULTS_FILE} but no {RUN_FILE}"
     if mismatch and not overwrite:
-        raise ResumeMismatchError(
-            f"{out_dir} holds another benchmark run: {mismatch}; pass {parameter('overwrite')} or choose "
-            f"another {parameter('out_dir')}"
-        )
+        raise _mismatch_error(out_dir, mismatch)
     if mismatch or overwrite:  # --overwrite starts the run again, whatever the folder holds
         remove_entries(out_dir, RUN_OUTPUTS)
         if run_file.is_dir() and not run_file.is_symlink():  # only --overwrite gets here with one
@@ -394,6 +386,44 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
         write_atomic(run_file, json.dumps(config, indent=2) + "\n")
         return None
     return old
+
+
+def check_resumable(out_dir: Path, config: dict) -> None:
+    """Raise the refusal ``prepare_output`` (without ``overwrite``) would raise for ``config`` in
+    ``out_dir``, writing nothing: a command that writes before its runs start (``demo`` generates its city)
+    checks every run first, so a refused run leaves the folder as it was."""
+    run_file, results = out_dir / RUN_FILE, out_dir / RESULTS_FILE
+    if not run_file.exists():
+        if results.exists():
+            raise _mismatch_error(out_dir, f"it has a {RESULTS_FILE} but no {RUN_FILE}")
+        return
+    try:
+        old = json.loads(read_run_file(run_file).decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise read_error(run_file, exc, RUN_FILE) from exc
+    except ValueError as exc:
+        raise _mismatch_error(out_dir, f"its {RUN_FILE} is not JSON ({exc})") from None
+    if not isinstance(old, dict):
+        raise _mismatch_error(out_dir, f"its {RUN_FILE} is not a JSON object")
+    differ = differing_settings(_reasons_aside(old), _reasons_aside(config))
+    begun = not results.is_file() or holds_rows(results)  # no query finished: started again, not refused
+    if differ and begun and not _only_the_query_count(old, differ):
+        raise _mismatch_error(out_dir, _differ_phrase(differ))
+
+
+def _differ_phrase(differ: list[str]) -> str:
+    """What a refused resume says of the settings that differ (``differing_settings``)."""
+    shown = "; ".join(differ[:6]) + ("; ..." if len(differ) > 6 else "")
+    changed = {d.split(":")[0].split(".")[0] for d in differ}
+    folder = changed <= set(PHOTO_SET_KEYS) and ("query_names" in changed or changed == {SKIPPED_KEY})
+    return (PHOTOS_DIFFER if folder else "arguments differ: ") + shown
+
+
+def _mismatch_error(out_dir: Path, mismatch: str) -> ResumeMismatchError:
+    return ResumeMismatchError(
+        f"{out_dir} holds another benchmark run: {mismatch}; pass {parameter('overwrite')} or choose "
+        f"another {parameter('out_dir')}"
+    )
 
 
 def _reasons_aside(config: dict) -> dict:

@@ -11,11 +11,20 @@
    so its query browser shows each query's mask and cost volume).
 
 ``--city PATH`` runs the same on any CityGML/CityJSON file instead of the generated district.
+
+Nothing is written before every run is known to be accepted: the city is generated into a temporary
+folder first, and ``OUT/city`` is replaced only when no finished run of ``OUT`` was made on the city there
+(else refused, naming the runs: ``--overwrite`` starts them again on the new city, or choose another
+``--out``); each run's arguments are checked as ``benchmark`` resumes them (``runfiles.check_resumable``)
+before the first run starts.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import shutil
+import tempfile
 from pathlib import Path
 
 from semcityloc.benchmark.methods import available_methods, check_method
@@ -23,10 +32,12 @@ from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.report_html import make_html_report
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
+from semcityloc.benchmark.runfiles import RUN_FILE, check_resumable
 from semcityloc.benchmark.scenario import query_config
 from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.citymodel.generator import generate_city
-from semcityloc.errors import BenchmarkError
+from semcityloc.errors import BenchmarkError, ResumeMismatchError, counted, parameter
+from semcityloc.io.stamps import file_sha256
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,6 +61,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="semcityloc,no-refine,lodloc-wireframe",
         help="comma-separated benchmark methods (default %(default)s)",
     )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="start the demo again: its runs in --out are deleted and run anew (needed when made with other "
+        "arguments)",
+    )
     p.set_defaults(func=run)
 
 
@@ -57,28 +74,28 @@ def run(args: argparse.Namespace) -> int:
     """Run ``semcityloc demo`` from its parsed arguments; the exit code (typed errors are left to
     ``cli.main``, which prints them as one line).
     """
-    # Every method checked before the first one runs (a typo in the last one cost the others' minutes)
-    methods = [check_method(m.strip()) for m in args.methods.split(",") if m.strip()]
+    # Every method checked before the first one runs (a typo in the last one cost the others' minutes);
+    # a method named twice is run once
+    methods = list(dict.fromkeys(check_method(m.strip()) for m in args.methods.split(",") if m.strip()))
     if not methods:
         raise BenchmarkError(f"--methods names no method; known: {', '.join(available_methods())}")
+    if args.queries < 1:  # before the city is generated; the words of BenchmarkSpec's own check
+        raise BenchmarkError(f"the number of queries must be >= 1, got {args.queries}")
     out = Path(args.out)
-    city = args.city
-    if city == "generated":
-        paths = generate_city(out / "city", seed=args.seed)
-        city = str(paths[2])
-        print(f"generated city: {', '.join(str(p) for p in paths.values())}")
-    run_dirs, summaries, labels = [], [], []
-    for method in methods:
-        spec = BenchmarkSpec(
-            city=city,
-            query=query_config(args.scenario, queries=args.queries, seed=args.seed),
-            method=method,
-            keep_details=args.queries,
-        )
-        outcome = run_benchmark(spec, out / f"run_{method}", progress=True)
-        run_dirs.append(outcome.out_dir)
+    query = query_config(args.scenario, queries=args.queries, seed=args.seed)
+    specs = [BenchmarkSpec(city=args.city, query=query, method=m, keep_details=args.queries) for m in methods]
+    run_dirs = [out / f"run_{method}" for method in methods]
+    if args.city == "generated":
+        city = _generate_city(out / "city", args.seed, run_dirs, args.overwrite)
+        specs = [dataclasses.replace(spec, city=city) for spec in specs]
+    if not args.overwrite:
+        for spec, run_dir in zip(specs, run_dirs, strict=True):
+            check_resumable(run_dir, spec.run_config())
+    summaries, labels = [], []
+    for spec, run_dir in zip(specs, run_dirs, strict=True):
+        outcome = run_benchmark(spec, run_dir, overwrite=args.overwrite, progress=True)
         summaries.append(outcome.summary)
-        labels.append(method)
+        labels.append(spec.method)
     print()
     print(summary_markdown(summaries, labels))
     report = make_report(run_dirs, out / "report", overlays=2)
@@ -87,3 +104,29 @@ def run(args: argparse.Namespace) -> int:
     size_mb = page.path.stat().st_size / 1e6
     print(f"interactive report: {page.path.resolve()} ({size_mb:.1f} MB; open it in a browser)")
     return 0
+
+
+def _generate_city(folder: Path, seed: int, run_dirs: list[Path], overwrite: bool) -> str:
+    """Generate the demo's city into ``folder`` (its LoD2 file's path), or keep the one there when it is
+    the same; a city that would change under finished runs of ``run_dirs`` is refused unless ``overwrite``,
+    before anything is written (the city is generated into a temporary folder first)."""
+    with tempfile.TemporaryDirectory(prefix="semcityloc-demo-") as tmp:
+        made = generate_city(tmp, seed=seed)
+        kept = {lod: folder / p.name for lod, p in made.items()}
+        same = all(
+            kept[lod].is_file() and file_sha256(kept[lod]) == file_sha256(p) for lod, p in made.items()
+        )
+        if not same:
+            runs = [d for d in run_dirs if (d / RUN_FILE).exists()]
+            if runs and not overwrite:
+                names = ", ".join(d.name for d in runs)
+                raise ResumeMismatchError(
+                    f"{folder.parent} holds {counted(len(runs), 'demo run')} ({names}) made on another city "
+                    f"than the one --seed {seed} generates; pass {parameter('overwrite')} to run them again "
+                    f"on it, or choose another {parameter('out_dir')}"
+                )
+            folder.mkdir(parents=True, exist_ok=True)
+            for lod, path in made.items():
+                shutil.move(str(path), kept[lod])
+    print(f"generated city: {', '.join(str(p) for p in kept.values())}")
+    return str(kept[2])
