@@ -780,3 +780,59 @@ def test_the_html_report_draws_no_error_curves_of_a_run_without_ground_truth(tmp
 
     page = make_html_report([blind_run(tmp_path, "again")], tmp_path / "h").path.read_text(encoding="utf-8")
     assert "Recall cells" not in page and "No ground truth (no run has --truth)" in page
+
+
+def test_a_run_whose_city_changed_since_is_not_drawn_on_the_new_city(tmp_path):
+    """Stop 56 audit: a store rebuilt from other tiles after a run (or a city file edited in place) was
+    drawn under the run's queries as if it were the run's map: no word, the 3D view another city. Now
+    ``run.json``'s ``city_sha256`` is compared, as a resumed run compares it: the drawings are left out,
+    saying so in one note."""
+    from semcityloc.benchmark.report_runs import city_changed, map_renderer
+    from semcityloc.io.stamps import file_sha256
+
+    city = tmp_path / "city.gml"
+    city.write_text("<the city of the run/>")
+    run = load_run(fake_run(tmp_path, "r", [(1.0, 1.0)], city_path=str(city), city_sha256=file_sha256(city)))
+    assert city_changed(run.config) is None
+    city.write_text("<another city/>")
+    said = city_changed(run.config)
+    assert said is not None and "changed since the run" in said
+    notes: list[str] = []
+    assert map_renderer(run, {}, notes, "no query figures") is None  # nothing loaded: the file is no model
+    assert len(notes) == 1 and "no query figures: its city model" in notes[0] and "\n" not in notes[0]
+
+
+def test_a_reused_report_folder_holds_the_new_report_alone(tmp_path):
+    """Stop 56 audit: a second report into one --out left the first one's tables and figures (a sweep's
+    table and plot beside a one-run report). Now an earlier report's files are removed first; other files
+    are kept."""
+    a = fake_run(tmp_path, "a", [(1.0, 1.0)], method="semcityloc", sweep_knob="k", sweep_value=1)
+    b = fake_run(tmp_path, "b", [(1.0, 1.0)], method="no-refine", sweep_knob="k", sweep_value=2)
+    out = tmp_path / "rep"
+    first = make_report([a, b], out)
+    assert (out / "tables" / "sweep_k.csv").is_file() and (out / "plots" / "recall_vs_k.png").is_file()
+    (out / "notes.txt").write_text("mine")
+    (out / "report.html").write_text("an earlier page")
+    second = make_report([fake_run(tmp_path, "c", [(1.0, 1.0)])], out)
+    tables = sorted(p.name for p in (out / "tables").iterdir())
+    assert tables == sorted(f.name for pair in second.tables.values() for f in pair)
+    assert sorted((out / "plots").iterdir()) == sorted(second.plots)
+    assert "sweep_k.csv" not in tables and not (out / "plots" / "recall_vs_k.png").exists()
+    assert len(first.plots) > len(second.plots)
+    assert (out / "notes.txt").read_text() == "mine" and not (out / "report.html").exists()
+
+
+def test_a_run_named_twice_is_reported_once_and_a_folder_of_runs_says_so(tmp_path, capsys):
+    """Stop 56 audit: ``report R R`` listed the run twice; ``report SWEEP`` said only "no run.json";
+    ``--overlays=-1`` was taken as 0."""
+    from semcityloc.cli.main import main
+
+    a = fake_run(tmp_path / "sw", "k=1", [(1.0, 1.0)])
+    fake_run(tmp_path / "sw", "k=2", [(2.0, 1.0)])
+    report = make_report([a, tmp_path / "sw" / ".." / "sw" / "k=1"], tmp_path / "rep")
+    assert report.markdown.read_text().count(f"- `{a}`") == 1
+    assert main(["report", str(tmp_path / "sw"), "--no-html", "--out", str(tmp_path / "r2")]) == 2
+    err = capsys.readouterr().err
+    assert f"a folder of 2 runs (k=1, k=2): give them, e.g. {tmp_path / 'sw'}/*" in err
+    assert main(["report", str(a), "--overlays=-1", "--out", str(tmp_path / "r3")]) == 2
+    assert "--overlays must be >= 0, got -1" in capsys.readouterr().err and not (tmp_path / "r3").exists()

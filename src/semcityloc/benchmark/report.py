@@ -23,7 +23,11 @@ side by what differs in their ``run.json``:
   estimated and true poses (the estimate on the map it was found on: ``found_map``), an xy slice and a
   yaw slice of the coarse cost volume.
 
-Runs are read only (an unfinished run is reported with its finished rows and marked incomplete). The
+Runs are read only (an unfinished run is reported with its finished rows and marked incomplete); a run
+named twice is reported once. The output folder holds this report alone: an earlier report's files there
+(``REPORT_FILES``: ``report.md``, ``report.html``, ``tables/*.md``, ``tables/*.csv``, ``plots/*.png``) are
+removed first, so a reused ``--out`` never mixes two run sets' tables and figures; any other file in it is
+kept. The
 report's files speak the command line's words, as the run folders they read do (``errors.as_flags``: a
 note's ``truth=...`` is ``--truth`` in ``report.md`` and ``report.html``); ``ReportOutput.notes`` keeps a
 Python caller's, and the command prints them with the flags.
@@ -35,6 +39,7 @@ figures a set of runs gets and writes them with ``report.md`` (``make_report``).
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -64,6 +69,7 @@ from semcityloc.benchmark.report_runs import (
     photo_of,
     readable_details,
     skipped_misses_note,
+    unique_runs,
 )
 from semcityloc.benchmark.report_tables import (
     MISSES_NOTE,
@@ -85,6 +91,10 @@ TABLES: dict[str, tuple[str, str]] = {
     "seg_quality": ("seg_quality", "Segmentation-quality sensitivity"),
 }
 
+
+# What a report writes into its folder (``report.md``, ``report.html``, and by pattern in its subfolders):
+# removed before a report is written there (module docstring).
+REPORT_FILES = ("report.md", "report.html", "tables/*.md", "tables/*.csv", "plots/*.png")
 
 RECALL_LINE = (
     "Recall cells: `≤` convention (LoD-Loc v1) / strict `<`; not_localized queries count as failures."
@@ -123,9 +133,10 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     """Tables, plots and ``report.md`` from benchmark run folders (module docstring)."""
     if not run_dirs:
         raise BenchmarkError("name at least one benchmark run folder")
-    runs = [load_run(p) for p in run_dirs]
+    runs = [load_run(p) for p in unique_runs(run_dirs)]
     label_runs(runs)
     out = Path(out_dir)
+    clear_report(out)
     (out / "tables").mkdir(parents=True, exist_ok=True)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     differ = differing_keys(runs)
@@ -182,6 +193,15 @@ def make_report(run_dirs: list[str | Path], out_dir: str | Path, overlays: int =
     md_file = out / "report.md"
     md_file.write_text("\n".join(doc) + "\n", encoding="utf-8")
     return ReportOutput(out, tables, plots, md_file, notes)
+
+
+def clear_report(out: Path) -> None:
+    """Remove an earlier report's files (``REPORT_FILES``) from ``out``; other files are kept."""
+    for pattern in REPORT_FILES:
+        for path in out.glob(pattern):
+            if path.is_file() or path.is_symlink():
+                with contextlib.suppress(FileNotFoundError):
+                    path.unlink()
 
 
 def _error_plots(runs: list[RunData], plot_dir: Path) -> list[Path]:

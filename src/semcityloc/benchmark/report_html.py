@@ -58,6 +58,7 @@ from semcityloc.benchmark.report_runs import (
     prior_noise_groups,
     readable_details,
     sweep_x,
+    unique_runs,
 )
 from semcityloc.benchmark.report_views import POSES, error_bins, pose_camera, query_camera, query_view
 from semcityloc.benchmark.results import row_pose
@@ -283,7 +284,7 @@ def make_html_report(
         raise BenchmarkError("name at least one benchmark run folder")
     if max_queries is not None and max_queries < 0:
         raise BenchmarkError(f"max_queries must be >= 0, got {max_queries}")
-    runs = [load_run(p) for p in run_dirs]
+    runs = [load_run(p) for p in unique_runs(run_dirs)]
     label_runs(runs)
     notes = list(notes)
     maps = _maps(runs, notes)

@@ -11,7 +11,8 @@ pose was right from the rows; ``has_truth`` tells a run whose queries have true 
 none (a user's photos run without ``--truth``), whose report shows instead what the run says of itself
 (``self_assessment``: the probability, the stated sigmas, the shift from the prior); ``run_map``,
 ``map_renderer``, ``photo_of`` and ``readable_details`` find what a query's drawing needs beyond the rows:
-the run's map, the query's photo, its details file.
+the run's map, the query's photo, its details file; ``city_changed`` keeps a run's drawings off a city model
+that changed since the run (its recorded ``city_sha256``).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from semcityloc.benchmark.results import (
 from semcityloc.benchmark.runfiles import RESULTS_FILE, RUN_FILE, SUMMARY_FILE, read_run_file
 from semcityloc.benchmark.spec import load_map
 from semcityloc.citymodel.model import CityModel
-from semcityloc.citymodel.tiles import load_city
+from semcityloc.citymodel.tiles import city_sha256, load_city
 from semcityloc.datasets.lodloc import FRAME_ECEF, IMAGE_DIR, enu_from_ecef, rotate_model
 from semcityloc.errors import BenchmarkError, SemCityLocError, counted, parameter
 from semcityloc.evaluation.metrics import is_right
@@ -81,8 +82,23 @@ def _run_folder(path: str | Path) -> Path:
     if not path.is_dir():
         raise BenchmarkError(f"{path}: is a file, not a benchmark run folder (the folder holding {RUN_FILE})")
     if not (path / RUN_FILE).is_file():
+        inside = sorted(p.name for p in path.iterdir() if (p / RUN_FILE).is_file())
+        if inside:  # a sweep's folder, or a demo's: the runs are its subfolders
+            shown = ", ".join(inside[:3]) + (", ..." if len(inside) > 3 else "")
+            raise BenchmarkError(
+                f"{path}: not a benchmark run folder (no {RUN_FILE}) but a folder of "
+                f"{counted(len(inside), 'run')} ({shown}): give them, e.g. {path}/* for a sweep's"
+            )
         raise BenchmarkError(f"{path}: not a benchmark run folder (no {RUN_FILE})")
     return path
+
+
+def unique_runs(run_dirs: list[str | Path]) -> list[Path]:
+    """``run_dirs`` with a folder named twice (the same folder, however spelled) kept once, first spelling."""
+    seen: dict[Path, Path] = {}
+    for p in run_dirs:
+        seen.setdefault(Path(p).resolve(), Path(p))
+    return list(seen.values())
 
 
 def load_run(path: str | Path) -> RunData:
@@ -394,6 +410,26 @@ def run_map(config: dict) -> CityModel:
     return load_map(config)
 
 
+def city_changed(config: dict) -> str | None:
+    """What a run's map drawings would get wrong, or None: its city model file or tile store
+    (``city_path``) is no longer the one it ran on, by the ``city_sha256`` its ``run.json`` recorded (as a
+    resumed run compares it, ``runfiles.prepare_output``). A run that recorded none is not checked; a city
+    that is gone is left to ``run_map``'s own error."""
+    recorded, path = config.get("city_sha256"), config.get("city_path")
+    if not recorded or not path or not Path(path).exists():
+        return None
+    try:
+        now = city_sha256(path)
+    except OSError:
+        return None  # unreadable: run_map says so
+    if now == recorded:
+        return None
+    return (
+        f"its city model {path} changed since the run (city_sha256 {str(recorded)[:12]}... in its "
+        f"{RUN_FILE}, {now[:12]}... now): drawn on it, the map would be another city's"
+    )
+
+
 def photo_of(config: dict, query_meta: dict) -> Path | None:
     """The photo of a real-data query, when it is still where the run found it."""
     candidates = []
@@ -411,10 +447,15 @@ def map_renderer(run: RunData, cache: dict, notes: list[str], consequence: str):
     """(map model, the renderers of its drawings: ``found_map.FoundMaps`` on a numba renderer) of a run,
     shared through ``cache`` by runs of one map (and one map's eaves); None (and a note: its map cannot be
     loaded, ``consequence``) when the map is gone."""
-    keys = ("mode", "city_path", "lod", "map_source", "crs", "frame", "ecef_origin_llh")
+    keys = ("mode", "city_path", "city_sha256", "lod", "map_source", "crs", "frame", "ecef_origin_llh")
     key = json.dumps([run.config.get(k) for k in keys])
     if key not in cache:
         try:
+            changed = city_changed(run.config)
+            if changed is not None:
+                cache[key] = None
+                notes.append(f"{run.path}: {consequence}: {changed}")
+                return None
             model = run_map(run.config)
             cache[key] = (model, Renderer(model, engine="numba"))
         except SemCityLocError as exc:

@@ -9,6 +9,7 @@ from pathlib import Path
 from semcityloc.benchmark.report import make_report
 from semcityloc.benchmark.report_html import make_html_report
 from semcityloc.benchmark.runfiles import REPORT_DIR
+from semcityloc.errors import BenchmarkError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--out",
         default=None,
         help="output folder (default: DIR/report for one run, as a run's closing hint says; "
-        "./benchmark_report for several)",
+        "./benchmark_report for several); an earlier report's files there are replaced, other files kept",
     )
     p.add_argument(
         "--overlays",
@@ -44,6 +45,10 @@ def run(args: argparse.Namespace) -> int:
     """Run ``semcityloc report`` from its parsed arguments; the exit code (typed errors are left to
     ``cli.main``, which prints them as one line).
     """
+    if args.overlays < 0:
+        raise BenchmarkError(f"--overlays must be >= 0, got {args.overlays}")
+    if args.html_queries is not None and args.html_queries < 0:
+        raise BenchmarkError(f"--html-queries must be >= 0, got {args.html_queries}")
     if args.out is None:
         args.out = str(Path(args.runs[0]) / REPORT_DIR) if len(args.runs) == 1 else "benchmark_report"
     report = make_report(args.runs, args.out, overlays=args.overlays)
