@@ -218,3 +218,65 @@ def test_cli_scenario_set_and_sweep_with_a_report(cli, capsys, tmp_path):
     assert f"report: semcityloc report {out / 'seed=1'}" in printed and f"{out}/*" not in printed
     assert cli(["benchmark", *args, "--set", "prior_height_m=-1", "--out", str(tmp_path / "b")]) == 2
     assert "prior_height_m" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("knob", "given", "said"),
+    [
+        (
+            "prior_roll_pitch_sigma_deg",
+            ["--set", "prior_roll_pitch_sigma_deg=3"],
+            "--set prior_roll_pitch_sigma_deg=3",
+        ),
+        ("seed", ["--seed", "9"], "--seed"),
+        ("seed", ["--seed", "0"], "--seed"),  # the default, given: still a second source of the value
+        ("seg_quality", ["--seg-quality", "zero-shot"], "--seg-quality"),
+        ("prior_extra_m", ["--prior-extra", "10-20"], "--prior-extra"),
+    ],
+)
+def test_sweep_refuses_what_else_sets_the_swept_knob(cli, capsys, tmp_path, knob, given, said):
+    """Stop 56 audit: ``sweep --knob K --set K=3`` (or ``--knob seed --seed 9``) ran the swept values and
+    dropped the other without a word."""
+    argv = [
+        "sweep",
+        "--knob",
+        knob,
+        "--values",
+        "1,2",
+        "--city",
+        "generated",
+        *given,
+        "--out",
+        str(tmp_path / "s"),
+    ]
+    assert cli(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{said}" in err and f"sets the swept knob {knob}" in err and err.count("\n") == 1
+    assert not (tmp_path / "s").exists()
+
+
+def test_sweep_refuses_a_value_given_twice_and_needs_its_city(cli, capsys, tmp_path):
+    """Stop 56 audit: ``--values 1,1.0`` ran one value twice; sweep's help and error named ``--dataset``,
+    an option sweep does not have, and showed ``--city`` as optional."""
+    out = str(tmp_path / "s")
+    assert cli(["sweep", "--knob", "seed", "--values", "1,1.0", "--city", "generated", "--out", out]) == 2
+    assert "--values gives a value twice (1 and 1.0); give each once" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli(["sweep", "--knob", "seed", "--values", "1", "--out", out])
+    assert "the following arguments are required: --city" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli(["sweep", "--help"])
+    assert "--dataset" not in capsys.readouterr().out
+
+
+def test_sweep_stop_after_counts_over_the_whole_sweep(cli, capsys, tmp_path):
+    """Stop 56 audit: ``--stop-after 3`` localized 3 queries per value (6 for two values), while its help
+    says "at most N more queries". Now N over the sweep: 2 queries, the first value's, then it stops."""
+    out = tmp_path / "s"
+    argv = ["sweep", "--knob", "seed", "--values", "1,2", "--city", "generated", "--queries", "2"]
+    argv += ["--preset", "fast", "--set", "seg_model=blobs", "--stop-after", "2", "--out", str(out)]
+    assert cli(argv) == 0
+    printed = capsys.readouterr().out
+    rows = {d.name: len((d / "results.csv").read_text().splitlines()) - 1 for d in out.iterdir()}
+    assert rows.get("seed=1") == 2 and rows.get("seed=2", 0) == 0, rows
+    assert "run again to continue" in printed

@@ -50,13 +50,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of a simulated benchmark run (shared by ``benchmark`` and ``sweep``)."""
+def add_simulation_arguments(p: argparse.ArgumentParser, sweep: bool = False) -> None:
+    """The options of a simulated benchmark run (shared by ``benchmark`` and, ``sweep`` true, by ``sweep``,
+    which has no ``--dataset``: there ``--city`` is required and ``--stop-after`` counts over the sweep)."""
+    city = "CityGML / CityJSON / OBJ file, a tile store, or 'generated' for the embedded city"
     p.add_argument(
         "--city",
         default=None,
-        help="CityGML / CityJSON / OBJ file, a tile store, or 'generated' for the embedded city (with "
-        "--dataset: the LoD model, default the *.obj beside the data set)",
+        required=sweep,
+        help=city
+        if sweep
+        else city + " (with --dataset: the LoD model, default the *.obj beside the data set)",
     )
     p.add_argument(
         "--lod",
@@ -114,7 +118,8 @@ def add_simulation_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="localize at most N more queries, then stop (run again to continue)",
+        help="localize at most N more queries, then stop (run again to continue)"
+        + (" - N over the whole sweep, its values in turn" if sweep else ""),
     )
 
 
