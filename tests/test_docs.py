@@ -261,3 +261,13 @@ def test_the_docs_point_only_into_the_repository(page: Path):
         if not (ROOT / m.group(1)).exists() and not (SRC / m.group(1)).exists():
             bad.append(f"{page.name}: {m.group(1)} is not in the repository")
     assert not bad, "paths that are not in the repository:\n" + "\n".join(bad)
+
+
+def test_the_compile_notice_is_quoted_as_the_code_prints_it():
+    """Stop 56 audit: docs/your-data.md quoted the notice of an older wording ("compiling numba kernels:
+    about a minute, once per install (...)"). The quote is the line a command prints, word for word."""
+    from semcityloc.benchmark.warmup import COMPILE_NOTICE
+    from semcityloc.errors import as_flags
+
+    text = " ".join((ROOT / "docs" / "your-data.md").read_text(encoding="utf-8").split())
+    assert f"`semcityloc: {as_flags(COMPILE_NOTICE)}`" in text
