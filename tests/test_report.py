@@ -833,6 +833,6 @@ def test_a_run_named_twice_is_reported_once_and_a_folder_of_runs_says_so(tmp_pat
     assert report.markdown.read_text().count(f"- `{a}`") == 1
     assert main(["report", str(tmp_path / "sw"), "--no-html", "--out", str(tmp_path / "r2")]) == 2
     err = capsys.readouterr().err
-    assert f"a folder of 2 runs (k=1, k=2): give them, e.g. {tmp_path / 'sw'}/*" in err
+    assert f"a folder of 2 runs (k=1, k=2): give the run folders themselves ({tmp_path / 'sw'}/* when" in err
     assert main(["report", str(a), "--overlays=-1", "--out", str(tmp_path / "r3")]) == 2
     assert "--overlays must be >= 0, got -1" in capsys.readouterr().err and not (tmp_path / "r3").exists()

@@ -87,7 +87,8 @@ def _run_folder(path: str | Path) -> Path:
             shown = ", ".join(inside[:3]) + (", ..." if len(inside) > 3 else "")
             raise BenchmarkError(
                 f"{path}: not a benchmark run folder (no {RUN_FILE}) but a folder of "
-                f"{counted(len(inside), 'run')} ({shown}): give them, e.g. {path}/* for a sweep's"
+                f"{counted(len(inside), 'run')} ({shown}): give the run folders themselves ({path}/* when it "
+                "holds nothing else, as a sweep's folder does)"
             )
         raise BenchmarkError(f"{path}: not a benchmark run folder (no {RUN_FILE})")
     return path
