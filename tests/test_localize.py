@@ -19,6 +19,7 @@ from semcityloc.localization.agreement import boundary_distance_px, building_agr
 from semcityloc.localization.coarse import yaw_lookup
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.covariance import PROBES
+from semcityloc.localization.input_checks import check_camera_and_prior
 from semcityloc.localization.localize import Localizer
 from semcityloc.localization.query import downsample_labels
 from semcityloc.localization.result import (
@@ -204,6 +205,18 @@ def test_bad_inputs_raise_typed_errors(city, localizer):
         localizer.localize(CAMERA, pose, np.zeros((384, 512, 3), dtype=np.uint8))
     with pytest.raises(PoseError):
         localizer.localize(CAMERA, Pose.stack([pose, pose]), np.zeros((384, 512), np.uint8))
+
+
+def test_a_world_prior_is_refused_as_the_renderer_refuses_a_world_pose(city, localizer):
+    """Stop 56's audit: a prior in world (CRS) coordinates searched an empty volume and came back as a
+    miss ("no model geometry within the search volume"); the renderer's hint names model.pose_to_local."""
+    pose = view(city, *CASES["nadir"][0])
+    world = pose.shift_world(-np.array([690_000.0, 5_336_000.0, 0.0]))  # a UTM origin added
+    mask = np.full((384, 512), 3, dtype=np.uint8)
+    with pytest.raises(PoseError, match=r"prior must be in the model's local frame: .*model\.pose_to_local"):
+        localizer.localize(CAMERA, world, mask)
+    with pytest.raises(PoseError, match="pose_to_local"):
+        check_camera_and_prior(CAMERA, world)  # the baselines' check too
 
 
 def test_api_inputs_the_cli_refuses_are_refused_by_the_api_too(city, localizer):

@@ -16,7 +16,7 @@ import numpy as np
 from semcityloc.classes import invalid_class_ids
 from semcityloc.errors import CameraError, PoseError, ShapeError
 from semcityloc.geometry.camera import Camera
-from semcityloc.geometry.pose import Pose
+from semcityloc.geometry.pose import Pose, local_frame_problem
 
 # A query camera's field of view, per axis (``check_query_camera``): a 200x zoom sees about 1 deg, a
 # rectified fisheye is cut to well under 150 deg.
@@ -25,12 +25,16 @@ MAX_FOV_DEG = 150.0
 
 
 def check_camera_and_prior(camera: Camera, prior_local: Pose) -> None:
-    """Typed errors for the inputs every localizer shares (this one and the baselines)."""
+    """Typed errors for the inputs every localizer shares (this one and the baselines); a prior in world
+    (CRS) coordinates is refused as ``Renderer.render`` refuses such a pose (``pose.local_frame_problem``),
+    where it searched an empty volume and reported a miss."""
     if not isinstance(camera, Camera):
         raise CameraError(f"camera must be a semcityloc Camera, got {type(camera).__name__}")
     check_query_camera(camera)
     if not isinstance(prior_local, Pose) or prior_local.batch_shape:
         raise PoseError("prior must be a single Pose (cam_from_world)")
+    if (problem := local_frame_problem(prior_local.center)) is not None:
+        raise PoseError(f"the prior must be in the model's local frame: {problem}")
 
 
 def check_query_camera(camera: Camera) -> None:
