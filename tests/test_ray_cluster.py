@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from semcityloc.benchmark.ray_executor import host_port
+from semcityloc.benchmark.ray_executor import check_address, host_port
 from semcityloc.benchmark.results import TIMING_COLUMNS
 from semcityloc.citymodel.generator import default_city_path
 from semcityloc.cli.main import main
@@ -47,8 +47,68 @@ def test_cluster_addresses_are_parsed():
     assert host_port("ray://head.example:10001") == ("head.example", 10001)
     assert host_port("[::1]:6379") == ("::1", 6379)
     assert host_port("auto") is None and host_port("local") is None
-    with pytest.raises(BenchmarkError, match="expected host:port"):
-        host_port("10.0.0.5:http")
+    for wrong in ("10.0.0.5:http", "garbage", ":6379", "http://head:6379", "ray://head"):
+        with pytest.raises(
+            BenchmarkError, match=r"expected host:port \(e.g. 10.0.0.5:6379\), ray://host:port"
+        ):
+            host_port(wrong)
+
+
+def test_a_ray_client_address_without_the_client_names_what_to_install(monkeypatch):
+    """Stop 56's audit: ``ray://`` (which --help offers) ended in Ray's traceback `Ray Client requires pip
+    package ray[client]`; the [ray] extra does not install it."""
+    monkeypatch.setitem(sys.modules, "grpc", None)  # the client's dependency, absent
+    with pytest.raises(BenchmarkError, match=r"needs Ray's client.*pip install 'ray\[client\]'"):
+        check_address("ray://head.example:10001")
+    assert check_address("head.example:6379") == ("head.example", 6379)
+
+
+def _no_init(*args, **kwargs):
+    raise AssertionError("ray.init was called: Ray retries an address where nothing answers for minutes")
+
+
+def test_a_malformed_address_or_auto_at_a_stale_address_is_refused_before_ray(tmp_path, capsys, monkeypatch):
+    """Stop 56's audit: `--ray-address garbage` ended in Ray's `ValueError: Invalid address format`
+    traceback, and `auto` with a `ray_current_cluster` file left by a `ray start` long gone waited minutes
+    for that address: both refused in one line, before ``ray.init``."""
+    import ray
+
+    monkeypatch.setattr(ray, "init", _no_init)
+    run = [*RUN, "--executor", "ray", "--out", str(tmp_path / "out")]
+    assert main([*run, "--ray-address", "garbage"]) == 2
+    err = capsys.readouterr().err
+    assert "--ray-address garbage: expected host:port" in err and "Traceback" not in err
+    port = _free_port()
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setenv("RAY_TMPDIR", str(tmp_path))  # Ray's temporary folder, where `ray start` notes it
+    # auto prefers a head running on this machine (another test's, another user's) to the file: none here.
+    monkeypatch.setattr(ray._private.services, "find_gcs_addresses", frozenset)
+    (tmp_path / "ray").mkdir()
+    (tmp_path / "ray" / "ray_current_cluster").write_text(f"127.0.0.1:{port}")
+    assert main([*run, "--ray-address", "auto"]) == 2
+    err = capsys.readouterr().err
+    assert f":{port}, the address Ray found for auto" in err  # Ray names 127.0.0.1 by the machine's address
+    assert "`ray stop` clears it" in err and "Traceback" not in err
+
+
+def test_rays_own_refusal_of_an_address_is_one_line(tmp_path, capsys, monkeypatch):
+    """What Ray raises from ``ray.init`` once something answers at the address (a ``ValueError`` of an
+    address Ray reads otherwise, a failed connection) is one line, not Ray's traceback."""
+    import ray
+
+    def invalid(*args, **kwargs):
+        raise ValueError("Invalid address format: 127.0.0.1\nmore of Ray's words")
+
+    monkeypatch.setattr(ray, "init", invalid)
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        code = main([*RUN, "--executor", "ray", "--ray-address", address, "--out", str(tmp_path)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"--ray-address {address}: Invalid address format: 127.0.0.1; " in err
+    assert "Traceback" not in err and "more of Ray's words" not in err
 
 
 def test_an_address_where_nothing_answers_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
@@ -56,10 +116,7 @@ def test_an_address_where_nothing_answers_is_refused_in_one_line(tmp_path, capsy
 
     # "At once" without a clock: the refusal comes from the connection check, before ray.init (where Ray
     # would retry for minutes); a call to ray.init fails the test.
-    def no_init(*args, **kwargs):
-        raise AssertionError("ray.init was called: Ray retries an address where nothing answers for minutes")
-
-    monkeypatch.setattr(ray, "init", no_init)
+    monkeypatch.setattr(ray, "init", _no_init)
     port = _free_port()
     code = main([*RUN, "--executor", "ray", "--ray-address", f"127.0.0.1:{port}", "--out", str(tmp_path)])
     assert code == 2

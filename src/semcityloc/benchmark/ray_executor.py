@@ -10,9 +10,14 @@ driver resumes as today).
   log forwarding, a small object store; even when a ``ray start`` cluster runs on this machine, which
   plain ``ray.init`` would join) and shuts it down at the end; ``address`` joins an existing cluster
   instead (its CPUs decide how many workers run at once: ``workers`` actors are started). A runtime already
-  up in this process (a test, a notebook) is used and left up. An address where nothing answers is
-  refused in one line (``BenchmarkError``) within ``CONNECT_TIMEOUT_S``: Ray itself retries for
-  minutes, then raises from deep inside; ``auto`` with no cluster on this machine likewise. A failed
+  up in this process (a test, a notebook) is used and left up. An address is ``host:port``,
+  ``ray://host:port`` (Ray's client: ``pip install 'ray[client]'``, which the ``[ray]`` extra does not
+  install; checked first) or ``auto``; any other form is refused in one line (``check_address``), where
+  Ray raised ``Invalid address format`` from deep inside. An address where nothing answers is refused in
+  one line (``BenchmarkError``) within ``CONNECT_TIMEOUT_S``: Ray itself retries for minutes, then raises
+  from deep inside; ``auto`` likewise, the address Ray finds for it probed first (``auto_address``: a
+  ``ray_current_cluster`` file a ``ray start`` long gone left in Ray's temporary folder made Ray wait
+  minutes for it), and with no cluster found Ray's own line. A failed
   join names ``RAY_AUTH_MODE=token`` when this machine holds a Ray token: a head started where
   ``~/.ray/auth_token`` exists asks for it, and Ray's clients send it only in token mode. A runtime of
   its own gets a token for the run in its environment (``RAY_AUTH_TOKEN``, ``run_token``) unless the
@@ -42,6 +47,7 @@ are seeded per query).
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import os
 import secrets
 import socket
@@ -58,6 +64,10 @@ RETRIES = 1  # a query whose worker died is tried this many more times
 # Object store of a local runtime (bytes): the shipped models are tens of MB; Ray's default takes 30% of RAM.
 OBJECT_STORE_BYTES = 512 * 1024 * 1024
 CONNECT_TIMEOUT_S = 5.0  # how long a cluster's address may take to answer before it is refused
+_AUTO_FOUND = (  # where Ray's `auto` finds a cluster's address (``auto_address``)
+    ", the address Ray found for auto (RAY_ADDRESS, or ray_current_cluster in Ray's temporary folder, "
+    "/tmp/ray, left by a `ray start` whose cluster is gone: `ray stop` clears it)"
+)
 _START_HINT = (
     f"start one with `ray start --head`, or leave out {parameter('ray_address')} for a local runtime"
 )
@@ -141,33 +151,63 @@ def run_token() -> Iterator[None]:
 
 def host_port(address: str) -> tuple[str, int] | None:
     """(host, port) of a cluster address ``host:port`` or ``ray://host:port``; None for ``auto`` / ``local``
-    (Ray looks those up itself). ``BenchmarkError`` on a port that is not a number."""
-    rest = address.split("://", 1)[1] if "://" in address else address
-    if address in ("auto", "local") or ":" not in rest:
+    (Ray looks those up itself). ``BenchmarkError`` on any other form (a text without a port, a port that is
+    not a number, another scheme)."""
+    if address in ("auto", "local"):
         return None
+    scheme, sep, rest = address.rpartition("://")
     host, _, port = rest.rpartition(":")
-    if not port.isdigit() or not 0 < int(port) < 65536:
+    if (sep and scheme != "ray") or not host.strip("[]") or not port.isdigit() or not 0 < int(port) < 65536:
         raise BenchmarkError(
-            f"{parameter('ray_address', address)}: expected host:port (e.g. 10.0.0.5:6379) or auto"
+            f"{parameter('ray_address', address)}: expected host:port (e.g. 10.0.0.5:6379), ray://host:port "
+            "or auto"
         )
     return host.strip("[]"), int(port)
 
 
-def join_cluster(ray, address: str) -> None:
-    """``ray.init(address)``, after checking within ``CONNECT_TIMEOUT_S`` that something answers there."""
+def check_address(address: str) -> tuple[str, int] | None:
+    """``host_port``, and for a ``ray://`` address Ray's client installed (``grpc``, what Ray checks for):
+    the ``[ray]`` extra does not install it, and Ray says so in a traceback."""
     target = host_port(address)
+    if address.startswith("ray://") and importlib.util.find_spec("grpc") is None:
+        raise BenchmarkError(
+            f"{parameter('ray_address', address)}: a ray:// address needs Ray's client, which the [ray] "
+            f"extra does not install: pip install 'ray[client]', or give the head's host:port "
+            f"(e.g. {target[0]}:6379)"
+        )
+    return target
+
+
+def auto_address(ray) -> str | None:
+    """The ``host:port`` Ray's ``auto`` stands for, as Ray finds it (``RAY_ADDRESS``, the
+    ``ray_current_cluster`` file the last ``ray start`` on this machine wrote, a running head's process), or
+    None when Ray finds none (``ray.init`` then says so at once)."""
+    try:
+        return ray._private.services.canonicalize_bootstrap_address("auto")
+    except (OSError, ValueError, AttributeError):  # no cluster, a malformed RAY_ADDRESS, another Ray
+        return None
+
+
+def join_cluster(ray, address: str) -> None:
+    """``ray.init(address)``, after checking within ``CONNECT_TIMEOUT_S`` that something answers there
+    (for ``auto``, at the address Ray finds for it); Ray's refusals in one line."""
+    target = check_address(address)
+    found = auto_address(ray) if address == "auto" else None
+    if found is not None:
+        target = host_port(found)
     if target is not None:
         try:
             socket.create_connection(target, timeout=CONNECT_TIMEOUT_S).close()
         except OSError as exc:
+            where = f"{target[0]}:{target[1]}" + (_AUTO_FOUND if found else "")
             raise BenchmarkError(
-                f"{parameter('ray_address', address)}: no Ray cluster answers at {target[0]}:{target[1]} "
+                f"{parameter('ray_address', address)}: no Ray cluster answers at {where} "
                 f"({exc.strerror or exc}); {_START_HINT}"
             ) from None
     auth_error = getattr(ray.exceptions, "AuthenticationError", ())  # Ray's token authentication
     try:
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
-    except (ConnectionError, auth_error) as exc:
+    except (ConnectionError, ValueError, auth_error) as exc:
         hint = _START_HINT
         if os.environ.get("RAY_AUTH_MODE") != "token" and _token_available():
             # A head started where ~/.ray/auth_token exists (any local Ray runtime writes one) asks for

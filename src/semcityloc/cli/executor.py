@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from semcityloc.benchmark.ray_executor import host_port
+from semcityloc.benchmark.ray_executor import check_address
 from semcityloc.benchmark.run import EXECUTORS, BenchmarkOutcome, RunSpec, run_benchmark
 from semcityloc.errors import BenchmarkError
 
@@ -26,7 +26,8 @@ def add_executor_arguments(p: argparse.ArgumentParser) -> None:
         "--ray-address",
         default=None,
         metavar="ADDRESS",
-        help="join this Ray cluster: HOST:PORT, ray://HOST:PORT or auto (with --executor ray)",
+        help="join this Ray cluster: HOST:PORT, ray://HOST:PORT (pip install 'ray[client]') or auto "
+        "(with --executor ray)",
     )
 
 
@@ -37,7 +38,7 @@ def executor_options(args: argparse.Namespace) -> dict:
     if address and executor != "ray":
         raise BenchmarkError("--ray-address needs --executor ray")
     if address:
-        host_port(address)  # a malformed address fails here, before anything loads
+        check_address(address)  # a malformed address fails here, before anything loads
     return {"executor": executor, "ray_address": address}
 
 
