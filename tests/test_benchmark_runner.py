@@ -40,6 +40,7 @@ from semcityloc.benchmark.runfiles import RESULTS_FILE, Progress
 from semcityloc.benchmark.spec import BenchmarkSpec, load_models
 from semcityloc.classes import SemanticClass
 from semcityloc.errors import (
+    ArgumentTypeError,
     BenchmarkError,
     InputFileError,
     OutputPathError,
@@ -437,6 +438,19 @@ def test_method_registry_and_bad_specs(sim, tmp_path):
         dataclasses.replace(make_spec(sim), city=str(tmp_path / "missing.gml")).run_config()
     with pytest.raises(BenchmarkError, match="workers"):
         run_benchmark(make_spec(sim), tmp_path / "w", workers=0)
+
+
+def test_a_spec_or_run_given_no_path_is_a_typed_error_naming_the_argument(sim, tmp_path):
+    """Stop 56's audit: ``BenchmarkSpec(city=5)`` was made, and its run, like ``run_benchmark(spec, None)``,
+    ended in pathlib's ``TypeError: expected str, bytes or os.PathLike object``."""
+    for city in (5, None):
+        with pytest.raises(
+            ArgumentTypeError, match=f"^city must be a city model file.*got {type(city).__name__}"
+        ):
+            dataclasses.replace(make_spec(sim), city=city)
+    with pytest.raises(ArgumentTypeError, match="^out_dir must be the run's folder .*got NoneType"):
+        run_benchmark(make_spec(sim), None)
+    assert dataclasses.replace(make_spec(sim), city=Path("generated")).city == Path("generated")
 
 
 def test_a_python_spec_of_combined_presets_holds_them_in_one_spelling(sim):

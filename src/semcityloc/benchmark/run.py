@@ -81,7 +81,14 @@ from semcityloc.benchmark.runfiles import (
 )
 from semcityloc.benchmark.sources import QuerySource
 from semcityloc.benchmark.warmup import ensure_compiled, kernel_groups
-from semcityloc.errors import BenchmarkError, OutputPathError, SemCityLocError, as_flags, unknown_choice
+from semcityloc.errors import (
+    ArgumentTypeError,
+    BenchmarkError,
+    OutputPathError,
+    SemCityLocError,
+    as_flags,
+    unknown_choice,
+)
 from semcityloc.io.files import write_json_atomic
 from semcityloc.localization.config import LocalizerConfig
 from semcityloc.localization.result import LocalizationResult
@@ -246,6 +253,10 @@ def run_queries(
         import_ray()  # missing: the install hint now, before any file is written
     if limit is not None and int(limit) < 0:
         raise BenchmarkError(f"limit must be >= 0, got {limit}")
+    if not isinstance(out_dir, (str, os.PathLike)):  # pathlib's TypeError otherwise
+        raise ArgumentTypeError(
+            f"out_dir must be the run's folder (a str or a path), got {type(out_dir).__name__}"
+        )
     out = Path(out_dir)
     config = config if config is not None else spec.run_config()
     config = {**config, CODE_KEY: code_fingerprint()}

@@ -14,6 +14,7 @@ highest LoD per building, moved into the map's local frame in float64 (its origi
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +29,7 @@ from semcityloc.citymodel.generator import default_city_path
 from semcityloc.citymodel.lod1 import derive_lod1
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
-from semcityloc.errors import BenchmarkError, InputFileError
+from semcityloc.errors import ArgumentTypeError, BenchmarkError, InputFileError
 from semcityloc.localization.config import LocalizerConfig, preset_name
 
 RUN_FORMAT = 1
@@ -80,7 +81,8 @@ def check_run_options(spec) -> None:
 @dataclass(frozen=True)
 class BenchmarkSpec:
     """A simulated benchmark run (module docstring). Checked when made: a bad value raises
-    ``BenchmarkError`` naming it, before any model is loaded."""
+    ``BenchmarkError`` naming it (a ``city`` that is no str or path ``ArgumentTypeError``), before any model
+    is loaded."""
 
     city: str
     query: QueryConfig
@@ -98,6 +100,11 @@ class BenchmarkSpec:
     label = "benchmark"  # the progress bar's label
 
     def __post_init__(self) -> None:
+        if not isinstance(self.city, (str, os.PathLike)):  # pathlib's TypeError at run time otherwise
+            raise ArgumentTypeError(
+                f"city must be a city model file, a tile store or {GENERATED!r} (a str or a path), "
+                f"got {type(self.city).__name__}"
+            )
         if self.lod not in (None, 1, 2, 3):
             raise BenchmarkError(f"lod must be 1, 2 or 3 (or unset for the file's highest), got {self.lod!r}")
         if not isinstance(self.query, QueryConfig):
