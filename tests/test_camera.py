@@ -76,6 +76,15 @@ def test_invalid_intrinsics_raise(kwargs):
         Camera(**params)
 
 
+@pytest.mark.parametrize("name", ["fx", "fy", "cx", "cy", "width", "height"])
+def test_a_bool_is_no_camera_parameter(name):
+    """Stop 56's audit: ``Camera(True, 300, 256, 192, 512, 384)`` was a camera of fx = 1.0 (a bool is an
+    int to Python); ``from_fov`` refused bools already."""
+    params = {"fx": 300.0, "fy": 300.0, "cx": 256.0, "cy": 192.0, "width": 512, "height": 384}
+    with pytest.raises(CameraError, match=f"^camera {name} must be a .*, got True$"):
+        Camera(**{**params, name: True})
+
+
 def test_integer_valued_float_size_is_accepted():
     cam = Camera(1000, 1000, 320, 256, 640.0, 512.0)
     assert (cam.width, cam.height) == (640, 512)

@@ -32,8 +32,8 @@ class Camera:
     (u, v) = (j + 0.5, i + 0.5), so the top-left pixel's centre is (0.5, 0.5) and ``cx = width / 2`` is the
     image's middle (COLMAP / OpenCV calibration; docs/conventions.md). Camera axes are OpenCV's (x right,
     y down, z forward): (x, y, z) projects to (fx x / z + cx, fy y / z + cy). Values are checked when made
-    (finite, positive focal lengths, whole positive sizes up to ``MAX_SIDE_PX``), so a typo in a
-    calibration file is a ``CameraError`` here rather than an empty render later.
+    (finite numbers, not bools; positive focal lengths; whole positive sizes up to ``MAX_SIDE_PX``), so a
+    typo in a calibration file is a ``CameraError`` here rather than an empty render later.
     """
 
     fx: float
@@ -46,7 +46,8 @@ class Camera:
     def __post_init__(self) -> None:
         for name in ("fx", "fy", "cx", "cy"):
             value = getattr(self, name)
-            if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
+            number = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+            if not number or not math.isfinite(value):  # a bool is an int to Python: True is no focal length
                 raise CameraError(f"camera {name} must be a finite number, got {value!r}")
             object.__setattr__(self, name, float(value))
         if self.fx <= 0 or self.fy <= 0:
@@ -55,7 +56,7 @@ class Camera:
             value = getattr(self, name)
             if isinstance(value, float) and value.is_integer():
                 value = int(value)
-            if not isinstance(value, (int, np.integer)) or value <= 0:
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value <= 0:
                 raise CameraError(f"camera {name} must be a positive integer, got {value!r}")
             if value > MAX_SIDE_PX:
                 raise CameraError(f"camera {name} must be at most {MAX_SIDE_PX} pixels, got {value!r}")
