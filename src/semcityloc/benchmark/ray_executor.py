@@ -34,7 +34,9 @@ driver resumes as today).
   them to the raylet, which Ray does already; Ray ends them with the driver itself. A driver killed
   (SIGKILL) takes its local runtime's head with it (Ray starts the GCS and the raylet with
   ``PR_SET_PDEATHSIG``), and the workers end with their raylet within seconds (Ray's dashboard and
-  runtime-environment agents a minute later, by themselves); on a cluster, actors die with their owner,
+  runtime-environment agents a minute later, by themselves: the raylet starts them for every runtime, no
+  ``ray.init`` option leaves them out, and ``ray stop`` ends them at once, docs/scale.md); on a cluster,
+  actors die with their owner,
   the driver (measured by hand: within a second). SIGTERM: ``ray.init`` installs a handler that exits the
   driver, so ``run_ray``'s ``finally`` (and Ray's ``atexit``) calls ``ray.shutdown``, which ends every
   process the runtime started (``tests/test_ray_executor.py``,
