@@ -453,6 +453,14 @@ def test_a_spec_or_run_given_no_path_is_a_typed_error_naming_the_argument(sim, t
     assert dataclasses.replace(make_spec(sim), city=Path("generated")).city == Path("generated")
 
 
+def test_a_prior_extra_that_leaves_the_local_frame_is_refused_when_the_spec_is_made(sim):
+    """Stop 56: the localizer refuses a prior outside the map's local frame (a world pose given as local);
+    an extra offset of 1e6 m ran every query to a miss before, and would stop the run at its first query."""
+    with pytest.raises(BenchmarkError, match=r"prior offset of up to 2e\+06 m per axis .* at most 50000 m"):
+        make_spec(sim, prior_extra_m=(1e6, 2e6))
+    assert make_spec(sim, prior_extra_m=(10.0, 50_000.0)).query.prior_extra_m == (10.0, 50_000.0)
+
+
 def test_a_python_spec_of_combined_presets_holds_them_in_one_spelling(sim):
     """Two orders of one combination are one run (its ``run.json``, so a resume matches), as on the CLI."""
     a = dataclasses.replace(make_spec(sim), preset="focal-correct, lookalikes")

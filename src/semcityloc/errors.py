@@ -266,6 +266,7 @@ PARAMETERS: dict[str, Parameter] = {
     "executor": Parameter("executor='{}'", "--executor {}"),
     "ray_address": Parameter("ray_address='{}'", "--ray-address {}"),
     "settings": Parameter("settings={}", "--set {}"),  # ``scenario.query_config``'s knobs
+    "prior_extra": Parameter("QueryConfig(prior_extra_m=({}))", "--prior-extra {}"),  # named bare
     # ``train_segmenter``'s settings (``TrainConfig``) and its own keywords
     "lr": Parameter("TrainConfig(lr={})", "--lr {}"),
     "epochs": Parameter("TrainConfig(epochs={})", "--epochs {}"),

@@ -29,12 +29,17 @@ from semcityloc.citymodel.generator import default_city_path
 from semcityloc.citymodel.lod1 import derive_lod1
 from semcityloc.citymodel.model import CityModel, crs_label
 from semcityloc.citymodel.tiles import TileStore, city_sha256, is_store, load_city, open_store
-from semcityloc.errors import ArgumentTypeError, BenchmarkError, InputFileError
+from semcityloc.errors import ArgumentTypeError, BenchmarkError, InputFileError, parameter
+from semcityloc.geometry.pose import LOCAL_FRAME_REACH_M
 from semcityloc.localization.config import LocalizerConfig, preset_name
 
 RUN_FORMAT = 1
 GENERATED = "generated"  # --city value meaning the embedded generated district
 _GENERATED_NAME = re.compile(r"^generated_lod([123])\.gml$")
+# The largest extra prior offset per axis (``QueryConfig.prior_extra_m``): half the local frame's reach, so
+# a prior of a camera anywhere in a city stays in the frame the localizer takes priors in
+# (``input_checks.check_camera_and_prior``); no search reaches a fraction of it.
+PRIOR_EXTRA_MAX_M = LOCAL_FRAME_REACH_M / 2
 
 
 def resolve_city(city: str | Path) -> Path:
@@ -109,6 +114,13 @@ class BenchmarkSpec:
             raise BenchmarkError(f"lod must be 1, 2 or 3 (or unset for the file's highest), got {self.lod!r}")
         if not isinstance(self.query, QueryConfig):
             raise BenchmarkError("spec.query must be a QueryConfig")
+        extra = self.query.prior_extra_m
+        if extra is not None and extra[1] > PRIOR_EXTRA_MAX_M:
+            raise BenchmarkError(
+                f"{parameter('prior_extra')}: an extra prior offset of up to {extra[1]:g} m per axis puts "
+                "priors outside the map's local frame, where the localizer refuses them; keep it at most "
+                f"{PRIOR_EXTRA_MAX_M:g} m (no search reaches a fraction of that)"
+            )
         if int(self.query.queries) < 1:
             raise BenchmarkError(f"the number of queries must be >= 1, got {self.query.queries}")
         check_run_options(self)
