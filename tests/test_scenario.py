@@ -105,9 +105,9 @@ def test_settings_reach_every_knob_and_are_checked():
     with pytest.raises(BenchmarkConfigError, match="prior_height_m"):
         query_config("realistic", {"prior_height_m": -3}, queries=1)
     # A value no check foresaw: the knob named as the caller set it (``settings``; the command prints --set).
-    with pytest.raises(BenchmarkConfigError, match=r"^reality\.tree_m2='x' \(settings=\.\.\.\): ") as info:
-        query_config("realistic", {"reality.tree_m2": "x"}, queries=1)
-    assert as_flags(str(info.value)).startswith("reality.tree_m2='x' (--set): ")
+    with pytest.raises(BenchmarkConfigError, match=r"^seg_quality=\{'a': 1\} \(settings=\.\.\.\): ") as info:
+        query_config("realistic", {"seg_quality": {"a": 1}}, queries=1)
+    assert as_flags(str(info.value)).startswith("seg_quality={'a': 1} (--set): ")
     with pytest.raises(BenchmarkConfigError, match="unknown scenario 'hard'"):
         query_config("hard", queries=1)
     # Beyond any map's error: a 1e9 m shift or a tree per 0.001 m2 ran one query to 18 GB (stop 50's audit)
@@ -280,3 +280,106 @@ def test_sweep_stop_after_counts_over_the_whole_sweep(cli, capsys, tmp_path):
     rows = {d.name: len((d / "results.csv").read_text().splitlines()) - 1 for d in out.iterdir()}
     assert rows.get("seed=1") == 2 and rows.get("seed=2", 0) == 0, rows
     assert "run again to continue" in printed
+
+
+# --- the knobs' types (stop 56 audit C: H1, H2, M1, M4, L2, L3) ---
+
+
+@pytest.mark.parametrize(
+    ("knob", "field"),
+    [
+        ("depth", lambda c: c.depth),
+        ("score_against_map", lambda c: c.score_against_map),
+        ("lens_stated", lambda c: c.lens_stated),
+        ("overhang_flat_roofs", lambda c: c.reality.overhang_flat_roofs),
+    ],
+)
+def test_every_boolean_knob_takes_true_or_false_in_any_case_and_refuses_the_rest(knob, field):
+    """Stop 56 audit: ``--set depth=False`` ran with depth (``bool('False')`` is True), and
+    ``overhang_flat_roofs=False`` was kept as the text 'False', which ``build_reality`` took for True."""
+    for text, want in (
+        ("False", False),
+        ("TRUE", True),
+        ("no", False),
+        ("yes", True),
+        ("0", False),
+        ("1", True),
+    ):
+        cfg = query_config("realistic", parse_settings([f"{knob}={text}"]), queries=1)
+        assert field(cfg) is want, (knob, text)
+    for text in ("maybe", "2", "0.5", "null"):
+        with pytest.raises(BenchmarkConfigError, match=rf"{knob} must be true or false, got ") as info:
+            query_config("realistic", parse_settings([f"{knob}={text}"]), queries=1)
+        assert "\n" not in str(info.value)
+
+
+def test_the_python_api_refuses_a_boolean_given_as_other_text():
+    """The same rule for a library caller: ``QueryConfig(depth="no")`` was depth on."""
+    from semcityloc.benchmark.reality import RealityParams
+
+    assert (
+        QueryConfig(depth="no").depth is False
+        and QueryConfig(score_against_map="False").score_against_map is False
+    )
+    assert RealityParams(overhang_flat_roofs=np.False_).overhang_flat_roofs is False
+    for bad in ({"depth": "maybe"}, {"score_against_map": 2}, {"lens_stated": None}):
+        with pytest.raises(BenchmarkConfigError, match="must be true or false"):
+            QueryConfig(**bad)
+    with pytest.raises(BenchmarkConfigError, match="RealityParams.overhang_flat_roofs must be true or false"):
+        RealityParams(overhang_flat_roofs="maybe")
+
+
+@pytest.mark.parametrize(
+    "setting",
+    [
+        "shift_xy_max_m=abc",
+        "shift_xy_max_m=nan",
+        "shift_xy_max_m=inf",
+        "roof_change_fraction=nan",
+        "roof_structure_m2=nan",
+        "reality.margin_m=true",
+        'tree_height_m=[4,"x"]',
+    ],
+)
+def test_a_reality_knob_of_the_wrong_type_says_the_type_wanted_in_one_line(setting):
+    """Stop 56 audit: ``--set shift_xy_max_m=abc`` said ``'<=' not supported between instances of 'float'
+    and 'str'``; the lower-case ``nan`` / ``inf`` users type stayed text and failed so too."""
+    knob = setting.partition("=")[0].rpartition(".")[2]
+    with pytest.raises(
+        BenchmarkConfigError,
+        match=rf"^RealityParams\.{knob} must be a (finite number|\(low, high\) pair of numbers), got ",
+    ) as info:
+        query_config("realistic", parse_settings([setting]), queries=1)
+    assert "not supported" not in str(info.value)
+
+
+def test_every_reality_field_has_its_type_checked():
+    """``RealityParams`` checks each field's type by its annotation: a new field of another type would go
+    unchecked."""
+    from semcityloc.benchmark.reality import RealityParams
+
+    kinds = {f.type for f in dataclasses.fields(RealityParams)}
+    assert kinds <= {"float", "bool", "str", "tuple[float, float]", "tuple[float, float] | None"}
+
+
+@pytest.mark.parametrize(
+    ("setting", "said"),
+    [
+        ("focal_mm=0", "focal_mm must be positive, got 0"),
+        ("prior_yaw_deg=1000", "prior_yaw_deg must be in [0, 180], got 1000"),
+        ("oblique_fraction=2", "oblique_fraction must be in [0, 1], got 2"),
+        ("min_building_fraction=1", "min_building_fraction must be in [0, 1), got 1"),
+        ("max_roll_deg=50", "max_roll_deg must be in [0, 45], got 50"),
+        ("prior_roll_pitch_deg=-1", "prior_roll_pitch_deg must be in [0, 45], got -1"),
+        ("seed=-1", "seed must be >= 0, got -1"),
+        ("width=100000", "width must be in [16, 8192] pixels, got 100000"),
+        ("height=8193", "height must be in [16, 8192] pixels, got 8193"),
+        ("width=15", "width must be in [16, 8192] pixels, got 15"),
+    ],
+)
+def test_a_query_knob_out_of_range_is_named_alone(setting, said):
+    """Stop 56 audit: ``--set focal_mm=0`` said ``prior_roll_pitch_deg must be in [0, 45] and focal_mm
+    positive``, naming a knob not set; ``width=100000`` was accepted (only 16 was checked)."""
+    with pytest.raises(BenchmarkConfigError) as info:
+        query_config("realistic", parse_settings([setting]), queries=1)
+    assert str(info.value) == said

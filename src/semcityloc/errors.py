@@ -12,6 +12,7 @@ passed no command-line flag. The command line turns each such spelling into its 
 
 from __future__ import annotations
 
+import numbers
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -175,6 +176,25 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
     if plural is None:
         plural = noun[:-1] + "ies" if noun.endswith("y") and noun[-2:-1] not in "aeiou" else noun + "s"
     return f"{n} {plural}"
+
+
+TRUE_WORDS = ("true", "yes", "on", "1")  # what a yes/no setting given as text accepts as yes, in any case
+FALSE_WORDS = ("false", "no", "off", "0")  # ... and as no
+
+
+def true_or_false(value: object, name: str, error: type[_E] = ParameterError) -> bool:
+    """A yes/no setting as a bool: a bool (numpy's too), the integer 0 or 1, or text among ``TRUE_WORDS`` /
+    ``FALSE_WORDS`` in any case (``--set depth=False``, ``--backend-option allow_lossy=no``); anything else
+    is ``error``: "{name} must be true or false, got {value!r}". Why one rule: ``bool("False")`` is True,
+    and a knob whose text was taken so ran the opposite of what was asked (stop 56 audit)."""
+    if isinstance(value, bool):
+        return value
+    numpy_bool = getattr(getattr(value, "dtype", None), "kind", "") == "b" and getattr(value, "ndim", 1) == 0
+    if numpy_bool or (isinstance(value, numbers.Integral) and value in (0, 1)):
+        return bool(value)  # numpy's bool (this module imports no numpy), 0, 1
+    if isinstance(value, str) and value.strip().lower() in TRUE_WORDS + FALSE_WORDS:
+        return value.strip().lower() in TRUE_WORDS
+    raise error(f"{name} must be true or false, got {value!r}")
 
 
 SHOWN_NAMES = 5  # names in a one-line message (photos in a warning), then "(+N more)"

@@ -71,6 +71,7 @@ from semcityloc.errors import (
     CameraError,
     EmptyModelError,
     QuerySimulationError,
+    true_or_false,
     unknown_choice,
 )
 from semcityloc.geometry.camera import Camera
@@ -92,6 +93,9 @@ STREAM_POSE, STREAM_PRIOR, STREAM_PRIOR_EXTRA, STREAM_SEG, STREAM_DEPTH = 0, 1, 
 STREAM_PRIOR_REALISTIC, STREAM_SUN = 6, 7  # 5 is the wireframe baseline's edge map
 STREAM_LENS_MARGIN = 8  # the canvas a barrel lens needs beyond the query (``_lens_canvas``)
 SEG_MODELS = ("blobs", "structured")
+# The simulated query image's width and height (``QueryConfig``): 8192 holds the Zenmuse L2's full 5280 x
+# 3956; a larger one is a typo that would render for hours (the renderer refuses only beyond 1e9 pixels).
+QUERY_MIN_SIDE_PX, QUERY_MAX_SIDE_PX = 16, 8192
 
 
 def _pair(value, name: str) -> tuple[float, float]:
@@ -152,14 +156,15 @@ class QueryConfig:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise BenchmarkConfigError(f"{name} must be an integer, got {value!r}")
             put(name, int(value))
-        if self.queries < 0 or self.seed < 0:
-            raise BenchmarkConfigError(
-                f"queries and seed must be >= 0, got queries={self.queries}, seed={self.seed}"
-            )
-        if self.width < 16 or self.height < 16:
-            raise BenchmarkConfigError(
-                f"image size must be at least 16 x 16, got {self.width} x {self.height}"
-            )
+        for name in ("queries", "seed"):
+            if getattr(self, name) < 0:
+                raise BenchmarkConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("width", "height"):
+            if not QUERY_MIN_SIDE_PX <= getattr(self, name) <= QUERY_MAX_SIDE_PX:
+                sides = f"[{QUERY_MIN_SIDE_PX}, {QUERY_MAX_SIDE_PX}]"
+                raise BenchmarkConfigError(f"{name} must be in {sides} pixels, got {getattr(self, name)}")
+        for name in ("depth", "lens_stated", "score_against_map"):
+            put(name, true_or_false(getattr(self, name), name, BenchmarkConfigError))
         for name in (
             "nominal_height_m",
             "oblique_fraction",
@@ -190,14 +195,16 @@ class QueryConfig:
         if pitch[0] < 0 or pitch[1] >= 85:
             raise BenchmarkConfigError(f"oblique_pitch_deg must lie in [0, 85) degrees, got {pitch}")
         put("oblique_pitch_deg", pitch)
-        if not 0 <= self.oblique_fraction <= 1 or not 0 <= self.min_building_fraction < 1:
-            raise BenchmarkConfigError(
-                "oblique_fraction must be in [0, 1] and min_building_fraction in [0, 1)"
-            )
-        if not 0 <= self.max_roll_deg <= 45 or not 0 <= self.prior_yaw_deg <= 180:
-            raise BenchmarkConfigError("max_roll_deg must be in [0, 45] and prior_yaw_deg in [0, 180]")
-        if not 0 <= self.prior_roll_pitch_deg <= 45 or self.focal_mm <= 0:
-            raise BenchmarkConfigError("prior_roll_pitch_deg must be in [0, 45] and focal_mm positive")
+        for name, ok, rule in (  # one check per knob, naming it alone
+            ("oblique_fraction", 0 <= self.oblique_fraction <= 1, "in [0, 1]"),
+            ("min_building_fraction", 0 <= self.min_building_fraction < 1, "in [0, 1)"),
+            ("max_roll_deg", 0 <= self.max_roll_deg <= 45, "in [0, 45]"),
+            ("prior_yaw_deg", 0 <= self.prior_yaw_deg <= 180, "in [0, 180]"),
+            ("prior_roll_pitch_deg", 0 <= self.prior_roll_pitch_deg <= 45, "in [0, 45]"),
+            ("focal_mm", self.focal_mm > 0, "positive"),
+        ):
+            if not ok:
+                raise BenchmarkConfigError(f"{name} must be {rule}, got {getattr(self, name):g}")
         if not -0.5 < self.focal_error < 0.5:
             raise BenchmarkConfigError(f"focal_error must be in (-0.5, 0.5), got {self.focal_error}")
         try:
@@ -206,9 +213,6 @@ class QueryConfig:
             raise BenchmarkConfigError(
                 f"lens_k1 = {self.lens_k1:g} does not fit this camera: {exc}"
             ) from None
-        if not isinstance(self.lens_stated, (bool, np.bool_)):
-            raise BenchmarkConfigError(f"lens_stated must be true or false, got {self.lens_stated!r}")
-        put("lens_stated", bool(self.lens_stated))
         tr = _pair(self.prior_translation_m, "prior_translation_m")
         if tr[0] < 0:
             raise BenchmarkConfigError(f"prior_translation_m must be >= 0, got {tr}")
@@ -220,7 +224,6 @@ class QueryConfig:
             put("prior_extra_m", extra)
         if self.seg_quality not in SEG_PRESETS:
             raise unknown_choice("seg_quality", self.seg_quality, SEG_PRESETS, BenchmarkConfigError)
-        put("depth", bool(self.depth))
         for name in ("prior_height_m", "prior_roll_pitch_sigma_deg"):
             value = getattr(self, name)
             if value is not None:
@@ -235,7 +238,6 @@ class QueryConfig:
             raise BenchmarkConfigError("reality must be a RealityParams")
         if self.depth_model is not None and not isinstance(self.depth_model, DepthParams):
             raise BenchmarkConfigError("depth_model must be a DepthParams or None")
-        put("score_against_map", bool(self.score_against_map))
 
     def seg_preset(self):
         """The segmentation preset these queries use (``seg_model`` picks the table)."""

@@ -78,7 +78,7 @@ boxes, crowns and their copies).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy import ndimage
@@ -97,7 +97,7 @@ from semcityloc.benchmark.terrain_relief import RELIEF_ZERO_M, TerrainHeight, re
 from semcityloc.citymodel.eaves import overhang_roofs
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, SemanticClass
-from semcityloc.errors import BenchmarkConfigError, CRSError, EmptyModelError
+from semcityloc.errors import BenchmarkConfigError, CRSError, EmptyModelError, true_or_false
 from semcityloc.render import Renderer
 from semcityloc.render.terrain import build_terrain
 
@@ -136,17 +136,27 @@ class RealityParams:
         def bad(name: str, rule: str) -> BenchmarkConfigError:
             return BenchmarkConfigError(f"RealityParams.{name} must be {rule}, got {getattr(self, name)!r}")
 
+        # Every field's type first, in one place (by its annotation), then the ranges: text from ``--set``
+        # ('False', 'abc', 'nan') compared as a number or taken as a bool ran or failed obscurely.
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type == "bool":
+                object.__setattr__(
+                    self, f.name, true_or_false(value, f"RealityParams.{f.name}", BenchmarkConfigError)
+                )
+            elif f.type == "float":
+                if not _finite_number(value):
+                    raise bad(f.name, "a finite number")
+                object.__setattr__(self, f.name, float(value))
+            elif f.type.startswith("tuple[float, float]") and value is not None:
+                items = list(value) if isinstance(value, (tuple, list, np.ndarray)) else []
+                if len(items) != 2 or not all(map(_finite_number, items)):
+                    raise bad(f.name, "a (low, high) pair of numbers")
+                object.__setattr__(self, f.name, tuple(float(v) for v in items))
         for name in ("tree_height_m", "car_band_m", "overhang_m"):
-            value = getattr(self, name)
-            if value is None and name == "overhang_m":
-                continue
-            try:
-                pair = tuple(float(v) for v in value)
-            except (TypeError, ValueError):
-                raise bad(name, "a (low, high) pair") from None
-            if len(pair) != 2 or not (0.0 <= pair[0] <= pair[1] < np.inf):
+            pair = getattr(self, name)
+            if pair is not None and not 0.0 <= pair[0] <= pair[1]:
                 raise bad(name, "a pair 0 <= low <= high")
-            object.__setattr__(self, name, pair)
         for name in ("roof_change_fraction", "missing_fraction", "new_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise bad(name, "in [0, 1]")
@@ -171,6 +181,15 @@ class RealityParams:
             raise bad("terrain_fade_m", f"in ({RELIEF_ZERO_M}, margin_m = {self.margin_m}]")
         if self.tree_height_m[0] <= 0.0:
             raise bad("tree_height_m", "positive")
+
+
+def _finite_number(value: object) -> bool:
+    """A real, finite number (no bool, no text)."""
+    return (
+        isinstance(value, (int, float, np.number))
+        and not isinstance(value, bool)
+        and bool(np.isfinite(value))
+    )
 
 
 MODEL_ERROR_SPREADS = ("uniform", "normal")

@@ -36,7 +36,7 @@ import numpy as np
 
 from semcityloc.cache import cache_root
 from semcityloc.classes import CLASS_NAMES, NUM_CLASSES
-from semcityloc.errors import ParameterError, ShapeError, unknown_choice
+from semcityloc.errors import TRUE_WORDS, ParameterError, ShapeError, unknown_choice
 
 # Photos are shrunk to this width before a backend runs on them (``io.images.load_image(max_width=...)``):
 # the localizer compares masks at 64-128 px and resamples any size itself, so a 5280 px photo costs no more
@@ -137,9 +137,6 @@ def weights_dir() -> Path:
     ``semcityloc``), read at call time."""
     env = os.environ.get("SEMCITYLOC_WEIGHTS")
     return Path(env) if env else cache_root() / "weights"
-
-
-TRUE_WORDS = ("1", "true", "yes", "on")  # what a yes/no setting given as text accepts as yes
 
 
 def hub_offline() -> bool:

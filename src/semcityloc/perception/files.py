@@ -21,9 +21,16 @@ from pathlib import Path
 import numpy as np
 
 from semcityloc.classes import IGNORE, NUM_CLASSES
-from semcityloc.errors import InputFileError, LossyMaskError, ParameterError, ShapeError, parameter
+from semcityloc.errors import (
+    InputFileError,
+    LossyMaskError,
+    ParameterError,
+    ShapeError,
+    parameter,
+    true_or_false,
+)
 from semcityloc.io.images import load_depth, load_npy, mask_labels, read_mask_file, resize_nearest
-from semcityloc.perception.base import TRUE_WORDS, DepthOutput, SegmentationOutput, check_image
+from semcityloc.perception.base import DepthOutput, SegmentationOutput, check_image
 
 MASK_SUFFIXES = (".png", ".npy")
 DEPTH_SUFFIXES = (".npy", ".png")
@@ -190,15 +197,11 @@ def files_segmentation_backend(masks=None, allow_lossy=False) -> FilesSegmentati
 
 
 def _flag(value: bool | str, name: str) -> bool:
-    """A boolean backend option, given as a bool or as the text of ``--backend-option name=VALUE``."""
-    if isinstance(value, bool):
-        return value
-    text = str(value).strip().lower()
-    if text in TRUE_WORDS:
-        return True
-    if text in ("0", "false", "no", "off", ""):
+    """A boolean backend option, given as a bool or as the text of ``--backend-option name=VALUE`` (empty:
+    false; else ``errors.true_or_false``)."""
+    if isinstance(value, str) and not value.strip():
         return False
-    raise ParameterError(f"backend option {name} must be true or false, got {value!r}")
+    return true_or_false(value, f"backend option {name}")
 
 
 def with_lossy_masks(options: dict, seg_backend: str | None, allow_lossy_mask: bool) -> dict:
