@@ -531,7 +531,7 @@ def test_prior_extra_parsing():
     assert parse_prior_extra("10-20") == (10.0, 20.0)
     assert parse_prior_extra("2.5-2.5") == (2.5, 2.5)
     assert parse_prior_extra(None) is None and parse_prior_extra("none") is None
-    for bad in ("20-10", "5", "a-b", "1-2-3"):
+    for bad in ("20-10", "5", "a-b", "1-2-3", "-5-10", "5--10"):
         with pytest.raises(BenchmarkError):
             parse_prior_extra(bad)
 

@@ -362,6 +362,22 @@ def test_every_reality_field_has_its_type_checked():
     assert kinds <= {"float", "bool", "str", "tuple[float, float]", "tuple[float, float] | None"}
 
 
+def test_queries_and_scenario_are_no_knobs_and_the_option_that_sets_them_is_named():
+    """Stop 56 audit: ``--set scenario=clean`` labelled a realistic run clean, ``--set queries=4`` overrode
+    ``--queries 3`` without a word: ``resolve_knob`` took every field, ``knob_names`` listed fewer."""
+    from semcityloc.benchmark.scenario import resolve_knob
+
+    for name, flag in (("queries", "--queries"), ("scenario", "--scenario")):
+        with pytest.raises(BenchmarkConfigError, match=f"^{name} is no knob of settings=") as info:
+            parse_settings([f"{name}=4"])
+        assert as_flags(str(info.value)) == f"{name} is no knob of --set: give it as {flag}"
+        with pytest.raises(BenchmarkConfigError):
+            query_config("realistic", {name: 4}, queries=1)
+    for name in knob_names():  # one list: every name listed resolves, and by its own name when unambiguous
+        assert resolve_knob(name)[1] == name.rpartition(".")[2]
+    assert resolve_knob("noise") == ("depth_model", "noise")
+
+
 @pytest.mark.parametrize(
     ("setting", "said"),
     [
@@ -383,3 +399,30 @@ def test_a_query_knob_out_of_range_is_named_alone(setting, said):
     with pytest.raises(BenchmarkConfigError) as info:
         query_config("realistic", parse_settings([setting]), queries=1)
     assert str(info.value) == said
+
+
+def test_cli_names_stop_after_and_takes_a_negative_looking_prior_extra(cli, capsys, tmp_path):
+    """Stop 56 audit: ``--stop-after -1`` said ``limit must be >= 0`` (the Python name); ``--prior-extra
+    -5-10`` got argparse's ``expected one argument``."""
+    base = ["benchmark", "--city", "generated", "--queries", "1", "--out", str(tmp_path / "o")]
+    assert cli([*base, "--stop-after", "-1"]) == 2
+    assert capsys.readouterr().err == "semcityloc: error: --stop-after must be >= 0, got -1\n"
+    for given in (["--prior-extra", "-5-10"], ["--prior-extra=-5-10"]):
+        assert cli([*base, *given]) == 2
+        err = capsys.readouterr().err
+        assert (
+            err
+            == "semcityloc: error: --prior-extra A-B needs 0 <= A <= B, got '-5-10': no negative distances\n"
+        )
+    assert not (tmp_path / "o").exists()
+
+
+def test_sweep_of_queries_sets_them_as_queries_does(cli, capsys, tmp_path):
+    """``queries`` is no ``--set`` knob, but ``sweep --knob queries`` still sweeps it (as ``--queries``)."""
+    out = tmp_path / "s"
+    argv = ["sweep", "--knob", "queries", "--values", "1,2", "--city", "generated", "--stop-after", "0"]
+    assert cli([*argv, "--out", str(out)]) == 0
+    capsys.readouterr()
+    for n in (1, 2):
+        cfg = json.loads((out / f"queries={n}" / "run.json").read_text())
+        assert cfg["query_config"]["queries"] == n and cfg["query_config"]["scenario"] == "realistic"

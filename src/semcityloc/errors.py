@@ -287,6 +287,10 @@ PARAMETERS: dict[str, Parameter] = {
     "ray_address": Parameter("ray_address='{}'", "--ray-address {}"),
     "settings": Parameter("settings={}", "--set {}"),  # ``scenario.query_config``'s knobs
     "prior_extra": Parameter("QueryConfig(prior_extra_m=({}))", "--prior-extra {}"),  # named bare
+    # ``scenario.query_config``'s own keywords (``scenario.OPTION_FIELDS``), no knobs
+    "queries": Parameter("query_config(..., queries={})", "--queries {}"),
+    "scenario": Parameter("query_config(scenario='{}')", "--scenario {}"),
+    "limit": Parameter("run_benchmark(..., limit={})", "--stop-after {}"),
     # ``train_segmenter``'s settings (``TrainConfig``) and its own keywords
     "lr": Parameter("TrainConfig(lr={})", "--lr {}"),
     "epochs": Parameter("TrainConfig(epochs={})", "--epochs {}"),

@@ -87,6 +87,7 @@ from semcityloc.errors import (
     OutputPathError,
     SemCityLocError,
     as_flags,
+    parameter,
     unknown_choice,
 )
 from semcityloc.io.files import write_json_atomic
@@ -252,7 +253,7 @@ def run_queries(
     if executor == "ray":
         import_ray()  # missing: the install hint now, before any file is written
     if limit is not None and int(limit) < 0:
-        raise BenchmarkError(f"limit must be >= 0, got {limit}")
+        raise BenchmarkError(f"{parameter('limit')} must be >= 0, got {limit}")
     if not isinstance(out_dir, (str, os.PathLike)):  # pathlib's TypeError otherwise
         raise ArgumentTypeError(
             f"out_dir must be the run's folder (a str or a path), got {type(out_dir).__name__}"

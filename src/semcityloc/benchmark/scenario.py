@@ -7,11 +7,14 @@ itself: kept to compare with); ``realistic`` (the default of ``semcityloc benchm
 follows the paper's real data: GNSS/IMU priors as flown, a reality that differs from the map, structured
 segmentation errors and non-affine depth. ``docs/benchmark.md`` gives each value and its source.
 
-Knob names (``query_config``'s ``settings``, the command line's ``--set``): a ``QueryConfig`` field
-(``prior_height_m=20``), or a nested field by its own name when unambiguous (``shift_xy_max_m=1``) or dotted
+Knob names (``query_config``'s ``settings``, the command line's ``--set``; ``knob_names``): a
+``QueryConfig`` field (``prior_height_m=20``) but those set by their own option (``OPTION_FIELDS``), or a
+nested field by its own name when unambiguous (``shift_xy_max_m=1``) or dotted
 (``reality.shift_xy_max_m=1``, ``depth_model.distortion=0.2``). Values are parsed as JSON where they can be
 (``30``, ``null``, ``[2, 15]``, ``true``), else taken as strings (``zero-shot``); a pair is also accepted as
-``2-15``.
+``2-15``. Each knob's type is checked where it is defined (``QueryConfig``, ``RealityParams``,
+``DepthParams``): a yes/no knob by ``errors.true_or_false`` (``False``, ``no`` ...), a number knob refuses
+text (``abc``, ``nan``).
 """
 
 from __future__ import annotations
@@ -58,9 +61,15 @@ def query_config(
     return set_knobs(cfg, settings or {})
 
 
+# ``QueryConfig`` fields that are no knob: each is set by its own option (``query_config``'s keyword, the
+# command's flag), and ``scenario`` names the bundle the knobs came from.
+OPTION_FIELDS = ("queries", "scenario")
+
+
 def knob_names() -> tuple[str, ...]:
-    """Every name ``--set`` accepts (top-level fields, then the nested ones dotted)."""
-    out = [f.name for f in dataclasses.fields(QueryConfig) if f.name not in ("queries", "scenario")]
+    """Every name ``--set`` accepts (top-level fields, then the nested ones dotted); ``resolve_knob`` reads
+    this list too."""
+    out = [f.name for f in dataclasses.fields(QueryConfig) if f.name not in OPTION_FIELDS]
     for outer, cls in _NESTED.items():
         out += [f"{outer}.{f.name}" for f in dataclasses.fields(cls)]
     return tuple(out)
@@ -70,19 +79,20 @@ _NESTED = {"reality": RealityParams, "depth_model": DepthParams}
 
 
 def resolve_knob(name: str) -> tuple[str | None, str]:
-    """(nested field or None, field name) of a knob name (module docstring)."""
-    top = {f.name for f in dataclasses.fields(QueryConfig)}
-    if "." in name:
-        outer, inner = name.split(".", 1)
-        if outer in _NESTED and inner in {f.name for f in dataclasses.fields(_NESTED[outer])}:
-            return outer, inner
-    elif name in top:
-        return None, name
-    else:
-        owners = [o for o, cls in _NESTED.items() if name in {f.name for f in dataclasses.fields(cls)}]
-        if len(owners) == 1:
-            return owners[0], name
-    raise unknown_choice("knob", name, knob_names(), BenchmarkConfigError)
+    """(nested field or None, field name) of a knob name (module docstring), one of ``knob_names``; a field
+    set by its own option (``OPTION_FIELDS``) is refused naming that option."""
+    if name in OPTION_FIELDS:
+        raise BenchmarkConfigError(
+            f"{name} is no knob of {parameter('settings')}: give it as {parameter(name)}"
+        )
+    names = knob_names()
+    if name not in names:  # a nested field by its own name, when only one holds it
+        owners = [known for known in names if known.endswith("." + name)]
+        name = owners[0] if len(owners) == 1 else name
+    if name in names:
+        outer, _, inner = name.rpartition(".")
+        return outer or None, inner
+    raise unknown_choice("knob", name, names, BenchmarkConfigError)
 
 
 def parse_value(text: str) -> Any:

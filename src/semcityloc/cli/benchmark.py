@@ -139,10 +139,17 @@ def parse_settings(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
+# Options whose value may start with a minus (``--prior-extra -5-10``): ``cli.main.joined_dash_values``
+# hands such a value to the option, whose check refuses it in its own words.
+DASH_VALUE_OPTIONS = ("--prior-extra",)
+
+
 def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
     """``"A-B"`` (metres, 0 <= A <= B) -> (A, B); None / ``"none"`` -> None."""
     if text is None or text.strip().lower() in ("", "none", "0"):
         return None
+    if text.strip().startswith("-") or "--" in text:  # -5-10, 5--10: split at "-" they read as no pair
+        raise BenchmarkError(f"--prior-extra A-B needs 0 <= A <= B, got {text!r}: no negative distances")
     parts = text.split("-")
     try:
         if len(parts) != 2:

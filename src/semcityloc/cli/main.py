@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import re
 import sys
 from collections.abc import Iterator
 from typing import TextIO
@@ -129,13 +130,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def joined_dash_values(argv: list[str]) -> list[str]:
+    """``argv`` with each option of ``benchmark.DASH_VALUE_OPTIONS`` joined to a value that starts with a
+    minus and a digit (``--prior-extra -5-10`` -> ``--prior-extra=-5-10``). Why: argparse takes such a
+    value, unless it is one plain number, for an option and says only "expected one argument"; joined, it
+    reaches the option's own check, which says what is wrong with it."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in benchmark.DASH_VALUE_OPTIONS and re.match(r"-\.?\d", str(arg)):
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """The ``semcityloc`` command: parse ``argv``, check ``--out`` before any work, run the sub-command; a
     ``SemCityLocError`` is one line and exit 2, a Ctrl-C one line and exit 130, anything else a bug with
     its traceback. What it prints names flags, not Python parameters (``flag_streams``).
     """
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(joined_dash_values(sys.argv[1:] if argv is None else list(argv)))
     with flag_streams():
         try:
             check_output_args(args)  # before any work: an unwritable --out would lose it

@@ -21,6 +21,7 @@ from pathlib import Path
 from semcityloc.benchmark.report_tables import summary_markdown
 from semcityloc.benchmark.run import run_benchmark
 from semcityloc.benchmark.scenario import parse_value, resolve_knob
+from semcityloc.benchmark.spec import BenchmarkSpec
 from semcityloc.cli.benchmark import add_simulation_arguments, parse_settings, spec_from_args
 from semcityloc.errors import BenchmarkError, counted
 
@@ -52,7 +53,7 @@ _DEFAULTS: dict[str, object] = {}  # their defaults, applied when not given
 def check_swept_knob_alone(args: argparse.Namespace, knob: str) -> None:
     """Refuse what else sets the swept ``knob`` (its values would be dropped without a word: stop 56
     audit): ``--set`` of the same knob, the option that sets it; then fill in the options' defaults."""
-    target = resolve_knob(knob)
+    target = (None, knob) if knob == "queries" else resolve_knob(knob)
     for item in args.settings:
         name = item.partition("=")[0].strip()
         if resolve_knob(name) == target:
@@ -62,6 +63,13 @@ def check_swept_knob_alone(args: argparse.Namespace, knob: str) -> None:
             raise BenchmarkError(f"{flag} sets the swept knob {knob}; give its values in --values only")
         if getattr(args, dest) is None:
             setattr(args, dest, _DEFAULTS.get(dest))
+
+
+def sweep_spec(args: argparse.Namespace, knob: str, value) -> BenchmarkSpec:
+    """The run of one swept value: a knob set as ``--set`` sets it, ``queries`` as ``--queries`` does."""
+    if knob == "queries":
+        return spec_from_args(argparse.Namespace(**{**vars(args), "queries": value}), sweep=(knob, value))
+    return spec_from_args(args, {knob: value}, sweep=(knob, value))
 
 
 def sweep_values(text: str) -> list:
@@ -82,10 +90,11 @@ def run(args: argparse.Namespace) -> int:
     ``cli.main``, which prints them as one line).
     """
     knob = args.knob.strip()
-    parse_settings([f"{knob}=0"])  # an unknown knob fails before anything runs
+    if knob != "queries":  # set by --queries, no knob of --set
+        parse_settings([f"{knob}=0"])  # an unknown knob fails before anything runs
     check_swept_knob_alone(args, knob)
     values = sweep_values(args.values)
-    specs = [spec_from_args(args, {knob: v}, sweep=(knob, v)) for v in values]  # all checked first
+    specs = [sweep_spec(args, knob, v) for v in values]  # all checked first
     out = Path(args.out)
     run_dirs = [out / f"{knob}={value}".replace("/", "_").replace(" ", "") for value in values]
     summaries, labels, done = [], [], True
