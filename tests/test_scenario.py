@@ -426,3 +426,33 @@ def test_sweep_of_queries_sets_them_as_queries_does(cli, capsys, tmp_path):
     for n in (1, 2):
         cfg = json.loads((out / f"queries={n}" / "run.json").read_text())
         assert cfg["query_config"]["queries"] == n and cfg["query_config"]["scenario"] == "realistic"
+
+
+def test_a_negative_looking_offset_reaches_its_option(tmp_path):
+    """``run --offset -3.5,12,0`` (a model's frame east of the CRS origin) got argparse's ``expected one
+    argument``: the value is joined to its option as ``--prior-extra``'s is (``joined_dash_values``)."""
+    from semcityloc.cli.main import build_parser, joined_dash_values
+
+    argv = ["run", str(tmp_path), "--city", "c.gml", "--masks", "m", "--offset", "-3.5,12,0"]
+    assert joined_dash_values(argv)[-1] == "--offset=-3.5,12,0"
+    assert build_parser().parse_args(joined_dash_values(argv)).offset == "-3.5,12,0"
+    dji = ["dataset", "dji-prior", "x.JPG", "--crs", "EPSG:32649", "--offset", "-1,2,3"]
+    assert build_parser().parse_args(joined_dash_values(dji)).offset == "-1,2,3"
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"noise": (True, 2)},
+        {"noise": "12"},
+        {"bleed_px": (False, True)},
+        {"distortion": True},
+        {"jump": "0.1"},
+    ],
+)
+def test_depth_knobs_take_numbers_not_bools_or_text(settings):
+    """``DepthParams`` took ``True`` as 1 and the text ``"12"`` as the pair (1, 2) (stop 56): a number test
+    shared with ``RealityParams`` (``errors.finite_number``)."""
+    name = next(iter(settings))
+    with pytest.raises(BenchmarkConfigError, match=f"DepthParams.{name} must be"):
+        DepthParams(**settings)

@@ -12,6 +12,7 @@ passed no command-line flag. The command line turns each such spelling into its 
 
 from __future__ import annotations
 
+import math
 import numbers
 import re
 from collections.abc import Callable, Iterable
@@ -180,6 +181,13 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
 
 TRUE_WORDS = ("true", "yes", "on", "1")  # what a yes/no setting given as text accepts as yes, in any case
 FALSE_WORDS = ("false", "no", "off", "0")  # ... and as no
+
+
+def finite_number(value: object) -> bool:
+    """Whether a setting's ``value`` is a real, finite number: numpy's too, but no bool (``True`` is 1 to
+    Python), no text (``"12"`` from ``--set`` iterates as a pair) and no NaN or infinity. The one test the
+    simulation's settings (``RealityParams``, ``DepthParams``) put a number through before its range."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def true_or_false(value: object, name: str, error: type[_E] = ParameterError) -> bool:

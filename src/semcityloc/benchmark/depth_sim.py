@@ -36,7 +36,7 @@ from semcityloc.benchmark.perception_sim import (
     clean_depth_input,
     smooth_field,
 )
-from semcityloc.errors import BenchmarkConfigError
+from semcityloc.errors import BenchmarkConfigError, finite_number
 
 
 @dataclass(frozen=True)
@@ -55,10 +55,10 @@ class DepthParams:
 
         for name, low in (("warp_gamma", 0.0), ("noise", 0.0), ("bleed_px", 0.0)):
             value = getattr(self, name)
-            try:
-                pair = tuple(float(v) for v in value)
-            except (TypeError, ValueError):
-                raise bad(name, "a (low, high) pair of numbers") from None
+            items = list(value) if isinstance(value, (tuple, list, np.ndarray)) else None
+            if items is None or not all(finite_number(v) for v in items):  # text, bools, NaN: no numbers here
+                raise bad(name, "a (low, high) pair of numbers")
+            pair = tuple(float(v) for v in items)
             if len(pair) != 2 or not (low <= pair[0] <= pair[1] < math.inf):
                 raise bad(name, f"a pair {low:g} <= low <= high")
             if name == "warp_gamma" and pair[0] <= 0.0:
@@ -70,7 +70,7 @@ class DepthParams:
             object.__setattr__(self, name, pair)
         for name in ("distortion", "jump"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
+            if not finite_number(value) or not 0.0 <= value < math.inf:
                 raise bad(name, "a number >= 0")
             object.__setattr__(self, name, float(value))
 

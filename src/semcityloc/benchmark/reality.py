@@ -97,7 +97,7 @@ from semcityloc.benchmark.terrain_relief import RELIEF_ZERO_M, TerrainHeight, re
 from semcityloc.citymodel.eaves import overhang_roofs
 from semcityloc.citymodel.model import CityModel
 from semcityloc.classes import BUILDING_CLASSES, SemanticClass
-from semcityloc.errors import BenchmarkConfigError, CRSError, EmptyModelError, true_or_false
+from semcityloc.errors import BenchmarkConfigError, CRSError, EmptyModelError, finite_number, true_or_false
 from semcityloc.render import Renderer
 from semcityloc.render.terrain import build_terrain
 
@@ -145,12 +145,12 @@ class RealityParams:
                     self, f.name, true_or_false(value, f"RealityParams.{f.name}", BenchmarkConfigError)
                 )
             elif f.type == "float":
-                if not _finite_number(value):
+                if not finite_number(value):
                     raise bad(f.name, "a finite number")
                 object.__setattr__(self, f.name, float(value))
             elif f.type.startswith("tuple[float, float]") and value is not None:
                 items = list(value) if isinstance(value, (tuple, list, np.ndarray)) else []
-                if len(items) != 2 or not all(map(_finite_number, items)):
+                if len(items) != 2 or not all(map(finite_number, items)):
                     raise bad(f.name, "a (low, high) pair of numbers")
                 object.__setattr__(self, f.name, tuple(float(v) for v in items))
         for name in ("tree_height_m", "car_band_m", "overhang_m"):
@@ -181,15 +181,6 @@ class RealityParams:
             raise bad("terrain_fade_m", f"in ({RELIEF_ZERO_M}, margin_m = {self.margin_m}]")
         if self.tree_height_m[0] <= 0.0:
             raise bad("tree_height_m", "positive")
-
-
-def _finite_number(value: object) -> bool:
-    """A real, finite number (no bool, no text)."""
-    return (
-        isinstance(value, (int, float, np.number))
-        and not isinstance(value, bool)
-        and bool(np.isfinite(value))
-    )
 
 
 MODEL_ERROR_SPREADS = ("uniform", "normal")

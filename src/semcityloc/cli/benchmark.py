@@ -139,9 +139,9 @@ def parse_settings(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
-# Options whose value may start with a minus (``--prior-extra -5-10``): ``cli.main.joined_dash_values``
-# hands such a value to the option, whose check refuses it in its own words.
-DASH_VALUE_OPTIONS = ("--prior-extra",)
+# Options whose value may start with a minus (``--prior-extra -5-10``, ``run --offset -3.5,12,0``):
+# ``cli.main.joined_dash_values`` hands such a value to the option, which reads or refuses it in its words.
+DASH_VALUE_OPTIONS = ("--prior-extra", "--offset")
 
 
 def parse_prior_extra(text: str | None) -> tuple[float, float] | None:
