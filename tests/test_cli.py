@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -779,6 +781,27 @@ def test_localize_writes_what_its_backends_made_and_checks_their_weights_first(
         capsys, exif_view, tmp_path / "o2", *argv, "--backend-option", f"head={tmp_path}"
     )
     assert code == 2 and err.count("error:") == 1 and "no trained segmentation head" in err, err
+
+
+def test_a_later_localize_into_the_same_out_removes_the_files_it_does_not_write(exif_view, tmp_path, capsys):
+    """Stop 56: ``localize --seg-backend --depth-backend --out o`` wrote ``mask.png`` and ``depth.png`` +
+    ``.npy``; a later ``localize --semantic ... --out o`` left them beside its ``pose.json``, where they
+    read as its own (and a refused pose left the earlier run's ``overlay.png``). A file the run reads
+    (``--semantic o/mask.png``) is kept."""
+    r, out = exif_view["root"], tmp_path / "o"
+    (tmp_path / "masks").mkdir()
+    shutil.copy(r / "r" / "labels.png", tmp_path / "masks" / "view.png")
+    photo = ["--image", exif_view["photo"], "--intrinsics", "exif"]
+    backends = ["--seg-backend", "files", "--depth-backend", "files", "--backend-option"]
+    backends += [f"masks={tmp_path / 'masks'}", "--backend-option", f"depth={r / 'depth'}"]
+    code, _, err = _localize(capsys, exif_view, out, *photo, *backends)
+    assert code == 0 and {"mask.png", "depth.png", "depth.npy", "overlay.png"} <= set(os.listdir(out)), err
+    code, _, err = _localize(capsys, exif_view, out, *photo, "--semantic", out / "mask.png")
+    assert code == 0, err
+    assert sorted(os.listdir(out)) == ["mask.png", "overlay.png", "pose.json"]  # its input kept
+    save_labels_png(np.zeros((384, 512), np.uint8), tmp_path / "sky.png")  # nothing to localize on
+    code, _, err = _localize(capsys, exif_view, out, *photo, "--semantic", tmp_path / "sky.png")
+    assert code == 1 and os.listdir(out) == ["pose.json"], err
 
 
 def test_run_help_says_what_the_backend_options_are():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -207,7 +208,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--out",
         required=True,
         help="output folder: pose.json and overlay.png; with --seg-backend also mask.png (its label map), "
-        "with --depth-backend depth.png + depth.npy",
+        "with --depth-backend depth.png + depth.npy; those of an earlier localize into it that this one "
+        "does not write are removed",
     )
     p.set_defaults(func=run)
 
@@ -293,7 +295,8 @@ def _pinhole_photo(path, lens: PhotoCamera, max_width: int | None = None) -> np.
 
 
 # What ``localize`` writes into ``--out`` (the overlay only with a pose); checked against its inputs first.
-OUTPUT_FILES = ("pose.json", "overlay.png")
+OVERLAY_FILE = "overlay.png"
+OUTPUT_FILES = ("pose.json", OVERLAY_FILE)
 # What the backends made of the photo, written beside them when a backend ran (``_write_perception``).
 MASK_FILE = "mask.png"  # --seg-backend's label map (``io.images.save_labels_png``)
 DEPTH_FILES = ("depth.png", "depth.npy")  # --depth-backend's depth (``io.images.save_depth``)
@@ -305,6 +308,24 @@ def output_files(args) -> tuple[str, ...]:
     return OUTPUT_FILES + made
 
 
+def remove_unwritten(out: Path, written: tuple[str, ...], inputs: list) -> list[str]:
+    """Remove from ``out`` the files of ``OUTPUT_FILES``, ``MASK_FILE`` and ``DEPTH_FILES`` this run does not
+    write (``written``): an earlier ``localize`` into the same ``--out`` left them, and beside this run's
+    ``pose.json`` they would read as this run's (an old ``mask.png`` after a run with ``--semantic``, an old
+    ``overlay.png`` after a refused pose). Only those names, only in ``out``; a file that is one of this
+    run's ``inputs`` (``--semantic out/mask.png``) is kept. The names removed."""
+    removed = []
+    for name in OUTPUT_FILES + (MASK_FILE,) + DEPTH_FILES:
+        path = out / name
+        if name in written or not path.is_file():
+            continue
+        if any(value and Path(value).exists() and os.path.samefile(value, path) for value in inputs):
+            continue
+        path.unlink()
+        removed.append(name)
+    return removed
+
+
 def _write_perception(args, out: Path, labels: np.ndarray, depth: np.ndarray | None) -> None:
     """The mask and depth the backends made of the photo (on the pinhole camera, at the size the backend
     ran at), so that what the localizer was given can be looked at: ``mask.png``, ``depth.png`` + ``.npy``."""
@@ -312,6 +333,11 @@ def _write_perception(args, out: Path, labels: np.ndarray, depth: np.ndarray | N
         save_labels_png(labels, out / MASK_FILE)
     if args.depth_backend and depth is not None:
         save_depth(depth, out / DEPTH_FILES[0])
+
+
+def _inputs(args) -> list:
+    """The files ``localize`` reads (None for an option not given)."""
+    return [args.prior, args.image, args.semantic, args.depth, args.intrinsics, args.path]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -324,8 +350,7 @@ def run(args: argparse.Namespace) -> int:
     _check_files(args)
     out = Path(args.out)
     check_outputs(  # ``--prior out/pose.json`` would be replaced by the pose found from it
-        [(name, out / name) for name in output_files(args)],
-        [args.prior, args.image, args.semantic, args.depth, args.intrinsics, args.path],
+        [(name, out / name) for name in output_files(args)], _inputs(args)
     )
     if config.no_depth and (args.depth or args.depth_backend):
         print(
@@ -357,6 +382,9 @@ def run(args: argparse.Namespace) -> int:
 
     with writing(folder=out):  # a full disk, a file where the folder goes: one line, naming it
         out.mkdir(parents=True, exist_ok=True)
+        drawn = result.pose_local is not None  # the overlay is drawn at a pose found
+        written = tuple(n for n in output_files(args) if drawn or n != OVERLAY_FILE)
+        remove_unwritten(out, written, _inputs(args))
         _write_perception(args, out, labels, depth)
         return _write_result(args, out, model, localizer, result, config, camera, lens, labels)
 
@@ -402,7 +430,7 @@ def _write_result(args, out: Path, model, localizer, result, config, camera, len
             else blend_labels(np.zeros(labels.shape + (3,), np.uint8) + 40, labels, alpha=0.8)
         )
         edges = visible_edges(view.face_ids[0], view.depth[0], scene)
-        save_rgb(draw_edges(background, edges), out / "overlay.png")
+        save_rgb(draw_edges(background, edges), out / OVERLAY_FILE)
         summary = {
             "status": result.status,
             "position": data["position"],
