@@ -804,6 +804,26 @@ def test_a_later_localize_into_the_same_out_removes_the_files_it_does_not_write(
     assert code == 1 and os.listdir(out) == ["pose.json"], err
 
 
+def test_localize_says_once_that_a_head_without_roof_cannot_localize(
+    exif_view, tmp_path, capsys, monkeypatch
+):
+    """Stop 56: a head trained with ``--classes`` leaving out roof localized without a word that the
+    localizer's score needs roof and wall; said once, in the words ``run`` uses (``test_run_photos.py``)."""
+    from semcityloc.cli import localize as localize_cli
+    from semcityloc.perception.files import FilesSegmentation
+    from test_run_photos import HEAD_WITHOUT_ROOF, _fake_head
+
+    r = exif_view["root"]
+    (tmp_path / "masks").mkdir()
+    shutil.copy(r / "r" / "labels.png", tmp_path / "masks" / "view.png")
+    masks = FilesSegmentation(tmp_path / "masks")
+    monkeypatch.setattr(localize_cli, "get_segmentation_backend", lambda name, **options: masks)
+    head = _fake_head(tmp_path / "head", b"a head", classes=("ground", "wall"))
+    argv = ["--image", exif_view["photo"], "--intrinsics", "exif", "--seg-backend", "mobilenetv2"]
+    code, _, err = _localize(capsys, exif_view, tmp_path / "o", *argv, "--backend-option", f"head={head}")
+    assert code == 0 and err.count(HEAD_WITHOUT_ROOF.format(head)) == 1 and err.count("head.json") == 1, err
+
+
 def test_run_help_says_what_the_backend_options_are():
     from semcityloc.cli.main import build_parser
 

@@ -657,14 +657,12 @@ def test_a_run_whose_backend_fails_to_load_does_not_block_the_corrected_command(
     assert "4 photos: 2 localized, 1 not localized, 1 skipped" in stdout
 
 
-def _fake_head(folder: Path, weights: bytes) -> Path:
-    """A head folder whose head.json reads (``weight_files.read_head_spec``) and whose head.safetensors
-    holds ``weights`` (the backend itself is replaced in the tests using it)."""
+def _fake_head(folder: Path, weights: bytes, classes=("ground", "wall", "roof")) -> Path:
+    """A head folder whose head.json reads (``weight_files.read_head_spec``), of ``classes``, and whose
+    head.safetensors holds ``weights`` (the backend itself is replaced in the tests using it)."""
     folder.mkdir(parents=True, exist_ok=True)
     spec = {"format": "semcityloc-segmentation-head", "version": 1, "backbone": {"kind": "mobilenetv2"}}
-    spec.update(
-        head={"type": "fpn", "params": {}}, classes=["ground", "wall"], input_size=[64, 64], stride=32
-    )
+    spec.update(head={"type": "fpn", "params": {}}, classes=list(classes), input_size=[64, 64], stride=32)
     (folder / "head.json").write_text(json.dumps(spec))
     (folder / "head.safetensors").write_bytes(weights)
     return folder
@@ -702,6 +700,27 @@ def test_a_head_retrained_at_the_same_path_is_another_run_and_a_missing_one_is_s
     argv[argv.index(f"head={head}")] = f"head={tmp_path / 'absent'}"
     code, _, err = run(capsys, *argv, "--out", tmp_path / "out2")
     assert code == 2 and "absent: no trained segmentation head" in err and err.count("\n") == 1, err
+
+
+HEAD_WITHOUT_ROOF = (
+    "semcityloc: warning: the head in {} predicts no roof (its head.json classes: ground, wall): the "
+    "localizer's score needs roof and wall, which a head trained with --classes that left them out cannot "
+    "give; its poses will be poor or missing: train a head with them\n"
+)
+
+
+def test_a_head_without_roof_or_wall_is_said_once(box_flight, tmp_path, capsys, monkeypatch):
+    """Stop 56: a head trained with ``--classes ground,wall`` localized without a word that the
+    localizer's score needs roof and wall (``localize`` says it too: ``test_cli.py``)."""
+    from semcityloc.perception.files import FilesSegmentation
+
+    masks = box_flight["root"] / "masks"
+    monkeypatch.setattr(photo_source, "get_segmentation_backend", lambda name, **o: FilesSegmentation(masks))
+    head = _fake_head(tmp_path / "head", b"a head", classes=("ground", "wall"))
+    base = [a for a in box_flight["argv"] if a not in ("--masks", masks)]
+    argv = [*base, "--seg-backend", "mobilenetv2", "--backend-option", f"head={head}", "--no-overlays"]
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "out")
+    assert code == 0 and err.count(HEAD_WITHOUT_ROOF.format(head)) == 1 and err.count("head.json") == 1, err
 
 
 def test_run_given_a_photo_instead_of_its_folder_says_it_is_a_file(tmp_path, capsys):

@@ -53,6 +53,7 @@ from semcityloc.perception.base import PHOTO_MAX_WIDTH
 from semcityloc.perception.files import with_lossy_masks
 from semcityloc.perception.registry import (
     available_backends,
+    backend_warnings,
     backend_weight_files,
     check_backend_options,
     get_depth_backend,
@@ -360,7 +361,10 @@ def run(args: argparse.Namespace) -> int:
     lens = _camera(args)  # before the model loads: intrinsics that do not fit the photo stop at once
     camera = lens.camera
     # the backends' weight files (a missing head, a MoGe-2 model.pt) before the model loads too
-    backend_weight_files(args.seg_backend, args.depth_backend, parse_backend_options(args.backend_option))
+    options = parse_backend_options(args.backend_option)
+    backend_weight_files(args.seg_backend, args.depth_backend, options)
+    for warning in backend_warnings(args.seg_backend, options):  # a head without roof or wall
+        print(f"semcityloc: warning: {as_flags(warning)}", file=sys.stderr)
     model = load_model_from_args(args)
     check_model_in_crs(
         model,

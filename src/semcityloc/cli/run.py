@@ -30,10 +30,10 @@ from semcityloc.cli.localize import (
 )
 from semcityloc.datasets.dji import TARGET_HEIGHTS
 from semcityloc.datasets.photos import EXIF, check_images_folder
-from semcityloc.errors import counted, shown_names
+from semcityloc.errors import as_flags, counted, shown_names
 from semcityloc.localization.methods import ABLATIONS
 from semcityloc.localization.result import LOCALIZED
-from semcityloc.perception.registry import available_backends
+from semcityloc.perception.registry import available_backends, backend_warnings
 
 SHOWN_PHOTOS = 10  # photos named per reason in the closing lines
 # The exit status of a finished run that localized none of its photos (its files are written): as
@@ -203,6 +203,8 @@ def run(args: argparse.Namespace) -> int:
             f"its name ({shown}; semcityloc label's): not photos, left out",
             file=sys.stderr,
         )
+    for warning in backend_warnings(spec.seg_backend, spec.backend_options):  # a head without roof or wall
+        print(f"semcityloc: warning: {as_flags(warning)}", file=sys.stderr)
     outcome = run_from_args(spec, out, args)
     # The model the run loaded (PhotoSpec.resolved, cached: not loaded again); said after the run, where
     # nothing before its first photo is delayed by it (the run's option checks come first).

@@ -25,7 +25,11 @@ from semcityloc.io.stamps import file_fingerprint
 from semcityloc.perception.base import DepthBackend, SegmentationBackend
 from semcityloc.perception.files import files_depth_backend, files_segmentation_backend
 from semcityloc.perception.torch_utils import require_torch
-from semcityloc.perception.weight_files import moge2_weight_files, segmenter_weight_files
+from semcityloc.perception.weight_files import (
+    head_classes_warning,
+    moge2_weight_files,
+    segmenter_weight_files,
+)
 
 
 @dataclass(frozen=True)
@@ -152,6 +156,15 @@ def backend_weight_files(
             if entry.weights is not None:
                 out.update(entry.weights(**_filter_options(entry, options)))
     return out
+
+
+def backend_warnings(seg_backend: str | None, options) -> list[str]:
+    """What a command says, once, before it runs the segmentation backend ``seg_backend`` with ``options``:
+    a trained head that predicts no roof or no wall (``weight_files.head_classes_warning``). Read from
+    ``head.json`` without torch."""
+    spec = backend_weight_files(seg_backend, None, options).get("head_spec")
+    warning = head_classes_warning(spec.parent) if spec is not None else None
+    return [warning] if warning else []
 
 
 def weight_fingerprints(

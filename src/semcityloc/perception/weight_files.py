@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from semcityloc.classes import CLASS_NAMES, SemanticClass
 from semcityloc.errors import InputFileError, MissingWeightsError, parameter
 from semcityloc.perception.base import hub_offline, looks_like_hub_id, weights_dir
 from semcityloc.perception.torch_utils import require
@@ -175,6 +176,26 @@ def _hub_unreachable(endpoint: str) -> str | None:
 # ---------------------------------------------------------------------------------------------- by backend
 def _file_or_none(path: Path) -> Path | None:
     return path if path.is_file() else None
+
+
+# The classes a head must predict for the localizer's score to work (the building's faces it matches).
+SCORED_CLASSES = tuple(CLASS_NAMES[c] for c in (SemanticClass.ROOF, SemanticClass.WALL))
+
+
+def head_classes_warning(head_dir: str | Path) -> str | None:
+    """A warning, in one line, when the trained head in ``head_dir`` predicts no roof or no wall (its
+    ``head.json`` classes: a head trained with ``--classes`` that left them out), else None: the localizer's
+    score needs them, so its masks cannot localize well. ``localize`` and ``run`` print it once."""
+    classes = [str(c) for c in read_head_spec(head_dir)["classes"]]
+    missing = [c for c in SCORED_CLASSES if c not in classes]
+    if not missing:
+        return None
+    return (
+        f"the head in {head_dir} predicts no {' and no '.join(missing)} (its {HEAD_JSON} classes: "
+        f"{', '.join(classes)}): the localizer's score needs {' and '.join(SCORED_CLASSES)}, which a head "
+        f"trained with {parameter('train_classes')} that left them out cannot give; its poses will be "
+        "poor or missing: train a head with them"
+    )
 
 
 def segmenter_weight_files(kind: str, head=None, backbone=None, **_options) -> dict[str, Path | None]:
