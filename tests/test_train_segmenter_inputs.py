@@ -193,6 +193,19 @@ def test_classes_left_out_fall_into_background_or_are_refused():
     )
 
 
+def test_train_segmenters_note_goes_to_stderr_as_other_notes_and_its_epochs_to_stdout(tmp_path, capsys):
+    """Stop 56: "no labelled pixel of ... in the training labels" went to stdout as ``note: ...``, without
+    the ``semcityloc: note:`` prefix and stream every other note has."""
+    images, labels = _folders(tmp_path, [(64, 48)] * 2)
+    assert _cli("--images", str(images), "--labels", str(labels), "--out", str(tmp_path / "out"),
+                "--val-fraction", "0", "--epochs", "1", "--threads", "1", "--input-size", "64x64",
+                "--no-hflip", "--classes", "background,ground,wall,roof,window") == 0  # fmt: skip
+    out, err = capsys.readouterr()
+    said = "no labelled pixel of window in the training labels: the head will not learn it"
+    assert err == f"semcityloc: note: {said}\n" and said not in out
+    assert "epoch   1/1  loss" in out and "best epoch 1" in out
+
+
 def test_a_diverged_training_stops_and_saves_nothing_and_a_nan_head_is_refused(tmp_path):
     """``--lr 1e12`` saved a head of NaN weights and exited 0; the localizer then found no buildings."""
     out = tmp_path / "nan"

@@ -180,9 +180,10 @@ def _train(args: argparse.Namespace, config, train: list, val: list, out: Path) 
         out,
         config,
         resume=args.resume,
-        log=lambda text: print(as_flags(text)),
+        log=lambda text: print(as_flags(text)),  # progress on stdout, notes on stderr as other notes
         backbone_module=backbone,
         overwrite=args.overwrite,
+        note=note,
     )
     best = result.history[result.best_epoch - 1] if 0 < result.best_epoch <= len(result.history) else None
     if not held_out or best is None:

@@ -508,11 +508,14 @@ def train_segmenter(
     log: Callable[[str], None] | None = print,
     backbone_module=None,
     overwrite: bool = False,
+    note: Callable[[str], None] | None = None,
 ) -> TrainResult:
     """Train a head on ``train`` (validated on ``val``, may be empty); save it in ``out_dir`` (module
     docstring). ``backbone``: ``"mobilenetv2"`` or ``"dinov3:DIR"`` (``segmenter.parse_backbone_spec``);
     ``backbone_module`` reuses an already built backbone of that kind. An ``out_dir`` holding a head is
-    refused unless ``resume`` or ``overwrite`` (``check_out_dir``)."""
+    refused unless ``resume`` or ``overwrite`` (``check_out_dir``). ``log`` takes the progress lines (the
+    classes and input, each epoch), ``note`` the notes (classes without a labelled pixel); without
+    ``note`` they go to ``log`` as ``note: ...``."""
     cfg = config or TrainConfig()
     cfg.check()
     if not train:
@@ -552,9 +555,9 @@ def train_segmenter(
         }
     else:
         classes = check_classes(cfg.classes) if cfg.classes else default_classes(train)
-        note = check_classes_labelled(train, classes)
-        if note is not None:
-            say(f"note: {note}")
+        unlabelled = check_classes_labelled(train, classes)
+        if unlabelled is not None:
+            (note or (lambda text: say(f"note: {text}")))(unlabelled)
         size = None
         head_params = dict(cfg.head_params)
     seg = new_segmenter(
