@@ -351,19 +351,9 @@ def prepare_output(out_dir: Path, config: dict, overwrite: bool = False) -> dict
     mismatch = None
     old = None
     if run_file.exists() and not overwrite:  # --overwrite starts again: the old run.json is not read
-        data = read_run_file(run_file)
-        try:
-            old = json.loads(data.decode("utf-8"))
-        except UnicodeDecodeError as exc:
-            raise read_error(run_file, exc, RUN_FILE) from exc
-        except ValueError as exc:
-            old = None
-            mismatch = f"its {RUN_FILE} is not JSON ({exc})"
-        if mismatch is None and not isinstance(old, dict):  # JSON null too: None means "starts here"
-            old, mismatch = None, f"its {RUN_FILE} is not a JSON object"
-        if isinstance(old, dict):
-            recorded = {k: v for k, v in config.items() if k in old or k not in ADDED_KEYS}
-            differ = differing_settings(_reasons_aside(old), _reasons_aside(recorded))
+        old, mismatch = _read_old_run(run_file)
+        if old is not None:
+            differ = _settings_differ(old, config)
             if not differ and old.get(SKIPPED_KEY) != config.get(SKIPPED_KEY):  # the same photos, reworded
                 old = {**old, SKIPPED_KEY: config.get(SKIPPED_KEY)}
                 write_atomic(run_file, json.dumps(old, indent=2) + "\n")
@@ -397,18 +387,34 @@ def check_resumable(out_dir: Path, config: dict) -> None:
         if results.exists():
             raise _mismatch_error(out_dir, f"it has a {RESULTS_FILE} but no {RUN_FILE}")
         return
+    old, mismatch = _read_old_run(run_file)
+    if mismatch is not None:
+        raise _mismatch_error(out_dir, mismatch)
+    differ = _settings_differ(old, config)
+    begun = not results.is_file() or holds_rows(results)  # no query finished: started again, not refused
+    if differ and begun and not _only_the_query_count(old, differ):
+        raise _mismatch_error(out_dir, _differ_phrase(differ))
+
+
+def _read_old_run(run_file: Path) -> tuple[dict | None, str | None]:
+    """(the ``run.json`` at ``run_file``, None) or (None, why it is another run's: no JSON, no object);
+    ``read_error`` when it cannot be read at all. Shared by ``prepare_output`` and ``check_resumable``."""
     try:
         old = json.loads(read_run_file(run_file).decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise read_error(run_file, exc, RUN_FILE) from exc
     except ValueError as exc:
-        raise _mismatch_error(out_dir, f"its {RUN_FILE} is not JSON ({exc})") from None
-    if not isinstance(old, dict):
-        raise _mismatch_error(out_dir, f"its {RUN_FILE} is not a JSON object")
-    differ = differing_settings(_reasons_aside(old), _reasons_aside(config))
-    begun = not results.is_file() or holds_rows(results)  # no query finished: started again, not refused
-    if differ and begun and not _only_the_query_count(old, differ):
-        raise _mismatch_error(out_dir, _differ_phrase(differ))
+        return None, f"its {RUN_FILE} is not JSON ({exc})"
+    if not isinstance(old, dict):  # JSON null too: None means "starts here"
+        return None, f"its {RUN_FILE} is not a JSON object"
+    return old, None
+
+
+def _settings_differ(old: dict, config: dict) -> list[str]:
+    """The settings ``config`` differs from the resumed run's ``old`` in (``differing_settings``; the
+    skipped photos' reasons aside, and keys added since ``old`` was written, ``ADDED_KEYS``, not counted)."""
+    recorded = {k: v for k, v in config.items() if k in old or k not in ADDED_KEYS}
+    return differing_settings(_reasons_aside(old), _reasons_aside(recorded))
 
 
 def _differ_phrase(differ: list[str]) -> str:

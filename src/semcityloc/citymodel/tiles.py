@@ -445,10 +445,7 @@ class TileStore:
         store = cls(root, index, tile_of, bbox, ring, budget_mb)
         missing = [f"{t.npz} of {t.name}" for t in store.tiles if not (root / t.npz).is_file()]
         if missing:
-            raise InputFileError(
-                f"{root}: a damaged tile store: {counted(len(missing), 'tile file')} missing "
-                f"({shown_names(missing)}); build it again with {parameter('store_again')}"
-            )
+            raise _damaged(root, f"{counted(len(missing), 'tile file')} missing ({shown_names(missing)})")
         return store
 
     def __getstate__(self) -> dict:
@@ -524,17 +521,11 @@ class TileStore:
     def _read_tile(self, index: int) -> CityModel:
         tile = self.tiles[index]
         if not (self.root / tile.npz).is_file():  # removed since the store was opened
-            raise InputFileError(
-                f"{self.root}: a damaged tile store: tile file {tile.npz} of {tile.name} is missing; build "
-                f"it again with {parameter('store_again')}"
-            )
+            raise _damaged(self.root, f"tile file {tile.npz} of {tile.name} is missing")
         try:
             model = CityModel.load_npz(self.root / tile.npz)
         except InputFileError as exc:
-            raise InputFileError(
-                f"{self.root}: a damaged tile store: tile {tile.name}: {exc}; build it again with "
-                f"{parameter('store_again')}"
-            ) from exc
+            raise _damaged(self.root, f"tile {tile.name}: {exc}") from exc
         if not np.array_equal(model.origin, self.origin):
             raise InputFileError(f"{self.root}: tile {self.tiles[index].name} is not in the store's origin")
         return model
@@ -623,6 +614,12 @@ def open_store(path: str | Path, lod: int | str | None = None, crs: str | None =
         built = store.index.get("crs_override") or (store.crs.name if store.crs is not None else None)
         raise _built_with(path, f"crs={built}", parameter("store_crs", crs))
     return store
+
+
+def _damaged(root: Path, what: str) -> InputFileError:
+    """A store whose files no longer match its index: what is wrong, and the command that builds it again."""
+    again = parameter("store_again")
+    return InputFileError(f"{root}: a damaged tile store: {what}; build it again with {again}")
 
 
 def check_store_lod(store: TileStore, lod: int | str | None, path: str | Path | None = None) -> None:

@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -57,7 +56,7 @@ from semcityloc.benchmark.runfiles import OVERLAYS_DIR, kept_note, remove_stale_
 from semcityloc.citymodel.pose_crs import check_camera_near_model
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args
-from semcityloc.cli.outputs import check_outputs
+from semcityloc.cli.outputs import check_outputs, same_file
 from semcityloc.datasets.photos import (
     APPROXIMATE_INTRINSICS_NOTE,
     INTRINSICS_35MM,
@@ -149,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     maps = label_maps_beside_photos(images)
     if maps:  # into the photos' own folder: this command's kept label maps (``_run_locked`` says so)
         images = [i for i in images if i not in maps]
-        if not all(_same_file(m, out / m.name) for m in maps):
+        if not all(same_file(m, out / m.name) for m in maps):
             what = (
                 "is a label map beside a photo of its name, not a photo"
                 if len(maps) == 1
@@ -165,14 +164,6 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     with run_lock(out):  # one run at a time writes a folder, as ``run`` and ``benchmark``
         return _run_locked(args, images, out)
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    """Whether ``a`` and ``b`` are one existing file."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def _run_locked(args: argparse.Namespace, images: list[Path], out: Path) -> int:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -16,7 +15,7 @@ from semcityloc.citymodel.model import crs_label
 from semcityloc.citymodel.pose_crs import read_pose_world
 from semcityloc.classes import IGNORE
 from semcityloc.cli.city import add_model_arguments, load_model_from_args, print_model_warnings
-from semcityloc.cli.outputs import check_outputs
+from semcityloc.cli.outputs import check_outputs, same_file
 from semcityloc.cli.pose_input import add_pose_name_argument, photo_name, read_lens_for_photo
 from semcityloc.datasets.geodesy import check_model_in_crs
 from semcityloc.datasets.photos import (
@@ -320,7 +319,7 @@ def remove_unwritten(out: Path, written: tuple[str, ...], inputs: list) -> list[
         path = out / name
         if name in written or not path.is_file():
             continue
-        if any(value and Path(value).exists() and os.path.samefile(value, path) for value in inputs):
+        if any(value and same_file(value, path) for value in inputs):
             continue
         path.unlink()
         removed.append(name)

@@ -70,6 +70,13 @@ def _file_key(path: Path) -> tuple[int, int] | None:
     return (st.st_dev, st.st_ino)
 
 
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether ``a`` and ``b`` are one existing file (also through a link or another spelling of its
+    path)."""
+    key = _file_key(Path(a))
+    return key is not None and key == _file_key(Path(b))
+
+
 def check_outputs(
     outputs: Iterable[tuple[str, Path]], inputs: Iterable[str | os.PathLike | None], flag: str = "--out"
 ) -> None:
