@@ -399,8 +399,9 @@ def check_resumable(out_dir: Path, config: dict) -> None:
 def _read_old_run(run_file: Path) -> tuple[dict | None, str | None]:
     """(the ``run.json`` at ``run_file``, None) or (None, why it is another run's: no JSON, no object);
     ``read_error`` when it cannot be read at all. Shared by ``prepare_output`` and ``check_resumable``."""
+    data = read_run_file(run_file)  # its own one-line error when unreadable (no permission, a folder)
     try:
-        old = json.loads(read_run_file(run_file).decode("utf-8"))
+        old = json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise read_error(run_file, exc, RUN_FILE) from exc
     except ValueError as exc:
